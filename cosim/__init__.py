@@ -1,0 +1,1 @@
+"""Composition root: co-simulation master, scenario runner, CLI and results."""

@@ -1,0 +1,4 @@
+"""Entry point for ``python -m cosim``."""
+from cosim.cli import main
+
+raise SystemExit(main())

@@ -1,0 +1,1 @@
+"""Geometric calibration and dynamic parameter identification."""

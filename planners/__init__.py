@@ -1,0 +1,1 @@
+"""Trajectory planners: own time/energy-optimal CP and PtP, TOPP-RA and Ruckig baselines."""
