@@ -1,0 +1,240 @@
+"""The planner interface and the plain-data problem, limit and result types.
+
+A planner is a small class with a ``name`` and a ``plan(problem) -> PlanResult``
+method. Every planner of this package (own CP/PtP, TOPP-RA, Ruckig) implements it,
+so a user can add their own planner and compare it in the same scenario:
+
+>>> class MyPlanner(Planner):
+...     name = "mine"
+...     def plan(self, problem):
+...         ...                      # build a Trajectory
+...         return PlanResult(status=PlanStatus.FEASIBLE, trajectory=traj, solve_time_s=dt)
+
+Units: SI, joint side (rad, rad/s, rad/s^2, rad/s^3, N m, N m/s).
+"""
+from __future__ import annotations
+
+import abc
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from enum import Enum
+from typing import Any, Literal
+
+import numpy as np
+
+from planners.trajectory import Trajectory
+from robot.parameters import load_parameters
+
+N_JOINTS = 6
+LIMIT_KINDS: tuple[str, ...] = ("velocity", "acceleration", "jerk", "torque", "torque_rate")
+FrictionModel = Literal["full", "coulomb", "none"]
+
+
+class PlannerInputError(ValueError):
+    """A planner problem or argument is malformed (wrong shape, negative limit, ...)."""
+
+
+class PlanStatus(str, Enum):
+    """Outcome of a planning request.
+
+    OPTIMAL: a solver certified optimality (for IPOPT only "Solve_Succeeded").
+    FEASIBLE: a trajectory is returned that the planner believes respects the limits,
+        but optimality is not certified (e.g. TOPP-RA's greedy pass, IPOPT "Solved To
+        Acceptable Level", Ruckig).
+    INFEASIBLE: the request cannot be met (e.g. a boundary state outside the limits,
+        TOPP-RA found no controllable path).
+    FAILED: the solver stopped without a usable answer (iteration limit, restoration
+        failure, exception).
+    """
+
+    OPTIMAL = "optimal"
+    FEASIBLE = "feasible"
+    INFEASIBLE = "infeasible"
+    FAILED = "failed"
+
+    @property
+    def has_trajectory(self) -> bool:
+        return self in (PlanStatus.OPTIMAL, PlanStatus.FEASIBLE)
+
+
+def _as_joint_vector(value: Any, name: str, allow_inf: bool = True) -> np.ndarray:
+    arr = np.asarray(value, dtype=float)
+    if arr.ndim == 0:
+        arr = np.full(N_JOINTS, float(arr))
+    if arr.shape != (N_JOINTS,):
+        raise PlannerInputError(f"{name}: expected {N_JOINTS} values (one per joint), got shape {arr.shape}")
+    if np.any(np.isnan(arr)) or (not allow_inf and not np.all(np.isfinite(arr))):
+        raise PlannerInputError(f"{name}: expected finite numbers, got {arr.tolist()}")
+    return arr
+
+
+@dataclass(frozen=True)
+class JointLimits:
+    """Symmetric joint limits (|value| <= limit) plus the position range, joint side.
+
+    velocity [rad/s], acceleration [rad/s^2], jerk [rad/s^3], torque [N m],
+    torque_rate [N m/s], position_lower/position_upper [rad]. ``math.inf`` switches a
+    limit off (e.g. ``limits.replace(jerk=inf, torque_rate=inf)`` for a problem that
+    TOPP-RA can represent). Use :meth:`from_robot` for the RX130L values
+    (URDF: position, velocity, effort; rx130l_params.toml [limits]: acceleration,
+    jerk, torque_rate).
+    """
+
+    velocity: np.ndarray
+    acceleration: np.ndarray
+    jerk: np.ndarray
+    torque: np.ndarray
+    torque_rate: np.ndarray
+    position_lower: np.ndarray = field(default_factory=lambda: np.full(N_JOINTS, -math.inf))
+    position_upper: np.ndarray = field(default_factory=lambda: np.full(N_JOINTS, math.inf))
+
+    def __post_init__(self) -> None:
+        for name in LIMIT_KINDS:
+            arr = _as_joint_vector(getattr(self, name), f"JointLimits.{name}")
+            if np.any(arr <= 0.0):
+                raise PlannerInputError(f"JointLimits.{name}: expected positive limits, got {arr.tolist()}")
+            object.__setattr__(self, name, arr)
+        lo = _as_joint_vector(self.position_lower, "JointLimits.position_lower")
+        hi = _as_joint_vector(self.position_upper, "JointLimits.position_upper")
+        if np.any(lo >= hi):
+            raise PlannerInputError(
+                f"JointLimits: position_lower {lo.tolist()} must be below position_upper {hi.tolist()}"
+            )
+        object.__setattr__(self, "position_lower", lo)
+        object.__setattr__(self, "position_upper", hi)
+
+    def replace(self, **changes: Any) -> "JointLimits":
+        """Return a copy with some limits replaced (scalars apply to all joints)."""
+        return dataclasses.replace(self, **changes)
+
+    def scaled(self, factor: float, kinds: tuple[str, ...] = ("velocity", "acceleration", "jerk")) -> "JointLimits":
+        """Return a copy with the named limits multiplied by ``factor`` (> 0)."""
+        if not factor > 0.0:
+            raise PlannerInputError(f"JointLimits.scaled: factor must be > 0, got {factor!r}")
+        return self.replace(**{k: getattr(self, k) * factor for k in kinds})
+
+    def active(self, kind: str) -> bool:
+        """True when at least one joint has a finite limit of this kind."""
+        return bool(np.any(np.isfinite(getattr(self, kind))))
+
+    @classmethod
+    def from_robot(cls, params: Any | None = None) -> "JointLimits":
+        """The RX130L limits from the robot description (URDF + rx130l_params.toml).
+
+        ``params`` is a ``robot.parameters.RobotParameters``; by default the nominal file.
+        """
+        params = params or load_parameters()
+        return cls(
+            velocity=np.array(params.velocity_limit),
+            acceleration=np.array(params.acceleration_limit),
+            jerk=np.array(params.jerk_limit),
+            torque=np.array(params.effort_limit),
+            torque_rate=np.array(params.torque_rate_limit),
+            position_lower=np.array(params.position_lower),
+            position_upper=np.array(params.position_upper),
+        )
+
+
+@dataclass(frozen=True)
+class CPProblem:
+    """A continuous-path request: move along a fixed joint path q(sigma), sigma in [0, 1].
+
+    path: a ``planners.paths.JointPath`` (joint positions and sigma-derivatives).
+    limits: the joint limits to respect.
+    dynamics: the ``robot.dynamics.RobotDynamics`` that turns motion into torques
+        (``None``: the nominal robot).
+    k1, k2: weights of the cost  integral (k1 + k2 tau^T tau) dt  (eq. 36);
+        k1 = 1, k2 = 0 is time-optimal.
+    friction: which friction terms enter the torque: "full" (Coulomb + viscous),
+        "coulomb" (Coulomb only: exactly representable in TOPP-RA) or "none".
+    n_intervals: number of sigma intervals of the transcription.
+    """
+
+    path: Any
+    limits: JointLimits
+    dynamics: Any = None
+    k1: float = 1.0
+    k2: float = 0.0
+    friction: FrictionModel = "full"
+    n_intervals: int = 200
+
+    def __post_init__(self) -> None:
+        if self.friction not in ("full", "coulomb", "none"):
+            raise PlannerInputError(
+                f"CPProblem.friction: expected 'full', 'coulomb' or 'none', got {self.friction!r}"
+            )
+        if not (self.k1 >= 0.0 and self.k2 >= 0.0 and self.k1 + self.k2 > 0.0):
+            raise PlannerInputError(f"CPProblem: k1, k2 must be >= 0 and not both 0, got k1={self.k1}, k2={self.k2}")
+        if int(self.n_intervals) < 2:
+            raise PlannerInputError(f"CPProblem.n_intervals: expected an integer >= 2, got {self.n_intervals!r}")
+
+
+@dataclass(frozen=True)
+class PtPProblem:
+    """A point-to-point request: from (q0, qd0) to (qe, qde), free path and final time.
+
+    Joint vectors of shape (6,) in rad and rad/s; the other fields as in CPProblem.
+    """
+
+    q0: np.ndarray
+    qe: np.ndarray
+    limits: JointLimits
+    qd0: np.ndarray = field(default_factory=lambda: np.zeros(N_JOINTS))
+    qde: np.ndarray = field(default_factory=lambda: np.zeros(N_JOINTS))
+    dynamics: Any = None
+    k1: float = 1.0
+    k2: float = 0.0
+    friction: FrictionModel = "full"
+    n_intervals: int = 100
+
+    def __post_init__(self) -> None:
+        for name in ("q0", "qe", "qd0", "qde"):
+            object.__setattr__(self, name, _as_joint_vector(getattr(self, name), f"PtPProblem.{name}", allow_inf=False))
+        if self.friction not in ("full", "coulomb", "none"):
+            raise PlannerInputError(
+                f"PtPProblem.friction: expected 'full', 'coulomb' or 'none', got {self.friction!r}"
+            )
+        if not (self.k1 >= 0.0 and self.k2 >= 0.0 and self.k1 + self.k2 > 0.0):
+            raise PlannerInputError(f"PtPProblem: k1, k2 must be >= 0 and not both 0, got k1={self.k1}, k2={self.k2}")
+
+
+@dataclass
+class PlanResult:
+    """What a planner returns.
+
+    status: see PlanStatus; ``trajectory`` is None unless status.has_trajectory.
+    solve_time_s: wall time of the solver call(s) [s] (problem building excluded;
+        see ``build_time_s``).
+    message: the solver's own status text (e.g. IPOPT's "Solve_Succeeded").
+    info: planner-specific extras (iterations, cost, grid values, ...).
+    """
+
+    planner: str
+    status: PlanStatus
+    trajectory: Trajectory | None
+    solve_time_s: float
+    build_time_s: float = 0.0
+    message: str = ""
+    info: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def ok(self) -> bool:
+        return self.status.has_trajectory and self.trajectory is not None
+
+
+class Planner(abc.ABC):
+    """Interface of every trajectory planner: ``plan(problem) -> PlanResult``.
+
+    ``kind`` says which problem type the planner accepts ("cp" for CPProblem,
+    "ptp" for PtPProblem). A planner never raises for a request that simply cannot
+    be met; it returns a PlanResult whose status says so. It raises
+    PlannerInputError (a ValueError) for malformed input.
+    """
+
+    name: str = "planner"
+    kind: Literal["cp", "ptp"] = "cp"
+
+    @abc.abstractmethod
+    def plan(self, problem: CPProblem | PtPProblem) -> PlanResult:
+        """Plan a trajectory for ``problem``."""
