@@ -312,11 +312,12 @@ def constraint_ratios(
     for kind, val in values.items():
         lim = np.asarray(getattr(limits, kind), dtype=float)
         out[kind] = np.max(val, axis=0) / lim
-    half = 0.5 * (limits.position_upper - limits.position_lower)
-    mid = 0.5 * (limits.position_upper + limits.position_lower)
-    with np.errstate(invalid="ignore"):
-        excursion = np.max(np.abs(r.q - mid), axis=0) / half
-    out["position"] = np.where(np.isfinite(half), excursion, 0.0)
+    lower, upper = np.asarray(limits.position_lower), np.asarray(limits.position_upper)
+    bounded = np.isfinite(lower) & np.isfinite(upper)
+    lower, upper = np.where(bounded, lower, -1.0), np.where(bounded, upper, 1.0)
+    half, mid = 0.5 * (upper - lower), 0.5 * (upper + lower)
+    excursion = np.max(np.abs(r.q - mid), axis=0) / half
+    out["position"] = np.where(bounded, excursion, 0.0)
     return out
 
 
