@@ -162,7 +162,7 @@ class RobotDynamics:
             link = folded[10 * (j - 1): 10 * j]
             if not link[0] > 0.0:
                 raise DynamicParameterError(
-                    f"parameter_vector: mass of link {j} ({PARAMETER_NAMES[10 * (j - 1)]}) = {link[0]!r}, "
+                    f"parameter_vector: mass of link {j} ({PARAMETER_NAMES[10 * (j - 1)]}) = {float(link[0])!r}, "
                     "expected > 0 (pinocchio needs a positive mass per link)"
                 )
             self.model.inertias[j] = pin.Inertia.FromDynamicParameters(link)
