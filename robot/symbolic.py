@@ -16,7 +16,7 @@ is folded into link 6 symbolically. ``v_s`` and gravity are constants.
 
 Why ABA for forward dynamics: it is O(n) and needs only one scalar division per
 joint, while ``M \\ b`` needs a CRBA, an RNEA and a symbolic 6x6 factorisation; on
-this arm the ABA expression has fewer operations (see ``benchmarks/symbolic_dynamics.py``)
+this arm the ABA expression has fewer operations (see ``benchmarks/bench_dynamics.py``)
 and its generated C is a straight line of multiply-adds with six divisions.
 
 The functions have fixed names and input/output order (a contract with the plant FMU):
