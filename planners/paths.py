@@ -38,7 +38,8 @@ from numpy.typing import ArrayLike
 from scipy.interpolate import CubicHermiteSpline, CubicSpline
 from scipy.spatial.transform import Rotation
 
-from robot.kinematics import FlangeKinematics, as_rotation_matrix, rotation_from_cardan
+from robot.inverse_kinematics import AnalyticIK, UnreachablePoseError
+from robot.kinematics import FlangeKinematics, KinematicsInputError, as_rotation_matrix, rotation_from_cardan
 
 N_JOINTS = 6
 
@@ -47,7 +48,7 @@ class PathError(ValueError):
     """A path definition or a path request is malformed."""
 
 
-class PathUnreachableError(PathError):
+class PathUnreachableError(PathError, UnreachablePoseError):
     """A path point is out of the arm's reach (or outside the joint limits)."""
 
 
@@ -449,14 +450,30 @@ def _twist_rate(kin: FlangeKinematics, q: np.ndarray, dq: np.ndarray) -> np.ndar
 
 def solve_start_configuration(path: CartesianPath, q_hint: ArrayLike,
                               kinematics: FlangeKinematics | None = None) -> np.ndarray:
-    """Joint angles [rad] of the path start on the branch nearest ``q_hint`` (6,)."""
+    """Joint angles [rad] of the path start on the IK branch nearest ``q_hint`` (6,).
+
+    Uses robot.inverse_kinematics.AnalyticIK on the nominal arm (all branches, the
+    nearest to the hint), damped Newton from the hint on other models.
+    """
     kin = kinematics or FlangeKinematics()
     start = path.evaluate([0.0])
-    q, err = _newton_ik(kin, start.transforms[0], np.asarray(q_hint, dtype=float), max_iter=200, max_step=0.2)
+    hint = np.asarray(q_hint, dtype=float)
+    if hint.shape != (N_JOINTS,) or not np.all(np.isfinite(hint)):
+        raise PathError(f"q_start: expected 6 finite joint angles in rad, got {np.asarray(q_hint).tolist()!r}")
+    try:
+        analytic = AnalyticIK(kin.model)
+    except KinematicsInputError:
+        analytic = None
+    if analytic is not None:
+        try:
+            return analytic.nearest(start.transforms[0], hint)
+        except UnreachablePoseError as exc:
+            raise PathUnreachableError(f"path start {_where(0.0, start.position[0])}: {exc}") from exc
+    q, err = _newton_ik(kin, start.transforms[0], hint, max_iter=200, max_step=0.2)
     if err > 1e-8:
         raise PathUnreachableError(
-            f"path start {start.position[0].round(4).tolist()} m: inverse kinematics did not converge from "
-            f"q_hint {np.round(q_hint, 3).tolist()} (pose error {err:.3g}); the pose is out of reach or the "
+            f"path start {_where(0.0, start.position[0])}: inverse kinematics did not converge from "
+            f"q_start {np.round(hint, 3).tolist()} (pose error {err:.3g}); the pose is out of reach or the "
             "hint is on no branch that reaches it"
         )
     return q

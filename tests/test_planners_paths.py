@@ -96,3 +96,10 @@ def test_bad_path_definitions_raise_value_errors():
         LinePath([1, 0, 1], [1, 1, 1], TOOL_FORWARD).evaluate([1.5])
     with pytest.raises(PathError, match="orthogonal"):
         rectangle_path([1, 0, 1], [0, 1, 0], [0, 1, 1], TOOL_FORWARD)
+
+
+def test_start_out_of_reach_is_also_the_robot_packages_unreachable_error():
+    from robot.inverse_kinematics import UnreachablePoseError
+
+    with pytest.raises(UnreachablePoseError, match="out of reach"):
+        joint_path(LinePath([2.5, 0.0, 1.0], [2.5, 0.5, 1.0], TOOL_FORWARD), Q_HINT, n_grid=11)
