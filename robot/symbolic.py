@@ -45,6 +45,7 @@ from robot.dynamics import (
     COULOMB_SLICE, N_JOINTS, N_PARAMETERS, ROTOR_INERTIA_SLICE, VISCOUS_SLICE, DynamicParameterError,
     nominal_parameter_vector,
 )
+from robot import spatial_lists as sp
 from robot.parameters import RobotParameters, load_parameters
 
 FORWARD_DYNAMICS_NAME = "rx130l_fd"
@@ -124,98 +125,6 @@ def _clean(array: np.ndarray, tol: float = 1e-15) -> np.ndarray:
 
 
 # ----------------------------------------------------------------------------------
-# 3-vector helpers: every vector is a list of 3 scalars (SX/MX elements or floats), so
-# that numeric zeros and ones of the structure vanish from the expression graph.
-# ----------------------------------------------------------------------------------
-
-def _add(a: Sequence, b: Sequence) -> list:
-    return [_plus(x, y) for x, y in zip(a, b)]
-
-
-def _plus(x: Any, y: Any) -> Any:
-    if _is_zero(x):
-        return y
-    if _is_zero(y):
-        return x
-    return x + y
-
-
-def _times(x: Any, y: Any) -> Any:
-    if _is_zero(x) or _is_zero(y):
-        return 0.0
-    if _is_one(x):
-        return y
-    if _is_one(y):
-        return x
-    return x * y
-
-
-def _is_zero(x: Any) -> bool:
-    return isinstance(x, (float, int)) and x == 0
-
-
-def _is_one(x: Any) -> bool:
-    return isinstance(x, (float, int)) and x == 1
-
-
-def _dot(a: Sequence, b: Sequence) -> Any:
-    total: Any = 0.0
-    for x, y in zip(a, b):
-        total = _plus(total, _times(x, y))
-    return total
-
-
-def _cross(a: Sequence, b: Sequence) -> list:
-    return [
-        _plus(_times(a[1], b[2]), _neg(_times(a[2], b[1]))),
-        _plus(_times(a[2], b[0]), _neg(_times(a[0], b[2]))),
-        _plus(_times(a[0], b[1]), _neg(_times(a[1], b[0]))),
-    ]
-
-
-def _neg(x: Any) -> Any:
-    return 0.0 if _is_zero(x) else -x
-
-
-def _scale(s: Any, a: Sequence) -> list:
-    return [_times(s, x) for x in a]
-
-
-def _matvec(m: Sequence[Sequence], a: Sequence) -> list:
-    return [_dot(row, a) for row in m]
-
-
-def _matTvec(m: Sequence[Sequence], a: Sequence) -> list:
-    return [_dot([m[r][c] for r in range(3)], a) for c in range(3)]
-
-
-def _matmul(a: Sequence[Sequence], b: Sequence[Sequence]) -> list:
-    return [[_dot(a[r], [b[k][c] for k in range(3)]) for c in range(3)] for r in range(3)]
-
-
-def _numeric(matrix: np.ndarray) -> list:
-    return [[float(x) for x in row] for row in matrix] if matrix.ndim == 2 else [float(x) for x in matrix]
-
-
-def _axis_rotation(axis: np.ndarray, c: Any, s: Any) -> list:
-    """Rotation matrix about a unit ``axis`` (numeric) by an angle with cosine c, sine s."""
-    k = int(np.argmax(np.abs(axis)))
-    if abs(abs(axis[k]) - 1.0) < 1e-15:  # a (signed) unit axis: exact, no (1 - c) terms
-        sign = float(np.sign(axis[k]))
-        i, j = (k + 1) % 3, (k + 2) % 3
-        rot: list = [[0.0] * 3 for _ in range(3)]
-        rot[k][k] = 1.0
-        rot[i][i], rot[j][j] = c, c
-        rot[j][i], rot[i][j] = _times(sign, s), _neg(_times(sign, s))
-        return rot
-    a = [float(x) for x in axis]
-    one_minus_c = 1.0 - c
-    skew = [[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]]
-    return [[_plus(_plus(c if r == col else 0.0, _times(s, skew[r][col])), _times(one_minus_c, a[r] * a[col]))
-             for col in range(3)] for r in range(3)]
-
-
-# ----------------------------------------------------------------------------------
 # Link inertias from the parameter vector, payload folded into link 6
 # ----------------------------------------------------------------------------------
 
@@ -227,20 +136,16 @@ class _Body:
 
     def momentum(self, lin: Sequence, ang: Sequence) -> tuple[list, list]:
         """Spatial inertia times a motion (lin, ang): (m v + w x h, I w + h x v)."""
-        force = _add(_scale(self.mass, lin), _cross(ang, self.h))
-        torque = _add(_matvec(self.inertia, ang), _cross(self.h, lin))
+        force = sp.add(sp.scale(self.mass, lin), sp.cross(ang, self.h))
+        torque = sp.add(sp.matvec(self.inertia, ang), sp.cross(self.h, lin))
         return force, torque
 
     def matrix(self) -> list:
         """The 6x6 spatial inertia [[m 1, -[h]x], [[h]x, I]] as nested lists."""
-        hx = _skew(self.h)
-        top = [[self.mass if r == c else 0.0 for c in range(3)] + [_neg(hx[r][c]) for c in range(3)] for r in range(3)]
+        hx = sp.skew(self.h)
+        top = [[self.mass if r == c else 0.0 for c in range(3)] + [sp.neg(hx[r][c]) for c in range(3)] for r in range(3)]
         bottom = [[hx[r][c] for c in range(3)] + [self.inertia[r][c] for c in range(3)] for r in range(3)]
         return top + bottom
-
-
-def _skew(a: Sequence) -> list:
-    return [[0.0, _neg(a[2]), a[1]], [a[2], 0.0, _neg(a[0])], [_neg(a[1]), a[0], 0.0]]
 
 
 def _bodies(structure: ChainStructure, p: Expr, payload: Expr) -> list[_Body]:
@@ -250,14 +155,14 @@ def _bodies(structure: ChainStructure, p: Expr, payload: Expr) -> list[_Body]:
         bodies.append(_Body(m, [hx, hy, hz], [[ixx, ixy, ixz], [ixy, iyy, iyz], [ixz, iyz, izz]]))
     mass = payload[0]
     com_tool = [payload[1], payload[2], payload[3]]
-    com = _add(_matvec(_numeric(structure.flange_rotation), com_tool), _numeric(structure.flange_translation))
-    h = _scale(mass, com)  # payload first moment in the joint-6 frame
-    squared = _dot(com, com)
+    com = sp.add(sp.matvec(sp.numeric(structure.flange_rotation), com_tool), sp.numeric(structure.flange_translation))
+    h = sp.scale(mass, com)  # payload first moment in the joint-6 frame
+    squared = sp.dot(com, com)
     last = bodies[-1]
-    last.mass = _plus(last.mass, mass)
-    last.h = _add(last.h, h)
-    last.inertia = [[_plus(last.inertia[r][c],
-                           _plus(_times(mass, squared) if r == c else 0.0, _neg(_times(h[r], com[c]))))
+    last.mass = sp.plus(last.mass, mass)
+    last.h = sp.add(last.h, h)
+    last.inertia = [[sp.plus(last.inertia[r][c],
+                           sp.plus(sp.times(mass, squared) if r == c else 0.0, sp.neg(sp.times(h[r], com[c]))))
                      for c in range(3)] for r in range(3)]
     return bodies
 
@@ -272,20 +177,9 @@ def _joint_transforms(structure: ChainStructure, q: Expr) -> list[tuple[list, li
     """(R, t) of each joint frame in its parent frame at configuration q."""
     out = []
     for i in range(N_JOINTS):
-        rot_q = _axis_rotation(structure.axes[i], ca.cos(q[i]), ca.sin(q[i]))
-        out.append((_matmul(_numeric(structure.rotations[i]), rot_q), _numeric(structure.translations[i])))
+        rot_q = sp.axis_rotation(structure.axes[i], ca.cos(q[i]), ca.sin(q[i]))
+        out.append((sp.matmul(sp.numeric(structure.rotations[i]), rot_q), sp.numeric(structure.translations[i])))
     return out
-
-
-def _motion_to_child(rot: list, t: list, lin: Sequence, ang: Sequence) -> tuple[list, list]:
-    """Motion (lin, ang) of the parent frame expressed in the child frame."""
-    return _matTvec(rot, _add(lin, _cross(ang, t))), _matTvec(rot, ang)
-
-
-def _force_to_parent(rot: list, t: list, force: Sequence, torque: Sequence) -> tuple[list, list]:
-    """Force (force, torque) on the child frame expressed in the parent frame."""
-    f_parent = _matvec(rot, force)
-    return f_parent, _add(_matvec(rot, torque), _cross(t, f_parent))
 
 
 # ----------------------------------------------------------------------------------
@@ -298,95 +192,42 @@ def inverse_dynamics_expression(structure: ChainStructure, q: Expr, qd: Expr, qd
     """RNEA: the 6 joint torques (N m) as a list of scalar expressions."""
     bodies = _bodies(structure, p, payload)
     transforms = _joint_transforms(structure, q)
-    base_acc = _scale(-1.0, _numeric(structure.gravity)) if include_gravity else [0.0] * 3
+    base_acc = sp.scale(-1.0, sp.numeric(structure.gravity)) if include_gravity else [0.0] * 3
     vel: list = []
     acc: list = []
     forces: list = []
     for i in range(N_JOINTS):
         rot, t = transforms[i]
-        axis = _numeric(structure.axes[i])
+        axis = sp.numeric(structure.axes[i])
         parent = structure.parents[i]
         v_p, w_p = vel[parent] if parent >= 0 else ([0.0] * 3, [0.0] * 3)
         a_p, aw_p = acc[parent] if parent >= 0 else (base_acc, [0.0] * 3)
-        v, w = _motion_to_child(rot, t, v_p, w_p)
-        joint_rate = _scale(qd[i], axis)
-        w = _add(w, joint_rate)
-        a, aw = _motion_to_child(rot, t, a_p, aw_p)
-        a = _add(a, _cross(v, joint_rate))
-        aw = _add(_add(aw, _scale(qdd[i], axis)), _cross(w, joint_rate))
+        v, w = sp.motion_to_child(rot, t, v_p, w_p)
+        joint_rate = sp.scale(qd[i], axis)
+        w = sp.add(w, joint_rate)
+        a, aw = sp.motion_to_child(rot, t, a_p, aw_p)
+        a = sp.add(a, sp.cross(v, joint_rate))
+        aw = sp.add(sp.add(aw, sp.scale(qdd[i], axis)), sp.cross(w, joint_rate))
         vel.append((v, w))
         acc.append((a, aw))
         body = bodies[i]
         f, n = body.momentum(a, aw)
         pl, pa = body.momentum(v, w)
-        forces.append([_add(f, _cross(w, pl)), _add(_add(n, _cross(w, pa)), _cross(v, pl))])
+        forces.append([sp.add(f, sp.cross(w, pl)), sp.add(sp.add(n, sp.cross(w, pa)), sp.cross(v, pl))])
     tau: list = [None] * N_JOINTS
     friction = _friction(structure, p, qd) if include_friction else [0.0] * N_JOINTS
     rotor = p[ROTOR_INERTIA_SLICE]
     for i in reversed(range(N_JOINTS)):
         f, n = forces[i]
-        tau[i] = _plus(_dot(_numeric(structure.axes[i]), n), friction[i])
+        tau[i] = sp.plus(sp.dot(sp.numeric(structure.axes[i]), n), friction[i])
         if include_rotor:
-            tau[i] = _plus(tau[i], rotor[i] * qdd[i])
+            tau[i] = sp.plus(tau[i], rotor[i] * qdd[i])
         parent = structure.parents[i]
         if parent >= 0:
             rot, t = transforms[i]
-            f_par, n_par = _force_to_parent(rot, t, f, n)
-            forces[parent] = [_add(forces[parent][0], f_par), _add(forces[parent][1], n_par)]
+            f_par, n_par = sp.force_to_parent(rot, t, f, n)
+            forces[parent] = [sp.add(forces[parent][0], f_par), sp.add(forces[parent][1], n_par)]
     return tau
-
-
-# ----------------------------------------------------------------------------------
-# 6x6 spatial helpers for ABA and CRBA (nested lists of scalars)
-# ----------------------------------------------------------------------------------
-
-def _rotate_block(rot: list, block: list, symmetric: bool) -> list:
-    """R B R^T of a 3x3 block (only the upper triangle is computed when symmetric)."""
-    left = _matmul(rot, block)
-    out: list = [[0.0] * 3 for _ in range(3)]
-    for r in range(3):
-        for c in range(r if symmetric else 0, 3):
-            out[r][c] = _dot(left[r], rot[c])
-            if symmetric:
-                out[c][r] = out[r][c]
-    return out
-
-
-def _congruence(rot: list, t: list, inertia: list) -> list:
-    """X* I X*^T: a symmetric 6x6 inertia moved from the child to the parent frame.
-
-    X* = [[1, 0], [T, 1]] [[R, 0], [0, R]] with T = [t]x: rotate the three 3x3 blocks,
-    then shift by t, so the symbolic rotation and the constant offset never multiply.
-    """
-    a = _rotate_block(rot, [row[:3] for row in inertia[:3]], True)
-    b = _rotate_block(rot, [row[3:] for row in inertia[:3]], False)
-    c = _rotate_block(rot, [row[3:] for row in inertia[3:]], True)
-    skew = _skew(t)
-    ta = _matmul(skew, a)  # T A
-    top_right = [[_plus(b[r][k], ta[k][r]) for k in range(3)] for r in range(3)]  # B + A T^T = B + (T A)^T
-    tb = _matmul(skew, top_right)  # T (B + A T^T)
-    bottom_right: list = [[0.0] * 3 for _ in range(3)]
-    for r in range(3):
-        for k in range(r, 3):
-            # T A T^T + T B + B^T T^T + C = T (B + A T^T) + (T B)^T + C
-            tb_only = _dot(skew[k], [b[j][r] for j in range(3)])  # (T B)[k][r]
-            bottom_right[r][k] = bottom_right[k][r] = _plus(_plus(tb[r][k], tb_only), c[r][k])
-    out = [a[r] + top_right[r] for r in range(3)]
-    out += [[top_right[k][r] for k in range(3)] + bottom_right[r] for r in range(3)]
-    return out
-
-
-def _force_to_parent6(rot: list, t: list, force: list) -> list:
-    f, n = _force_to_parent(rot, t, force[:3], force[3:])
-    return f + n
-
-
-def _mat6_vec(m: list, v: Sequence) -> list:
-    return [_dot(row, v) for row in m]
-
-
-def _spatial_axis(axis: np.ndarray) -> list:
-    return [0.0, 0.0, 0.0] + [float(x) for x in axis]
 
 
 # ----------------------------------------------------------------------------------
@@ -406,53 +247,53 @@ def forward_dynamics_expression(structure: ChainStructure, q: Expr, qd: Expr, ta
     art_bias: list = []
     for i in range(N_JOINTS):
         rot, t = transforms[i]
-        axis = _numeric(structure.axes[i])
+        axis = sp.numeric(structure.axes[i])
         parent = structure.parents[i]
         v_p, w_p = vel[parent] if parent >= 0 else ([0.0] * 3, [0.0] * 3)
-        v, w = _motion_to_child(rot, t, v_p, w_p)
-        joint_rate = _scale(qd[i], axis)
-        w = _add(w, joint_rate)
+        v, w = sp.motion_to_child(rot, t, v_p, w_p)
+        joint_rate = sp.scale(qd[i], axis)
+        w = sp.add(w, joint_rate)
         vel.append((v, w))
-        bias_acc.append(_cross(v, joint_rate) + _cross(w, joint_rate))
+        bias_acc.append(sp.cross(v, joint_rate) + sp.cross(w, joint_rate))
         body = bodies[i]
         pl, pa = body.momentum(v, w)
         art_inertia.append(body.matrix())
-        art_bias.append(_cross(w, pl) + _add(_cross(w, pa), _cross(v, pl)))
+        art_bias.append(sp.cross(w, pl) + sp.add(sp.cross(w, pa), sp.cross(v, pl)))
 
     u_col: list = [None] * N_JOINTS
     d_inv: list = [None] * N_JOINTS
     u_torque: list = [None] * N_JOINTS
     for i in reversed(range(N_JOINTS)):
-        s = _spatial_axis(structure.axes[i])
+        s = sp.spatial_axis(structure.axes[i])
         inertia = art_inertia[i]
-        u_col[i] = _mat6_vec(inertia, s)
-        d_inv[i] = 1.0 / _plus(_dot(s, u_col[i]), rotor[i])
-        u_torque[i] = tau[i] - friction[i] - _dot(s, art_bias[i])
+        u_col[i] = sp.mat6_vec(inertia, s)
+        d_inv[i] = 1.0 / sp.plus(sp.dot(s, u_col[i]), rotor[i])
+        u_torque[i] = tau[i] - friction[i] - sp.dot(s, art_bias[i])
         parent = structure.parents[i]
         if parent < 0:
             continue
-        scaled_col = _scale(d_inv[i], u_col[i])
+        scaled_col = sp.scale(d_inv[i], u_col[i])
         reduced: list = [[0.0] * 6 for _ in range(6)]
         for r in range(6):
             for c in range(r, 6):
-                reduced[r][c] = reduced[c][r] = _plus(inertia[r][c], _neg(_times(scaled_col[r], u_col[i][c])))
-        bias = _add(_add(art_bias[i], _mat6_vec(reduced, bias_acc[i])), _scale(u_torque[i], scaled_col))
+                reduced[r][c] = reduced[c][r] = sp.plus(inertia[r][c], sp.neg(sp.times(scaled_col[r], u_col[i][c])))
+        bias = sp.add(sp.add(art_bias[i], sp.mat6_vec(reduced, bias_acc[i])), sp.scale(u_torque[i], scaled_col))
         rot, t = transforms[i]
-        moved = _congruence(rot, t, reduced)
-        art_inertia[parent] = [[_plus(art_inertia[parent][r][c], moved[r][c]) for c in range(6)] for r in range(6)]
-        art_bias[parent] = _add(art_bias[parent], _force_to_parent6(rot, t, bias))
+        moved = sp.congruence(rot, t, reduced)
+        art_inertia[parent] = [[sp.plus(art_inertia[parent][r][c], moved[r][c]) for c in range(6)] for r in range(6)]
+        art_bias[parent] = sp.add(art_bias[parent], sp.force_to_parent6(rot, t, bias))
 
-    base_acc = _scale(-1.0, _numeric(structure.gravity)) + [0.0] * 3
+    base_acc = sp.scale(-1.0, sp.numeric(structure.gravity)) + [0.0] * 3
     acc: list = [None] * N_JOINTS
     qdd: list = [None] * N_JOINTS
     for i in range(N_JOINTS):
         rot, t = transforms[i]
         parent = structure.parents[i]
         a_par = acc[parent] if parent >= 0 else base_acc
-        lin, ang = _motion_to_child(rot, t, a_par[:3], a_par[3:])
-        a = _add(lin + ang, bias_acc[i])
-        qdd[i] = _times(_plus(u_torque[i], _neg(_dot(u_col[i], a))), d_inv[i])
-        acc[i] = _add(a, _scale(qdd[i], _spatial_axis(structure.axes[i])))
+        lin, ang = sp.motion_to_child(rot, t, a_par[:3], a_par[3:])
+        a = sp.add(lin + ang, bias_acc[i])
+        qdd[i] = sp.times(sp.plus(u_torque[i], sp.neg(sp.dot(u_col[i], a))), d_inv[i])
+        acc[i] = sp.add(a, sp.scale(qdd[i], sp.spatial_axis(structure.axes[i])))
     return qdd
 
 
@@ -468,17 +309,17 @@ def mass_matrix_expression(structure: ChainStructure, q: Expr, p: Expr, payload:
     rotor = p[ROTOR_INERTIA_SLICE]
     mass: list = [[0.0] * N_JOINTS for _ in range(N_JOINTS)]
     for i in reversed(range(N_JOINTS)):
-        force = _mat6_vec(composite[i], _spatial_axis(structure.axes[i]))
-        mass[i][i] = _plus(_dot(_spatial_axis(structure.axes[i]), force), rotor[i])
+        force = sp.mat6_vec(composite[i], sp.spatial_axis(structure.axes[i]))
+        mass[i][i] = sp.plus(sp.dot(sp.spatial_axis(structure.axes[i]), force), rotor[i])
         j = i
         while structure.parents[j] >= 0:
-            force = _force_to_parent6(*transforms[j], force)
+            force = sp.force_to_parent6(*transforms[j], force)
             j = structure.parents[j]
-            mass[i][j] = mass[j][i] = _dot(_spatial_axis(structure.axes[j]), force)
+            mass[i][j] = mass[j][i] = sp.dot(sp.spatial_axis(structure.axes[j]), force)
         parent = structure.parents[i]
         if parent >= 0:
-            moved = _congruence(*transforms[i], composite[i])
-            composite[parent] = [[_plus(composite[parent][r][c], moved[r][c]) for c in range(6)] for r in range(6)]
+            moved = sp.congruence(*transforms[i], composite[i])
+            composite[parent] = [[sp.plus(composite[parent][r][c], moved[r][c]) for c in range(6)] for r in range(6)]
     return mass
 
 
