@@ -1,0 +1,224 @@
+"""Stepping engines: advance all FMUs over base ticks between two Python events.
+
+``SlavePlan``/``Plan`` describe, once, what each FMU exchanges per step: value
+reference arrays, bus offsets of its inputs and published variables, and the
+connection copies (``bus[dst] = bus[src]``) done before it steps. Two engines execute a
+plan with identical semantics (see docs/cosim.md, "Coupling scheme"):
+
+* ``NativeEngine`` runs whole stretches of ticks in the compiled kernel (kernel.c):
+  one ctypes call per stretch, no Python per FMU step.
+* ``PythonEngine`` is the readable reference and the fallback when no C compiler is
+  available: one ctypes call per FMI function, numpy copies for connections.
+"""
+from __future__ import annotations
+
+import ctypes
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from cosim.master.component import FmuComponent, status_name
+from cosim.master.errors import SimulationError
+from cosim.master.kernel import (FAIL_GET, FAIL_NONFINITE, FAIL_SET, FAIL_STEP, CFailure, CPlan, CSlave,
+                                 load_kernel)
+
+BUS_ORDER = ("Real", "Integer", "Boolean")
+BUS_DTYPE = {"Real": np.float64, "Integer": np.intc, "Boolean": np.intc}
+
+
+@dataclass
+class Exchange:
+    """A contiguous bus slice exchanged with one FMU via one fmi2Set/fmi2Get call."""
+
+    value_references: np.ndarray  # uint32
+    offset: int
+    names: list[str]
+
+    @property
+    def size(self) -> int:
+        return len(self.names)
+
+
+@dataclass
+class SlavePlan:
+    """What one FMU exchanges at each of its steps (bus type -> Exchange / copies)."""
+
+    component: FmuComponent
+    step_ticks: int
+    inputs: dict[str, Exchange]
+    published: dict[str, Exchange]
+    n_check: int  # the first n_check published Reals are outputs checked for NaN/Inf
+    gather_dst: dict[str, np.ndarray] = field(default_factory=dict)  # int64 bus indices
+    gather_src: dict[str, np.ndarray] = field(default_factory=dict)
+
+
+@dataclass
+class Plan:
+    """All slaves in stepping order plus the buses (one numpy array per bus type)."""
+
+    slaves: list[SlavePlan]
+    buses: dict[str, np.ndarray]
+    start_time: float
+    base_step: float
+    gauss_seidel: bool
+
+    def time(self, tick: int) -> float:
+        """Simulated time in s of base tick ``tick`` (same formula as the kernel)."""
+        return self.start_time + float(tick) * self.base_step
+
+    def step_size(self, tick: int, slave: SlavePlan) -> float:
+        """Communication step in s of ``slave`` starting at ``tick`` (same formula as the kernel)."""
+        return (self.start_time + float(tick + slave.step_ticks) * self.base_step) - self.time(tick)
+
+
+def nonfinite_error(plan: Plan, slave: SlavePlan, tick: int, index: int) -> SimulationError:
+    """SimulationError for published Real ``index`` of ``slave`` being NaN/Inf at ``tick``."""
+    ex = slave.published["Real"]
+    value = plan.buses["Real"][ex.offset + index]
+    return slave.component.error(plan.time(tick),
+                                 f"output '{ex.names[index]}' is {float(value)!r} (NaN/Inf outputs stop the run)")
+
+
+def gather(plan: Plan, slave: SlavePlan) -> None:
+    """Copy the slave's connected inputs from their sources on the buses."""
+    for bus_type, dst in slave.gather_dst.items():
+        bus = plan.buses[bus_type]
+        bus[dst] = bus[slave.gather_src[bus_type]]
+
+
+def set_inputs(plan: Plan, slave: SlavePlan, tick: int) -> None:
+    """fmi2Set* the slave's input slices from the buses."""
+    comp = slave.component
+    for bus_type, ex in slave.inputs.items():
+        address = plan.buses[bus_type].ctypes.data + ex.offset * plan.buses[bus_type].itemsize
+        status = comp.set_fn[bus_type](comp.component, ex.value_references.ctypes.data, ex.size, address)
+        comp.check(f"fmi2Set{bus_type}", plan.time(tick), status)
+
+
+def publish(plan: Plan, slave: SlavePlan, tick: int) -> None:
+    """fmi2Get* the slave's published variables into the buses; check Real outputs are finite."""
+    comp = slave.component
+    for bus_type, ex in slave.published.items():
+        bus = plan.buses[bus_type]
+        status = comp.get_fn[bus_type](comp.component, ex.value_references.ctypes.data, ex.size,
+                                       bus.ctypes.data + ex.offset * bus.itemsize)
+        comp.check(f"fmi2Get{bus_type}", plan.time(tick), status)
+    if slave.n_check:
+        ex = slave.published["Real"]
+        values = plan.buses["Real"][ex.offset:ex.offset + slave.n_check]
+        if not np.isfinite(values).all():
+            raise nonfinite_error(plan, slave, tick, int(np.flatnonzero(~np.isfinite(values))[0]))
+
+
+class PythonEngine:
+    """Reference engine: the kernel's loop written in Python (ctypes call per FMI function)."""
+
+    name = "python"
+
+    def __init__(self, plan: Plan) -> None:
+        self.plan = plan
+
+    def advance(self, n_from: int, n_to: int) -> None:
+        """Step all due slaves for ticks n_from .. n_to-1 (see kernel.c for the exact order)."""
+        plan = self.plan
+        for n in range(n_from, n_to):
+            for slave in plan.slaves:
+                if n % slave.step_ticks:
+                    continue
+                gather(plan, slave)
+                set_inputs(plan, slave, n)
+                comp = slave.component
+                t = plan.time(n)
+                h = plan.step_size(n, slave)
+                status = comp.do_step_fn(comp.component, t, h, 1)
+                comp.check(f"fmi2DoStep(t={t:.9g} s, h={h:.9g} s)", t, status)
+                if plan.gauss_seidel:
+                    publish(plan, slave, n + slave.step_ticks)
+            if not plan.gauss_seidel:
+                for slave in plan.slaves:
+                    if (n + 1) % slave.step_ticks == 0:
+                        publish(plan, slave, n + 1)
+
+
+class NativeEngine:
+    """Engine running stretches of ticks in the compiled kernel (one ctypes call per stretch)."""
+
+    name = "native"
+
+    def __init__(self, plan: Plan, library: ctypes.CDLL) -> None:
+        self.plan = plan
+        self._advance = library.cosim_advance
+        n = len(plan.slaves)
+        self._slaves = (CSlave * max(n, 1))()
+        for k, slave in enumerate(plan.slaves):
+            self._fill(self._slaves[k], slave)
+        self._plan = CPlan(n_slaves=n, slaves=ctypes.cast(self._slaves, ctypes.POINTER(CSlave)),
+                           real_bus=plan.buses["Real"].ctypes.data, int_bus=plan.buses["Integer"].ctypes.data,
+                           bool_bus=plan.buses["Boolean"].ctypes.data, start_time=plan.start_time,
+                           base_step=plan.base_step, gauss_seidel=int(plan.gauss_seidel))
+        self._plan_ref = ctypes.byref(self._plan)
+        self._failure = CFailure()
+        self._failure_ref = ctypes.byref(self._failure)
+
+    @staticmethod
+    def _fill(c: CSlave, slave: SlavePlan) -> None:
+        comp = slave.component
+        c.component = comp.component
+        c.do_step = comp.fn_address["DoStep"]
+        for bus_type, attr in zip(BUS_ORDER, ("real", "integer", "boolean")):
+            setattr(c, "set_" + attr, comp.fn_address["Set" + bus_type])
+            setattr(c, "get_" + attr, comp.fn_address["Get" + bus_type])
+        c.step_ticks = slave.step_ticks
+        for i, bus_type in enumerate(BUS_ORDER):
+            ex = slave.inputs.get(bus_type)
+            if ex is not None:
+                c.n_in[i], c.vr_in[i], c.in_offset[i] = ex.size, ex.value_references.ctypes.data, ex.offset
+            ex = slave.published.get(bus_type)
+            if ex is not None:
+                c.n_out[i], c.vr_out[i], c.out_offset[i] = ex.size, ex.value_references.ctypes.data, ex.offset
+            dst = slave.gather_dst.get(bus_type)
+            if dst is not None and len(dst):
+                src = slave.gather_src[bus_type]
+                c.n_gather[i], c.gather_dst[i], c.gather_src[i] = len(dst), dst.ctypes.data, src.ctypes.data
+        c.n_check = slave.n_check
+
+    def advance(self, n_from: int, n_to: int) -> None:
+        """Step all due slaves for ticks n_from .. n_to-1 in C; raise SimulationError on failure."""
+        if self._advance(self._plan_ref, n_from, n_to, self._failure_ref):
+            raise self._error()
+
+    def _error(self) -> SimulationError:
+        f = self._failure
+        slave = self.plan.slaves[f.slave]
+        comp = slave.component
+        plan = self.plan
+        if f.status == 4:
+            comp.failed_fatally = True
+        if f.what == FAIL_NONFINITE:
+            return nonfinite_error(plan, slave, f.tick, f.variable)
+        t = plan.time(f.tick)
+        if f.what == FAIL_STEP:
+            what = f"fmi2DoStep(t={t:.9g} s, h={plan.step_size(f.tick, slave):.9g} s)"
+        elif f.what == FAIL_SET:
+            what = "fmi2Set* of its inputs"
+        elif f.what == FAIL_GET:
+            what = "fmi2Get* of its outputs"
+        else:  # pragma: no cover
+            what = "an FMI call"
+        return comp.error(t, f"{what} returned {status_name(f.status)}")
+
+
+def make_engine(plan: Plan, engine: str) -> PythonEngine | NativeEngine:
+    """``"native"``, ``"python"`` or ``"auto"`` (native when the kernel can be built)."""
+    if engine == "python":
+        return PythonEngine(plan)
+    library = load_kernel()
+    if library is None:
+        if engine == "native":
+            raise OSError("the native co-simulation kernel could not be built (no C compiler?)")
+        return PythonEngine(plan)
+    return NativeEngine(plan, library)
+
+
+__all__ = ["BUS_DTYPE", "BUS_ORDER", "Exchange", "NativeEngine", "Plan", "PythonEngine", "SlavePlan",
+           "gather", "make_engine", "publish", "set_inputs"]
