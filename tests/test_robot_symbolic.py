@@ -127,6 +127,28 @@ def test_structure_of_a_model_with_tilted_joints_is_followed() -> None:
     np.testing.assert_allclose(qdd_ref, qdd, rtol=0, atol=TOL)
 
 
+def test_negative_and_oblique_joint_axes_are_followed() -> None:
+    from robot.description import URDF_PATH
+
+    text = URDF_PATH.read_text(encoding="utf-8")
+    text = text.replace('<origin xyz="0 0 0.50" rpy="0 0 0"/>\n    <axis xyz="0 0 1"/>',
+                        '<origin xyz="0 0 0.50" rpy="0 0 0"/>\n    <axis xyz="0 0 -1"/>')
+    text = text.replace('<axis xyz="0 1 0"/>\n    <limit lower="-1.832595715"',
+                        '<axis xyz="0.6 0 0.8"/>\n    <limit lower="-1.832595715"')
+    structure_model = pin.buildModelFromXML(text)
+    kinds = [structure_model.joints[j].shortname() for j in (4, 5)]
+    assert kinds == ["JointModelRevoluteUnaligned"] * 2
+    rng = np.random.default_rng(17)
+    p, payload = _random_case(rng)
+    model = _pinocchio_model(p, payload, structure_model)
+    q, qd, qdd = _states(rng)
+    tau_ref = pin.rnea(model, model.createData(), q, qd, qdd) + p[60:66] * qdd + _friction(p, qd)
+    inv = inverse_dynamics_function(model=structure_model)
+    np.testing.assert_allclose(np.asarray(inv(q, qd, qdd, p, payload)).ravel(), tau_ref, rtol=0, atol=TOL)
+    fd = forward_dynamics_function(model=structure_model)
+    np.testing.assert_allclose(np.asarray(fd(q, qd, tau_ref, p, payload)).ravel(), qdd, rtol=0, atol=TOL)
+
+
 def test_numeric_parameter_inverse_dynamics_for_planners() -> None:
     rng = np.random.default_rng(15)
     p, payload = _random_case(rng)
