@@ -40,12 +40,12 @@ import numpy as np
 import pinocchio as pin
 from numpy.typing import ArrayLike
 
+from robot import spatial_lists as sp
 from robot.description import FLANGE_FRAME, load_model
 from robot.dynamics import (
     COULOMB_SLICE, N_JOINTS, N_PARAMETERS, ROTOR_INERTIA_SLICE, VISCOUS_SLICE, DynamicParameterError,
     nominal_parameter_vector,
 )
-from robot import spatial_lists as sp
 from robot.parameters import RobotParameters, load_parameters
 
 FORWARD_DYNAMICS_NAME = "rx130l_fd"
