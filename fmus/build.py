@@ -1,0 +1,170 @@
+"""Generate, compile and pack the project's FMI 2.0 co-simulation FMUs.
+
+``ensure_fmus()`` is what the rest of the testbed calls: it returns the paths of
+``rx130l_plant.fmu`` and ``servo_drive.fmu`` in ``build/fmus/`` and rebuilds an FMU
+only when one of its inputs changed (a SHA-256 stamp over every source, generator and
+robot-description file it depends on). Each FMU holds ``modelDescription.xml``,
+``sources/`` (all C sources, the generated dynamics, the FMI 2.0 headers: enough to
+rebuild it on another platform) and ``binaries/linux64/<id>.so`` built with the system
+C compiler (``$CC``, default ``gcc``).
+
+Concurrent callers (e.g. pytest-xdist workers) are serialised by a lock file, and an
+FMU is written to a temporary name and renamed, so nobody sees a half-written file.
+"""
+from __future__ import annotations
+
+import fcntl
+import hashlib
+import os
+import platform
+import shutil
+import subprocess
+import sys
+import tempfile
+import zipfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import fmpy
+
+from fmus.fmi2_spec import FmuSpec
+
+FMUS_DIR: Path = Path(__file__).resolve().parent
+REPO_ROOT: Path = FMUS_DIR.parent
+DEFAULT_OUT_DIR: Path = REPO_ROOT / "build" / "fmus"
+FMI2_HEADERS: tuple[str, ...] = ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
+CFLAGS: tuple[str, ...] = ("-std=c99", "-O2", "-fPIC", "-shared", "-fvisibility=hidden", "-Wall", "-Wextra",
+                           "-Wno-unused-parameter", "-DCASADI_SYMBOL_EXPORT=")
+# files whose change must trigger a rebuild besides the FMUs' own sources
+_GENERATOR_GLOBS: tuple[tuple[Path, str], ...] = (
+    (FMUS_DIR, "*.py"), (FMUS_DIR, "common/*"), (REPO_ROOT / "robot", "*.py"),
+    (REPO_ROOT / "robot", "*.urdf"), (REPO_ROOT / "robot", "*.toml"),
+)
+
+
+class FmuBuildError(RuntimeError):
+    """Generating, compiling or packing an FMU failed (the message has the compiler output)."""
+
+
+@dataclass
+class FmuRecipe:
+    """How to make one FMU: its variable spec, C files and generated C files."""
+
+    model_identifier: str
+    source_dir: Path
+    make_spec: Callable[[], FmuSpec]
+    make_generated: Callable[[], dict[str, str]] = field(default=lambda: {})
+
+    def input_files(self) -> list[Path]:
+        files = sorted(p for p in self.source_dir.glob("*") if p.is_file() and p.suffix in (".c", ".h", ".toml", ".py"))
+        for base, pattern in _GENERATOR_GLOBS:
+            files += sorted(p for p in base.glob(pattern) if p.is_file())
+        return files
+
+
+def _servo_drive_recipe() -> FmuRecipe:
+    from fmus.servo_drive.spec import servo_drive_spec
+
+    return FmuRecipe("servo_drive", FMUS_DIR / "servo_drive", servo_drive_spec)
+
+
+def _plant_recipe() -> FmuRecipe:
+    from fmus.rx130l_plant.codegen import generated_dynamics_sources
+    from fmus.rx130l_plant.spec import plant_spec
+
+    return FmuRecipe("rx130l_plant", FMUS_DIR / "rx130l_plant", plant_spec, generated_dynamics_sources)
+
+
+RECIPES: dict[str, Callable[[], FmuRecipe]] = {
+    "rx130l_plant": _plant_recipe,
+    "servo_drive": _servo_drive_recipe,
+}
+
+
+def _compiler() -> str:
+    return os.environ.get("CC", "gcc")
+
+
+def _platform_dir() -> str:
+    return fmpy.platform  # "linux64" on this machine
+
+
+def input_hash(recipe: FmuRecipe) -> str:
+    """SHA-256 over every input of ``recipe`` plus the compiler, flags and platform."""
+    digest = hashlib.sha256()
+    for path in recipe.input_files():
+        digest.update(str(path.relative_to(REPO_ROOT)).encode())
+        digest.update(path.read_bytes())
+    c_code = Path(fmpy.__file__).parent / "c-code"
+    for name in FMI2_HEADERS:
+        digest.update((c_code / name).read_bytes())
+    digest.update(" ".join((_compiler(), *CFLAGS, _platform_dir(), sys.platform, platform.machine())).encode())
+    return digest.hexdigest()
+
+
+def _stage_sources(recipe: FmuRecipe, spec: FmuSpec, sources: Path) -> None:
+    sources.mkdir(parents=True)
+    c_code = Path(fmpy.__file__).parent / "c-code"
+    for name in FMI2_HEADERS:
+        shutil.copy2(c_code / name, sources / name)
+    for path in sorted((FMUS_DIR / "common").glob("*.[ch]")):
+        shutil.copy2(path, sources / path.name)
+    for path in sorted(recipe.source_dir.glob("*.[ch]")):
+        shutil.copy2(path, sources / path.name)
+    (sources / "model_variables.h").write_text(spec.c_header())
+    for name, text in recipe.make_generated().items():
+        (sources / name).write_text(text)
+
+
+def compile_binary(sources: Path, c_files: tuple[str, ...], output: Path) -> None:
+    """Compile ``c_files`` (names inside ``sources``) into the shared library ``output``."""
+    output.parent.mkdir(parents=True, exist_ok=True)
+    command = [_compiler(), *CFLAGS, f"-I{sources}", *(str(sources / f) for f in c_files), "-o", str(output), "-lm"]
+    try:
+        result = subprocess.run(command, capture_output=True, text=True, check=False)
+    except FileNotFoundError as exc:
+        raise FmuBuildError(f"C compiler {command[0]!r} not found (set $CC): {exc}") from exc
+    if result.returncode != 0:
+        raise FmuBuildError(f"compiling {output.name} failed ({' '.join(command)}):\n{result.stderr}")
+
+
+def build_fmu(model_identifier: str, out_dir: str | Path | None = None, force: bool = False) -> tuple[Path, bool]:
+    """Build one FMU if its inputs changed; return ``(path, rebuilt)``."""
+    if model_identifier not in RECIPES:
+        raise ValueError(f"model_identifier = {model_identifier!r}, expected one of {sorted(RECIPES)}")
+    out = Path(out_dir or DEFAULT_OUT_DIR)
+    out.mkdir(parents=True, exist_ok=True)
+    recipe = RECIPES[model_identifier]()
+    target = out / f"{model_identifier}.fmu"
+    stamp = out / f"{model_identifier}.stamp"
+    with open(out / ".build.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        wanted = input_hash(recipe)
+        if not force and target.is_file() and stamp.is_file() and stamp.read_text().strip() == wanted:
+            return target, False
+        spec = recipe.make_spec()
+        with tempfile.TemporaryDirectory(prefix=f"{model_identifier}-", dir=out) as tmp:
+            root = Path(tmp) / "fmu"
+            _stage_sources(recipe, spec, root / "sources")
+            (root / "modelDescription.xml").write_text(spec.model_description_xml())
+            compile_binary(root / "sources", spec.source_files,
+                           root / "binaries" / _platform_dir() / f"{model_identifier}.so")
+            partial = Path(tmp) / f"{model_identifier}.fmu"
+            with zipfile.ZipFile(partial, "w", zipfile.ZIP_DEFLATED) as zf:
+                for path in sorted(root.rglob("*")):
+                    if path.is_file():
+                        zf.write(path, path.relative_to(root).as_posix())
+            os.replace(partial, target)
+        stamp.write_text(wanted + "\n")
+        return target, True
+
+
+def build_fmus(out_dir: str | Path | None = None, force: bool = False) -> dict[str, tuple[Path, bool]]:
+    """Build every FMU whose inputs changed; ``{id: (path, rebuilt)}``."""
+    return {name: build_fmu(name, out_dir, force) for name in RECIPES}
+
+
+def ensure_fmus(out_dir: str | Path | None = None) -> dict[str, Path]:
+    """Paths of all FMUs (``{"rx130l_plant": ..., "servo_drive": ...}``), built if missing or stale."""
+    return {name: path for name, (path, _) in build_fmus(out_dir).items()}

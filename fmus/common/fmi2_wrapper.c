@@ -1,0 +1,577 @@
+/*
+ * FMI 2.0 co-simulation API on top of the model_* functions (see fmu_instance.h).
+ *
+ * Robustness rules: every call checks its arguments and the instance mode; a bad
+ * call (unknown value reference, non-finite or out-of-range value, setting an output,
+ * step size <= 0, communication point that does not match the FMU time, ...) is
+ * rejected with fmi2Error and a message through the logger, and leaves the instance
+ * unchanged. A numerical failure inside a step (non-finite state) returns fmi2Error
+ * and puts the instance into the error mode, from which only fmi2Get*, fmi2Reset,
+ * fmi2SetFMUstate and fmi2FreeInstance are accepted.
+ */
+#include <math.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "fmu_instance.h"
+
+#define MAX_MESSAGE 1024
+#define STATE_MAGIC 0x52583133u /* "RX13" */
+
+static const char *const MODE_NAME[] = {"instantiated", "initialization", "step", "terminated", "error"};
+
+void fmu_log(const Instance *inst, fmi2Status status, const char *category, const char *fmt, ...)
+{
+    char message[MAX_MESSAGE];
+    va_list args;
+    if (!inst || !inst->functions.logger) return;
+    if (status < fmi2Warning && !inst->logging_on) return;
+    va_start(args, fmt);
+    vsnprintf(message, sizeof message, fmt, args);
+    va_end(args);
+    /* "%s" keeps a '%' inside the message from being read as a format directive */
+    inst->functions.logger(inst->functions.componentEnvironment, inst->instance_name, status,
+                           category, "%s", message);
+}
+
+#define LOG_ERROR(inst, ...) fmu_log((inst), fmi2Error, "logStatusError", __VA_ARGS__)
+
+/* Mode checks ---------------------------------------------------------------- */
+
+static int check_instance(const Instance *inst, const char *fn)
+{
+    (void)fn;
+    return inst != NULL;
+}
+
+static fmi2Status reject_mode(Instance *inst, const char *fn)
+{
+    LOG_ERROR(inst, "%s: not allowed in %s mode", fn, MODE_NAME[inst->d.mode]);
+    return fmi2Error;
+}
+
+static void set_start_values(Instance *inst)
+{
+    int k;
+    memset(&inst->d, 0, sizeof inst->d);
+    inst->d.mode = MODE_INSTANTIATED;
+    for (k = 0; k < N_REALS; k++) inst->d.r[k] = REAL_START[k];
+    for (k = 0; k < N_INTEGERS; k++) inst->d.i[k] = INTEGER_START[k];
+    model_reset(inst);
+}
+
+/* Common functions ----------------------------------------------------------- */
+
+const char *fmi2GetTypesPlatform(void) { return fmi2TypesPlatform; }
+
+const char *fmi2GetVersion(void) { return fmi2Version; }
+
+fmi2Status fmi2SetDebugLogging(fmi2Component c, fmi2Boolean loggingOn, size_t nCategories,
+                               const fmi2String categories[])
+{
+    Instance *inst = (Instance *)c;
+    (void)nCategories;
+    (void)categories;
+    if (!check_instance(inst, "fmi2SetDebugLogging")) return fmi2Error;
+    inst->logging_on = loggingOn ? 1 : 0;
+    return fmi2OK;
+}
+
+fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2String fmuGUID,
+                              fmi2String fmuResourceLocation, const fmi2CallbackFunctions *functions,
+                              fmi2Boolean visible, fmi2Boolean loggingOn)
+{
+    Instance *inst;
+    Instance probe;
+    (void)fmuResourceLocation;
+    (void)visible;
+    if (!functions) return NULL;
+    memset(&probe, 0, sizeof probe);
+    probe.functions = *functions;
+    probe.instance_name = (char *)(instanceName ? instanceName : "?");
+    if (!instanceName || !instanceName[0]) {
+        LOG_ERROR(&probe, "fmi2Instantiate: missing instance name");
+        return NULL;
+    }
+    if (fmuType != fmi2CoSimulation) {
+        LOG_ERROR(&probe, "fmi2Instantiate: %s supports co-simulation only (fmuType=%d given)",
+                  MODEL_IDENTIFIER_STRING, (int)fmuType);
+        return NULL;
+    }
+    if (!fmuGUID || strcmp(fmuGUID, MODEL_GUID) != 0) {
+        LOG_ERROR(&probe, "fmi2Instantiate: GUID %s does not match the binary's %s "
+                  "(modelDescription.xml and binary come from different builds)",
+                  fmuGUID ? fmuGUID : "(null)", MODEL_GUID);
+        return NULL;
+    }
+    inst = (Instance *)calloc(1, sizeof *inst);
+    if (!inst) {
+        LOG_ERROR(&probe, "fmi2Instantiate: out of memory");
+        return NULL;
+    }
+    inst->instance_name = (char *)malloc(strlen(instanceName) + 1);
+    if (!inst->instance_name) {
+        free(inst);
+        LOG_ERROR(&probe, "fmi2Instantiate: out of memory");
+        return NULL;
+    }
+    strcpy(inst->instance_name, instanceName);
+    inst->functions = *functions;
+    inst->logging_on = loggingOn ? 1 : 0;
+    set_start_values(inst);
+    return inst;
+}
+
+void fmi2FreeInstance(fmi2Component c)
+{
+    Instance *inst = (Instance *)c;
+    if (!inst) return;
+    free(inst->instance_name);
+    free(inst);
+}
+
+fmi2Status fmi2SetupExperiment(fmi2Component c, fmi2Boolean toleranceDefined, fmi2Real tolerance,
+                               fmi2Real startTime, fmi2Boolean stopTimeDefined, fmi2Real stopTime)
+{
+    Instance *inst = (Instance *)c;
+    (void)toleranceDefined;
+    (void)tolerance;
+    if (!check_instance(inst, "fmi2SetupExperiment")) return fmi2Error;
+    if (inst->d.mode != MODE_INSTANTIATED) return reject_mode(inst, "fmi2SetupExperiment");
+    if (!isfinite(startTime)) {
+        LOG_ERROR(inst, "fmi2SetupExperiment: startTime=%g is not a finite number", startTime);
+        return fmi2Error;
+    }
+    if (stopTimeDefined && !(stopTime >= startTime)) {
+        LOG_ERROR(inst, "fmi2SetupExperiment: stopTime=%g is before startTime=%g", stopTime, startTime);
+        return fmi2Error;
+    }
+    inst->d.start_time = startTime;
+    inst->d.time = startTime;
+    return fmi2OK;
+}
+
+fmi2Status fmi2EnterInitializationMode(fmi2Component c)
+{
+    Instance *inst = (Instance *)c;
+    if (!check_instance(inst, "fmi2EnterInitializationMode")) return fmi2Error;
+    if (inst->d.mode != MODE_INSTANTIATED) return reject_mode(inst, "fmi2EnterInitializationMode");
+    inst->d.mode = MODE_INITIALIZATION;
+    return fmi2OK;
+}
+
+fmi2Status fmi2ExitInitializationMode(fmi2Component c)
+{
+    Instance *inst = (Instance *)c;
+    if (!check_instance(inst, "fmi2ExitInitializationMode")) return fmi2Error;
+    if (inst->d.mode != MODE_INITIALIZATION) return reject_mode(inst, "fmi2ExitInitializationMode");
+    if (model_initialize(inst) != 0) return fmi2Error; /* stays in initialization mode */
+    inst->d.mode = MODE_STEP;
+    return fmi2OK;
+}
+
+fmi2Status fmi2Terminate(fmi2Component c)
+{
+    Instance *inst = (Instance *)c;
+    if (!check_instance(inst, "fmi2Terminate")) return fmi2Error;
+    if (inst->d.mode != MODE_STEP && inst->d.mode != MODE_ERROR) return reject_mode(inst, "fmi2Terminate");
+    inst->d.mode = MODE_TERMINATED;
+    return fmi2OK;
+}
+
+fmi2Status fmi2Reset(fmi2Component c)
+{
+    Instance *inst = (Instance *)c;
+    if (!check_instance(inst, "fmi2Reset")) return fmi2Error;
+    set_start_values(inst);
+    return fmi2OK;
+}
+
+/* Getting and setting variables ------------------------------------------------ */
+
+static int check_vr_args(Instance *inst, const char *fn, const fmi2ValueReference vr[], size_t nvr,
+                         const void *values, size_t n_max)
+{
+    size_t k;
+    if (nvr > 0 && (!vr || !values)) {
+        LOG_ERROR(inst, "%s: NULL value-reference or value array for nvr=%lu", fn, (unsigned long)nvr);
+        return 0;
+    }
+    for (k = 0; k < nvr; k++) {
+        if (vr[k] >= n_max) {
+            LOG_ERROR(inst, "%s: unknown value reference %u (this FMU has %lu of this type)", fn,
+                      (unsigned)vr[k], (unsigned long)n_max);
+            return 0;
+        }
+    }
+    return 1;
+}
+
+fmi2Status fmi2GetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, fmi2Real value[])
+{
+    Instance *inst = (Instance *)c;
+    size_t k;
+    if (!check_instance(inst, "fmi2GetReal")) return fmi2Error;
+    if (!check_vr_args(inst, "fmi2GetReal", vr, nvr, value, N_REALS)) return fmi2Error;
+    for (k = 0; k < nvr; k++) value[k] = inst->d.r[vr[k]];
+    return fmi2OK;
+}
+
+fmi2Status fmi2GetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, fmi2Integer value[])
+{
+    Instance *inst = (Instance *)c;
+    size_t k;
+    if (!check_instance(inst, "fmi2GetInteger")) return fmi2Error;
+    if (!check_vr_args(inst, "fmi2GetInteger", vr, nvr, value, N_INTEGERS)) return fmi2Error;
+    for (k = 0; k < nvr; k++) value[k] = inst->d.i[vr[k]];
+    return fmi2OK;
+}
+
+fmi2Status fmi2GetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, fmi2Boolean value[])
+{
+    Instance *inst = (Instance *)c;
+    if (!check_instance(inst, "fmi2GetBoolean")) return fmi2Error;
+    return check_vr_args(inst, "fmi2GetBoolean", vr, nvr, value, 0) ? fmi2OK : fmi2Error;
+}
+
+fmi2Status fmi2GetString(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, fmi2String value[])
+{
+    Instance *inst = (Instance *)c;
+    if (!check_instance(inst, "fmi2GetString")) return fmi2Error;
+    return check_vr_args(inst, "fmi2GetString", vr, nvr, value, 0) ? fmi2OK : fmi2Error;
+}
+
+/* May a variable of this kind be set in the current mode? */
+static int settable(const Instance *inst, int kind)
+{
+    int mode = inst->d.mode;
+    if (kind == KIND_INPUT) return mode == MODE_INSTANTIATED || mode == MODE_INITIALIZATION || mode == MODE_STEP;
+    if (kind == KIND_PARAMETER) return mode == MODE_INSTANTIATED || mode == MODE_INITIALIZATION;
+    return 0;
+}
+
+static const char *kind_name(int kind)
+{
+    switch (kind) {
+    case KIND_INPUT: return "input";
+    case KIND_OUTPUT: return "output";
+    case KIND_PARAMETER: return "fixed parameter";
+    default: return "local";
+    }
+}
+
+static int check_set(Instance *inst, const char *fn, const char *name, int kind, double value,
+                     double lo, double hi)
+{
+    if (!settable(inst, kind)) {
+        if (kind == KIND_PARAMETER)
+            LOG_ERROR(inst, "%s: %s is a fixed parameter and can only be set before "
+                      "fmi2ExitInitializationMode (mode is %s)", fn, name, MODE_NAME[inst->d.mode]);
+        else
+            LOG_ERROR(inst, "%s: %s is an %s and cannot be set (mode %s)", fn, name, kind_name(kind),
+                      MODE_NAME[inst->d.mode]);
+        return 0;
+    }
+    if (!isfinite(value)) {
+        LOG_ERROR(inst, "%s: %s=%g is not a finite number", fn, name, value);
+        return 0;
+    }
+    if (value < lo || value > hi) {
+        LOG_ERROR(inst, "%s: %s=%.17g is outside its range [%g, %g]", fn, name, value, lo, hi);
+        return 0;
+    }
+    return 1;
+}
+
+fmi2Status fmi2SetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, const fmi2Real value[])
+{
+    Instance *inst = (Instance *)c;
+    size_t k;
+    if (!check_instance(inst, "fmi2SetReal")) return fmi2Error;
+    if (!check_vr_args(inst, "fmi2SetReal", vr, nvr, value, N_REALS)) return fmi2Error;
+    /* check everything first so that a rejected call changes nothing */
+    for (k = 0; k < nvr; k++) {
+        fmi2ValueReference v = vr[k];
+        if (!check_set(inst, "fmi2SetReal", REAL_NAME[v], REAL_KIND[v], value[k], REAL_MIN[v], REAL_MAX[v]))
+            return fmi2Error;
+    }
+    for (k = 0; k < nvr; k++) inst->d.r[vr[k]] = value[k];
+    return fmi2OK;
+}
+
+fmi2Status fmi2SetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, const fmi2Integer value[])
+{
+    Instance *inst = (Instance *)c;
+    size_t k;
+    if (!check_instance(inst, "fmi2SetInteger")) return fmi2Error;
+    if (!check_vr_args(inst, "fmi2SetInteger", vr, nvr, value, N_INTEGERS)) return fmi2Error;
+    for (k = 0; k < nvr; k++) {
+        fmi2ValueReference v = vr[k];
+        if (!check_set(inst, "fmi2SetInteger", INTEGER_NAME[v], INTEGER_KIND[v], (double)value[k],
+                       INTEGER_MIN[v], INTEGER_MAX[v]))
+            return fmi2Error;
+    }
+    for (k = 0; k < nvr; k++) inst->d.i[vr[k]] = value[k];
+    return fmi2OK;
+}
+
+fmi2Status fmi2SetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, const fmi2Boolean value[])
+{
+    Instance *inst = (Instance *)c;
+    if (!check_instance(inst, "fmi2SetBoolean")) return fmi2Error;
+    return check_vr_args(inst, "fmi2SetBoolean", vr, nvr, value, 0) ? fmi2OK : fmi2Error;
+}
+
+fmi2Status fmi2SetString(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, const fmi2String value[])
+{
+    Instance *inst = (Instance *)c;
+    if (!check_instance(inst, "fmi2SetString")) return fmi2Error;
+    return check_vr_args(inst, "fmi2SetString", vr, nvr, value, 0) ? fmi2OK : fmi2Error;
+}
+
+/* FMU state ------------------------------------------------------------------- */
+
+typedef struct {
+    unsigned magic;
+    unsigned size;
+    char guid[64];
+    FmuData d;
+} Snapshot;
+
+fmi2Status fmi2GetFMUstate(fmi2Component c, fmi2FMUstate *FMUstate)
+{
+    Instance *inst = (Instance *)c;
+    Snapshot *snap;
+    if (!check_instance(inst, "fmi2GetFMUstate")) return fmi2Error;
+    if (!FMUstate) {
+        LOG_ERROR(inst, "fmi2GetFMUstate: NULL state pointer");
+        return fmi2Error;
+    }
+    snap = (Snapshot *)*FMUstate;
+    if (!snap) {
+        snap = (Snapshot *)calloc(1, sizeof *snap);
+        if (!snap) {
+            LOG_ERROR(inst, "fmi2GetFMUstate: out of memory");
+            return fmi2Error;
+        }
+    }
+    snap->magic = STATE_MAGIC;
+    snap->size = (unsigned)sizeof(Snapshot);
+    strncpy(snap->guid, MODEL_GUID, sizeof snap->guid - 1);
+    snap->d = inst->d;
+    *FMUstate = snap;
+    return fmi2OK;
+}
+
+static int valid_snapshot(Instance *inst, const Snapshot *snap, const char *fn)
+{
+    if (!snap || snap->magic != STATE_MAGIC || snap->size != sizeof(Snapshot) ||
+        strncmp(snap->guid, MODEL_GUID, sizeof snap->guid) != 0) {
+        LOG_ERROR(inst, "%s: the FMU state does not come from this FMU (%s)", fn, MODEL_IDENTIFIER_STRING);
+        return 0;
+    }
+    return 1;
+}
+
+fmi2Status fmi2SetFMUstate(fmi2Component c, fmi2FMUstate FMUstate)
+{
+    Instance *inst = (Instance *)c;
+    if (!check_instance(inst, "fmi2SetFMUstate")) return fmi2Error;
+    if (!valid_snapshot(inst, (const Snapshot *)FMUstate, "fmi2SetFMUstate")) return fmi2Error;
+    inst->d = ((const Snapshot *)FMUstate)->d;
+    return fmi2OK;
+}
+
+fmi2Status fmi2FreeFMUstate(fmi2Component c, fmi2FMUstate *FMUstate)
+{
+    Instance *inst = (Instance *)c;
+    if (!check_instance(inst, "fmi2FreeFMUstate")) return fmi2Error;
+    if (FMUstate) {
+        free(*FMUstate);
+        *FMUstate = NULL;
+    }
+    return fmi2OK;
+}
+
+fmi2Status fmi2SerializedFMUstateSize(fmi2Component c, fmi2FMUstate FMUstate, size_t *size)
+{
+    Instance *inst = (Instance *)c;
+    if (!check_instance(inst, "fmi2SerializedFMUstateSize")) return fmi2Error;
+    if (!size) {
+        LOG_ERROR(inst, "fmi2SerializedFMUstateSize: NULL size pointer");
+        return fmi2Error;
+    }
+    if (!valid_snapshot(inst, (const Snapshot *)FMUstate, "fmi2SerializedFMUstateSize")) return fmi2Error;
+    *size = sizeof(Snapshot);
+    return fmi2OK;
+}
+
+fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate FMUstate, fmi2Byte serializedState[], size_t size)
+{
+    Instance *inst = (Instance *)c;
+    if (!check_instance(inst, "fmi2SerializeFMUstate")) return fmi2Error;
+    if (!valid_snapshot(inst, (const Snapshot *)FMUstate, "fmi2SerializeFMUstate")) return fmi2Error;
+    if (!serializedState || size < sizeof(Snapshot)) {
+        LOG_ERROR(inst, "fmi2SerializeFMUstate: buffer of %lu bytes given, %lu needed", (unsigned long)size,
+                  (unsigned long)sizeof(Snapshot));
+        return fmi2Error;
+    }
+    memcpy(serializedState, FMUstate, sizeof(Snapshot));
+    return fmi2OK;
+}
+
+fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte serializedState[], size_t size,
+                                   fmi2FMUstate *FMUstate)
+{
+    Instance *inst = (Instance *)c;
+    Snapshot *snap;
+    if (!check_instance(inst, "fmi2DeSerializeFMUstate")) return fmi2Error;
+    if (!serializedState || !FMUstate || size != sizeof(Snapshot)) {
+        LOG_ERROR(inst, "fmi2DeSerializeFMUstate: %lu bytes given, %lu expected", (unsigned long)size,
+                  (unsigned long)sizeof(Snapshot));
+        return fmi2Error;
+    }
+    if (!valid_snapshot(inst, (const Snapshot *)serializedState, "fmi2DeSerializeFMUstate")) return fmi2Error;
+    snap = (Snapshot *)(*FMUstate ? *FMUstate : malloc(sizeof(Snapshot)));
+    if (!snap) {
+        LOG_ERROR(inst, "fmi2DeSerializeFMUstate: out of memory");
+        return fmi2Error;
+    }
+    memcpy(snap, serializedState, sizeof(Snapshot));
+    *FMUstate = snap;
+    return fmi2OK;
+}
+
+fmi2Status fmi2GetDirectionalDerivative(fmi2Component c, const fmi2ValueReference vUnknown_ref[], size_t nUnknown,
+                                        const fmi2ValueReference vKnown_ref[], size_t nKnown,
+                                        const fmi2Real dvKnown[], fmi2Real dvUnknown[])
+{
+    Instance *inst = (Instance *)c;
+    (void)vUnknown_ref; (void)nUnknown; (void)vKnown_ref; (void)nKnown; (void)dvKnown; (void)dvUnknown;
+    if (!check_instance(inst, "fmi2GetDirectionalDerivative")) return fmi2Error;
+    LOG_ERROR(inst, "fmi2GetDirectionalDerivative: not provided by %s", MODEL_IDENTIFIER_STRING);
+    return fmi2Error;
+}
+
+/* Co-simulation ----------------------------------------------------------------- */
+
+fmi2Status fmi2SetRealInputDerivatives(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
+                                       const fmi2Integer order[], const fmi2Real value[])
+{
+    Instance *inst = (Instance *)c;
+    (void)vr; (void)nvr; (void)order; (void)value;
+    if (!check_instance(inst, "fmi2SetRealInputDerivatives")) return fmi2Error;
+    LOG_ERROR(inst, "fmi2SetRealInputDerivatives: %s holds its inputs constant over a step "
+              "(canInterpolateInputs=false)", MODEL_IDENTIFIER_STRING);
+    return fmi2Error;
+}
+
+fmi2Status fmi2GetRealOutputDerivatives(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
+                                        const fmi2Integer order[], fmi2Real value[])
+{
+    Instance *inst = (Instance *)c;
+    (void)vr; (void)nvr; (void)order; (void)value;
+    if (!check_instance(inst, "fmi2GetRealOutputDerivatives")) return fmi2Error;
+    LOG_ERROR(inst, "fmi2GetRealOutputDerivatives: %s provides no output derivatives "
+              "(maxOutputDerivativeOrder=0)", MODEL_IDENTIFIER_STRING);
+    return fmi2Error;
+}
+
+fmi2Status fmi2DoStep(fmi2Component c, fmi2Real currentCommunicationPoint, fmi2Real communicationStepSize,
+                      fmi2Boolean noSetFMUStatePriorToCurrentPoint)
+{
+    Instance *inst = (Instance *)c;
+    double t = currentCommunicationPoint, h = communicationStepSize;
+    int k;
+    (void)noSetFMUStatePriorToCurrentPoint;
+    if (!check_instance(inst, "fmi2DoStep")) return fmi2Error;
+    if (inst->d.mode != MODE_STEP) return reject_mode(inst, "fmi2DoStep");
+    if (!isfinite(h) || !(h > 0.0)) {
+        LOG_ERROR(inst, "fmi2DoStep: communicationStepSize=%g, expected a finite number > 0", h);
+        return fmi2Error;
+    }
+    if (!isfinite(t) || fabs(t - inst->d.time) > 1e-9 * (1.0 + fabs(t))) {
+        LOG_ERROR(inst, "fmi2DoStep: currentCommunicationPoint=%.12g does not match the FMU time %.12g "
+                  "(steps must follow each other without gaps)", t, inst->d.time);
+        return fmi2Error;
+    }
+    k = model_do_step(inst, inst->d.time, h);
+    if (k == MODEL_STEP_REJECTED) return fmi2Error;
+    if (k != 0) {
+        inst->d.mode = MODE_ERROR;
+        return fmi2Error;
+    }
+    for (k = 0; k < N_REALS; k++) {
+        if (REAL_KIND[k] == KIND_OUTPUT && !isfinite(inst->d.r[k])) {
+            LOG_ERROR(inst, "fmi2DoStep: output %s became %g at t=%.9g", REAL_NAME[k], inst->d.r[k], t + h);
+            inst->d.mode = MODE_ERROR;
+            return fmi2Error;
+        }
+    }
+    inst->d.time = t + h;
+    return fmi2OK;
+}
+
+fmi2Status fmi2CancelStep(fmi2Component c)
+{
+    Instance *inst = (Instance *)c;
+    if (!check_instance(inst, "fmi2CancelStep")) return fmi2Error;
+    LOG_ERROR(inst, "fmi2CancelStep: %s steps synchronously; there is nothing to cancel", MODEL_IDENTIFIER_STRING);
+    return fmi2Error;
+}
+
+fmi2Status fmi2GetStatus(fmi2Component c, const fmi2StatusKind s, fmi2Status *value)
+{
+    Instance *inst = (Instance *)c;
+    if (!check_instance(inst, "fmi2GetStatus")) return fmi2Error;
+    if (!value || s != fmi2DoStepStatus) {
+        LOG_ERROR(inst, "fmi2GetStatus: status kind %d is not provided", (int)s);
+        return fmi2Discard;
+    }
+    *value = inst->d.mode == MODE_ERROR ? fmi2Error : fmi2OK;
+    return fmi2OK;
+}
+
+fmi2Status fmi2GetRealStatus(fmi2Component c, const fmi2StatusKind s, fmi2Real *value)
+{
+    Instance *inst = (Instance *)c;
+    if (!check_instance(inst, "fmi2GetRealStatus")) return fmi2Error;
+    if (!value || s != fmi2LastSuccessfulTime) {
+        LOG_ERROR(inst, "fmi2GetRealStatus: status kind %d is not provided", (int)s);
+        return fmi2Discard;
+    }
+    *value = inst->d.time;
+    return fmi2OK;
+}
+
+fmi2Status fmi2GetIntegerStatus(fmi2Component c, const fmi2StatusKind s, fmi2Integer *value)
+{
+    Instance *inst = (Instance *)c;
+    (void)value;
+    if (!check_instance(inst, "fmi2GetIntegerStatus")) return fmi2Error;
+    LOG_ERROR(inst, "fmi2GetIntegerStatus: status kind %d is not provided", (int)s);
+    return fmi2Discard;
+}
+
+fmi2Status fmi2GetBooleanStatus(fmi2Component c, const fmi2StatusKind s, fmi2Boolean *value)
+{
+    Instance *inst = (Instance *)c;
+    if (!check_instance(inst, "fmi2GetBooleanStatus")) return fmi2Error;
+    if (!value || s != fmi2Terminated) {
+        LOG_ERROR(inst, "fmi2GetBooleanStatus: status kind %d is not provided", (int)s);
+        return fmi2Discard;
+    }
+    *value = fmi2False;
+    return fmi2OK;
+}
+
+fmi2Status fmi2GetStringStatus(fmi2Component c, const fmi2StatusKind s, fmi2String *value)
+{
+    Instance *inst = (Instance *)c;
+    (void)value;
+    if (!check_instance(inst, "fmi2GetStringStatus")) return fmi2Error;
+    LOG_ERROR(inst, "fmi2GetStringStatus: status kind %d is not provided", (int)s);
+    return fmi2Discard;
+}

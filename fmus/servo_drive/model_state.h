@@ -1,0 +1,47 @@
+/* Internal state of one servo drive axis (see servo_drive.c). Plain data only: the
+ * FMI wrapper copies it for fmi2GetFMUstate. Speeds/positions joint side, currents
+ * motor q-axis, voltages q-axis. */
+#ifndef MODEL_STATE_H
+#define MODEL_STATE_H
+
+typedef struct {
+    /* timing */
+    long long tick;          /* current-loop samples done since the start time */
+    int n_speed;             /* current samples per speed sample */
+    int n_position;          /* current samples per position sample */
+
+    /* CiA 402 */
+    int cia_state;           /* one of the CIA_* values of servo_drive.c */
+    int controlword_prev;    /* for the rising edge of the fault-reset bit */
+    int error_code;          /* 0x603F */
+    int limit_active;        /* current set-point clamped at the last speed sample */
+    int following_error_flag;/* |following error| > window at the last position sample */
+
+    /* electrical motor and current loop */
+    double current;          /* A */
+    double u_applied;        /* V, on the winding during the running current period */
+    double u_next;           /* V, computed at the last current sample, applied from the next */
+    double current_integral; /* V, PI integral part */
+
+    /* speed loop */
+    double speed_filtered;   /* rad/s, actual-speed filter output */
+    double speed_integral;   /* A, PI integral part */
+    double current_demand;   /* A, current set-point held until the next speed sample */
+
+    /* position loop */
+    double speed_demand;     /* rad/s, speed set-point held until the next position sample */
+    double target_prev;      /* rad, target at the previous position sample (speed feed-forward) */
+    double position_actual;  /* rad, quantised encoder position at the last position sample */
+    double following_error;  /* rad */
+    double ramp_position;    /* rad, quick-stop / fault-reaction reference */
+    double ramp_velocity;    /* rad/s */
+
+    /* constants derived from the parameters at initialization */
+    double counts_per_rad;   /* encoder counts per joint rad */
+    double current_max;      /* A, min(current_limit, torque_limit / (N kt)) */
+    double voltage_max;      /* V, bus_voltage / sqrt(3) */
+    double decay;            /* exp(-R Ts_i / L) */
+    double filter_alpha;     /* 1 - exp(-Ts_w / T_filter) */
+} ModelState;
+
+#endif

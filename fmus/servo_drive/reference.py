@@ -1,0 +1,128 @@
+"""Test oracle: the servo drive's discrete controllers re-implemented in Python.
+
+Written from the drive's specification (docs/fmus.md), not from the C code, for two
+uses: the monolithic reference of the coupling study (the winding current is then a
+continuous state integrated together with the arm; the oracle only turns sampled
+measurements into the voltage of the next current period) and direct comparison with
+the FMU. Covered: the enable sequence of the CiA 402 state machine (power off until
+Operation enabled), the position/speed/current loops with speed and torque
+feed-forward, limits, anti-windup, encoder quantisation, speed filter, computation
+delay and back-EMF compensation. Not covered: quick stop, fault reaction, following-
+error fault (tested on the FMU directly).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+
+@dataclass
+class DriveReference:
+    """One axis. ``params`` holds the FMU parameter names and values (see drive_start_values)."""
+
+    params: dict[str, float]
+    tick: int = 0
+    enabled: bool = False
+    state: str = "switch_on_disabled"
+    current_integral: float = 0.0
+    speed_integral: float = 0.0
+    speed_filtered: float = 0.0
+    current_demand: float = 0.0
+    speed_demand: float = 0.0
+    target_prev: float = 0.0
+    position_actual: float = 0.0
+    u_next: float = 0.0
+    _derived: dict[str, float] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        p = self.params
+        ts_i = p["current_sample_time"]
+        self.n_speed = round(p["speed_sample_time"] / ts_i)
+        self.n_position = round(p["position_sample_time"] / ts_i)
+        self.counts_per_rad = p["gear_ratio"] * p["encoder_counts_per_rev"] / (2.0 * math.pi)
+        self.current_max = min(p["current_limit"], p["torque_limit"] / (p["gear_ratio"] * p["torque_constant"]))
+        self.voltage_max = p["bus_voltage"] / math.sqrt(3.0)
+        tf = p["speed_filter_time"]
+        self.alpha = 1.0 - math.exp(-p["speed_sample_time"] / tf) if tf > 0 else 1.0
+
+    def initialize(self, q: float, qd: float, target: float) -> None:
+        """State at the end of initialization (drive in Switch on disabled)."""
+        self.speed_filtered = qd
+        self.position_actual = self._quantise(q)
+        self.target_prev = target
+
+    def _quantise(self, q: float) -> float:
+        return math.floor(q * self.counts_per_rad) / self.counts_per_rad
+
+    def _power_off(self) -> None:
+        self.current_integral = self.speed_integral = 0.0
+        self.current_demand = self.speed_demand = 0.0
+        self.u_next = 0.0
+
+    def _device_control(self, controlword: int, target: float) -> None:
+        if self.state == "switch_on_disabled" and (controlword & 0x87) == 0x06:
+            self.state = "ready"
+        elif self.state in ("ready", "switched_on") and (controlword & 0x8F) == 0x0F:
+            self.state = "enabled"
+            self._power_off()
+            self.target_prev = target
+        elif self.state == "ready" and (controlword & 0x8F) == 0x07:
+            self.state = "switched_on"
+        self.enabled = self.state == "enabled"
+
+    def tick_voltage(self, q: float, qd: float, current: float, target: float, torque_offset: float,
+                     controlword: int) -> tuple[float, bool]:
+        """One current sample with the measurements at the sample time.
+
+        Returns ``(u, powered)``: the voltage applied over the coming current period
+        (computed one sample earlier) and whether the power stage is on (else the
+        current is forced to zero).
+        """
+        p = self.params
+        n = p["gear_ratio"]
+        if self.tick % self.n_position == 0:
+            self.position_actual = self._quantise(q)
+            self._device_control(controlword, target)
+            if self.enabled:
+                ff = p["speed_feedforward_gain"] * (target - self.target_prev) / p["position_sample_time"]
+                self.target_prev = target
+                v = p["position_kv"] * (target - self.position_actual) + ff
+                self.speed_demand = max(-p["velocity_limit"], min(p["velocity_limit"], v))
+            else:
+                self.target_prev = target
+        if self.tick % self.n_speed == 0:
+            self.speed_filtered += self.alpha * (qd - self.speed_filtered)
+            if self.enabled:
+                error = n * (self.speed_demand - self.speed_filtered)
+                demand = p["speed_kp"] * error + self.speed_integral + torque_offset / (n * p["torque_constant"])
+                limited = max(-self.current_max, min(self.current_max, demand))
+                if limited == demand or (demand > 0) != (error > 0):
+                    self.speed_integral += p["speed_kp"] * p["speed_sample_time"] / p["speed_tn"] * error
+                self.current_demand = limited
+        self.tick += 1
+        if not self.enabled:
+            return 0.0, False
+        error = self.current_demand - current
+        emf = p["back_emf_constant"] * n * qd
+        demand = p["current_kp"] * error + self.current_integral + emf
+        limited = max(-self.voltage_max, min(self.voltage_max, demand))
+        if limited == demand or (demand > 0) != (error > 0):
+            self.current_integral += p["current_kp"] * p["current_sample_time"] / p["current_tn"] * error
+        applied, self.u_next = self.u_next, limited
+        return applied, True
+
+    def current_derivative(self, current: float, u: float, qd: float) -> float:
+        """d i / dt of the winding (A/s) for voltage ``u`` and joint speed ``qd``."""
+        p = self.params
+        return (u - p["resistance"] * current - p["back_emf_constant"] * p["gear_ratio"] * qd) / p["inductance"]
+
+    def advance_current(self, current: float, u: float, qd: float) -> float:
+        """Exact winding current after one current period with ``u`` and ``qd`` constant."""
+        p = self.params
+        i_inf = (u - p["back_emf_constant"] * p["gear_ratio"] * qd) / p["resistance"]
+        decay = math.exp(-p["resistance"] * p["current_sample_time"] / p["inductance"])
+        return i_inf + (current - i_inf) * decay
+
+    def torque(self, current: float) -> float:
+        """Joint-side motor torque N k_t i (N m)."""
+        return self.params["gear_ratio"] * self.params["torque_constant"] * current

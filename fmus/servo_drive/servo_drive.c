@@ -1,0 +1,349 @@
+/*
+ * One axis of an industrial servo drive (CiA 402 cyclic synchronous position mode).
+ *
+ * Three cascaded discrete loops, each at its own sample time inside fmi2DoStep:
+ *   position loop (P, Kv) every position_sample_time, plus speed feed-forward from the
+ *       difference of consecutive target positions;
+ *   speed loop (PI) every speed_sample_time on the filtered measured speed, plus the
+ *       feed-forward current torque_offset / (gear_ratio * torque_constant) (0x60B2);
+ *       current set-point clamped to min(current_limit, torque_limit / (N kt));
+ *   current loop (PI with back-EMF compensation) every current_sample_time on the
+ *       q-axis winding  L di/dt = u - R i - k_e N qd ; the voltage computed at a sample
+ *       is applied from the next sample (computation delay), clamped to U_dc / sqrt(3).
+ * The winding ODE is integrated exactly over each current period (u and qd constant).
+ * Output torque to the plant (joint side): tau_out = N kt i (rotor inertia and friction
+ * are part of the plant).
+ *
+ * The CiA 402 state machine runs at every position sample. The power stage (current
+ * loop) is active in Operation enabled, Quick stop active and Fault reaction active
+ * only; elsewhere the current is zero. Quick stop and fault reaction follow an
+ * internal ramp to standstill with their decelerations; then quick stop either stays
+ * holding position (option code 6) or switches off (option code 2) and the fault
+ * reaction ends in Fault (power off). A nonzero fault_code input, or a following
+ * error beyond following_error_window, triggers the fault reaction.
+ *
+ * Units: joint side rad, rad/s, N m; motor current A; voltage V; time s.
+ */
+#include <math.h>
+#include <stdio.h>
+
+#include "fmu_instance.h"
+
+enum {
+    CIA_NOT_READY = 0,
+    CIA_SWITCH_ON_DISABLED,
+    CIA_READY_TO_SWITCH_ON,
+    CIA_SWITCHED_ON,
+    CIA_OPERATION_ENABLED,
+    CIA_QUICK_STOP_ACTIVE,
+    CIA_FAULT_REACTION_ACTIVE,
+    CIA_FAULT
+};
+
+static const char *const CIA_NAME[] = {"Not ready to switch on", "Switch on disabled", "Ready to switch on",
+                                       "Switched on", "Operation enabled", "Quick stop active",
+                                       "Fault reaction active", "Fault"};
+
+#define ERROR_FOLLOWING 0x8611
+#define PI 3.14159265358979323846
+
+#define R(name) (inst->d.r[VR_##name])
+#define I(name) (inst->d.i[VR_##name])
+
+static int power_on(int state)
+{
+    return state == CIA_OPERATION_ENABLED || state == CIA_QUICK_STOP_ACTIVE || state == CIA_FAULT_REACTION_ACTIVE;
+}
+
+static int statusword(const ModelState *s)
+{
+    static const int base[] = {0x0000, 0x0040, 0x0021, 0x0023, 0x0027, 0x0007, 0x000F, 0x0008};
+    int sw = base[s->cia_state] | 0x0200; /* bit 9: remote */
+    if (s->cia_state >= CIA_READY_TO_SWITCH_ON && s->cia_state <= CIA_FAULT_REACTION_ACTIVE)
+        sw |= 0x0010; /* bit 4: voltage enabled */
+    if (power_on(s->cia_state) && s->limit_active) sw |= 0x0800;   /* bit 11: internal limit active */
+    if (s->cia_state == CIA_OPERATION_ENABLED) sw |= 0x1000;        /* bit 12 (CSP): drive follows the command value */
+    if (s->following_error_flag) sw |= 0x2000;                      /* bit 13 (CSP): following error */
+    return sw;
+}
+
+static double quantise(const ModelState *s, double q)
+{
+    return floor(q * s->counts_per_rad) / s->counts_per_rad;
+}
+
+static void power_off(ModelState *s)
+{
+    s->current = 0.0;
+    s->u_applied = 0.0;
+    s->u_next = 0.0;
+    s->current_integral = 0.0;
+    s->speed_integral = 0.0;
+    s->current_demand = 0.0;
+    s->speed_demand = 0.0;
+    s->limit_active = 0;
+    s->following_error = 0.0;
+    s->following_error_flag = 0;
+}
+
+static void enter(Instance *inst, int state)
+{
+    ModelState *s = &inst->d.s;
+    if (state == s->cia_state) return;
+    fmu_log(inst, fmi2OK, "logEvents", "t=%.6f s: %s -> %s", inst->d.time, CIA_NAME[s->cia_state], CIA_NAME[state]);
+    if (state == CIA_QUICK_STOP_ACTIVE || state == CIA_FAULT_REACTION_ACTIVE) {
+        if (s->cia_state != CIA_QUICK_STOP_ACTIVE) { /* start the ramp where the axis is */
+            s->ramp_position = s->position_actual;
+            s->ramp_velocity = s->speed_filtered;
+        }
+    }
+    if (state == CIA_OPERATION_ENABLED) {
+        if (s->cia_state != CIA_QUICK_STOP_ACTIVE) power_off(s); /* fresh controller states */
+        s->target_prev = R(TARGET_POSITION);
+    }
+    s->cia_state = state;
+    if (!power_on(state)) power_off(s);
+}
+
+static void raise_fault(Instance *inst, int code)
+{
+    ModelState *s = &inst->d.s;
+    s->error_code = code;
+    fmu_log(inst, fmi2OK, "logEvents", "t=%.6f s: fault 0x%04X", inst->d.time, (unsigned)code);
+    enter(inst, power_on(s->cia_state) ? CIA_FAULT_REACTION_ACTIVE : CIA_FAULT);
+}
+
+/* CiA 402 device control (one evaluation per position sample). */
+static void state_machine(Instance *inst)
+{
+    ModelState *s = &inst->d.s;
+    int cw = I(CONTROLWORD);
+    int fault_reset_edge = (cw & 0x80) && !(s->controlword_prev & 0x80);
+    int shutdown = (cw & 0x87) == 0x06;
+    int switch_on = (cw & 0x8F) == 0x07;
+    int enable = (cw & 0x8F) == 0x0F;
+    int disable_voltage = (cw & 0x82) == 0x00;
+    int quick_stop = (cw & 0x86) == 0x02;
+    s->controlword_prev = cw;
+
+    if (I(FAULT_CODE) != 0 && s->cia_state != CIA_FAULT && s->cia_state != CIA_FAULT_REACTION_ACTIVE) {
+        raise_fault(inst, I(FAULT_CODE));
+        return;
+    }
+    switch (s->cia_state) {
+    case CIA_NOT_READY:
+        enter(inst, CIA_SWITCH_ON_DISABLED);
+        break;
+    case CIA_SWITCH_ON_DISABLED:
+        if (shutdown) enter(inst, CIA_READY_TO_SWITCH_ON);                        /* 2 */
+        break;
+    case CIA_READY_TO_SWITCH_ON:
+        if (switch_on) enter(inst, CIA_SWITCHED_ON);                               /* 3 */
+        else if (enable) enter(inst, CIA_OPERATION_ENABLED);                       /* 3 + 4 */
+        else if (disable_voltage || quick_stop) enter(inst, CIA_SWITCH_ON_DISABLED); /* 7 */
+        break;
+    case CIA_SWITCHED_ON:
+        if (enable) enter(inst, CIA_OPERATION_ENABLED);                            /* 4 */
+        else if (shutdown) enter(inst, CIA_READY_TO_SWITCH_ON);                    /* 6 */
+        else if (disable_voltage || quick_stop) enter(inst, CIA_SWITCH_ON_DISABLED); /* 10 */
+        break;
+    case CIA_OPERATION_ENABLED:
+        if (switch_on) enter(inst, CIA_SWITCHED_ON);                               /* 5 */
+        else if (shutdown) enter(inst, CIA_READY_TO_SWITCH_ON);                    /* 8 */
+        else if (disable_voltage) enter(inst, CIA_SWITCH_ON_DISABLED);             /* 9 */
+        else if (quick_stop) enter(inst, CIA_QUICK_STOP_ACTIVE);                   /* 11 */
+        break;
+    case CIA_QUICK_STOP_ACTIVE:
+        if (disable_voltage) enter(inst, CIA_SWITCH_ON_DISABLED);                  /* 12 */
+        else if (enable && I(QUICK_STOP_OPTION_CODE) == 6 && s->ramp_velocity == 0.0)
+            enter(inst, CIA_OPERATION_ENABLED);                                    /* 16 */
+        break;
+    case CIA_FAULT_REACTION_ACTIVE:
+        break; /* leaves by itself when the ramp has stopped the axis (14) */
+    case CIA_FAULT:
+        if (fault_reset_edge) {
+            s->error_code = 0;
+            enter(inst, CIA_SWITCH_ON_DISABLED);                                   /* 15 */
+        }
+        break;
+    }
+}
+
+static void position_sample(Instance *inst)
+{
+    ModelState *s = &inst->d.s;
+    const double ts = R(POSITION_SAMPLE_TIME);
+    double reference, feedforward, error, v;
+
+    s->position_actual = quantise(s, R(Q_MEAS));
+    state_machine(inst);
+    if (!power_on(s->cia_state)) {
+        s->target_prev = R(TARGET_POSITION);
+        return;
+    }
+    if (s->cia_state == CIA_OPERATION_ENABLED) {
+        reference = R(TARGET_POSITION);
+        feedforward = R(SPEED_FEEDFORWARD_GAIN) * (reference - s->target_prev) / ts;
+        s->target_prev = reference;
+    } else {
+        const double dec = (s->cia_state == CIA_QUICK_STOP_ACTIVE ? R(QUICK_STOP_DECELERATION)
+                                                                 : R(FAULT_REACTION_DECELERATION)) * ts;
+        double v_old = s->ramp_velocity;
+        double v_new = fabs(v_old) <= dec ? 0.0 : v_old - copysign(dec, v_old);
+        s->ramp_position += 0.5 * (v_old + v_new) * ts;
+        s->ramp_velocity = v_new;
+        reference = s->ramp_position;
+        feedforward = v_new;
+        s->target_prev = R(TARGET_POSITION);
+    }
+    error = reference - s->position_actual;
+    v = R(POSITION_KV) * error + feedforward;
+    if (v > R(VELOCITY_LIMIT)) v = R(VELOCITY_LIMIT);
+    if (v < -R(VELOCITY_LIMIT)) v = -R(VELOCITY_LIMIT);
+    s->speed_demand = v;
+    s->following_error = error;
+    s->following_error_flag = R(FOLLOWING_ERROR_WINDOW) > 0.0 && fabs(error) > R(FOLLOWING_ERROR_WINDOW);
+
+    if (s->cia_state == CIA_OPERATION_ENABLED && s->following_error_flag) {
+        fmu_log(inst, fmi2Warning, "logStatusWarning",
+                "t=%.6f s: following error %.6g rad exceeds the window %.6g rad: fault 0x%04X", inst->d.time,
+                error, R(FOLLOWING_ERROR_WINDOW), ERROR_FOLLOWING);
+        raise_fault(inst, ERROR_FOLLOWING);
+    } else if (s->cia_state != CIA_OPERATION_ENABLED && s->ramp_velocity == 0.0) {
+        if (s->cia_state == CIA_FAULT_REACTION_ACTIVE) enter(inst, CIA_FAULT);              /* 14 */
+        else if (I(QUICK_STOP_OPTION_CODE) == 2) enter(inst, CIA_SWITCH_ON_DISABLED);       /* 12 */
+    }
+}
+
+static void speed_sample(Instance *inst)
+{
+    ModelState *s = &inst->d.s;
+    const double n = R(GEAR_RATIO), kp = R(SPEED_KP);
+    double error, feedforward, demand, limited;
+
+    s->speed_filtered += s->filter_alpha * (R(QD_MEAS) - s->speed_filtered);
+    if (!power_on(s->cia_state)) return;
+    error = n * (s->speed_demand - s->speed_filtered); /* motor side, rad/s */
+    feedforward = s->cia_state == CIA_OPERATION_ENABLED ? R(TORQUE_OFFSET) / (n * R(TORQUE_CONSTANT)) : 0.0;
+    demand = kp * error + s->speed_integral + feedforward;
+    limited = demand > s->current_max ? s->current_max : (demand < -s->current_max ? -s->current_max : demand);
+    s->limit_active = limited != demand;
+    /* conditional integration (anti-windup): no integration that drives further into the limit */
+    if (!s->limit_active || (demand > 0.0) != (error > 0.0))
+        s->speed_integral += kp * R(SPEED_SAMPLE_TIME) / R(SPEED_TN) * error;
+    s->current_demand = limited;
+}
+
+static void current_sample(Instance *inst)
+{
+    ModelState *s = &inst->d.s;
+    const double ts = R(CURRENT_SAMPLE_TIME), kp = R(CURRENT_KP);
+    const double emf = R(BACK_EMF_CONSTANT) * R(GEAR_RATIO) * R(QD_MEAS); /* V */
+    double error, demand, limited, i_inf;
+
+    if (!power_on(s->cia_state)) {
+        s->current = 0.0;
+        return;
+    }
+    error = s->current_demand - s->current;
+    demand = kp * error + s->current_integral + emf;
+    limited = demand > s->voltage_max ? s->voltage_max : (demand < -s->voltage_max ? -s->voltage_max : demand);
+    if (limited == demand || (demand > 0.0) != (error > 0.0))
+        s->current_integral += kp * ts / R(CURRENT_TN) * error;
+    s->u_applied = s->u_next;
+    s->u_next = limited;
+    /* exact solution of L di/dt = u - R i - emf over one current period */
+    i_inf = (s->u_applied - emf) / R(RESISTANCE);
+    s->current = i_inf + (s->current - i_inf) * s->decay;
+}
+
+static void write_outputs(Instance *inst)
+{
+    ModelState *s = &inst->d.s;
+    const double torque = R(GEAR_RATIO) * R(TORQUE_CONSTANT) * s->current;
+    R(TAU_OUT) = torque;
+    R(TORQUE_ACTUAL) = torque;
+    R(CURRENT_ACTUAL) = s->current;
+    R(CURRENT_DEMAND) = s->current_demand;
+    R(POSITION_ACTUAL) = s->position_actual;
+    R(VELOCITY_ACTUAL) = s->speed_filtered;
+    R(FOLLOWING_ERROR) = s->following_error;
+    I(STATUSWORD) = statusword(s);
+    I(ERROR_CODE) = s->error_code;
+}
+
+void model_reset(Instance *inst)
+{
+    ModelState *s = &inst->d.s;
+    s->cia_state = CIA_NOT_READY;
+    write_outputs(inst);
+}
+
+/* Is `value` an integer multiple (>= 1) of `base`? Writes the multiple to `n`. */
+static int multiple_of(double value, double base, int *n)
+{
+    double ratio = value / base;
+    long k = lround(ratio);
+    *n = (int)k;
+    return k >= 1 && fabs(ratio - (double)k) <= 1e-6;
+}
+
+int model_initialize(Instance *inst)
+{
+    ModelState *s = &inst->d.s;
+    const double ts_i = R(CURRENT_SAMPLE_TIME);
+    if (!multiple_of(R(SPEED_SAMPLE_TIME), ts_i, &s->n_speed) ||
+        !multiple_of(R(POSITION_SAMPLE_TIME), ts_i, &s->n_position) ||
+        s->n_position % s->n_speed != 0) {
+        fmu_log(inst, fmi2Error, "logStatusError",
+                "speed_sample_time=%g s and position_sample_time=%g s must be integer multiples of "
+                "current_sample_time=%g s, and position_sample_time a multiple of speed_sample_time",
+                R(SPEED_SAMPLE_TIME), R(POSITION_SAMPLE_TIME), ts_i);
+        return 1;
+    }
+    if (I(QUICK_STOP_OPTION_CODE) != 2 && I(QUICK_STOP_OPTION_CODE) != 6) {
+        fmu_log(inst, fmi2Error, "logStatusError", "quick_stop_option_code=%d, expected 2 or 6",
+                I(QUICK_STOP_OPTION_CODE));
+        return 1;
+    }
+    s->tick = 0;
+    s->counts_per_rad = R(GEAR_RATIO) * (double)I(ENCODER_COUNTS_PER_REV) / (2.0 * PI);
+    s->current_max = fmin(R(CURRENT_LIMIT), R(TORQUE_LIMIT) / (R(GEAR_RATIO) * R(TORQUE_CONSTANT)));
+    s->voltage_max = R(BUS_VOLTAGE) / sqrt(3.0);
+    s->decay = exp(-R(RESISTANCE) * ts_i / R(INDUCTANCE));
+    s->filter_alpha = R(SPEED_FILTER_TIME) > 0.0 ? 1.0 - exp(-R(SPEED_SAMPLE_TIME) / R(SPEED_FILTER_TIME)) : 1.0;
+    s->speed_filtered = R(QD_MEAS);
+    s->controlword_prev = I(CONTROLWORD);
+    s->error_code = 0;
+    power_off(s);
+    s->cia_state = CIA_NOT_READY;
+    enter(inst, CIA_SWITCH_ON_DISABLED); /* automatic after initialisation */
+    s->position_actual = quantise(s, R(Q_MEAS));
+    s->target_prev = R(TARGET_POSITION);
+    write_outputs(inst);
+    return 0;
+}
+
+int model_do_step(Instance *inst, double t, double h)
+{
+    ModelState *s = &inst->d.s;
+    int n_steps, k;
+    if (!multiple_of(h, R(CURRENT_SAMPLE_TIME), &n_steps)) {
+        fmu_log(inst, fmi2Error, "logStatusError",
+                "fmi2DoStep: communicationStepSize=%g s is not a multiple of current_sample_time=%g s", h,
+                R(CURRENT_SAMPLE_TIME));
+        return MODEL_STEP_REJECTED;
+    }
+    for (k = 0; k < n_steps; k++) {
+        if (s->tick % s->n_position == 0) position_sample(inst);
+        if (s->tick % s->n_speed == 0) speed_sample(inst);
+        current_sample(inst);
+        s->tick++;
+    }
+    if (!isfinite(s->current) || !isfinite(s->speed_integral) || !isfinite(s->current_integral)) {
+        fmu_log(inst, fmi2Error, "logStatusError", "fmi2DoStep: drive state became non-finite at t=%.9g s", t + h);
+        return MODEL_STEP_FAILED;
+    }
+    write_outputs(inst);
+    return 0;
+}

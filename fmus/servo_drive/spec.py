@@ -1,0 +1,82 @@
+"""Variables of the ``servo_drive`` FMU (names, causality, units, ranges, defaults).
+
+Defaults are the axis-1 values of :func:`fmus.servo_drive.params.drive_start_values`;
+the caller sets the other axes' values as start values.
+"""
+from __future__ import annotations
+
+from fmus.fmi2_spec import INPUT, OUTPUT, PARAMETER, FmuSpec
+from fmus.servo_drive.params import drive_start_values
+
+MODEL_IDENTIFIER = "servo_drive"
+SOURCE_FILES = ("fmi2_wrapper.c", "servo_drive.c")
+
+#: (name, unit, min, max, description) of the Real parameters, in value-reference order.
+REAL_PARAMETERS: tuple[tuple[str, str, float | None, float | None, str], ...] = (
+    ("gear_ratio", "1", 1e-6, None, "gear ratio N (motor rev per joint rev)"),
+    ("torque_constant", "N.m/A", 1e-9, None, "motor torque constant k_t (motor side)"),
+    ("back_emf_constant", "V.s/rad", 0.0, None, "q-axis back-EMF constant k_e (per motor rad/s)"),
+    ("current_limit", "A", 1e-9, None, "peak motor current limit"),
+    ("torque_limit", "N.m", 1e-9, None, "joint-side torque limit (current clamp min(I_max, T_max/(N k_t)))"),
+    ("velocity_limit", "rad/s", 1e-9, None, "joint-side speed-demand clamp"),
+    ("resistance", "Ohm", 1e-9, None, "q-axis winding resistance R"),
+    ("inductance", "H", 1e-12, None, "q-axis inductance L"),
+    ("bus_voltage", "V", 1e-9, None, "DC-link voltage; the q-voltage limit is bus_voltage/sqrt(3)"),
+    ("current_kp", "V/A", 0.0, None, "current PI proportional gain"),
+    ("current_tn", "s", 1e-9, None, "current PI integral time"),
+    ("speed_kp", "A.s/rad", 0.0, None, "speed PI proportional gain (current per MOTOR speed error)"),
+    ("speed_tn", "s", 1e-9, None, "speed PI integral time"),
+    ("speed_filter_time", "s", 0.0, None, "first-order actual-speed filter time constant (0: none)"),
+    ("position_kv", "1/s", 0.0, None, "position P gain (joint speed demand per position error)"),
+    ("speed_feedforward_gain", "1", 0.0, 2.0, "weight of the speed feed-forward from target differences"),
+    ("current_sample_time", "s", 1e-7, 1.0, "current-loop sample time"),
+    ("speed_sample_time", "s", 1e-7, 1.0, "speed-loop sample time (multiple of current_sample_time)"),
+    ("position_sample_time", "s", 1e-7, 1.0, "position-loop sample time (multiple of speed_sample_time)"),
+    ("quick_stop_deceleration", "rad/s2", 1e-9, None, "quick-stop ramp deceleration (0x6085)"),
+    ("fault_reaction_deceleration", "rad/s2", 1e-9, None, "fault-reaction ramp deceleration"),
+    ("following_error_window", "rad", 0.0, None, "following-error window (0x6065), 0 disables the fault"),
+)
+
+
+def servo_drive_spec() -> FmuSpec:
+    """The full variable list of the servo drive FMU with axis-1 defaults."""
+    defaults = drive_start_values(1)
+    spec = FmuSpec(
+        model_identifier=MODEL_IDENTIFIER,
+        description="One axis of a CiA 402 servo drive (cyclic synchronous position): P position loop, "
+                    "PI speed loop, PI current loop on a q-axis R-L-EMF motor model, torque feed-forward, "
+                    "limits, encoder quantisation, state machine with quick-stop and fault ramps",
+        source_files=SOURCE_FILES,
+        default_step=defaults["current_sample_time"],
+        default_stop=0.1,
+    )
+    spec.add("target_position", "Real", INPUT, "CiA 402 0x607A target position, joint side", unit="rad", start=0.0)
+    spec.add("torque_offset", "Real", INPUT, "CiA 402 0x60B2 torque feed-forward, joint side", unit="N.m", start=0.0)
+    spec.add("q_meas", "Real", INPUT, "measured joint position from the plant", unit="rad", start=0.0)
+    spec.add("qd_meas", "Real", INPUT, "measured joint speed from the plant (resolver evaluation)",
+             unit="rad/s", start=0.0)
+    spec.add("tau_out", "Real", OUTPUT, "joint-side motor torque N k_t i applied to the plant", unit="N.m")
+    spec.add("position_actual", "Real", OUTPUT,
+             "CiA 402 0x6064 position actual: quantised encoder position latched at the last position sample",
+             unit="rad")
+    spec.add("velocity_actual", "Real", OUTPUT, "CiA 402 0x606C velocity actual: filtered measured speed",
+             unit="rad/s")
+    spec.add("current_actual", "Real", OUTPUT, "motor q-axis current", unit="A")
+    spec.add("current_demand", "Real", OUTPUT, "current set-point (speed PI + feed-forward, limited)", unit="A")
+    spec.add("torque_actual", "Real", OUTPUT, "CiA 402 0x6077 torque actual, joint side N k_t i", unit="N.m")
+    spec.add("following_error", "Real", OUTPUT, "reference minus position actual at the last position sample",
+             unit="rad")
+    for name, unit, lo, hi, text in REAL_PARAMETERS:
+        spec.add(name, "Real", PARAMETER, text, unit=unit, start=defaults[name], min=lo, max=hi)
+    spec.add("controlword", "Integer", INPUT, "CiA 402 0x6040 controlword", start=0, min=0, max=65535)
+    spec.add("fault_code", "Integer", INPUT,
+             "external fault (e.g. fieldbus threshold reaction): 0 none, otherwise the 0x603F error code "
+             "to raise", start=0, min=0, max=65535)
+    spec.add("statusword", "Integer", OUTPUT, "CiA 402 0x6041 statusword")
+    spec.add("error_code", "Integer", OUTPUT, "CiA 402 0x603F error code of the active fault (0: none)")
+    spec.add("encoder_counts_per_rev", "Integer", PARAMETER, "encoder counts per motor revolution",
+             start=defaults["encoder_counts_per_rev"], min=1, max=2**30)
+    spec.add("quick_stop_option_code", "Integer", PARAMETER,
+             "CiA 402 0x605A: 2 = ramp then switch on disabled, 6 = ramp then hold in quick stop",
+             start=defaults["quick_stop_option_code"], min=2, max=6)
+    return spec
