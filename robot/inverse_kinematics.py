@@ -198,7 +198,7 @@ class AnalyticIK:
         shape = q4.shape  # (n, 2, 2, 2)
         q = np.empty(shape + (N_JOINTS,))
         q[..., 0] = q1[:, :, None, None]
-        q[..., 1] = q2[..., None]
+        q[..., 1] = wrap_angle(q2)[..., None]
         q[..., 2] = q3[..., None]
         q[..., 3] = q4
         q[..., 4] = q5
