@@ -52,6 +52,7 @@ from cosim.master.variables import (MasterTypeUnsupported, bus_type, check_conne
 
 COUPLINGS = ("jacobi", "gauss_seidel")
 ENGINES = ("auto", "native", "python")
+_BUS_FMI_TYPES = ("Real", "Integer", "Enumeration", "Boolean")
 _RECORDABLE_CAUSALITIES = ("output", "local", "parameter", "calculatedParameter", "input", "independent")
 
 
@@ -312,12 +313,13 @@ class Master:
         return recorder
 
     def expand_signals(self, signals: Sequence[str]) -> list[str]:
-        """Expand glob patterns (``*``, ``?``, ``[``-free) against FMU outputs and master variables."""
+        """Expand glob patterns (``*``, ``?``) against FMU outputs (not String) and master variables."""
         out: list[str] = []
         for s in signals:
             if "*" in s or "?" in s:
                 matches = [f"{n}.{v.name}" for n, c in self._fmus.items() for v in c.model_description.modelVariables
-                           if v.causality == "output" and fnmatchcase(f"{n}.{v.name}", s)]
+                           if v.causality == "output" and v.type in _BUS_FMI_TYPES
+                           and fnmatchcase(f"{n}.{v.name}", s)]
                 matches += [v for v in self._variables if fnmatchcase(v, s)]
                 if not matches:
                     raise MasterConfigError(f"signal pattern {s!r} matches no FMU output or master variable")

@@ -1,0 +1,95 @@
+"""``summary.json``: written when a run starts and rewritten atomically as it goes.
+
+Fields every run has: ``scenario``, ``job``, ``status`` (``"running"``, ``"ok"`` or
+``"failed"``), ``reason`` and ``stopped_at_s`` when failed, ``sim_time_s`` (simulated
+seconds reached), ``wall_time_s``, ``realtime_factor`` (= sim_time_s / wall_time_s, >1 is
+faster than real time), ``started_at`` (UTC, ISO 8601). Jobs add their own fields with
+``update``. Non-finite floats are written as null (strict JSON).
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+import time
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+
+def _json_safe(value: Any) -> Any:
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {str(k): _json_safe(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_json_safe(v) for v in value]
+    if hasattr(value, "tolist"):  # numpy scalars and arrays
+        return _json_safe(value.tolist())
+    if isinstance(value, Path):
+        return str(value)
+    return value
+
+
+class SummaryWriter:
+    """Owns ``<out_dir>/summary.json`` for one run.
+
+    Args:
+        path: the summary.json path (its directory is created).
+        scenario: scenario name.
+        job: job type name.
+    """
+
+    def __init__(self, path: str | Path, scenario: str, job: str) -> None:
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._wall0 = time.perf_counter()
+        self.data: dict[str, Any] = {
+            "scenario": scenario,
+            "job": job,
+            "status": "running",
+            "started_at": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+            "sim_time_s": 0.0,
+            "wall_time_s": 0.0,
+            "realtime_factor": None,
+        }
+        self.write()
+
+    @property
+    def wall_time_s(self) -> float:
+        """Wall time since the writer was created, s."""
+        return time.perf_counter() - self._wall0
+
+    def write(self) -> None:
+        """Rewrite the file atomically (temporary file + rename)."""
+        tmp = self.path.with_name(self.path.name + ".tmp")
+        tmp.write_text(json.dumps(_json_safe(self.data), indent=2, allow_nan=False) + "\n", encoding="utf-8")
+        os.replace(tmp, self.path)
+
+    def progress(self, sim_time_s: float) -> None:
+        """Record how far the run got (simulated s) and the wall time so far; rewrite."""
+        wall = self.wall_time_s
+        self.data["sim_time_s"] = float(sim_time_s)
+        self.data["wall_time_s"] = wall
+        self.data["realtime_factor"] = sim_time_s / wall if wall > 0 else None
+        self.write()
+
+    def update(self, **fields: Any) -> None:
+        """Add or replace job-specific fields; rewrite."""
+        self.data.update(fields)
+        self.write()
+
+    def finish_ok(self, sim_time_s: float, **fields: Any) -> None:
+        """Final status ``"ok"``."""
+        self.data.update(fields)
+        self.data["status"] = "ok"
+        self.data.pop("reason", None)
+        self.progress(sim_time_s)
+
+    def finish_failed(self, reason: str, stopped_at_s: float | None, sim_time_s: float, **fields: Any) -> None:
+        """Final status ``"failed"`` with the reason and the simulated time it stopped at (s)."""
+        self.data.update(fields)
+        self.data["status"] = "failed"
+        self.data["reason"] = reason
+        self.data["stopped_at_s"] = stopped_at_s
+        self.progress(sim_time_s)

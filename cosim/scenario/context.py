@@ -1,0 +1,99 @@
+"""What a job gets to run with: output folder, summary.json, progress bar, time-series sinks.
+
+The ``run`` command creates a ``RunContext`` (which writes summary.json with
+``status: "running"``), calls the job's runner, and finishes the summary with
+``"ok"`` or ``"failed"``. Inside the runner, for each Master::
+
+    ctx.attach(master, total_s=stop_time, label="standard")   # before master.initialize()
+    master.initialize(stop_time)
+    ctx.execute(master)                                       # runs it with progress + summary updates
+"""
+from __future__ import annotations
+
+import math
+import time
+from pathlib import Path
+
+from cosim.master import Master
+from cosim.results.progress import ProgressBar
+from cosim.results.summary import SummaryWriter
+from cosim.results.timeseries import CsvSink
+from cosim.scenario.loader import Scenario
+
+#: Wall-time intervals between progress-bar and summary.json updates, s.
+PROGRESS_INTERVAL_S = 0.2
+SUMMARY_INTERVAL_S = 2.0
+#: The heartbeat task runs about this many times per attached run.
+HEARTBEATS_PER_RUN = 1000
+
+
+class RunContext:
+    """Output folder, summary and progress of one ``cosim run``.
+
+    Attributes:
+        scenario: the validated scenario.
+        out_dir: results folder (created).
+        quiet: no progress bar.
+        summary: the SummaryWriter of ``out_dir/summary.json``.
+        sim_time_s: simulated seconds completed so far over all executed masters.
+        label: label of the master being executed (shown in the bar, reported on failure).
+    """
+
+    def __init__(self, scenario: Scenario, out_dir: str | Path, quiet: bool = False) -> None:
+        self.scenario = scenario
+        self.out_dir = Path(out_dir)
+        self.out_dir.mkdir(parents=True, exist_ok=True)
+        self.quiet = quiet
+        self.summary = SummaryWriter(self.out_dir / "summary.json", scenario.name, scenario.job.name)
+        self.sim_time_s = 0.0
+        self.label = ""
+        self._bar: ProgressBar | None = None
+        self._base = 0.0
+        self._totals: dict[int, float] = {}
+
+    def path(self, name: str) -> Path:
+        """``out_dir / name``."""
+        return self.out_dir / name
+
+    def csv_sink(self, name: str) -> CsvSink:
+        """A CSV time-series sink writing ``out_dir / name``."""
+        return CsvSink(self.path(name))
+
+    def attach(self, master: Master, total_s: float, label: str = "") -> None:
+        """Add the heartbeat task (progress bar, summary.json sim_time_s) to ``master`` (before initialize)."""
+        period = master.base_step * max(1, math.floor(total_s / HEARTBEATS_PER_RUN / master.base_step))
+        state = {"bar": 0.0, "summary": time.perf_counter()}
+        self.label = label
+
+        def heartbeat(t: float) -> None:
+            now = time.perf_counter()
+            if self._bar is not None and now - state["bar"] > PROGRESS_INTERVAL_S:
+                self._bar.update(t - master.start_time)
+                state["bar"] = now
+            if now - state["summary"] > SUMMARY_INTERVAL_S:
+                self.summary.progress(self._base + t - master.start_time)
+                state["summary"] = now
+
+        master.add_task(heartbeat, period, priority=1_000_000, name="cosim.heartbeat")
+        self._totals[id(master)] = total_s
+
+    def execute(self, master: Master, until: float | None = None) -> float:
+        """Run an initialized master to ``until`` (default its stop_time) with progress; return the time reached.
+
+        ``sim_time_s`` grows by the simulated time covered. SimulationError propagates
+        (the run command writes the failed summary).
+        """
+        start = master.time
+        total = self._totals.get(id(master), (until if until is not None else master.stop_time or 0.0) - start)
+        self._base = self.sim_time_s
+        label = f"{self.scenario.name}{' ' + self.label if self.label else ''}"
+        self._bar = ProgressBar(total, label, enabled=not self.quiet)
+        try:
+            reached = master.run(until)
+        finally:
+            self.sim_time_s = self._base + (master.time - start)
+            self._bar.update(master.time - master.start_time, force=True)
+            self._bar.close()
+            self._bar = None
+        self.summary.progress(self.sim_time_s)
+        return reached

@@ -1,0 +1,237 @@
+"""The standard co-simulation tables of a scenario, their checks, and building a Master from them.
+
+Tables (all quantities SI numbers or unit strings, see units.py)::
+
+    [simulation]  stop_time, macro_step, coupling = "jacobi"|"gauss_seidel", order = [...], engine
+    [[fmus]]      name, path = "x.fmu" | builtin = "rx130l_plant"|"servo_drive", step, debug_logging
+    [fmus.parameters]  <variable> = <start value>
+    connections = ["a.x -> b.y", ...]
+    [record]      period, signals = ["plant.q[1]", "drive1.*", ...], file = "timeseries.csv"
+    [output]      dir
+
+Any job built on the master reuses these: put ``COSIM_FIELDS`` in its document schema,
+call ``check_cosim_tables(doc, where, master_variables)`` in its check, and
+``build_master(doc)`` / ``add_record(master, doc, ctx)`` in its runner.
+"""
+from __future__ import annotations
+
+from collections.abc import Mapping
+from fnmatch import fnmatchcase
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from cosim.master import Master, MasterConfigError, Recorder, load_model_description
+from cosim.master.master import COUPLINGS, ENGINES
+from cosim.master.variables import (MasterTypeUnsupported, bus_type, check_connection_ends, check_start_value,
+                                    parse_connection, split_signal)
+from cosim.scenario.schema import (AnyValue, Boolean, Field, FilePath, List, Number, String, Table, Where)
+
+if TYPE_CHECKING:
+    from cosim.scenario.context import RunContext
+
+INSTANCE_PATTERN = r"[A-Za-z_][A-Za-z0-9_]*"
+
+
+def builtin_fmu_names() -> tuple[str, ...]:
+    """Names accepted by ``builtin = ...`` (the project's FMUs built by fmus.build)."""
+    try:
+        from fmus.build import RECIPES
+    except ImportError:
+        return ()
+    return tuple(sorted(RECIPES))
+
+
+def resolve_builtin(name: str) -> Path:
+    """Path of the project's FMU ``name``, built (if needed) by ``fmus.build.ensure_fmus``."""
+    from fmus.build import ensure_fmus
+
+    return Path(ensure_fmus()[name])
+
+
+def _multiple_check(value: float, base: float) -> bool:
+    ratio = value / base
+    return round(ratio) >= 1 and abs(ratio - round(ratio)) <= 1e-9 * max(1.0, ratio)
+
+
+SIMULATION_TABLE = Table({
+    "stop_time": Field(Number(unit="s", gt=0), required=True, doc="the simulated duration: a number in s > 0"),
+    "macro_step": Field(Number(unit="s", gt=0), required=True, doc="the base macro step: a number in s > 0"),
+    "coupling": Field(String(choices=COUPLINGS), default="jacobi"),
+    "order": Field(List(String(pattern=INSTANCE_PATTERN, pattern_doc="naming an FMU instance"), unique=True)),
+    "engine": Field(String(choices=ENGINES), default="auto"),
+}, doc="the [simulation] table")
+
+FMU_TABLE = Table({
+    "name": Field(String(pattern=INSTANCE_PATTERN, pattern_doc="of letters, digits and '_' (an identifier)"),
+                  required=True),
+    "path": Field(FilePath(must_exist=True, suffix=".fmu")),
+    "builtin": Field(String(), doc="the name of one of the project's FMUs"),
+    "step": Field(Number(unit="s", gt=0)),
+    "parameters": Field(Table({}, extra=AnyValue(), doc="a table of <variable> = <start value>"), default={}),
+    "debug_logging": Field(Boolean(), default=False),
+}, one_of=[("path", "builtin")], doc="an [[fmus]] table")
+
+RECORD_TABLE = Table({
+    "period": Field(Number(unit="s", gt=0), required=True, doc="the sampling period: a number in s > 0"),
+    "signals": Field(List(String(), min_len=1), required=True,
+                     doc="a list of signal names '<instance>.<variable>' (globs like 'drive1.*' allowed)"),
+    "file": Field(String(pattern=r"[A-Za-z0-9_.-]+\.csv", pattern_doc="naming a .csv file in the results folder"),
+                  default="timeseries.csv"),
+}, doc="the [record] table")
+
+OUTPUT_TABLE = Table({
+    "dir": Field(String(), doc="the results folder (relative to the working directory)"),
+}, doc="the [output] table")
+
+#: Fields of the standard co-simulation tables, to merge into a job's document schema.
+COSIM_FIELDS: dict[str, Field] = {
+    "simulation": Field(SIMULATION_TABLE, required=True, doc="a [simulation] table with stop_time and macro_step"),
+    "fmus": Field(List(FMU_TABLE, min_len=1), required=True, doc="at least one [[fmus]] table"),
+    "connections": Field(List(String()), default=[]),
+    "record": Field(RECORD_TABLE),
+    "output": Field(OUTPUT_TABLE, default={}),
+}
+
+
+def check_cosim_tables(doc: dict, where: Where, master_variables: Mapping[str, str] | None = None) -> None:
+    """Check the co-simulation tables of a validated document against the FMUs themselves.
+
+    Resolves ``builtin`` FMUs to files (``doc["fmus"][i]["path"]``), then checks: FMI 2.0
+    co-simulation FMU, unique instance names, steps and periods multiples of macro_step,
+    stop_time a multiple of macro_step, every parameter exists and has the right type,
+    every connection joins an existing output (or master variable) to an existing input
+    of the same type once, every recorded signal exists. ``master_variables`` (name ->
+    "Real"/"Integer"/"Boolean") are the variables a job's tasks will declare.
+    Raises ScenarioError at the offending key.
+    """
+    master_variables = dict(master_variables or {})
+    sim = doc["simulation"]
+    base = sim["macro_step"]
+    if not _multiple_check(sim["stop_time"], base):
+        raise (where / "simulation" / "stop_time").error(
+            f"a positive integer multiple of macro_step = {base!r} s", sim["stop_time"])
+    descriptions = {}
+    for i, fmu in enumerate(doc["fmus"]):
+        w = where / "fmus"
+        if fmu["name"] in descriptions or fmu["name"] in {v.split(".", 1)[0] for v in master_variables}:
+            raise (w[i] / "name").error("a unique instance name", fmu["name"], problem="already used")
+        if "builtin" in fmu:
+            names = builtin_fmu_names()
+            if fmu["builtin"] not in names:
+                raise (w[i] / "builtin").error(f"one of the project's FMUs {list(names)}", fmu["builtin"])
+            fmu["path"] = resolve_builtin(fmu["builtin"])
+        try:
+            md = load_model_description(fmu["path"])
+        except MasterConfigError as exc:
+            raise (w[i] / ("builtin" if "builtin" in fmu else "path")).error(
+                "an FMI 2.0 co-simulation FMU", str(fmu["path"]), problem=str(exc)) from None
+        descriptions[fmu["name"]] = {v.name: v for v in md.modelVariables}
+        if "step" in fmu and not _multiple_check(fmu["step"], base):
+            raise (w[i] / "step").error(f"a positive integer multiple of macro_step = {base!r} s", fmu["step"])
+        variables = descriptions[fmu["name"]]
+        for key, value in fmu["parameters"].items():
+            kw = w[i] / "parameters" / key
+            if key not in variables:
+                settable = [v.name for v in md.modelVariables if v.causality == "parameter"]
+                raise kw.error(f"a variable of {Path(fmu['path']).name} (parameters: {_short(settable)})",
+                               problem="unknown key")
+            problem = check_start_value(variables[key], value)
+            if problem:
+                raise kw.error(problem, value)
+    if sim.get("order") is not None:
+        if sorted(sim["order"]) != sorted(descriptions):
+            raise (where / "simulation" / "order").error(
+                f"each FMU instance exactly once: {sorted(descriptions)}", sim["order"])
+
+    def fmu_variable(signal: str, w: Where):
+        try:
+            inst, var = split_signal(signal)
+        except ValueError:
+            raise w.error("a signal name '<instance>.<variable>'", signal) from None
+        if inst not in descriptions:
+            raise w.error(f"a signal of an FMU instance {sorted(descriptions)}"
+                          + (f" or a master variable {sorted(master_variables)}" if master_variables else ""),
+                          signal, problem=f"unknown instance {inst!r}")
+        if var not in descriptions[inst]:
+            raise w.error(f"a variable of FMU '{inst}' (outputs: "
+                          f"{_short([v.name for v in descriptions[inst].values() if v.causality == 'output'])}; "
+                          f"inputs: {_short([v.name for v in descriptions[inst].values() if v.causality == 'input'])})",
+                          signal, problem=f"unknown variable {var!r}")
+        return descriptions[inst][var]
+
+    destinations: dict[str, int] = {}
+    for i, text in enumerate(doc["connections"]):
+        w = (where / "connections")[i]
+        try:
+            spec = parse_connection(text)
+        except ValueError:
+            raise w.error("a connection 'instance.output -> instance.input'", text) from None
+        if spec.source in master_variables:
+            dst = fmu_variable(spec.destination, w)
+            problem = check_connection_ends(None, dst, master_variables[spec.source])
+        else:
+            src = fmu_variable(spec.source, w)
+            dst = fmu_variable(spec.destination, w)
+            problem = check_connection_ends(src, dst)
+        if problem:
+            raise w.error(problem, text)
+        if spec.destination in destinations:
+            raise w.error(f"an input not already connected (connections[{destinations[spec.destination]}] "
+                          f"drives {spec.destination})", text, problem="second source for one input")
+        destinations[spec.destination] = i
+    record = doc.get("record")
+    if record is not None:
+        if not _multiple_check(record["period"], base):
+            raise (where / "record" / "period").error(f"a positive integer multiple of macro_step = {base!r} s",
+                                                      record["period"])
+        for i, signal in enumerate(record["signals"]):
+            w = (where / "record" / "signals")[i]
+            if "*" in signal or "?" in signal:
+                outs = [f"{n}.{v}" for n, vs in descriptions.items() for v, var in vs.items()
+                        if var.causality == "output" and var.type != "String"] + list(master_variables)
+                if not any(fnmatchcase(o, signal) for o in outs):
+                    raise w.error("a pattern matching at least one FMU output or master variable", signal)
+                continue
+            if signal in master_variables:
+                continue
+            var = fmu_variable(signal, w)
+            try:
+                bus_type(var.type)
+            except MasterTypeUnsupported as exc:
+                raise w.error("a Real, Integer, Boolean or Enumeration variable", signal, problem=str(exc)) from None
+
+
+def _short(names: list[str], limit: int = 12) -> str:
+    return ", ".join(names[:limit]) + (f", ... ({len(names)} in all)" if len(names) > limit else "") or "none"
+
+
+def build_master(doc: dict, master_variables: Mapping[str, tuple[str, object]] | None = None) -> Master:
+    """A Master with the document's FMUs and connections (not initialized).
+
+    ``master_variables`` (name -> (type, start)) are declared before the connections so
+    that connections may read them; tasks and recorders are for the caller to add.
+    """
+    sim = doc["simulation"]
+    master = Master(sim["macro_step"], coupling=sim["coupling"], engine=sim["engine"])
+    for fmu in doc["fmus"]:
+        master.add_fmu(fmu["name"], fmu["path"], step=fmu.get("step"), start_values=fmu["parameters"],
+                       debug_logging=fmu["debug_logging"])
+    for name, (type_, start) in (master_variables or {}).items():
+        master.add_variable(name, type_, start)
+    for text in doc["connections"]:
+        master.connect(text)
+    if sim.get("order") is not None:
+        master.set_order(sim["order"])
+    return master
+
+
+def add_record(master: Master, doc: dict, ctx: "RunContext") -> Recorder | None:
+    """Add the ``[record]`` table's recorder writing CSV into the results folder (None without [record])."""
+    record = doc.get("record")
+    if record is None:
+        return None
+    return master.add_recorder(record["signals"], record["period"], ctx.csv_sink(record["file"]), name="record")
+
+
+__all__ = ["COSIM_FIELDS", "FMU_TABLE", "OUTPUT_TABLE", "RECORD_TABLE", "SIMULATION_TABLE", "add_record",
+           "build_master", "builtin_fmu_names", "check_cosim_tables", "resolve_builtin"]

@@ -1,0 +1,102 @@
+"""Load a scenario TOML file and validate it completely before anything runs.
+
+``load_scenario(path)`` reads the file with tomllib, checks the ``[scenario]`` table,
+looks up the job type, validates the whole document against the job's schema and runs
+the job's semantic check (FMU files, parameters, connections, steps). Any problem is
+a ``ScenarioError`` naming the file, the key path, the value and what was expected.
+"""
+from __future__ import annotations
+
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from cosim.scenario.errors import ScenarioError
+from cosim.scenario.registry import JobType, get_job, job_names
+from cosim.scenario.schema import Field, String, Table, Where, validate
+
+NAME_PATTERN = r"[A-Za-z0-9][A-Za-z0-9_.-]*"
+
+#: The ``[scenario]`` table every scenario has.
+SCENARIO_TABLE = Table({
+    "name": Field(String(pattern=NAME_PATTERN, pattern_doc="of letters, digits, '_', '.', '-' (used as folder name)"),
+                  required=True),
+    "job": Field(String(), required=True, doc="a registered job type"),
+    "description": Field(String(nonempty=False), default=""),
+}, doc="the [scenario] table")
+
+#: Field to put under "scenario" in a job's document schema.
+SCENARIO_FIELD = Field(SCENARIO_TABLE, required=True, doc="a [scenario] table with name and job")
+
+
+@dataclass
+class Scenario:
+    """A validated scenario.
+
+    Attributes:
+        path: the file (None when loaded from a dict).
+        name: ``[scenario] name``.
+        job: the JobType.
+        data: the validated, normalized document (defaults filled, quantities in SI, paths resolved).
+        raw: the document as parsed.
+    """
+
+    path: Path | None
+    name: str
+    job: JobType
+    data: dict[str, Any]
+    raw: dict[str, Any] = field(repr=False)
+
+    @property
+    def where(self) -> Where:
+        """Root position in the document (for errors raised while running)."""
+        return Where(self.path)
+
+
+def load_document(document: dict[str, Any], path: str | Path | None = None) -> Scenario:
+    """Validate an already parsed document (``path`` only names it in errors and anchors relative paths)."""
+    where = Where(None if path is None else Path(path).resolve())
+    if "scenario" not in document:
+        raise (where / "scenario").error(SCENARIO_FIELD.doc, problem="missing required table")
+    try:
+        head = validate(SCENARIO_TABLE, document["scenario"], where / "scenario")
+    except ScenarioError as exc:
+        raise _with_toml_hint(exc, get_job(document["scenario"].get("job", "")), document) from None
+    job = get_job(head["job"])
+    if job is None:
+        raise (where / "scenario" / "job").error(f"one of the registered job types {job_names()}", head["job"])
+    try:
+        data = validate(job.schema, document, where)
+        if job.check is not None:
+            job.check(data, where)
+    except ScenarioError as exc:
+        raise _with_toml_hint(exc, job, document) from None
+    return Scenario(where.file, head["name"], job, data, document)
+
+
+def _with_toml_hint(exc: ScenarioError, job: JobType | None, document: dict[str, Any]) -> ScenarioError:
+    """Explain the classic TOML trap: a top-level key written after a [table] header belongs to that table."""
+    last = exc.key.rsplit(".", 1)[-1] if exc.key else ""
+    if job is not None and "." in exc.key and last in job.schema.fields and last not in document and "unknown key" in str(exc):
+        hint = ScenarioError(exc.file, exc.key, f"'{last}' at the top level of the file, before the first [table] "
+                             f"header (in TOML, keys after a header belong to that table)",
+                             problem="unknown key")
+        return hint
+    return exc
+
+
+def load_scenario(path: str | Path) -> Scenario:
+    """Read and validate the scenario file ``path``; ScenarioError on any problem."""
+    path = Path(path)
+    if not path.is_file():
+        raise ScenarioError(path, "", "an existing scenario .toml file", problem="file not found")
+    try:
+        with open(path, "rb") as f:
+            document = tomllib.load(f)
+    except tomllib.TOMLDecodeError as exc:
+        raise ScenarioError(path, "", "valid TOML", problem=str(exc)) from None
+    return load_document(document, path)
+
+
+__all__ = ["SCENARIO_FIELD", "SCENARIO_TABLE", "Scenario", "load_document", "load_scenario", "Table"]
