@@ -12,6 +12,7 @@ from collections.abc import Sequence
 
 COMMAND_MODULES: tuple[str, ...] = (
     "cosim.commands.robot_info",
+    "cosim.commands.build_fmus",
     "cosim.commands.run",
 )
 
