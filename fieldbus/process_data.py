@@ -1,0 +1,127 @@
+"""Plain per-cycle process data at the edge of the fieldbus, in SI units.
+
+One entry per controlled node (node 1 = joint 1 first), numpy arrays of shape (N,).
+Joint side: rad, rad/s, N·m. Controlwords and statuswords are CiA 402 integers.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from fieldbus.cia402 import motion_enabled
+
+
+@dataclass(slots=True)
+class Setpoints:
+    """What the controller commands for the next cycle (goes into the PReqs).
+
+    controlword: CiA 402 controlword per node (0x6040).
+    position: target joint angle in rad (0x607A after scaling).
+    torque_offset: feed-forward joint torque in N·m (0x60B2 after scaling).
+    """
+
+    controlword: np.ndarray
+    position: np.ndarray
+    torque_offset: np.ndarray
+
+    @classmethod
+    def zeros(cls, nodes: int) -> "Setpoints":
+        return cls(np.zeros(nodes, dtype=np.int64), np.zeros(nodes), np.zeros(nodes))
+
+
+@dataclass(slots=True)
+class DriveActuals:
+    """What the drives report, sampled at the SoC (goes into the PRes).
+
+    statusword: CiA 402 statusword per node (0x6041).
+    position: joint angle in rad (0x6064), velocity in rad/s (0x606C),
+    torque: joint torque in N·m (0x6077), error_code: 0x603F.
+    """
+
+    statusword: np.ndarray
+    position: np.ndarray
+    velocity: np.ndarray
+    torque: np.ndarray
+    error_code: np.ndarray
+
+    @classmethod
+    def zeros(cls, nodes: int) -> "DriveActuals":
+        return cls(np.zeros(nodes, dtype=np.int64), np.zeros(nodes), np.zeros(nodes),
+                   np.zeros(nodes), np.zeros(nodes, dtype=np.int64))
+
+
+@dataclass(slots=True)
+class AppliedSetpoints:
+    """What each drive applies from the SoC of this cycle until the next SoC (quantised).
+
+    controlword/position/torque_offset: as received (or held / extrapolated when
+        the set-point due now did not arrive), rad and N·m after quantisation.
+    fresh: True where the set-point due at this SoC arrived.
+    comm_fault: True where the controlled node's threshold counter tripped; the
+        runner forwards it to the drive FMU's communication-fault input. With the
+        default abort option 'quick_stop' the controlword is also forced to quick
+        stop (0x0002), so a drive that only reads the controlword reacts too.
+    """
+
+    controlword: np.ndarray
+    position: np.ndarray
+    torque_offset: np.ndarray
+    fresh: np.ndarray
+    comm_fault: np.ndarray
+
+    @classmethod
+    def zeros(cls, nodes: int) -> "AppliedSetpoints":
+        return cls(np.zeros(nodes, dtype=np.int64), np.zeros(nodes), np.zeros(nodes),
+                   np.zeros(nodes, dtype=bool), np.zeros(nodes, dtype=bool))
+
+    def copy(self) -> "AppliedSetpoints":
+        return AppliedSetpoints(*(a.copy() for a in (self.controlword, self.position,
+                                                     self.torque_offset, self.fresh, self.comm_fault)))
+
+
+@dataclass(slots=True)
+class ObservedActuals:
+    """What the controller sees after this cycle's PRes frames (latched at this SoC).
+
+    Values of a node whose PRes did not arrive valid are held from before, with
+    fresh False. node_fault is True where the managing node's threshold counter for
+    that node tripped (cleared by a fault reset once the counter is below threshold):
+    the controller must stop commanding motion.
+    """
+
+    statusword: np.ndarray
+    position: np.ndarray
+    velocity: np.ndarray
+    torque: np.ndarray
+    error_code: np.ndarray
+    fresh: np.ndarray
+    node_fault: np.ndarray
+
+    @classmethod
+    def zeros(cls, nodes: int) -> "ObservedActuals":
+        return cls(np.zeros(nodes, dtype=np.int64), np.zeros(nodes), np.zeros(nodes),
+                   np.zeros(nodes), np.zeros(nodes, dtype=np.int64),
+                   np.zeros(nodes, dtype=bool), np.zeros(nodes, dtype=bool))
+
+    def copy(self) -> "ObservedActuals":
+        return ObservedActuals(*(a.copy() for a in (self.statusword, self.position, self.velocity,
+                                                    self.torque, self.error_code, self.fresh,
+                                                    self.node_fault)))
+
+    @property
+    def motion_allowed(self) -> bool:
+        """True when every node answered, none is faulted and every drive is in
+        Operation enabled: the controller may command motion."""
+        return (bool(self.fresh.all()) and not bool(self.node_fault.any())
+                and all(motion_enabled(int(s)) for s in self.statusword))
+
+
+@dataclass(slots=True)
+class CycleResult:
+    """Result of one network cycle (arrays are reused: copy what you keep)."""
+
+    cycle: int
+    time_s: float
+    applied: AppliedSetpoints
+    observed: ObservedActuals

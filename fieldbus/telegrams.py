@@ -1,0 +1,204 @@
+"""CANopen-style CiA 402 telegrams: identifiers, byte layouts, a validating decoder.
+
+Identifiers follow the CANopen predefined connection set, so captures decode in
+ordinary CAN tools:
+
+=========  =============  =====================================================  =====
+frame      COB-ID         payload (little endian)                                bytes
+=========  =============  =====================================================  =====
+SYNC       0x080          SYNC counter UINT8 1..overflow (CiA 301 0x1019)          1
+RPDO1      0x200 + node   controlword 0x6040 UINT16, target position 0x607A       8
+                          INT32 [counts], torque offset 0x60B2 INT16 [0.1 % of
+                          rated torque]
+TPDO1      0x180 + node   statusword 0x6041 UINT16, position actual 0x6064        8
+                          INT32 [counts], torque actual 0x6077 INT16 [0.1 %]
+TPDO2      0x280 + node   velocity actual 0x606C INT32 [counts/s], error code     6
+                          0x603F UINT16
+EMCY       0x080 + node   error code UINT16, error register 0x1001 UINT8,         8
+                          5 bytes manufacturer specific (here: the counter that
+                          tripped, its value, its threshold)
+=========  =============  =====================================================  =====
+
+POWERLINK mapping: SYNC = SoC, RPDO1 = the PDO payload of the PReq to the node,
+TPDO1 + TPDO2 = the PDO payload of the node's PRes (one Ethernet frame, two CAN
+telegrams), EMCY = an asynchronous frame after the SoA.
+"""
+from __future__ import annotations
+
+import struct
+from typing import NamedTuple
+
+import can
+
+from fieldbus.errors import FrameDecodeError
+
+SYNC_ID = 0x080
+EMCY_BASE = 0x080
+TPDO1_BASE = 0x180
+RPDO1_BASE = 0x200
+TPDO2_BASE = 0x280
+MAX_NODE_ID = 127
+
+RPDO1 = struct.Struct("<HiH")  # controlword, target position, torque offset (raw UINT16, see below)
+RPDO1_SIGNED = struct.Struct("<Hih")
+TPDO1 = struct.Struct("<Hih")  # statusword, position actual, torque actual
+TPDO2 = struct.Struct("<iH")  # velocity actual, error code
+EMCY = struct.Struct("<HBBHH")  # error code, error register, counter id, counter value, threshold
+
+PREQ_PAYLOAD_BYTES = RPDO1_SIGNED.size
+PRES_PAYLOAD_BYTES = TPDO1.size + TPDO2.size
+
+# CANopen emergency error code for communication faults (CiA 301: 0x81xx communication)
+EMCY_COMMUNICATION = 0x8100
+EMCY_ERROR_REGISTER_COMMUNICATION = 0x10  # bit 4 of 0x1001: communication error
+
+INT16_MIN, INT16_MAX = -(1 << 15), (1 << 15) - 1
+INT32_MIN, INT32_MAX = -(1 << 31), (1 << 31) - 1
+
+
+class RxPdo1(NamedTuple):
+    """Decoded RPDO1 (MN -> drive) in telegram units."""
+
+    node: int
+    controlword: int
+    target_position: int
+    torque_offset: int
+
+
+class TxPdo1(NamedTuple):
+    """Decoded TPDO1 (drive -> MN) in telegram units."""
+
+    node: int
+    statusword: int
+    position_actual: int
+    torque_actual: int
+
+
+class TxPdo2(NamedTuple):
+    """Decoded TPDO2 (drive -> MN) in telegram units."""
+
+    node: int
+    velocity_actual: int
+    error_code: int
+
+
+class Sync(NamedTuple):
+    """Decoded SYNC (SoC); counter 0 means the frame carried no counter."""
+
+    counter: int
+
+
+class Emergency(NamedTuple):
+    """Decoded EMCY frame."""
+
+    node: int
+    error_code: int
+    error_register: int
+    counter_id: int
+    counter_value: int
+    threshold: int
+
+
+Telegram = RxPdo1 | TxPdo1 | TxPdo2 | Sync | Emergency
+
+
+def classify(arbitration_id: int) -> tuple[str, int]:
+    """(kind, node) of a COB-ID; kind is 'sync', 'emcy', 'rpdo1', 'tpdo1', 'tpdo2' or
+    'unknown' (node 0 for SYNC and unknown ids)."""
+    if arbitration_id == SYNC_ID:
+        return "sync", 0
+    base, node = arbitration_id & ~0x7F, arbitration_id & 0x7F
+    if node == 0 or arbitration_id > 0x7FF:
+        return "unknown", 0
+    kind = {EMCY_BASE: "emcy", TPDO1_BASE: "tpdo1", RPDO1_BASE: "rpdo1", TPDO2_BASE: "tpdo2"}.get(base)
+    return (kind, node) if kind else ("unknown", 0)
+
+
+_LENGTHS = {"sync": (0, 1), "emcy": (EMCY.size,), "rpdo1": (RPDO1_SIGNED.size,),
+            "tpdo1": (TPDO1.size,), "tpdo2": (TPDO2.size,)}
+
+
+def check_frame(msg: can.Message, kind: str, node: int) -> None:
+    """Raise :class:`FrameDecodeError` if ``msg`` cannot be a valid ``kind`` telegram."""
+    if kind == "unknown":
+        raise FrameDecodeError("unknown_id", msg.arbitration_id, 0,
+                               "not a SYNC, EMCY, RPDO1, TPDO1 or TPDO2 identifier")
+    if msg.is_error_frame:
+        raise FrameDecodeError("error_frame", msg.arbitration_id, node,
+                               "frame failed its checksum (corrupted on the wire)")
+    if msg.is_remote_frame:
+        raise FrameDecodeError("remote_frame", msg.arbitration_id, node, "remote frames carry no data")
+    if msg.is_extended_id:
+        raise FrameDecodeError("unknown_id", msg.arbitration_id, node,
+                               "29-bit identifier; CANopen uses 11-bit identifiers")
+    length = len(msg.data)
+    allowed = _LENGTHS[kind]
+    if length not in allowed:
+        reason = "short_frame" if length < min(allowed) else "long_frame"
+        raise FrameDecodeError(reason, msg.arbitration_id, node,
+                               f"{length} data bytes, {kind.upper()} needs {' or '.join(map(str, allowed))}")
+
+
+def decode(msg: can.Message) -> Telegram:
+    """Decode any telegram of this network; raises :class:`FrameDecodeError` (a
+    ``ValueError``) for unknown ids, wrong lengths, error or remote frames."""
+    kind, node = classify(msg.arbitration_id)
+    check_frame(msg, kind, node)
+    data = msg.data
+    if kind == "rpdo1":
+        return RxPdo1(node, *RPDO1_SIGNED.unpack(data))
+    if kind == "tpdo1":
+        return TxPdo1(node, *TPDO1.unpack(data))
+    if kind == "tpdo2":
+        return TxPdo2(node, *TPDO2.unpack(data))
+    if kind == "sync":
+        return Sync(data[0] if data else 0)
+    return Emergency(node, *EMCY.unpack(data))
+
+
+def _checked(value: int, low: int, high: int, name: str) -> int:
+    if not low <= value <= high:
+        raise ValueError(f"{name} = {value}: expected an integer in [{low}, {high}]")
+    return value
+
+
+def encode_rpdo1(controlword: int, target_position: int, torque_offset: int) -> bytes:
+    """RPDO1 payload; raises ValueError naming the field if a value is out of range."""
+    return RPDO1_SIGNED.pack(_checked(controlword, 0, 0xFFFF, "controlword"),
+                             _checked(target_position, INT32_MIN, INT32_MAX, "target_position"),
+                             _checked(torque_offset, INT16_MIN, INT16_MAX, "torque_offset"))
+
+
+def encode_tpdo1(statusword: int, position_actual: int, torque_actual: int) -> bytes:
+    """TPDO1 payload; raises ValueError naming the field if a value is out of range."""
+    return TPDO1.pack(_checked(statusword, 0, 0xFFFF, "statusword"),
+                      _checked(position_actual, INT32_MIN, INT32_MAX, "position_actual"),
+                      _checked(torque_actual, INT16_MIN, INT16_MAX, "torque_actual"))
+
+
+def encode_tpdo2(velocity_actual: int, error_code: int) -> bytes:
+    """TPDO2 payload; raises ValueError naming the field if a value is out of range."""
+    return TPDO2.pack(_checked(velocity_actual, INT32_MIN, INT32_MAX, "velocity_actual"),
+                      _checked(error_code, 0, 0xFFFF, "error_code"))
+
+
+class FastMessage(can.Message):
+    """A :class:`can.Message` with a lean positional constructor for the hot loop:
+    standard 11-bit id, data frame, received (``is_rx``), no channel."""
+
+    __slots__ = ()
+
+    def __init__(self, timestamp: float, arbitration_id: int, data: bytearray,
+                 is_error_frame: bool = False) -> None:  # pylint: disable=super-init-not-called
+        self.timestamp = timestamp
+        self.arbitration_id = arbitration_id
+        self.is_extended_id = False
+        self.is_remote_frame = False
+        self.is_error_frame = is_error_frame
+        self.channel = None
+        self.is_fd = False
+        self.is_rx = True
+        self.bitrate_switch = False
+        self.error_state_indicator = False
+        self.data = data
+        self.dlc = len(data)
