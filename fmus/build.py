@@ -36,9 +36,11 @@ DEFAULT_OUT_DIR: Path = REPO_ROOT / "build" / "fmus"
 FMI2_HEADERS: tuple[str, ...] = ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
 CFLAGS: tuple[str, ...] = ("-std=c99", "-O2", "-fPIC", "-shared", "-fvisibility=hidden", "-Wall", "-Wextra",
                            "-Wno-unused-parameter", "-DCASADI_SYMBOL_EXPORT=")
-# files whose change must trigger a rebuild besides the FMUs' own sources
-_GENERATOR_GLOBS: tuple[tuple[Path, str], ...] = (
-    (FMUS_DIR, "*.py"), (FMUS_DIR, "common/*"), (REPO_ROOT / "robot", "*.py"),
+# files whose change must trigger a rebuild of every FMU besides each FMU's own inputs
+_COMMON_INPUTS: tuple[tuple[Path, str], ...] = (
+    (FMUS_DIR, "build.py"), (FMUS_DIR, "fmi2_spec.py"), (FMUS_DIR, "common/*"),
+    (REPO_ROOT / "robot", "description.py"), (REPO_ROOT / "robot", "parameters.py"),
+    (REPO_ROOT / "robot", "dynamics.py"), (REPO_ROOT / "robot", "symbolic.py"),
     (REPO_ROOT / "robot", "*.urdf"), (REPO_ROOT / "robot", "*.toml"),
 )
 
@@ -49,16 +51,19 @@ class FmuBuildError(RuntimeError):
 
 @dataclass
 class FmuRecipe:
-    """How to make one FMU: its variable spec, C files and generated C files."""
+    """How to make one FMU: its variable spec, C files, generated C files and the Python
+    modules (in ``source_dir``) that generate them."""
 
     model_identifier: str
     source_dir: Path
     make_spec: Callable[[], FmuSpec]
+    generator_modules: tuple[str, ...]
     make_generated: Callable[[], dict[str, str]] = field(default=lambda: {})
 
     def input_files(self) -> list[Path]:
-        files = sorted(p for p in self.source_dir.glob("*") if p.is_file() and p.suffix in (".c", ".h", ".toml", ".py"))
-        for base, pattern in _GENERATOR_GLOBS:
+        files = sorted(p for p in self.source_dir.glob("*") if p.is_file() and p.suffix in (".c", ".h", ".toml"))
+        files += [self.source_dir / name for name in self.generator_modules]
+        for base, pattern in _COMMON_INPUTS:
             files += sorted(p for p in base.glob(pattern) if p.is_file())
         return files
 
@@ -66,14 +71,15 @@ class FmuRecipe:
 def _servo_drive_recipe() -> FmuRecipe:
     from fmus.servo_drive.spec import servo_drive_spec
 
-    return FmuRecipe("servo_drive", FMUS_DIR / "servo_drive", servo_drive_spec)
+    return FmuRecipe("servo_drive", FMUS_DIR / "servo_drive", servo_drive_spec, ("spec.py", "params.py"))
 
 
 def _plant_recipe() -> FmuRecipe:
     from fmus.rx130l_plant.codegen import generated_dynamics_sources
     from fmus.rx130l_plant.spec import plant_spec
 
-    return FmuRecipe("rx130l_plant", FMUS_DIR / "rx130l_plant", plant_spec, generated_dynamics_sources)
+    return FmuRecipe("rx130l_plant", FMUS_DIR / "rx130l_plant", plant_spec, ("spec.py", "codegen.py"),
+                     generated_dynamics_sources)
 
 
 RECIPES: dict[str, Callable[[], FmuRecipe]] = {
