@@ -13,6 +13,7 @@ plan with identical semantics (see docs/cosim.md, "Coupling scheme"):
 from __future__ import annotations
 
 import ctypes
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -102,40 +103,63 @@ def publish(plan: Plan, slave: SlavePlan, tick: int) -> None:
         bus = plan.buses[bus_type]
         status = comp.get_fn[bus_type](comp.component, ex.value_references.ctypes.data, ex.size,
                                        bus.ctypes.data + ex.offset * bus.itemsize)
-        comp.check(f"fmi2Get{bus_type}", plan.time(tick), status)
+        if status > 1:
+            comp.check(f"fmi2Get{bus_type}", plan.time(tick), status)
     if slave.n_check:
         ex = slave.published["Real"]
         values = plan.buses["Real"][ex.offset:ex.offset + slave.n_check]
-        if not np.isfinite(values).all():
-            raise nonfinite_error(plan, slave, tick, int(np.flatnonzero(~np.isfinite(values))[0]))
+        if not math.isfinite(values.dot(values)):  # NaN or Inf anywhere (or |x| > 1e154: checked below)
+            bad = np.flatnonzero(~np.isfinite(values))
+            if len(bad):
+                raise nonfinite_error(plan, slave, tick, int(bad[0]))
 
 
 class PythonEngine:
-    """Reference engine: the kernel's loop written in Python (ctypes call per FMI function)."""
+    """Reference engine: the kernel's loop written in Python (one ctypes call per FMI function).
+
+    Each slave's calls are prepared once as (function, component, value references,
+    count, bus address) tuples; a status worse than fmi2Warning raises SimulationError.
+    """
 
     name = "python"
 
     def __init__(self, plan: Plan) -> None:
         self.plan = plan
+        self._prepared = [self._prepare(slave) for slave in plan.slaves]
+
+    def _prepare(self, slave: SlavePlan):
+        comp = slave.component
+        buses = self.plan.buses
+        gathers = [(buses[t], dst, slave.gather_src[t]) for t, dst in slave.gather_dst.items()]
+        sets = [(comp.set_fn[t], ex.value_references.ctypes.data, ex.size,
+                 buses[t].ctypes.data + ex.offset * buses[t].itemsize, t) for t, ex in slave.inputs.items()]
+        return slave, comp, gathers, sets
 
     def advance(self, n_from: int, n_to: int) -> None:
         """Step all due slaves for ticks n_from .. n_to-1 (see kernel.c for the exact order)."""
         plan = self.plan
+        gauss_seidel = plan.gauss_seidel
         for n in range(n_from, n_to):
-            for slave in plan.slaves:
-                if n % slave.step_ticks:
+            for slave, comp, gathers, sets in self._prepared:
+                m = slave.step_ticks
+                if n % m:
                     continue
-                gather(plan, slave)
-                set_inputs(plan, slave, n)
-                comp = slave.component
+                for bus, dst, src in gathers:
+                    bus[dst] = bus[src]
+                handle = comp.component
+                for fn, vrs, count, address, bus_type in sets:
+                    status = fn(handle, vrs, count, address)
+                    if status > 1:
+                        comp.check(f"fmi2Set{bus_type}", plan.time(n), status)
                 t = plan.time(n)
                 h = plan.step_size(n, slave)
-                status = comp.do_step_fn(comp.component, t, h, 1)
-                comp.check(f"fmi2DoStep(t={t:.9g} s, h={h:.9g} s)", t, status)
-                if plan.gauss_seidel:
-                    publish(plan, slave, n + slave.step_ticks)
-            if not plan.gauss_seidel:
-                for slave in plan.slaves:
+                status = comp.do_step_fn(handle, t, h, 1)
+                if status > 1:
+                    comp.check(f"fmi2DoStep(t={t:.9g} s, h={h:.9g} s)", t, status)
+                if gauss_seidel:
+                    publish(plan, slave, n + m)
+            if not gauss_seidel:
+                for slave, _, _, _ in self._prepared:
                     if (n + 1) % slave.step_ticks == 0:
                         publish(plan, slave, n + 1)
 

@@ -1,0 +1,238 @@
+"""Co-simulation master overhead: the main job's FMU set (plant + six drives) stepped four ways.
+
+Setup (what the ISO 9283 job runs, without bus and controller work): the rx130l_plant
+FMU and six servo_drive FMUs; connections drive_i.tau_out -> plant.tau[i] and
+plant.q[i]/qd[i] -> drive_i.q_meas/qd_meas (6 to the plant, 12 back); a 400 us Python
+task writes the six target positions, torque offsets and controlwords (CiA 402 enable
+sequence, then hold the start pose). Every FMU steps at the macro step.
+
+Ways to step the same thing (same FMUs, same connections, same task):
+  fmpy_api     hand-written loop over fmpy's FMU2Slave.setReal/getReal/doStep
+  fast_fmu     hand-written loop over fmus.fast_fmu.FastFmu2Slave (prepared ctypes arrays)
+  master_py    cosim.master.Master, Python engine (ctypes call per FMI function)
+  master_c     cosim.master.Master, compiled kernel (one ctypes call per stretch of steps)
+and 'fmu_compute': only fmi2DoStep of the 7 FMUs, called from the compiled kernel with
+no I/O: the FMUs' own compute. "Overhead" = a way's time minus fmu_compute: what the
+master (I/O calls, connection copies, the 400 us Python task, Python loop) adds.
+
+Prints, per macro step (100/200/400 us), the median over REPEATS runs of SIM_TIME_S of:
+wall us per macro step, us per macro step per FMU, ratio to fmpy_api, real-time factor.
+Run: python benchmarks/bench_master.py [--sim-time 0.2] [--repeats 5]
+"""
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+
+import numpy as np
+
+from cosim.master import Master
+from cosim.master.engines import NativeEngine, Plan, SlavePlan
+from cosim.master.kernel import load_kernel
+from fmus.build import ensure_fmus
+from fmus.fast_fmu import FastFmu2Slave
+from fmus.servo_drive.params import drive_start_values
+
+Q0 = (0.0, -0.3, 1.2, 0.0, 0.6, 0.0)  # start pose, rad
+CONTROL_PERIOD = 4e-4  # s
+ENABLE = (0x06, 0x07, 0x0F)  # CiA 402 shutdown, switch on, enable operation
+N_FMUS = 7
+DRIVE_IN = ("target_position", "torque_offset", "q_meas", "qd_meas")
+DRIVE_OUT = ("tau_out", "position_actual", "velocity_actual", "current_actual", "current_demand", "torque_actual",
+             "following_error")
+
+
+def controlword(cycle: int) -> int:
+    """Controlword of the enable sequence at controller cycle ``cycle``."""
+    return ENABLE[min(cycle, len(ENABLE) - 1)]
+
+
+def plant_start() -> dict[str, float]:
+    return {f"q0[{i + 1}]": q for i, q in enumerate(Q0)}
+
+
+# ----------------------------------------------------------------------------- master
+def run_master(paths, h: float, sim_time: float, engine: str, compute_only: bool = False) -> float:
+    """Wall seconds to simulate sim_time with the master.
+
+    ``compute_only``: after initialization, time the compiled kernel calling only
+    fmi2DoStep of each FMU (no inputs, outputs, connections or tasks): the FMUs' own
+    compute, which no master can avoid.
+    """
+    m = Master(h, engine=engine)
+    m.add_fmu("plant", paths["rx130l_plant"], start_values=plant_start())
+    for i in range(1, 7):
+        m.add_fmu(f"drive{i}", paths["servo_drive"], start_values=drive_start_values(i))
+    targets = m.add_variables("ctrl", [f"target[{i}]" for i in range(1, 7)])
+    offsets = m.add_variables("ctrl", [f"offset[{i}]" for i in range(1, 7)])
+    words = m.add_variables("ctrl", [f"cw[{i}]" for i in range(1, 7)], type="Integer")
+    for i in range(1, 7):
+        m.connect(f"drive{i}.tau_out", f"plant.tau[{i}]")
+        m.connect(f"plant.q[{i}]", f"drive{i}.q_meas")
+        m.connect(f"plant.qd[{i}]", f"drive{i}.qd_meas")
+        m.connect(targets[i - 1], f"drive{i}.target_position")
+        m.connect(offsets[i - 1], f"drive{i}.torque_offset")
+        m.connect(words[i - 1], f"drive{i}.controlword")
+    io = {}
+    state = {"cycle": 0}
+
+    def setup(master):
+        io["target"] = master.view(targets, writable=True)
+        io["cw"] = master.view(words, writable=True)
+        io["q"] = master.view([f"plant.q[{i}]" for i in range(1, 7)])
+
+    def controller(t):
+        io["target"][:] = Q0
+        io["cw"][:] = controlword(state["cycle"])
+        state["cycle"] += 1
+
+    m.add_task(controller, CONTROL_PERIOD, setup=setup, name="controller")
+    with m:
+        m.initialize(sim_time)
+        if compute_only:
+            bare = Plan([SlavePlan(s.component, s.step_ticks, {}, {}, 0) for s in m.plan.slaves], m.plan.buses,
+                        0.0, h, False)
+            engine = NativeEngine(bare, load_kernel())
+            w0 = time.perf_counter()
+            engine.advance(0, round(sim_time / h))
+            return time.perf_counter() - w0
+        w0 = time.perf_counter()
+        m.run()
+        wall = time.perf_counter() - w0
+        assert np.all(np.abs(io["q"] - Q0) < 0.05), io["q"]  # the drives hold the pose
+    return wall
+
+
+# ----------------------------------------------------------------------------- fmpy API
+def run_fmpy_api(paths, h: float, sim_time: float) -> float:
+    """The same loop written against fmpy's FMU2Slave API (Jacobi, like the master)."""
+    from fmpy import extract, read_model_description
+    from fmpy.fmi2 import FMU2Slave
+
+    def make(path, name, start):
+        md = read_model_description(str(path))
+        slave = FMU2Slave(guid=md.guid, unzipDirectory=extract(str(path)),
+                          modelIdentifier=md.coSimulation.modelIdentifier, instanceName=name)
+        slave.instantiate()
+        slave.setupExperiment(startTime=0.0)
+        vr = {v.name: v.valueReference for v in md.modelVariables}
+        for k, v in start.items():
+            (slave.setInteger if isinstance(v, int) else slave.setReal)([vr[k]], [v])
+        slave.enterInitializationMode()
+        slave.exitInitializationMode()
+        return slave, vr
+
+    plant, pvr = make(paths["rx130l_plant"], "plant", plant_start())
+    drives = [make(paths["servo_drive"], f"drive{i}", drive_start_values(i)) for i in range(1, 7)]
+    tau_vr = [pvr[f"tau[{i}]"] for i in range(1, 7)]
+    qqd_vr = [pvr[f"q[{i}]"] for i in range(1, 7)] + [pvr[f"qd[{i}]"] for i in range(1, 7)]
+    din = [[d[1][n] for n in DRIVE_IN] for d in drives]
+    dout = [[d[1][n] for n in DRIVE_OUT] for d in drives]
+    dcw = [[d[1]["controlword"]] for d in drives]
+    dsw = [[d[1]["statusword"]] for d in drives]
+    n_steps = round(sim_time / h)
+    k_ctrl = round(CONTROL_PERIOD / h)
+    qqd = plant.getReal(qqd_vr)
+    taus = [d[0].getReal(dout[i])[0] for i, d in enumerate(drives)]
+    cycle = 0
+    cw = 0
+    w0 = time.perf_counter()
+    for n in range(n_steps):
+        t = n * h
+        if n % k_ctrl == 0:
+            cw = controlword(cycle)
+            cycle += 1
+        plant.setReal(tau_vr, taus)
+        for i, (slave, _) in enumerate(drives):
+            slave.setReal(din[i], [Q0[i], 0.0, qqd[i], qqd[6 + i]])
+            slave.setInteger(dcw[i], [cw])
+        plant.doStep(t, h)
+        for slave, _ in drives:
+            slave.doStep(t, h)
+        qqd = plant.getReal(qqd_vr)
+        for i, (slave, _) in enumerate(drives):
+            taus[i] = slave.getReal(dout[i])[0]
+            slave.getInteger(dsw[i])
+    wall = time.perf_counter() - w0
+    assert max(abs(qqd[i] - Q0[i]) for i in range(6)) < 0.05
+    for slave, _ in [(plant, None), *drives]:
+        slave.terminate()
+        slave.freeInstance()
+    return wall
+
+
+# ----------------------------------------------------------------------------- FastFmu2Slave
+def run_fast_fmu(paths, h: float, sim_time: float) -> float:
+    """The same loop over the fmus package's FastFmu2Slave."""
+    plant = FastFmu2Slave(paths["rx130l_plant"], "plant", plant_start(),
+                          real_inputs=[f"tau[{i}]" for i in range(1, 7)],
+                          real_outputs=[f"q[{i}]" for i in range(1, 7)] + [f"qd[{i}]" for i in range(1, 7)])
+    drives = [FastFmu2Slave(paths["servo_drive"], f"drive{i}", drive_start_values(i), real_inputs=DRIVE_IN,
+                            real_outputs=DRIVE_OUT, integer_inputs=["controlword"], integer_outputs=["statusword"])
+              for i in range(1, 7)]
+    n_steps = round(sim_time / h)
+    k_ctrl = round(CONTROL_PERIOD / h)
+    tau = np.zeros(6)
+    din = np.zeros(4)
+    cw = np.zeros(1, dtype=np.int32)
+    qqd = plant.get_outputs().copy()
+    cycle = 0
+    w0 = time.perf_counter()
+    for n in range(n_steps):
+        t = n * h
+        if n % k_ctrl == 0:
+            cw[0] = controlword(cycle)
+            cycle += 1
+        plant.set_inputs(tau)
+        for i, d in enumerate(drives):
+            din[0], din[1], din[2], din[3] = Q0[i], 0.0, qqd[i], qqd[6 + i]
+            d.set_inputs(din)
+            d.set_integer_inputs(cw)
+        plant.do_step(t, h)
+        for d in drives:
+            d.do_step(t, h)
+        qqd = plant.get_outputs()
+        for i, d in enumerate(drives):
+            tau[i] = d.get_outputs()[0]
+            d.get_integer_outputs()
+    wall = time.perf_counter() - w0
+    assert np.all(np.abs(qqd[:6] - Q0) < 0.05)
+    for s in [plant, *drives]:
+        s.close()
+    return wall
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--sim-time", type=float, default=0.2, help="simulated seconds per run")
+    parser.add_argument("--repeats", type=int, default=5, help="runs per case (median reported)")
+    args = parser.parse_args()
+    paths = ensure_fmus()
+    cases = {
+        "fmpy_api": run_fmpy_api,
+        "fast_fmu": run_fast_fmu,
+        "master_py": lambda p, h, s: run_master(p, h, s, "python"),
+        "master_c": lambda p, h, s: run_master(p, h, s, "native"),
+        "fmu_compute": lambda p, h, s: run_master(p, h, s, "native", compute_only=True),
+    }
+    print(f"plant + 6 drives, 18 FMU-FMU connections + 18 task->drive, 400 us task; "
+          f"{args.sim_time} s simulated, median of {args.repeats}")
+    print(f"{'macro step':>10} {'way':>12} {'us/step':>9} {'us/step/FMU':>12} {'x fmpy_api':>11} {'real-time x':>12}")
+    for h in (1e-4, 2e-4, 4e-4):
+        n_steps = round(args.sim_time / h)
+        medians = {}
+        for name, fn in cases.items():
+            walls = [fn(paths, h, args.sim_time) for _ in range(args.repeats)]
+            medians[name] = statistics.median(walls)
+        for name, wall in medians.items():
+            per_step = wall / n_steps * 1e6
+            print(f"{h * 1e6:>8.0f}us {name:>12} {per_step:>9.1f} {per_step / N_FMUS:>12.2f} "
+                  f"{medians['fmpy_api'] / wall:>11.1f} {args.sim_time / wall:>12.1f}")
+        for name in ("fmpy_api", "fast_fmu", "master_py", "master_c"):
+            overhead = (medians[name] - medians["fmu_compute"]) / n_steps / N_FMUS * 1e6
+            print(f"{'':>10} {name:>12} overhead over fmu_compute: {overhead:6.2f} us per FMU per macro step")
+
+
+if __name__ == "__main__":
+    main()
