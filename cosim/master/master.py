@@ -37,7 +37,6 @@ import math
 import time as _time
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
-from fnmatch import fnmatchcase
 from pathlib import Path
 
 import numpy as np
@@ -48,7 +47,7 @@ from cosim.master.engines import (BUS_DTYPE, BUS_ORDER, Exchange, NativeEngine, 
 from cosim.master.errors import EndSimulation, MasterConfigError, SimulationError
 from cosim.master.recorder import Recorder, Sink
 from cosim.master.variables import (MasterTypeUnsupported, bus_type, check_connection_ends, check_start_value,
-                                    parse_connection, split_signal)
+                                    is_pattern, matches_pattern, parse_connection, split_signal)
 
 COUPLINGS = ("jacobi", "gauss_seidel")
 ENGINES = ("auto", "native", "python")
@@ -313,14 +312,14 @@ class Master:
         return recorder
 
     def expand_signals(self, signals: Sequence[str]) -> list[str]:
-        """Expand glob patterns (``*``, ``?``) against FMU outputs (not String) and master variables."""
+        """Expand wildcards (``*``, ``?``; brackets literal) against FMU outputs (not String) and master variables."""
         out: list[str] = []
         for s in signals:
-            if "*" in s or "?" in s:
+            if is_pattern(s):
                 matches = [f"{n}.{v.name}" for n, c in self._fmus.items() for v in c.model_description.modelVariables
                            if v.causality == "output" and v.type in _BUS_FMI_TYPES
-                           and fnmatchcase(f"{n}.{v.name}", s)]
-                matches += [v for v in self._variables if fnmatchcase(v, s)]
+                           and matches_pattern(f"{n}.{v.name}", s)]
+                matches += [v for v in self._variables if matches_pattern(v, s)]
                 if not matches:
                     raise MasterConfigError(f"signal pattern {s!r} matches no FMU output or master variable")
                 out.extend(m for m in matches if m not in out)

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from fnmatch import fnmatchcase
 
 from fmpy.model_description import ModelDescription, ScalarVariable
 
@@ -78,6 +79,17 @@ def parse_connection(text: str) -> ConnectionSpec:
     except ValueError:
         raise ValueError(f"connection {text!r} is not of the form 'a.x -> b.y'") from None
     return ConnectionSpec(left, right)
+
+
+def is_pattern(signal: str) -> bool:
+    """True when ``signal`` contains a wildcard (``*`` or ``?``)."""
+    return "*" in signal or "?" in signal
+
+
+def matches_pattern(name: str, pattern: str) -> bool:
+    """Shell-style match with ``*`` and ``?`` only; brackets are literal (``"q[*]"`` matches ``"q[3]"``)."""
+    escaped = pattern.replace("[", "\x00").replace("]", "[]]").replace("\x00", "[[]")
+    return fnmatchcase(name, escaped)
 
 
 def variables_by_name(model_description: ModelDescription) -> dict[str, ScalarVariable]:

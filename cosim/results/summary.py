@@ -69,7 +69,7 @@ class SummaryWriter:
     def progress(self, sim_time_s: float) -> None:
         """Record how far the run got (simulated s) and the wall time so far; rewrite."""
         wall = self.wall_time_s
-        self.data["sim_time_s"] = float(sim_time_s)
+        self.data["sim_time_s"] = round(float(sim_time_s), 12)  # n * h0 carries float noise (0.49999999999999994)
         self.data["wall_time_s"] = wall
         self.data["realtime_factor"] = sim_time_s / wall if wall > 0 else None
         self.write()

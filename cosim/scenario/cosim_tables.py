@@ -16,14 +16,13 @@ call ``check_cosim_tables(doc, where, master_variables)`` in its check, and
 from __future__ import annotations
 
 from collections.abc import Mapping
-from fnmatch import fnmatchcase
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from cosim.master import Master, MasterConfigError, Recorder, load_model_description
 from cosim.master.master import COUPLINGS, ENGINES
 from cosim.master.variables import (MasterTypeUnsupported, bus_type, check_connection_ends, check_start_value,
-                                    parse_connection, split_signal)
+                                    is_pattern, matches_pattern, parse_connection, split_signal)
 from cosim.scenario.schema import (AnyValue, Boolean, Field, FilePath, List, Number, String, Table, Where)
 
 if TYPE_CHECKING:
@@ -186,10 +185,10 @@ def check_cosim_tables(doc: dict, where: Where, master_variables: Mapping[str, s
                                                       record["period"])
         for i, signal in enumerate(record["signals"]):
             w = (where / "record" / "signals")[i]
-            if "*" in signal or "?" in signal:
+            if is_pattern(signal):
                 outs = [f"{n}.{v}" for n, vs in descriptions.items() for v, var in vs.items()
                         if var.causality == "output" and var.type != "String"] + list(master_variables)
-                if not any(fnmatchcase(o, signal) for o in outs):
+                if not any(matches_pattern(o, signal) for o in outs):
                     raise w.error("a pattern matching at least one FMU output or master variable", signal)
                 continue
             if signal in master_variables:
