@@ -70,6 +70,10 @@ DEFAULT_IPOPT_OPTIONS: dict[str, Any] = {
     "ipopt.max_iter": 500,
     "ipopt.mu_strategy": "adaptive",
 }
+SMOOTH_MARGIN = 2e-3
+"""Fraction by which the "smooth" transcription tightens every limit: it imposes the
+limits at the nodes only, and between nodes (sigma there is not fixed) the 1 ms
+resampled values may exceed the node values by about 0.1 %."""
 _IPOPT_INFEASIBLE = {"Infeasible_Problem_Detected", "Restoration_Failed"}
 
 
@@ -129,12 +133,15 @@ class OwnCPPlanner(Planner):
     kind = "cp"
 
     def __init__(self, transcription: str = "auto", ipopt_options: dict[str, Any] | None = None,
-                 output_dt: float = 1e-3) -> None:
+                 output_dt: float = 1e-3, smooth_margin: float = SMOOTH_MARGIN) -> None:
         if transcription not in ("auto", "b", "smooth"):
             raise PlannerInputError(f"transcription: expected 'auto', 'b' or 'smooth', got {transcription!r}")
         self.transcription = transcription
         self.ipopt_options = {**DEFAULT_IPOPT_OPTIONS, **(ipopt_options or {})}
         self.output_dt = float(output_dt)
+        if not 0.0 <= smooth_margin < 0.1:
+            raise PlannerInputError(f"smooth_margin: expected a fraction in [0, 0.1), got {smooth_margin!r}")
+        self.smooth_margin = float(smooth_margin)
 
     # ------------------------------------------------------------------ public
     def plan(self, problem: CPProblem) -> PlanResult:
@@ -283,6 +290,7 @@ class OwnCPPlanner(Planner):
         add((sj - si - h * (ai + aj) / 2.0) / ca.DM(s_ref[1:]), 0.0, 0.0)
         add((si * h + h**2 * (2.0 * ai + aj) / 6.0 - ca.DM(ds)) / ca.DM(ds), 0.0, 0.0)
         jerk = (aj - ai) / h
+        k = 1.0 - self.smooth_margin
         s2 = s * s
         s3 = s2 * s
         nd = nodes
@@ -290,20 +298,18 @@ class OwnCPPlanner(Planner):
             dq, ddq, dddq = (ca.DM(arr[:, j]) for arr in (nd.dq, nd.ddq, nd.dddq))
             m, c, g, v, fc = (ca.DM(arr[:, j]) for arr in (nd.m, nd.c, nd.g, nd.v, nd.fc))
             dm, dc, dg, dv = (ca.DM(arr[:, j]) for arr in (nd.dm, nd.dc, nd.dg, nd.dv))
-            add(dq * a + ddq * s2, -lim.acceleration[j], lim.acceleration[j])
-            add((m * a + c * s2 + g + v * s + fc) / lim.torque[j], -1.0, 1.0)
+            add((dq * a + ddq * s2) / lim.acceleration[j], -k, k)
+            add((m * a + c * s2 + g + v * s + fc) / lim.torque[j], -k, k)
             for side, jj in (("left", slice(1, n + 1)), ("right", slice(0, n))):
                 jk = jerk
                 sk, ak = s[jj], a[jj]
                 if np.isfinite(lim.jerk[j]):
                     qddd = dq[jj] * jk + 3.0 * ddq[jj] * sk * ak + dddq[jj] * s3[jj]
-                    add(qddd / lim.jerk[j], -1.0, 1.0)
+                    add(qddd / lim.jerk[j], -k, k)
                 if np.isfinite(lim.torque_rate[j]):
                     taud = (m[jj] * jk + (dm[jj] + 2.0 * c[jj]) * sk * ak + dc[jj] * s3[jj] + dg[jj] * sk
                             + dv[jj] * s2[jj] + v[jj] * ak)
-                    add(taud / lim.torque_rate[j], -1.0, 1.0)
-        # acceleration rows were unscaled above: rescale them
-        rows = [r for r in rows]
+                    add(taud / lim.torque_rate[j], -k, k)
         duration = ca.sum1(h)
         cost = problem.k1 * duration
         if problem.k2 > 0.0:
@@ -327,7 +333,7 @@ class OwnCPPlanner(Planner):
         nlp = {"x": x, "f": cost / cost_ref, "g": g_all}
         solver = ca.nlpsol("own_cp_smooth", "ipopt", nlp, self.ipopt_options)
         lbx = np.concatenate([np.zeros(n + 1), -np.inf * np.ones(n + 1), 1e-6 * np.ones(n)])
-        ubx = np.concatenate([np.full(n + 1, 1.0), np.inf * np.ones(n + 1), np.inf * np.ones(n)])
+        ubx = np.concatenate([np.full(n + 1, k), np.inf * np.ones(n + 1), np.inf * np.ones(n)])
         lbx[0] = ubx[0] = lbx[n] = ubx[n] = 0.0  # s_0 = s_n = 0
         lbx[n + 1] = ubx[n + 1] = lbx[2 * n + 1] = ubx[2 * n + 1] = 0.0  # a_0 = a_n = 0
         build = time.perf_counter() - t0
