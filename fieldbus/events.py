@@ -145,6 +145,11 @@ class CounterBank:
             self.on_threshold(c, cycle, time_s)
         return reached
 
+    @property
+    def busy(self) -> bool:
+        """True when some counter is non-zero or erred this cycle (end_cycle has work)."""
+        return bool(self._nonzero or self._errored)
+
     def end_cycle(self, cycle: int, time_s: float) -> None:
         """Decrement every non-zero counter that saw no error this cycle."""
         if self._nonzero:

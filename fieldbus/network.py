@@ -40,7 +40,7 @@ from fieldbus.recorder import FrameRecorder
 from fieldbus.scaling import JointScaling
 from fieldbus.simbus import register as register_simbus
 from fieldbus.simbus import unique_channel
-from fieldbus.telegrams import EMCY_BASE, RPDO1_BASE, SYNC_ID, TPDO1_BASE, TPDO2_BASE
+from fieldbus.telegrams import EMCY_BASE, RPDO1_BASE, SYNC_ID, TPDO1_BASE, TPDO2_BASE, FastMessage
 from fieldbus.timing import CycleLayout, CycleSchedule, check_cycle_budget
 
 SYNCHRONOUS_INTERFACES = ("simbus", "virtual")  # deliver inside send(), keep timestamps
@@ -117,7 +117,9 @@ class PowerlinkNetwork:
             raise
         self.recorder = (FrameRecorder(log_path, config.recording.flush_every_cycles,
                                        config.recording.background) if log_path is not None else None)
-        self._record = self.recorder.add if self.recorder is not None else None
+        self._record_many = self.recorder.add_many if self.recorder is not None else None
+        self._t0 = config.start_time_s
+        self._cycle_time = config.cycle_time_s
         self._last_cycle: int | None = None
         self.frames_sent = 0
         self.frames_dropped = 0
@@ -146,118 +148,126 @@ class PowerlinkNetwork:
             self.cn_bus.shutdown()
 
     # ------------------------------------------------------------------ medium
-    def _corrupt(self, msg: can.Message) -> can.Message:
-        """The frame as it arrives after corruption on the wire: payload bits flipped,
-        flagged as an error frame (the receiver's checksum fails)."""
-        data = bytearray(msg.data) or bytearray(1)
-        data[0] ^= 0xA5
-        msg.data = data
-        msg.dlc = len(data)
-        msg.is_error_frame = True
-        return msg
+    def _transmit(self, bus: can.BusABC, frames: list, kinds: dict[int, str]) -> list:
+        """Put ``frames`` on the wire through ``bus``; with ``kinds`` (frame index ->
+        'loss' | 'late' | 'corrupt' | 'silent') the medium drops, delays or corrupts
+        them. Returns the frames actually sent."""
+        if kinds:
+            frames = [m for m in (self._through_medium(m, kinds) for m in frames) if m is not None]
+        send = bus.send
+        for msg in frames:
+            send(msg)
+        self.frames_sent += len(frames)
+        if self._record_many is not None:
+            self._record_many(frames)
+        return frames
 
-    def _put(self, bus: can.BusABC, msg: can.Message, kind: str | None) -> None:
-        """Send one frame through the medium (kind: None, 'late', 'corrupt')."""
+    def _frame_index(self, arbitration_id: int) -> int:
+        if arbitration_id == SYNC_ID:
+            return 0
+        node = arbitration_id & 0x7F
+        base = arbitration_id & ~0x7F
+        if base == RPDO1_BASE:
+            return node
+        if base in (TPDO1_BASE, TPDO2_BASE):
+            return self.config.nodes + node
+        return -1
+
+    def _through_medium(self, msg: can.Message, kinds: dict[int, str]) -> can.Message | None:
+        """The frame as the medium passes it on: None (lost), a delayed or a corrupted
+        copy (the node's own message object stays untouched), or ``msg`` itself."""
+        kind = kinds.get(self._frame_index(msg.arbitration_id))
+        if kind is None:
+            return msg
+        if kind in ("loss", "silent"):
+            self.frames_dropped += 1
+            return None
         if kind == "late":
-            msg.timestamp += self.config.faults.late_delay_s
-        elif kind == "corrupt":
-            self._corrupt(msg)
-        bus.send(msg)
-        self.frames_sent += 1
-        if self._record is not None:
-            self._record(msg)
+            delay = 0.0 if msg.arbitration_id == SYNC_ID else self.config.faults.late_delay_s
+            return FastMessage(msg.timestamp + delay, msg.arbitration_id, bytearray(msg.data))
+        data = bytearray(msg.data) or bytearray(1)
+        data[0] ^= 0xA5  # bits flipped on the wire; the receiver's checksum fails
+        return FastMessage(msg.timestamp, msg.arbitration_id, data, is_error_frame=True)
 
-    def _deliver(self, bus: can.BusABC, handler: Any, expected: int, timestamp: float) -> None:
-        """Hand frames that reached ``bus`` to ``handler``. On asynchronous interfaces wait
-        (wall clock) for the ``expected`` frames and give them their simulated timestamp."""
+    def _deliver(self, bus: can.BusABC, receive_all: Any, sent: list) -> None:
+        """Hand the frames that reached ``bus`` to ``receive_all`` (a node's batch
+        receiver). On asynchronous interfaces wait (wall clock, up to
+        receive_timeout_s) for the ``sent`` frames and restore their simulated
+        timestamps, which those interfaces overwrite."""
         if self._synchronous:
-            recv = bus.recv
-            msg = recv(0)
-            while msg is not None:
-                handler(msg)
-                msg = recv(0)
+            drain = getattr(bus, "drain", None)
+            if drain is not None:
+                received = drain()
+            else:
+                received = []
+                msg = bus.recv(0)
+                while msg is not None:
+                    received.append(msg)
+                    msg = bus.recv(0)
+            if received:
+                receive_all(received)
             return
+        stamps = {m.arbitration_id: m.timestamp for m in sent}
         deadline = time.monotonic() + self.config.bus.receive_timeout_s
-        got = 0
-        while got < expected:
-            remaining = deadline - time.monotonic()
-            msg = bus.recv(max(remaining, 0.0))
+        received = []
+        while len(received) < len(sent):
+            msg = bus.recv(max(deadline - time.monotonic(), 0.0))
             if msg is None:
-                self.frames_missing += expected - got
+                self.frames_missing += len(sent) - len(received)
                 break
-            msg.timestamp = timestamp
-            handler(msg)
-            got += 1
+            msg.timestamp = stamps.get(msg.arbitration_id, msg.timestamp)
+            received.append(msg)
+        if received:
+            receive_all(received)
 
     # ------------------------------------------------------------------ cycle
     def run_cycle(self, cycle: int, setpoints: Setpoints, actuals: DriveActuals) -> CycleResult:
-        """Run POWERLINK cycle ``cycle`` (consecutive calls: cycle, cycle + 1, ...)."""
+        """Run POWERLINK cycle ``cycle`` (consecutive calls: cycle, cycle + 1, ...).
+
+        Frames are exchanged in three bursts (SoC + PReqs, PRes, EMCY); their
+        timestamps follow the POWERLINK schedule (PReq1, PRes1, PReq2, ...), and every
+        decision (late, lost) is taken on timestamps, so the outcome equals a
+        frame-by-frame exchange; the recording is written in timestamp order."""
         last = self._last_cycle
-        if last is not None and cycle != last + 1:
-            raise ValueError(f"run_cycle(cycle={cycle}): expected cycle {last + 1} (cycles run consecutively)")
-        if cycle < 0:
-            raise ValueError(f"run_cycle(cycle={cycle}): expected a cycle number >= 0")
+        if (last is not None and cycle != last + 1) or cycle < 0:
+            expected = "a cycle number >= 0" if last is None else f"cycle {last + 1} (cycles run consecutively)"
+            raise ValueError(f"run_cycle(cycle={cycle}): expected {expected}")
         self._last_cycle = cycle
-        n = self.config.nodes
         mn, cn = self.mn, self.cn
-        mn_bus, cn_bus = self.mn_bus, self.cn_bus
-        put, deliver = self._put, self._deliver
         faults = self.faults.for_cycle(cycle)
         if faults is None:
-            ts = self.schedule.timestamps(cycle)
+            times = self.schedule.timestamps(cycle)
             kinds: dict[int, str] = {}
         else:
-            ts = self.schedule.faulty_timestamps(cycle, faults)
+            times = self.schedule.faulty_timestamps(cycle, faults)
             kinds = faults.kinds
             self._record_injected(cycle, faults)
-        # --- SoC
-        soc = ts[0]
-        if kinds.get(0) == "loss":
-            self.frames_dropped += 1
-        else:
-            put(mn_bus, mn.sync_message(cycle, soc), kinds.get(0))
-            deliver(cn_bus, cn.receive, 1, soc)
-        applied = cn.start_cycle(cycle, actuals)
-        mn.start_cycle(cycle)
-        # --- PReq / PRes per node
         cws = setpoints.controlword.tolist()
         poss = setpoints.position.tolist()
         tqs = setpoints.torque_offset.tolist()
+        n = self.config.nodes
         if len(cws) != n or len(poss) != n or len(tqs) != n:
             raise ValueError(f"setpoints: expected {n} entries per field, got "
                              f"{len(cws)}, {len(poss)}, {len(tqs)}")
-        preq_message, pres_messages = mn.preq_message, cn.pres_messages
-        mn_receive, cn_receive, preq_received = mn.receive, cn.receive, cn.preq_received
-        for node in range(1, n + 1):
-            i = node - 1
-            msg = preq_message(node, ts[node], cws[i], poss[i], tqs[i])
-            kind = kinds.get(node) if kinds else None
-            if kind == "loss":
-                self.frames_dropped += 1
-            else:
-                put(mn_bus, msg, kind)
-                deliver(cn_bus, cn_receive, 1, msg.timestamp)
-            pres_ts = ts[n + node]
-            if pres_ts is not None and preq_received(node):
-                first, second = pres_messages(node, pres_ts)
-                kind = kinds.get(n + node) if kinds else None
-                if kind == "loss":
-                    self.frames_dropped += 2
-                    continue
-                put(cn_bus, first, kind)
-                put(cn_bus, second, kind)
-                deliver(mn_bus, mn_receive, 2, first.timestamp)
-        # --- asynchronous slot: EMCY of nodes whose counters tripped
+        # SoC: the CNs latch and apply; MN sends SoC and PReqs
+        applied = cn.start_cycle(cycle, actuals)
+        mn.start_cycle(cycle)
+        sent = self._transmit(self.mn_bus, mn.frames(cycle, times, cws, poss, tqs), kinds)
+        self._deliver(self.cn_bus, cn.receive_all, sent)
+        # PRes of every node whose PReq arrived
+        sent = self._transmit(self.cn_bus, cn.responses(times), kinds)
+        self._deliver(self.mn_bus, mn.receive_all, sent)
+        # asynchronous slot: EMCY of nodes whose counters tripped
         cn.end_cycle(cycle)
-        emcy = cn.emergency_messages(self.schedule.nominal_soc_time(cycle) + self._emcy_offset)
+        t = self._t0 + cycle * self._cycle_time
+        emcy = cn.emergency_messages(t + self._emcy_offset)
         if emcy:
-            for msg in emcy:
-                put(cn_bus, msg, None)
-            deliver(mn_bus, mn_receive, len(emcy), emcy[0].timestamp)
+            sent = self._transmit(self.cn_bus, emcy, {})
+            self._deliver(self.mn_bus, mn.receive_all, sent)
         observed = mn.end_cycle(cycle)
         if self.recorder is not None:
-            self.recorder.end_cycle(cycle, self.schedule.nominal_soc_time(cycle))
-        return CycleResult(cycle, self.schedule.nominal_soc_time(cycle), applied, observed)
+            self.recorder.end_cycle(cycle, t)
+        return CycleResult(cycle, t, applied, observed)
 
     def _record_injected(self, cycle: int, faults: Any) -> None:
         t = self.schedule.nominal_soc_time(cycle)

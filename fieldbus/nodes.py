@@ -6,7 +6,7 @@ is counted, recorded as an event and logged. Threshold counters live on both sid
 
 Synchronous semantics (one cycle k, SoC at t_k):
 
-* At the SoC each controlled node latches its drive's actual values (sent in this
+* At the SoC (the CN's cycle timer, nominally t_k) each controlled node latches its drive's actual values (sent in this
   cycle's PRes) and applies the set-point that arrived in the PReq of cycle
   k - dead_time_cycles (held or extrapolated if it never arrived).
 * The PReq of cycle k carries the set-point the controller computed after cycle
@@ -28,7 +28,8 @@ Fault reactions:
 """
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from operator import mul
+from typing import TYPE_CHECKING, Any
 
 import can
 
@@ -50,6 +51,9 @@ _TPDO1_LEN = TPDO1.size
 _TPDO2_LEN = TPDO2.size
 _RPDO1_LEN = RPDO1_SIGNED.size
 _PACK_RPDO1 = RPDO1_SIGNED.pack
+_PACK_RPDO1_INTO = RPDO1_SIGNED.pack_into
+_PACK_TPDO1_INTO = TPDO1.pack_into
+_PACK_TPDO2_INTO = TPDO2.pack_into
 _PACK_TPDO1 = TPDO1.pack
 _PACK_TPDO2 = TPDO2.pack
 _UNPACK_RPDO1 = RPDO1_SIGNED.unpack
@@ -57,6 +61,18 @@ _UNPACK_TPDO1 = TPDO1.unpack
 _UNPACK_TPDO2 = TPDO2.unpack
 
 COUNTER_IDS = {"cn_loss_of_soc": 1, "cn_loss_of_preq": 2, "cn_crc_error": 3, "cn_soc_jitter": 4}
+
+
+def _quantise(values: list, scale: list, low: int, high: int, saturating: Any, name: str) -> list[int]:
+    """round(value * scale) per entry; out-of-range entries go through the saturating
+    scalar encoder; non-finite values raise ValueError naming ``name``."""
+    try:
+        out = list(map(round, map(mul, values, scale)))
+    except (ValueError, OverflowError) as error:
+        raise ValueError(f"{name} = {values}: expected finite numbers ({error})") from error
+    if out and (min(out) < low or max(out) > high):
+        out = [saturating(i, v) for i, v in enumerate(values)]
+    return out
 
 
 def _decode_error(log: EventLog, side: str, msg: can.Message, cycle: int, time_s: float) -> tuple[str, int]:
@@ -73,8 +89,11 @@ def _decode_error(log: EventLog, side: str, msg: can.Message, cycle: int, time_s
 
 
 class ManagingNode:
-    """Controller-side POWERLINK MN: sends SoC (SYNC) and PReqs (RPDO1), collects PRes
-    (TPDO1 + TPDO2) into :class:`ObservedActuals`."""
+    """Controller-side POWERLINK MN: builds the SoC (SYNC) and PReqs (RPDO1), collects
+    the PRes frames (TPDO1 + TPDO2) into :class:`ObservedActuals`.
+
+    Per cycle: :meth:`start_cycle`, :meth:`frames`, :meth:`receive` for every frame
+    that arrived, :meth:`end_cycle` (returns the observed actual values)."""
 
     def __init__(self, config: "FieldbusConfig", scaling: "JointScaling",
                  layout: "CycleLayout", log: EventLog) -> None:
@@ -90,148 +109,202 @@ class ManagingNode:
         self._t0 = config.start_time_s
         self._sync_overflow = config.scaling.sync_counter_overflow
         self._wire_preq_timeout = layout.wire_preq + layout.pres_timeout
-        self._prop = layout.propagation
-        # per node (index = node id), raw telegram values
-        self._sw = [0] * (n + 1)
-        self._pos = [0] * (n + 1)
-        self._tq = [0] * (n + 1)
-        self._vel = [0] * (n + 1)
-        self._err = [0] * (n + 1)
-        self._got1 = [False] * (n + 1)
-        self._got2 = [False] * (n + 1)
-        self._late = [False] * (n + 1)
-        self._crc = [False] * (n + 1)
-        self._deadline = [0.0] * (n + 1)
-        self._last_cw = [0] * (n + 1)
-        self.node_fault = [False] * (n + 1)
+        self._prop = list(layout.propagation[1:])
+        # per node (index = node - 1), raw telegram values of the last valid PRes
+        self._sw = [0] * n
+        self._pos = [0] * n
+        self._tq = [0] * n
+        self._vel = [0] * n
+        self._err = [0] * n
+        self._last_sw: list[int] = [0] * n
+        self._last_err: list[int] = [0] * n
+        self._got1 = [False] * n
+        self._got2 = [False] * n
+        self._late = [False] * n
+        self._crc = [False] * n
+        self._all_fresh = False
+        self._deadline = [0.0] * n
+        self._last_cw = [0] * n
+        self.node_fault = [False] * n
         self._ids: dict[int, tuple[int, int]] = {}
-        for node in range(1, n + 1):
-            self._ids[TPDO1_BASE + node] = (1, node)
-            self._ids[TPDO2_BASE + node] = (2, node)
-            self._ids[EMCY_BASE + node] = (3, node)
+        for i in range(n):
+            self._ids[TPDO1_BASE + i + 1] = (1, i)
+            self._ids[TPDO2_BASE + i + 1] = (2, i)
+            self._ids[EMCY_BASE + i + 1] = (3, i)
+        # the MN's frames are allocated once and refilled every cycle (allocation-light)
+        self._sync_msg = FastMessage(0.0, SYNC_ID, bytearray(1))
+        self._preq_msgs = [FastMessage(0.0, RPDO1_BASE + i + 1, bytearray(_RPDO1_LEN)) for i in range(n)]
+        self._frames = [self._sync_msg] + self._preq_msgs
+        self._cpr = scaling.counts_per_rad.tolist()
+        self._upn = scaling.units_per_newton_metre.tolist()
+        self._rpc = scaling.rad_per_count.tolist()
+        self._npu = scaling.newton_metre_per_unit.tolist()
         th = config.thresholds
         self.counters = CounterBank(log, self._on_threshold)
-        self._loss = [None] + [self.counters.new("mn", k, "loss_of_pres", th.mn_loss_of_pres, th.increment, th.decrement) for k in range(1, n + 1)]
-        self._late_c = [None] + [self.counters.new("mn", k, "late_pres", th.mn_late_pres, th.increment, th.decrement) for k in range(1, n + 1)]
-        self._crc_c = [None] + [self.counters.new("mn", k, "crc_error", th.mn_crc_error, th.increment, th.decrement) for k in range(1, n + 1)]
+        new = self.counters.new
+        self._c_loss = [new("mn", i + 1, "loss_of_pres", th.mn_loss_of_pres, th.increment, th.decrement) for i in range(n)]
+        self._c_late = [new("mn", i + 1, "late_pres", th.mn_late_pres, th.increment, th.decrement) for i in range(n)]
+        self._c_crc = [new("mn", i + 1, "crc_error", th.mn_crc_error, th.increment, th.decrement) for i in range(n)]
         self.frames_received = 0
         self.decode_errors = 0
         self.emcy_received: list[FieldbusEvent] = []
 
     # ------------------------------------------------------------------ sending
-    def sync_message(self, cycle: int, timestamp: float) -> FastMessage:
-        """SYNC (SoC) of ``cycle`` with the CiA 301 counter 1..overflow."""
-        return FastMessage(timestamp, SYNC_ID, bytearray(((cycle % self._sync_overflow) + 1,)))
-
     def start_cycle(self, cycle: int) -> None:
+        """Begin ``cycle``: forget last cycle's reception flags."""
         self.cycle = cycle
-        got1, got2 = self._got1, self._got2
-        for node in range(1, self.nodes + 1):
-            got1[node] = got2[node] = False
-            self._late[node] = self._crc[node] = False
+        n = self.nodes
+        self._got1 = [False] * n
+        self._got2 = [False] * n
+        self._late = [False] * n
+        self._crc = [False] * n
 
-    def preq_message(self, node: int, timestamp: float, controlword: int, position: float,
-                     torque_offset: float) -> FastMessage:
-        """RPDO1 for ``node`` (1-based) with SI set-points, quantised; also arms the PRes
-        timeout and notes a fault-reset edge."""
-        self._deadline[node] = timestamp + self._wire_preq_timeout
-        if controlword & CW_FAULT_RESET and not self._last_cw[node] & CW_FAULT_RESET and self.node_fault[node]:
-            self._clear_fault(node, timestamp)
-        self._last_cw[node] = controlword
-        index = node - 1
-        data = bytearray(_PACK_RPDO1(controlword, self.scaling.position_count(index, position),
-                                     self.scaling.torque_unit(index, torque_offset)))
-        return FastMessage(timestamp, RPDO1_BASE + node, data)
+    def frames(self, cycle: int, times: list, controlword: list, position: list,
+               torque_offset: list) -> list[FastMessage]:
+        """SYNC and one RPDO1 per node for ``cycle``: ``times`` = [soc, preq_1..N, ...]
+        send times (s); set-points per node as plain lists in SI units (quantised
+        here). Arms the PRes timeouts and notes fault-reset edges.
+
+        The returned list and its messages are reused next cycle (receivers that keep
+        a frame beyond the cycle must copy it)."""
+        sync = self._sync_msg
+        sync.timestamp = times[0]
+        sync.data[0] = (cycle % self._sync_overflow) + 1
+        n = self.nodes
+        counts = _quantise(position, self._cpr, -2147483648, 2147483647, self.scaling.position_count, "position")
+        units = _quantise(torque_offset, self._upn, -32768, 32767, self.scaling.torque_unit, "torque_offset")
+        msgs, deadline, last_cw, wait = self._preq_msgs, self._deadline, self._last_cw, self._wire_preq_timeout
+        node_fault = self.node_fault
+        for i in range(n):
+            ts = times[i + 1]
+            deadline[i] = ts + wait
+            cw = controlword[i]
+            if cw & CW_FAULT_RESET and not last_cw[i] & CW_FAULT_RESET and node_fault[i]:
+                self._clear_fault(i, ts)
+            msg = msgs[i]
+            msg.timestamp = ts
+            _PACK_RPDO1_INTO(msg.data, 0, cw, counts[i], units[i])
+        self._last_cw = controlword
+        return self._frames
 
     # ------------------------------------------------------------------ receiving
     def receive(self, msg: can.Message) -> None:
-        """Digest one received frame; never raises."""
-        self.frames_received += 1
-        entry = self._ids.get(msg.arbitration_id)
-        data = msg.data
-        if entry is not None and not msg.is_error_frame and not msg.is_remote_frame and not msg.is_extended_id:
-            which, node = entry
+        """Digest one received frame; never raises (bad frames are counted and recorded)."""
+        self.receive_all((msg,))
+
+    def receive_all(self, msgs: list | tuple) -> None:
+        """Digest received frames in order; never raises."""
+        self.frames_received += len(msgs)
+        ids, prop, deadline = self._ids, self._prop, self._deadline
+        sw, pos, tq, vel, err = self._sw, self._pos, self._tq, self._vel, self._err
+        got1, got2, late = self._got1, self._got2, self._late
+        for msg in msgs:
+            entry = ids.get(msg.arbitration_id)
+            if entry is None or msg.is_error_frame or msg.is_remote_frame or msg.is_extended_id:
+                self._other_frame(msg)
+                continue
+            which, i = entry
+            data = msg.data
             if which == 1 and len(data) == _TPDO1_LEN:
-                if msg.timestamp + self._prop[node] > self._deadline[node]:
-                    self._late[node] = True
-                    return
-                self._sw[node], self._pos[node], self._tq[node] = _UNPACK_TPDO1(data)
-                self._got1[node] = True
-                return
-            if which == 2 and len(data) == _TPDO2_LEN:
-                if msg.timestamp + self._prop[node] > self._deadline[node]:
-                    self._late[node] = True
-                    return
-                self._vel[node], self._err[node] = _UNPACK_TPDO2(data)
-                self._got2[node] = True
-                return
-            if which == 3 and len(data) == EMCY.size:
-                code, register, counter_id, value, threshold = EMCY.unpack(data)
-                event = FieldbusEvent(msg.timestamp, self.cycle, "mn", node, "emcy", "emcy_received",
-                                      value, -1, threshold,
-                                      f"EMCY 0x{code:04X} register 0x{register:02X} counter id {counter_id}")
-                self.emcy_received.append(event)
-                self.log.add(event)
-                return
+                if msg.timestamp + prop[i] > deadline[i]:
+                    late[i] = True
+                else:
+                    sw[i], pos[i], tq[i] = _UNPACK_TPDO1(data)
+                    got1[i] = True
+            elif which == 2 and len(data) == _TPDO2_LEN:
+                if msg.timestamp + prop[i] > deadline[i]:
+                    late[i] = True
+                else:
+                    vel[i], err[i] = _UNPACK_TPDO2(data)
+                    got2[i] = True
+            else:
+                self._other_frame(msg)
+
+    def _other_frame(self, msg: can.Message) -> None:
+        """An EMCY frame, or a frame that cannot be decoded."""
+        data = msg.data
+        if (msg.arbitration_id & ~0x7F == EMCY_BASE and 0 < msg.arbitration_id & 0x7F <= self.nodes
+                and len(data) == EMCY.size and not (msg.is_error_frame or msg.is_remote_frame or msg.is_extended_id)):
+            code, register, counter_id, value, threshold = EMCY.unpack(data)
+            event = FieldbusEvent(msg.timestamp, self.cycle, "mn", msg.arbitration_id & 0x7F, "emcy",
+                                  "emcy_received", value, -1, threshold,
+                                  f"EMCY 0x{code:04X} register 0x{register:02X} counter id {counter_id}")
+            self.emcy_received.append(event)
+            self.log.add(event)
+            return
         self._bad_frame(msg)
 
     def _bad_frame(self, msg: can.Message) -> None:
         self.decode_errors += 1
         reason, node = _decode_error(self.log, "mn", msg, self.cycle, msg.timestamp)
-        if node and reason in ("error_frame", "short_frame", "long_frame", "remote_frame") and \
-                node <= self.nodes and msg.arbitration_id & ~0x7F in (TPDO1_BASE, TPDO2_BASE):
-            if not self._crc[node]:
-                self._crc[node] = True
-                self._crc_c[node].error(self.cycle, msg.timestamp, f"PRes {reason}")
+        if node and node <= self.nodes and reason != "unexpected_id" and \
+                msg.arbitration_id & ~0x7F in (TPDO1_BASE, TPDO2_BASE):
+            i = node - 1
+            if not self._crc[i]:
+                self._crc[i] = True
+                self._c_crc[i].error(self.cycle, msg.timestamp, f"PRes {reason}")
 
     # ------------------------------------------------------------------ end of cycle
     def end_cycle(self, cycle: int) -> ObservedActuals:
         """Judge this cycle's PRes frames, update counters, publish ObservedActuals."""
         obs = self.observed
-        t = self._t0 + cycle * self._cycle_time
-        fresh = obs.fresh
         got1, got2 = self._got1, self._got2
-        for node in range(1, self.nodes + 1):
-            ok = got1[node] and got2[node]
-            fresh[node - 1] = ok
-            if not ok:
-                if self._late[node]:
-                    self._late_c[node].error(cycle, t, "PRes arrived after the PRes timeout")
-                else:
-                    self._loss[node].error(cycle, t, "no valid PRes" + (" (CRC error)" if self._crc[node] else ""))
-        self.counters.end_cycle(cycle, t)
-        s = self.scaling
-        obs.statusword[:] = self._sw[1:]
-        obs.error_code[:] = self._err[1:]
-        obs.position[:] = self._pos[1:]
-        obs.position *= s.rad_per_count
-        obs.velocity[:] = self._vel[1:]
-        obs.velocity *= s.rad_per_count
-        obs.torque[:] = self._tq[1:]
-        obs.torque *= s.newton_metre_per_unit
+        all_fresh = all(got1) and all(got2)
+        if all_fresh:
+            if not self._all_fresh:
+                obs.fresh[:] = True
+        else:
+            t = self._t0 + cycle * self._cycle_time
+            fresh = [a and b for a, b in zip(got1, got2)]
+            obs.fresh[:] = fresh
+            for i, ok in enumerate(fresh):
+                if not ok:
+                    if self._late[i]:
+                        self._c_late[i].error(cycle, t, "PRes arrived after the PRes timeout")
+                    else:
+                        self._c_loss[i].error(cycle, t, "no valid PRes" + (" (CRC error)" if self._crc[i] else ""))
+        self._all_fresh = all_fresh
+        if self.counters.busy:
+            self.counters.end_cycle(cycle, self._t0 + cycle * self._cycle_time)
+        if self._sw != self._last_sw:
+            obs.statusword[:] = self._sw
+            self._last_sw = list(self._sw)
+        if self._err != self._last_err:
+            obs.error_code[:] = self._err
+            self._last_err = list(self._err)
+        rpc = self._rpc
+        obs.position[:] = list(map(mul, self._pos, rpc))
+        obs.velocity[:] = list(map(mul, self._vel, rpc))
+        obs.torque[:] = list(map(mul, self._tq, self._npu))
         return obs
 
     # ------------------------------------------------------------------ faults
     def _on_threshold(self, counter: ThresholdCounter, cycle: int, time_s: float) -> None:
-        node = counter.node
-        if not self.node_fault[node]:
-            self.node_fault[node] = True
-            self.observed.node_fault[node - 1] = True
-            self.log.add(FieldbusEvent(time_s, cycle, "mn", node, counter.kind, "fault_reaction",
+        i = counter.node - 1
+        if not self.node_fault[i]:
+            self.node_fault[i] = True
+            self.observed.node_fault[i] = True
+            self.log.add(FieldbusEvent(time_s, cycle, "mn", counter.node, counter.kind, "fault_reaction",
                                        counter.value, counter.cumulative, counter.threshold,
                                        "MN reports the node faulted: controller must stop commanding motion"))
 
-    def _clear_fault(self, node: int, time_s: float) -> None:
+    def _clear_fault(self, i: int, time_s: float) -> None:
+        node = i + 1
         if any(c.node == node and c.tripped for c in self.counters.counters):
             return
-        self.node_fault[node] = False
-        self.observed.node_fault[node - 1] = False
+        self.node_fault[i] = False
+        self.observed.node_fault[i] = False
         self.log.add(FieldbusEvent(time_s, self.cycle, "mn", node, "node_fault", "fault_cleared",
                                    -1, -1, -1, "fault reset sent with all counters below threshold"))
 
 
 class ControlledNodes:
-    """The drive-side POWERLINK CNs (node ids 1..N) sharing one bus connection."""
+    """The drive-side POWERLINK CNs (node ids 1..N) sharing one bus connection.
+
+    Per cycle: :meth:`start_cycle` (the SoC: latch actuals, apply due set-points),
+    :meth:`receive` for every frame that arrived, :meth:`responses` (the PRes frames of
+    the nodes whose PReq arrived), :meth:`end_cycle` (judge SoC and PReqs, counters),
+    :meth:`emergency_messages` (EMCY of nodes that tripped, for the async slot)."""
 
     def __init__(self, config: "FieldbusConfig", scaling: "JointScaling",
                  layout: "CycleLayout", log: EventLog) -> None:
@@ -250,198 +323,237 @@ class ControlledNodes:
         self._quick_stop = config.reaction.abort_connection_option == "quick_stop"
         self._jitter_range = config.timing.cn_soc_jitter_range_s
         self._sync_overflow = config.scaling.sync_counter_overflow
-        self._arrival = [0.0] + [layout.wire_preq + layout.propagation[k] for k in range(1, n + 1)]
-        self._pipe: list[list[tuple[int, int, int] | None]] = [[None] * self._d for _ in range(n + 1)]
-        self._preq_ok = [False] * (n + 1)
-        self._preq_late = [False] * (n + 1)
-        self._crc = [False] * (n + 1)
+        self._arrival = [layout.wire_preq + layout.propagation[i + 1] for i in range(n)]
+        self._pipe: list[list[tuple[int, int, int] | None]] = [[None] * self._d for _ in range(n)]
+        self._preq_ok = [False] * n
+        self._preq_late = [False] * n
+        self._crc = [False] * n
         self._sync_seen = False
         self._sync_ts = 0.0
-        self._sync_bad = False
         self._next_soc = 0.0
-        # latched actuals (telegram units), index = node id
-        self._a_sw = [0] * (n + 1)
-        self._a_pos = [0] * (n + 1)
-        self._a_tq = [0] * (n + 1)
-        self._a_vel = [0] * (n + 1)
-        self._a_err = [0] * (n + 1)
+        # latched actuals (telegram units), index = node - 1
+        self._a_sw = [0] * n
+        self._a_pos = [0] * n
+        self._a_tq = [0] * n
+        self._a_vel = [0] * n
+        self._a_err = [0] * n
         # applied set-points (telegram units), index = node - 1
         self._cw = [0] * n
         self._pos: list[int | None] = [None] * n
         self._prev_pos: list[int | None] = [None] * n
         self._tq = [0] * n
         self._fresh = [False] * n
-        self.comm_fault = [False] * (n + 1)
-        self._emcy_due: list[tuple[int, ThresholdCounter]] = []
-        self._ids: dict[int, int] = {RPDO1_BASE + k: k for k in range(1, n + 1)}
-        self._traffic = {TPDO1_BASE + k for k in range(1, n + 1)} | {TPDO2_BASE + k for k in range(1, n + 1)} \
-            | {EMCY_BASE + k for k in range(1, n + 1)}
+        self._last_app_cw: list[int] | None = None
+        self._all_fresh = False
+        self.comm_fault = [False] * n
+        self._any_fault = False
+        self._emcy_due: list[ThresholdCounter] = []
+        self._ids: dict[int, int] = {RPDO1_BASE + i + 1: i for i in range(n)}
+        self._tpdo1_ids = [TPDO1_BASE + i + 1 for i in range(n)]
+        self._tpdo2_ids = [TPDO2_BASE + i + 1 for i in range(n)]
+        self._tpdo1_msgs = [FastMessage(0.0, i, bytearray(_TPDO1_LEN)) for i in self._tpdo1_ids]
+        self._tpdo2_msgs = [FastMessage(0.0, i, bytearray(_TPDO2_LEN)) for i in self._tpdo2_ids]
+        self._traffic = set(self._tpdo1_ids) | set(self._tpdo2_ids) | {EMCY_BASE + i + 1 for i in range(n)}
+        self._cpr = scaling.counts_per_rad.tolist()
+        self._upn = scaling.units_per_newton_metre.tolist()
+        self._rpc = scaling.rad_per_count.tolist()
+        self._npu = scaling.newton_metre_per_unit.tolist()
         th = config.thresholds
         self.counters = CounterBank(log, self._on_threshold)
-        mk = self.counters.new
-        self._c_soc = [None] + [mk("cn", k, "loss_of_soc", th.cn_loss_of_soc, th.increment, th.decrement) for k in range(1, n + 1)]
-        self._c_preq = [None] + [mk("cn", k, "loss_of_preq", th.cn_loss_of_preq, th.increment, th.decrement) for k in range(1, n + 1)]
-        self._c_crc = [None] + [mk("cn", k, "crc_error", th.cn_crc_error, th.increment, th.decrement) for k in range(1, n + 1)]
-        self._c_jit = [None] + [mk("cn", k, "soc_jitter", th.cn_soc_jitter, th.increment, th.decrement) for k in range(1, n + 1)]
+        new = self.counters.new
+        self._c_soc = [new("cn", i + 1, "loss_of_soc", th.cn_loss_of_soc, th.increment, th.decrement) for i in range(n)]
+        self._c_preq = [new("cn", i + 1, "loss_of_preq", th.cn_loss_of_preq, th.increment, th.decrement) for i in range(n)]
+        self._c_crc = [new("cn", i + 1, "crc_error", th.cn_crc_error, th.increment, th.decrement) for i in range(n)]
+        self._c_jit = [new("cn", i + 1, "soc_jitter", th.cn_soc_jitter, th.increment, th.decrement) for i in range(n)]
         self.frames_received = 0
         self.decode_errors = 0
 
-    # ------------------------------------------------------------------ receiving
-    def receive(self, msg: can.Message) -> None:
-        """Digest one received frame; never raises."""
-        self.frames_received += 1
-        arb = msg.arbitration_id
-        data = msg.data
-        if msg.is_error_frame or msg.is_remote_frame or msg.is_extended_id:
-            self._bad_frame(msg)
-            return
-        node = self._ids.get(arb)
-        if node is not None:
-            if len(data) != _RPDO1_LEN:
-                self._bad_frame(msg)
-                return
-            if msg.timestamp + self._arrival[node] > self._next_soc:
-                self._preq_late[node] = True
-                return
-            self._pipe[node][self.cycle % self._d] = _UNPACK_RPDO1(data)
-            self._preq_ok[node] = True
-            return
-        if arb == SYNC_ID and len(data) <= 1:
-            if data and self.cycle >= 0 and data[0] != (self.cycle + 1) % self._sync_overflow + 1:
-                self._sync_bad = True  # counter of a SYNC that is not the one due now
-                self.decode_errors += 1
-                self.log.add(FieldbusEvent(msg.timestamp, self.cycle + 1, "cn", 0, "sync_counter", "decode_error",
-                                           -1, -1, -1, f"SYNC counter {data[0]}, expected {(self.cycle + 1) % self._sync_overflow + 1}"))
-                return
-            self._sync_seen = True
-            self._sync_ts = msg.timestamp
-            return
-        if arb in self._traffic and len(data) in (_TPDO1_LEN, _TPDO2_LEN):
-            return  # other nodes' PRes / EMCY on the shared medium
-        self._bad_frame(msg)
-
-    def _bad_frame(self, msg: can.Message) -> None:
-        self.decode_errors += 1
-        reason, node = _decode_error(self.log, "cn", msg, self.cycle, msg.timestamp)
-        targets: list[int] = []
-        if msg.arbitration_id == SYNC_ID and reason in ("error_frame", "long_frame", "remote_frame"):
-            targets = list(range(1, self.nodes + 1))  # the multicast SoC was bad at every CN
-        elif node and node <= self.nodes and msg.arbitration_id & ~0x7F == RPDO1_BASE:
-            targets = [node]
-        for target in targets:
-            if not self._crc[target]:
-                self._crc[target] = True
-                self._c_crc[target].error(self.cycle, msg.timestamp, f"{reason}")
-
-    # ------------------------------------------------------------------ cycle
+    # ------------------------------------------------------------------ SoC
     def start_cycle(self, cycle: int, actuals: DriveActuals) -> AppliedSetpoints:
-        """SoC of ``cycle``: check the SoC, latch ``actuals``, apply due set-points."""
+        """SoC of ``cycle``: latch ``actuals`` (quantised), apply the set-points due now.
+
+        The CN's own cycle timer marks the SoC; whether the SoC frame itself arrived (in
+        time) is judged in :meth:`end_cycle`."""
         self.cycle = cycle
+        n = self.nodes
         t = self._t0 + cycle * self._cycle_time
         self._next_soc = t + self._cycle_time
-        n = self.nodes
-        if not self._sync_seen:
-            for node in range(1, n + 1):
-                self._c_soc[node].error(cycle, t, "no SoC")
-        elif abs(self._sync_ts - t) > self._jitter_range:
-            for node in range(1, n + 1):
-                self._c_jit[node].error(cycle, t, f"SoC {(self._sync_ts - t) * 1e6:.2f} us off")
-        self._sync_seen = False
-        self._sync_bad = False
-        # latch actual values (quantised as they enter the PRes)
         s = self.scaling
-        sw = actuals.statusword.tolist()
-        pos = actuals.position.tolist()
-        vel = actuals.velocity.tolist()
-        tq = actuals.torque.tolist()
-        err = actuals.error_code.tolist()
-        a_sw, a_pos, a_tq, a_vel, a_err = self._a_sw, self._a_pos, self._a_tq, self._a_vel, self._a_err
-        position_count, velocity_count, torque_unit = s.position_count, s.velocity_count, s.torque_unit
-        for i in range(n):
-            node = i + 1
-            a_sw[node] = sw[i]
-            a_pos[node] = position_count(i, pos[i])
-            a_vel[node] = velocity_count(i, vel[i])
-            a_tq[node] = torque_unit(i, tq[i])
-            a_err[node] = err[i]
+        # latch actual values (quantised as they enter the PRes)
+        self._a_sw = actuals.statusword.tolist()
+        self._a_err = actuals.error_code.tolist()
+        self._a_pos = a_pos = _quantise(actuals.position.tolist(), self._cpr, -2147483648, 2147483647,
+                                        s.position_count, "actuals.position")
+        self._a_vel = _quantise(actuals.velocity.tolist(), self._cpr, -2147483648, 2147483647,
+                                s.velocity_count, "actuals.velocity")
+        self._a_tq = _quantise(actuals.torque.tolist(), self._upn, -32768, 32767, s.torque_unit, "actuals.torque")
         # apply the set-points due at this SoC
         slot = cycle % self._d
         cws, poss, prev, tqs, fresh = self._cw, self._pos, self._prev_pos, self._tq, self._fresh
+        all_fresh = True
         for i in range(n):
-            node = i + 1
-            pipe = self._pipe[node]
+            pipe = self._pipe[i]
             due = pipe[slot]
-            pipe[slot] = None
             if due is not None:
+                pipe[slot] = None
                 cw = due[0]
-                if self.comm_fault[node] and cw & CW_FAULT_RESET and not cws[i] & CW_FAULT_RESET:
-                    self._clear_fault(node, cycle, t)
+                if self._any_fault and self.comm_fault[i] and cw & CW_FAULT_RESET and not cws[i] & CW_FAULT_RESET:
+                    self._clear_fault(i, cycle, t)
                 cws[i] = cw
                 prev[i] = poss[i]
                 poss[i] = due[1]
                 tqs[i] = due[2]
                 fresh[i] = True
             else:
+                all_fresh = False
                 fresh[i] = False
                 last = poss[i]
                 if last is None:
-                    poss[i] = a_pos[node]  # nothing received yet: hold where the drive is
+                    poss[i] = a_pos[i]  # nothing received yet: hold where the drive is
                 elif not self._hold and prev[i] is not None:
                     poss[i] = last + (last - prev[i])
                     prev[i] = last
         app = self.applied
-        if any(self.comm_fault):
+        if self._any_fault:
             forced = list(cws)
             for i in range(n):
-                if self.comm_fault[i + 1]:
-                    app.comm_fault[i] = True
-                    if self._quick_stop:
-                        forced[i] = int(Command.QUICK_STOP)
-                else:
-                    app.comm_fault[i] = False
+                if self.comm_fault[i] and self._quick_stop:
+                    forced[i] = int(Command.QUICK_STOP)
             app.controlword[:] = forced
-        else:
+            app.comm_fault[:] = self.comm_fault
+            self._last_app_cw = None
+        elif cws != self._last_app_cw:
             app.controlword[:] = cws
             app.comm_fault[:] = False
-        app.position[:] = poss
-        app.position *= s.rad_per_count
-        app.torque_offset[:] = tqs
-        app.torque_offset *= s.newton_metre_per_unit
-        app.fresh[:] = fresh
+            self._last_app_cw = list(cws)
+        app.position[:] = list(map(mul, poss, self._rpc))
+        app.torque_offset[:] = list(map(mul, tqs, self._npu))
+        if not (all_fresh and self._all_fresh):
+            app.fresh[:] = fresh
+        self._all_fresh = all_fresh
         return app
 
-    def pres_messages(self, node: int, timestamp: float) -> tuple[FastMessage, FastMessage]:
-        """TPDO1 and TPDO2 (the PRes) of ``node`` with the values latched at the SoC."""
-        return (FastMessage(timestamp, TPDO1_BASE + node,
-                            bytearray(_PACK_TPDO1(self._a_sw[node], self._a_pos[node], self._a_tq[node]))),
-                FastMessage(timestamp, TPDO2_BASE + node,
-                            bytearray(_PACK_TPDO2(self._a_vel[node], self._a_err[node]))))
+    # ------------------------------------------------------------------ receiving
+    def receive(self, msg: can.Message) -> None:
+        """Digest one received frame; never raises (bad frames are counted and recorded)."""
+        self.receive_all((msg,))
+
+    def receive_all(self, msgs: list | tuple) -> None:
+        """Digest received frames in order; never raises."""
+        self.frames_received += len(msgs)
+        ids, arrival, next_soc = self._ids, self._arrival, self._next_soc
+        pipe, ok, late = self._pipe, self._preq_ok, self._preq_late
+        slot = self.cycle % self._d
+        for msg in msgs:
+            i = ids.get(msg.arbitration_id)
+            if i is None or msg.is_error_frame or msg.is_remote_frame or msg.is_extended_id \
+                    or len(msg.data) != _RPDO1_LEN:
+                self._other_frame(msg)
+            elif msg.timestamp + arrival[i] > next_soc:
+                late[i] = True
+            else:
+                pipe[i][slot] = _UNPACK_RPDO1(msg.data)
+                ok[i] = True
+
+    def _other_frame(self, msg: can.Message) -> None:
+        """The SYNC, other nodes' traffic, or a frame that cannot be decoded."""
+        arb = msg.arbitration_id
+        data = msg.data
+        bad = msg.is_error_frame or msg.is_remote_frame or msg.is_extended_id
+        if arb == SYNC_ID and len(data) <= 1 and not bad:
+            expected = self.cycle % self._sync_overflow + 1
+            if data and data[0] != expected:
+                self.decode_errors += 1
+                self.log.add(FieldbusEvent(msg.timestamp, self.cycle, "cn", 0, "sync_counter", "decode_error",
+                                           -1, -1, -1, f"SYNC counter {data[0]}, expected {expected}"))
+                return
+            self._sync_seen = True
+            self._sync_ts = msg.timestamp
+            return
+        if arb in self._traffic and len(data) in (_TPDO1_LEN, _TPDO2_LEN, EMCY.size) and not bad:
+            return  # other nodes' PRes / EMCY on the shared medium
+        self._bad_frame(msg)
+
+    def _bad_frame(self, msg: can.Message) -> None:
+        self.decode_errors += 1
+        reason, node = _decode_error(self.log, "cn", msg, self.cycle, msg.timestamp)
+        if reason == "unexpected_id":
+            return
+        if msg.arbitration_id == SYNC_ID:
+            targets = range(self.nodes)  # the multicast SoC was bad at every CN
+        elif node and node <= self.nodes and msg.arbitration_id & ~0x7F == RPDO1_BASE:
+            targets = range(node - 1, node)
+        else:
+            return
+        for i in targets:
+            if not self._crc[i]:
+                self._crc[i] = True
+                self._c_crc[i].error(self.cycle, msg.timestamp, reason)
+
+    # ------------------------------------------------------------------ sending
+    def responses(self, times: list) -> list[FastMessage]:
+        """PRes frames (TPDO1, TPDO2 per node) with the values latched at the SoC, for
+        every node whose PReq arrived and whose entry in ``times`` (= [soc,
+        preq_1..N, pres_1..N] send times) is not None. The messages are reused next
+        cycle (receivers that keep a frame beyond the cycle must copy it)."""
+        n = self.nodes
+        out: list[FastMessage] = []
+        append = out.append
+        ok = self._preq_ok
+        a_sw, a_pos, a_tq, a_vel, a_err = self._a_sw, self._a_pos, self._a_tq, self._a_vel, self._a_err
+        msgs1, msgs2 = self._tpdo1_msgs, self._tpdo2_msgs
+        for i in range(n):
+            ts = times[n + 1 + i]
+            if ok[i] and ts is not None:
+                m1 = msgs1[i]
+                m1.timestamp = ts
+                _PACK_TPDO1_INTO(m1.data, 0, a_sw[i], a_pos[i], a_tq[i])
+                m2 = msgs2[i]
+                m2.timestamp = ts
+                _PACK_TPDO2_INTO(m2.data, 0, a_vel[i], a_err[i])
+                append(m1)
+                append(m2)
+        return out
 
     def preq_received(self, node: int) -> bool:
-        """True when a valid, timely PReq for ``node`` arrived in this cycle."""
-        return self._preq_ok[node]
+        """True when a valid, timely PReq for ``node`` (1-based) arrived in this cycle."""
+        return self._preq_ok[node - 1]
 
+    # ------------------------------------------------------------------ end of cycle
     def end_cycle(self, cycle: int) -> None:
-        """Count PReqs that never arrived (or arrived late), decrement counters."""
+        """Judge the SoC and the PReqs of ``cycle``, decrement counters."""
+        n = self.nodes
         t = self._t0 + cycle * self._cycle_time
-        for node in range(1, self.nodes + 1):
-            if not self._preq_ok[node]:
-                detail = "PReq arrived after the next SoC" if self._preq_late[node] else "no valid PReq"
-                self._c_preq[node].error(cycle, t, detail)
-            self._preq_ok[node] = self._preq_late[node] = self._crc[node] = False
-        self.counters.end_cycle(cycle, t)
+        if not self._sync_seen:
+            for i in range(n):
+                self._c_soc[i].error(cycle, t, "no valid SoC")
+        elif abs(self._sync_ts - t) > self._jitter_range:
+            for i in range(n):
+                self._c_jit[i].error(cycle, t, f"SoC {(self._sync_ts - t) * 1e6:.2f} us off its time")
+        self._sync_seen = False
+        ok = self._preq_ok
+        if not all(ok):
+            for i in range(n):
+                if not ok[i]:
+                    detail = "PReq arrived after the next SoC" if self._preq_late[i] else "no valid PReq"
+                    self._c_preq[i].error(cycle, t, detail)
+        self._preq_ok = [False] * n
+        self._preq_late = [False] * n
+        self._crc = [False] * n
+        if self.counters.busy:
+            self.counters.end_cycle(cycle, t)
 
     def emergency_messages(self, timestamp: float) -> list[FastMessage]:
         """EMCY frames due in this cycle's asynchronous slot (one per tripped counter)."""
         if not self._emcy_due:
             return []
         out = []
-        for node, counter in self._emcy_due:
+        for counter in self._emcy_due:
             data = bytearray(EMCY.pack(EMCY_COMMUNICATION, EMCY_ERROR_REGISTER_COMMUNICATION,
                                        COUNTER_IDS.get(f"cn_{counter.kind}", 0),
                                        min(counter.value, 0xFFFF), counter.threshold))
-            out.append(FastMessage(timestamp, EMCY_BASE + node, data))
-            self.log.add(FieldbusEvent(timestamp, self.cycle, "cn", node, counter.kind, "emcy_sent",
+            out.append(FastMessage(timestamp, EMCY_BASE + counter.node, data))
+            self.log.add(FieldbusEvent(timestamp, self.cycle, "cn", counter.node, counter.kind, "emcy_sent",
                                        counter.value, counter.cumulative, counter.threshold,
                                        f"EMCY 0x{EMCY_COMMUNICATION:04X}"))
         self._emcy_due = []
@@ -449,18 +561,21 @@ class ControlledNodes:
 
     # ------------------------------------------------------------------ faults
     def _on_threshold(self, counter: ThresholdCounter, cycle: int, time_s: float) -> None:
-        node = counter.node
-        self._emcy_due.append((node, counter))
-        if not self.comm_fault[node]:
-            self.comm_fault[node] = True
-            what = ("drive gets quick stop controlword 0x0002 and comm_fault" if self._quick_stop
-                    else "drive gets comm_fault (abort option 'fault')")
-            self.log.add(FieldbusEvent(time_s, cycle, "cn", node, counter.kind, "fault_reaction",
+        i = counter.node - 1
+        self._emcy_due.append(counter)
+        if not self.comm_fault[i]:
+            self.comm_fault[i] = True
+            self._any_fault = True
+            what = ("drive gets quick stop controlword 0x0002 and comm_fault from the next SoC"
+                    if self._quick_stop else "drive gets comm_fault from the next SoC (abort option 'fault')")
+            self.log.add(FieldbusEvent(time_s, cycle, "cn", counter.node, counter.kind, "fault_reaction",
                                        counter.value, counter.cumulative, counter.threshold, what))
 
-    def _clear_fault(self, node: int, cycle: int, time_s: float) -> None:
+    def _clear_fault(self, i: int, cycle: int, time_s: float) -> None:
+        node = i + 1
         if any(c.node == node and c.tripped for c in self.counters.counters):
             return
-        self.comm_fault[node] = False
+        self.comm_fault[i] = False
+        self._any_fault = any(self.comm_fault)
         self.log.add(FieldbusEvent(time_s, cycle, "cn", node, "comm_fault", "fault_cleared",
                                    -1, -1, -1, "fault reset applied with all counters below threshold"))

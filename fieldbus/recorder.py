@@ -1,6 +1,7 @@
 """Recording of every frame with python-can's own ``Logger`` in simulated time.
 
-The hot loop only appends the sent :class:`can.Message` objects to a list. Every
+The hot loop only appends (timestamp, id, data, is_error_frame) tuples of the sent
+frames to a list (the network reuses its message objects, so they are copied here). Every
 ``flush_every_cycles`` cycles the list is sorted by timestamp (late frames may have
 been sent out of time order) and handed to ``can.Logger`` (``.blf``, ``.asc`` or any
 other format python-can writes), up to a watermark time so that a frame still in
@@ -13,7 +14,7 @@ so encoding BLF objects does not cost the simulation loop (2-3 µs per frame).
 from __future__ import annotations
 
 import multiprocessing
-from operator import attrgetter
+from operator import itemgetter
 from pathlib import Path
 from typing import Any
 
@@ -21,11 +22,18 @@ import can
 
 from fieldbus.errors import FieldbusConfigError
 
-_BY_TIME = attrgetter("timestamp")
+_BY_TIME = itemgetter(0)
 
 
 def _open_logger(path: str) -> can.io.generic.MessageWriter:
     return can.Logger(path)
+
+
+def _write(logger: can.io.generic.MessageWriter, batch: list[tuple[float, int, bytes, bool]]) -> None:
+    write = logger.on_message_received
+    for timestamp, arbitration_id, data, is_error in batch:
+        write(can.Message(timestamp=timestamp, arbitration_id=arbitration_id, is_extended_id=False,
+                          data=data, is_error_frame=is_error))
 
 
 def _writer_process(path: str, connection: Any) -> None:
@@ -36,10 +44,7 @@ def _writer_process(path: str, connection: Any) -> None:
             batch = connection.recv()
             if batch is None:
                 break
-            for timestamp, arbitration_id, data, is_error in batch:
-                logger.on_message_received(can.Message(
-                    timestamp=timestamp, arbitration_id=arbitration_id, is_extended_id=False,
-                    data=data, is_error_frame=is_error))
+            _write(logger, batch)
     finally:
         logger.stop()
         connection.close()
@@ -63,13 +68,12 @@ class FrameRecorder:
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self.flush_every_cycles = flush_every_cycles
         self.background = background
-        self.pending: list[can.Message] = []
-        self.add = self.pending.append  # the hot-path entry point
+        self.pending: list[tuple[float, int, bytes, bool]] = []
         self.frames_written = 0
         self._closed = False
         if background:
             context = multiprocessing.get_context("spawn")
-            self._conn, child_conn = context.Pipe(duplex=False)
+            child_conn, self._conn = context.Pipe(duplex=False)  # (receiving end, sending end)
             self._process = context.Process(target=_writer_process, args=(str(self.path), child_conn),
                                             name="fieldbus-recorder", daemon=True)
             self._process.start()
@@ -77,6 +81,10 @@ class FrameRecorder:
             self._logger = None
         else:
             self._logger = _open_logger(str(self.path))
+
+    def add_many(self, frames: list) -> None:
+        """Record sent frames (copied: the senders reuse their message objects)."""
+        self.pending.extend([(m.timestamp, m.arbitration_id, bytes(m.data), m.is_error_frame) for m in frames])
 
     def end_cycle(self, cycle: int, watermark_s: float) -> None:
         """Called once per cycle; flushes frames older than ``watermark_s`` periodically."""
@@ -93,19 +101,17 @@ class FrameRecorder:
             count = len(pending)
         else:
             count = len(pending)
-            while count and pending[count - 1].timestamp >= watermark_s:
+            while count and pending[count - 1][0] >= watermark_s:
                 count -= 1
         if not count:
             return
         batch = pending[:count]
         del pending[:count]
         if self._logger is not None:
-            write = self._logger.on_message_received
-            for msg in batch:
-                write(msg)
+            _write(self._logger, batch)
         else:
             try:
-                self._conn.send([(m.timestamp, m.arbitration_id, bytes(m.data), m.is_error_frame) for m in batch])
+                self._conn.send(batch)
             except (BrokenPipeError, OSError) as error:
                 raise RuntimeError(f"fieldbus recorder process for {self.path} died: {error}") from error
         self.frames_written += count

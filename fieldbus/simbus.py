@@ -78,6 +78,18 @@ class SimulatedTimeBus(BusABC):
                 return msg
         return None
 
+    def drain(self) -> list[Message]:
+        """All queued messages at once (in order), filtered like ``recv``; an extension
+        of this interface for batch receivers."""
+        queue = self._queue
+        if not queue:
+            return []
+        messages = list(queue)
+        queue.clear()
+        if self._filters is not None:
+            messages = [m for m in messages if self._matches_filters(m)]
+        return messages
+
     @property
     def pending(self) -> int:
         """Number of messages waiting in this bus's receive queue."""
