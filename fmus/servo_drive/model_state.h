@@ -35,6 +35,7 @@ typedef struct {
     double following_error;  /* rad */
     double ramp_position;    /* rad, quick-stop / fault-reaction reference */
     double ramp_velocity;    /* rad/s */
+    int standstill_samples;  /* position samples at standstill since the ramp ended */
 
     /* constants derived from the parameters at initialization */
     double counts_per_rad;   /* encoder counts per joint rad */

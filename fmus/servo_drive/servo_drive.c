@@ -17,7 +17,9 @@
  * The CiA 402 state machine runs at every position sample. The power stage (current
  * loop) is active in Operation enabled, Quick stop active and Fault reaction active
  * only; elsewhere the current is zero. Quick stop and fault reaction follow an
- * internal ramp to standstill with their decelerations; then quick stop either stays
+ * internal ramp to standstill with their decelerations; once the ramp is at zero and
+ * the filtered speed has stayed within standstill_velocity (0x606F) for
+ * standstill_time (0x6070), quick stop either stays
  * holding position (option code 6) or switches off (option code 2) and the fault
  * reaction ends in Fault (power off). A nonzero fault_code input, or a following
  * error beyond following_error_window, triggers the fault reaction.
@@ -96,6 +98,7 @@ static void enter(Instance *inst, int state)
             s->ramp_position = s->position_actual;
             s->ramp_velocity = s->speed_filtered;
         }
+        s->standstill_samples = 0;
     }
     if (state == CIA_OPERATION_ENABLED) {
         if (s->cia_state != CIA_QUICK_STOP_ACTIVE) power_off(s); /* fresh controller states */
@@ -209,9 +212,14 @@ static void position_sample(Instance *inst)
                 "t=%.6f s: following error %.6g rad exceeds the window %.6g rad: fault 0x%04X", inst->d.time,
                 error, R(FOLLOWING_ERROR_WINDOW), ERROR_FOLLOWING);
         raise_fault(inst, ERROR_FOLLOWING);
-    } else if (s->cia_state != CIA_OPERATION_ENABLED && s->ramp_velocity == 0.0) {
-        if (s->cia_state == CIA_FAULT_REACTION_ACTIVE) enter(inst, CIA_FAULT);              /* 14 */
-        else if (I(QUICK_STOP_OPTION_CODE) == 2) enter(inst, CIA_SWITCH_ON_DISABLED);       /* 12 */
+    } else if (s->cia_state != CIA_OPERATION_ENABLED) {
+        /* standstill: ramp at zero and |speed| <= threshold for standstill_time (0x606F/0x6070) */
+        int still = s->ramp_velocity == 0.0 && fabs(s->speed_filtered) <= R(STANDSTILL_VELOCITY);
+        s->standstill_samples = still ? s->standstill_samples + 1 : 0;
+        if (still && s->standstill_samples * ts >= R(STANDSTILL_TIME) - 1e-12) {
+            if (s->cia_state == CIA_FAULT_REACTION_ACTIVE) enter(inst, CIA_FAULT);          /* 14 */
+            else if (I(QUICK_STOP_OPTION_CODE) == 2) enter(inst, CIA_SWITCH_ON_DISABLED);   /* 12 */
+        }
     }
 }
 

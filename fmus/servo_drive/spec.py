@@ -35,6 +35,9 @@ REAL_PARAMETERS: tuple[tuple[str, str, float | None, float | None, str], ...] = 
     ("quick_stop_deceleration", "rad/s2", 1e-9, None, "quick-stop ramp deceleration (0x6085)"),
     ("fault_reaction_deceleration", "rad/s2", 1e-9, None, "fault-reaction ramp deceleration"),
     ("following_error_window", "rad", 0.0, None, "following-error window (0x6065), 0 disables the fault"),
+    ("standstill_velocity", "rad/s", 0.0, None,
+     "velocity threshold (0x606F): a stop ramp ends when the axis is this slow ..."),
+    ("standstill_time", "s", 0.0, None, "... for this long (velocity threshold time 0x6070)"),
 )
 
 
