@@ -15,10 +15,11 @@ Synchronous semantics (one cycle k, SoC at t_k):
 Fault reactions:
 
 * Controlled node n, threshold reached (loss of SoC/PReq, CRC, SoC jitter): it latches
-  ``comm_fault[n]``, sends an EMCY frame in the asynchronous slot and - with abort
-  option 'quick_stop' (CiA 402 0x6007 = 3) - presents controlword 0x0002 (quick stop)
-  to its drive instead of the received one; with option 'fault' only the flag is set
-  and the drive runs its fault reaction. The latch clears when a received controlword
+  ``comm_fault[n]``, sends an EMCY frame in the asynchronous slot and, from the next
+  SoC, with abort option 'fault' (CiA 402 0x6007 = 1, default) presents fault code
+  0x8100 to its drive (``applied.fault_code``: the drive runs its fault reaction);
+  with option 'quick_stop' (0x6007 = 3) it presents controlword 0x0002 instead of the
+  received one. The latch clears when a received controlword
   with a rising fault-reset bit is applied while no counter of the node is at its
   threshold; that controlword then passes to the drive.
 * Managing node, threshold reached for node n (loss of PRes, late PRes, CRC): it
@@ -347,6 +348,7 @@ class ControlledNodes:
         self._all_fresh = False
         self.comm_fault = [False] * n
         self._any_fault = False
+        self._fault_shown = False  # applied arrays still show a fault that was cleared
         self._emcy_due: list[ThresholdCounter] = []
         self._ids: dict[int, int] = {RPDO1_BASE + i + 1: i for i in range(n)}
         self._tpdo1_ids = [TPDO1_BASE + i + 1 for i in range(n)]
@@ -414,17 +416,22 @@ class ControlledNodes:
                     poss[i] = last + (last - prev[i])
                     prev[i] = last
         app = self.applied
-        if self._any_fault:
+        if self._any_fault or self._fault_shown:
             forced = list(cws)
+            codes = [0] * n
             for i in range(n):
-                if self.comm_fault[i] and self._quick_stop:
-                    forced[i] = int(Command.QUICK_STOP)
+                if self.comm_fault[i]:
+                    if self._quick_stop:
+                        forced[i] = int(Command.QUICK_STOP)
+                    else:
+                        codes[i] = EMCY_COMMUNICATION
             app.controlword[:] = forced
             app.comm_fault[:] = self.comm_fault
+            app.fault_code[:] = codes
             self._last_app_cw = None
+            self._fault_shown = self._any_fault
         elif cws != self._last_app_cw:
             app.controlword[:] = cws
-            app.comm_fault[:] = False
             self._last_app_cw = list(cws)
         app.position[:] = list(map(mul, poss, self._rpc))
         app.torque_offset[:] = list(map(mul, tqs, self._npu))
@@ -566,8 +573,9 @@ class ControlledNodes:
         if not self.comm_fault[i]:
             self.comm_fault[i] = True
             self._any_fault = True
-            what = ("drive gets quick stop controlword 0x0002 and comm_fault from the next SoC"
-                    if self._quick_stop else "drive gets comm_fault from the next SoC (abort option 'fault')")
+            what = ("drive gets quick stop controlword 0x0002 from the next SoC (abort option 'quick_stop')"
+                    if self._quick_stop else
+                    f"drive gets fault code 0x{EMCY_COMMUNICATION:04X} from the next SoC (abort option 'fault')")
             self.log.add(FieldbusEvent(time_s, cycle, "cn", counter.node, counter.kind, "fault_reaction",
                                        counter.value, counter.cumulative, counter.threshold, what))
 

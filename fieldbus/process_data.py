@@ -58,10 +58,13 @@ class AppliedSetpoints:
     controlword/position/torque_offset: as received (or held / extrapolated when
         the set-point due now did not arrive), rad and N·m after quantisation.
     fresh: True where the set-point due at this SoC arrived.
-    comm_fault: True where the controlled node's threshold counter tripped; the
-        runner forwards it to the drive FMU's communication-fault input. With the
-        default abort option 'quick_stop' the controlword is also forced to quick
-        stop (0x0002), so a drive that only reads the controlword reacts too.
+    comm_fault: True where the controlled node's threshold counter tripped (latched
+        until a fault reset is applied with the node's counters below threshold).
+    fault_code: what the runner writes to the drive FMU's ``fault_code`` input: 0, or
+        0x8100 (CiA 301 "communication") where comm_fault is set and the abort option
+        is 'fault' (default) - the drive then runs its CiA 402 fault reaction. With
+        option 'quick_stop' fault_code stays 0 and the controlword is forced to quick
+        stop (0x0002) instead.
     """
 
     controlword: np.ndarray
@@ -69,15 +72,17 @@ class AppliedSetpoints:
     torque_offset: np.ndarray
     fresh: np.ndarray
     comm_fault: np.ndarray
+    fault_code: np.ndarray
 
     @classmethod
     def zeros(cls, nodes: int) -> "AppliedSetpoints":
         return cls(np.zeros(nodes, dtype=np.int64), np.zeros(nodes), np.zeros(nodes),
-                   np.zeros(nodes, dtype=bool), np.zeros(nodes, dtype=bool))
+                   np.zeros(nodes, dtype=bool), np.zeros(nodes, dtype=bool),
+                   np.zeros(nodes, dtype=np.int64))
 
     def copy(self) -> "AppliedSetpoints":
-        return AppliedSetpoints(*(a.copy() for a in (self.controlword, self.position,
-                                                     self.torque_offset, self.fresh, self.comm_fault)))
+        return AppliedSetpoints(*(a.copy() for a in (self.controlword, self.position, self.torque_offset,
+                                                     self.fresh, self.comm_fault, self.fault_code)))
 
 
 @dataclass(slots=True)
