@@ -35,6 +35,8 @@ from fmpy.logging import addLoggerProxy
 
 _STATUS = ("OK", "Warning", "Discard", "Error", "Fatal", "Pending")
 _EXTRACTED: dict[tuple[str, int], str] = {}
+_MESSAGES: dict[int, list[tuple[str, str]]] = {}  # componentEnvironment -> messages of that instance
+_next_environment = 1
 _libc = ctypes.CDLL(None)
 _libc.calloc.restype = ctypes.c_void_p
 _libc.calloc.argtypes = [ctypes.c_size_t, ctypes.c_size_t]
@@ -43,6 +45,22 @@ _libc.free.argtypes = [ctypes.c_void_p]
 
 class FmuCallError(ValueError):
     """An FMU call returned fmi2Error/fmi2Fatal (or a name/value given to it was wrong)."""
+
+
+def _route_log(environment, instance_name, status, category, message) -> None:
+    """The one Python logger behind fmpy's native formatting proxy (which keeps a single,
+    process-wide Python callback): messages go to their instance by componentEnvironment;
+    others are printed the way fmpy prints them."""
+    label = _STATUS[status] if 0 <= status < len(_STATUS) else str(status)
+    text = message.decode("utf-8", "replace") if message else ""
+    target = _MESSAGES.get(environment or 0)
+    if target is None:
+        print(f"[{label.upper()}] {text}")
+    else:
+        target.append((label, text))
+
+
+_LOGGER = fmi2CallbackLoggerTYPE(_route_log)
 
 
 def _extracted_dir(fmu_path: Path) -> str:
@@ -78,9 +96,14 @@ class FastFmu2Slave:
         self.path = path
         self.model_description = read_model_description(str(path))
         self.variables = {v.name: v for v in self.model_description.modelVariables}
+        global _next_environment
         self.messages: list[tuple[str, str]] = []  # (status, message) logged by the FMU
+        self._environment = _next_environment
+        _next_environment += 1
+        _MESSAGES[self._environment] = self.messages
         self._callbacks = fmi2CallbackFunctions()
-        self._callbacks.logger = fmi2CallbackLoggerTYPE(self._log)
+        self._callbacks.logger = _LOGGER
+        self._callbacks.componentEnvironment = self._environment
         self._callbacks.allocateMemory = fmi2CallbackAllocateMemoryTYPE(_libc.calloc)
         self._callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE(_libc.free)
         addLoggerProxy(ctypes.byref(self._callbacks))
@@ -120,10 +143,6 @@ class FastFmu2Slave:
         self.time = start_time
 
     # -- helpers ------------------------------------------------------------------
-    def _log(self, env, instance_name, status, category, message) -> None:
-        self.messages.append((_STATUS[status] if 0 <= status < len(_STATUS) else str(status),
-                              message.decode("utf-8", "replace")))
-
     def _variable(self, name: str, type_: str):
         variable = self.variables.get(name)
         if variable is None:
@@ -211,6 +230,7 @@ class FastFmu2Slave:
             self._fmu.dll.fmi2Terminate(self._component)  # status ignored: the instance is freed anyway
             self._fmu.freeInstance()
             self._component = None
+            _MESSAGES.pop(self._environment, None)
 
     def __enter__(self) -> "FastFmu2Slave":
         return self
