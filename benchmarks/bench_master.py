@@ -11,12 +11,14 @@ Ways to step the same thing (same FMUs, same connections, same task):
   fast_fmu     hand-written loop over fmus.fast_fmu.FastFmu2Slave (prepared ctypes arrays)
   master_py    cosim.master.Master, Python engine (ctypes call per FMI function)
   master_c     cosim.master.Master, compiled kernel (one ctypes call per stretch of steps)
-and 'fmu_compute': only fmi2DoStep of the 7 FMUs, called from the compiled kernel with
-no I/O: the FMUs' own compute. "Overhead" = a way's time minus fmu_compute: what the
-master (I/O calls, connection copies, the 400 us Python task, Python loop) adds.
+"FMU compute" is the wall time spent inside the FMUs' fmi2DoStep, timed by the kernel
+(clock_gettime around each call) during the master_c runs; "overhead" = a way's wall
+time minus that compute, per FMU and macro step: what the loop around the FMUs (I/O
+calls, connection copies, the 400 us Python task) costs.
 
 Prints, per macro step (100/200/400 us), the median over REPEATS runs of SIM_TIME_S of:
-wall us per macro step, us per macro step per FMU, ratio to fmpy_api, real-time factor.
+wall us per macro step, us per macro step per FMU, speed-up over fmpy_api, real-time
+factor, overhead per FMU and macro step.
 Run: python benchmarks/bench_master.py [--sim-time 0.2] [--repeats 5]
 """
 from __future__ import annotations
@@ -28,8 +30,6 @@ import time
 import numpy as np
 
 from cosim.master import Master
-from cosim.master.engines import NativeEngine, Plan, SlavePlan
-from cosim.master.kernel import load_kernel
 from fmus.build import ensure_fmus
 from fmus.fast_fmu import FastFmu2Slave
 from fmus.servo_drive.params import drive_start_values
@@ -53,14 +53,9 @@ def plant_start() -> dict[str, float]:
 
 
 # ----------------------------------------------------------------------------- master
-def run_master(paths, h: float, sim_time: float, engine: str, compute_only: bool = False) -> float:
-    """Wall seconds to simulate sim_time with the master.
-
-    ``compute_only``: after initialization, time the compiled kernel calling only
-    fmi2DoStep of each FMU (no inputs, outputs, connections or tasks): the FMUs' own
-    compute, which no master can avoid.
-    """
-    m = Master(h, engine=engine)
+def run_master(paths, h: float, sim_time: float, engine: str) -> tuple[float, float]:
+    """(wall s, s spent inside fmi2DoStep) to simulate sim_time with the master (profiled)."""
+    m = Master(h, engine=engine, profile=True)
     m.add_fmu("plant", paths["rx130l_plant"], start_values=plant_start())
     for i in range(1, 7):
         m.add_fmu(f"drive{i}", paths["servo_drive"], start_values=drive_start_values(i))
@@ -90,18 +85,12 @@ def run_master(paths, h: float, sim_time: float, engine: str, compute_only: bool
     m.add_task(controller, CONTROL_PERIOD, setup=setup, name="controller")
     with m:
         m.initialize(sim_time)
-        if compute_only:
-            bare = Plan([SlavePlan(s.component, s.step_ticks, {}, {}, 0) for s in m.plan.slaves], m.plan.buses,
-                        0.0, h, False)
-            engine = NativeEngine(bare, load_kernel())
-            w0 = time.perf_counter()
-            engine.advance(0, round(sim_time / h))
-            return time.perf_counter() - w0
         w0 = time.perf_counter()
         m.run()
         wall = time.perf_counter() - w0
         assert np.all(np.abs(io["q"] - Q0) < 0.05), io["q"]  # the drives hold the pose
-    return wall
+        compute = sum(m.fmu_step_seconds.values())
+    return wall, compute
 
 
 # ----------------------------------------------------------------------------- fmpy API
@@ -210,28 +199,34 @@ def main() -> None:
     args = parser.parse_args()
     paths = ensure_fmus()
     cases = {
-        "fmpy_api": run_fmpy_api,
-        "fast_fmu": run_fast_fmu,
+        "fmpy_api": lambda p, h, s: (run_fmpy_api(p, h, s), None),
+        "fast_fmu": lambda p, h, s: (run_fast_fmu(p, h, s), None),
         "master_py": lambda p, h, s: run_master(p, h, s, "python"),
         "master_c": lambda p, h, s: run_master(p, h, s, "native"),
-        "fmu_compute": lambda p, h, s: run_master(p, h, s, "native", compute_only=True),
     }
     print(f"plant + 6 drives, 18 FMU-FMU connections + 18 task->drive, 400 us task; "
-          f"{args.sim_time} s simulated, median of {args.repeats}")
-    print(f"{'macro step':>10} {'way':>12} {'us/step':>9} {'us/step/FMU':>12} {'x fmpy_api':>11} {'real-time x':>12}")
+          f"{args.sim_time} s simulated, median of {args.repeats} (ways interleaved)")
+    print(f"{'step':>6} {'way':>10} {'us/step':>8} {'us/step/FMU':>12} {'x fmpy_api':>10} {'real-time x':>11} "
+          f"{'overhead us/FMU/step':>21}")
     for h in (1e-4, 2e-4, 4e-4):
         n_steps = round(args.sim_time / h)
-        medians = {}
-        for name, fn in cases.items():
-            walls = [fn(paths, h, args.sim_time) for _ in range(args.repeats)]
-            medians[name] = statistics.median(walls)
-        for name, wall in medians.items():
+        walls = {name: [] for name in cases}
+        computes = []
+        for _ in range(args.repeats):
+            for name, fn in cases.items():
+                wall, compute = fn(paths, h, args.sim_time)
+                walls[name].append(wall)
+                if name == "master_c":
+                    computes.append(compute)
+        med = {name: statistics.median(w) for name, w in walls.items()}
+        compute = statistics.median(computes)  # s inside the FMUs' fmi2DoStep, measured in C
+        for name, wall in med.items():
             per_step = wall / n_steps * 1e6
-            print(f"{h * 1e6:>8.0f}us {name:>12} {per_step:>9.1f} {per_step / N_FMUS:>12.2f} "
-                  f"{medians['fmpy_api'] / wall:>11.1f} {args.sim_time / wall:>12.1f}")
-        for name in ("fmpy_api", "fast_fmu", "master_py", "master_c"):
-            overhead = (medians[name] - medians["fmu_compute"]) / n_steps / N_FMUS * 1e6
-            print(f"{'':>10} {name:>12} overhead over fmu_compute: {overhead:6.2f} us per FMU per macro step")
+            overhead = (wall - compute) / n_steps / N_FMUS * 1e6
+            print(f"{h * 1e6:>4.0f}us {name:>10} {per_step:>8.1f} {per_step / N_FMUS:>12.2f} "
+                  f"{med['fmpy_api'] / wall:>10.1f} {args.sim_time / wall:>11.1f} {overhead:>21.2f}")
+        print(f"{'':>6} {'FMU compute':>10} {compute / n_steps * 1e6:>8.1f} {compute / n_steps / N_FMUS * 1e6:>12.2f}"
+              f"   (time inside fmi2DoStep, timed in the kernel during the master_c runs)")
 
 
 if __name__ == "__main__":

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import ctypes
 import math
+import time
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -123,9 +124,10 @@ class PythonEngine:
 
     name = "python"
 
-    def __init__(self, plan: Plan) -> None:
+    def __init__(self, plan: Plan, profile: bool = False) -> None:
         self.plan = plan
         self._prepared = [self._prepare(slave) for slave in plan.slaves]
+        self.step_seconds = np.zeros(len(plan.slaves)) if profile else None
 
     def _prepare(self, slave: SlavePlan):
         comp = slave.component
@@ -133,14 +135,36 @@ class PythonEngine:
         gathers = [(buses[t], dst, slave.gather_src[t]) for t, dst in slave.gather_dst.items()]
         sets = [(comp.set_fn[t], ex.value_references.ctypes.data, ex.size,
                  buses[t].ctypes.data + ex.offset * buses[t].itemsize, t) for t, ex in slave.inputs.items()]
-        return slave, comp, gathers, sets
+        gets = [(comp.get_fn[t], ex.value_references.ctypes.data, ex.size,
+                 buses[t].ctypes.data + ex.offset * buses[t].itemsize, t) for t, ex in slave.published.items()]
+        checked = None
+        if slave.n_check:
+            ex = slave.published["Real"]
+            checked = buses["Real"][ex.offset:ex.offset + slave.n_check]
+        return slave, comp, gathers, sets, gets, checked
+
+    def _publish(self, prepared, tick: int) -> None:
+        slave, comp, _, _, gets, checked = prepared
+        handle = comp.component
+        for fn, vrs, count, address, bus_type in gets:
+            status = fn(handle, vrs, count, address)
+            if status > 1:
+                comp.check(f"fmi2Get{bus_type}", self.plan.time(tick), status)
+        if checked is not None and not math.isfinite(checked.dot(checked)):
+            bad = np.flatnonzero(~np.isfinite(checked))
+            if len(bad):
+                raise nonfinite_error(self.plan, slave, tick, int(bad[0]))
 
     def advance(self, n_from: int, n_to: int) -> None:
         """Step all due slaves for ticks n_from .. n_to-1 (see kernel.c for the exact order)."""
         plan = self.plan
+        t0, h0 = plan.start_time, plan.base_step
         gauss_seidel = plan.gauss_seidel
+        profile = self.step_seconds
         for n in range(n_from, n_to):
-            for slave, comp, gathers, sets in self._prepared:
+            t = t0 + float(n) * h0
+            for k, prepared in enumerate(self._prepared):
+                slave, comp, gathers, sets, _, _ = prepared
                 m = slave.step_ticks
                 if n % m:
                     continue
@@ -150,18 +174,22 @@ class PythonEngine:
                 for fn, vrs, count, address, bus_type in sets:
                     status = fn(handle, vrs, count, address)
                     if status > 1:
-                        comp.check(f"fmi2Set{bus_type}", plan.time(n), status)
-                t = plan.time(n)
-                h = plan.step_size(n, slave)
-                status = comp.do_step_fn(handle, t, h, 1)
+                        comp.check(f"fmi2Set{bus_type}", t, status)
+                h = (t0 + float(n + m) * h0) - t
+                if profile is not None:
+                    w0 = time.perf_counter()
+                    status = comp.do_step_fn(handle, t, h, 1)
+                    profile[k] += time.perf_counter() - w0
+                else:
+                    status = comp.do_step_fn(handle, t, h, 1)
                 if status > 1:
                     comp.check(f"fmi2DoStep(t={t:.9g} s, h={h:.9g} s)", t, status)
                 if gauss_seidel:
-                    publish(plan, slave, n + m)
+                    self._publish(prepared, n + m)
             if not gauss_seidel:
-                for slave, _, _, _ in self._prepared:
-                    if (n + 1) % slave.step_ticks == 0:
-                        publish(plan, slave, n + 1)
+                for prepared in self._prepared:
+                    if (n + 1) % prepared[0].step_ticks == 0:
+                        self._publish(prepared, n + 1)
 
 
 class NativeEngine:
@@ -169,8 +197,9 @@ class NativeEngine:
 
     name = "native"
 
-    def __init__(self, plan: Plan, library: ctypes.CDLL) -> None:
+    def __init__(self, plan: Plan, library: ctypes.CDLL, profile: bool = False) -> None:
         self.plan = plan
+        self.step_seconds = np.zeros(len(plan.slaves)) if profile else None
         self._advance = library.cosim_advance
         n = len(plan.slaves)
         self._slaves = (CSlave * max(n, 1))()
@@ -179,7 +208,8 @@ class NativeEngine:
         self._plan = CPlan(n_slaves=n, slaves=ctypes.cast(self._slaves, ctypes.POINTER(CSlave)),
                            real_bus=plan.buses["Real"].ctypes.data, int_bus=plan.buses["Integer"].ctypes.data,
                            bool_bus=plan.buses["Boolean"].ctypes.data, start_time=plan.start_time,
-                           base_step=plan.base_step, gauss_seidel=int(plan.gauss_seidel))
+                           base_step=plan.base_step, gauss_seidel=int(plan.gauss_seidel),
+                           step_seconds=None if self.step_seconds is None else self.step_seconds.ctypes.data)
         self._plan_ref = ctypes.byref(self._plan)
         self._failure = CFailure()
         self._failure_ref = ctypes.byref(self._failure)
@@ -232,16 +262,20 @@ class NativeEngine:
         return comp.error(t, f"{what} returned {status_name(f.status)}")
 
 
-def make_engine(plan: Plan, engine: str) -> PythonEngine | NativeEngine:
-    """``"native"``, ``"python"`` or ``"auto"`` (native when the kernel can be built)."""
+def make_engine(plan: Plan, engine: str, profile: bool = False) -> PythonEngine | NativeEngine:
+    """``"native"``, ``"python"`` or ``"auto"`` (native when the kernel can be built).
+
+    ``profile``: accumulate the wall time spent inside each FMU's fmi2DoStep in
+    ``engine.step_seconds`` (one entry per slave, stepping order).
+    """
     if engine == "python":
-        return PythonEngine(plan)
+        return PythonEngine(plan, profile)
     library = load_kernel()
     if library is None:
         if engine == "native":
             raise OSError("the native co-simulation kernel could not be built (no C compiler?)")
-        return PythonEngine(plan)
-    return NativeEngine(plan, library)
+        return PythonEngine(plan, profile)
+    return NativeEngine(plan, library, profile)
 
 
 __all__ = ["BUS_DTYPE", "BUS_ORDER", "Exchange", "NativeEngine", "Plan", "PythonEngine", "SlavePlan",

@@ -11,8 +11,10 @@
  * stepped in Jacobi mode. Real outputs are checked for NaN/Inf when read.
  * The semantics are identical to PythonEngine in engines.py (tested).
  */
+#define _POSIX_C_SOURCE 199309L
 #include <math.h>
 #include <stddef.h>
+#include <time.h>
 
 typedef int (*set_real_t)(void *, const unsigned int *, size_t, const double *);
 typedef int (*get_real_t)(void *, const unsigned int *, size_t, double *);
@@ -54,6 +56,7 @@ typedef struct {
     double start_time;
     double base_step;
     int gauss_seidel;
+    double *step_seconds; /* when not NULL: wall seconds spent inside fmi2DoStep, per slave (profiling) */
 } cosim_plan;
 
 typedef struct {
@@ -108,7 +111,15 @@ static int step(const cosim_plan *p, const cosim_slave *s, long long k, long lon
     }
     double t = p->start_time + (double)n * p->base_step;
     double h = (p->start_time + (double)(n + s->step_ticks) * p->base_step) - t;
-    st = s->do_step(s->component, t, h, 1);
+    if (p->step_seconds) {
+        struct timespec a, b;
+        clock_gettime(CLOCK_MONOTONIC, &a);
+        st = s->do_step(s->component, t, h, 1);
+        clock_gettime(CLOCK_MONOTONIC, &b);
+        p->step_seconds[k] += (double)(b.tv_sec - a.tv_sec) + 1e-9 * (double)(b.tv_nsec - a.tv_nsec);
+    } else {
+        st = s->do_step(s->component, t, h, 1);
+    }
     if (fmi_failed(st)) { f->slave = k; f->tick = n; f->what = FAIL_STEP; f->status = st; f->variable = -1; return 1; }
     return 0;
 }

@@ -66,6 +66,7 @@ class CPlan(Structure):
         ("start_time", c_double),
         ("base_step", c_double),
         ("gauss_seidel", c_int),
+        ("step_seconds", c_void_p),
     ]
 
 

@@ -126,10 +126,12 @@ class Master:
         coupling: ``"jacobi"`` (default) or ``"gauss_seidel"``.
         engine: ``"auto"`` (compiled kernel when a C compiler is available, else Python),
             ``"native"`` or ``"python"``.
+        profile: measure the wall time spent inside each FMU's fmi2DoStep
+            (``fmu_step_seconds``), to separate FMU compute from master overhead.
     """
 
     def __init__(self, base_step: float, start_time: float = 0.0, coupling: str = "jacobi",
-                 engine: str = "auto") -> None:
+                 engine: str = "auto", profile: bool = False) -> None:
         if isinstance(base_step, bool) or not isinstance(base_step, (int, float)) or not base_step > 0 \
                 or not math.isfinite(base_step):
             raise MasterConfigError(f"base_step: expected a positive number of seconds, got {base_step!r}")
@@ -141,6 +143,7 @@ class Master:
         self.start_time = float(start_time)
         self.coupling = coupling
         self.engine_choice = engine
+        self.profile = bool(profile)
         self._fmus: dict[str, FmuComponent] = {}
         self._variables: dict[str, _MasterVariable] = {}
         self._connections: dict[str, str] = {}  # destination -> source
@@ -446,7 +449,7 @@ class Master:
         except BaseException:
             self.close()
             raise
-        self.engine = make_engine(self.plan, self.engine_choice)
+        self.engine = make_engine(self.plan, self.engine_choice, self.profile)
         for recorder in self._recorders:
             locs = [self._locations[s] for s in recorder.signals]
             recorder.bind(self.plan.buses, locs, any(s in self._connections for s in recorder.signals))
@@ -644,6 +647,13 @@ class Master:
     def fmus(self) -> dict[str, FmuComponent]:
         """Instance name -> FmuComponent (model description, log messages)."""
         return dict(self._fmus)
+
+    @property
+    def fmu_step_seconds(self) -> dict[str, float] | None:
+        """Instance name -> wall seconds spent inside its fmi2DoStep so far (None unless profile=True)."""
+        if self.engine is None or self.engine.step_seconds is None:
+            return None
+        return {s.component.name: float(v) for s, v in zip(self.plan.slaves, self.engine.step_seconds)}
 
     @property
     def tasks(self) -> list[Task]:

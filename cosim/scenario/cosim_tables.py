@@ -224,12 +224,18 @@ def build_master(doc: dict, master_variables: Mapping[str, tuple[str, object]] |
     return master
 
 
-def add_record(master: Master, doc: dict, ctx: "RunContext") -> Recorder | None:
-    """Add the ``[record]`` table's recorder writing CSV into the results folder (None without [record])."""
+def add_record(master: Master, doc: dict, ctx: "RunContext", file: str | None = None,
+               extra_signals: list[str] | None = None) -> Recorder | None:
+    """Add the ``[record]`` table's recorder writing CSV into the results folder (None without [record]).
+
+    ``file`` overrides ``[record] file`` (e.g. one file per mode of a job);
+    ``extra_signals`` are recorded after the table's signals (e.g. a job's master variables).
+    """
     record = doc.get("record")
     if record is None:
         return None
-    return master.add_recorder(record["signals"], record["period"], ctx.csv_sink(record["file"]), name="record")
+    signals = list(record["signals"]) + [s for s in (extra_signals or []) if s not in record["signals"]]
+    return master.add_recorder(signals, record["period"], ctx.csv_sink(file or record["file"]), name="record")
 
 
 __all__ = ["COSIM_FIELDS", "FMU_TABLE", "OUTPUT_TABLE", "RECORD_TABLE", "SIMULATION_TABLE", "add_record",
