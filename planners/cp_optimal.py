@@ -103,27 +103,41 @@ def _take(pd: PathDynamics, idx: slice) -> PathDynamics:
 def _needed_rows(pts: PathDynamics, b_cap: np.ndarray, lim: Any) -> tuple[np.ndarray, np.ndarray]:
     """Which acceleration and torque rows (n, 6) can ever be active (exact pruning).
 
-    With b <= b_cap (velocity limit) every acceleration row bounds sigma_ddot:
-    |a| <= (qdd_max_k + |q''_k| b_cap) / |q'_k| for every joint k; let A be the
-    smallest such bound. A row of joint j whose largest possible value over
-    |a| <= A, 0 <= b <= b_cap stays below its limit is implied by the others and the
-    bounds, so dropping it does not change the feasible set. The row of the joint
-    that defines A is always kept.
+    Every row reads  alpha a + beta b + gamma + nu sqrt(b)  in [-L, L]  with a = sigma_ddot
+    and 0 <= b <= b_cap (the velocity limit). Each row, taken alone, bounds a over that
+    b range; A_lo <= a <= A_hi is the tightest of these bounds. A row whose extreme
+    values over the box [A_lo, A_hi] x [0, b_cap] stay inside its limits is implied by
+    the others and the bounds, so dropping it leaves the feasible set unchanged. Rows
+    that define A_lo or A_hi are always kept.
     """
-    dq, ddq = np.abs(pts.dq), np.abs(pts.ddq)
+    n = b_cap.size
+    root = np.sqrt(b_cap)[:, None]
+    bc = b_cap[:, None]
+    alpha = np.concatenate([pts.dq, pts.m], axis=1)
+    beta = np.concatenate([pts.ddq, pts.c], axis=1)
+    gamma = np.concatenate([np.zeros_like(pts.g), pts.g + pts.fc], axis=1)
+    nu = np.concatenate([np.zeros_like(pts.v), pts.v], axis=1)
+    limit = np.concatenate([lim.acceleration, lim.torque])[None, :]
+    # extreme values of beta b + nu sqrt(b) over [0, b_cap] (both terms monotone in b)
+    rest_max = np.maximum(beta, 0.0) * bc + np.maximum(nu, 0.0) * root
+    rest_min = np.minimum(beta, 0.0) * bc + np.minimum(nu, 0.0) * root
     with np.errstate(divide="ignore", invalid="ignore"):
-        per_joint = (lim.acceleration + ddq * b_cap[:, None]) / dq
-    per_joint = np.where(np.isfinite(per_joint), per_joint, np.inf)
-    a_cap = np.min(per_joint, axis=1)
-    tightest = np.argmin(per_joint, axis=1)
+        upper_side = (limit - gamma - rest_min) / alpha  # alpha a <= L - gamma - rest
+        lower_side = (-limit - gamma - rest_max) / alpha  # alpha a >= -L - gamma - rest
+    pos, neg = alpha > 0.0, alpha < 0.0
+    hi_cand = np.where(pos, upper_side, np.where(neg, lower_side, np.inf))
+    lo_cand = np.where(pos, lower_side, np.where(neg, upper_side, -np.inf))
+    hi_cand = np.where(np.isfinite(hi_cand), hi_cand, np.inf)
+    lo_cand = np.where(np.isfinite(lo_cand), lo_cand, -np.inf)
+    a_hi = np.min(hi_cand, axis=1, keepdims=True)
+    a_lo = np.max(lo_cand, axis=1, keepdims=True)
+    value_max = np.maximum(alpha * a_hi, alpha * a_lo) + gamma + rest_max
+    value_min = np.minimum(alpha * a_hi, alpha * a_lo) + gamma + rest_min
     margin = 1.0 - 1e-6
-    acc_max = dq * a_cap[:, None] + ddq * b_cap[:, None]
-    acc_keep = ~(acc_max <= margin * lim.acceleration)
-    acc_keep[np.arange(acc_keep.shape[0]), tightest] = True
-    tau_max = (np.abs(pts.m) * a_cap[:, None] + np.abs(pts.c) * b_cap[:, None] + np.abs(pts.g + pts.fc)
-               + np.abs(pts.v) * np.sqrt(b_cap)[:, None])
-    tau_keep = ~(tau_max <= margin * lim.torque)
-    return acc_keep, tau_keep
+    keep = ~((value_max <= margin * limit) & (value_min >= -margin * limit))
+    keep[np.arange(n), np.argmin(hi_cand, axis=1)] = True
+    keep[np.arange(n), np.argmax(lo_cand, axis=1)] = True
+    return keep[:, :N_JOINTS], keep[:, N_JOINTS:]
 
 
 class OwnCPPlanner(Planner):
