@@ -14,6 +14,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "cosim.commands.robot_info",
     "cosim.commands.build_fmus",
     "cosim.commands.run",
+    "cosim.commands.calibrate",
 )
 
 
