@@ -69,6 +69,7 @@ DEFAULT_IPOPT_OPTIONS: dict[str, Any] = {
     "ipopt.acceptable_tol": 1e-6,
     "ipopt.max_iter": 500,
     "ipopt.mu_strategy": "adaptive",
+    "show_eval_warnings": False,
 }
 SMOOTH_MARGIN = 2e-3
 """Fraction by which the "smooth" transcription tightens every limit: it imposes the
@@ -168,6 +169,13 @@ class OwnCPPlanner(Planner):
         smooth = lim.active("jerk") or lim.active("torque_rate")
         mode = self.transcription if self.transcription != "auto" else ("smooth" if smooth else "b")
         dyn = problem.dynamics or RobotDynamics()
+        for where, q in (("start", problem.path.q[0]), ("end", problem.path.q[-1])):
+            hold = np.abs(dyn.gravity(q))
+            if np.any(hold > lim.torque):
+                j = int(np.argmax(hold / lim.torque))
+                return PlanResult(self.name, PlanStatus.INFEASIBLE, None, 0.0, message=(
+                    f"infeasible: holding the path {where} at rest needs {hold[j]:.1f} N m on joint {j + 1}, "
+                    f"above its torque limit {lim.torque[j]:.1f} N m"))
         t_build = time.perf_counter()
         n = int(problem.n_intervals)
         sigma = np.linspace(0.0, 1.0, n + 1)
@@ -205,10 +213,11 @@ class OwnCPPlanner(Planner):
         bi, bj = b[:-1], b[1:]
         a = (bj - bi) / (2.0 * ds)
         bm = 0.5 * (bi + bj)
-        eps = 1e-12 * float(np.median(b_scale))
-        sqrt_b = ca.sqrt(b + eps)
+        # IPOPT may relax the bound b >= 0 by ~1e-8 relative: guard the square roots
+        eps = ca.DM(1e-10 * b_scale)
+        sqrt_b = ca.sqrt(ca.fmax(b, 0.0) + eps)
         si, sj = sqrt_b[:-1], sqrt_b[1:]
-        sm = ca.sqrt(bm + eps)
+        sm = ca.sqrt(ca.fmax(bm, 0.0) + 0.5 * (eps[:-1] + eps[1:]))
         start = _take(nodes, slice(0, n))
         end = _take(nodes, slice(1, n + 1))
         rows, lbg, ubg = [], [], []
@@ -258,11 +267,15 @@ class OwnCPPlanner(Planner):
         ipopt_status = str(stats.get("return_status", "unknown"))
         bsol = np.maximum(np.asarray(sol["x"]).ravel(), 0.0) * b_scale
         bsol[0] = bsol[-1] = 0.0
-        law = TimeLaw.constant_acceleration(sigma, bsol)
+        status = _status_of(ipopt_status)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            law = TimeLaw.constant_acceleration(sigma, bsol)
+        if status.has_trajectory and not np.isfinite(law.duration):
+            status, ipopt_status = PlanStatus.FAILED, f"{ipopt_status} (but the motion stops on the path: infinite duration)"
         info = {"sigma": sigma, "b": bsol, "constraint_rows": kept + n, "sigma_dot": np.sqrt(bsol), "duration_grid_s": law.duration,
                 "iterations": int(stats.get("iter_count", -1)), "ipopt_status": ipopt_status,
                 "cost": float(sol["f"]) * cost_ref, "law": law, "transcription": "b"}
-        return PlanResult(self.name, _status_of(ipopt_status), None, solve, build, message=ipopt_status, info=info)
+        return PlanResult(self.name, status, None, solve, build, message=ipopt_status, info=info)
 
     def _b_initial_guess(self, problem: CPProblem, sigma: np.ndarray, nodes: PathDynamics,
                          b_scale: np.ndarray) -> np.ndarray:
