@@ -113,10 +113,11 @@ def _run_ramp_job(scenario, ctx: RunContext):
 
     master.add_task(drive, ramp["period"], setup=lambda m: u.update(u=m.view(["ramp.u"], writable=True)))
     ctx.attach(master, doc["simulation"]["stop_time"], label="ramp")
+    status_at_start = json.loads(ctx.path("summary.json").read_text())["status"]
     with master:
         master.initialize(doc["simulation"]["stop_time"])
         reached = ctx.execute(master)
-    return {"ended_at_s": reached, "tag": ramp["tag"]}
+    return {"ended_at_s": reached, "tag": ramp["tag"], "status_at_start": status_at_start}
 
 
 RAMP_TABLE = Table({
@@ -165,7 +166,7 @@ def test_custom_job_reuses_schema_and_cosim_tables(workdir):
     path.write_text(RAMP)
     assert main(["run", str(path), "--out", str(workdir / "o"), "--quiet"]) == 0
     summary = json.loads((workdir / "o" / "summary.json").read_text())
-    assert summary["job"] == "test_ramp" and summary["tag"] == "a"
+    assert summary["job"] == "test_ramp" and summary["tag"] == "a" and summary["status_at_start"] == "running"
     assert summary["ended_at_s"] == pytest.approx(0.6) and summary["sim_time_s"] == pytest.approx(0.6)
     columns, data = read_csv(workdir / "o" / "timeseries.csv")
     assert columns == ["time", "a.y", "ramp.u", "a.u"]
@@ -187,3 +188,23 @@ def test_custom_job_errors(workdir, old, new, key):
     with pytest.raises(ScenarioError) as info:
         load_scenario(path)
     assert info.value.key == key
+
+
+def test_progress_bar_shows_on_a_terminal_only(monkeypatch):
+    import io
+
+    from cosim.results import ProgressBar
+
+    class Terminal(io.StringIO):
+        def isatty(self):
+            return True
+
+    for tty, quiet in ((True, False), (True, True), (False, False)):
+        stream = Terminal() if tty else io.StringIO()
+        monkeypatch.setattr(sys, "stderr", stream)
+        bar = ProgressBar(2.0, "demo", enabled=not quiet, min_interval_s=0.0)
+        bar.update(1.0)
+        bar.update(2.0, force=True)
+        bar.close()
+        shown = stream.getvalue()
+        assert ("demo" in shown and "2.000/2.000 s sim" in shown) == (tty and not quiet), shown
