@@ -186,3 +186,19 @@ def test_views_are_live_and_protected(fmus):
     with pytest.raises(MasterConfigError, match="expose"):
         m.view(["a.k"])
     m.close()
+
+
+@pytest.mark.parametrize("engine", ENGINES)
+def test_expose_and_record_parameters_and_unconnected_inputs(fmus, engine):
+    m = Master(0.1, engine=engine)
+    m.add_fmu("a", fmus["integrator"], start_values={"k": 3.0, "u": 0.5})
+    m.expose(["a.k"])
+    sink = MemorySink()
+    m.add_recorder(["a.u", "a.y0", "a.y"], 0.1, sink)  # unconnected input and a parameter: read like outputs
+    m.initialize(0.2)
+    assert m.view(["a.k"])[0] == 3.0
+    m.run()
+    m.close()
+    assert sink.column("a.u").tolist() == [0.5, 0.5, 0.5]
+    assert sink.column("a.y0").tolist() == [0.0, 0.0, 0.0]
+    assert sink.column("a.y") == pytest.approx([0.0, 0.15, 0.3])

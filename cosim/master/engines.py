@@ -97,8 +97,9 @@ def set_inputs(plan: Plan, slave: SlavePlan, tick: int) -> None:
         comp.check(f"fmi2Set{bus_type}", plan.time(tick), status)
 
 
-def publish(plan: Plan, slave: SlavePlan, tick: int) -> None:
-    """fmi2Get* the slave's published variables into the buses; check Real outputs are finite."""
+def publish(plan: Plan, slave: SlavePlan, tick: int, check: bool = True) -> None:
+    """fmi2Get* the slave's published variables into the buses; check Real outputs are finite
+    (``check=False`` during initialization mode, where outputs may not be computed yet)."""
     comp = slave.component
     for bus_type, ex in slave.published.items():
         bus = plan.buses[bus_type]
@@ -106,7 +107,7 @@ def publish(plan: Plan, slave: SlavePlan, tick: int) -> None:
                                        bus.ctypes.data + ex.offset * bus.itemsize)
         if status > 1:
             comp.check(f"fmi2Get{bus_type}", plan.time(tick), status)
-    if slave.n_check:
+    if check and slave.n_check:
         ex = slave.published["Real"]
         values = plan.buses["Real"][ex.offset:ex.offset + slave.n_check]
         if not math.isfinite(values.dot(values)):  # NaN or Inf anywhere (or |x| > 1e154: checked below)

@@ -437,7 +437,7 @@ class Master:
             if self._connections:
                 for _ in range(len(self.plan.slaves)):  # propagate algebraic chains of initial values
                     for slave in self.plan.slaves:
-                        publish(self.plan, slave, 0)
+                        publish(self.plan, slave, 0, check=False)
                     for slave in self.plan.slaves:
                         gather(self.plan, slave)
                         set_inputs(self.plan, slave, 0)
@@ -580,15 +580,11 @@ class Master:
     def _location(self, signal: str) -> tuple[str, int]:
         if not self._initialized:
             raise MasterConfigError("signal access needs initialize() first")
-        try:
+        if signal in self._locations:
             return self._locations[signal]
-        except KeyError:
-            pass
-        if signal in self._variables:
-            raise MasterConfigError(f"signal {signal!r} not found")  # pragma: no cover
         inst, var = self._split(signal)
         if inst in self._fmus:
-            self._fmus[inst].variable(var)
+            self._fmus[inst].variable(var)  # raises for an unknown variable
             raise MasterConfigError(f"signal {signal!r} is not on the buses: it is not an output, a connected "
                                     f"input or a recorded variable; call expose([{signal!r}]) before initialize()")
         raise MasterConfigError(f"signal {signal!r}: unknown instance {inst!r} (FMUs {sorted(self._fmus)}, "
