@@ -13,7 +13,8 @@ Typical use (six drives and a plant in a loop)::
                           real_inputs=["target_position", "torque_offset", "q_meas", "qd_meas"],
                           real_outputs=["tau_out", "position_actual"],
                           integer_inputs=["controlword"], integer_outputs=["statusword"])
-    drive.set_inputs(np.array([...]))   # in the order of real_inputs
+    drive.set_inputs(np.array([...]))   # in the order of real_inputs (or write drive.inputs[:],
+                                        # then drive.push_inputs(): saves the copy)
     drive.set_integer_inputs([0x0F])
     drive.do_step(t, h)
     tau, pos = drive.get_outputs()      # a view of a reused buffer: copy to keep
@@ -164,8 +165,18 @@ class FastFmu2Slave:
                                f"{_STATUS[status] if status < len(_STATUS) else status}: {last}")
 
     # -- the fast path ---------------------------------------------------------------
+    @property
+    def inputs(self) -> np.ndarray:
+        """The Real input buffer (order of ``real_inputs``): write into it, then :meth:`push_inputs`."""
+        return self._real_in[2]
+
+    def push_inputs(self) -> None:
+        """Send the current contents of :attr:`inputs` to the FMU (no copy: the fastest set)."""
+        vr, n, _, pointer = self._real_in
+        self._check(self._set_real_fn(self._component, vr, n, pointer), "fmi2SetReal")
+
     def set_inputs(self, values: np.ndarray | Sequence[float]) -> None:
-        """Set the Real inputs (order of ``real_inputs``)."""
+        """Set the Real inputs (order of ``real_inputs``): copy into :attr:`inputs`, then push."""
         vr, n, buffer, pointer = self._real_in
         buffer[:] = values
         self._check(self._set_real_fn(self._component, vr, n, pointer), "fmi2SetReal")
