@@ -18,6 +18,7 @@ if TYPE_CHECKING:
 #: Modules that register job types when imported.
 JOB_MODULES: tuple[str, ...] = (
     "cosim.scenario.fmus_job",
+    "cosim.jobs.calibration",
 )
 
 #: runner(scenario, context) -> extra summary.json fields (or None)

@@ -1,0 +1,76 @@
+"""Job ``calibration``: the simulated geometric-calibration campaign (paper section 3).
+
+Runs :func:`identification.calibration_campaign.run_calibration_campaign` with the
+scenario's tables (all optional; defaults and meaning in that module and in
+docs/calibration.md) and puts its summary into ``summary.json``: Table 2 figures
+(``uncalibrated``/``calibrated``), identifiable parameters, observation-index ratios
+against a linear scan and random selections, selection time. Files written next to
+it: measurements.csv, calibrated.urdf, parameters.json, calibration_residuals.json,
+table2.md, table2.png, configurations.png.
+"""
+from __future__ import annotations
+
+from typing import Any
+
+from cosim.scenario.context import RunContext
+from cosim.scenario.loader import SCENARIO_FIELD, Scenario
+from cosim.scenario.registry import register_job
+from cosim.scenario.schema import Boolean, Field, Integer, List, Number, String, Table
+from identification.calibration_campaign import run_calibration_campaign
+from identification.calibration_observability import OBSERVATION_INDICES
+
+TRUE_ROBOT = Table({
+    "seed": Field(Integer(min=0), doc="seed of robot.true_robot.make_true_robot (its geometric errors)"),
+}, doc="the [true_robot] table")
+
+TRACKER = Table({
+    "position_sigma": Field(Number(unit="m", min=0, max=0.01), doc="position noise per axis"),
+    "orientation_sigma": Field(Number(unit="rad", min=0, max=0.1), doc="orientation noise (rotation vector)"),
+    "measure_orientation": Field(Boolean(), doc="measure orientation as well as position"),
+    "noise_seed": Field(Integer(min=0)),
+    "position": Field(List(Number(unit="m"), length=3), doc="camera bar position in base_link"),
+    "target": Field(List(Number(unit="m"), length=3), doc="point the cameras look at"),
+    "fov_half_angle": Field(Number(unit="rad", gt=0, max=1.5707963267948966)),
+    "range_min": Field(Number(unit="m", min=0)),
+    "range_max": Field(Number(unit="m", gt=0)),
+    "probe_normal": Field(List(Number(), length=3), doc="LED facing direction in the flange frame"),
+    "probe_max_angle": Field(Number(unit="rad", gt=0, max=3.141592653589793)),
+    "floor_clearance": Field(Number(unit="m")),
+    "base_keepout_radius": Field(Number(unit="m", min=0)),
+    "base_keepout_height": Field(Number(unit="m")),
+}, doc="the [tracker] table")
+
+CANDIDATES = Table({
+    "values_per_axis": Field(Integer(min=2, max=25)),
+    "max_candidates": Field(Integer(min=0), doc="0: keep every visible configuration"),
+}, doc="the [candidates] table")
+
+SELECTION = Table({
+    "configurations": Field(Integer(min=1)),
+    "index": Field(String(choices=tuple(OBSERVATION_INDICES))),
+    "restarts": Field(Integer(min=1)),
+    "seed": Field(Integer(min=0)),
+    "start_size": Field(Integer(min=0), doc="0: default start size"),
+    "random_draws": Field(Integer(min=1)),
+}, doc="the [selection] table")
+
+VALIDATION = Table({
+    "poses": Field(Integer(min=1)),
+    "seed": Field(Integer(min=0)),
+}, doc="the [validation] table")
+
+SECTIONS = {"true_robot": TRUE_ROBOT, "tracker": TRACKER, "candidates": CANDIDATES,
+            "selection": SELECTION, "validation": VALIDATION}
+
+SCHEMA = Table({"scenario": SCENARIO_FIELD, **{name: Field(spec) for name, spec in SECTIONS.items()}},
+               doc="a calibration scenario document")
+
+
+def run_calibration_job(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
+    """Run the campaign into the results folder; return the summary fields."""
+    config = {name: scenario.data[name] for name in SECTIONS if name in scenario.data}
+    return run_calibration_campaign(config, ctx.out_dir, write_summary=False)
+
+
+register_job("calibration", run_calibration_job, SCHEMA, None,
+             "simulated geometric calibration: optimal tracker configurations, identification, Table 2")
