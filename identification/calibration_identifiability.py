@@ -2,7 +2,8 @@
 
 The stacked identification Jacobian ``Theta`` (rows: measured pose components of
 many configurations; columns: the 39 error parameters) is column-scaled to unit
-column norms (metres and radians mixed otherwise) and decomposed by a QR
+column norms (metres and radians mixed otherwise; columns below
+:data:`ZERO_COLUMN_TOLERANCE` of the largest are zero) and decomposed by a QR
 factorisation with column pivoting (LAPACK ``geqp3`` via scipy), which is rank
 revealing: ``Theta S P = Q R`` with ``|R_11| >= |R_22| >= ...``. The numerical rank
 is the number of diagonal entries ``|R_ii| > RANK_TOLERANCE * |R_00|``. The first
@@ -26,6 +27,13 @@ identifiable when its column keeps more than 1e-8 of the largest column's norm a
 projection on the columns chosen before it. Exactly dependent columns of this model
 leave ~1e-15 (round-off); the weakest independent ones keep ~1e-3, so the rank does
 not depend on the tolerance anywhere between about 1e-13 and 1e-4."""
+
+ZERO_COLUMN_TOLERANCE = 1e-9
+"""A column whose norm is below 1e-9 of the largest column norm is treated as zero
+(the parameter has no first-order effect on the measurements, e.g. the encoder
+offset of axis 6 on the position of a flange origin that lies on axis 6). Natural
+units keep column norms comparable: m per m for lengths, m per rad (a lever arm of
+about 1 m) for angles."""
 
 KAPPA_REPORT_THRESHOLD = 1e-9
 """|kappa| entries (unit-norm columns) below this are round-off and not reported."""
@@ -148,8 +156,9 @@ def identifiable_parameters(
             "stack more configurations"
         )
     scale = np.linalg.norm(theta, axis=0)
+    scale = np.where(scale > ZERO_COLUMN_TOLERANCE * max(float(scale.max()), 1e-300), scale, 0.0)
     safe = np.where(scale > 0.0, scale, 1.0)
-    scaled = theta / safe
+    scaled = np.where(scale > 0.0, theta / safe, 0.0)
     _, r, piv = scipy.linalg.qr(scaled, mode="economic", pivoting=True)
     diag = np.abs(np.diag(r))
     ref = diag[0] if diag.size and diag[0] > 0 else 1.0
