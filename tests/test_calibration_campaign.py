@@ -1,0 +1,85 @@
+"""Simulated calibration campaign, directly and as the 'calibration' job of `cosim run`."""
+import json
+
+import numpy as np
+import pinocchio as pin
+import pytest
+
+from cosim.cli import main
+from identification.calibration_campaign import CampaignConfigError, run_calibration_campaign
+from identification.calibration_measurements import read_measurements_csv
+
+SMALL = {
+    "candidates": {"values_per_axis": 9},  # 9^6 grid -> a few hundred visible configurations
+    "selection": {"restarts": 2, "random_draws": 50},
+    "validation": {"poses": 100},
+}
+
+
+@pytest.fixture(scope="module")
+def campaign(tmp_path_factory):
+    out = tmp_path_factory.mktemp("campaign")
+    return out, run_calibration_campaign(SMALL, out, figures=True)
+
+
+def test_campaign_summary_and_accuracy(campaign):
+    out, summary = campaign
+    noise_mm = summary["tracker_noise"]["position_sigma_mm"]
+    for key in ("uncalibrated", "calibrated"):
+        assert set(summary[key]) == {"e_x", "e_y", "e_z", "e_alpha", "e_beta", "e_gamma"}
+        assert all({"max", "peak_to_peak"} <= set(v) for v in summary[key].values())
+    uncal_pos = max(summary["uncalibrated"][c]["max"] for c in ("e_x", "e_y", "e_z"))
+    assert uncal_pos > 3.0  # several millimetres before calibration
+    assert max(summary["uncalibrated"][c]["max"] for c in ("e_alpha", "e_beta", "e_gamma")) > 0.3  # deg
+    # the calibrated robot (true pose, no tracker noise) within three times the tracker noise
+    assert summary["calibrated_max_position_error_mm"] <= 3.0 * noise_mm
+    assert summary["calibrated_within_3_sigma"] is True
+    assert summary["identifiable_parameters"] == 28
+    assert summary["identifiable_parameters_position_only"] == 25
+    assert summary["observation_index_ratio_vs_linear_scan"] > 1.0
+    assert summary["observation_index_ratio_vs_random"] > 1.0
+    assert summary["selection"]["configurations"] == 32
+    assert summary["validation_poses"] == 100
+    # identified base parameters agree with the hidden truth within their standard deviations
+    assert summary["parameter_recovery"]["rms_z_score"] < 2.0
+    json.dumps(summary, allow_nan=False)
+
+
+def test_campaign_files(campaign):
+    out, summary = campaign
+    for name in summary["files"]:
+        assert (out / name).is_file(), name
+    meas = read_measurements_csv(out / "measurements.csv")
+    assert meas.count == 32 and meas.has_orientation
+    model = pin.buildModelFromUrdf(str(out / "calibrated.urdf"))
+    assert model.nq == 6
+    table = (out / "table2.md").read_text()
+    assert "19.026" in table and "e_gamma in deg" in table
+    chosen = np.array(summary["selection"]["q_rad"])
+    assert np.allclose(chosen, meas.q)
+
+
+def test_config_errors(tmp_path):
+    with pytest.raises(CampaignConfigError, match="unknown key selection.restart;"):
+        run_calibration_campaign({"selection": {"restart": 2}}, tmp_path)
+    with pytest.raises(CampaignConfigError, match="unknown section 'tracking'"):
+        run_calibration_campaign({"tracking": {}}, tmp_path)
+
+
+def test_cosim_run_job(tmp_path):
+    scenario = tmp_path / "cal.toml"
+    scenario.write_text(
+        '[scenario]\nname = "cal_small"\njob = "calibration"\n'
+        '[tracker]\nposition_sigma = "0.1 mm"\nmeasure_orientation = false\n'
+        "[candidates]\nvalues_per_axis = 9\n"
+        "[selection]\nrestarts = 1\nrandom_draws = 20\n"
+        "[validation]\nposes = 100\n"
+    )
+    assert main(["run", str(scenario), "--out", str(tmp_path / "res"), "--quiet"]) == 0
+    summary = json.loads((tmp_path / "res" / "summary.json").read_text())
+    assert summary["status"] == "ok" and summary["job"] == "calibration"
+    assert summary["identifiable_parameters"] == 25  # position only
+    assert summary["calibrated_max_position_error_mm"] < 0.3
+    bad = tmp_path / "bad.toml"
+    bad.write_text('[scenario]\nname = "bad"\njob = "calibration"\n[tracker]\nposition_sigma = "0.1 deg"\n')
+    assert main(["run", str(bad), "--out", str(tmp_path / "bad"), "--quiet"]) == 2
