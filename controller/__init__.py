@@ -1,1 +1,21 @@
-"""The 400 µs model-based controller: trajectory interpolation, IK, feed-forward, telegrams."""
+"""The 400 µs model-based controller: trajectory interpolation, IK, feed-forward, telegrams.
+
+Middle floor: imports ``robot`` and ``fieldbus`` only. Public API::
+
+    from controller import Controller, ControllerConfig, TcpTrajectory, JointTrajectory
+    ref = TcpTrajectory.from_reference(iso_path.reference, iso_path.duration, dt=400e-6)
+    ctrl = Controller(ref, ControllerConfig(mode="model_based"), kinematic_model=model, dynamics=dyn)
+    setpoints = ctrl.step(cycle, t, observed)       # fieldbus.ObservedActuals -> fieldbus.Setpoints
+"""
+from controller.controller import (MODES, Controller, ControllerConfig, ControllerConfigError, ControllerLog, Phase,
+                                   start_configuration)
+from controller.cycle_timer import CycleTimer, TimingSummary
+from controller.feedforward import FeedForward
+from controller.joint_reference import CartesianToJoint, SingularConfigurationError
+from controller.reference import JointSample, JointTrajectory, ReferenceError, TcpSample, TcpTrajectory, quintic_hermite
+
+__all__ = [
+    "MODES", "CartesianToJoint", "Controller", "ControllerConfig", "ControllerConfigError", "ControllerLog",
+    "CycleTimer", "FeedForward", "JointSample", "JointTrajectory", "Phase", "ReferenceError",
+    "SingularConfigurationError", "TcpSample", "TcpTrajectory", "TimingSummary", "quintic_hermite", "start_configuration",
+]

@@ -1,0 +1,391 @@
+"""The 400 µs controller of the paper's section 2.3: set-points and eq. 7 feed-forward.
+
+Every cycle ``k`` (time ``t_k = k T``, ``T`` = ``period_s``) :meth:`Controller.step`
+gets what the fieldbus delivered in that cycle (:class:`fieldbus.ObservedActuals`:
+statusword, position, velocity, torque per drive, latched at ``t_k``) and returns the
+:class:`fieldbus.Setpoints` for the next cycle (SI: target joint angle in rad, torque
+offset in N m, CiA 402 controlword). The fieldbus scales them to telegram units, sends
+them in cycle ``k + 1`` and the drives apply them ``dead_time_cycles`` later, so a
+set-point computed in cycle ``k`` acts from ``t_k + lead_cycles T`` with
+``lead_cycles = 1 + dead_time_cycles``. The controller therefore evaluates the
+reference at that application time: the joint set-point the drive applies at ``t`` is
+``q_d(t)`` and the lag error ``q_d(t) - q(t)`` holds no pure transport delay.
+
+Per cycle, for a Cartesian reference (:class:`controller.reference.TcpTrajectory`):
+interpolate the planned flange motion at the application time, numeric IK of the
+controller's kinematic model (warm started), consistent ``qd_d``, ``qdd_d``
+(:mod:`controller.joint_reference`), then - mode ``model_based`` - the feed-forward
+torque of eq. 7 from the controller's dynamic model (:mod:`controller.feedforward`);
+mode ``standard`` sends the set-points with a zero torque offset (the drives' own
+cascade alone, as an industrial controller without a model). A joint reference
+(:class:`controller.reference.JointTrajectory`) skips the IK.
+
+Phases: ``enabling`` (CiA 402 enable sequence per drive with
+:class:`fieldbus.EnableSequencer`, target = start configuration), ``settling`` (all
+drives in Operation enabled; hold the start for ``settle_time_s`` so the speed-loop
+integrators take the static load), ``tracking`` (trajectory time
+``tau = (k - k_start) T`` for the set-point computed in cycle ``k``), ``finished``
+(``tau`` past the end: hold the last point) and ``stopped``: as soon as a drive shows
+Fault, Fault reaction active or Quick stop active, or the managing node reports a
+node fault (threshold counter), the controller stops commanding motion - quick stop
+(0x0002) to every drive, target = the last observed position, no torque offset - and
+keeps the reason. It never restarts motion by itself.
+
+Each cycle that computes a reference is timed with ``time.perf_counter_ns`` (the
+controller's own work: interpolation, IK, derivatives, feed-forward, controlwords);
+:meth:`Controller.timing` gives p50/p99/max and the deadline misses (compute time
+above ``compute_budget_s``). Everything the controller computed is kept per cycle in
+:attr:`Controller.log` (outside the timed section).
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import asdict, dataclass
+from enum import IntEnum
+
+import numpy as np
+import pinocchio as pin
+
+from controller.cycle_timer import CycleTimer, TimingSummary
+from controller.feedforward import FeedForward
+from controller.joint_reference import CartesianToJoint, SingularConfigurationError
+from controller.reference import JointTrajectory, TcpTrajectory
+from fieldbus import Command, DriveState, EnableSequencer, ObservedActuals, Setpoints, decode_statusword
+from robot.dynamics import RobotDynamics
+from robot.inverse_kinematics import NumericIK
+
+N_JOINTS = 6
+MODES: tuple[str, ...] = ("standard", "model_based")
+_STOP_STATES = {DriveState.FAULT: "Fault", DriveState.FAULT_REACTION_ACTIVE: "Fault reaction active",
+                DriveState.QUICK_STOP_ACTIVE: "Quick stop active"}
+
+
+class ControllerConfigError(ValueError):
+    """A controller setting is out of range or inconsistent (message names key, value, expectation)."""
+
+
+class Phase(IntEnum):
+    """What the controller does in a cycle (the integer is logged)."""
+
+    ENABLING = 0
+    SETTLING = 1
+    TRACKING = 2
+    FINISHED = 3
+    STOPPED = 4
+
+
+@dataclass(frozen=True)
+class ControllerConfig:
+    """Controller settings (SI units).
+
+    mode: ``"standard"`` (set-points only) or ``"model_based"`` (plus eq. 7 feed-forward).
+    period_s: cycle time T, s (paper: 400 µs).
+    lead_cycles: cycles from computing a set-point to the drive applying it
+        (1 + the fieldbus ``dead_time_cycles``).
+    compute_budget_s: compute time above which a cycle counts as a deadline miss, s.
+    settle_time_s: hold at the start configuration after all drives are enabled, s.
+    enable_timeout_s: longest time the enable sequence may take before the controller
+        gives up (stops with a reason), s.
+    """
+
+    mode: str = "model_based"
+    period_s: float = 400e-6
+    lead_cycles: int = 2
+    compute_budget_s: float = 100e-6
+    settle_time_s: float = 0.2
+    enable_timeout_s: float = 0.5
+
+    def __post_init__(self) -> None:
+        if self.mode not in MODES:
+            raise ControllerConfigError(f"controller mode = {self.mode!r}: expected one of {MODES}")
+        for name in ("period_s", "compute_budget_s", "enable_timeout_s"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value)
+                                                                                    and value > 0.0):
+                raise ControllerConfigError(f"controller {name} = {value!r}: expected a number of seconds > 0")
+        if isinstance(self.settle_time_s, bool) or not isinstance(self.settle_time_s, (int, float)) or not (
+                math.isfinite(self.settle_time_s) and self.settle_time_s >= 0.0):
+            raise ControllerConfigError(f"controller settle_time_s = {self.settle_time_s!r}: expected seconds >= 0")
+        if isinstance(self.lead_cycles, bool) or not isinstance(self.lead_cycles, int) or self.lead_cycles < 0:
+            raise ControllerConfigError(f"controller lead_cycles = {self.lead_cycles!r}: expected an integer >= 0")
+
+    @property
+    def settle_cycles(self) -> int:
+        return int(round(self.settle_time_s / self.period_s))
+
+    @property
+    def lead_time_s(self) -> float:
+        """Time from computing a set-point to its application, s."""
+        return self.lead_cycles * self.period_s
+
+
+class ControllerLog:
+    """Per-cycle record of the controller (preallocated, grows by doubling).
+
+    Columns (one row per call of :meth:`Controller.step`): ``t`` (cycle time, s),
+    ``t_apply`` (time the set-point acts, s), ``phase`` (:class:`Phase`), ``tau`` (trajectory
+    time of the set-point, s), ``q_d``, ``qd_d``, ``qdd_d`` (6 each: rad, rad/s, rad/s^2),
+    ``tau_ff`` (6, N m: the torque offset sent), ``q_obs`` (6, rad: position actual seen
+    this cycle), ``compute_us`` (NaN when not timed), ``ik_iterations``.
+    """
+
+    def __init__(self, capacity: int) -> None:
+        self.rows = 0
+        n = max(int(capacity), 16)
+        self.scalars = np.full((n, 6), np.nan)  # t, t_apply, phase, tau, compute_us, ik_iterations
+        self.joints = np.full((n, 5, N_JOINTS), np.nan)  # q_d, qd_d, qdd_d, tau_ff, q_obs
+
+    def append(self, t: float, t_apply: float, phase: int, tau: float, q: np.ndarray, qd: np.ndarray,
+               qdd: np.ndarray, tau_ff: np.ndarray, q_obs: np.ndarray, compute_us: float, iterations: int) -> None:
+        """Add one row (values copied)."""
+        k = self.rows
+        if k == self.scalars.shape[0]:
+            self.scalars = np.concatenate([self.scalars, np.full_like(self.scalars, np.nan)])
+            self.joints = np.concatenate([self.joints, np.full_like(self.joints, np.nan)])
+        row = self.scalars[k]
+        row[0] = t
+        row[1] = t_apply
+        row[2] = phase
+        row[3] = tau
+        row[4] = compute_us
+        row[5] = iterations
+        block = self.joints[k]
+        block[0] = q
+        block[1] = qd
+        block[2] = qdd
+        block[3] = tau_ff
+        block[4] = q_obs
+        self.rows = k + 1
+
+    def columns(self) -> dict[str, np.ndarray]:
+        """Flat columns (copies) named ``t, t_apply, phase, tau, q_d1..6, qd_d1..6, qdd_d1..6,
+        tau_ff1..6, q_obs1..6, compute_us, ik_iterations``."""
+        n = self.rows
+        s = self.scalars[:n]
+        out = {"t": s[:, 0].copy(), "t_apply": s[:, 1].copy(), "phase": s[:, 2].copy(), "tau": s[:, 3].copy()}
+        for g, name in enumerate(("q_d", "qd_d", "qdd_d", "tau_ff", "q_obs")):
+            for j in range(N_JOINTS):
+                out[f"{name}{j + 1}"] = self.joints[:n, g, j].copy()
+        out["compute_us"] = s[:, 4].copy()
+        out["ik_iterations"] = s[:, 5].copy()
+        return out
+
+
+def start_configuration(reference: TcpTrajectory | JointTrajectory, model: pin.Model,
+                        q_hint: np.ndarray | None = None) -> np.ndarray:
+    """Joint angles (6,) rad of the reference's first sample: the IK solution of
+    ``model`` nearest to ``q_hint`` for a Cartesian reference, else its first q."""
+    if isinstance(reference, JointTrajectory):
+        return reference.q[0].copy()
+    ik = NumericIK(model)
+    first = reference.sample(reference.t_start)
+    if q_hint is None:
+        return ik.solve_all(first.target)[0].copy()
+    return ik.solve_nearest(first.target, np.asarray(q_hint, dtype=float)).copy()
+
+
+class Controller:
+    """The cyclic controller (see module docstring).
+
+    Args:
+        reference: a :class:`TcpTrajectory` (flange motion, IK each cycle) or a
+            :class:`JointTrajectory` (joint motion, no IK).
+        config: :class:`ControllerConfig`.
+        kinematic_model: pinocchio model for the IK (default: the nominal URDF); pass
+            ``robot.description.load_model(calibrated_urdf)`` for a calibrated arm.
+        dynamics: the model of the feed-forward (default: the nominal
+            :class:`RobotDynamics`); unused in mode ``standard``.
+        q_hint: joint angles (6,) rad near the wanted IK branch of the start pose.
+        capacity: expected number of cycles (log preallocation).
+    """
+
+    def __init__(self, reference: TcpTrajectory | JointTrajectory, config: ControllerConfig | None = None, *,
+                 kinematic_model: pin.Model | None = None, dynamics: RobotDynamics | None = None,
+                 q_hint: np.ndarray | None = None, capacity: int = 65536) -> None:
+        from robot.description import load_model
+
+        self.config = config or ControllerConfig()
+        if not isinstance(reference, (TcpTrajectory, JointTrajectory)):
+            raise ControllerConfigError(
+                f"reference: expected a controller.reference.TcpTrajectory or JointTrajectory, "
+                f"got {type(reference).__name__}")
+        self.reference = reference
+        self.kinematic_model = kinematic_model if kinematic_model is not None else load_model()
+        self.model_based = self.config.mode == "model_based"
+        self.dynamics = dynamics if dynamics is not None else (RobotDynamics() if self.model_based else None)
+        self.feedforward = FeedForward(self.dynamics) if self.dynamics is not None else None
+        self.q_start = start_configuration(reference, self.kinematic_model, q_hint)
+        self.q_start.setflags(write=False)
+        self._ik = CartesianToJoint(self.kinematic_model) if isinstance(reference, TcpTrajectory) else None
+        if self._ik is not None:
+            self._ik.reset(self.q_start)
+        self.timer = CycleTimer(self.config.compute_budget_s, capacity)
+        self.log = ControllerLog(capacity)
+        self.setpoints = Setpoints.zeros(N_JOINTS)
+        self.setpoints.position[:] = self.q_start
+        self.setpoints.controlword[:] = int(Command.DISABLE_VOLTAGE)
+        self._sequencers = [EnableSequencer() for _ in range(N_JOINTS)]
+        self._zeros = np.zeros(N_JOINTS)
+        self._tau_rest = np.zeros(N_JOINTS)
+        if self.feedforward is not None:
+            self._tau_rest[:] = self.feedforward.torque(self.q_start, self._zeros, self._zeros)
+        self.phase = Phase.ENABLING
+        self.stop_reason: str | None = None
+        self.stopped_at_s: float | None = None
+        self.enabled_at_s: float | None = None
+        self.motion_start_cycle: int | None = None
+        self._settle_until = 0
+        self._first_cycle: int | None = None
+        self._last_cycle: int | None = None
+        self._hold = self.q_start.copy()
+        self._q_d = self.q_start.copy()
+        self._qd_d = np.zeros(N_JOINTS)
+        self._qdd_d = np.zeros(N_JOINTS)
+
+    # ------------------------------------------------------------------ properties
+    @property
+    def mode(self) -> str:
+        return self.config.mode
+
+    @property
+    def duration(self) -> float:
+        """Length of the reference trajectory, s."""
+        return self.reference.duration
+
+    @property
+    def motion_start_s(self) -> float | None:
+        """Time (s) at which the drives apply trajectory time 0 (None before tracking)."""
+        if self.motion_start_cycle is None:
+            return None
+        return (self.motion_start_cycle + self.config.lead_cycles) * self.config.period_s
+
+    @property
+    def finished(self) -> bool:
+        """True once the last set-point of the trajectory has been computed."""
+        return self.phase is Phase.FINISHED
+
+    @property
+    def stopped(self) -> bool:
+        return self.phase is Phase.STOPPED
+
+    def timing(self) -> TimingSummary:
+        """Compute-time statistics of the cycles that computed a reference."""
+        return self.timer.summary()
+
+    def summary(self) -> dict:
+        """JSON-ready state: mode, phase, times, stop reason, timing, config."""
+        return {"mode": self.mode, "phase": self.phase.name.lower(), "reference": self.reference.kind,
+                "trajectory_duration_s": self.duration, "enabled_at_s": self.enabled_at_s,
+                "motion_start_s": self.motion_start_s, "stop_reason": self.stop_reason,
+                "stopped_at_s": self.stopped_at_s, "q_start_rad": self.q_start.tolist(),
+                "cycle_compute_us": self.timing().as_dict(), "config": asdict(self.config)}
+
+    # ------------------------------------------------------------------ the cycle
+    def step(self, cycle: int, t: float, observed: ObservedActuals) -> Setpoints:
+        """One controller cycle at time ``t`` (s) of cycle number ``cycle``: read the actual
+        values, return the set-points for the next cycle (a reused object)."""
+        started = time.perf_counter_ns()
+        if self._first_cycle is None:
+            self._first_cycle = cycle
+        self._last_cycle = cycle
+        cfg = self.config
+        sp = self.setpoints
+        phase = self.phase
+        if phase is not Phase.STOPPED:
+            problem = self._stop_condition(observed, phase)
+            if problem is not None:
+                self._stop(t, problem, observed)
+                phase = self.phase
+        timed = False
+        iterations = 0
+        tau = math.nan
+        if phase is Phase.ENABLING:
+            self._enable(observed, sp)
+            if all(observed.fresh.tolist()) and all((int(s) & 0x6F) == 0x27 for s in observed.statusword.tolist()):
+                self.phase = Phase.SETTLING
+                self.enabled_at_s = t
+                self._settle_until = cycle + cfg.settle_cycles
+            elif t - (self._first_cycle * cfg.period_s) > cfg.enable_timeout_s:
+                states = [decode_statusword(int(s)).value for s in observed.statusword.tolist()]
+                self._stop(t, f"the drives did not reach Operation enabled within {cfg.enable_timeout_s} s "
+                              f"(states {states})", observed)
+        if self.phase in (Phase.SETTLING, Phase.TRACKING, Phase.FINISHED):
+            if self.phase is Phase.SETTLING and cycle >= self._settle_until:
+                self.phase = Phase.TRACKING
+                self.motion_start_cycle = cycle
+            tau = 0.0 if self.phase is Phase.SETTLING else (cycle - self.motion_start_cycle) * cfg.period_s
+            try:
+                iterations = self._compute(tau, sp)
+            except SingularConfigurationError as exc:
+                self._stop(t, str(exc), observed)
+            else:
+                timed = True
+                if self.phase is Phase.TRACKING and tau >= self.reference.duration:
+                    self.phase = Phase.FINISHED
+                sp.controlword[:] = int(Command.ENABLE_OPERATION)
+        if self.phase is Phase.STOPPED:
+            sp.controlword[:] = int(Command.QUICK_STOP)
+            sp.position[:] = self._hold
+            sp.torque_offset[:] = 0.0
+        elapsed = time.perf_counter_ns() - started
+        if timed:
+            self.timer.record(elapsed)
+        self.log.append(t, t + cfg.lead_time_s, int(self.phase), tau, sp.position, self._qd_d, self._qdd_d,
+                        sp.torque_offset, observed.position, elapsed * 1e-3 if timed else math.nan, iterations)
+        return sp
+
+    def _enable(self, observed: ObservedActuals, sp: Setpoints) -> None:
+        """Enable sequence: next controlword per drive, hold the start configuration."""
+        fresh = observed.fresh.tolist()
+        for i, status in enumerate(observed.statusword.tolist()):
+            if fresh[i]:
+                sp.controlword[i] = self._sequencers[i].next_controlword(int(status))
+        sp.position[:] = self.q_start
+        sp.torque_offset[:] = self._tau_rest if self.model_based else 0.0
+
+    def _compute(self, tau: float, sp: Setpoints) -> int:
+        """Desired joint motion and torque offset at trajectory time ``tau``; returns IK steps."""
+        ref = self.reference
+        if self._ik is not None:
+            sample = ref.sample(ref.t_start + tau)
+            q, qd, qdd = self._ik.solve(sample.target, sample.twist, sample.acceleration, self.config.period_s)
+            iterations = self._ik.last_iterations
+        else:
+            sample = ref.sample(ref.t_start + tau)
+            q, qd, qdd = sample.q, sample.qd, sample.qdd
+            iterations = 0
+        sp.position[:] = q
+        self._qd_d[:] = qd
+        self._qdd_d[:] = qdd
+        if self.model_based:
+            sp.torque_offset[:] = self.feedforward.torque(q, qd, qdd)
+        else:
+            sp.torque_offset[:] = 0.0
+        return iterations
+
+    def _stop_condition(self, observed: ObservedActuals, phase: Phase) -> str | None:
+        """Why motion must stop now (None: no reason)."""
+        faults = observed.node_fault.tolist()
+        if any(faults):
+            nodes = [i + 1 for i, f in enumerate(faults) if f]
+            return f"fieldbus node fault (threshold counter reached) on node(s) {nodes}"
+        if phase is Phase.ENABLING:
+            return None  # the enable sequence resets faults itself
+        fresh = observed.fresh.tolist()
+        for i, status in enumerate(observed.statusword.tolist()):
+            if not fresh[i]:
+                continue  # a missed PRes: values held; the threshold counter decides
+            state = decode_statusword(int(status))
+            if state in _STOP_STATES:
+                code = int(observed.error_code[i])
+                extra = f", error code 0x{code:04X}" if code else ""
+                return f"drive {i + 1} reports {_STOP_STATES[state]}{extra}"
+        return None
+
+    def _stop(self, t: float, reason: str, observed: ObservedActuals) -> None:
+        self.phase = Phase.STOPPED
+        self.stop_reason = reason
+        self.stopped_at_s = t
+        # hold where the drives are (the last set-point where no fresh value arrived)
+        self._hold[:] = np.where(observed.fresh, observed.position, self.setpoints.position)
