@@ -19,6 +19,7 @@ if TYPE_CHECKING:
 JOB_MODULES: tuple[str, ...] = (
     "cosim.scenario.fmus_job",
     "cosim.jobs.calibration",
+    "cosim.jobs.iso9283",
 )
 
 #: runner(scenario, context) -> extra summary.json fields (or None)

@@ -1,0 +1,353 @@
+"""Job ``iso9283``: the paper's section 2 experiment, end to end (the testbed's main job).
+
+The EN ISO 9283 test path (``planners.iso9283``: cube, diagonal plane, rectangle,
+line, circles at 1 m/s and 5 m/s^2, constant orientation) is driven through the
+400 µs controller, the POWERLINK-timed CiA 402 fieldbus, six servo-drive FMUs and
+the plant FMU, once per mode in ``[controller] modes`` (``standard``: the drives'
+cascade alone; ``model_based``: plus the eq. 7 feed-forward), on the SAME seeded
+true robot (inertial, friction and rotor deviations, geometric errors, payload). A
+laser tracker samples the true flange every 1 ms. See docs/main_job.md.
+
+Results (``results/<name>/`` or ``--out``): ``summary.json``; per mode
+``timeseries_<mode>.csv`` (1 ms: plant q, qd, drive torques and currents, drive
+following errors, tracker), ``controller_<mode>.csv`` (400 µs: set-points, feed-forward,
+compute times), ``tcp_<mode>.csv`` (1 ms: programmed, commanded and measured TCP,
+TCP and path errors, joint set-points and lag errors), ``can_<mode>.blf`` (every frame
+on the bus); figures ``figure2a_lag_errors.png``, ``figure2b_tcp_error.png``,
+``tcp_error_vs_desired_path.png``.
+"""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from controller import MODES, Controller, ControllerConfig, Phase, TcpTrajectory
+from cosim.jobs import robot_cell
+from cosim.jobs.columns_csv import write_columns_csv
+from cosim.jobs.laser_tracker import DEFAULT_POSITION_SIGMA_M, TrackerConfig
+from cosim.jobs.tracking_metrics import TrackingResult, desired_joints, evaluate
+from cosim.master import SimulationError
+from cosim.scenario.context import RunContext
+from cosim.scenario.cosim_tables import COSIM_FIELDS, check_cosim_tables
+from cosim.scenario.loader import SCENARIO_FIELD, Scenario
+from cosim.scenario.registry import register_job
+from cosim.scenario.schema import (AnyValue, Boolean, Field, FilePath, Integer, List, Number, String, Table, Where)
+
+JOB_NAME = "iso9283"
+
+TRUE_ROBOT_TABLE = Table({
+    "seed": Field(Integer(min=0), default=1, doc="the seed of the true robot's deviations: an integer >= 0"),
+    "payload_mass": Field(Number(unit="kg", min=0, max=10), default=0.0,
+                          doc="the payload on tool0: a number in kg in [0, 10] (rated load 10 kg)"),
+    "payload_com": Field(List(Number(unit="m"), length=3), default=[0.0, 0.0, 0.0],
+                         doc="the payload's centre of mass in tool0: 3 numbers in m"),
+    "dynamic_deviations": Field(Boolean(), default=True),
+    "geometric_errors": Field(Boolean(), default=True),
+}, doc="the [true_robot] table")
+
+CONTROLLER_TABLE = Table({
+    "modes": Field(List(String(choices=MODES), min_len=1, unique=True), default=list(MODES)),
+    "period": Field(Number(unit="s", gt=0), default=400e-6, doc="the controller cycle: a number in s > 0"),
+    "kinematics": Field(String(choices=("nominal", "true")), default="nominal",
+                        doc="the controller's IK model: 'nominal' (URDF) or 'true' (perfectly calibrated)"),
+    "calibrated_urdf": Field(FilePath(must_exist=True, suffix=".urdf"),
+                             doc="a calibrated URDF for the controller's IK (overrides kinematics)"),
+    "dynamics": Field(String(choices=("nominal", "true")), default="nominal",
+                      doc="the feed-forward model: 'nominal' (URDF + parameter file) or 'true' (ideal)"),
+    "payload_known": Field(Boolean(), default=True,
+                           doc="true: the controller's model includes the [true_robot] payload (declared tool load)"),
+    "compute_budget": Field(Number(unit="s", gt=0), default=100e-6),
+    "settle_time": Field(Number(unit="s", min=0), default=0.2),
+}, doc="the [controller] table")
+
+PATH_TABLE = Table({
+    "speed": Field(Number(unit="m/s", gt=0, max=2.0), default=1.0),
+    "acceleration": Field(Number(unit="m/s^2", gt=0, max=20.0), default=5.0),
+}, doc="the [path] table")
+
+TRACKER_TABLE = Table({
+    "period": Field(Number(unit="s", gt=0), default=1e-3),
+    "noise_sigma": Field(Number(unit="m", min=0, max=1e-3), default=DEFAULT_POSITION_SIGMA_M),
+    "seed": Field(Integer(min=0), default=0),
+}, doc="the [tracker] table")
+
+RESULTS_TABLE = Table({
+    "can_log": Field(Boolean(), default=True, doc="write the CAN log can_<mode>.blf"),
+    "figures": Field(Boolean(), default=True, doc="write the PNG figures"),
+}, doc="the [results] table")
+
+SCHEMA = Table({
+    "scenario": SCENARIO_FIELD,
+    **COSIM_FIELDS,
+    "true_robot": Field(TRUE_ROBOT_TABLE, default={}),
+    "controller": Field(CONTROLLER_TABLE, default={}),
+    "path": Field(PATH_TABLE, default={}),
+    "tracker": Field(TRACKER_TABLE, default={}),
+    "fieldbus": Field(Table({}, extra=AnyValue(), doc="a [fieldbus] table (fieldbus/powerlink_defaults.toml keys)"),
+                      default={}),
+    "results": Field(RESULTS_TABLE, default={}),
+}, doc="an iso9283 scenario document")
+
+
+# ---------------------------------------------------------------------------------------- checks
+def _fill_table_defaults(doc: dict[str, Any]) -> None:
+    """An absent table gets the schema default ``{}`` without its fields' defaults: fill them."""
+    for key in ("true_robot", "controller", "path", "tracker", "results"):
+        if not doc.get(key):
+            doc[key] = SCHEMA.fields[key].spec.check({}, Where(None) / key)
+
+
+def _multiple(value: float, base: float) -> bool:
+    ratio = value / base
+    return round(ratio) >= 1 and abs(ratio - round(ratio)) <= 1e-9 * max(1.0, ratio)
+
+
+def check(doc: dict[str, Any], where: Where) -> None:
+    """Everything that can be checked before running (raises ScenarioError at the key)."""
+    _fill_table_defaults(doc)
+    variables = {name: type_ for name, (type_, _) in robot_cell.cell_variables().items()}
+    check_cosim_tables(doc, where, master_variables=variables)
+    by_name = {fmu["name"]: (i, fmu) for i, fmu in enumerate(doc["fmus"])}
+    needed = {robot_cell.PLANT: robot_cell.PLANT_FMU, **{d: robot_cell.DRIVE_FMU for d in robot_cell.DRIVES}}
+    for name, builtin in needed.items():
+        if name not in by_name:
+            raise (where / "fmus").error(f"an [[fmus]] table with name = {name!r} (builtin = {builtin!r}): "
+                                         f"the cell needs {sorted(needed)}", problem=f"FMU {name!r} missing")
+    for name, builtin in needed.items():
+        i, fmu = by_name[name]
+        from cosim.master import load_model_description
+
+        md = load_model_description(fmu["path"])
+        have = {v.name for v in md.modelVariables}
+        want = {"tau[1]", "q[6]", "p[78]", "payload_mass"} if name == robot_cell.PLANT else {
+            "target_position", "torque_offset", "controlword", "statusword", "position_actual"}
+        if not want <= have:
+            raise (where / "fmus")[i].error(f"a {builtin} FMU (variables {sorted(want)})", str(fmu["path"]),
+                                            problem=f"instance {name!r} lacks {sorted(want - have)}")
+    plant_i, plant = by_name[robot_cell.PLANT]
+    for key in plant["parameters"]:
+        if key.startswith(robot_cell.JOB_SET_PLANT_PARAMETERS):
+            raise (where / "fmus")[plant_i].error(
+                "no q0/qd0/p/payload parameters: the job sets them from [true_robot] and the path start",
+                problem=f"parameter {key!r} is set by the job")
+    given = set(doc["connections"])
+    for text in robot_cell.cell_connections():
+        if text not in given:
+            raise (where / "connections").error(f"the connection {text!r} among the cell's connections "
+                                                f"(cosim.jobs.robot_cell.cell_connections())",
+                                                problem="connection missing")
+    from fieldbus import FieldbusConfig, FieldbusConfigError
+
+    try:
+        fb = FieldbusConfig.from_dict(doc["fieldbus"], source=str(where.file) if where.file else "<scenario>")
+    except FieldbusConfigError as exc:
+        raise (where / "fieldbus" / exc.key).error(exc.expected, exc.given) from None
+    ctrl, sim = doc["controller"], doc["simulation"]
+    base = sim["macro_step"]
+    if abs(fb.cycle_time_s - ctrl["period"]) > 1e-12:
+        raise (where / "controller" / "period").error(
+            f"the fieldbus cycle time {fb.cycle_time_s * 1e6:g} us ([fieldbus] cycle_time_us)", ctrl["period"])
+    for key, table, value in (("period", "controller", ctrl["period"]), ("period", "tracker", doc["tracker"]["period"])):
+        if not _multiple(value, base):
+            raise (where / table / key).error(f"a positive integer multiple of macro_step = {base!r} s", value)
+        for fmu in doc["fmus"]:
+            step = fmu.get("step", base)
+            if fmu["name"] in needed and not _multiple(value, step):
+                raise (where / "fmus")[by_name[fmu["name"]][0]].error(
+                    f"a step that divides the {table} period {value!r} s (it reads FMU outputs then)", step,
+                    problem="FMU step does not divide the period")
+    if doc.get("record") is not None and not _multiple(doc["record"]["period"], base):
+        raise (where / "record" / "period").error(f"a positive integer multiple of macro_step = {base!r} s",
+                                                  doc["record"]["period"])
+
+
+# ---------------------------------------------------------------------------------------- set-up
+def make_true_robot(table: dict[str, Any]):
+    """The seeded true robot of the [true_robot] table."""
+    from robot.geometric_errors import ErrorMagnitudes
+    from robot.true_robot import DeviationMagnitudes, make_true_robot as draw
+
+    payload = [table["payload_mass"], *table["payload_com"]]
+    dyn = DeviationMagnitudes() if table["dynamic_deviations"] else DeviationMagnitudes(
+        **{k: 0.0 for k in DeviationMagnitudes.__dataclass_fields__})
+    geo = None if table["geometric_errors"] else _zero_error_magnitudes(ErrorMagnitudes)
+    return draw(table["seed"], payload, dyn, geometric_magnitudes=geo)
+
+
+def _zero_error_magnitudes(cls):
+    fields = cls.__dataclass_fields__
+    return cls(**{k: 0.0 for k in fields})
+
+
+def controller_models(ctrl: dict[str, Any], true_robot) -> tuple[Any, Any, str, str]:
+    """(kinematic model, dynamics, kinematics label, dynamics label) of the controller."""
+    from robot.description import load_model
+    from robot.dynamics import RobotDynamics
+
+    if ctrl.get("calibrated_urdf") is not None:
+        kin, kin_label = load_model(ctrl["calibrated_urdf"]), f"calibrated URDF {ctrl['calibrated_urdf']}"
+    elif ctrl["kinematics"] == "true":
+        kin, kin_label = true_robot.kinematic_model(), "true (ideal calibration)"
+    else:
+        kin, kin_label = load_model(), "nominal URDF"
+    payload = true_robot.payload if ctrl["payload_known"] else np.zeros(4)
+    if ctrl["dynamics"] == "true":
+        dyn, dyn_label = true_robot.dynamics(), "true robot (ideal identification)"
+    else:
+        dyn, dyn_label = RobotDynamics(payload=payload, model=kin), "nominal (URDF + rx130l_params.toml)"
+    return kin, dyn, kin_label, dyn_label
+
+
+# ---------------------------------------------------------------------------------------- running
+def run(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
+    """Run every mode of the scenario on the same true robot; write results; return summary fields."""
+    from planners.iso9283 import ISO_Q_HINT, iso9283_test_path
+
+    doc = scenario.data
+    _fill_table_defaults(doc)
+    ctrl_t, sim = doc["controller"], doc["simulation"]
+    stop_time = sim["stop_time"]
+    period = ctrl_t["period"]
+    true_robot = make_true_robot(doc["true_robot"])
+    path = iso9283_test_path(speed=doc["path"]["speed"], acceleration=doc["path"]["acceleration"])
+    reference = TcpTrajectory.from_reference(path.reference, path.duration, period)
+    kin, dyn, kin_label, dyn_label = controller_models(ctrl_t, true_robot)
+    tracker = TrackerConfig(doc["tracker"]["period"], doc["tracker"]["noise_sigma"], doc["tracker"]["seed"])
+    from fieldbus import FieldbusConfig
+
+    fb = FieldbusConfig.from_dict(doc["fieldbus"], source=str(scenario.path))
+    capacity = int(stop_time / period) + 16
+    ctx.summary.update(
+        true_robot={"seed": true_robot.seed, "payload_mass_kg": float(true_robot.payload[0]),
+                    "payload_com_m": true_robot.payload[1:].tolist(),
+                    "dynamic_deviations": doc["true_robot"]["dynamic_deviations"],
+                    "geometric_errors": doc["true_robot"]["geometric_errors"]},
+        controller_model={"kinematics": kin_label, "dynamics": dyn_label, "payload_known": ctrl_t["payload_known"]},
+        path={"duration_s": path.duration, "length_m": path.length, "speed_m_s": path.speed,
+              "acceleration_m_s2": path.acceleration, "segments": path.segment_names},
+        definitions=DEFINITIONS, modes={})
+    modes: dict[str, Any] = {}
+    results: dict[str, TrackingResult] = {}
+    for mode in ctrl_t["modes"]:
+        config = ControllerConfig(mode=mode, period_s=period, lead_cycles=1 + fb.dead_time_cycles,
+                                  compute_budget_s=ctrl_t["compute_budget"], settle_time_s=ctrl_t["settle_time"])
+        controller = Controller(reference, config, kinematic_model=kin, dynamics=dyn, q_hint=np.array(ISO_Q_HINT),
+                                capacity=capacity)
+        can_log = ctx.path(f"can_{mode}.blf") if doc["results"]["can_log"] else None
+        cell = robot_cell.run_cell(doc, controller, true_robot, ctx, label=mode, stop_time=stop_time, fieldbus=fb,
+                                   tracker=tracker, record_file=f"timeseries_{mode}.csv", can_log=can_log)
+        entry, result = _evaluate_mode(ctx, mode, cell, controller, reference, path, true_robot)
+        modes[mode] = entry
+        results[mode] = result
+        ctx.summary.update(modes=modes)
+        if cell.failure is not None:
+            raise cell.failure
+    fields: dict[str, Any] = {"modes": modes}
+    if "standard" in modes and "model_based" in modes:
+        fields["improvement_factor"] = _ratio(modes["standard"]["tcp_error_max_mm"],
+                                              modes["model_based"]["tcp_error_max_mm"])
+        fields["improvement_factor_rms"] = _ratio(modes["standard"]["tcp_error_rms_mm"],
+                                                  modes["model_based"]["tcp_error_rms_mm"])
+    if doc["results"]["figures"]:
+        from cosim.jobs.iso9283_figures import write_figures
+
+        fields["figures"] = [p.name for p in write_figures(ctx.out_dir, results, path)]
+    return fields
+
+
+DEFINITIONS = {
+    "tcp_error": "|measured - commanded| of the flange position, commanded = TRUE kinematics at the joint "
+                 "set-points q_d(t) the drives apply (pure dynamic tracking error, paper Figure 2b)",
+    "tcp_path_error": "|measured - programmed| (programmed = desired Cartesian path): tcp_error plus the "
+                      "geometric error of the controller's kinematic model",
+    "path_accuracy_AT": "EN ISO 9283 AT per segment: max distance of a measured point to the commanded path in "
+                        "the plane normal to the path (one run, no averaging over repetitions)",
+    "joint_lag": "q_d(t) - q(t) per joint, rad (paper Figure 2a)",
+    "window": "from the motion start (drives apply trajectory time 0) to the end of the trajectory",
+    "cycle_compute_us": "wall time of the controller's own work per cycle (interpolation, IK, derivatives, "
+                        "feed-forward), perf_counter_ns; deadline miss = above compute_budget",
+}
+
+
+def _ratio(a: float, b: float) -> float:
+    return a / b if (b and math.isfinite(a) and math.isfinite(b)) else float("nan")
+
+
+def _evaluate_mode(ctx: RunContext, mode: str, cell: robot_cell.CellRun, controller: Controller,
+                   reference: TcpTrajectory, path, true_robot) -> tuple[dict[str, Any], TrackingResult]:
+    """Post-process one mode: controller log, TCP series, metrics (also after a failure)."""
+    from robot.kinematics import FlangeKinematics
+
+    log = controller.log.columns()
+    write_columns_csv(ctx.path(f"controller_{mode}.csv"), log)
+    rec = cell.recording
+    cols = rec.columns
+    data = rec.data
+    t = data[:, 0]
+    q = data[:, [cols.index(f"plant.q[{i}]") for i in range(1, 7)]]
+    measured = data[:, [cols.index(s) for s in ("tracker.x", "tracker.y", "tracker.z")]]
+    t_apply = log["t_apply"]
+    stack = [np.column_stack([log[f"{g}{j}"] for j in range(1, 7)]) for g in ("q_d", "qd_d", "qdd_d")]
+    ok = np.isfinite(stack[0]).all(axis=1)
+    q_d = desired_joints(t, t_apply[ok], stack[0][ok], stack[1][ok], stack[2][ok]) if ok.any() else q.copy()
+    commanded = FlangeKinematics(true_robot.kinematic_model()).transforms(q_d)[:, :3, 3] if t.size else measured
+    start = controller.motion_start_s
+    tau = np.clip(t - (start if start is not None else np.inf), 0.0, path.duration)
+    programmed = reference.positions(reference.t_start + tau)
+    ref = path.reference(tau)
+    segment = ref.segment
+    t_end = (start + path.duration) if start is not None else -1.0
+    window = (start if start is not None else np.inf, min(t_end, float(t[-1]) if t.size else -1.0))
+    result = evaluate(t, q, measured, q_d, commanded, programmed, segment, window, ref.arc_length)
+    lag = q_d - q
+    series = {"t": t, "tau": tau, "segment": segment.astype(float), "arc_length": ref.arc_length}
+    for name, arr in (("programmed", programmed), ("commanded", commanded), ("measured", measured)):
+        for k, axis in enumerate("xyz"):
+            series[f"{axis}_{name}"] = arr[:, k]
+    series["tcp_error_mm"] = np.linalg.norm(measured - commanded, axis=1) * 1e3
+    series["path_error_mm"] = np.linalg.norm(measured - programmed, axis=1) * 1e3
+    for j in range(6):
+        series[f"q_d{j + 1}"] = q_d[:, j]
+    for j in range(6):
+        series[f"q{j + 1}"] = q[:, j]
+    for j in range(6):
+        series[f"lag{j + 1}"] = lag[:, j]
+    write_columns_csv(ctx.path(f"tcp_{mode}.csv"), series)
+    timing = controller.timing()
+    entry: dict[str, Any] = {
+        "status": "ok" if cell.failure is None else "failed",
+        **result.metrics(path.segment_names),
+        "cycle_compute_us": {"p50": timing.p50_us, "p99": timing.p99_us, "max": timing.max_us,
+                             "mean": timing.mean_us},
+        "deadline_misses": timing.deadline_misses,
+        "compute_budget_us": timing.budget_us,
+        "controller_cycles_timed": timing.cycles,
+        "sim_time_s": cell.reached_s,
+        "loop_wall_time_s": cell.loop_wall_time_s,
+        "loop_realtime_factor": cell.reached_s / cell.loop_wall_time_s if cell.loop_wall_time_s > 0 else None,
+        "engine": cell.engine,
+        "motion_start_s": start,
+        "enabled_at_s": controller.enabled_at_s,
+        "path_completed": bool(start is not None and t.size and t[-1] >= t_end - 1e-9),
+        "controller_phase": controller.phase.name.lower(),
+        "stop_reason": controller.stop_reason,
+        "ik_iterations_max": float(np.nanmax(log["ik_iterations"])) if log["ik_iterations"].size else None,
+        "fieldbus": {k: cell.fieldbus[k] for k in ("cycles_run", "frames_sent", "frames_dropped", "frames_recorded",
+                                                   "log_path", "dead_time_cycles", "node_fault", "comm_fault",
+                                                   "scaling_saturations", "event_tally")},
+        "files": {"timeseries": f"timeseries_{mode}.csv", "controller": f"controller_{mode}.csv",
+                  "tcp": f"tcp_{mode}.csv", "can_log": Path(cell.fieldbus["log_path"]).name
+                  if cell.fieldbus.get("log_path") else None},
+    }
+    if cell.failure is not None:
+        entry["failure"] = str(cell.failure)
+    if controller.phase is Phase.STOPPED:
+        entry["stopped_at_s"] = controller.stopped_at_s
+    return entry, result
+
+
+register_job(JOB_NAME, run, SCHEMA, check,
+             "ISO 9283 path through controller, fieldbus, drive and plant FMUs: standard vs model-based")

@@ -1,0 +1,91 @@
+"""PNG figures of the ISO 9283 job, after the paper's Figure 2 (matplotlib, Agg backend).
+
+* ``figure2a_lag_errors.png`` - lag errors ``q_d - q`` of axes 1-3 over the path time,
+  standard against model-based (paper Figure 2a).
+* ``figure2b_tcp_error.png`` - TCP error (measured vs commanded, true kinematics) along
+  the path (arc length), standard against model-based (paper Figure 2b).
+* ``tcp_error_vs_desired_path.png`` - the error against the programmed path, which
+  adds the geometric error of the controller's (uncalibrated) kinematic model.
+"""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+COLOURS = {"standard": "tab:red", "model_based": "tab:blue"}
+LABELS = {"standard": "standard (drive cascade)", "model_based": "model-based (eq. 7 feed-forward)"}
+
+
+def _pyplot():
+    os.environ.setdefault("MPLBACKEND", "Agg")
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def write_figures(out_dir: Path, results: dict[str, Any], path: Any) -> list[Path]:
+    """Write the figures for the modes in ``results`` (mode -> TrackingResult); return the files."""
+    plt = _pyplot()
+    written: list[Path] = []
+    modes = [m for m in ("standard", "model_based") if m in results and results[m].t.size]
+    if not modes:
+        return written
+
+    fig, axes = plt.subplots(3, 1, figsize=(9, 7.5), sharex=True)
+    for j, ax in enumerate(axes):
+        for mode in modes:
+            r = results[mode]
+            ax.plot(r.t - r.t[0], r.lag[:, j] * 1e3, color=COLOURS[mode], lw=0.8, label=LABELS[mode])
+        ax.set_ylabel(f"axis {j + 1} lag [mrad]")
+        ax.grid(True, alpha=0.3)
+    axes[0].legend(loc="upper right", fontsize=8)
+    axes[-1].set_xlabel("path time [s]")
+    fig.suptitle("Lag errors q_d - q of axes 1-3 on the ISO 9283 path (cf. paper Fig. 2a)")
+    fig.tight_layout()
+    written.append(_save(fig, out_dir / "figure2a_lag_errors.png", plt))
+
+    fig, ax = plt.subplots(figsize=(9, 4.5))
+    for mode in modes:
+        r = results[mode]
+        ax.plot(r.arc_length, r.tcp_error * 1e3, color=COLOURS[mode], lw=0.8,
+                label=f"{LABELS[mode]}: max {r.tcp_error.max() * 1e3:.3f} mm")
+    _segment_marks(ax, path)
+    ax.set_xlabel("path length [m]")
+    ax.set_ylabel("TCP error [mm]")
+    ax.set_title("TCP error along the ISO 9283 path, laser tracker at 1 ms (cf. paper Fig. 2b)")
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    written.append(_save(fig, out_dir / "figure2b_tcp_error.png", plt))
+
+    fig, ax = plt.subplots(figsize=(9, 4.5))
+    for mode in modes:
+        r = results[mode]
+        ax.plot(r.arc_length, r.path_error * 1e3, color=COLOURS[mode], lw=0.8,
+                label=f"{LABELS[mode]}: max {r.path_error.max() * 1e3:.3f} mm")
+    _segment_marks(ax, path)
+    ax.set_xlabel("path length [m]")
+    ax.set_ylabel("error to the programmed path [mm]")
+    ax.set_title("Measured TCP vs programmed path (dynamic + geometric error of the controller's model)")
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    written.append(_save(fig, out_dir / "tcp_error_vs_desired_path.png", plt))
+    return written
+
+
+def _segment_marks(ax: Any, path: Any) -> None:
+    for seg in path.segments[1:]:
+        ax.axvline(seg.arc_start, color="0.7", lw=0.5, ls=":")
+
+
+def _save(fig: Any, file: Path, plt: Any) -> Path:
+    fig.savefig(file, dpi=110)
+    plt.close(fig)
+    return file

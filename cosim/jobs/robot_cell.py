@@ -1,0 +1,278 @@
+"""The robot cell on the co-simulation master: plant + six drives + fieldbus + controller + tracker.
+
+Shared by the robot jobs (ISO 9283 now; identification and planner scenarios later).
+A cell is:
+
+* the FMUs of the scenario: ``plant`` (``rx130l_plant``) and ``drive1`` ... ``drive6``
+  (``servo_drive``), coupled by the scenario's connections (:func:`cell_connections`
+  lists the ones a cell needs);
+* the master variables ``bus.target_position[i]``, ``bus.torque_offset[i]`` (Real) and
+  ``bus.controlword[i]``, ``bus.fault_code[i]`` (Integer), i = 1..6, written by the
+  fieldbus task and connected to the drives' inputs;
+* one periodic task per controller cycle (:class:`FieldbusLink`, priority 0): read the
+  drives' actual values at ``t_k`` -> ``fieldbus.PowerlinkNetwork.run_cycle`` (the
+  set-points the controller computed in the previous cycle travel; the drives get what
+  the network applies from ``t_k``) -> ``Controller.step`` with what the controller
+  observes in cycle ``k``;
+* the laser tracker task (:class:`cosim.jobs.laser_tracker.LaserTracker`, priority 1):
+  the true flange position from ``plant.q`` into ``tracker.x/y/z``;
+* a recorder of the ``[record]`` signals plus :data:`RECORDED_SIGNALS`.
+
+The plant is set to the TRUE robot (``robot.true_robot.make_true_robot``): its 78
+dynamic parameters and payload as FMU start values, its start configuration ``q0`` =
+the controller's start set-point (the arm starts at rest there). Drive parameters
+are :func:`fmus.servo_drive.params.drive_start_values` of each axis, overridden by the
+scenario's ``[fmus.parameters]``.
+"""
+from __future__ import annotations
+
+import copy
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from controller import Controller
+from cosim.jobs.laser_tracker import TRACKER_VARIABLES, LaserTracker, TrackerConfig
+from cosim.master import Master, MemorySink, SimulationError
+from cosim.scenario.context import RunContext
+from cosim.scenario.cosim_tables import build_master
+from fieldbus import DriveActuals, FieldbusConfig, JointScaling, PowerlinkNetwork
+from fmus.servo_drive.params import drive_start_values
+from robot.parameters import RobotParameters, load_parameters
+from robot.true_robot import TrueRobot
+
+N_JOINTS = 6
+PLANT = "plant"
+DRIVES: tuple[str, ...] = tuple(f"drive{i}" for i in range(1, N_JOINTS + 1))
+PLANT_FMU = "rx130l_plant"
+DRIVE_FMU = "servo_drive"
+
+BUS_REAL = ("target_position", "torque_offset")
+BUS_INTEGER = ("controlword", "fault_code")
+
+
+def bus_variables() -> dict[str, tuple[str, object]]:
+    """Master variables of the fieldbus task: name -> (type, start), declared in this order
+    (so each group of six is one contiguous writable view)."""
+    out: dict[str, tuple[str, object]] = {}
+    for name in BUS_REAL:
+        for i in range(1, N_JOINTS + 1):
+            out[f"bus.{name}[{i}]"] = ("Real", 0.0)
+    for name in BUS_INTEGER:
+        for i in range(1, N_JOINTS + 1):
+            out[f"bus.{name}[{i}]"] = ("Integer", 0)
+    return out
+
+
+def tracker_variables() -> dict[str, tuple[str, object]]:
+    """Master variables of the laser tracker (m, base_link)."""
+    return {name: ("Real", 0.0) for name in TRACKER_VARIABLES}
+
+
+def cell_variables() -> dict[str, tuple[str, object]]:
+    """All master variables of a cell (fieldbus + tracker)."""
+    return {**bus_variables(), **tracker_variables()}
+
+
+def cell_connections() -> list[str]:
+    """The connections a cell needs (the scenario must list each of them)."""
+    out = []
+    for i, drive in enumerate(DRIVES, start=1):
+        out += [f"{drive}.tau_out -> {PLANT}.tau[{i}]", f"{PLANT}.q[{i}] -> {drive}.q_meas",
+                f"{PLANT}.qd[{i}] -> {drive}.qd_meas"]
+        out += [f"bus.{name}[{i}] -> {drive}.{name}" for name in BUS_REAL + BUS_INTEGER]
+    return out
+
+
+RECORDED_SIGNALS: tuple[str, ...] = (
+    tuple(f"{PLANT}.q[{i}]" for i in range(1, 7)) + tuple(f"{PLANT}.qd[{i}]" for i in range(1, 7))
+    + tuple(f"{d}.tau_out" for d in DRIVES) + tuple(f"{d}.current_actual" for d in DRIVES)
+    + tuple(f"{d}.following_error" for d in DRIVES) + TRACKER_VARIABLES
+)
+"""What every cell records (besides the scenario's [record] signals): joint angles and
+speeds of the plant, joint torques and motor currents of the drives, the drives' own
+following errors, the tracker's measurement."""
+
+JOB_SET_PLANT_PARAMETERS = ("q0[", "qd0[", "p[", "payload_mass", "payload_com[")
+"""Plant parameters the cell sets itself (from the true robot and the start pose)."""
+
+
+def plant_start_values(true_robot: TrueRobot, q0: Sequence[float]) -> dict[str, float]:
+    """Start values of the plant FMU: the true robot's 78 parameters and payload, at rest at ``q0`` (rad)."""
+    values: dict[str, float] = {}
+    for i, q in enumerate(q0, start=1):
+        values[f"q0[{i}]"] = float(q)
+        values[f"qd0[{i}]"] = 0.0
+    for k, p in enumerate(true_robot.dynamic_parameters, start=1):
+        values[f"p[{k}]"] = float(p)
+    values["payload_mass"] = float(true_robot.payload[0])
+    for i, c in enumerate(true_robot.payload[1:], start=1):
+        values[f"payload_com[{i}]"] = float(c)
+    return values
+
+
+def joint_scaling(parameters: RobotParameters | None = None) -> JointScaling:
+    """CiA 402 scaling of the arm's joints (gear ratios, encoder counts, rated torques)."""
+    p = parameters or load_parameters()
+    return JointScaling(p.gear_ratio, p.encoder_counts_per_motor_rev, p.rated_torque)
+
+
+def cell_fmus(doc_fmus: list[dict[str, Any]], true_robot: TrueRobot, q0: Sequence[float]) -> list[dict[str, Any]]:
+    """A copy of the scenario's ``[[fmus]]`` with the plant's and drives' start values filled in
+    (drive defaults first, then the scenario's own parameters on top)."""
+    fmus = copy.deepcopy(doc_fmus)
+    for fmu in fmus:
+        if fmu["name"] == PLANT:
+            fmu["parameters"] = {**fmu["parameters"], **plant_start_values(true_robot, q0)}
+        elif fmu["name"] in DRIVES:
+            axis = DRIVES.index(fmu["name"]) + 1
+            fmu["parameters"] = {**drive_start_values(axis), **fmu["parameters"]}
+    return fmus
+
+
+class FieldbusLink:
+    """The controller cycle task: drives -> fieldbus -> controller -> fieldbus -> drives.
+
+    At cycle ``k`` (time ``t_k``): the drives' outputs at ``t_k`` are the actual values
+    the controlled nodes latch; ``run_cycle(k, setpoints, actuals)`` carries the
+    set-points the controller returned in cycle ``k - 1``; what the network applies
+    from ``t_k`` (quantised target, torque offset, controlword, fault code of a tripped
+    controlled node) is written to the ``bus.*`` master variables; then the controller
+    computes the set-points for cycle ``k + 1`` from what it observed in cycle ``k``.
+    ``stop_grace_s`` after the controller stopped (drive fault, node fault) the task
+    ends the run with a SimulationError naming the reason.
+    """
+
+    def __init__(self, network: PowerlinkNetwork, controller: Controller, period_s: float,
+                 stop_grace_s: float = 0.5) -> None:
+        self.network = network
+        self.controller = controller
+        self.period_s = period_s
+        self.stop_grace_s = stop_grace_s
+        self.cycle = 0
+        self.actuals = DriveActuals.zeros(N_JOINTS)
+        self.setpoints = controller.setpoints
+        self._readers: dict[str, Any] = {}
+        self._views: dict[str, np.ndarray] = {}
+
+    def setup(self, master: Master) -> None:
+        """Bind signal readers and writable views (end of master.initialize)."""
+        for name in ("position_actual", "velocity_actual", "torque_actual"):
+            self._readers[name] = master.reader([f"{d}.{name}" for d in DRIVES])
+        for name in ("statusword", "error_code"):
+            self._readers[name] = master.reader([f"{d}.{name}" for d in DRIVES])
+        for name in BUS_REAL + BUS_INTEGER:
+            self._views[name] = master.view([f"bus.{name}[{i}]" for i in range(1, N_JOINTS + 1)], writable=True)
+
+    def __call__(self, t: float) -> None:
+        a, r = self.actuals, self._readers
+        a.statusword[:] = r["statusword"].read()
+        a.error_code[:] = r["error_code"].read()
+        a.position[:] = r["position_actual"].read()
+        a.velocity[:] = r["velocity_actual"].read()
+        a.torque[:] = r["torque_actual"].read()
+        result = self.network.run_cycle(self.cycle, self.setpoints, a)
+        applied, v = result.applied, self._views
+        v["target_position"][:] = applied.position
+        v["torque_offset"][:] = applied.torque_offset
+        v["controlword"][:] = applied.controlword
+        v["fault_code"][:] = applied.fault_code
+        self.setpoints = self.controller.step(self.cycle, t, result.observed)
+        self.cycle += 1
+        ctrl = self.controller
+        if ctrl.stopped and t - ctrl.stopped_at_s >= self.stop_grace_s - 1e-12:
+            raise SimulationError("controller", ctrl.stopped_at_s, f"motion stopped: {ctrl.stop_reason}")
+
+
+@dataclass
+class CellRun:
+    """What one cell run produced: the recorder file and its rows (also in memory), the
+    simulated time reached (s), the fieldbus summary, the wall time of the run (s), the
+    stepping engine, and the SimulationError that ended it (None: ran to the end)."""
+
+    label: str
+    record_path: Path | None
+    rows_recorded: int
+    reached_s: float
+    fieldbus: dict[str, Any]
+    loop_wall_time_s: float
+    engine: str
+    recording: MemorySink
+    failure: SimulationError | None = None
+
+
+class TeeSink:
+    """A recorder sink that forwards every call to several sinks (e.g. CSV on disk + memory)."""
+
+    def __init__(self, *sinks: Any) -> None:
+        self.sinks = sinks
+
+    def open(self, columns: Sequence[str], kinds: Sequence[str]) -> None:
+        for sink in self.sinks:
+            sink.open(columns, kinds)
+
+    def write(self, block: np.ndarray) -> None:
+        for sink in self.sinks:
+            sink.write(block)
+
+    def flush(self) -> None:
+        for sink in self.sinks:
+            sink.flush()
+
+    def close(self) -> None:
+        for sink in self.sinks:
+            sink.close()
+
+
+def run_cell(doc: dict[str, Any], controller: Controller, true_robot: TrueRobot, ctx: RunContext, *,
+             label: str, stop_time: float, fieldbus: FieldbusConfig | dict[str, Any] | None = None,
+             tracker: TrackerConfig | None = None, record_file: str = "timeseries.csv",
+             can_log: Path | None = None) -> CellRun:
+    """Co-simulate one cell run from 0 to ``stop_time`` s and return what it produced.
+
+    ``doc`` is the validated scenario (its [simulation], [[fmus]], connections, [record]);
+    the recorder samples the ``[record]`` signals plus :data:`RECORDED_SIGNALS` every
+    ``[record] period`` (default: the tracker period) into ``record_file`` in the results
+    folder and into memory (``CellRun.recording``); ``can_log`` is the CAN log (.blf/.asc)
+    or None. A SimulationError (failing FMU, NaN output, stopped controller) ends the run:
+    everything recorded is flushed and the error is returned in ``CellRun.failure``.
+    """
+    fb_config = fieldbus if isinstance(fieldbus, FieldbusConfig) else FieldbusConfig.from_dict(fieldbus or {})
+    period = fb_config.cycle_time_s
+    if abs(period - controller.config.period_s) > 1e-12:
+        raise ValueError(f"controller period {controller.config.period_s} s differs from the fieldbus cycle "
+                         f"time {period} s")
+    laser = LaserTracker(true_robot.kinematic_model(), tracker)
+    record = doc.get("record") or {"period": laser.config.period_s, "signals": []}
+    signals = list(record["signals"]) + [s for s in RECORDED_SIGNALS if s not in record["signals"]]
+    cell_doc = dict(doc)
+    cell_doc["fmus"] = cell_fmus(doc["fmus"], true_robot, controller.q_start)
+    master = build_master(cell_doc, master_variables=cell_variables())
+    memory = MemorySink()
+    engine = ""
+    failure: SimulationError | None = None
+    wall0 = time.perf_counter()
+    network = PowerlinkNetwork(fb_config, joint_scaling(), log_path=can_log)
+    try:
+        link = FieldbusLink(network, controller, period)
+        master.add_task(link, period, priority=0, name="fieldbus+controller", setup=link.setup)
+        master.add_task(laser, laser.config.period_s, priority=1, name="laser_tracker", setup=laser.setup)
+        recorder = master.add_recorder(signals, record["period"], TeeSink(ctx.csv_sink(record_file), memory),
+                                       name="cell")
+        ctx.attach(master, stop_time, label=label)
+        with master:
+            try:
+                master.initialize(stop_time)
+                engine = master.engine.name
+                ctx.execute(master, stop_time)
+            except SimulationError as exc:
+                failure = exc
+    finally:
+        network.close()
+    wall = time.perf_counter() - wall0
+    return CellRun(label, ctx.path(record_file), recorder.rows_written, master.time, network.summary(), wall,
+                   engine, memory, failure)

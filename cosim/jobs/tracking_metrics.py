@@ -1,0 +1,155 @@
+"""Tracking metrics of a cell run: lag errors, TCP errors, ISO 9283 path accuracy AT.
+
+Inputs are the 1 ms recording (plant joint angles, tracker measurement) and the
+controller's per-cycle log (the joint set-points it computed, with the time each acts).
+
+Definitions (all positions of the flange origin in base_link):
+
+* ``q_d(t)``: the joint set-point the drives apply at time t: the controller's q_d of
+  the cycle whose set-point acts at t (``t_apply``), interpolated between cycles with
+  the quintic Hermite polynomial through q_d, qd_d, qdd_d (exact at the cycles).
+* **lag error** ``e_q(t) = q_d(t) - q(t)`` per joint (rad), q the plant's joint angle.
+* **commanded TCP** ``c(t) = f_DK,true(q_d(t))``: where the TRUE arm's flange would be if
+  the joints followed the set-points exactly.
+* **measured TCP** ``m(t)``: the laser tracker's reading of the true flange.
+* **TCP error** ``|m(t) - c(t)|``: the dynamic tracking error the controller and the
+  drives make (the paper's Figure 2b quantity). It holds no static geometric error:
+  both sides use the true kinematics.
+* **path error** ``|m(t) - p_d(t)|``, ``p_d`` the programmed (desired) path: TCP error
+  plus the geometric error of an uncalibrated controller model (mm level); reported
+  separately.
+* **AT** (EN ISO 9283 path accuracy): per path segment, the largest distance from a
+  measured point to the commanded path in the plane normal to the path through that
+  point, i.e. the distance to the commanded polyline (1 ms samples, chord error below
+  1 µm here) of the same segment; ``AT`` is the maximum over segments. ISO averages n
+  repeated runs point by point before this; the simulation is deterministic up to the
+  tracker noise, so one run is evaluated. ``AT_vs_programmed`` uses ``p_d``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from controller import quintic_hermite
+
+N_JOINTS = 6
+AT_WINDOW_SAMPLES = 150
+"""Half-width (samples) of the window of commanded points searched for the foot of the
+normal plane of a measured point: 150 ms at 1 ms, far above any lag."""
+
+
+def desired_joints(t: np.ndarray, t_apply: np.ndarray, q_d: np.ndarray, qd_d: np.ndarray,
+                   qdd_d: np.ndarray) -> np.ndarray:
+    """q_d at times ``t`` (m,) from per-cycle set-points acting at ``t_apply`` (n,) (see module doc).
+
+    Before the first cycle's ``t_apply`` the first set-point holds; after the last, the last.
+    """
+    t = np.asarray(t, dtype=float)
+    if t_apply.size == 1:
+        return np.repeat(q_d[:1], t.size, axis=0)
+    k = np.clip(np.searchsorted(t_apply, t, side="right") - 1, 0, t_apply.size - 2)
+    h = (t_apply[k + 1] - t_apply[k])[:, None]
+    s = np.clip((t - t_apply[k])[:, None] / h, 0.0, 1.0)
+    q, _, _ = quintic_hermite(q_d[k], qd_d[k], qdd_d[k], q_d[k + 1], qd_d[k + 1], qdd_d[k + 1], h, s)
+    before = t < t_apply[0]
+    q[before] = q_d[0]
+    return q
+
+
+def distance_to_polyline(points: np.ndarray, polyline: np.ndarray, window: int = AT_WINDOW_SAMPLES) -> np.ndarray:
+    """Distance (m,) of each point to the polyline (n, 3), searching the segments within
+    ``window`` samples of the point's own index (points and polyline are sampled at the
+    same times, ``m == n``)."""
+    n = polyline.shape[0]
+    if n == 1:
+        return np.linalg.norm(points - polyline[0], axis=1)
+    a = polyline[:-1]
+    ab = polyline[1:] - a
+    ab2 = np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-300)
+    out = np.empty(points.shape[0])
+    offsets = np.arange(-window, window + 1)
+    for start in range(0, points.shape[0], 2048):
+        idx = np.arange(start, min(start + 2048, points.shape[0]))
+        seg = np.clip(idx[:, None] + offsets[None, :], 0, n - 2)
+        ap = points[idx][:, None, :] - a[seg]
+        u = np.clip(np.einsum("ijk,ijk->ij", ap, ab[seg]) / ab2[seg], 0.0, 1.0)
+        d = ap - u[..., None] * ab[seg]
+        out[idx] = np.sqrt(np.einsum("ijk,ijk->ij", d, d).min(axis=1))
+    return out
+
+
+def path_accuracy(measured: np.ndarray, commanded: np.ndarray, segment: np.ndarray) -> dict[int, float]:
+    """ISO 9283 AT (m) per segment id: max distance from the measured points to the
+    commanded polyline of the same segment (points sampled at common times)."""
+    out: dict[int, float] = {}
+    for seg in np.unique(segment):
+        mask = segment == seg
+        out[int(seg)] = float(distance_to_polyline(measured[mask], commanded[mask]).max())
+    return out
+
+
+@dataclass
+class TrackingResult:
+    """Per-sample series (over the evaluation window) and the scalar metrics of one run."""
+
+    t: np.ndarray
+    q: np.ndarray
+    q_d: np.ndarray
+    lag: np.ndarray
+    commanded: np.ndarray
+    measured: np.ndarray
+    programmed: np.ndarray
+    tcp_error: np.ndarray
+    path_error: np.ndarray
+    segment: np.ndarray
+    arc_length: np.ndarray
+    at_per_segment: dict[int, float]
+    at_vs_programmed_per_segment: dict[int, float]
+
+    def metrics(self, segment_names: list[str] | None = None) -> dict[str, object]:
+        """summary.json fields (mm, rad)."""
+        names = segment_names or []
+
+        def name(k: int) -> str:
+            return names[k] if k < len(names) else str(k)
+
+        empty = self.t.size == 0
+        nan = float("nan")
+        return {
+            "tcp_error_max_mm": nan if empty else float(self.tcp_error.max() * 1e3),
+            "tcp_error_rms_mm": nan if empty else float(np.sqrt(np.mean(self.tcp_error ** 2)) * 1e3),
+            "path_accuracy_AT_mm": nan if empty else float(max(self.at_per_segment.values()) * 1e3),
+            "path_accuracy_AT_per_segment_mm": {name(k): v * 1e3 for k, v in self.at_per_segment.items()},
+            "joint_lag_max_rad": [nan] * N_JOINTS if empty else np.abs(self.lag).max(axis=0).tolist(),
+            "tcp_path_error_max_mm": nan if empty else float(self.path_error.max() * 1e3),
+            "tcp_path_error_rms_mm": nan if empty else float(np.sqrt(np.mean(self.path_error ** 2)) * 1e3),
+            "path_accuracy_AT_vs_programmed_mm": (nan if empty else
+                                                  float(max(self.at_vs_programmed_per_segment.values()) * 1e3)),
+            "evaluated_samples": int(self.t.size),
+            "evaluated_from_s": nan if empty else float(self.t[0]),
+            "evaluated_to_s": nan if empty else float(self.t[-1]),
+        }
+
+
+def evaluate(t: np.ndarray, q: np.ndarray, measured: np.ndarray, q_d: np.ndarray, commanded: np.ndarray,
+             programmed: np.ndarray, segment: np.ndarray, window: tuple[float, float],
+             arc_length: np.ndarray | None = None) -> TrackingResult:
+    """Metrics over the samples with ``window[0] <= t <= window[1]`` (s).
+
+    ``t`` (m,) s; ``q``, ``q_d`` (m, 6) rad; ``measured``, ``commanded``, ``programmed``
+    (m, 3) m; ``segment`` (m,) path segment ids; ``arc_length`` (m,) m along the path
+    (kept for plots; zeros when not given).
+    """
+    if arc_length is None:
+        arc_length = np.zeros(t.shape)
+    mask = (t >= window[0] - 1e-9) & (t <= window[1] + 1e-9)
+    t, q, measured, q_d = t[mask], q[mask], measured[mask], q_d[mask]
+    commanded, programmed, segment, arc_length = commanded[mask], programmed[mask], segment[mask], arc_length[mask]
+    lag = q_d - q
+    tcp_error = np.linalg.norm(measured - commanded, axis=1)
+    path_error = np.linalg.norm(measured - programmed, axis=1)
+    at = path_accuracy(measured, commanded, segment) if t.size else {}
+    at_prog = path_accuracy(measured, programmed, segment) if t.size else {}
+    return TrackingResult(t, q, q_d, lag, commanded, measured, programmed, tcp_error, path_error, segment,
+                          arc_length, at, at_prog)
