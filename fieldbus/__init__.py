@@ -12,6 +12,7 @@ Public API (see README section in docs or each module's docstring)::
 from fieldbus.cia402 import Command, DriveState, EnableSequencer, command_name, decode_statusword, motion_enabled, statusword_for
 from fieldbus.cia402_drive_model import Cia402DriveModel
 from fieldbus.config import FieldbusConfig, defaults_table
+from fieldbus.endpoints import DriveEndpoint, ManagingNodeEndpoint
 from fieldbus.errors import FieldbusConfigError, FrameDecodeError, ScalingError
 from fieldbus.events import EventLog, FieldbusEvent
 from fieldbus.network import PowerlinkNetwork
@@ -20,7 +21,8 @@ from fieldbus.scaling import JointScaling
 from fieldbus.telegrams import decode
 
 __all__ = [
-    "AppliedSetpoints", "Cia402DriveModel", "Command", "CycleResult", "DriveActuals", "DriveState",
+    "AppliedSetpoints", "Cia402DriveModel", "Command", "CycleResult", "DriveActuals", "DriveEndpoint",
+    "DriveState", "ManagingNodeEndpoint",
     "EnableSequencer", "EventLog", "FieldbusConfig", "FieldbusConfigError", "FieldbusEvent",
     "FrameDecodeError", "JointScaling", "ObservedActuals", "PowerlinkNetwork", "ScalingError",
     "Setpoints", "command_name", "decode", "decode_statusword", "defaults_table", "motion_enabled",

@@ -500,18 +500,19 @@ class ControlledNodes:
     # ------------------------------------------------------------------ sending
     def responses(self, times: list) -> list[FastMessage]:
         """PRes frames (TPDO1, TPDO2 per node) with the values latched at the SoC, for
-        every node whose PReq arrived and whose entry in ``times`` (= [soc,
+        every node whose PReq arrived (a PReq too late to apply is answered too, as a
+        POWERLINK CN answers every PReq) and whose entry in ``times`` (= [soc,
         preq_1..N, pres_1..N] send times) is not None. The messages are reused next
         cycle (receivers that keep a frame beyond the cycle must copy it)."""
         n = self.nodes
         out: list[FastMessage] = []
         append = out.append
-        ok = self._preq_ok
+        ok, late = self._preq_ok, self._preq_late
         a_sw, a_pos, a_tq, a_vel, a_err = self._a_sw, self._a_pos, self._a_tq, self._a_vel, self._a_err
         msgs1, msgs2 = self._tpdo1_msgs, self._tpdo2_msgs
         for i in range(n):
             ts = times[n + 1 + i]
-            if ok[i] and ts is not None:
+            if (ok[i] or late[i]) and ts is not None:
                 m1 = msgs1[i]
                 m1.timestamp = ts
                 _PACK_TPDO1_INTO(m1.data, 0, a_sw[i], a_pos[i], a_tq[i])

@@ -1,0 +1,330 @@
+"""The two sides of the network, each with its own python-can bus connection, so they
+can run in one process (``PowerlinkNetwork`` calls their phases in order) or in two
+processes connected by an inter-process interface such as ``udp_multicast``.
+
+Both sides derive the frame schedule and the injected faults of every cycle from the
+same configuration and seed (:class:`CycleSchedule`, :class:`FaultPlan`), so each
+knows which frames the other puts on the wire and when: a receiver waits (wall clock,
+up to ``bus.receive_timeout_s``) only for frames that were really sent, restores their
+simulated timestamps on interfaces that overwrite them, and detects losses by absence.
+Each side applies the injected faults to the frames it sends.
+
+Controller side::
+
+    mn = ManagingNodeEndpoint(config, scaling)
+    observed = mn.run_cycle(k, setpoints)        # = send_setpoints + collect_actuals
+
+Drive side::
+
+    drives = DriveEndpoint(config, scaling)
+    applied = drives.run_cycle(k, actuals)       # SoC, PReqs in, PRes out, EMCY
+"""
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Any
+
+import can
+
+from fieldbus.config import FieldbusConfig
+from fieldbus.events import EventLog, FieldbusEvent
+from fieldbus.faults import CycleFaults, FaultPlan
+from fieldbus.nodes import ControlledNodes, ManagingNode
+from fieldbus.process_data import AppliedSetpoints, DriveActuals, ObservedActuals, Setpoints
+from fieldbus.recorder import FrameRecorder
+from fieldbus.scaling import JointScaling
+from fieldbus.simbus import register as register_simbus
+from fieldbus.simbus import unique_channel
+from fieldbus.telegrams import EMCY_BASE, RPDO1_BASE, SYNC_ID, TPDO1_BASE, TPDO2_BASE, FastMessage
+from fieldbus.timing import CycleLayout, CycleSchedule, check_cycle_budget
+
+SYNCHRONOUS_INTERFACES = ("simbus", "virtual")  # deliver inside send(), keep timestamps
+
+
+def default_channel(config: FieldbusConfig) -> str | int:
+    """The configured channel; when empty a fresh in-process channel (simbus, virtual)
+    or python-can's default multicast group (udp_multicast)."""
+    channel = config.bus.channel
+    if channel == "":
+        if config.bus.interface in SYNCHRONOUS_INTERFACES:
+            return unique_channel()
+        if config.bus.interface == "udp_multicast":
+            return can.interfaces.udp_multicast.UdpMulticastBus.DEFAULT_GROUP_IPv4
+    return channel
+
+
+def open_bus(config: FieldbusConfig, side: str, channel: str | int) -> can.BusABC:
+    """Open the python-can bus of one side ('mn' or 'cn') as configured.
+
+    On interfaces that echo a sender's own frames (udp_multicast, hardware with
+    loopback) each side filters for the identifiers the other side sends."""
+    bus_cfg = config.bus
+    kwargs: dict[str, Any] = dict(bus_cfg.options)
+    interface = bus_cfg.interface
+    if interface == "simbus":
+        register_simbus()
+    elif interface == "virtual":
+        kwargs.setdefault("preserve_timestamps", True)
+    else:
+        n = config.nodes
+        if side == "mn":
+            wanted = [base + k for base in (TPDO1_BASE, TPDO2_BASE, EMCY_BASE) for k in range(1, n + 1)]
+        else:
+            wanted = [SYNC_ID] + [RPDO1_BASE + k for k in range(1, n + 1)]
+        kwargs.setdefault("can_filters", [{"can_id": i, "can_mask": 0x7FF, "extended": False} for i in wanted])
+    try:
+        return can.Bus(interface=interface, channel=channel, **kwargs)
+    except (ImportError, NotImplementedError, can.CanError, OSError, TypeError, ValueError) as error:
+        from fieldbus.errors import FieldbusConfigError
+        raise FieldbusConfigError(config.source, "bus.interface", interface,
+                                  f"a python-can interface that opens with channel {channel!r} "
+                                  f"and options {dict(bus_cfg.options)!r} ({type(error).__name__}: {error})") from error
+
+
+class _Endpoint:
+    """One side: configuration, schedule, fault plan, bus, medium, optional recording."""
+
+    side = ""
+
+    def __init__(self, config: FieldbusConfig | dict | None, scaling: JointScaling, *,
+                 channel: str | int | None = None, events: EventLog | None = None,
+                 log_path: str | Path | None = None, recorder: FrameRecorder | None = None,
+                 record_received: bool = True) -> None:
+        if not isinstance(config, FieldbusConfig):
+            config = FieldbusConfig.from_dict(config)
+        if scaling.joints != config.nodes:
+            from fieldbus.errors import FieldbusConfigError
+            raise FieldbusConfigError(config.source, "nodes", config.nodes,
+                                      f"as many nodes as the scaling has joints ({scaling.joints})")
+        self.config = config
+        self.scaling = scaling
+        self.layout: CycleLayout = check_cycle_budget(config)
+        self.schedule = CycleSchedule(config, self.layout)
+        self.plan = FaultPlan(config)
+        self.events = events if events is not None else EventLog()
+        self.channel = default_channel(config) if channel is None else channel
+        self.synchronous = config.bus.interface in SYNCHRONOUS_INTERFACES
+        self.bus = open_bus(config, self.side, self.channel)
+        if recorder is None and log_path is not None:
+            recorder = FrameRecorder(log_path, config.recording.flush_every_cycles, config.recording.background)
+            self._owns_recorder = True
+        else:
+            self._owns_recorder = False
+        self.recorder = recorder
+        self._record = recorder.add_many if recorder is not None else None
+        self._record_received = record_received and recorder is not None and not self.synchronous
+        self._t0 = config.start_time_s
+        self._cycle_time = config.cycle_time_s
+        self._cycle = -1
+        self._times: list = []
+        self._kinds: dict[int, str] = {}
+        self.frames_sent = 0
+        self.frames_dropped = 0
+        self.frames_missing = 0  # sent, but an asynchronous interface did not deliver it in time
+        self._closed = False
+
+    # ------------------------------------------------------------------ cycle bookkeeping
+    def _begin(self, cycle: int) -> None:
+        if (self._cycle >= 0 and cycle != self._cycle + 1) or cycle < 0:
+            expected = "a cycle number >= 0" if self._cycle < 0 else f"cycle {self._cycle + 1} (cycles run consecutively)"
+            raise ValueError(f"run_cycle(cycle={cycle}): expected {expected}")
+        self._cycle = cycle
+        faults = self.plan.for_cycle(cycle)
+        if faults is None:
+            self._times = self.schedule.timestamps(cycle)
+            self._kinds = {}
+        else:
+            self._times = self.schedule.faulty_timestamps(cycle, faults)
+            self._kinds = faults.kinds
+            self._record_injected(cycle, faults)
+
+    def _record_injected(self, cycle: int, faults: CycleFaults) -> None:
+        """Note the injected faults this side applies (frames it sends)."""
+        t = self._t0 + cycle * self._cycle_time
+        mine = ("soc", "preq") if self.side == "mn" else ("pres",)
+        for frame, node, kind in faults.describe(self.config.nodes):
+            if frame in mine:
+                self.events.add(FieldbusEvent(t, cycle, "medium", node, f"{frame}_{kind}", "injected",
+                                              -1, -1, -1, f"fault injection: {frame.upper()} {kind}"))
+
+    # ------------------------------------------------------------------ medium
+    def _frame_index(self, arbitration_id: int) -> int:
+        if arbitration_id == SYNC_ID:
+            return 0
+        base, node = arbitration_id & ~0x7F, arbitration_id & 0x7F
+        if base == RPDO1_BASE:
+            return node
+        if base in (TPDO1_BASE, TPDO2_BASE):
+            return self.config.nodes + node
+        return -1
+
+    def _through_medium(self, msg: can.Message, kinds: dict[int, str]) -> can.Message | None:
+        """The frame as the medium passes it on: None (lost), a delayed or a corrupted
+        copy (the node's own message object stays untouched), or ``msg`` itself."""
+        kind = kinds.get(self._frame_index(msg.arbitration_id))
+        if kind is None:
+            return msg
+        if kind in ("loss", "silent"):
+            self.frames_dropped += 1
+            return None
+        if kind == "late":
+            delay = 0.0 if msg.arbitration_id == SYNC_ID else self.config.faults.late_delay_s
+            return FastMessage(msg.timestamp + delay, msg.arbitration_id, bytearray(msg.data))
+        data = bytearray(msg.data) or bytearray(1)
+        data[0] ^= 0xA5  # bits flipped on the wire; the receiver's checksum fails
+        return FastMessage(msg.timestamp, msg.arbitration_id, data, is_error_frame=True)
+
+    def _transmit(self, frames: list) -> list:
+        """Put ``frames`` on the wire (through the injected faults of this cycle)."""
+        kinds = self._kinds
+        if kinds:
+            frames = [m for m in (self._through_medium(m, kinds) for m in frames) if m is not None]
+        send = self.bus.send
+        for msg in frames:
+            send(msg)
+        self.frames_sent += len(frames)
+        if self._record is not None:
+            self._record(frames)
+        return frames
+
+    def _receive(self, expected: dict[int, float]) -> list:
+        """Frames that reached this side. Synchronous interfaces have delivered already;
+        otherwise wait for the ``expected`` identifiers (-> simulated timestamp)."""
+        bus = self.bus
+        if self.synchronous:
+            drain = getattr(bus, "drain", None)
+            if drain is not None:
+                return drain()
+            received = []
+            msg = bus.recv(0)
+            while msg is not None:
+                received.append(msg)
+                msg = bus.recv(0)
+            return received
+        waiting = dict(expected)
+        received = []
+        deadline = time.monotonic() + self.config.bus.receive_timeout_s
+        while waiting:
+            msg = bus.recv(max(deadline - time.monotonic(), 0.0))
+            if msg is None:
+                self.frames_missing += len(waiting)
+                break
+            stamp = waiting.pop(msg.arbitration_id, None)
+            msg.timestamp = stamp if stamp is not None else self._t0 + self._cycle * self._cycle_time
+            received.append(msg)
+        msg = bus.recv(0)
+        while msg is not None:  # anything else that is already there
+            msg.timestamp = expected.get(msg.arbitration_id, self._t0 + self._cycle * self._cycle_time)
+            received.append(msg)
+            msg = bus.recv(0)
+        if self._record_received and received:
+            self._record(received)
+        return received
+
+    def _delay(self, index: int) -> float:
+        return self.config.faults.late_delay_s if self._kinds.get(index) == "late" else 0.0
+
+    # ------------------------------------------------------------------ life cycle
+    def __enter__(self) -> "_Endpoint":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """Flush an own recording and shut the bus down (idempotent)."""
+        if self._closed:
+            return
+        self._closed = True
+        try:
+            if self.recorder is not None and self._owns_recorder:
+                self.recorder.close()
+        finally:
+            self.bus.shutdown()
+
+
+class ManagingNodeEndpoint(_Endpoint):
+    """Controller side: the POWERLINK MN with its bus connection.
+
+    ``log_path`` records the frames this side sends and receives."""
+
+    side = "mn"
+
+    def __init__(self, config: FieldbusConfig | dict | None, scaling: JointScaling, **kwargs: Any) -> None:
+        super().__init__(config, scaling, **kwargs)
+        self.node = ManagingNode(self.config, scaling, self.layout, self.events)
+
+    def send_setpoints(self, cycle: int, setpoints: Setpoints) -> None:
+        """SoC and PReqs of ``cycle`` carrying ``setpoints`` (SI units)."""
+        self._begin(cycle)
+        cws = setpoints.controlword.tolist()
+        poss = setpoints.position.tolist()
+        tqs = setpoints.torque_offset.tolist()
+        n = self.config.nodes
+        if len(cws) != n or len(poss) != n or len(tqs) != n:
+            raise ValueError(f"setpoints: expected {n} entries per field, got {len(cws)}, {len(poss)}, {len(tqs)}")
+        self.node.start_cycle(cycle)
+        self._transmit(self.node.frames(cycle, self._times, cws, poss, tqs))
+
+    def collect_actuals(self, cycle: int) -> ObservedActuals:
+        """Receive this cycle's PRes frames (and EMCYs); the controller's view of cycle k."""
+        expected: dict[int, float] = {}
+        if not self.synchronous:
+            times, n = self._times, self.config.nodes
+            for i in range(n):
+                ts = times[n + 1 + i]
+                if ts is not None and self._kinds.get(n + 1 + i) != "loss":
+                    ts += self._delay(n + 1 + i)
+                    expected[TPDO1_BASE + i + 1] = ts
+                    expected[TPDO2_BASE + i + 1] = ts
+        received = self._receive(expected)
+        if received:
+            self.node.receive_all(received)
+        return self.node.end_cycle(cycle)
+
+    def run_cycle(self, cycle: int, setpoints: Setpoints) -> ObservedActuals:
+        """send_setpoints + collect_actuals (for a controller in its own process)."""
+        self.send_setpoints(cycle, setpoints)
+        return self.collect_actuals(cycle)
+
+
+class DriveEndpoint(_Endpoint):
+    """Drive side: the six POWERLINK CNs with their (shared) bus connection.
+
+    ``log_path`` records the frames this side sends and receives."""
+
+    side = "cn"
+
+    def __init__(self, config: FieldbusConfig | dict | None, scaling: JointScaling, **kwargs: Any) -> None:
+        super().__init__(config, scaling, **kwargs)
+        self.nodes = ControlledNodes(self.config, scaling, self.layout, self.events)
+        self._emcy_offset = (self.layout.nominal_end_of_isochronous + self.layout.mn_turnaround
+                             + self.layout.wire_soa + self.layout.cn_response)
+
+    def run_cycle(self, cycle: int, actuals: DriveActuals) -> AppliedSetpoints:
+        """SoC of ``cycle``: latch ``actuals``, apply the due set-points, receive the
+        PReqs, answer with the PRes frames, judge the cycle, send EMCYs of tripped
+        nodes. Returns what the drives apply on [t_k, t_k+1)."""
+        self._begin(cycle)
+        cn = self.nodes
+        applied = cn.start_cycle(cycle, actuals)
+        expected: dict[int, float] = {}
+        if not self.synchronous:
+            times, kinds, n = self._times, self._kinds, self.config.nodes
+            if kinds.get(0) != "loss":
+                expected[SYNC_ID] = times[0]
+            for i in range(n):
+                if kinds.get(i + 1) != "loss":
+                    expected[RPDO1_BASE + i + 1] = times[i + 1] + self._delay(i + 1)
+        received = self._receive(expected)
+        if received:
+            cn.receive_all(received)
+        self._transmit(cn.responses(self._times))
+        cn.end_cycle(cycle)
+        emcy = cn.emergency_messages(self._t0 + cycle * self._cycle_time + self._emcy_offset)
+        if emcy:
+            saved, self._kinds = self._kinds, {}
+            self._transmit(emcy)
+            self._kinds = saved
+        return applied
