@@ -217,7 +217,3 @@ class CycleSchedule:
             at_mn = pres + (late if pres_kind == "late" else 0.0) + lay.propagation[n]
             mn_free = deadline if (pres_kind == "loss" or at_mn > deadline) else at_mn + lay.wire_pres
         return out
-
-    def pres_deadline(self, preq_start: float) -> float:
-        """Latest start of a PRes at the MN for a PReq that started at ``preq_start`` (s)."""
-        return preq_start + self.layout.wire_preq + self.layout.pres_timeout

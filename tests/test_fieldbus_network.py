@@ -1,6 +1,5 @@
 """PowerlinkNetwork end to end: dead time, SYNC spacing and frame completeness read back
 from the python-can log, latched actual values, other interfaces, recording."""
-import math
 import os
 import subprocess
 import sys
