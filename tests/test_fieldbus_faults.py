@@ -262,3 +262,43 @@ def test_garbage_frames_are_counted_logged_and_do_not_stop_the_run(caplog):
     assert result.observed.fresh.all() and result.applied.fresh.all()
     # short frames addressed to a node count as CRC/format errors of that node only
     assert {e.node for e in network.events.select(event="error", kind="crc_error")} == {4, 5}
+
+
+@pytest.mark.parametrize("frames, kind, delay_us, expected", [
+    ("soc", "loss", 150.0, {("cn", "loss_of_soc")}),
+    ("soc", "corrupt", 150.0, {("cn", "loss_of_soc"), ("cn", "crc_error")}),
+    ("soc", "late", 150.0, {("cn", "soc_jitter")}),
+    ("preq", "corrupt", 150.0, {("cn", "crc_error"), ("cn", "loss_of_preq"), ("mn", "loss_of_pres")}),
+    ("preq", "late", 150.0, {("mn", "late_pres")}),
+    ("preq", "late", 450.0, {("cn", "loss_of_preq"), ("mn", "late_pres")}),
+    ("pres", "late", 150.0, {("mn", "late_pres")}),
+    ("pres", "corrupt", 150.0, {("mn", "crc_error"), ("mn", "loss_of_pres")}),
+])
+def test_each_fault_kind_feeds_its_threshold_counters(frames, kind, delay_us, expected):
+    config = burst(2, 10, 1, frames=frames, kind=kind)
+    config["faults"]["late_delay_us"] = delay_us
+    with PowerlinkNetwork(config, scaling()) as network:
+        out = run_plain(network, 15)
+    errors = events(network, event="error")
+    assert {(e.side, e.kind) for e in errors} == expected
+    assert {e.cycle for e in errors} == {10}
+    nodes = {e.node for e in errors}
+    assert nodes == ({1, 2, 3, 4, 5, 6} if frames == "soc" else {2})
+    # one error is no trip, and the process data of the other cycles is untouched
+    assert not events(network, event="threshold_reached")
+    assert all(o.fresh.all() for k, (_, o) in enumerate(out) if k != 10)
+
+
+def test_extrapolating_policy_continues_the_ramp_over_a_lost_setpoint():
+    config = burst(1, 10, 1) | {"reaction": {"missing_setpoint": "extrapolate"}}
+    sc = scaling()
+    with PowerlinkNetwork(config, sc) as network:
+        setpoints, actuals = Setpoints.zeros(6), DriveActuals.zeros(6)
+        applied = []
+        for k in range(14):
+            setpoints.position[:] = 1e-3 * k
+            applied.append(network.run_cycle(k, setpoints, actuals).applied.copy())
+    counts = [int(sc.position_to_counts(a.position)[0]) for a in applied]
+    assert not applied[11].fresh[0] and applied[12].fresh[0]
+    assert counts[11] - counts[10] == counts[10] - counts[9]  # the PReq of cycle 10 never arrived
+    assert counts[12] == int(sc.position_to_counts(np.full(6, 11e-3))[0])
