@@ -222,6 +222,10 @@ class _Endpoint:
             self._record(received)
         return received
 
+    def _flush_own_recording(self, cycle: int) -> None:
+        if self._owns_recorder:
+            self.recorder.end_cycle(cycle, self._t0 + cycle * self._cycle_time)
+
     def _delay(self, index: int) -> float:
         return self.config.faults.late_delay_s if self._kinds.get(index) == "late" else 0.0
 
@@ -281,7 +285,9 @@ class ManagingNodeEndpoint(_Endpoint):
         received = self._receive(expected)
         if received:
             self.node.receive_all(received)
-        return self.node.end_cycle(cycle)
+        observed = self.node.end_cycle(cycle)
+        self._flush_own_recording(cycle)
+        return observed
 
     def run_cycle(self, cycle: int, setpoints: Setpoints) -> ObservedActuals:
         """send_setpoints + collect_actuals (for a controller in its own process)."""
@@ -327,4 +333,5 @@ class DriveEndpoint(_Endpoint):
             saved, self._kinds = self._kinds, {}
             self._transmit(emcy)
             self._kinds = saved
+        self._flush_own_recording(cycle)
         return applied
