@@ -15,6 +15,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "cosim.commands.build_fmus",
     "cosim.commands.run",
     "cosim.commands.calibrate",
+    "cosim.commands.sweep",
 )
 
 
