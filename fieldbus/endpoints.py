@@ -261,6 +261,8 @@ class ManagingNodeEndpoint(_Endpoint):
 
     def send_setpoints(self, cycle: int, setpoints: Setpoints) -> None:
         """SoC and PReqs of ``cycle`` carrying ``setpoints`` (SI units)."""
+        if setpoints.controlword.dtype.kind not in "iu":
+            raise ValueError(f"setpoints.controlword has dtype {setpoints.controlword.dtype}: expected integers")
         self._begin(cycle)
         cws = setpoints.controlword.tolist()
         poss = setpoints.position.tolist()

@@ -29,6 +29,7 @@ Fault reactions:
 """
 from __future__ import annotations
 
+import struct
 from operator import mul
 from typing import TYPE_CHECKING, Any
 
@@ -181,7 +182,10 @@ class ManagingNode:
                 self._clear_fault(i, ts)
             msg = msgs[i]
             msg.timestamp = ts
-            _PACK_RPDO1_INTO(msg.data, 0, cw, counts[i], units[i])
+            try:
+                _PACK_RPDO1_INTO(msg.data, 0, cw, counts[i], units[i])
+            except struct.error as error:
+                raise ValueError(f"setpoints.controlword[{i}] = {cw!r}: expected an integer in [0, 0xFFFF]") from error
         self._last_cw = controlword
         return self._frames
 
@@ -512,10 +516,14 @@ class ControlledNodes:
             if (ok[i] or late[i]) and ts is not None:
                 m1 = msgs1[i]
                 m1.timestamp = ts
-                _PACK_TPDO1_INTO(m1.data, 0, a_sw[i], a_pos[i], a_tq[i])
                 m2 = msgs2[i]
                 m2.timestamp = ts
-                _PACK_TPDO2_INTO(m2.data, 0, a_vel[i], a_err[i])
+                try:
+                    _PACK_TPDO1_INTO(m1.data, 0, a_sw[i], a_pos[i], a_tq[i])
+                    _PACK_TPDO2_INTO(m2.data, 0, a_vel[i], a_err[i])
+                except struct.error as error:
+                    raise ValueError(f"actuals.statusword[{i}] = {a_sw[i]!r} / actuals.error_code[{i}] = "
+                                     f"{a_err[i]!r}: expected integers in [0, 0xFFFF]") from error
                 append(m1)
                 append(m2)
         return out

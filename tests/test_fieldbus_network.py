@@ -218,3 +218,19 @@ def test_can_player_replays_the_log(tmp_path):
     lines = [line for line in result.stdout.splitlines() if "ID:" in line]
     assert len(lines) == 10 * 19
     assert "080" in lines[0] and "201" in lines[1]
+
+
+def test_bad_words_are_rejected_by_name():
+    with PowerlinkNetwork({}, scaling()) as network:
+        setpoints, actuals = Setpoints.zeros(6), DriveActuals.zeros(6)
+        setpoints.controlword[1] = 0x1FFFF
+        with pytest.raises(ValueError, match=r"setpoints.controlword\[1\]"):
+            network.run_cycle(0, setpoints, actuals)
+        setpoints.controlword = np.full(6, 15.0)
+        with pytest.raises(ValueError, match="setpoints.controlword has dtype float64"):
+            network.run_cycle(0, setpoints, actuals)
+    with PowerlinkNetwork({}, scaling()) as network:
+        setpoints, actuals = Setpoints.zeros(6), DriveActuals.zeros(6)
+        actuals.statusword = np.full(6, 0x27, dtype=float)
+        with pytest.raises(ValueError, match=r"actuals.statusword\[0\]"):
+            network.run_cycle(0, setpoints, actuals)
