@@ -1,0 +1,236 @@
+"""Run a sweep's variants as independent tasks on Dask (``dask.distributed``).
+
+By default an embedded ``LocalCluster`` of worker PROCESSES is started on this machine
+(``n_workers = workers`` (default: CPU count), one thread each, so an FMU instance never
+meets a second thread); with ``scheduler = "tcp://host:8786"`` the same tasks go to an
+existing cluster, whose workers need this project installed (``pip install -e .``) and
+the same paths (shared file system) for the results folders.
+
+Fault handling: a variant whose scenario fails or raises is a ``failed`` row with the
+runner's reason, and the sweep goes on. A task whose worker process dies is
+rescheduled by the scheduler on another (or the restarted) worker, up to
+``retries`` times for the embedded cluster (``distributed.scheduler.allowed-failures``;
+an external scheduler uses its own setting); a task that raises outside the runner
+(e.g. the folder cannot be written) is re-run up to ``retries`` times (Dask's
+``retries=``). When that is exhausted the row is ``failed`` with the reason.
+
+Results in ``out_dir`` (default ``results/<sweep name>/``): ``sweep.csv`` (one row per
+variant, cosim/sweep/table.py), ``variants/<id>-<hash8>/`` (each variant's scenario.toml,
+summary.json, run.log and the job's own files), ``sweep.json`` (the definition, counts
+and timing) and the ``[report]`` figure. Re-running skips variants whose folder holds a
+finished run (``ok`` or ``failed``) of the same variant hash.
+"""
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+import os
+import sys
+import time
+import uuid
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+from tqdm import tqdm
+
+from cosim.sweep.loader import Sweep
+from cosim.sweep.table import write_table
+from cosim.sweep.task import VariantTask, reuse_finished, run_variant, worker_name
+
+TABLE_FILE = "sweep.csv"
+SWEEP_FILE = "sweep.json"
+VARIANTS_DIR = "variants"
+#: Wall-time interval between rewrites of the table while the sweep runs, s.
+TABLE_INTERVAL_S = 2.0
+
+
+@dataclass
+class SweepResult:
+    """What ``run_sweep`` did.
+
+    Attributes:
+        out_dir: the sweep's results folder.
+        table: path of sweep.csv.
+        figure: path of the [report] figure (None without [report] or without data to plot).
+        rows: one dict per variant (cosim.sweep.task.make_row), in variant order.
+        ran, reused: variants run now / taken from finished folders of an earlier run.
+        ok, failed: rows by status.
+        workers: Dask workers when the sweep started (0 when nothing had to run).
+        wall_time_s: wall time of run_sweep, s.
+    """
+
+    out_dir: Path
+    table: Path
+    figure: Path | None
+    rows: list[dict[str, Any]]
+    ran: int
+    reused: int
+    workers: int
+    wall_time_s: float
+    scheduler: str = ""
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def ok(self) -> int:
+        return sum(r["status"] == "ok" for r in self.rows)
+
+    @property
+    def failed(self) -> int:
+        return sum(r["status"] != "ok" for r in self.rows)
+
+
+def default_out_dir(sweep: Sweep) -> Path:
+    """``results/<sweep name>/`` (relative to the working directory)."""
+    return Path("results") / sweep.name
+
+
+def variant_tasks(sweep: Sweep, out_dir: Path) -> list[VariantTask]:
+    """The tasks of every variant, with their folders under ``out_dir/variants/``."""
+    variants_dir = (out_dir / VARIANTS_DIR).resolve()
+    metrics = tuple(sweep.metrics) if sweep.metrics else None
+    return [VariantTask(v.index, v.id, v.hash, str(variants_dir / f"{v.id}-{v.hash[:8]}"), v.document, v.values,
+                        metrics) for v in sweep.variants]
+
+
+@contextlib.contextmanager
+def dask_client(workers: int | None = None, scheduler: str | None = None, retries: int = 2) -> Iterator[Any]:
+    """A ``dask.distributed.Client``: on ``scheduler`` if given, else on a new embedded LocalCluster of
+    ``workers`` single-threaded worker processes (closed on exit)."""
+    import dask
+    from dask.distributed import Client, LocalCluster
+
+    if scheduler:
+        with Client(scheduler) as client:
+            yield client
+        return
+    with dask.config.set({"distributed.scheduler.allowed-failures": retries}):
+        cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1, processes=True,
+                               dashboard_address=None, silence_logs=logging.ERROR)
+    with cluster, Client(cluster) as client:
+        yield client
+
+
+def _failure_reason(exc: BaseException, retries: int) -> str:
+    from distributed import KilledWorker
+
+    if isinstance(exc, KilledWorker):
+        return (f"worker process died while running this variant ({exc.allowed_failures + 1} attempts, "
+                f"last on {exc.last_worker.address}): dask KilledWorker")
+    return f"task raised {type(exc).__name__}: {exc} (after {retries} retries)"
+
+
+def _write_definition(sweep: Sweep, out_dir: Path, state: dict[str, Any]) -> None:
+    data = {
+        "sweep": sweep.name,
+        "file": str(sweep.path),
+        "description": sweep.description,
+        "base": str(sweep.base.path),
+        "job": sweep.job,
+        "axes": [{"key": a.key, "kind": a.kind, "values": list(a.values)} for a in sweep.axes],
+        "overrides": sweep.overrides,
+        "variants": len(sweep.variants),
+        **state,
+    }
+    tmp = out_dir / (SWEEP_FILE + ".tmp")
+    tmp.write_text(json.dumps(data, indent=2, default=str) + "\n", encoding="utf-8")
+    os.replace(tmp, out_dir / SWEEP_FILE)
+
+
+def run_sweep(sweep: Sweep, out_dir: str | Path | None = None, *, workers: int | None = None,
+              scheduler: str | None = None, client: Any = None, progress: bool = True,
+              resume: bool = True) -> SweepResult:
+    """Run every variant of ``sweep`` not already finished on Dask; write the table, figure and sweep.json.
+
+    Args:
+        sweep: from ``load_sweep`` (already validated).
+        out_dir: results folder (default ``results/<sweep name>/``).
+        workers: worker processes of the embedded LocalCluster (default: CPU count).
+        scheduler: address of an existing Dask scheduler instead of the embedded cluster.
+        client: an existing ``dask.distributed.Client`` to use (then workers/scheduler are ignored).
+        progress: show a tqdm bar over the variants on stderr.
+        resume: reuse finished variant folders of the same hash (False: run everything again).
+    """
+    start = time.perf_counter()
+    out_dir = Path(out_dir) if out_dir is not None else default_out_dir(sweep)
+    (out_dir / VARIANTS_DIR).mkdir(parents=True, exist_ok=True)
+    tasks = variant_tasks(sweep, out_dir)
+    rows: dict[int, dict[str, Any]] = {}
+    if resume:
+        for task in tasks:
+            row = reuse_finished(task, out_dir / VARIANTS_DIR)
+            if row is not None:
+                rows[task.index] = row
+    todo = [t for t in tasks if t.index not in rows]
+    reused = len(rows)
+    started_at = datetime.now(timezone.utc).isoformat(timespec="seconds")
+    _write_definition(sweep, out_dir, {"status": "running", "started_at": started_at, "reused": reused})
+    table_path = out_dir / TABLE_FILE
+    write_table(table_path, list(rows.values()), sweep.parameters)
+    workers_seen, where = 0, ""
+    if todo:
+        context = contextlib.nullcontext(client) if client is not None else \
+            dask_client(workers, scheduler, sweep.retries)
+        with context as dask_client_:
+            workers_seen = len(dask_client_.scheduler_info().get("workers", {}))
+            where = scheduler or getattr(dask_client_.scheduler, "address", "")
+            _run_tasks(dask_client_, sweep, todo, rows, table_path, len(tasks), reused, progress)
+    ordered = [rows[t.index] for t in tasks]
+    write_table(table_path, ordered, sweep.parameters)
+    figure = None
+    notes: list[str] = []
+    if sweep.report is not None:
+        from cosim.sweep.report import plot_report
+
+        figure, note = plot_report(ordered, sweep.report, out_dir / sweep.report.file, sweep.name)
+        if note:
+            notes.append(note)
+    result = SweepResult(out_dir, table_path, figure, ordered, len(todo), reused, workers_seen,
+                         time.perf_counter() - start, where, notes)
+    _write_definition(sweep, out_dir, {
+        "status": "finished", "started_at": started_at, "wall_time_s": result.wall_time_s, "ran": result.ran,
+        "reused": reused, "ok": result.ok, "failed": result.failed, "workers": workers_seen,
+        "scheduler": where, "client": worker_name(), "table": TABLE_FILE,
+        "figure": None if figure is None else figure.name})
+    return result
+
+
+def _run_tasks(client: Any, sweep: Sweep, todo: list[VariantTask], rows: dict[int, dict[str, Any]],
+               table_path: Path, total: int, reused: int, progress: bool) -> None:
+    """Submit ``todo``, collect rows as they complete (progress bar, table rewritten every few seconds)."""
+    from dask.distributed import as_completed
+
+    token = uuid.uuid4().hex[:8]
+    futures = {client.submit(run_variant, task, key=f"{sweep.name}-{task.id}-{token}", retries=sweep.retries,
+                             pure=False): task for task in todo}
+    bar = tqdm(total=total, initial=reused, desc=f"sweep {sweep.name}", unit="variant", file=sys.stderr,
+               disable=not progress, dynamic_ncols=True)
+    last_write = time.perf_counter()
+    try:
+        for future in as_completed(futures):
+            task = futures[future]
+            try:
+                row = future.result()
+            except Exception as exc:  # KilledWorker, or the task raised after its retries
+                from cosim.sweep.task import make_row
+
+                row = make_row(task, None, None, float("nan"), "", reason=_failure_reason(exc, sweep.retries))
+            rows[task.index] = row
+            bar.update(1)
+            bar.set_postfix(failed=sum(r["status"] != "ok" for r in rows.values()), refresh=False)
+            if time.perf_counter() - last_write > TABLE_INTERVAL_S:
+                write_table(table_path, list(rows.values()), sweep.parameters)
+                last_write = time.perf_counter()
+    except BaseException:
+        client.cancel(list(futures))
+        write_table(table_path, list(rows.values()), sweep.parameters)
+        raise
+    finally:
+        bar.close()
+
+
+__all__ = ["SWEEP_FILE", "SweepResult", "TABLE_FILE", "VARIANTS_DIR", "dask_client", "default_out_dir", "run_sweep",
+           "variant_tasks"]

@@ -1,0 +1,401 @@
+"""Sweep files: read, validate, and expand into validated variant scenario documents.
+
+A sweep file names a base scenario and the axes to vary (docs/sweeps.md)::
+
+    [sweep]
+    name = "calibration_noise_mc"
+    base = "calibration.toml"          # relative to this file
+    metrics = ["calibrated_max_position_error_mm"]   # optional: summary leaves to tabulate (globs)
+
+    [overrides]                        # optional: set in every variant
+    "selection.restarts" = 2
+
+    [[axes]]                           # grid axis
+    key = "tracker.position_sigma"
+    values = ["0.05 mm", "0.1 mm", "0.2 mm"]
+
+    [[axes]]                           # Monte Carlo axis
+    key = "tracker.noise_seed"
+    seeds = 20
+
+    [report]                           # optional figure
+    metric = "calibrated_max_position_error_mm"
+    parameter = "tracker.position_sigma"
+
+The variants are the cartesian product of the grid axes (first axis slowest) times the
+Monte Carlo draws (all Monte Carlo axes have the same number of draws and are zipped:
+draw i takes the i-th value of each). ``load_sweep`` checks everything before anything
+runs: the sweep file's own keys, each axis key against the base job's schema, and every
+variant document with the job's full validation (``load_document``), so a value of the
+wrong type or unit is a ``ScenarioError`` naming the sweep file, the axis value and what
+the job expected.
+"""
+from __future__ import annotations
+
+import hashlib
+import itertools
+import json
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from cosim.scenario import ScenarioError, load_document, load_scenario
+from cosim.scenario.loader import NAME_PATTERN, Scenario
+from cosim.scenario.schema import AnyValue, Field, FilePath, Integer, List, String, Table, Where, validate
+from cosim.sweep.axes import DISTRIBUTION, DISTRIBUTIONS, GRID, SEEDS, Axis, distribution_draws, seed_values
+from cosim.sweep.keypath import (KeyPath, KeyPathSyntaxError, absolute_paths, format_key_path, get_path,
+                                 overlapping, parse_key_path, spec_at, with_value)
+
+#: Key paths a sweep may not vary (they name the run, not the experiment).
+FIXED_KEYS: tuple[KeyPath, ...] = (("scenario", "name"), ("scenario", "job"), ("output",))
+#: Figure kinds of [report]: every variant as a dot plus the mean per x value, or a box per x value.
+REPORT_KINDS = ("points", "box")
+
+SWEEP_TABLE = Table({
+    "name": Field(String(pattern=NAME_PATTERN, pattern_doc="of letters, digits, '_', '.', '-' (used as folder name)"),
+                  required=True),
+    "base": Field(FilePath(must_exist=True, suffix=".toml"), required=True,
+                  doc="the base scenario: a path to a .toml file relative to the sweep file"),
+    "description": Field(String(nonempty=False), default=""),
+    "metrics": Field(List(String(), min_len=1),
+                     doc="summary.json leaves to tabulate, as key paths with * globs (default: every numeric leaf)"),
+    "retries": Field(Integer(min=0, max=20), default=2,
+                     doc="re-runs of a variant whose worker died or whose task raised"),
+}, doc="the [sweep] table")
+
+DISTRIBUTION_TABLE = Table({
+    "kind": Field(String(choices=tuple(DISTRIBUTIONS)), required=True),
+    **{name: Field(AnyValue(), doc="a number or a unit string")
+       for name in sorted({p for params in DISTRIBUTIONS.values() for p in params})},
+}, doc="a distribution table {kind = 'normal', mean = ..., std = ...}")
+
+
+def _check_distribution(table: dict, where: Where) -> None:
+    wanted = DISTRIBUTIONS[table["kind"]]
+    for name in wanted:
+        if name not in table:
+            raise (where / name).error(f"the parameters {', '.join(wanted)} of a {table['kind']} distribution",
+                                       problem="missing required key")
+    for name in table:
+        if name != "kind" and name not in wanted:
+            raise (where / name).error(f"only the parameters {', '.join(wanted)} of a {table['kind']} distribution",
+                                       problem="unknown key")
+
+
+DISTRIBUTION_TABLE.check_fn = _check_distribution
+
+AXIS_TABLE = Table({
+    "key": Field(String(), required=True, doc="a key path of the base scenario, e.g. 'tracker.noise_sigma'"),
+    "values": Field(List(AnyValue()), doc="grid values"),
+    "seeds": Field(Integer(min=0), doc="the number of integer seeds (Monte Carlo)"),
+    "first_seed": Field(Integer(min=0), doc="the first seed (with seeds; default 0)"),
+    "distribution": Field(DISTRIBUTION_TABLE),
+    "samples": Field(Integer(min=0), doc="the number of draws (with distribution)"),
+    "seed": Field(Integer(min=0), doc="the random seed of the draws (with distribution; default 0)"),
+}, one_of=[("values", "seeds", "distribution")], doc="an [[axes]] table")
+
+
+def _check_axis(table: dict, where: Where) -> None:
+    only = {"first_seed": SEEDS, "samples": DISTRIBUTION, "seed": DISTRIBUTION}
+    for key, owner in only.items():
+        if key in table and owner not in table:
+            raise (where / key).error(f"{key} only together with {owner}", table[key], problem="misplaced key")
+    if "distribution" in table and "samples" not in table:
+        raise (where / "samples").error("the number of draws: an integer >= 1", problem="missing required key")
+    for key in ("values", "seeds", "samples"):
+        if key in table and table[key] in ([], 0):
+            raise (where / key).error("at least one value (an empty axis gives no variants)", table[key],
+                                      problem="empty axis")
+
+
+AXIS_TABLE.check_fn = _check_axis
+
+REPORT_TABLE = Table({
+    "metric": Field(String(), required=True,
+                    doc="the table column to plot (a summary.json leaf such as 'calibrated.e_x.max'; * globs)"),
+    "parameter": Field(String(), required=True, doc="the axis key on the x axis"),
+    "group": Field(String(), doc="an axis key: one series per value"),
+    "kind": Field(String(choices=REPORT_KINDS), default="points"),
+    "file": Field(String(pattern=r"[A-Za-z0-9_.-]+\.png", pattern_doc="naming a .png file in the sweep folder"),
+                  default="sweep.png"),
+    "title": Field(String(nonempty=False), default=""),
+    "x_scale": Field(String(choices=("linear", "log")), default="linear"),
+    "y_scale": Field(String(choices=("linear", "log")), default="linear"),
+}, doc="the [report] table")
+
+SWEEP_SCHEMA = Table({
+    "sweep": Field(SWEEP_TABLE, required=True, doc="a [sweep] table with name and base"),
+    "overrides": Field(Table({}, extra=AnyValue(), doc="a table of <key path> = <value>"), default={}),
+    "axes": Field(List(AXIS_TABLE, min_len=1), required=True, doc="at least one [[axes]] table"),
+    "report": Field(REPORT_TABLE),
+}, doc="a sweep document")
+
+
+@dataclass(frozen=True)
+class Report:
+    """The [report] figure: ``metric`` (a table column, globs allowed) against the axis ``parameter``."""
+
+    metric: str
+    parameter: str
+    group: str | None = None
+    kind: str = "points"
+    file: str = "sweep.png"
+    title: str = ""
+    x_scale: str = "linear"
+    y_scale: str = "linear"
+
+
+@dataclass
+class Variant:
+    """One point of a sweep.
+
+    Attributes:
+        index: position in the sweep (0-based).
+        id: ``v0000``, ``v0001``, ... (folder name under ``variants/``).
+        params: axis key -> the value put into the scenario (as written, e.g. ``"0.1 mm"``).
+        values: axis key -> the same value as the job validated it (SI numbers; the table's columns).
+        document: the variant's scenario document (raw TOML values, file paths absolute).
+        hash: SHA-256 (hex, 16 chars) of job + document: a finished folder with this hash is reused.
+    """
+
+    index: int
+    id: str
+    params: dict[str, Any]
+    values: dict[str, Any]
+    document: dict[str, Any] = field(repr=False)
+    hash: str = ""
+
+
+@dataclass
+class Sweep:
+    """A validated sweep file and its variants (all validated by the base job)."""
+
+    path: Path
+    name: str
+    description: str
+    base: Scenario
+    axes: list[Axis]
+    overrides: dict[str, Any]
+    metrics: list[str] | None
+    retries: int
+    report: Report | None
+    variants: list[Variant]
+
+    @property
+    def job(self) -> str:
+        """The base scenario's job type."""
+        return self.base.job.name
+
+    @property
+    def parameters(self) -> list[str]:
+        """The axis keys (the parameter columns of the table), in file order."""
+        return [a.key for a in self.axes]
+
+
+def variant_hash(job: str, document: dict[str, Any]) -> str:
+    """Hash of what a variant runs: the job and its whole scenario document."""
+    text = json.dumps({"job": job, "document": document}, sort_keys=True, default=str, separators=(",", ":"))
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()[:16]
+
+
+def _parse_path(text: str, where: Where, base: Scenario) -> KeyPath:
+    """Parse and check a key path against the base job's schema; ScenarioError at ``where`` otherwise."""
+    try:
+        path = parse_key_path(text)
+        spec_at(base.job.schema, path, base.raw)
+    except KeyPathSyntaxError as exc:
+        raise where.error(f"a key path of the {base.job.name!r} job's scenario (e.g. 'section.key', "
+                          f"'list[0].key', quoted keys '\"q0[2]\"')", text, problem=f"unknown axis: {exc}") from None
+    for fixed in FIXED_KEYS:
+        if overlapping(path, fixed):
+            raise where.error(f"a key other than {format_key_path(fixed)} (a sweep names its variants itself)", text,
+                              problem="not a sweep axis")
+    return path
+
+
+def _file_value(base: Scenario, path: KeyPath, value: Any, sweep_dir: Path) -> Any:
+    """A value given in the sweep file, with relative file paths resolved against the sweep file's folder."""
+    return absolute_paths(spec_at(base.job.schema, path, base.raw), value, sweep_dir)
+
+
+def _flatten_overrides(table: dict[str, Any], where: Where, prefix: KeyPath = ()) -> list[tuple[KeyPath, Any, Where]]:
+    """``{"a.b": 1, "c": {"d": 2}}`` -> [(("a","b"), 1, ...), (("c","d"), 2, ...)]."""
+    out = []
+    for key, value in table.items():
+        w = where / key
+        try:
+            path = prefix + parse_key_path(key)
+        except KeyPathSyntaxError as exc:
+            raise w.error("a key path such as 'section.key'", key, problem=str(exc)) from None
+        if isinstance(value, dict):
+            out.extend(_flatten_overrides(value, w, path))
+        else:
+            out.append((path, value, w))
+    return out
+
+
+def _axis(table: dict, where: Where, base: Scenario, sweep_dir: Path) -> Axis:
+    path = _parse_path(table["key"], where / "key", base)
+    key = format_key_path(path)
+    if "values" in table:
+        values = [_file_value(base, path, v, sweep_dir) for v in table["values"]]
+        return Axis(key, path, GRID, tuple(values), where, "values")
+    if "seeds" in table:
+        return Axis(key, path, SEEDS, tuple(seed_values(table["seeds"], table.get("first_seed", 0))), where, "seeds")
+    draws = distribution_draws(table["distribution"], table["samples"], table.get("seed", 0), key,
+                               where / "distribution")
+    return Axis(key, path, DISTRIBUTION, tuple(draws), where, "distribution")
+
+
+def _problem_of(exc: ScenarioError) -> str:
+    """The 'problem' part of a ScenarioError message (between the position and 'expected'), or ''."""
+    head = f"{exc.file if exc.file is not None else '<scenario>'}" + (f": {exc.key}" if exc.key else "") + ": "
+    text = str(exc)
+    rest = text[len(head):] if text.startswith(head) else text
+    return rest.split("; expected ", 1)[0] if "; expected " in rest else ""
+
+
+def _blame(exc: ScenarioError, sweep_path: Path, variant_id: str, choices: list[tuple[Axis, int]],
+           overrides: list[tuple[KeyPath, Any, Where]], base: Scenario) -> ScenarioError:
+    """Turn a variant's validation error into one naming the sweep file and the axis value responsible."""
+    try:
+        err_path = parse_key_path(exc.key) if exc.key else ()
+    except KeyPathSyntaxError:
+        err_path = ()
+    base_name = base.path.name if base.path is not None else "the base scenario"
+    problem = _problem_of(exc)
+    candidates = [(len(axis.path), axis.value_where(i), axis.key, axis.values[i]) for axis, i in choices
+                  if err_path and overlapping(axis.path, err_path)]
+    candidates += [(len(path), w, format_key_path(path), value) for path, value, w in overrides
+                   if err_path and overlapping(path, err_path)]
+    if candidates:
+        _, where, key, value = max(candidates, key=lambda c: c[0])
+        where_text = f" at {exc.key}" if exc.key != key else ""
+        return ScenarioError(where.file, where.key,
+                             f"{exc.expected} (the {base.job.name!r} job's rule for {key}{where_text} "
+                             f"in {base_name}; variant {variant_id})",
+                             value, problem=(problem or None))
+    params = ", ".join(f"{axis.key} = {axis.values[i]!r}" for axis, i in choices)
+    return ScenarioError(sweep_path, "axes", f"axis values the base scenario accepts together; the {base.job.name!r} "
+                         f"job says: {exc}", problem=f"variant {variant_id} ({params}) is not a valid scenario")
+
+
+def _variant_id(index: int, count: int) -> str:
+    return f"v{index:0{max(4, len(str(count - 1)))}d}"
+
+
+def _expand(sweep_path: Path, base: Scenario, axes: list[Axis],
+            overrides: list[tuple[KeyPath, Any, Where]]) -> list[Variant]:
+    grid = [a for a in axes if not a.monte_carlo]
+    monte_carlo = [a for a in axes if a.monte_carlo]
+    draws = len(monte_carlo[0].values) if monte_carlo else 1
+    base_doc = absolute_paths(base.job.schema, base.raw, base.where.base_dir)
+    for path, value, _ in overrides:
+        base_doc = with_value(base_doc, path, value)
+    total = draws
+    for a in grid:
+        total *= len(a.values)
+    variants: list[Variant] = []
+    for combo in itertools.product(*(range(len(a.values)) for a in grid)):
+        for draw in range(draws):
+            index = len(variants)
+            vid = _variant_id(index, total)
+            chosen = dict(zip((id(a) for a in grid), combo))
+            choices = [(a, chosen[id(a)] if not a.monte_carlo else draw) for a in axes]
+            doc = base_doc
+            for axis, i in choices:
+                doc = with_value(doc, axis.path, axis.values[i])
+            doc["scenario"] = {**doc["scenario"], "name": f"{base.name}.{vid}"}
+            try:
+                scenario = load_document(doc, base.path)
+            except ScenarioError as exc:
+                raise _blame(exc, sweep_path, vid, choices, overrides, base) from None
+            params = {axis.key: axis.values[i] for axis, i in choices}
+            values = {axis.key: get_path(scenario.data, axis.path, axis.values[i]) for axis, i in choices}
+            variants.append(Variant(index, vid, params, values, doc, variant_hash(base.job.name, doc)))
+    return variants
+
+
+def load_sweep(path: str | Path) -> Sweep:
+    """Read and validate the sweep file ``path`` and every variant; ScenarioError on any problem.
+
+    Nothing runs here (the base job's checks may build the project's FMUs once).
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ScenarioError(path, "", "an existing sweep .toml file", problem="file not found")
+    try:
+        with open(path, "rb") as f:
+            raw = tomllib.load(f)
+    except tomllib.TOMLDecodeError as exc:
+        raise ScenarioError(path, "", "valid TOML", problem=str(exc)) from None
+    return load_sweep_document(raw, path)
+
+
+def load_sweep_document(raw: dict[str, Any], path: str | Path) -> Sweep:
+    """Validate an already parsed sweep document (``path`` names it and anchors relative paths)."""
+    where = Where(Path(path).resolve())
+    doc = validate(SWEEP_SCHEMA, raw, where)
+    head = doc["sweep"]
+    try:
+        base = load_scenario(head["base"])
+    except ScenarioError as exc:
+        raise (where / "sweep" / "base").error("a valid scenario file", raw["sweep"]["base"],
+                                               problem=f"the base scenario is invalid: {exc}") from None
+    sweep_dir = where.base_dir
+    axes: list[Axis] = []
+    for i, table in enumerate(doc["axes"]):
+        axis = _axis(table, (where / "axes")[i], base, sweep_dir)
+        for other in axes:
+            if overlapping(axis.path, other.path):
+                raise ((where / "axes")[i] / "key").error(
+                    f"a key not set by another axis ({other.where.key} sets {other.key})", table["key"],
+                    problem="axes overlap")
+        axes.append(axis)
+    monte_carlo = [a for a in axes if a.monte_carlo]
+    for axis in monte_carlo[1:]:
+        if len(axis.values) != len(monte_carlo[0].values):
+            count_key = "seeds" if axis.kind == SEEDS else "samples"
+            raise (axis.where / count_key).error(
+                f"the same number of draws as {monte_carlo[0].where.key} ({len(monte_carlo[0].values)}): Monte Carlo "
+                f"axes are drawn together", len(axis.values))
+    overrides = []
+    for opath, value, w in _flatten_overrides(doc["overrides"], where / "overrides"):
+        checked = _parse_path(format_key_path(opath), w, base)
+        for axis in axes:
+            if overlapping(checked, axis.path):
+                raise w.error(f"a key no axis varies ({axis.where.key} varies {axis.key})", value,
+                              problem="override of an axis")
+        overrides.append((checked, _file_value(base, checked, value, sweep_dir), w))
+    report = None
+    if "report" in doc:
+        report = _report(doc["report"], where / "report", axes)
+    variants = _expand(where.file, base, axes, overrides)
+    return Sweep(where.file, head["name"], head["description"], base, axes,
+                 {format_key_path(p): v for p, v, _ in overrides}, head.get("metrics"), head["retries"], report,
+                 variants)
+
+
+def _report(table: dict, where: Where, axes: list[Axis]) -> Report:
+    keys = [a.key for a in axes]
+
+    def axis_key(name: str) -> str:
+        try:
+            key = format_key_path(parse_key_path(table[name]))
+        except KeyPathSyntaxError:
+            key = table[name]
+        if key not in keys:
+            raise (where / name).error(f"one of the axis keys {keys}", table[name])
+        return key
+
+    parameter = axis_key("parameter")
+    group = axis_key("group") if "group" in table else None
+    if group == parameter:
+        raise (where / "group").error("an axis key other than the parameter", table["group"])
+    return Report(table["metric"], parameter, group, table["kind"], table["file"], table["title"],
+                  table["x_scale"], table["y_scale"])
+
+
+__all__ = ["FIXED_KEYS", "REPORT_KINDS", "Report", "SWEEP_SCHEMA", "Sweep", "Variant", "load_sweep",
+           "load_sweep_document", "variant_hash"]
