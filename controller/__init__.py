@@ -10,12 +10,13 @@ Middle floor: imports ``robot`` and ``fieldbus`` only. Public API::
 from controller.controller import (MODES, Controller, ControllerConfig, ControllerConfigError, ControllerLog, Phase,
                                    start_configuration)
 from controller.cycle_timer import CycleTimer, TimingSummary
+from controller.drive_compensation import DriveLoopModel, SetpointShaper, speed_comparison_lead
 from controller.feedforward import FeedForward
 from controller.joint_reference import CartesianToJoint, SingularConfigurationError
 from controller.reference import JointSample, JointTrajectory, ReferenceError, TcpSample, TcpTrajectory, quintic_hermite
 
 __all__ = [
     "MODES", "CartesianToJoint", "Controller", "ControllerConfig", "ControllerConfigError", "ControllerLog",
-    "CycleTimer", "FeedForward", "JointSample", "JointTrajectory", "Phase", "ReferenceError",
-    "SingularConfigurationError", "TcpSample", "TcpTrajectory", "TimingSummary", "quintic_hermite", "start_configuration",
+    "CycleTimer", "DriveLoopModel", "FeedForward", "JointSample", "JointTrajectory", "Phase", "ReferenceError",
+    "SetpointShaper", "SingularConfigurationError", "TcpSample", "TcpTrajectory", "TimingSummary", "quintic_hermite", "speed_comparison_lead", "start_configuration",
 ]

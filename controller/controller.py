@@ -17,7 +17,9 @@ controller's kinematic model (warm started), consistent ``qd_d``, ``qdd_d``
 (:mod:`controller.joint_reference`), then - mode ``model_based`` - the feed-forward
 torque of eq. 7 from the controller's dynamic model (:mod:`controller.feedforward`);
 mode ``standard`` sends the set-points with a zero torque offset (the drives' own
-cascade alone, as an industrial controller without a model). A joint reference
+cascade alone, as an industrial controller without a model). With a ``drive_model``
+the model-based mode also shapes the target positions so the drives' speed
+feed-forward and speed filter add no lag (:mod:`controller.drive_compensation`). A joint reference
 (:class:`controller.reference.JointTrajectory`) skips the IK.
 
 Phases: ``enabling`` (CiA 402 enable sequence per drive with
@@ -48,6 +50,7 @@ import numpy as np
 import pinocchio as pin
 
 from controller.cycle_timer import CycleTimer, TimingSummary
+from controller.drive_compensation import DriveLoopModel, SetpointShaper
 from controller.feedforward import FeedForward
 from controller.joint_reference import CartesianToJoint, SingularConfigurationError
 from controller.reference import JointTrajectory, TcpTrajectory
@@ -126,18 +129,20 @@ class ControllerLog:
     Columns (one row per call of :meth:`Controller.step`): ``t`` (cycle time, s),
     ``t_apply`` (time the set-point acts, s), ``phase`` (:class:`Phase`), ``tau`` (trajectory
     time of the set-point, s), ``q_d``, ``qd_d``, ``qdd_d`` (6 each: rad, rad/s, rad/s^2),
-    ``tau_ff`` (6, N m: the torque offset sent), ``q_obs`` (6, rad: position actual seen
-    this cycle), ``compute_us`` (NaN when not timed), ``ik_iterations``.
+    ``tau_ff`` (6, N m: the torque offset sent), ``target`` (6, rad: the target position
+    sent; differs from q_d with drive set-point shaping), ``q_obs`` (6, rad: position
+    actual seen this cycle), ``compute_us`` (NaN when not timed), ``ik_iterations``.
     """
 
     def __init__(self, capacity: int) -> None:
         self.rows = 0
         n = max(int(capacity), 16)
         self.scalars = np.full((n, 6), np.nan)  # t, t_apply, phase, tau, compute_us, ik_iterations
-        self.joints = np.full((n, 5, N_JOINTS), np.nan)  # q_d, qd_d, qdd_d, tau_ff, q_obs
+        self.joints = np.full((n, 6, N_JOINTS), np.nan)  # q_d, qd_d, qdd_d, tau_ff, target, q_obs
 
     def append(self, t: float, t_apply: float, phase: int, tau: float, q: np.ndarray, qd: np.ndarray,
-               qdd: np.ndarray, tau_ff: np.ndarray, q_obs: np.ndarray, compute_us: float, iterations: int) -> None:
+               qdd: np.ndarray, tau_ff: np.ndarray, target: np.ndarray, q_obs: np.ndarray, compute_us: float,
+               iterations: int) -> None:
         """Add one row (values copied)."""
         k = self.rows
         if k == self.scalars.shape[0]:
@@ -155,16 +160,17 @@ class ControllerLog:
         block[1] = qd
         block[2] = qdd
         block[3] = tau_ff
-        block[4] = q_obs
+        block[4] = target
+        block[5] = q_obs
         self.rows = k + 1
 
     def columns(self) -> dict[str, np.ndarray]:
         """Flat columns (copies) named ``t, t_apply, phase, tau, q_d1..6, qd_d1..6, qdd_d1..6,
-        tau_ff1..6, q_obs1..6, compute_us, ik_iterations``."""
+        tau_ff1..6, target1..6, q_obs1..6, compute_us, ik_iterations``."""
         n = self.rows
         s = self.scalars[:n]
         out = {"t": s[:, 0].copy(), "t_apply": s[:, 1].copy(), "phase": s[:, 2].copy(), "tau": s[:, 3].copy()}
-        for g, name in enumerate(("q_d", "qd_d", "qdd_d", "tau_ff", "q_obs")):
+        for g, name in enumerate(("q_d", "qd_d", "qdd_d", "tau_ff", "target", "q_obs")):
             for j in range(N_JOINTS):
                 out[f"{name}{j + 1}"] = self.joints[:n, g, j].copy()
         out["compute_us"] = s[:, 4].copy()
@@ -197,12 +203,18 @@ class Controller:
         dynamics: the model of the feed-forward (default: the nominal
             :class:`RobotDynamics`); unused in mode ``standard``.
         q_hint: joint angles (6,) rad near the wanted IK branch of the start pose.
+        drive_model: the drives' position-loop structure
+            (:class:`controller.drive_compensation.DriveLoopModel`); in mode
+            ``model_based`` the targets are shaped with it so that the drives' speed
+            feed-forward and filter add no lag (:mod:`controller.drive_compensation`);
+            None sends q_d unchanged.
         capacity: expected number of cycles (log preallocation).
     """
 
     def __init__(self, reference: TcpTrajectory | JointTrajectory, config: ControllerConfig | None = None, *,
                  kinematic_model: pin.Model | None = None, dynamics: RobotDynamics | None = None,
-                 q_hint: np.ndarray | None = None, capacity: int = 65536) -> None:
+                 q_hint: np.ndarray | None = None, drive_model: DriveLoopModel | None = None,
+                 capacity: int = 65536) -> None:
         from robot.description import load_model
 
         self.config = config or ControllerConfig()
@@ -220,6 +232,12 @@ class Controller:
         self._ik = CartesianToJoint(self.kinematic_model) if isinstance(reference, TcpTrajectory) else None
         if self._ik is not None:
             self._ik.reset(self.q_start)
+        self._shaper = SetpointShaper(drive_model) if (drive_model is not None and self.model_based) else None
+        if self._shaper is not None:
+            if abs(drive_model.period_s - self.config.period_s) > 1e-12:
+                raise ControllerConfigError(f"drive_model.period_s = {drive_model.period_s!r}: expected the "
+                                            f"controller period {self.config.period_s!r} s")
+            self._shaper.reset(self.q_start)
         self.timer = CycleTimer(self.config.compute_budget_s, capacity)
         self.log = ControllerLog(capacity)
         self.setpoints = Setpoints.zeros(N_JOINTS)
@@ -331,8 +349,9 @@ class Controller:
         elapsed = time.perf_counter_ns() - started
         if timed:
             self.timer.record(elapsed)
-        self.log.append(t, t + cfg.lead_time_s, int(self.phase), tau, sp.position, self._qd_d, self._qdd_d,
-                        sp.torque_offset, observed.position, elapsed * 1e-3 if timed else math.nan, iterations)
+        self.log.append(t, t + cfg.lead_time_s, int(self.phase), tau, self._q_d, self._qd_d, self._qdd_d,
+                        sp.torque_offset, sp.position, observed.position, elapsed * 1e-3 if timed else math.nan,
+                        iterations)
         return sp
 
     def _enable(self, observed: ObservedActuals, sp: Setpoints) -> None:
@@ -355,18 +374,23 @@ class Controller:
             sample = ref.sample(ref.t_start + tau)
             q, qd, qdd = sample.q, sample.qd, sample.qdd
             iterations = 0
-        sp.position[:] = q
+        self._q_d[:] = q
         self._qd_d[:] = qd
         self._qdd_d[:] = qdd
         if self.model_based:
             sp.torque_offset[:] = self.feedforward.torque(q, qd, qdd)
+            sp.position[:] = q if self._shaper is None else self._shaper.shape(q, qd, qdd)
         else:
             sp.torque_offset[:] = 0.0
+            sp.position[:] = q
         return iterations
 
     def _stop_condition(self, observed: ObservedActuals, phase: Phase) -> str | None:
         """Why motion must stop now (None: no reason)."""
         faults = observed.node_fault.tolist()
+        if phase is not Phase.ENABLING and not any(faults) and all(
+                (s & 0x6F) == 0x27 for s in observed.statusword.tolist()):
+            return None  # fast path: every drive in Operation enabled
         if any(faults):
             nodes = [i + 1 for i, f in enumerate(faults) if f]
             return f"fieldbus node fault (threshold counter reached) on node(s) {nodes}"
@@ -389,3 +413,6 @@ class Controller:
         self.stopped_at_s = t
         # hold where the drives are (the last set-point where no fresh value arrived)
         self._hold[:] = np.where(observed.fresh, observed.position, self.setpoints.position)
+        self._q_d[:] = self._hold
+        self._qd_d[:] = 0.0
+        self._qdd_d[:] = 0.0

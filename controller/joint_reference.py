@@ -16,7 +16,9 @@ Jacobian is pinocchio's ``LOCAL_WORLD_ALIGNED`` frame Jacobian of ``tool0`` and
 
 The IK is :class:`robot.inverse_kinematics.NumericIK` (Newton on SE(3), LAPACK), warm
 started from a second-order prediction ``q + qd h + qdd h^2 / 2`` of the last solution
-(``h`` = time since it), which usually leaves one Newton step.
+(``h`` = time since it), which leaves one Newton step; that step is taken here with
+NumericIK's own acceptance rule (no call overhead), anything else goes to
+``NumericIK.solve``.
 """
 from __future__ import annotations
 
@@ -24,7 +26,7 @@ import numpy as np
 import pinocchio as pin
 from scipy.linalg import lapack
 
-from robot.inverse_kinematics import NumericIK
+from robot.inverse_kinematics import LIMIT_TOLERANCE, NumericIK
 
 N_JOINTS = 6
 DEFAULT_IK_TOLERANCE = 1e-10
@@ -56,6 +58,8 @@ class CartesianToJoint:
         self._seed = np.zeros(N_JOINTS)
         self._rhs = np.zeros(N_JOINTS)
         self._have_seed = False
+        self._lower = (self.ik.lower - LIMIT_TOLERANCE).tolist()
+        self._upper = (self.ik.upper + LIMIT_TOLERANCE).tolist()
         self.last_iterations = 0
         """Newton steps of the last IK (-1: the IK fell back to the analytic branches)."""
 
@@ -69,24 +73,47 @@ class CartesianToJoint:
     def solve(self, target: pin.SE3, twist: np.ndarray, acceleration: np.ndarray,
               h: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """q_d, qd_d, qdd_d (reused arrays) for the flange ``target`` placement (m),
-        ``twist`` (6,) (m/s, rad/s) and ``acceleration`` (6,) (m/s^2, rad/s^2)."""
+        ``twist`` (6,) (m/s, rad/s) and ``acceleration`` (6,) (m/s^2, rad/s^2).
+
+        Fast path (the normal case in a cycle): from the predicted seed, the NumericIK
+        Newton step - SE(3) error ``log6(M(seed)^-1 M_target)``, local frame Jacobian,
+        LAPACK solve - accepted without a further FK when error and step lie below
+        NumericIK's acceptance bound (its tolerance is then met, see
+        ``NumericIK._acceptance_bound``) and the result is inside the joint limits.
+        Otherwise :meth:`NumericIK.solve` from the same seed (more Newton steps, or the
+        analytic branches as fallback).
+        """
         if not self._have_seed:
             raise RuntimeError("CartesianToJoint.solve: call reset(q_start) first")
         seed = self._seed
         np.multiply(self.qdd, 0.5 * h * h, out=seed)
         seed += self.q
         seed += self.qd * h
-        q = self.ik.solve(target, seed)
-        self.last_iterations = self.ik.last_iterations
-        model, data = self.model, self.data
-        jac = pin.computeFrameJacobian(model, data, q, self.frame_id, pin.LOCAL_WORLD_ALIGNED)
+        ik = self.ik
+        model, data, fid = self.model, self.data, self.frame_id
+        q = None
+        pin.forwardKinematics(model, data, seed)
+        err = pin.log6(pin.updateFramePlacement(model, data, fid).actInv(target)).vector
+        err2 = err.dot(err)
+        if err2 <= ik._tol2:
+            q, iterations = seed.copy(), 0
+        elif err2 <= ik._accept2:
+            jac = pin.computeFrameJacobian(model, data, seed, fid, pin.LOCAL)
+            _, _, dq, info = lapack.dgesv(jac, err)
+            if info == 0 and dq.dot(dq) <= ik._accept2:
+                q, iterations = seed + dq, 1
+        if q is None or not all(lo <= x <= hi for lo, x, hi in zip(self._lower, q.tolist(), self._upper)):
+            q = ik.solve(target, seed)
+            iterations = ik.last_iterations
+        self.last_iterations = iterations
+        jac = pin.computeFrameJacobian(model, data, q, fid, pin.LOCAL_WORLD_ALIGNED)
         lu, piv, info = lapack.dgetrf(jac)
         if info != 0:
             raise SingularConfigurationError(
                 f"the flange Jacobian is singular at q = {np.round(q, 6).tolist()} rad: no joint velocity")
         qd, info = lapack.dgetrs(lu, piv, twist)
         pin.forwardKinematics(model, data, q, qd, self._zeros)
-        drift = pin.getFrameClassicalAcceleration(model, data, self.frame_id, pin.LOCAL_WORLD_ALIGNED).vector
+        drift = pin.getFrameClassicalAcceleration(model, data, fid, pin.LOCAL_WORLD_ALIGNED).vector
         np.subtract(acceleration, drift, out=self._rhs)
         qdd, info = lapack.dgetrs(lu, piv, self._rhs)
         self.q[:] = q

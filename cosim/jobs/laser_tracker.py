@@ -34,13 +34,15 @@ TRACKER_VARIABLES: tuple[str, ...] = ("tracker.x", "tracker.y", "tracker.z")
 DEFAULT_PERIOD_S = 1e-3
 """Sampling period of the tracker, s (paper section 2.3.3: LTD600 at 1 ms)."""
 
-DEFAULT_POSITION_SIGMA_M = 5e-6
-"""Laser-tracker position noise, standard deviation per base-frame axis: 5 µm. Source:
-Leica LTD600 class, coordinate uncertainty about +-10 ppm (2 sigma) of the distance,
-i.e. about 15-25 µm (2 sigma) at the 1.5-2.5 m of a robot cell for static points, of
-which most is a slowly varying systematic part; the sample-to-sample noise at 1 kHz
-(interferometer resolution 1.26 µm, angle encoders 0.14 arc s ~ 1.4 µm at 2 m) is a
-few µm. Scenario key ``[tracker] noise_sigma``."""
+DEFAULT_POSITION_SIGMA_M = 2e-6
+"""Laser-tracker position noise, standard deviation per base-frame axis: 2 µm. Source:
+the sample-to-sample noise of a Leica LTD600-class tracker at 1 kHz comes from its
+resolutions - interferometer 1.26 µm along the beam, angle encoders 0.14 arc s
+(0.68 µrad, 1.4 µm at the 2 m of a robot cell) across it - so a couple of µm. Its
++-10 ppm coordinate accuracy (2 sigma, 15-25 µm at 1.5-2.5 m) is a slowly varying
+systematic error (angle-encoder and registration errors) that does not change within a
+path run; it is not modelled. Scenario key ``[tracker] noise_sigma``; the maximum TCP
+error over ~12 000 samples contains about 4.5 sigma of noise (see docs/main_job.md)."""
 
 
 class TrackerConfigError(ValueError):

@@ -35,7 +35,7 @@ from typing import Any
 
 import numpy as np
 
-from controller import Controller
+from controller import Controller, DriveLoopModel, speed_comparison_lead
 from cosim.jobs.laser_tracker import TRACKER_VARIABLES, LaserTracker, TrackerConfig
 from cosim.master import Master, MemorySink, SimulationError
 from cosim.scenario.context import RunContext
@@ -132,6 +132,28 @@ def cell_fmus(doc_fmus: list[dict[str, Any]], true_robot: TrueRobot, q0: Sequenc
             axis = DRIVES.index(fmu["name"]) + 1
             fmu["parameters"] = {**drive_start_values(axis), **fmu["parameters"]}
     return fmus
+
+
+def drive_parameters(doc_fmus: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Each drive's effective parameters (defaults of its axis + the scenario's), axis 1..6."""
+    by_name = {fmu["name"]: fmu for fmu in doc_fmus}
+    return [{**drive_start_values(axis), **by_name[d]["parameters"]} for axis, d in enumerate(DRIVES, start=1)]
+
+
+def drive_loop_model(doc_fmus: list[dict[str, Any]], period_s: float) -> DriveLoopModel:
+    """What the model-based controller knows of the drives' position loops (their Kv,
+    speed feed-forward gain and speed-comparison lead), from the effective parameters."""
+    params = drive_parameters(doc_fmus)
+    for axis, p in enumerate(params, start=1):
+        if abs(p["position_sample_time"] - period_s) > 1e-12:
+            raise ValueError(f"drive{axis}: position_sample_time = {p['position_sample_time']!r} s, expected the "
+                             f"controller period {period_s!r} s for set-point shaping")
+    return DriveLoopModel(
+        position_kv=np.array([p["position_kv"] for p in params]),
+        speed_feedforward_gain=np.array([p["speed_feedforward_gain"] for p in params]),
+        lead_s=np.array([speed_comparison_lead(p["position_sample_time"], p["speed_sample_time"],
+                                               p["speed_filter_time"]) for p in params]),
+        period_s=period_s)
 
 
 class FieldbusLink:

@@ -15,6 +15,8 @@ Definitions (all positions of the flange origin in base_link):
 * **TCP error** ``|m(t) - c(t)|``: the dynamic tracking error the controller and the
   drives make (the paper's Figure 2b quantity). It holds no static geometric error:
   both sides use the true kinematics.
+* **noise-free TCP error** ``|f_DK,true(q(t)) - c(t)|``: the same without the tracker
+  noise (what the tracker would read with a perfect instrument).
 * **path error** ``|m(t) - p_d(t)|``, ``p_d`` the programmed (desired) path: TCP error
   plus the geometric error of an uncalibrated controller model (mm level); reported
   separately.
@@ -106,6 +108,7 @@ class TrackingResult:
     arc_length: np.ndarray
     at_per_segment: dict[int, float]
     at_vs_programmed_per_segment: dict[int, float]
+    tcp_error_noise_free: np.ndarray
 
     def metrics(self, segment_names: list[str] | None = None) -> dict[str, object]:
         """summary.json fields (mm, rad)."""
@@ -122,6 +125,9 @@ class TrackingResult:
             "path_accuracy_AT_mm": nan if empty else float(max(self.at_per_segment.values()) * 1e3),
             "path_accuracy_AT_per_segment_mm": {name(k): v * 1e3 for k, v in self.at_per_segment.items()},
             "joint_lag_max_rad": [nan] * N_JOINTS if empty else np.abs(self.lag).max(axis=0).tolist(),
+            "tcp_error_max_noise_free_mm": nan if empty else float(self.tcp_error_noise_free.max() * 1e3),
+            "tcp_error_rms_noise_free_mm": (nan if empty else
+                                            float(np.sqrt(np.mean(self.tcp_error_noise_free ** 2)) * 1e3)),
             "tcp_path_error_max_mm": nan if empty else float(self.path_error.max() * 1e3),
             "tcp_path_error_rms_mm": nan if empty else float(np.sqrt(np.mean(self.path_error ** 2)) * 1e3),
             "path_accuracy_AT_vs_programmed_mm": (nan if empty else
@@ -134,22 +140,26 @@ class TrackingResult:
 
 def evaluate(t: np.ndarray, q: np.ndarray, measured: np.ndarray, q_d: np.ndarray, commanded: np.ndarray,
              programmed: np.ndarray, segment: np.ndarray, window: tuple[float, float],
-             arc_length: np.ndarray | None = None) -> TrackingResult:
+             arc_length: np.ndarray | None = None, actual: np.ndarray | None = None) -> TrackingResult:
     """Metrics over the samples with ``window[0] <= t <= window[1]`` (s).
 
     ``t`` (m,) s; ``q``, ``q_d`` (m, 6) rad; ``measured``, ``commanded``, ``programmed``
     (m, 3) m; ``segment`` (m,) path segment ids; ``arc_length`` (m,) m along the path
-    (kept for plots; zeros when not given).
+    (kept for plots; zeros when not given); ``actual`` (m, 3) m the true flange without
+    tracker noise (for ``tcp_error_noise_free``; the measured points when not given).
     """
+    if actual is None:
+        actual = measured
     if arc_length is None:
         arc_length = np.zeros(t.shape)
     mask = (t >= window[0] - 1e-9) & (t <= window[1] + 1e-9)
     t, q, measured, q_d = t[mask], q[mask], measured[mask], q_d[mask]
     commanded, programmed, segment, arc_length = commanded[mask], programmed[mask], segment[mask], arc_length[mask]
+    actual = actual[mask]
     lag = q_d - q
     tcp_error = np.linalg.norm(measured - commanded, axis=1)
     path_error = np.linalg.norm(measured - programmed, axis=1)
     at = path_accuracy(measured, commanded, segment) if t.size else {}
     at_prog = path_accuracy(measured, programmed, segment) if t.size else {}
     return TrackingResult(t, q, q_d, lag, commanded, measured, programmed, tcp_error, path_error, segment,
-                          arc_length, at, at_prog)
+                          arc_length, at, at_prog, np.linalg.norm(actual - commanded, axis=1))
