@@ -107,8 +107,8 @@ class ManagingNode:
         self._cycle_time = config.cycle_time_s
         self._t0 = config.start_time_s
         self._sync_overflow = config.scaling.sync_counter_overflow
-        self._wire_preq_timeout = layout.wire_preq + layout.pres_timeout
-        self._prop = list(layout.propagation[1:])
+        # a PRes counts as in time if it reaches the MN within pres_timeout after the PReq
+        self._pres_wait = [layout.wire_preq + layout.pres_timeout - layout.propagation[i + 1] for i in range(n)]
         # per node (index = node - 1), raw telegram values of the last valid PRes
         self._sw = [0] * n
         self._pos = [0] * n
@@ -122,14 +122,11 @@ class ManagingNode:
         self._late = [False] * n
         self._crc = [False] * n
         self._all_fresh = False
-        self._deadline = [0.0] * n
+        self._latest = [0.0] * n  # latest PRes send time the MN accepts (PRes timeout), per node
         self._last_cw = [0] * n
         self.node_fault = [False] * n
-        self._ids: dict[int, tuple[int, int]] = {}
-        for i in range(n):
-            self._ids[TPDO1_BASE + i + 1] = (1, i)
-            self._ids[TPDO2_BASE + i + 1] = (2, i)
-            self._ids[EMCY_BASE + i + 1] = (3, i)
+        self._tpdo1_index = {TPDO1_BASE + i + 1: i for i in range(n)}
+        self._tpdo2_index = {TPDO2_BASE + i + 1: i for i in range(n)}
         # the MN's frames are allocated once and refilled every cycle (allocation-light)
         self._sync_msg = FastMessage(0.0, SYNC_ID, bytearray(1))
         self._preq_msgs = [FastMessage(0.0, RPDO1_BASE + i + 1, bytearray(_RPDO1_LEN)) for i in range(n)]
@@ -172,11 +169,11 @@ class ManagingNode:
         n = self.nodes
         counts = _quantise(position, self._cpr, -2147483648, 2147483647, self.scaling.position_count, "position")
         units = _quantise(torque_offset, self._upn, -32768, 32767, self.scaling.torque_unit, "torque_offset")
-        msgs, deadline, last_cw, wait = self._preq_msgs, self._deadline, self._last_cw, self._wire_preq_timeout
+        msgs, latest, last_cw, wait = self._preq_msgs, self._latest, self._last_cw, self._pres_wait
         node_fault = self.node_fault
         for i in range(n):
             ts = times[i + 1]
-            deadline[i] = ts + wait
+            latest[i] = ts + wait[i]
             cw = controlword[i]
             if cw & CW_FAULT_RESET and not last_cw[i] & CW_FAULT_RESET and node_fault[i]:
                 self._clear_fault(i, ts)
@@ -197,30 +194,34 @@ class ManagingNode:
     def receive_all(self, msgs: list | tuple) -> None:
         """Digest received frames in order; never raises."""
         self.frames_received += len(msgs)
-        ids, prop, deadline = self._ids, self._prop, self._deadline
+        tpdo1, tpdo2, latest = self._tpdo1_index, self._tpdo2_index, self._latest
         sw, pos, tq, vel, err = self._sw, self._pos, self._tq, self._vel, self._err
         got1, got2, late = self._got1, self._got2, self._late
         for msg in msgs:
-            entry = ids.get(msg.arbitration_id)
-            if entry is None or msg.is_error_frame or msg.is_remote_frame or msg.is_extended_id:
-                self._other_frame(msg)
-                continue
-            which, i = entry
-            data = msg.data
-            if which == 1 and len(data) == _TPDO1_LEN:
-                if msg.timestamp + prop[i] > deadline[i]:
-                    late[i] = True
+            if not (msg.is_error_frame or msg.is_remote_frame or msg.is_extended_id):
+                arb = msg.arbitration_id
+                i = tpdo1.get(arb)
+                if i is not None:
+                    data = msg.data
+                    if len(data) == _TPDO1_LEN:
+                        if msg.timestamp > latest[i]:
+                            late[i] = True
+                        else:
+                            sw[i], pos[i], tq[i] = _UNPACK_TPDO1(data)
+                            got1[i] = True
+                        continue
                 else:
-                    sw[i], pos[i], tq[i] = _UNPACK_TPDO1(data)
-                    got1[i] = True
-            elif which == 2 and len(data) == _TPDO2_LEN:
-                if msg.timestamp + prop[i] > deadline[i]:
-                    late[i] = True
-                else:
-                    vel[i], err[i] = _UNPACK_TPDO2(data)
-                    got2[i] = True
-            else:
-                self._other_frame(msg)
+                    i = tpdo2.get(arb)
+                    if i is not None:
+                        data = msg.data
+                        if len(data) == _TPDO2_LEN:
+                            if msg.timestamp > latest[i]:
+                                late[i] = True
+                            else:
+                                vel[i], err[i] = _UNPACK_TPDO2(data)
+                                got2[i] = True
+                            continue
+            self._other_frame(msg)
 
     def _other_frame(self, msg: can.Message) -> None:
         """An EMCY frame, or a frame that cannot be decoded."""

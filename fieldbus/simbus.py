@@ -60,7 +60,11 @@ class SimulatedTimeBus(BusABC):
 
     def send(self, msg: Message, timeout: float | None = None) -> None:
         """Queue ``msg`` (the same object) at every other bus on the channel."""
-        for target in self._targets:
+        targets = self._targets
+        if len(targets) == 1:
+            targets[0].append(msg)
+            return
+        for target in targets:
             target.append(msg)
 
     def _recv_internal(self, timeout: float | None) -> tuple[Message | None, bool]:
