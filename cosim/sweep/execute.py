@@ -39,7 +39,7 @@ from tqdm import tqdm
 
 from cosim.sweep.loader import Sweep
 from cosim.sweep.table import write_table
-from cosim.sweep.task import VariantTask, reuse_finished, run_variant, worker_name
+from cosim.sweep.task import VariantTask, make_row, reuse_finished, run_variant, worker_name
 
 TABLE_FILE = "sweep.csv"
 SWEEP_FILE = "sweep.json"
@@ -109,7 +109,7 @@ def dask_client(workers: int | None = None, scheduler: str | None = None, retrie
         return
     with dask.config.set({"distributed.scheduler.allowed-failures": retries}):
         cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1, processes=True,
-                               dashboard_address=None, silence_logs=logging.ERROR)
+                               dashboard_address=":0", silence_logs=logging.ERROR)
     with cluster, Client(cluster) as client:
         yield client
 
@@ -210,14 +210,15 @@ def _run_tasks(client: Any, sweep: Sweep, todo: list[VariantTask], rows: dict[in
                disable=not progress, dynamic_ncols=True)
     last_write = time.perf_counter()
     try:
-        for future in as_completed(futures):
-            task = futures[future]
+        for future in as_completed(list(futures)):
+            task = futures.pop(future)
             try:
                 row = future.result()
             except Exception as exc:  # KilledWorker, or the task raised after its retries
-                from cosim.sweep.task import make_row
-
                 row = make_row(task, None, None, float("nan"), "", reason=_failure_reason(exc, sweep.retries))
+            # release the result at once: a worker dying later must not make the scheduler recompute it
+            future.release()
+            del future
             rows[task.index] = row
             bar.update(1)
             bar.set_postfix(failed=sum(r["status"] != "ok" for r in rows.values()), refresh=False)

@@ -265,12 +265,16 @@ def _blame(exc: ScenarioError, sweep_path: Path, variant_id: str, choices: list[
         err_path = ()
     base_name = base.path.name if base.path is not None else "the base scenario"
     problem = _problem_of(exc)
-    candidates = [(len(axis.path), axis.value_where(i), axis.key, axis.values[i]) for axis, i in choices
-                  if err_path and overlapping(axis.path, err_path)]
-    candidates += [(len(path), w, format_key_path(path), value) for path, value, w in overrides
+    candidates = [(len(axis.path), axis.value_where(i), axis.key, axis.values[i], axis.where / "key")
+                  for axis, i in choices if err_path and overlapping(axis.path, err_path)]
+    candidates += [(len(path), w, format_key_path(path), value, w) for path, value, w in overrides
                    if err_path and overlapping(path, err_path)]
     if candidates:
-        _, where, key, value = max(candidates, key=lambda c: c[0])
+        _, where, key, value, key_where = max(candidates, key=lambda c: c[0])
+        if problem.startswith("unknown key") and tuple(err_path) == tuple(parse_key_path(key)):
+            # the key itself does not exist for this job (e.g. an FMU parameter the model does not have)
+            return ScenarioError(key_where.file, key_where.key, f"{exc.expected} (the {base.job.name!r} job's rule "
+                                 f"for {key} in {base_name})", key, problem=f"unknown axis: {problem}")
         where_text = f" at {exc.key}" if exc.key != key else ""
         return ScenarioError(where.file, where.key,
                              f"{exc.expected} (the {base.job.name!r} job's rule for {key}{where_text} "
@@ -306,7 +310,6 @@ def _expand(sweep_path: Path, base: Scenario, axes: list[Axis],
             doc = base_doc
             for axis, i in choices:
                 doc = with_value(doc, axis.path, axis.values[i])
-            doc["scenario"] = {**doc["scenario"], "name": f"{base.name}.{vid}"}
             try:
                 scenario = load_document(doc, base.path)
             except ScenarioError as exc:

@@ -2,9 +2,9 @@
 
 ``kind = "points"``: every ok variant as a dot, and the mean over the other axes (e.g.
 the Monte Carlo draws) per x value as a line; ``kind = "box"``: a box plot per x value
-(median, quartiles, 1.5 IQR whiskers). With ``group``, one series per value of that
-axis. Numeric parameters are placed at their values (SI, as in the table); other values
-(strings, lists such as ``["standard"]``) are categories in sweep order. The metric may
+(median, quartiles, 1.5 IQR whiskers), x values as evenly spaced categories. With ``group``, one series per value of that
+axis. For points, numeric parameters are placed at their values (SI, as in the table);
+other values (strings, lists such as ``["standard"]``) are categories in sweep order. The metric may
 be a glob (``modes.*.tcp_error_max_mm``): each row uses its first matching metric.
 """
 from __future__ import annotations
@@ -64,7 +64,7 @@ def plot_report(rows: Sequence[dict[str, Any]], report: Report, path: str | Path
             if left_out else None)
     if not points:
         return None, f"figure not written: no ok variant has a numeric metric matching {report.metric!r}"
-    numeric_x = all(_is_number(x) for x, _, _ in points)
+    numeric_x = report.kind != "box" and all(_is_number(x) for x, _, _ in points)
     categories: list[str] = []
     if not numeric_x:
         for x, _, _ in points:
