@@ -123,7 +123,8 @@ def diagnose_excitation(regressor: ArrayLike, names: tuple[str, ...]) -> Excitat
     a = w.reshape(-1, len(names))
     norms = np.linalg.norm(a, axis=0)
     scale = np.where(norms > 0.0, norms, 1.0)
-    s, vt = np.linalg.svd(a / scale, full_matrices=False)[1:]
+    r = np.linalg.qr(a / scale, mode="r")  # tall-skinny: same singular values as the 6k x n matrix
+    s, vt = np.linalg.svd(r)[1:]
     tiny = s <= s[0] * 1e-13
     cond = math.inf if np.any(tiny) or np.any(norms == 0.0) else float(s[0] / s[-1])
     return ExcitationDiagnosis(cond, s, _weak_parameters(s, vt, norms, names, MAX_CONDITION_NUMBER), norms)
@@ -170,11 +171,16 @@ def check_excitation(regressor: ArrayLike, names: tuple[str, ...],
 
 @threadpool_limits.wrap(limits=1, user_api="blas")
 def _solve(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Least squares of column-normalised ``a``: (solution, inverse of a^T a) in natural units."""
+    """Least squares of column-normalised ``a``: (solution, inverse of a^T a) in natural units.
+
+    QR of the tall matrix, then the SVD of the small triangular factor (never the normal
+    equations): ``a_n = Q R``, ``R = U s V^T``, ``x = V s^-1 U^T Q^T b``.
+    """
     norms = np.linalg.norm(a, axis=0)
     scale = np.where(norms > 0.0, norms, 1.0)
-    u, s, vt = np.linalg.svd(a / scale, full_matrices=False)
-    x = vt.T @ ((u.T @ b) / s) / scale
+    q, r = np.linalg.qr(a / scale, mode="reduced")
+    u, s, vt = np.linalg.svd(r)
+    x = vt.T @ ((u.T @ (q.T @ b)) / s) / scale
     inv = (vt.T / s**2) @ vt / np.outer(scale, scale)
     return x, inv
 
@@ -195,10 +201,12 @@ def ordinary_least_squares(regressor: ArrayLike, torques: ArrayLike, names: tupl
 
 
 def weighted_least_squares(regressor: ArrayLike, torques: ArrayLike, names: tuple[str, ...],
-                           max_condition: float = MAX_CONDITION_NUMBER) -> BaseEstimate:
-    """WLS estimate: rows of joint j divided by its residual std from a first OLS pass."""
+                           max_condition: float = MAX_CONDITION_NUMBER,
+                           first: BaseEstimate | None = None) -> BaseEstimate:
+    """WLS estimate: rows of joint j divided by its residual std from a first OLS pass
+    (``first``, computed here when not given)."""
     w, tau = _stack(regressor, torques, len(names))
-    first = ordinary_least_squares(w, tau, names, max_condition)
+    first = first or ordinary_least_squares(w, tau, names, max_condition)
     sigma = first.joint_sigma
     floor = 1e-9 * max(float(sigma.max()), 1e-300)
     weights = 1.0 / np.maximum(sigma, floor)
