@@ -34,6 +34,11 @@ DEFAULT_IK_TOLERANCE = 1e-10
 0.1 um resolution that matters for TCP errors; keeps the derivatives consistent."""
 
 
+SINGULARITY_TOLERANCE = 1e-9
+"""Smallest accepted ratio of the smallest to the largest LU pivot of the Jacobian; below
+it the configuration counts as singular (joint speeds would exceed ~1e9 x the twist)."""
+
+
 class SingularConfigurationError(ArithmeticError):
     """The Jacobian at the desired configuration is singular: the derivatives are undefined."""
 
@@ -108,7 +113,8 @@ class CartesianToJoint:
         self.last_iterations = iterations
         jac = pin.computeFrameJacobian(model, data, q, fid, pin.LOCAL_WORLD_ALIGNED)
         lu, piv, info = lapack.dgetrf(jac)
-        if info != 0:
+        pivots = np.abs(lu.diagonal())
+        if info != 0 or pivots.min() < SINGULARITY_TOLERANCE * pivots.max():
             raise SingularConfigurationError(
                 f"the flange Jacobian is singular at q = {np.round(q, 6).tolist()} rad: no joint velocity")
         qd, info = lapack.dgetrs(lu, piv, twist)

@@ -26,7 +26,9 @@ scenario's ``[fmus.parameters]``.
 """
 from __future__ import annotations
 
+import contextlib
 import copy
+import gc
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -178,31 +180,37 @@ class FieldbusLink:
         self.cycle = 0
         self.actuals = DriveActuals.zeros(N_JOINTS)
         self.setpoints = controller.setpoints
-        self._readers: dict[str, Any] = {}
-        self._views: dict[str, np.ndarray] = {}
+        self._real = self._integer = None
+        self._real_out = self._integer_out = None
 
     def setup(self, master: Master) -> None:
-        """Bind signal readers and writable views (end of master.initialize)."""
-        for name in ("position_actual", "velocity_actual", "torque_actual"):
-            self._readers[name] = master.reader([f"{d}.{name}" for d in DRIVES])
-        for name in ("statusword", "error_code"):
-            self._readers[name] = master.reader([f"{d}.{name}" for d in DRIVES])
-        for name in BUS_REAL + BUS_INTEGER:
-            self._views[name] = master.view([f"bus.{name}[{i}]" for i in range(1, N_JOINTS + 1)], writable=True)
+        """Bind one reader per bus type for the drives' actual values and one writable
+        view per bus type for the ``bus.*`` variables (end of master.initialize)."""
+        self._real = master.reader([f"{d}.{name}" for name in ("position_actual", "velocity_actual", "torque_actual")
+                                    for d in DRIVES])
+        self._integer = master.reader([f"{d}.{name}" for name in ("statusword", "error_code") for d in DRIVES])
+        self._real_out = master.view([f"bus.{name}[{i}]" for name in BUS_REAL for i in range(1, N_JOINTS + 1)],
+                                     writable=True)
+        self._integer_out = master.view([f"bus.{name}[{i}]" for name in BUS_INTEGER
+                                         for i in range(1, N_JOINTS + 1)], writable=True)
 
     def __call__(self, t: float) -> None:
-        a, r = self.actuals, self._readers
-        a.statusword[:] = r["statusword"].read()
-        a.error_code[:] = r["error_code"].read()
-        a.position[:] = r["position_actual"].read()
-        a.velocity[:] = r["velocity_actual"].read()
-        a.torque[:] = r["torque_actual"].read()
+        a, n = self.actuals, N_JOINTS
+        real = self._real.read()
+        integer = self._integer.read()
+        a.position[:] = real[:n]
+        a.velocity[:] = real[n:2 * n]
+        a.torque[:] = real[2 * n:]
+        a.statusword[:] = integer[:n]
+        a.error_code[:] = integer[n:]
         result = self.network.run_cycle(self.cycle, self.setpoints, a)
-        applied, v = result.applied, self._views
-        v["target_position"][:] = applied.position
-        v["torque_offset"][:] = applied.torque_offset
-        v["controlword"][:] = applied.controlword
-        v["fault_code"][:] = applied.fault_code
+        applied = result.applied
+        out = self._real_out
+        out[:n] = applied.position
+        out[n:] = applied.torque_offset
+        out = self._integer_out
+        out[:n] = applied.controlword
+        out[n:] = applied.fault_code
         self.setpoints = self.controller.step(self.cycle, t, result.observed)
         self.cycle += 1
         ctrl = self.controller
@@ -225,6 +233,22 @@ class CellRun:
     engine: str
     recording: MemorySink
     failure: SimulationError | None = None
+
+
+@contextlib.contextmanager
+def _no_cyclic_gc():
+    """No cyclic garbage collection while the loop runs (reference counting still frees
+    everything the loop allocates; a collection pass would stall a cycle by ms)."""
+    enabled = gc.isenabled()
+    gc.collect()
+    gc.freeze()
+    gc.disable()
+    try:
+        yield
+    finally:
+        gc.unfreeze()
+        if enabled:
+            gc.enable()
 
 
 class TeeSink:
@@ -290,7 +314,8 @@ def run_cell(doc: dict[str, Any], controller: Controller, true_robot: TrueRobot,
             try:
                 master.initialize(stop_time)
                 engine = master.engine.name
-                ctx.execute(master, stop_time)
+                with _no_cyclic_gc():
+                    ctx.execute(master, stop_time)
             except SimulationError as exc:
                 failure = exc
     finally:
