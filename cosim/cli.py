@@ -16,6 +16,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "cosim.commands.run",
     "cosim.commands.calibrate",
     "cosim.commands.sweep",
+    "cosim.commands.identify",
 )
 
 

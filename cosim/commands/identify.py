@@ -1,0 +1,61 @@
+"""``python -m cosim identify DATA.csv [--validate VAL.csv] --out DIR``: dynamic identification from a record."""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+NAME = "identify"
+HELP = ("Identify the base dynamic parameters from a measured record (CSV: t s, q1..q6 rad, tau1..tau6 N m "
+        "joint side, optional qd1..qd6, qdd1..qdd6) and write DIR/parameters.json; with --validate, predict the "
+        "torques of a second record and write DIR/prediction.csv and DIR/summary.json.")
+
+#: Exit codes: 0 ok, 2 invalid input (file, columns, NaN, sampling, too short, not exciting).
+EXIT_OK, EXIT_INVALID = 0, 2
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """DATA, --validate, --out, --method, --cutoff-hz, --max-condition."""
+    from identification.dynamic_estimation import MAX_CONDITION_NUMBER
+    from identification.dynamic_signals import DEFAULT_CUTOFF_HZ
+
+    parser.add_argument("data", type=Path, help="identification record CSV (see docs/identification.md)")
+    parser.add_argument("--validate", type=Path, default=None, metavar="VAL.csv",
+                        help="a second record (same columns) on which the identified model predicts the torques")
+    parser.add_argument("--out", type=Path, default=None,
+                        help="output folder (default: results/identify-<data name>/)")
+    parser.add_argument("--method", choices=("wls", "ols"), default="wls",
+                        help="weighted (per-joint noise, default) or ordinary least squares")
+    parser.add_argument("--cutoff-hz", type=float, default=DEFAULT_CUTOFF_HZ,
+                        help=f"zero-phase low-pass cut-off for differentiating q, Hz (default {DEFAULT_CUTOFF_HZ:g})")
+    parser.add_argument("--max-condition", type=float, default=MAX_CONDITION_NUMBER,
+                        help="largest accepted condition number of the column-normalised base regressor "
+                             f"(default {MAX_CONDITION_NUMBER:g})")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Read, identify, validate, write; invalid input prints ``error: ...`` and returns 2."""
+    from identification.dynamic_data import read_motion_csv
+    from identification.dynamic_identify import identify, validate, write_identification_outputs
+
+    out_dir = args.out or Path("results") / f"identify-{args.data.stem}"
+    try:
+        record = read_motion_csv(args.data)
+        validation_record = read_motion_csv(args.validate) if args.validate is not None else None
+        result = identify(record, method=args.method, cutoff_hz=args.cutoff_hz, max_condition=args.max_condition)
+        validation = validate(result, validation_record, args.cutoff_hz) if validation_record is not None else None
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return EXIT_INVALID
+    paths = write_identification_outputs(out_dir, result, validation)
+    text = (f"identified {result.base.count} base parameters ({result.estimate.method}) from {record.samples} "
+            f"samples ({record.duration:.3g} s); condition number {result.estimate.condition_number:.3g}; ")
+    if validation is not None:
+        errors = ", ".join(f"{100 * e:.2f}" for e in validation.relative_rms_error)
+        text += f"validation relative RMS error per joint [%]: {errors}; "
+    text += "wrote " + ", ".join(str(p) for p in paths.values())
+    print(text, file=sys.stderr)
+    if validation is not None:
+        print(json.dumps({"relative_rms_error": validation.relative_rms_error.tolist()}))
+    return EXIT_OK
