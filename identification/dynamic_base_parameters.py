@@ -64,7 +64,7 @@ KAPPA_ZERO_TOLERANCE = 1e-9
 """|kappa| entries (natural units) below this are round-off and set to 0."""
 MAX_DECIMALS = 8
 """Coefficients are printed as exact decimals with at most this many digits when they are
-within 1e-9 (relative) of one; else as a small fraction, else with 6 significant digits."""
+within 1e-11 (relative) of one; else as a small fraction, else with 6 significant digits."""
 
 
 class BaseParameterError(IdentificationError):
@@ -236,7 +236,7 @@ def format_coefficient(value: float) -> str:
     """A kappa coefficient as text: exact short decimal, small fraction, or 6 digits."""
     if value == 0.0:
         return "0"
-    tol = 1e-9 * max(1.0, abs(value))
+    tol = 1e-11 * max(1.0, abs(value))
     for digits in range(MAX_DECIMALS + 1):
         r = round(value, digits)
         if abs(value - r) <= tol:

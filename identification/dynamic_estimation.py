@@ -10,7 +10,8 @@ system ``Theta_f p_b = Q_f`` (eq. 26). Two estimators:
 * **weighted least squares** (Gautier & Poignet): the joints' torques have different
   noise levels (a 700 N m axis versus a 35 N m wrist axis), so each joint's rows are
   divided by the standard deviation of that joint's residual in a first OLS pass,
-  ``sigma_j^2 = |e_j|^2 / (k - n_j)`` (``n_j``: base parameters acting on joint j);
+  ``sigma_j^2 = |e_j|^2 / (k - n_j)`` (``n_j``: base parameters acting on joint j),
+  re-estimated from the weighted fit's residuals (:data:`WLS_PASSES` passes);
   covariance ``(Theta_f^T Sigma^-1 Theta_f)^-1``.
 
 Before solving, :func:`check_excitation` refuses data that cannot determine every
@@ -40,6 +41,9 @@ few thousand; above 1e4 torque noise of 0.1 % of rated torque moves the weakest 
 parameters by more than their own size."""
 MIN_ROWS_PER_PARAMETER = 10
 """At least this many torque rows (samples x 6) per base parameter."""
+WLS_PASSES = 3
+"""Weighted passes: the per-joint noise is estimated from the OLS residuals, then again from
+each weighted fit's residuals (iteratively reweighted; converged after about 3 passes)."""
 POORLY_EXCITED_COMPONENT = 0.2
 """A base parameter is named as poorly excited when its weight in a badly determined
 right singular vector (unit norm) is at least this."""
@@ -201,21 +205,25 @@ def ordinary_least_squares(regressor: ArrayLike, torques: ArrayLike, names: tupl
 
 
 def weighted_least_squares(regressor: ArrayLike, torques: ArrayLike, names: tuple[str, ...],
-                           max_condition: float = MAX_CONDITION_NUMBER,
-                           first: BaseEstimate | None = None) -> BaseEstimate:
-    """WLS estimate: rows of joint j divided by its residual std from a first OLS pass
-    (``first``, computed here when not given)."""
+                           max_condition: float = MAX_CONDITION_NUMBER, first: BaseEstimate | None = None,
+                           passes: int = WLS_PASSES) -> BaseEstimate:
+    """WLS estimate: rows of joint j divided by its residual std, first from an OLS pass
+    (``first``, computed here when not given), then re-estimated from the WLS residuals
+    ``passes - 1`` more times (the OLS residual of a quiet wrist joint also holds the
+    leakage of the noisy base joints' errors, which a weighted fit removes)."""
     w, tau = _stack(regressor, torques, len(names))
     first = first or ordinary_least_squares(w, tau, names, max_condition)
     sigma = first.joint_sigma
-    floor = 1e-9 * max(float(sigma.max()), 1e-300)
-    weights = 1.0 / np.maximum(sigma, floor)
-    a = (w * weights[None, :, None]).reshape(-1, len(names))
-    b = (tau * weights[None, :]).reshape(-1)
-    x, inv = _solve(a, b)
-    residual = np.einsum("kjn,n->kj", w, x) - tau
+    for _ in range(max(1, passes)):
+        floor = 1e-9 * max(float(sigma.max()), 1e-300)
+        weights = 1.0 / np.maximum(sigma, floor)
+        a = (w * weights[None, :, None]).reshape(-1, len(names))
+        b = (tau * weights[None, :]).reshape(-1)
+        x, inv = _solve(a, b)
+        residual = np.einsum("kjn,n->kj", w, x) - tau
+        used_sigma, sigma = sigma, _joint_sigma(w, residual)
     std = np.sqrt(np.clip(np.diag(inv), 0.0, None))
-    return BaseEstimate(tuple(names), x, std, "wls", sigma, np.sqrt(np.mean(residual**2, axis=0)),
+    return BaseEstimate(tuple(names), x, std, "wls", used_sigma, np.sqrt(np.mean(residual**2, axis=0)),
                         first.condition_number, w.shape[0])
 
 
