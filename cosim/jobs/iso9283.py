@@ -110,14 +110,14 @@ def _multiple(value: float, base: float) -> bool:
 def check(doc: dict[str, Any], where: Where) -> None:
     """Everything that can be checked before running (raises ScenarioError at the key)."""
     _fill_table_defaults(doc)
-    variables = {name: type_ for name, (type_, _) in robot_cell.cell_variables().items()}
-    check_cosim_tables(doc, where, master_variables=variables)
     by_name = {fmu["name"]: (i, fmu) for i, fmu in enumerate(doc["fmus"])}
     needed = {robot_cell.PLANT: robot_cell.PLANT_FMU, **{d: robot_cell.DRIVE_FMU for d in robot_cell.DRIVES}}
     for name, builtin in needed.items():
         if name not in by_name:
             raise (where / "fmus").error(f"an [[fmus]] table with name = {name!r} (builtin = {builtin!r}): "
                                          f"the cell needs {sorted(needed)}", problem=f"FMU {name!r} missing")
+    variables = {name: type_ for name, (type_, _) in robot_cell.cell_variables().items()}
+    check_cosim_tables(doc, where, master_variables=variables)
     for name, builtin in needed.items():
         i, fmu = by_name[name]
         from cosim.master import load_model_description

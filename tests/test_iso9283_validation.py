@@ -1,0 +1,76 @@
+"""scenarios/iso9283.toml is validated before anything runs: each mistake is a ScenarioError
+naming the file, the key and what was expected; the CLI exits with 2 and writes nothing."""
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import pytest
+
+from cosim.cli import main
+from cosim.scenario import ScenarioError, load_scenario
+
+ROOT = Path(__file__).resolve().parents[1]
+SCENARIO = (ROOT / "scenarios" / "iso9283.toml").read_text(encoding="utf-8")
+
+
+def variant(tmp_path: Path, old: str, new: str, count: int = 1) -> Path:
+    assert SCENARIO.count(old) >= 1, old
+    text = SCENARIO.replace(old, new, count)
+    path = tmp_path / "iso.toml"
+    path.write_text(text, encoding="utf-8")
+    return path
+
+
+def test_the_main_scenario_is_valid():
+    scenario = load_scenario(ROOT / "scenarios" / "iso9283.toml")
+    assert scenario.job.name == "iso9283"
+    assert scenario.data["controller"]["modes"] == ["standard", "model_based"]
+    assert scenario.data["simulation"]["macro_step"] == pytest.approx(100e-6)
+    assert scenario.data["controller"]["period"] == pytest.approx(400e-6)
+
+
+DRIVE3_BLOCK = re.search(r'\[\[fmus\]\]\nname = "drive3"\n[^\n]*\n', SCENARIO).group(0)
+
+CASES = [
+    ("unknown key", 'settle_time = "0.2 s"', 'settle_time = "0.2 s"\nsettle_mode = "fast"',
+     ["controller.settle_mode", "unknown key"]),
+    ("wrong type", "seed = 1 ", 'seed = "one" ', ["true_robot.seed", "expected an integer", "'one'"]),
+    ("wrong unit", 'period = "400 us"', 'period = "400 mm"', ["controller.period", "a number in s", "'400 mm'"]),
+    ("out of range", 'payload_mass = "8 kg"', 'payload_mass = "12 kg"', ["true_robot.payload_mass", "10"]),
+    ("missing FMU", DRIVE3_BLOCK, "", ["fmus", "drive3", "missing"]),
+    ("bad connection", '"plant.q[1] -> drive1.q_meas"', '"plant.q[7] -> drive1.q_meas"',
+     ["connections[1]", "unknown variable 'q[7]'"]),
+    ("missing connection", '    "bus.torque_offset[5] -> drive5.torque_offset",\n', "",
+     ["connections", "bus.torque_offset[5] -> drive5.torque_offset", "missing"]),
+    ("missing FMU file", 'name = "drive6"\nbuiltin = "servo_drive"', 'name = "drive6"\npath = "nowhere/drive.fmu"',
+     ["fmus[6].path", "does not exist"]),
+    ("fieldbus key", "cycle_time_us = 400", "cycle_time_us = 400\ncycle_time = 400", ["fieldbus.cycle_time"]),
+    ("fieldbus vs controller", "cycle_time_us = 400", "cycle_time_us = 800", ["controller.period", "800"]),
+    ("plant parameter set by the job", 'builtin = "rx130l_plant"     # set to the true robot by the job (p[1..78], payload, q0)',
+     'builtin = "rx130l_plant"\n[fmus.parameters]\n"q0[1]" = 0.1', ["fmus[0]", "q0[1]", "set by the job"]),
+    ("tracker period vs macro step", 'period = "1 ms"              # Leica', 'period = "1.05 ms"  # Leica',
+     ["tracker.period", "multiple of macro_step"]),
+    ("unknown mode", 'modes = ["standard", "model_based"]', 'modes = ["standard", "adaptive"]',
+     ["controller.modes[1]", "'adaptive'", "'model_based'"]),
+]
+
+
+@pytest.mark.parametrize("name, old, new, expected", CASES, ids=[c[0] for c in CASES])
+def test_scenario_errors_name_file_key_and_expectation(tmp_path, name, old, new, expected):
+    path = variant(tmp_path, old, new)
+    with pytest.raises(ScenarioError) as info:
+        load_scenario(path)
+    message = str(info.value)
+    assert str(path) in message
+    for part in expected:
+        assert part in message, (part, message)
+    assert isinstance(info.value, ValueError)
+
+
+def test_cli_rejects_invalid_scenario_before_running(tmp_path, capsys):
+    path = variant(tmp_path, 'period = "400 us"', 'period = "400 mm"')
+    out = tmp_path / "out"
+    assert main(["run", str(path), "--out", str(out), "--quiet"]) == 2
+    assert "controller.period" in capsys.readouterr().err
+    assert not out.exists()
