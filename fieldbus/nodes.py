@@ -30,6 +30,7 @@ Fault reactions:
 from __future__ import annotations
 
 import struct
+from math import floor
 from operator import mul
 from typing import TYPE_CHECKING, Any
 
@@ -63,10 +64,11 @@ COUNTER_IDS = {"cn_loss_of_soc": 1, "cn_loss_of_preq": 2, "cn_crc_error": 3, "cn
 
 
 def _quantise(values: list, scale: list, low: int, high: int, saturating: Any, name: str) -> list[int]:
-    """round(value * scale) per entry; out-of-range entries go through the saturating
-    scalar encoder; non-finite values raise ValueError naming ``name``."""
+    """floor(value * scale + 0.5) per entry (as fieldbus.scaling rounds); out-of-range
+    entries go through the saturating scalar encoder; non-finite values raise
+    ValueError naming ``name``."""
     try:
-        out = list(map(round, map(mul, values, scale)))
+        out = [floor(v * c + 0.5) for v, c in zip(values, scale)]
     except (ValueError, OverflowError) as error:
         raise ValueError(f"{name} = {values}: expected finite numbers ({error})") from error
     if out and (min(out) < low or max(out) > high):

@@ -11,9 +11,9 @@ The one place where rad, rad/s and N·m become encoder counts and per-mille torq
   (0x60B2 torque offset, 0x6077 torque actual, INT16). ``tau`` and ``rated_torque`` are
   joint side; the percentage is the same on the motor side (gear losses neglected).
 
-Rounding is round-half-to-even (numpy ``rint`` and Python ``round`` agree), so a value
-decoded and encoded again returns the same integer, and ``decode(encode(x))`` is within
-half a count of ``x``. Values beyond the integer range saturate at its limits; the
+Rounding is to the nearest integer, ties upwards (``floor(x + 0.5)``, the same in the
+vector and the scalar encoders), so a value decoded and encoded again returns the same
+integer, and ``decode(encode(x))`` is within half a count of ``x``. Values beyond the integer range saturate at its limits; the
 ``*_saturations`` counters of :class:`JointScaling` say how often that happened.
 
 The gear ratios, encoder resolution and rated torques come from the caller
@@ -22,6 +22,7 @@ The gear ratios, encoder resolution and rated torques come from the caller
 from __future__ import annotations
 
 import math
+from math import floor
 from collections.abc import Sequence
 
 import numpy as np
@@ -130,7 +131,7 @@ class JointScaling:
 
     def position_to_counts(self, q: np.ndarray) -> np.ndarray:
         """Joint angles (rad, shape (joints,)) -> INT32 counts (int64 array), saturating."""
-        return self._saturate(np.rint(np.asarray(q, dtype=float) * self.counts_per_rad),
+        return self._saturate(np.floor(np.asarray(q, dtype=float) * self.counts_per_rad + 0.5),
                               INT32_MIN, INT32_MAX, "position_saturations")
 
     def counts_to_position(self, counts: np.ndarray) -> np.ndarray:
@@ -139,7 +140,7 @@ class JointScaling:
 
     def velocity_to_counts(self, qd: np.ndarray) -> np.ndarray:
         """Joint velocities (rad/s) -> INT32 counts/s, saturating."""
-        return self._saturate(np.rint(np.asarray(qd, dtype=float) * self.counts_per_rad),
+        return self._saturate(np.floor(np.asarray(qd, dtype=float) * self.counts_per_rad + 0.5),
                               INT32_MIN, INT32_MAX, "velocity_saturations")
 
     def counts_to_velocity(self, counts_per_s: np.ndarray) -> np.ndarray:
@@ -148,7 +149,7 @@ class JointScaling:
 
     def torque_to_units(self, tau: np.ndarray) -> np.ndarray:
         """Joint torques (N·m) -> INT16 units of rated torque, saturating."""
-        return self._saturate(np.rint(np.asarray(tau, dtype=float) * self.units_per_newton_metre),
+        return self._saturate(np.floor(np.asarray(tau, dtype=float) * self.units_per_newton_metre + 0.5),
                               INT16_MIN, INT16_MAX, "torque_saturations")
 
     def units_to_torque(self, units: np.ndarray) -> np.ndarray:
@@ -166,7 +167,7 @@ class JointScaling:
     # ---------------------------------------------------------------- scalars (hot path)
     def position_count(self, index: int, q: float) -> int:
         """Scalar ``position_to_counts`` for joint ``index`` (0-based)."""
-        value = round(q * self._cpr[index])
+        value = floor(q * self._cpr[index] + 0.5)
         if INT32_MIN <= value <= INT32_MAX:
             return value
         self.position_saturations += 1
@@ -174,7 +175,7 @@ class JointScaling:
 
     def velocity_count(self, index: int, qd: float) -> int:
         """Scalar ``velocity_to_counts`` for joint ``index`` (0-based)."""
-        value = round(qd * self._cpr[index])
+        value = floor(qd * self._cpr[index] + 0.5)
         if INT32_MIN <= value <= INT32_MAX:
             return value
         self.velocity_saturations += 1
@@ -182,7 +183,7 @@ class JointScaling:
 
     def torque_unit(self, index: int, tau: float) -> int:
         """Scalar ``torque_to_units`` for joint ``index`` (0-based)."""
-        value = round(tau * self._upn[index])
+        value = floor(tau * self._upn[index] + 0.5)
         if INT16_MIN <= value <= INT16_MAX:
             return value
         self.torque_saturations += 1
