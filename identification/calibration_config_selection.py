@@ -77,10 +77,6 @@ RITZ_DIMENSION = 8
 8 x 8 Rayleigh-Ritz eigenproblem, only for candidates that pass the first bound)."""
 
 
-RAYLEIGH_VECTORS = 4
-"""Lowest eigenvectors whose Rayleigh quotients give the first, cheapest bound."""
-
-
 class _Search:
     """Exhaustive searches over one candidate set (holds counters)."""
 
@@ -88,10 +84,10 @@ class _Search:
         self.theta = jacobians
         self.n, self.k, self.p = jacobians.shape
         self.flat = jacobians.reshape(self.n * self.k, self.p)
+        self.theta_k = np.ascontiguousarray(np.moveaxis(jacobians, 1, 0))
         self.gram = np.einsum("nkp,nkq->npq", jacobians, jacobians)
         self.index = index
         self.r = min(RITZ_DIMENSION, self.p)
-        self.r0 = min(RAYLEIGH_VECTORS, self.p)
         self.exact_evaluations = 0
         self.ritz_evaluations = 0
         self.sweeps = 0
@@ -126,17 +122,7 @@ class _Search:
         singular = d[:, 0] <= SINGULAR_RATIO * np.maximum(d[:, -1], 1e-300)
         if self.index.bound_is_exact:
             return self._best_pair_lemma(bases, d, v, singular, excluded, threshold)
-        cols = np.arange(self.r0)
-        if self.index.uses_lambda_max and self.r0 < self.p:
-            cols = np.r_[cols, self.p - 1]
-        c = len(cols)
-        vc = np.ascontiguousarray(np.moveaxis(v[:, :, cols], 0, 1).reshape(self.p, nb * c))
-        w = self.flat @ vc
-        np.square(w, out=w)
-        diag = d[:, cols][None] + w.reshape(self.n, self.k, nb, c).sum(axis=1)
-        low = diag.min(axis=2)
-        high = np.maximum(diag[:, :, -1], d[None, :, -1])
-        bound = self.index.upper_bound_from_extremes(low, high)
+        bound, high = self._stage_one_bounds(d, v, nb, threshold)
         bound[:, singular] = np.inf  # no bound from a singular base: evaluate exactly
         bound[excluded] = -np.inf
         flat_bound = bound.ravel()
@@ -145,11 +131,13 @@ class _Search:
         best = (-1, -1, -np.inf)
         limit = threshold
         vr = np.ascontiguousarray(v[:, :, : self.r])
-        for start in range(0, len(pairs), 32):
-            chunk = pairs[start:start + 32]
+        block = 64
+        for start in range(0, len(pairs), block):
+            chunk = pairs[start:start + block]
             chunk = chunk[flat_bound[chunk] > limit]
             if len(chunk) == 0:
                 break
+            block = min(2 * block, 1024)
             cand, base = np.divmod(chunk, nb)
             if self.r < self.p:
                 # Rayleigh-Ritz on the span of the r lowest eigenvectors of each base
@@ -159,16 +147,56 @@ class _Search:
                 low_r = np.linalg.eigvalsh(ritz)[:, 0]
                 self.ritz_evaluations += len(chunk)
                 tight = self.index.upper_bound_from_extremes(low_r, high[cand, base])
-                keep = (tight > limit) | singular[base]
-                cand, base = cand[keep], base[keep]
-            if len(cand) == 0:
-                continue
-            vals = self.exact(bases, base, cand)
-            i = int(np.argmax(vals))
-            if vals[i] > limit:
-                best = (int(base[i]), int(cand[i]), float(vals[i]))
-                limit = vals[i]
+                tight[singular[base]] = np.inf
+            else:
+                tight = flat_bound[chunk]
+            order = np.argsort(-tight, kind="stable")
+            cand, base, tight = cand[order], base[order], tight[order]
+            for s0 in range(0, len(cand), 16):
+                if tight[s0] <= limit:
+                    break
+                sl = slice(s0, s0 + 16)
+                keep = tight[sl] > limit
+                c_j, c_b = cand[sl][keep], base[sl][keep]
+                vals = self.exact(bases, c_b, c_j)
+                i = int(np.argmax(vals))
+                if vals[i] > limit:
+                    best = (int(c_b[i]), int(c_j[i]), float(vals[i]))
+                    limit = vals[i]
         return best
+
+    def _stage_one_bounds(self, d: np.ndarray, v: np.ndarray, nb: int,
+                          threshold: float) -> tuple[np.ndarray, np.ndarray]:
+        """Cheap bounds for every (candidate, base) pair, shapes (N, B): an upper bound
+        of the index (Rayleigh quotients of the 4 lowest eigenvectors of each base, then,
+        where that still exceeds ``threshold``, the closed-form 3 x 3 Rayleigh-Ritz value
+        on the 3 lowest) and a lower bound of lambda_max (Rayleigh quotient of the
+        highest eigenvector)."""
+        low_cols = min(4, self.p)
+        cols = np.arange(low_cols)
+        if self.index.uses_lambda_max:
+            cols = np.r_[cols, self.p - 1]
+        c = len(cols)
+        vc = np.ascontiguousarray(np.moveaxis(v[:, :, cols], 0, 1).reshape(self.p, nb * c))
+        sq = np.zeros((self.n, nb, c))
+        cross = np.zeros((3, self.n, nb)) if low_cols >= 3 else None
+        for kk in range(self.k):
+            w = (self.theta_k[kk] @ vc).reshape(self.n, nb, c)
+            sq += w * w
+            if cross is not None:
+                cross[0] += w[:, :, 0] * w[:, :, 1]
+                cross[1] += w[:, :, 0] * w[:, :, 2]
+                cross[2] += w[:, :, 1] * w[:, :, 2]
+        diag = d[:, cols][None] + sq
+        high = np.maximum(diag[:, :, -1], d[None, :, -1])
+        low = diag[:, :, :low_cols].min(axis=2)
+        if cross is not None:
+            live = self.index.upper_bound_from_extremes(low, high) > threshold
+            dl = diag[live]
+            ritz3 = _smallest_eigenvalue_3x3(dl[:, 0], dl[:, 1], dl[:, 2], cross[0][live], cross[1][live],
+                                             cross[2][live])
+            low[live] = np.minimum(low[live], ritz3)
+        return self.index.upper_bound_from_extremes(low, high), high
 
     def _best_pair_lemma(self, bases, d, v, singular, excluded, threshold) -> tuple[int, int, float]:
         best = (-1, -1, -np.inf)
@@ -191,6 +219,22 @@ class _Search:
         """Candidate maximising the index of ``lam + Theta_j^T Theta_j``; (j, value)."""
         _, j, val = self.best_pair(lam[None], excluded)
         return j, val
+
+
+def _smallest_eigenvalue_3x3(a00, a11, a22, a01, a02, a12) -> np.ndarray:
+    """Smallest eigenvalue of symmetric 3 x 3 matrices given elementwise (closed form,
+    trigonometric), raised by a round-off margin so it stays an upper bound of the
+    exact value when used for pruning."""
+    q = (a00 + a11 + a22) / 3.0
+    p1 = a01**2 + a02**2 + a12**2
+    b00, b11, b22 = a00 - q, a11 - q, a22 - q
+    p = np.sqrt((b00**2 + b11**2 + b22**2 + 2.0 * p1) / 6.0)
+    safe = np.where(p > 0.0, p, 1.0)
+    det = (b00 * (b11 * b22 - a12**2) - a01 * (a01 * b22 - a12 * a02) + a02 * (a01 * a12 - b11 * a02))
+    r = np.clip(det / (2.0 * safe**3), -1.0, 1.0)
+    phi = np.arccos(r) / 3.0
+    smallest = np.where(p > 0.0, q + 2.0 * p * np.cos(phi + 2.0 * np.pi / 3.0), q)
+    return smallest + 1e-9 * (np.abs(q) + p)
 
 
 def _improves(new: float, old: float) -> bool:
