@@ -8,8 +8,9 @@ order, without copying and without touching its timestamp, so simulated timestam
 survive and delivery is deterministic. There are no threads: ``recv`` never waits, it
 returns the next queued message or ``None``.
 
-Contract: a sender must not modify a :class:`can.Message` after sending it (receivers
-get the same object). The fieldbus package never does.
+Contract: receivers get the very object that was sent. The fieldbus nodes refill their
+message objects every cycle (allocation-light hot loop), so a listener that keeps a
+message beyond the current cycle must copy it (``copy.copy(msg)``); the recorder does.
 """
 from __future__ import annotations
 
