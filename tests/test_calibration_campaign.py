@@ -71,7 +71,7 @@ def test_cosim_run_job(tmp_path):
     scenario.write_text(
         '[scenario]\nname = "cal_small"\njob = "calibration"\n'
         '[tracker]\nposition_sigma = "0.1 mm"\nmeasure_orientation = false\n'
-        "[candidates]\nvalues_per_axis = 9\n"
+        "[candidates]\nvalues_per_axis = 8\n"
         "[selection]\nrestarts = 1\nrandom_draws = 20\n"
         "[validation]\nposes = 100\n"
     )
