@@ -33,8 +33,8 @@ node fault (threshold counter), the controller stops commanding motion - quick s
 (0x0002) to every drive, target = the last observed position, no torque offset - and
 keeps the reason. It never restarts motion by itself.
 
-Each cycle that computes a reference is timed with ``time.perf_counter_ns`` (the
-controller's own work: interpolation, IK, derivatives, feed-forward, controlwords);
+Each cycle that computes a reference is timed with ``time.perf_counter_ns`` (and its
+thread CPU time with ``time.thread_time_ns``; the controller's own work: interpolation, IK, derivatives, feed-forward, controlwords);
 :meth:`Controller.timing` gives p50/p99/max and the deadline misses (compute time
 above ``compute_budget_s``). Everything the controller computed is kept per cycle in
 :attr:`Controller.log` (outside the timed section).
@@ -304,6 +304,7 @@ class Controller:
         """One controller cycle at time ``t`` (s) of cycle number ``cycle``: read the actual
         values, return the set-points for the next cycle (a reused object)."""
         started = time.perf_counter_ns()
+        cpu_started = time.thread_time_ns()
         if self._first_cycle is None:
             self._first_cycle = cycle
         self._last_cycle = cycle
@@ -348,7 +349,7 @@ class Controller:
             sp.torque_offset[:] = 0.0
         elapsed = time.perf_counter_ns() - started
         if timed:
-            self.timer.record(elapsed)
+            self.timer.record(elapsed, time.thread_time_ns() - cpu_started)
         self.log.append(t, t + cfg.lead_time_s, int(self.phase), tau, self._q_d, self._qd_d, self._qdd_d,
                         sp.torque_offset, sp.position, observed.position, elapsed * 1e-3 if timed else math.nan,
                         iterations)
