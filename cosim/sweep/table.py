@@ -2,7 +2,8 @@
 
 Columns, in order: ``variant``, the axis keys (the values as the job validated them: SI
 numbers, strings, lists as JSON), ``status`` (``ok``/``failed``), ``reason`` (why it
-failed), ``wall_time_s`` (wall time of the variant's task), ``worker`` (host:pid that ran
+failed), ``wall_time_s`` (wall time of the variant's task), ``cpu_time_s`` (CPU time of the
+worker process meanwhile: well below the wall time means the CPU was shared), ``worker`` (host:pid that ran
 it), ``hash`` (the variant hash), ``folder`` (its results folder, relative to the
 table), then the metrics: the numeric leaves of the variant's
 summary.json (booleans as true/false) as key paths (``calibrated.e_x.max``,
@@ -26,7 +27,8 @@ from cosim.sweep.keypath import format_key_path
 
 #: Default metrics skip the items of longer lists (candidate indices, per-pose residuals, ...).
 MAX_LIST_ITEMS = 16
-FIXED_COLUMNS: tuple[str, ...] = ("variant", "status", "reason", "wall_time_s", "worker", "hash", "folder")
+FIXED_COLUMNS: tuple[str, ...] = ("variant", "status", "reason", "wall_time_s", "cpu_time_s", "worker", "hash",
+                                  "folder")
 
 
 def flatten_numeric(value: Any, max_list: int | None = MAX_LIST_ITEMS, prefix: tuple = ()) -> dict[str, Any]:

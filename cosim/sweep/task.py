@@ -78,8 +78,8 @@ def read_summary(folder: str | Path) -> dict[str, Any] | None:
 
 
 def make_row(task: VariantTask, summary: dict[str, Any] | None, exit_code: int | None, wall_time_s: float,
-             worker: str, reason: str | None = None) -> dict[str, Any]:
-    """The table row of a finished variant."""
+             worker: str, reason: str | None = None, cpu_time_s: float | None = None) -> dict[str, Any]:
+    """The table row of a finished variant (times in s; CPU time of the worker process during the run)."""
     status = "ok" if exit_code == 0 and summary is not None and summary.get("status") == "ok" else "failed"
     if status == "failed" and reason is None:
         if summary is not None and summary.get("reason"):
@@ -95,6 +95,7 @@ def make_row(task: VariantTask, summary: dict[str, Any] | None, exit_code: int |
         "status": status,
         "reason": reason if status == "failed" else None,
         "wall_time_s": wall_time_s,
+        "cpu_time_s": cpu_time_s,
         "worker": worker,
         "metrics": select_metrics(summary or {}, task.metrics),
     }
@@ -111,15 +112,15 @@ def run_variant(task: VariantTask) -> dict[str, Any]:
     scenario_path = folder / SCENARIO_FILE
     scenario_path.write_text(f"# variant {task.id} (hash {task.hash}) of a sweep; run by cosim.sweep\n"
                              + tomli_w.dumps(task.document), encoding="utf-8")
-    start = time.perf_counter()
+    start, cpu_start = time.perf_counter(), time.process_time()
     with open(folder / LOG_FILE, "w", encoding="utf-8") as log, \
             contextlib.redirect_stdout(log), contextlib.redirect_stderr(log):
         try:
             code = cosim_main(["run", str(scenario_path), "--out", str(folder), "--quiet"])
         except SystemExit as exc:  # argparse or a job calling sys.exit
             code = exc.code if isinstance(exc.code, int) else 3
-    wall = time.perf_counter() - start
-    row = make_row(task, read_summary(folder), code, wall, worker_name())
+    wall, cpu = time.perf_counter() - start, time.process_time() - cpu_start
+    row = make_row(task, read_summary(folder), code, wall, worker_name(), cpu_time_s=cpu)
     write_row(folder, row)
     return row
 
