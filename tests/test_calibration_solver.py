@@ -139,3 +139,29 @@ def test_too_few_and_rank_deficient_poses(tmp_path, capsys):
     assert main(["calibrate", str(tmp_path / "deg.csv")]) == 2
     assert "column 'q1'" in capsys.readouterr().err
     assert TrackerNoise().row_sigmas(False).shape == (3,)
+
+
+def test_calibrated_urdf_drives_the_numeric_ik_of_the_true_robot(unseen_robot):
+    """The controller's use: IK on the calibrated description puts the TRUE flange on
+    the target within the tracker noise, IK on the nominal one misses by millimetres."""
+    from robot.description import load_model
+    from robot.inverse_kinematics import NumericIK
+
+    folder, true_urdf = unseen_robot
+    kin = FlangeKinematics()
+    rng = np.random.default_rng(21)
+    q = rng.uniform(kin.lower, kin.upper, size=(40, 6))
+    csv_path = _write_csv(folder / "ik.csv", q, _pin_poses(true_urdf, q), rng)
+    assert main(["calibrate", str(csv_path), "--out", str(folder / "ik_out")]) == 0
+    calibrated_ik = NumericIK(load_model(folder / "ik_out" / "calibrated.urdf"))
+    nominal_ik = NumericIK(load_model())
+    seeds = rng.uniform(0.5 * kin.lower, 0.5 * kin.upper, size=(10, 6))
+    targets = FlangeKinematics().transforms(seeds + 0.05)  # reachable poses in front of the seeds
+    miss_cal, miss_nom = [], []
+    for target, seed in zip(targets, seeds):
+        for solver, misses in ((calibrated_ik, miss_cal), (nominal_ik, miss_nom)):
+            q_cmd = solver.solve(target, seed)
+            reached = _pin_poses(true_urdf, q_cmd[None])[0]
+            misses.append(np.linalg.norm(reached[:3, 3] - target[:3, 3]))
+    assert max(miss_nom) > 2e-3
+    assert max(miss_cal) < 3 * SIGMA_P
