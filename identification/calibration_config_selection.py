@@ -76,7 +76,10 @@ class SelectionResult:
 
 RITZ_DIMENSION = 8
 """Lowest eigenvectors of the current Lambda whose span gives the second bound (an
-8 x 8 Rayleigh-Ritz eigenproblem, only for candidates that pass the first bound)."""
+8 x 8 Rayleigh-Ritz eigenproblem, only for candidates that pass the first bound);
+enlarged to the eigenvalues below CLUSTER_FACTOR * lambda_min plus 2."""
+
+CLUSTER_FACTOR = 3.0
 
 
 class _Search:
@@ -132,20 +135,24 @@ class _Search:
         pairs = pairs[np.argsort(-flat_bound[pairs], kind="stable")]
         best = (-1, -1, -np.inf)
         limit = threshold
-        vr = np.ascontiguousarray(v[:, :, : self.r])
-        block = 64
-        for start in range(0, len(pairs), block):
+        # the Ritz space covers the cluster of small eigenvalues (an optimised design
+        # has several nearly equal ones; a smaller space would give loose bounds)
+        cluster = int(np.max(np.sum(d < CLUSTER_FACTOR * np.maximum(d[:, :1], 1e-300), axis=1)))
+        r = min(self.p, max(self.r, cluster + 2))
+        vr = np.ascontiguousarray(v[:, :, :r])
+        start, block = 0, 64
+        while start < len(pairs):
             chunk = pairs[start:start + block]
             chunk = chunk[flat_bound[chunk] > limit]
             if len(chunk) == 0:
                 break
-            block = min(2 * block, 1024)
+            start, block = start + block, min(2 * block, 1024)
             cand, base = np.divmod(chunk, nb)
-            if self.r < self.p:
+            if r < self.p:
                 # Rayleigh-Ritz on the span of the r lowest eigenvectors of each base
                 wr = np.matmul(self.theta[cand], vr[base])
                 ritz = np.matmul(np.swapaxes(wr, 1, 2), wr)
-                ritz[:, np.arange(self.r), np.arange(self.r)] += d[base, : self.r]
+                ritz[:, np.arange(r), np.arange(r)] += d[base, :r]
                 low_r = np.linalg.eigvalsh(ritz)[:, 0]
                 self.ritz_evaluations += len(chunk)
                 tight = self.index.upper_bound_from_extremes(low_r, high[cand, base])
