@@ -70,7 +70,9 @@ def rayleigh_bounds(d: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarra
 def _exact_d_opt(d: np.ndarray, w: np.ndarray) -> np.ndarray:
     # matrix determinant lemma: det(D + W^T W) = det(D) det(I_k + W D^-1 W^T)
     k = w.shape[1]
-    small = np.eye(k) + np.einsum("nkp,p,nlp->nkl", w, 1.0 / d, w)
+    y = w / np.sqrt(d)
+    small = np.matmul(y, np.swapaxes(y, 1, 2))
+    small[:, np.arange(k), np.arange(k)] += 1.0
     logdet = np.sum(np.log(d)) + np.linalg.slogdet(small)[1]
     return np.exp(0.5 * logdet / d.shape[0])
 
