@@ -52,11 +52,12 @@ import pinocchio as pin
 from controller.cycle_timer import CycleTimer, TimingSummary
 from controller.drive_compensation import DriveLoopModel, SetpointShaper
 from controller.feedforward import FeedForward
-from controller.joint_reference import CartesianToJoint, SingularConfigurationError
+from controller.compiled_cycle import CompiledCycle, CompiledCycleError
+from controller.joint_reference import SINGULARITY_TOLERANCE, CartesianToJoint, SingularConfigurationError
 from controller.reference import JointTrajectory, TcpTrajectory
 from fieldbus import Command, DriveState, EnableSequencer, ObservedActuals, Setpoints, decode_statusword
 from robot.dynamics import RobotDynamics
-from robot.inverse_kinematics import NumericIK
+from robot.inverse_kinematics import LIMIT_TOLERANCE, NumericIK
 
 N_JOINTS = 6
 MODES: tuple[str, ...] = ("standard", "model_based")
@@ -90,6 +91,9 @@ class ControllerConfig:
     settle_time_s: hold at the start configuration after all drives are enabled, s.
     enable_timeout_s: longest time the enable sequence may take before the controller
         gives up (stops with a reason), s.
+    compiled: evaluate the cycle's numerics (Newton step, qd, qdd, feed-forward) with the
+        generated C kernel of :mod:`controller.compiled_cycle` (same mathematics; the
+        Python path stays the fallback of every cycle the kernel's checks reject).
     """
 
     mode: str = "model_based"
@@ -98,6 +102,7 @@ class ControllerConfig:
     compute_budget_s: float = 100e-6
     settle_time_s: float = 0.2
     enable_timeout_s: float = 0.5
+    compiled: bool = True
 
     def __post_init__(self) -> None:
         if self.mode not in MODES:
@@ -232,6 +237,25 @@ class Controller:
         self._ik = CartesianToJoint(self.kinematic_model) if isinstance(reference, TcpTrajectory) else None
         if self._ik is not None:
             self._ik.reset(self.q_start)
+        self.kernel: CompiledCycle | None = None
+        self.kernel_note = "not used (joint reference)" if self._ik is None else "disabled (config.compiled)"
+        if self._ik is not None and self.config.compiled:
+            try:
+                self.kernel = CompiledCycle(self.kinematic_model, self.dynamics)
+            except CompiledCycleError as exc:
+                self.kernel_note = f"unavailable, Python path used: {exc}"
+            else:
+                self.kernel_note = str(self.kernel.library_path)
+                self.kernel.reset(self.q_start)
+                self._packed_base = reference.packed.ctypes.data
+                self._scratch = np.zeros(24)
+                self._scratch_address = self._scratch.ctypes.data
+                ik = self._ik.ik
+                self._tol2, self._accept2 = ik._tol2, ik._accept2
+                self._lower = (ik.lower - LIMIT_TOLERANCE).tolist()
+                self._upper = (ik.upper + LIMIT_TOLERANCE).tolist()
+        self.kernel_cycles = 0
+        self.fallback_cycles = 0
         self._shaper = SetpointShaper(drive_model) if (drive_model is not None and self.model_based) else None
         if self._shaper is not None:
             if abs(drive_model.period_s - self.config.period_s) > 1e-12:
@@ -297,7 +321,9 @@ class Controller:
                 "trajectory_duration_s": self.duration, "enabled_at_s": self.enabled_at_s,
                 "motion_start_s": self.motion_start_s, "stop_reason": self.stop_reason,
                 "stopped_at_s": self.stopped_at_s, "q_start_rad": self.q_start.tolist(),
-                "cycle_compute_us": self.timing().as_dict(), "config": asdict(self.config)}
+                "cycle_compute_us": self.timing().as_dict(), "config": asdict(self.config),
+                "compiled_kernel": self.kernel_note, "kernel_cycles": self.kernel_cycles,
+                "fallback_cycles": self.fallback_cycles}
 
     # ------------------------------------------------------------------ the cycle
     def step(self, cycle: int, t: float, observed: ObservedActuals) -> Setpoints:
@@ -367,6 +393,35 @@ class Controller:
     def _compute(self, tau: float, sp: Setpoints) -> int:
         """Desired joint motion and torque offset at trajectory time ``tau``; returns IK steps."""
         ref = self.reference
+        kernel = self.kernel
+        if kernel is not None:
+            t = ref.t_start + tau
+            k, offset = ref.grid.locate(t)
+            if offset == 0.0:
+                address = self._packed_base + 192 * k
+            else:
+                ref.packed_sample(t, self._scratch)
+                address = self._scratch_address
+            kernel.run(address, self.config.period_s)
+            e2, s2, hadamard = kernel.info.tolist()
+            if (e2 <= self._accept2 and s2 <= self._accept2 and hadamard >= SINGULARITY_TOLERANCE
+                    and all(lo <= x <= hi for lo, x, hi in zip(self._lower, kernel.result[:6].tolist(),
+                                                                 self._upper))):
+                kernel.accept()
+                self.kernel_cycles += 1
+                state = kernel.state
+                q, qd, qdd = state[:6], state[6:12], state[12:]
+                self._set_outputs(sp, q, qd, qdd, kernel.tau if self.model_based else None)
+                return 0 if e2 <= self._tol2 else 1
+            # the Python path decides (more Newton steps, fallback branches, singularity)
+            self.fallback_cycles += 1
+            self._ik.set_state(kernel.state[:6], kernel.state[6:12], kernel.state[12:])
+            sample = ref.sample(t)
+            q, qd, qdd = self._ik.solve(sample.target, sample.twist, sample.acceleration, self.config.period_s)
+            kernel.set_state(q, qd, qdd)
+            torque = self.feedforward.torque(q, qd, qdd) if self.model_based else None
+            self._set_outputs(sp, q, qd, qdd, torque)
+            return self._ik.last_iterations
         if self._ik is not None:
             sample = ref.sample(ref.t_start + tau)
             q, qd, qdd = self._ik.solve(sample.target, sample.twist, sample.acceleration, self.config.period_s)
@@ -375,16 +430,21 @@ class Controller:
             sample = ref.sample(ref.t_start + tau)
             q, qd, qdd = sample.q, sample.qd, sample.qdd
             iterations = 0
+        self._set_outputs(sp, q, qd, qdd, self.feedforward.torque(q, qd, qdd) if self.model_based else None)
+        return iterations
+
+    def _set_outputs(self, sp: Setpoints, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray,
+                     torque: np.ndarray | None) -> None:
+        """Keep the desired motion, write target position and torque offset."""
         self._q_d[:] = q
         self._qd_d[:] = qd
         self._qdd_d[:] = qdd
         if self.model_based:
-            sp.torque_offset[:] = self.feedforward.torque(q, qd, qdd)
+            sp.torque_offset[:] = torque
             sp.position[:] = q if self._shaper is None else self._shaper.shape(q, qd, qdd)
         else:
             sp.torque_offset[:] = 0.0
             sp.position[:] = q
-        return iterations
 
     def _stop_condition(self, observed: ObservedActuals, phase: Phase) -> str | None:
         """Why motion must stop now (None: no reason)."""

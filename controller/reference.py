@@ -141,7 +141,9 @@ class TcpTrajectory:
     """A planned flange trajectory sampled on a uniform grid (see module docstring).
 
     Arrays: ``times`` (n,) s; ``position`` (n, 3) m; ``rotation`` (n, 3, 3);
-    ``twist`` (n, 6) = (v m/s, w rad/s); ``acceleration`` (n, 6) = (a m/s^2, dw rad/s^2).
+    ``twist`` (n, 6) = (v m/s, w rad/s); ``acceleration`` (n, 6) = (a m/s^2, dw rad/s^2);
+    ``packed`` (n, 24): per knot the rotation (column-major), position, twist and
+    acceleration in one row (:meth:`packed_sample`).
     """
 
     kind = "tcp"
@@ -156,6 +158,9 @@ class TcpTrajectory:
         self.acceleration = np.ascontiguousarray(acceleration, dtype=float).reshape(n, 6)
         # placements prepared once: a knot lookup in the cycle costs no allocation
         self._placements = [pin.SE3(self.rotation[k], self.position[k]) for k in range(n)]
+        # one contiguous row per knot for compiled consumers: R (9, column-major), p (3), twist (6), acc (6)
+        self.packed = np.ascontiguousarray(np.hstack([self.rotation.transpose(0, 2, 1).reshape(n, 9), self.position,
+                                                      self.twist, self.acceleration]))
 
     @classmethod
     def from_reference(cls, reference: Callable[[np.ndarray], Any], t_end: float, dt: float,
@@ -201,6 +206,19 @@ class TcpTrajectory:
         dw = (1.0 - s) * self.acceleration[k, 3:] + s * self.acceleration[k + 1, 3:]
         rot = pin.exp3(self.twist[k, 3:] * tau + 0.5 * tau * tau * self.acceleration[k, 3:]) @ self.rotation[k]
         return TcpSample(pin.SE3(rot, pos), np.concatenate([vel, w]), np.concatenate([acc, dw]))
+
+    def packed_sample(self, t: float, scratch: np.ndarray) -> np.ndarray:
+        """The sample at ``t`` as one row of 24 (layout of ``packed``): a row of ``packed``
+        at a knot (no copy), else ``scratch`` (24,) filled with the interpolation."""
+        k, tau = self.grid.locate(t)
+        if tau == 0.0:
+            return self.packed[k]
+        sample = self.sample(t)
+        scratch[:9] = sample.target.rotation.ravel(order="F")
+        scratch[9:12] = sample.target.translation
+        scratch[12:18] = sample.twist
+        scratch[18:] = sample.acceleration
+        return scratch
 
     def positions(self, times: np.ndarray) -> np.ndarray:
         """Desired flange positions (m, 3) in m at ``times`` (m,) s (clamped), the same

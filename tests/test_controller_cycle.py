@@ -180,3 +180,20 @@ def test_shaping_makes_the_drive_speed_demand_what_the_speed_loop_sees():
     # the lead of the drive of this project: 400/200 us samples, 0.25 ms filter
     lead = speed_comparison_lead(400e-6, 200e-6, 0.25e-3)
     assert lead == pytest.approx(100e-6 - 200e-6 * np.exp(-0.8) / (1 - np.exp(-0.8)), rel=1e-12)
+
+
+def test_compiled_and_python_paths_give_the_same_setpoints(tcp_ref):
+    logs = {}
+    for compiled in (True, False):
+        ctrl = Controller(tcp_ref, ControllerConfig(mode="model_based", settle_time_s=0.0, compiled=compiled),
+                          dynamics=RobotDynamics(), q_hint=np.array(ISO_Q_HINT))
+        cell = Cell(ctrl)
+        for _ in range(300):
+            cell.cycle()
+        logs[compiled] = ctrl.log.columns()
+        if compiled:
+            assert ctrl.kernel is not None and ctrl.kernel_cycles > 250 and ctrl.fallback_cycles == 0
+        else:
+            assert ctrl.kernel is None and ctrl.kernel_cycles == 0
+    for name in ("q_d1", "q_d3", "qd_d2", "qdd_d5", "tau_ff2", "target4"):
+        np.testing.assert_allclose(logs[True][name], logs[False][name], rtol=1e-6, atol=1e-6, err_msg=name)

@@ -156,3 +156,39 @@ def test_feedforward_is_eq7_of_the_given_model(which):
         q, qd, qdd = rng.uniform(-1.5, 1.5, 6), rng.uniform(-1.0, 1.0, 6), rng.uniform(-5, 5, 6)
         expected = dyn.mass_matrix(q) @ qdd + dyn.nonlinear_effects(q, qd)  # M qdd + C qd + g + friction
         np.testing.assert_allclose(ff.torque(q, qd, qdd), expected, rtol=1e-10, atol=1e-9)
+
+
+def test_compiled_kernel_equals_the_python_path(tcp_ref):
+    """The generated C kernel (Newton step, qd, qdd, eq. 7 torque) against CartesianToJoint +
+    FeedForward along 2 s of the path: same results to the IK tolerance."""
+    from controller.compiled_cycle import CompiledCycle
+
+    model = load_model()
+    dyn = RobotDynamics(payload=[8.0, 0.0, 0.0, 0.08])
+    kernel = CompiledCycle(model, dyn)
+    q0 = start_configuration(tcp_ref, model, np.array(ISO_Q_HINT))
+    c2j, ff = CartesianToJoint(model), FeedForward(dyn)
+    c2j.reset(q0)
+    kernel.reset(q0)
+    worst = np.zeros(4)
+    base = tcp_ref.packed.ctypes.data
+    for k in range(0, 5000):
+        s = tcp_ref.sample(k * PERIOD)
+        kernel.run(base + 192 * k, PERIOD)
+        assert kernel.info[0] <= c2j.ik._accept2 and kernel.info[1] <= c2j.ik._accept2
+        assert kernel.info[2] > 1e-3  # far from singular on the ISO cube
+        kernel.accept()
+        q, qd, qdd = c2j.solve(s.target, s.twist, s.acceleration, PERIOD)
+        tau = ff.torque(q, qd, qdd)
+        st = kernel.state
+        worst = np.maximum(worst, [np.abs(st[:6] - q).max(), np.abs(st[6:12] - qd).max(),
+                                   np.abs(st[12:] - qdd).max(), np.abs(kernel.tau - tau).max()])
+    assert worst[0] < 1e-9 and worst[1] < 1e-8 and worst[2] < 1e-6 and worst[3] < 1e-5, worst
+    # a singular wrist is reported (hadamard ratio ~ 0), so the controller falls back to the Python path
+    q = np.array([0.0, 0.3, 1.2, 0.0, 0.0, 0.2])
+    kin = FlangeKinematics(model)
+    placement = kin.placement(q)
+    row = np.concatenate([placement.rotation.ravel(order="F"), placement.translation, np.zeros(12)])
+    kernel.reset(q)
+    kernel.run(row.ctypes.data, PERIOD)
+    assert kernel.info[2] < 1e-9

@@ -1,0 +1,240 @@
+"""The cycle's numerics as one compiled C function (CasADi code generation, gcc, ctypes).
+
+Same mathematics as :class:`controller.joint_reference.CartesianToJoint` (one NumericIK
+Newton step from the predicted seed, consistent ``qd``/``qdd``) followed by
+:class:`controller.feedforward.FeedForward` (eq. 7 with rotor inertia and friction), written
+once as a CasADi SX expression of the controller's kinematic model and dynamic model
+(numbers baked in as constants), generated as C, compiled with the system C compiler
+and called through ctypes with prepared argument arrays: one foreign call per cycle
+instead of a dozen pinocchio/LAPACK calls and numpy temporaries. On this machine that
+cuts the controller's compute several-fold when the FMUs and the fieldbus have evicted
+the interpreter's caches between two cycles (``benchmarks/bench_closed_loop.py``).
+
+Kernel ``f(state[18], ref[24], h)`` returns ``state_out[18], tau[6], info[3]``:
+``state = (q, qd, qdd)`` of the previous cycle (rad, rad/s, rad/s^2), ``ref`` the desired
+flange motion (``TcpTrajectory.packed`` layout: rotation column-major, position,
+twist, acceleration), ``h`` the time since the previous cycle (s);
+``info = (|e|^2, |dq|^2, hadamard)``:
+
+* ``seed = q + qd h + qdd h^2 / 2`` (the warm start), ``e = log6(M(seed)^-1 M_target)`` (pinocchio's SE(3) log: angle from the trace, series
+  below 1e-5 rad), ``dq = J_local(seed)^-1 e``, ``q = seed + dq``;
+* ``J = J_LWA(q)``, ``qd = J^-1 [v; w]``, ``qdd = J^-1 ([a; dw] - Jdot qd)`` with
+  ``Jdot qd = d(J(q) v)/dq . v`` at ``v = qd`` (forward-mode AD);
+* ``tau = RNEA(q, qd, qdd) + friction`` (:func:`robot.symbolic.inverse_dynamics_expression`);
+* ``hadamard = |det J| / prod_i |J[:, i]|`` (0 singular, 1 orthogonal columns).
+
+The caller accepts the result only when ``|e|^2`` and ``|dq|^2`` are below NumericIK's
+acceptance bound (then NumericIK's tolerance holds, see
+``NumericIK._acceptance_bound``), ``q`` is inside the limits and the Jacobian is not
+singular; otherwise it takes the Python path (NumericIK with its fallbacks). The
+generated library is cached in ``build/controller_core/`` by the SHA-256 of its C
+source (a lock serialises concurrent builders).
+"""
+from __future__ import annotations
+
+import ctypes
+import fcntl
+import hashlib
+import os
+import shutil
+import subprocess
+import tempfile
+from pathlib import Path
+
+import casadi as ca
+import numpy as np
+import pinocchio as pin
+
+from robot.dynamics import RobotDynamics
+from robot.symbolic import chain_structure, inverse_dynamics_expression
+
+N_JOINTS = 6
+FUNCTION_NAME = "controller_cycle"
+CACHE_DIR = Path(__file__).resolve().parents[1] / "build" / "controller_core"
+CFLAGS = ("-O2", "-fPIC", "-shared", "-std=c99")
+_SMALL_ANGLE = 1e-5
+
+
+class CompiledCycleError(RuntimeError):
+    """Generating or compiling the cycle kernel failed (message holds the compiler output)."""
+
+
+def _rodrigues(axis: np.ndarray, angle: ca.SX) -> ca.SX:
+    k = ca.DM([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
+    return ca.DM.eye(3) + ca.sin(angle) * k + (1.0 - ca.cos(angle)) * (k @ k)
+
+
+def _forward_kinematics(structure, q: ca.SX) -> tuple[ca.SX, ca.SX, list, list]:
+    """Flange rotation, position, joint origins and world joint axes at q (base_link)."""
+    rot = ca.SX.eye(3)
+    pos = ca.SX.zeros(3)
+    origins, axes = [], []
+    for i in range(N_JOINTS):
+        pos = pos + rot @ ca.DM(structure.translations[i])
+        rot = rot @ ca.DM(structure.rotations[i])
+        origins.append(pos)
+        axes.append(rot @ ca.DM(structure.axes[i]))
+        rot = rot @ _rodrigues(structure.axes[i], q[i])
+    return rot @ ca.DM(structure.flange_rotation), pos + rot @ ca.DM(structure.flange_translation), origins, axes
+
+
+def _world_jacobian(p: ca.SX, origins: list, axes: list) -> ca.SX:
+    """Geometric Jacobian at the flange origin, base-frame axes (pinocchio LOCAL_WORLD_ALIGNED)."""
+    return ca.horzcat(*[ca.vertcat(ca.cross(z, p - o), z) for z, o in zip(axes, origins)])
+
+
+def _log6(rot: ca.SX, pos: ca.SX) -> ca.SX:
+    """pinocchio.log6 of (rot, pos): [v; w] with w = log3(rot), v = V(w)^-1 pos."""
+    cos_theta = ca.fmin(ca.fmax((ca.trace(rot) - 1.0) / 2.0, -1.0), 1.0)
+    theta = ca.acos(cos_theta)
+    vee = ca.vertcat(rot[2, 1] - rot[1, 2], rot[0, 2] - rot[2, 0], rot[1, 0] - rot[0, 1])
+    small = theta < _SMALL_ANGLE
+    factor = ca.if_else(small, 0.5 * (1.0 + theta * theta / 6.0), theta / (2.0 * ca.sin(theta)))
+    w = factor * vee
+    wx = ca.skew(w)
+    alpha = ca.if_else(small, 1.0 / 12.0 + theta * theta / 720.0,
+                       (1.0 - theta * ca.sin(theta) / (2.0 * (1.0 - ca.cos(theta)))) / (theta * theta))
+    v_inv = ca.SX.eye(3) - 0.5 * wx + alpha * (wx @ wx)
+    return ca.vertcat(v_inv @ pos, w)
+
+
+def cycle_function(kinematic_model: pin.Model, dynamics: RobotDynamics | None) -> ca.Function:
+    """The SX kernel of the module docstring (tau = 0 when ``dynamics`` is None)."""
+    kin = chain_structure(kinematic_model)
+    state, ref, h = ca.SX.sym("state", 18), ca.SX.sym("ref", 24), ca.SX.sym("h")
+    seed = state[0:6] + h * state[6:12] + 0.5 * h * h * state[12:18]
+    r_t = ca.reshape(ref[0:9], 3, 3)
+    p_t, twist, acc = ref[9:12], ref[12:18], ref[18:24]
+    rot, pos, origins, axes = _forward_kinematics(kin, seed)
+    err = _log6(rot.T @ r_t, rot.T @ (p_t - pos))
+    j_world = _world_jacobian(pos, origins, axes)
+    j_local = ca.vertcat(ca.horzcat(rot.T, ca.SX.zeros(3, 3)), ca.horzcat(ca.SX.zeros(3, 3), rot.T)) @ j_world
+    dq = ca.solve(j_local, err)
+    q = seed + dq
+
+    qs, vs = ca.SX.sym("qs", 6), ca.SX.sym("vs", 6)
+    _, pos_s, origins_s, axes_s = _forward_kinematics(kin, qs)
+    jac_s = _world_jacobian(pos_s, origins_s, axes_s)
+    drift_fn = ca.Function("jacobian_drift", [qs, vs], [ca.jtimes(jac_s @ vs, qs, vs)])
+    jac_fn = ca.Function("world_jacobian", [qs], [jac_s])
+
+    jac = jac_fn(q)
+    qd = ca.solve(jac, twist)
+    qdd = ca.solve(jac, acc - drift_fn(q, qd))
+    norms = [ca.norm_2(jac[:, i]) for i in range(N_JOINTS)]
+    hadamard = ca.fabs(ca.det(jac)) / (norms[0] * norms[1] * norms[2] * norms[3] * norms[4] * norms[5])
+    if dynamics is not None:
+        dyn = chain_structure(dynamics.model, dynamics.parameters)
+        tau = ca.vertcat(*inverse_dynamics_expression(dyn, q, qd, qdd, dynamics.parameter_vector().tolist(),
+                                                      dynamics.payload.tolist()))
+    else:
+        tau = ca.SX.zeros(6)
+    info = ca.vertcat(ca.dot(err, err), ca.dot(dq, dq), hadamard)
+    return ca.Function(FUNCTION_NAME, [state, ref, h], [ca.vertcat(q, qd, qdd), tau, info],
+                       ["state", "ref", "h"], ["state_out", "tau", "info"], {"cse": True})
+
+
+def _generate_c(function: ca.Function) -> str:
+    generator = ca.CodeGenerator(f"{FUNCTION_NAME}.c", {"with_header": False, "casadi_int": "long long int"})
+    generator.add(function)
+    with tempfile.TemporaryDirectory() as tmp:
+        generator.generate(tmp + "/")
+        return (Path(tmp) / f"{FUNCTION_NAME}.c").read_text()
+
+
+def build_library(function: ca.Function, cache_dir: Path = CACHE_DIR) -> Path:
+    """Generate, compile (once per source hash) and return the shared library's path."""
+    source = _generate_c(function)
+    compiler = os.environ.get("CC", "gcc")
+    digest = hashlib.sha256((source + compiler + " ".join(CFLAGS)).encode()).hexdigest()[:16]
+    cache_dir.mkdir(parents=True, exist_ok=True)
+    library = cache_dir / f"{FUNCTION_NAME}-{digest}.so"
+    if library.is_file():
+        return library
+    with open(cache_dir / ".lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if library.is_file():
+            return library
+        with tempfile.TemporaryDirectory(dir=cache_dir) as tmp:
+            c_file = Path(tmp) / f"{FUNCTION_NAME}.c"
+            c_file.write_text(source)
+            out = Path(tmp) / library.name
+            try:
+                result = subprocess.run([compiler, *CFLAGS, str(c_file), "-o", str(out), "-lm"],
+                                        capture_output=True, text=True, timeout=300)
+            except (OSError, subprocess.TimeoutExpired) as exc:
+                raise CompiledCycleError(f"controller kernel: could not run the C compiler {compiler!r}: {exc}") \
+                    from None
+            if result.returncode != 0:
+                raise CompiledCycleError(f"controller kernel: {compiler} failed:\n{result.stderr[-4000:]}")
+            shutil.move(str(out), library)
+    return library
+
+
+class CompiledCycle:
+    """The compiled kernel with prepared ctypes argument arrays.
+
+    ``state`` (18,) holds (q, qd, qdd) of the last accepted cycle; :meth:`run` evaluates
+    the kernel from it into ``result`` (18,), ``tau`` (6,) and ``info`` (3,); :meth:`accept`
+    makes ``result`` the new state (the two buffers swap roles, no copy); :meth:`reset`
+    sets the state at rest.
+    """
+
+    def __init__(self, kinematic_model: pin.Model, dynamics: RobotDynamics | None,
+                 cache_dir: Path = CACHE_DIR) -> None:
+        function = cycle_function(kinematic_model, dynamics)
+        self.library_path = build_library(function, cache_dir)
+        self._lib = ctypes.CDLL(str(self.library_path))
+        fn = getattr(self._lib, FUNCTION_NAME)
+        fn.restype = ctypes.c_int
+        fn.argtypes = [ctypes.c_void_p] * 4 + [ctypes.c_int]
+        self._fn = fn
+        sizes = [ctypes.c_longlong() for _ in range(4)]
+        work = getattr(self._lib, f"{FUNCTION_NAME}_work")
+        work.argtypes = [ctypes.POINTER(ctypes.c_longlong)] * 4
+        if work(*(ctypes.byref(x) for x in sizes)) != 0:
+            raise CompiledCycleError("controller kernel: the work-size query failed")
+        n_arg, n_res, n_iw, n_w = (int(x.value) for x in sizes)
+        self._buffers = (np.zeros(18), np.zeros(18))
+        self.h = np.zeros(1)
+        self.tau = np.zeros(6)
+        self.info = np.zeros(3)
+        self._iw = (ctypes.c_longlong * max(n_iw, 1))()
+        self._w = (ctypes.c_double * max(n_w, 1))()
+        self._args = []
+        for src, dst in ((0, 1), (1, 0)):
+            arg = (ctypes.c_void_p * max(n_arg, 3))(self._buffers[src].ctypes.data, 0, self.h.ctypes.data)
+            res = (ctypes.c_void_p * max(n_res, 3))(self._buffers[dst].ctypes.data, self.tau.ctypes.data,
+                                                   self.info.ctypes.data)
+            self._args.append((arg, (ctypes.cast(arg, ctypes.c_void_p), ctypes.cast(res, ctypes.c_void_p),
+                                     ctypes.cast(self._iw, ctypes.c_void_p), ctypes.cast(self._w, ctypes.c_void_p),
+                                     0)))
+        self._current = 0
+        self.state = self._buffers[0]
+        self.result = self._buffers[1]
+
+    def reset(self, q: np.ndarray) -> None:
+        """State at rest at ``q`` (6,) rad."""
+        self.state[:] = 0.0
+        self.state[:6] = q
+
+    def run(self, ref_address: int, h: float) -> None:
+        """Evaluate from ``state`` for the packed reference row (24 doubles) at memory address
+        ``ref_address`` (e.g. ``TcpTrajectory.packed`` row k: ``packed.ctypes.data + 192 k``)
+        and the step ``h`` (s)."""
+        arg, call = self._args[self._current]
+        arg[1] = ref_address
+        self.h[0] = h
+        if self._fn(*call) != 0:
+            raise CompiledCycleError("controller kernel returned an error")
+
+    def accept(self) -> None:
+        """Make the last result the state (after checking ``info``)."""
+        self._current ^= 1
+        self.state, self.result = self.result, self.state
+
+    def set_state(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> None:
+        """Overwrite the state (after a cycle solved by another path)."""
+        self.state[:6] = q
+        self.state[6:12] = qd
+        self.state[12:] = qdd
