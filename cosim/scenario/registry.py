@@ -20,6 +20,7 @@ JOB_MODULES: tuple[str, ...] = (
     "cosim.scenario.fmus_job",
     "cosim.jobs.calibration",
     "cosim.jobs.iso9283",
+    "cosim.jobs.identification",
 )
 
 #: runner(scenario, context) -> extra summary.json fields (or None)

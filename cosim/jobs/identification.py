@@ -1,0 +1,490 @@
+"""Job ``identification``: the paper's section 4 campaign, closed through the co-simulation.
+
+1. **Design** (:mod:`identification.dynamic_excitation`): an optimal exciting Fourier
+   trajectory (eq. 29-30) for the controller's model, against random feasible series
+   of the same order; ``omega_f`` is snapped so that one period is a whole number of
+   controller cycles (periodic averaging needs it).
+2. **Excite**: the trajectory, repeated ``[excitation] periods`` times, runs closed loop
+   on the robot cell (:mod:`cosim.jobs.robot_cell`: controller -> POWERLINK-timed
+   CiA 402 fieldbus -> servo-drive FMUs <-> plant FMU set to the seeded TRUE robot,
+   whose inertias, friction, rotor inertias and payload the controller does not know).
+   The data are what a user gets: the drives' ``position_actual`` (0x6064, encoder
+   counts) and ``torque_actual`` (0x6077, 0.1 % of rated torque) as the fieldbus
+   delivers them to the controller every 400 us (:class:`FieldbusRecorder`), plus an
+   optional Gaussian current-measurement noise. ``torque_actual`` is the drive's own
+   estimate ``N k_t i`` (joint side): it includes the reflected rotor inertia and the
+   friction the motor overcomes, which the regressor models (columns Ia, fv, fc).
+3. **Identify** (:func:`identification.dynamic_identify.identify_periodic`): skip the
+   first period(s), average the rest, differentiate in the Fourier domain (no phase
+   lag), weighted least squares on the base parameters.
+4. **Validate** on the EN ISO 9283 path (the main job's path, run with the nominal
+   model's feed-forward, as the robot ran before identification): measured versus
+   predicted torque per joint (Figure 5(b)), relative RMS error per joint for the
+   identified, nominal and true models.
+5. **Use**: the ISO 9283 path runs in model-based mode with the identified model, and
+   with the true parameters; the TCP errors of the three models are compared.
+
+Results: ``summary.json``; ``excitation.json`` (trajectory, condition numbers, solve
+time, feasibility); ``parameters.json`` (identified base parameters, definitions, std,
+true values); ``identification_record.csv`` and ``validation_record.csv`` (what was
+measured, in the ``python -m cosim identify`` format); ``validation_torques.csv``;
+per ISO run ``timeseries_<model>.csv``, ``controller_<model>.csv``, ``tcp_<model>.csv``;
+figures ``figure5a_excitation_path.png``, ``figure5b_torques.png``.
+"""
+from __future__ import annotations
+
+import json
+import math
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from controller import Controller, ControllerConfig, JointTrajectory, TcpTrajectory
+from cosim.jobs import robot_cell
+from cosim.jobs.iso9283 import TRACKER_TABLE, TRUE_ROBOT_TABLE, make_true_robot
+from cosim.jobs.laser_tracker import TrackerConfig
+from cosim.scenario.context import RunContext
+from cosim.scenario.cosim_tables import COSIM_FIELDS, check_cosim_tables
+from cosim.scenario.loader import SCENARIO_FIELD, Scenario
+from cosim.scenario.registry import register_job
+from cosim.scenario.schema import AnyValue, Boolean, Field, Integer, List, Number, String, Table, Where
+
+JOB_NAME = "identification"
+MODEL_LABELS = ("nominal", "identified", "true")
+
+EXCITATION_TABLE = Table({
+    "order": Field(Integer(min=1, max=20), default=5, doc="the Fourier order N of eq. 29 (paper: 5)"),
+    "omega_f": Field(Number(unit="rad/s", gt=0), default=0.8, doc="the base frequency in rad/s (paper: 0.8)"),
+    "samples": Field(Integer(min=10), default=80, doc="samples per period k of the objective (paper: 80)"),
+    "constraint_samples": Field(Integer(min=10), default=160, doc="samples per period of the constraints"),
+    "max_iterations": Field(Integer(min=1), default=300, doc="SLSQP iterations at most"),
+    "random_baselines": Field(Integer(min=1), default=10, doc="random feasible series to compare with"),
+    "seed": Field(Integer(min=0), default=0, doc="seed of the random series (the best one starts SLSQP)"),
+    "periods": Field(Integer(min=2), default=5, doc="periods run on the cell (the first is skipped)"),
+    "skip_periods": Field(Integer(min=0), default=1, doc="periods dropped before averaging"),
+    "torque_fraction": Field(Number(gt=0, max=1), default=0.8,
+                             doc="fraction of the URDF effort the model torque may use"),
+    "position_margin": Field(Number(unit="rad", min=0), default=math.radians(5.0),
+                             doc="margin inside the joint position limits"),
+    "tcp_box_min": Field(List(Number(unit="m"), length=3), default=[0.3, -1.2, 0.3],
+                         doc="lower corner of the allowed flange box in base_link"),
+    "tcp_box_max": Field(List(Number(unit="m"), length=3), default=[1.8, 1.2, 2.0],
+                         doc="upper corner of the allowed flange box in base_link"),
+    "centre": Field(List(Number(unit="rad"), length=6), default=[0.0, 0.4, 1.2, 0.0, 0.6, 0.0],
+                    doc="centre pose of the random series (offsets q_i0), rad"),
+}, doc="the [excitation] table")
+
+MEASUREMENT_TABLE = Table({
+    "cutoff": Field(Number(unit="Hz", gt=0), default=20.0, doc="low-pass cut-off for differentiating q"),
+    "torque_noise_percent_rated": Field(Number(min=0, max=10), default=0.1,
+                                        doc="added Gaussian current-measurement noise, sigma in % of rated torque"),
+    "noise_seed": Field(Integer(min=0), default=0),
+    "method": Field(String(choices=("wls", "ols")), default="wls"),
+}, doc="the [measurement] table")
+
+CONTROLLER_TABLE = Table({
+    "period": Field(Number(unit="s", gt=0), default=400e-6, doc="the controller cycle: a number in s > 0"),
+    "excitation_mode": Field(String(choices=("standard", "model_based")), default="model_based",
+                             doc="controller mode while the exciting trajectory runs (nominal model)"),
+    "payload_known": Field(Boolean(), default=False,
+                           doc="true: the nominal model includes the [true_robot] payload"),
+    "drive_compensation": Field(Boolean(), default=True),
+    "compute_budget": Field(Number(unit="s", gt=0), default=100e-6),
+    "settle_time": Field(Number(unit="s", min=0), default=0.2),
+    "compare_models": Field(List(String(choices=MODEL_LABELS), min_len=1, unique=True), default=list(MODEL_LABELS),
+                            doc="feed-forward models run on the ISO 9283 path"),
+}, doc="the [controller] table")
+
+PATH_TABLE = Table({
+    "speed": Field(Number(unit="m/s", gt=0, max=2.0), default=1.0),
+    "acceleration": Field(Number(unit="m/s^2", gt=0, max=20.0), default=5.0),
+}, doc="the [path] table")
+
+RESULTS_TABLE = Table({
+    "can_log": Field(Boolean(), default=False, doc="write can_<run>.blf for every run"),
+    "figures": Field(Boolean(), default=True),
+    "records": Field(Boolean(), default=True, doc="write the measured records as CSV"),
+}, doc="the [results] table")
+
+SCHEMA = Table({
+    "scenario": SCENARIO_FIELD,
+    **COSIM_FIELDS,
+    "true_robot": Field(TRUE_ROBOT_TABLE, default={}),
+    "controller": Field(CONTROLLER_TABLE, default={}),
+    "excitation": Field(EXCITATION_TABLE, default={}),
+    "measurement": Field(MEASUREMENT_TABLE, default={}),
+    "path": Field(PATH_TABLE, default={}),
+    "tracker": Field(TRACKER_TABLE, default={}),
+    "fieldbus": Field(Table({}, extra=AnyValue(), doc="a [fieldbus] table (fieldbus/powerlink_defaults.toml keys)"),
+                      default={}),
+    "results": Field(RESULTS_TABLE, default={}),
+}, doc="an identification scenario document")
+
+_TABLES = ("true_robot", "controller", "excitation", "measurement", "path", "tracker", "results")
+
+
+def _fill_table_defaults(doc: dict[str, Any]) -> None:
+    for key in _TABLES:
+        if not doc.get(key):
+            doc[key] = SCHEMA.fields[key].spec.check({}, Where(None) / key)
+
+
+def _multiple(value: float, base: float) -> bool:
+    ratio = value / base
+    return round(ratio) >= 1 and abs(ratio - round(ratio)) <= 1e-9 * max(1.0, ratio)
+
+
+def check(doc: dict[str, Any], where: Where) -> None:
+    """The cell's FMUs, connections and fieldbus, periods, excitation settings."""
+    from cosim.master import load_model_description
+    from fieldbus import FieldbusConfig, FieldbusConfigError
+
+    _fill_table_defaults(doc)
+    by_name = {fmu["name"]: (i, fmu) for i, fmu in enumerate(doc["fmus"])}
+    needed = {robot_cell.PLANT: robot_cell.PLANT_FMU, **{d: robot_cell.DRIVE_FMU for d in robot_cell.DRIVES}}
+    for name, builtin in needed.items():
+        if name not in by_name:
+            raise (where / "fmus").error(f"an [[fmus]] table with name = {name!r} (builtin = {builtin!r})",
+                                         problem=f"FMU {name!r} missing")
+    variables = {name: type_ for name, (type_, _) in robot_cell.cell_variables().items()}
+    check_cosim_tables(doc, where, master_variables=variables)
+    for name, builtin in needed.items():
+        i, fmu = by_name[name]
+        have = {v.name for v in load_model_description(fmu["path"]).modelVariables}
+        want = {"tau[1]", "q[6]", "p[78]", "payload_mass"} if name == robot_cell.PLANT else {
+            "target_position", "torque_offset", "controlword", "position_actual", "torque_actual"}
+        if not want <= have:
+            raise (where / "fmus")[i].error(f"a {builtin} FMU (variables {sorted(want)})", str(fmu["path"]),
+                                            problem=f"instance {name!r} lacks {sorted(want - have)}")
+    plant_i, plant = by_name[robot_cell.PLANT]
+    for key in plant["parameters"]:
+        if key.startswith(robot_cell.JOB_SET_PLANT_PARAMETERS):
+            raise (where / "fmus")[plant_i].error("no q0/qd0/p/payload parameters: the job sets them",
+                                                  problem=f"parameter {key!r} is set by the job")
+    given = set(doc["connections"])
+    for text in robot_cell.cell_connections():
+        if text not in given:
+            raise (where / "connections").error(f"the connection {text!r} (cosim.jobs.robot_cell.cell_connections())",
+                                                problem="connection missing")
+    try:
+        fb = FieldbusConfig.from_dict(doc["fieldbus"], source=str(where.file) if where.file else "<scenario>")
+    except FieldbusConfigError as exc:
+        raise (where / "fieldbus" / exc.key).error(exc.expected, exc.given) from None
+    ctrl, base = doc["controller"], doc["simulation"]["macro_step"]
+    if abs(fb.cycle_time_s - ctrl["period"]) > 1e-12:
+        raise (where / "controller" / "period").error(
+            f"the fieldbus cycle time {fb.cycle_time_s * 1e6:g} us ([fieldbus] cycle_time_us)", ctrl["period"])
+    for table, value in (("controller", ctrl["period"]), ("tracker", doc["tracker"]["period"])):
+        if not _multiple(value, base):
+            raise (where / table / "period").error(f"a positive integer multiple of macro_step = {base!r} s", value)
+    exc_t = doc["excitation"]
+    if exc_t["skip_periods"] >= exc_t["periods"]:
+        raise (where / "excitation" / "skip_periods").error(
+            f"fewer than [excitation] periods = {exc_t['periods']} (at least one period must be averaged)",
+            exc_t["skip_periods"])
+    if exc_t["constraint_samples"] < exc_t["samples"]:
+        raise (where / "excitation" / "constraint_samples").error(
+            f"at least [excitation] samples = {exc_t['samples']}", exc_t["constraint_samples"])
+    if any(lo >= hi for lo, hi in zip(exc_t["tcp_box_min"], exc_t["tcp_box_max"])):
+        raise (where / "excitation" / "tcp_box_max").error(f"above tcp_box_min = {exc_t['tcp_box_min']}",
+                                                           exc_t["tcp_box_max"])
+    nyquist = 0.5 / ctrl["period"]
+    if doc["measurement"]["cutoff"] >= nyquist:
+        raise (where / "measurement" / "cutoff").error(f"below the Nyquist frequency {nyquist:g} Hz of the "
+                                                       "controller cycle", doc["measurement"]["cutoff"])
+
+
+# ---------------------------------------------------------------------------------------- measurement
+class FieldbusRecorder:
+    """The controller PC's data logger: wraps a :class:`controller.Controller` and keeps, every
+    cycle, what the fieldbus delivered (``ObservedActuals``: position actual in rad, torque
+    actual in N m joint side, both quantised by the drive and the CiA 402 scaling), plus
+    optional Gaussian current-measurement noise on the torque (sigma in N m per joint).
+
+    Everything else is delegated to the wrapped controller, so the robot cell's
+    :class:`~cosim.jobs.robot_cell.FieldbusLink` drives it like the controller itself.
+    """
+
+    def __init__(self, controller: Controller, capacity: int, torque_noise_sigma: np.ndarray,
+                 seed: int) -> None:
+        self._controller = controller
+        self.t = np.full(capacity, np.nan)
+        self.position = np.full((capacity, 6), np.nan)
+        self.torque = np.full((capacity, 6), np.nan)
+        self.fresh = np.zeros((capacity, 6), dtype=bool)
+        self.rows = 0
+        self._sigma = np.asarray(torque_noise_sigma, dtype=float)
+        self._rng = np.random.default_rng(seed)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._controller, name)
+
+    def step(self, cycle: int, t: float, observed: Any) -> Any:
+        k = self.rows
+        if k < self.t.size:
+            self.t[k] = t
+            self.position[k] = observed.position
+            self.torque[k] = observed.torque + self._sigma * self._rng.standard_normal(6)
+            self.fresh[k] = observed.fresh
+            self.rows = k + 1
+        return self._controller.step(cycle, t, observed)
+
+    def window(self, start_s: float, duration_s: float, period_s: float) -> tuple[np.ndarray, ...]:
+        """Rows with start_s - 1e-9 <= t < start_s + duration_s - 1e-9: (t, position, torque)."""
+        n = self.rows
+        first = int(np.searchsorted(self.t[:n], start_s - 1e-9))
+        count = int(round(duration_s / period_s))
+        last = min(first + count, n)
+        return self.t[first:last], self.position[first:last], self.torque[first:last]
+
+
+# ---------------------------------------------------------------------------------------- set-up
+def snapped_omega(omega_f: float, period_s: float) -> tuple[float, int]:
+    """(omega_f, samples per period) with the period a whole number of controller cycles."""
+    n = int(round(2.0 * math.pi / omega_f / period_s))
+    return 2.0 * math.pi / (n * period_s), n
+
+
+def design(doc: dict[str, Any], nominal_payload: np.ndarray, omega_f: float):
+    """The optimal exciting trajectory of the scenario's [excitation] table (nominal model)."""
+    from identification.dynamic_excitation import (ExcitationLimits, ExcitationProblem, ExcitationSettings,
+                                                   design_excitation)
+
+    e = doc["excitation"]
+    limits = ExcitationLimits.from_parameters(position_margin=e["position_margin"],
+                                              torque_fraction=e["torque_fraction"],
+                                              tcp_box=(e["tcp_box_min"], e["tcp_box_max"]))
+    settings = ExcitationSettings(order=e["order"], omega_f=omega_f, samples=e["samples"],
+                                  constraint_samples=e["constraint_samples"], max_iterations=e["max_iterations"])
+    problem = ExcitationProblem(limits=limits, settings=settings, payload=nominal_payload)
+    return design_excitation(problem, seed=e["seed"], random_baselines=e["random_baselines"], centre=e["centre"])
+
+
+def _config(doc: dict[str, Any], mode: str, lead_cycles: int) -> ControllerConfig:
+    c = doc["controller"]
+    return ControllerConfig(mode=mode, period_s=c["period"], lead_cycles=lead_cycles,
+                            compute_budget_s=c["compute_budget"], settle_time_s=c["settle_time"])
+
+
+def _noise_sigma(doc: dict[str, Any]) -> np.ndarray:
+    from robot.parameters import load_parameters
+
+    return doc["measurement"]["torque_noise_percent_rated"] / 100.0 * load_parameters().rated_torque
+
+
+# ---------------------------------------------------------------------------------------- running
+def run(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
+    """Design, excite, identify, validate, compare (see module docstring)."""
+    from fieldbus import FieldbusConfig
+    from identification.dynamic_data import motion_record, write_motion_csv
+    from identification.dynamic_identify import identify_periodic, validate
+    from planners.iso9283 import ISO_Q_HINT, iso9283_test_path
+    from robot.description import load_model
+    from robot.dynamics import RobotDynamics
+    from robot.parameters import load_parameters
+
+    doc = scenario.data
+    _fill_table_defaults(doc)
+    ctrl, exc_t, meas = doc["controller"], doc["excitation"], doc["measurement"]
+    period = ctrl["period"]
+    fb = FieldbusConfig.from_dict(doc["fieldbus"], source=str(scenario.path))
+    lead = 1 + fb.dead_time_cycles
+    true_robot = make_true_robot(doc["true_robot"])
+    params = load_parameters()
+    known_payload = true_robot.payload.copy() if ctrl["payload_known"] else np.zeros(4)
+    kin = load_model()
+    nominal = RobotDynamics(payload=known_payload, model=kin)
+    drive_model = robot_cell.drive_loop_model(doc["fmus"], period) if ctrl["drive_compensation"] else None
+    tracker = TrackerConfig(doc["tracker"]["period"], doc["tracker"]["noise_sigma"], doc["tracker"]["seed"])
+    sigma = _noise_sigma(doc)
+    ctx.summary.update(
+        phase="designing the exciting trajectory",
+        true_robot={"seed": true_robot.seed, "payload_mass_kg": float(true_robot.payload[0]),
+                    "payload_com_m": true_robot.payload[1:].tolist(),
+                    "dynamic_deviations": doc["true_robot"]["dynamic_deviations"],
+                    "geometric_errors": doc["true_robot"]["geometric_errors"]},
+        noise_assumptions=_noise_assumptions(params, fb, sigma, meas))
+
+    # 1. design ------------------------------------------------------------------------------
+    omega_f, samples_per_period = snapped_omega(exc_t["omega_f"], period)
+    excitation = design(doc, known_payload, omega_f)
+    ctx.path("excitation.json").write_text(json.dumps(excitation.to_dict(), indent=2) + "\n")
+    traj = excitation.trajectory
+    excitation_fields = {k: v for k, v in excitation.to_dict().items() if k not in ("trajectory", "limits")}
+    excitation_fields.update(omega_f_requested_rad_s=exc_t["omega_f"], samples_per_period_400us=samples_per_period)
+    ctx.summary.update(phase="exciting", excitation=excitation_fields)
+
+    # 2. excite on the cell ------------------------------------------------------------------
+    duration = exc_t["periods"] * traj.period
+    reference = JointTrajectory.from_sampler(traj.sample, duration, period)
+    stop_time = 0.02 + ctrl["settle_time"] + duration + 0.3
+    capacity = int(stop_time / period) + 16
+    controller = Controller(reference, _config(doc, ctrl["excitation_mode"], lead), kinematic_model=kin,
+                            dynamics=nominal, drive_model=drive_model, capacity=capacity)
+    recorder = FieldbusRecorder(controller, capacity, sigma, meas["noise_seed"])
+    cell = robot_cell.run_cell(doc, recorder, true_robot, ctx, label="excitation", stop_time=stop_time,
+                               fieldbus=fb, tracker=tracker, record_file="timeseries_excitation.csv",
+                               can_log=ctx.path("can_excitation.blf") if doc["results"]["can_log"] else None)
+    if cell.failure is not None:
+        raise cell.failure
+    if controller.motion_start_s is None:
+        raise RuntimeError("the controller never started the exciting trajectory")
+    t_x, q_x, tau_x = recorder.window(controller.motion_start_s, duration, period)
+    excite_summary = {"motion_start_s": controller.motion_start_s, "duration_s": duration,
+                      "samples": int(t_x.size), "sim_time_s": cell.reached_s, "loop_wall_time_s": cell.loop_wall_time_s,
+                      "controller_mode": ctrl["excitation_mode"],
+                      "max_abs_torque_Nm": np.abs(tau_x).max(axis=0).tolist(),
+                      "max_torque_ratio_of_effort": float(np.max(np.abs(tau_x) / params.effort_limit))}
+    if doc["results"]["records"]:
+        write_motion_csv(ctx.path("identification_record.csv"),
+                         motion_record(t_x - t_x[0], q_x, tau_x, source="identification_record"))
+
+    # 3. identify ----------------------------------------------------------------------------
+    wall0 = time.perf_counter()
+    ident = identify_periodic(q_x, tau_x, period, samples_per_period, skip_periods=exc_t["skip_periods"],
+                              cutoff_hz=meas["cutoff"], method=meas["method"])
+    ident_wall = time.perf_counter() - wall0
+    true_base = ident.base.base_values(RobotDynamics(true_robot.dynamic_parameters, true_robot.payload)
+                                       .parameter_vector(include_payload=True))
+    parameters = ident.to_dict()
+    for entry, value in zip(parameters["base_parameters"], true_base):
+        entry["true_value"] = float(value)
+        entry["error_in_std"] = (entry["value"] - float(value)) / entry["std"] if entry["std"] > 0 else None
+    ctx.path("parameters.json").write_text(json.dumps(parameters, indent=2) + "\n")
+    rel_err = np.abs(ident.values - true_base) / np.maximum(np.abs(true_base), 1e-12)
+    ident_summary = {"base_parameters": ident.base.count, "method": ident.estimate.method,
+                     "condition_number_measured": ident.estimate.condition_number,
+                     "joint_noise_sigma_Nm": ident.estimate.joint_sigma.tolist(),
+                     "wall_time_s": ident_wall, "processing": ident.data,
+                     "within_3_std_of_true": int(np.sum(np.abs(ident.values - true_base) <= 3 * ident.estimate.std)),
+                     "median_relative_error_vs_true": float(np.median(rel_err))}
+    ctx.summary.update(phase="validating", excitation_run=excite_summary, identification=ident_summary)
+
+    # 4-5. ISO 9283 with the three models ----------------------------------------------------
+    path = iso9283_test_path(speed=doc["path"]["speed"], acceleration=doc["path"]["acceleration"])
+    tcp_ref = TcpTrajectory.from_reference(path.reference, path.duration, period)
+    models = {"nominal": nominal, "identified": RobotDynamics(ident.full_parameters, np.zeros(4), model=kin),
+              "true": true_robot.dynamics()}
+    runs: dict[str, Any] = {}
+    validation_fields: dict[str, Any] = {}
+    iso_stop = doc["simulation"]["stop_time"]
+    for label in ctrl["compare_models"]:
+        iso_capacity = int(iso_stop / period) + 16
+        ctl = Controller(tcp_ref, _config(doc, "model_based", lead), kinematic_model=kin, dynamics=models[label],
+                         q_hint=np.array(ISO_Q_HINT), drive_model=drive_model, capacity=iso_capacity)
+        rec = FieldbusRecorder(ctl, iso_capacity, sigma, meas["noise_seed"] + 1)
+        iso_cell = robot_cell.run_cell(doc, rec, true_robot, ctx, label=f"iso9283_{label}", stop_time=iso_stop,
+                                       fieldbus=fb, tracker=tracker, record_file=f"timeseries_{label}.csv",
+                                       can_log=ctx.path(f"can_{label}.blf") if doc["results"]["can_log"] else None)
+        entry, _ = _evaluate_iso(ctx, label, iso_cell, ctl, tcp_ref, path, true_robot)
+        runs[label] = {k: entry[k] for k in ("status", "tcp_error_max_mm", "tcp_error_rms_mm",
+                                             "tcp_error_max_noise_free_mm", "tcp_error_rms_noise_free_mm",
+                                             "path_accuracy_AT_mm", "joint_lag_max_rad", "path_completed",
+                                             "loop_wall_time_s") if k in entry}
+        ctx.summary.update(iso9283_runs=runs)
+        if iso_cell.failure is not None:
+            raise iso_cell.failure
+        if label == "nominal" or "nominal" not in ctrl["compare_models"] and not validation_fields:
+            validation_fields = _validate(ctx, doc, rec, ctl, path, ident, models, true_robot, validate,
+                                          motion_record, write_motion_csv, label)
+            ctx.summary.update(validation=validation_fields)
+
+    fields: dict[str, Any] = {"phase": "done", "excitation": excitation_fields, "excitation_run": excite_summary,
+                              "identification": ident_summary, "validation": validation_fields,
+                              "iso9283_runs": runs}
+    if {"nominal", "identified"} <= set(runs):
+        fields["tcp_error_max_ratio_nominal_over_identified"] = _ratio(runs["nominal"]["tcp_error_max_mm"],
+                                                                       runs["identified"]["tcp_error_max_mm"])
+    if {"true", "identified"} <= set(runs):
+        fields["tcp_error_max_ratio_identified_over_true"] = _ratio(runs["identified"]["tcp_error_max_mm"],
+                                                                    runs["true"]["tcp_error_max_mm"])
+    if doc["results"]["figures"]:
+        from cosim.jobs.identification_figures import figure_excitation_path, figure_torques
+
+        figures = [figure_excitation_path(ctx.path("figure5a_excitation_path.png"), excitation),
+                   figure_torques(ctx.path("figure5b_torques.png"), ctx.path("validation_torques.csv"))]
+        fields["figures"] = [p.name for p in figures]
+    return fields
+
+
+def _ratio(a: float, b: float) -> float:
+    return a / b if (b and math.isfinite(a) and math.isfinite(b)) else float("nan")
+
+
+def _evaluate_iso(ctx, label, cell, controller, reference, path, true_robot):
+    """The main job's ISO 9283 evaluation (same metrics and files as job ``iso9283``)."""
+    from cosim.jobs.iso9283 import _evaluate_mode
+
+    return _evaluate_mode(ctx, label, cell, controller, reference, path, true_robot)
+
+
+def _validate(ctx: RunContext, doc: dict[str, Any], rec: FieldbusRecorder, ctl: Controller, path, ident, models,
+              true_robot, validate, motion_record, write_motion_csv, label: str) -> dict[str, Any]:
+    """Measured (fieldbus) vs predicted torques along the ISO 9283 path run with model ``label``."""
+    from identification.dynamic_estimation import relative_rms_error
+    from identification.dynamic_identify import prepare_motion
+    from identification.dynamic_signals import zero_phase_lowpass
+
+    period = doc["controller"]["period"]
+    t, q, tau = rec.window(ctl.motion_start_s, path.duration, period)
+    record = motion_record(t, q, tau, source=f"ISO 9283 run with the {label} model (fieldbus actual values)")
+    if doc["results"]["records"]:
+        write_motion_csv(ctx.path("validation_record.csv"),
+                         motion_record(t - t[0], q, tau, source="validation_record"))
+    cutoff = doc["measurement"]["cutoff"]
+    result = validate(ident, record, cutoff)
+    prepared = prepare_motion(record, cutoff)
+    predictions = {"identified": result.tau_predicted}
+    for name in ("nominal", "true"):
+        dyn = models[name]
+        predictions[name] = np.array([dyn.inverse_dynamics(a, b, c)
+                                      for a, b, c in zip(prepared.q, prepared.qd, prepared.qdd)])
+    measured_f = zero_phase_lowpass(tau, period, cutoff)
+    filtered = {name: zero_phase_lowpass(pred, period, cutoff) for name, pred in predictions.items()}
+    errors = {name: relative_rms_error(measured_f, pred).tolist() for name, pred in filtered.items()}
+    errors_raw = {name: relative_rms_error(tau, pred).tolist() for name, pred in predictions.items()}
+    columns = {"t": t - t[0]}
+    for j in range(6):
+        columns[f"tau_measured{j + 1}"] = tau[:, j]
+    for j in range(6):
+        columns[f"tau_measured_filtered{j + 1}"] = measured_f[:, j]
+    for name, pred in predictions.items():
+        for j in range(6):
+            columns[f"tau_{name}{j + 1}"] = pred[:, j]
+    from cosim.jobs.columns_csv import write_columns_csv
+
+    write_columns_csv(ctx.path("validation_torques.csv"), columns)
+    return {"trajectory": "EN ISO 9283 test path", "run_with_model": label, "samples": int(t.size),
+            "relative_rms_error": errors["identified"],
+            "max_relative_rms_error": float(max(errors["identified"])),
+            "relative_rms_error_by_model": errors,
+            "relative_rms_error_unfiltered_by_model": errors_raw,
+            "rms_measured_Nm": np.sqrt(np.mean(tau**2, axis=0)).tolist(),
+            "definition": "per joint RMS(predicted - measured) / RMS(measured) after the same zero-phase "
+                          f"low-pass at {cutoff:g} Hz on both (parallel filtering; '_unfiltered': without it); "
+                          "measured = torque_actual over the fieldbus (with the added current noise); predicted "
+                          f"from the fieldbus positions, zero-phase differentiated at {cutoff:g} Hz"}
+
+
+def _noise_assumptions(params, fb, sigma: np.ndarray, meas: dict[str, Any]) -> dict[str, Any]:
+    lsb_q = 2 * math.pi / (params.encoder_counts_per_motor_rev * params.gear_ratio)
+    return {
+        "encoder": f"{params.encoder_counts_per_motor_rev} counts per motor revolution (drive floor-quantises "
+                   "position_actual), joint-side LSB per joint in rad",
+        "encoder_lsb_rad": lsb_q.tolist(),
+        "torque_actual_lsb_Nm": (1e-3 * params.rated_torque).tolist(),
+        "torque_actual": "0x6077 INT16 in 0.1 % of rated torque (fieldbus scaling), the drive's N k_t i: includes "
+                         "reflected rotor inertia and friction torque (both are regressor columns)",
+        "added_current_noise_sigma_Nm": np.asarray(sigma).tolist(),
+        "added_current_noise": f"Gaussian, sigma {meas['torque_noise_percent_rated']:g} % of rated torque, white "
+                               f"per 400 us sample, seed {meas['noise_seed']}",
+        "sampling": f"{fb.cycle_time_s * 1e6:g} us (every controller cycle, values latched at the SoC, "
+                    f"{fb.dead_time_cycles} cycle(s) dead time for set-points)",
+    }
+
+
+register_job(JOB_NAME, run, SCHEMA, check,
+             "Dynamic identification campaign: optimal excitation, closed-loop data over the fieldbus, "
+             "identification, ISO 9283 validation and model comparison")

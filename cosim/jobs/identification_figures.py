@@ -1,0 +1,81 @@
+"""Figures of the identification campaign (paper Figure 5): excitation path, torque verification."""
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+
+def _pyplot():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def figure_excitation_path(path: Path, excitation: Any, samples: int = 2000) -> Path:
+    """Figure 5(a): the flange path of one period of the exciting trajectory (3D, m) with
+    the allowed TCP box, and the optimised versus random condition numbers."""
+    from robot.kinematics import FlangeKinematics
+
+    plt = _pyplot()
+    traj = excitation.trajectory
+    s = traj.sample(np.arange(samples) * traj.period / samples)
+    kin = FlangeKinematics()
+    r = np.array([kin.position(q) for q in s.q])
+    speed = np.linalg.norm(np.gradient(r, s.t, axis=0), axis=1)
+    fig = plt.figure(figsize=(11, 5))
+    ax = fig.add_subplot(1, 2, 1, projection="3d")
+    points = ax.scatter(r[:, 0], r[:, 1], r[:, 2], c=speed, s=2, cmap="viridis")
+    lo, hi = excitation.limits.tcp_lower, excitation.limits.tcp_upper
+    for x in (lo[0], hi[0]):
+        for y in (lo[1], hi[1]):
+            ax.plot([x, x], [y, y], [lo[2], hi[2]], color="0.7", lw=0.5)
+    ax.set_xlabel("x in m")
+    ax.set_ylabel("y in m")
+    ax.set_zlabel("z in m")
+    ax.set_title(f"flange path, one period ({traj.period:.2f} s); max speed {speed.max():.2f} m/s")
+    fig.colorbar(points, ax=ax, shrink=0.6, label="flange speed in m/s")
+    ax2 = fig.add_subplot(1, 2, 2)
+    ax2.semilogy(np.arange(len(excitation.history)), excitation.history, label="SLSQP iterate")
+    for k, c in enumerate(excitation.random_condition_numbers):
+        ax2.axhline(c, color="0.8", lw=0.6, label="random feasible series" if k == 0 else None)
+    ax2.set_xlabel("iteration")
+    ax2.set_ylabel("condition number of the normalised base regressor")
+    ax2.set_title(f"optimised {excitation.condition_number:.3g} vs random median {excitation.random_median:.3g}")
+    ax2.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def figure_torques(path: Path, csv_path: Path) -> Path:
+    """Figure 5(b): measured (fieldbus) and predicted joint torques on the ISO 9283 path."""
+    plt = _pyplot()
+    with open(csv_path, newline="") as handle:
+        rows = list(csv.reader(handle))
+    header = rows[0]
+    data = np.array(rows[1:], dtype=float)
+    col = {name: k for k, name in enumerate(header)}
+    t = data[:, col["t"]]
+    fig, axes = plt.subplots(3, 2, figsize=(12, 9), sharex=True)
+    for j, ax in enumerate(axes.T.reshape(-1)):
+        ax.plot(t, data[:, col[f"tau_measured{j + 1}"]], color="0.8", lw=0.5, label="measured (torque actual)")
+        ax.plot(t, data[:, col[f"tau_measured_filtered{j + 1}"]], color="0.3", lw=0.8, label="measured, low-pass")
+        ax.plot(t, data[:, col[f"tau_identified{j + 1}"]], color="C0", lw=1.0, label="identified model")
+        ax.plot(t, data[:, col[f"tau_nominal{j + 1}"]], color="C3", lw=0.8, ls="--", label="nominal model")
+        ax.set_ylabel(f"joint {j + 1} torque in N m")
+        ax.grid(alpha=0.3)
+    axes[0, 0].legend(fontsize=8)
+    for ax in axes[-1]:
+        ax.set_xlabel("time in s (ISO 9283 path)")
+    fig.suptitle("Figure 5(b): measured vs predicted joint torques along the EN ISO 9283 path")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
