@@ -106,6 +106,7 @@ class _Endpoint:
         self.channel = default_channel(config) if channel is None else channel
         self.synchronous = config.bus.interface in SYNCHRONOUS_INTERFACES
         self.bus = open_bus(config, self.side, self.channel)
+        self._drain = getattr(self.bus, "drain", None)  # simbus: all queued frames at once
         if recorder is None and log_path is not None:
             recorder = FrameRecorder(log_path, config.recording.flush_every_cycles, config.recording.background)
             self._owns_recorder = True
@@ -193,7 +194,7 @@ class _Endpoint:
         otherwise wait for the ``expected`` identifiers (-> simulated timestamp)."""
         bus = self.bus
         if self.synchronous:
-            drain = getattr(bus, "drain", None)
+            drain = self._drain
             if drain is not None:
                 return drain()
             received = []

@@ -30,11 +30,14 @@ Fault reactions:
 from __future__ import annotations
 
 import struct
+from collections.abc import Callable
+from functools import partial
 from math import floor
 from operator import mul
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import can
+import numpy as np
 
 from fieldbus.cia402 import CW_FAULT_RESET, Command
 from fieldbus.events import CounterBank, EventLog, FieldbusEvent, ThresholdCounter
@@ -63,17 +66,11 @@ _UNPACK_TPDO2 = TPDO2.unpack
 COUNTER_IDS = {"cn_loss_of_soc": 1, "cn_loss_of_preq": 2, "cn_crc_error": 3, "cn_soc_jitter": 4}
 
 
-def _quantise(values: list, scale: list, low: int, high: int, saturating: Any, name: str) -> list[int]:
-    """floor(value * scale + 0.5) per entry (as fieldbus.scaling rounds); out-of-range
-    entries go through the saturating scalar encoder; non-finite values raise
-    ValueError naming ``name``."""
-    try:
-        out = [floor(v * c + 0.5) for v, c in zip(values, scale)]
-    except (ValueError, OverflowError) as error:
-        raise ValueError(f"{name} = {values}: expected finite numbers ({error})") from error
-    if out and (min(out) < low or max(out) > high):
-        out = [saturating(i, v) for i, v in enumerate(values)]
-    return out
+def _array_writer(array: np.ndarray) -> Callable[..., None]:
+    """f(*values) that overwrites the whole 1-D ``array`` in place (struct.pack_into its
+    buffer: about twice as fast as ``array[:] = values`` for six entries)."""
+    code = {"float64": "d", "int64": "q", "bool": "?"}[array.dtype.name]
+    return partial(struct.Struct(f"@{array.size}{code}").pack_into, memoryview(array).cast("B"), 0)
 
 
 def _decode_error(log: EventLog, side: str, msg: can.Message, cycle: int, time_s: float) -> tuple[str, int]:
@@ -105,6 +102,9 @@ class ManagingNode:
         self.layout = layout
         self.log = log
         self.observed = ObservedActuals.zeros(n)
+        self._write_position = _array_writer(self.observed.position)
+        self._write_velocity = _array_writer(self.observed.velocity)
+        self._write_torque = _array_writer(self.observed.torque)
         self.cycle = -1
         self._cycle_time = config.cycle_time_s
         self._t0 = config.start_time_s
@@ -169,8 +169,12 @@ class ManagingNode:
         sync.timestamp = times[0]
         sync.data[0] = (cycle % self._sync_overflow) + 1
         n = self.nodes
-        counts = _quantise(position, self._cpr, -2147483648, 2147483647, self.scaling.position_count, "position")
-        units = _quantise(torque_offset, self._upn, -32768, 32767, self.scaling.torque_unit, "torque_offset")
+        try:
+            counts = [floor(q * c + 0.5) for q, c in zip(position, self._cpr)]
+            units = [floor(t * u + 0.5) for t, u in zip(torque_offset, self._upn)]
+        except (ValueError, OverflowError) as error:
+            raise ValueError(f"setpoints: position = {position}, torque_offset = {torque_offset}: "
+                             f"expected finite numbers ({error})") from error
         msgs, latest, last_cw, wait = self._preq_msgs, self._latest, self._last_cw, self._pres_wait
         node_fault = self.node_fault
         for i in range(n):
@@ -183,10 +187,16 @@ class ManagingNode:
             msg.timestamp = ts
             try:
                 _PACK_RPDO1_INTO(msg.data, 0, cw, counts[i], units[i])
-            except struct.error as error:
-                raise ValueError(f"setpoints.controlword[{i}] = {cw!r}: expected an integer in [0, 0xFFFF]") from error
+            except struct.error:  # out of the telegram range: saturate, or name the bad controlword
+                self._pack_saturated(msg, i, cw, position[i], torque_offset[i])
         self._last_cw = controlword
         return self._frames
+
+    def _pack_saturated(self, msg: FastMessage, i: int, cw: int, position: float, torque: float) -> None:
+        if not isinstance(cw, int) or not 0 <= cw <= 0xFFFF:
+            raise ValueError(f"setpoints.controlword[{i}] = {cw!r}: expected an integer in [0, 0xFFFF]")
+        _PACK_RPDO1_INTO(msg.data, 0, cw, self.scaling.position_count(i, position),
+                         self.scaling.torque_unit(i, torque))
 
     # ------------------------------------------------------------------ receiving
     def receive(self, msg: can.Message) -> None:
@@ -278,9 +288,9 @@ class ManagingNode:
             obs.error_code[:] = self._err
             self._last_err = list(self._err)
         rpc = self._rpc
-        obs.position[:] = list(map(mul, self._pos, rpc))
-        obs.velocity[:] = list(map(mul, self._vel, rpc))
-        obs.torque[:] = list(map(mul, self._tq, self._npu))
+        self._write_position(*map(mul, self._pos, rpc))
+        self._write_velocity(*map(mul, self._vel, rpc))
+        self._write_torque(*map(mul, self._tq, self._npu))
         return obs
 
     # ------------------------------------------------------------------ faults
@@ -320,6 +330,8 @@ class ControlledNodes:
         self.layout = layout
         self.log = log
         self.applied = AppliedSetpoints.zeros(n)
+        self._write_position = _array_writer(self.applied.position)
+        self._write_torque = _array_writer(self.applied.torque_offset)
         self.cycle = -1
         self._t0 = config.start_time_s
         self._cycle_time = config.cycle_time_s
@@ -339,6 +351,7 @@ class ControlledNodes:
         # latched actuals (telegram units), index = node - 1
         self._a_sw = [0] * n
         self._a_pos = [0] * n
+        self._a_si: tuple[list, list, list] = ([0.0] * n, [0.0] * n, [0.0] * n)
         self._a_tq = [0] * n
         self._a_vel = [0] * n
         self._a_err = [0] * n
@@ -385,14 +398,19 @@ class ControlledNodes:
         t = self._t0 + cycle * self._cycle_time
         self._next_soc = t + self._cycle_time
         s = self.scaling
-        # latch actual values (quantised as they enter the PRes)
+        # latch actual values (quantised as they enter the PRes; range-checked when packed)
         self._a_sw = actuals.statusword.tolist()
         self._a_err = actuals.error_code.tolist()
-        self._a_pos = a_pos = _quantise(actuals.position.tolist(), self._cpr, -2147483648, 2147483647,
-                                        s.position_count, "actuals.position")
-        self._a_vel = _quantise(actuals.velocity.tolist(), self._cpr, -2147483648, 2147483647,
-                                s.velocity_count, "actuals.velocity")
-        self._a_tq = _quantise(actuals.torque.tolist(), self._upn, -32768, 32767, s.torque_unit, "actuals.torque")
+        pos, vel, tq = actuals.position.tolist(), actuals.velocity.tolist(), actuals.torque.tolist()
+        cpr = self._cpr
+        try:
+            self._a_pos = a_pos = [floor(q * c + 0.5) for q, c in zip(pos, cpr)]
+            self._a_vel = [floor(v * c + 0.5) for v, c in zip(vel, cpr)]
+            self._a_tq = [floor(t * u + 0.5) for t, u in zip(tq, self._upn)]
+        except (ValueError, OverflowError) as error:
+            raise ValueError(f"actuals: position = {pos}, velocity = {vel}, torque = {tq}: "
+                             f"expected finite numbers ({error})") from error
+        self._a_si = (pos, vel, tq)
         # apply the set-points due at this SoC
         slot = cycle % self._d
         cws, poss, prev, tqs, fresh = self._cw, self._pos, self._prev_pos, self._tq, self._fresh
@@ -437,8 +455,8 @@ class ControlledNodes:
         elif cws != self._last_app_cw:
             app.controlword[:] = cws
             self._last_app_cw = list(cws)
-        app.position[:] = list(map(mul, poss, self._rpc))
-        app.torque_offset[:] = list(map(mul, tqs, self._npu))
+        self._write_position(*map(mul, poss, self._rpc))
+        self._write_torque(*map(mul, tqs, self._npu))
         if not (all_fresh and self._all_fresh):
             app.fresh[:] = fresh
         self._all_fresh = all_fresh
@@ -524,12 +542,23 @@ class ControlledNodes:
                 try:
                     _PACK_TPDO1_INTO(m1.data, 0, a_sw[i], a_pos[i], a_tq[i])
                     _PACK_TPDO2_INTO(m2.data, 0, a_vel[i], a_err[i])
-                except struct.error as error:
-                    raise ValueError(f"actuals.statusword[{i}] = {a_sw[i]!r} / actuals.error_code[{i}] = "
-                                     f"{a_err[i]!r}: expected integers in [0, 0xFFFF]") from error
+                except struct.error:  # out of the telegram range: saturate, or name the bad word
+                    self._pack_saturated(m1, m2, i)
                 append(m1)
                 append(m2)
         return out
+
+    def _pack_saturated(self, m1: FastMessage, m2: FastMessage, i: int) -> None:
+        for name, word in (("statusword", self._a_sw[i]), ("error_code", self._a_err[i])):
+            if not isinstance(word, int) or not 0 <= word <= 0xFFFF:
+                raise ValueError(f"actuals.{name}[{i}] = {word!r}: expected an integer in [0, 0xFFFF]")
+        s = self.scaling
+        pos, vel, tq = self._a_si
+        self._a_pos[i] = s.position_count(i, pos[i])
+        self._a_vel[i] = s.velocity_count(i, vel[i])
+        self._a_tq[i] = s.torque_unit(i, tq[i])
+        _PACK_TPDO1_INTO(m1.data, 0, self._a_sw[i], self._a_pos[i], self._a_tq[i])
+        _PACK_TPDO2_INTO(m2.data, 0, self._a_vel[i], self._a_err[i])
 
     def preq_received(self, node: int) -> bool:
         """True when a valid, timely PReq for ``node`` (1-based) arrived in this cycle."""

@@ -234,3 +234,17 @@ def test_bad_words_are_rejected_by_name():
         actuals.statusword = np.full(6, 0x27, dtype=float)
         with pytest.raises(ValueError, match=r"actuals.statusword\[0\]"):
             network.run_cycle(0, setpoints, actuals)
+
+
+def test_values_beyond_the_telegram_range_saturate_and_are_counted():
+    sc = scaling()
+    with PowerlinkNetwork({}, sc) as network:
+        setpoints, actuals = Setpoints.zeros(6), DriveActuals.zeros(6)
+        setpoints.torque_offset[1] = 1e6  # far beyond 3276.7 % of rated torque
+        actuals.torque[4] = -1e6
+        network.run_cycle(0, setpoints, actuals)
+        result = network.run_cycle(1, setpoints, actuals)
+        saturations = network.summary()["scaling_saturations"]
+    assert result.applied.torque_offset[1] == pytest.approx(32767 * sc.newton_metre_per_unit[1])
+    assert result.observed.torque[4] == pytest.approx(-32768 * sc.newton_metre_per_unit[4])
+    assert saturations["torque"] == 4  # two cycles, one set-point and one actual value each
