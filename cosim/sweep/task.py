@@ -17,6 +17,7 @@ import json
 import os
 import shutil
 import socket
+import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -31,6 +32,10 @@ SUMMARY_FILE = "summary.json"
 ROW_FILE = "sweep_row.json"
 LOG_FILE = "run.log"
 FINISHED = ("ok", "failed")
+#: One variant at a time per process, even on a worker with several threads (an external
+#: cluster started without ``--nthreads 1``): FMU instances and the redirected stdout/stderr
+#: of a run are never shared between threads.
+_ONE_AT_A_TIME = threading.Lock()
 #: Exit codes of ``cosim run`` (cosim/commands/run.py) -> words for the reason column.
 EXIT_WORDS = {1: "simulation failed", 2: "invalid scenario", 3: "internal error"}
 
@@ -103,6 +108,11 @@ def make_row(task: VariantTask, summary: dict[str, Any] | None, exit_code: int |
 
 def run_variant(task: VariantTask) -> dict[str, Any]:
     """Run one variant with the ordinary scenario runner in this process; return its row."""
+    with _ONE_AT_A_TIME:
+        return _run_variant(task)
+
+
+def _run_variant(task: VariantTask) -> dict[str, Any]:
     from cosim.cli import main as cosim_main
 
     folder = Path(task.folder)
