@@ -201,6 +201,32 @@ class ExcitationProblem:
         self.rest_matrix = np.kron(np.eye(N_JOINTS), rest)  # (12, n_x)
         self._cache: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
 
+    # -- building blocks (for other solvers) ------------------------------------------------
+    @property
+    def objective_functions(self) -> SampleFunctions:
+        """CasADi functions mapped over the objective samples."""
+        return self._obj
+
+    @property
+    def constraint_functions(self) -> SampleFunctions:
+        """CasADi functions mapped over the constraint samples."""
+        return self._con
+
+    @property
+    def objective_basis(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(Bq, Bqd, Bqdd) (k, 2N+1) of one joint's block at the objective samples."""
+        return self._obj_basis
+
+    @property
+    def constraint_basis(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(Bq, Bqd, Bqdd) at the constraint samples."""
+        return self._con_basis
+
+    @property
+    def linear_constraints(self) -> tuple[np.ndarray, np.ndarray]:
+        """(A, b) of the position, velocity and acceleration constraints ``A x + b >= 0``."""
+        return self._linear
+
     # -- trajectories -------------------------------------------------------------------
     def trajectory(self, x: ArrayLike) -> FourierTrajectory:
         return FourierTrajectory.from_vector(x, self.settings.order, self.settings.omega_f)
@@ -424,7 +450,7 @@ def optimise_excitation(problem: ExcitationProblem, x0: ArrayLike) -> tuple[np.n
                                                                             float, list[float]]:
     """SLSQP from ``x0``: (best feasible x, SciPy result, wall time s, condition number per iteration)."""
     x0 = np.asarray(x0, dtype=float)
-    lin_a, lin_b = problem._linear
+    lin_a, lin_b = problem.linear_constraints
     constraints = [
         {"type": "ineq", "fun": lambda x: lin_a @ x + lin_b, "jac": lambda x: lin_a},
         {"type": "ineq", "fun": lambda x: problem.nonlinear_constraints(x)[0],
