@@ -147,7 +147,13 @@ def build_library(function: ca.Function, cache_dir: Path = CACHE_DIR) -> Path:
     source = _generate_c(function)
     compiler = os.environ.get("CC", "gcc")
     digest = hashlib.sha256((source + compiler + " ".join(CFLAGS)).encode()).hexdigest()[:16]
-    cache_dir.mkdir(parents=True, exist_ok=True)
+    try:
+        cache_dir.mkdir(parents=True, exist_ok=True)
+        if not os.access(cache_dir, os.W_OK):
+            raise PermissionError(str(cache_dir))
+    except OSError:  # e.g. a read-only installation: use a per-user temporary cache
+        cache_dir = Path(tempfile.gettempdir()) / f"controller_core-{os.getuid()}"
+        cache_dir.mkdir(parents=True, exist_ok=True)
     library = cache_dir / f"{FUNCTION_NAME}-{digest}.so"
     if library.is_file():
         return library
