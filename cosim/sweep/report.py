@@ -2,10 +2,11 @@
 
 ``kind = "points"``: every ok variant as a dot, and the mean over the other axes (e.g.
 the Monte Carlo draws) per x value as a line; ``kind = "box"``: a box plot per x value
-(median, quartiles, 1.5 IQR whiskers), x values as evenly spaced categories. With ``group``, one series per value of that
-axis. For points, numeric parameters are placed at their values (SI, as in the table);
-other values (strings, lists such as ``["standard"]``) are categories in sweep order. The metric may
-be a glob (``modes.*.tcp_error_max_mm``): each row uses its first matching metric.
+(median, quartiles, 1.5 IQR whiskers), the x values as evenly spaced categories. With
+``group``, one series per value of that axis. For points, numeric parameters are placed
+at their values (SI, as in the table); other values (strings, lists such as
+``["standard"]``) are categories in sweep order. The metric may be a glob
+(``modes.*.tcp_error_max_mm``): each row uses its first matching metric.
 """
 from __future__ import annotations
 
