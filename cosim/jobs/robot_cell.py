@@ -193,17 +193,17 @@ class FieldbusLink:
                                      writable=True)
         self._integer_out = master.view([f"bus.{name}[{i}]" for name in BUS_INTEGER
                                          for i in range(1, N_JOINTS + 1)], writable=True)
+        # the actual values are views of the readers' reused buffers: read() refreshes them
+        n = N_JOINTS
+        real, integer = self._real.read(), self._integer.read()
+        self.actuals = DriveActuals(statusword=integer[:n], position=real[:n], velocity=real[n:2 * n],
+                                    torque=real[2 * n:], error_code=integer[n:])
 
     def __call__(self, t: float) -> None:
-        a, n = self.actuals, N_JOINTS
-        real = self._real.read()
-        integer = self._integer.read()
-        a.position[:] = real[:n]
-        a.velocity[:] = real[n:2 * n]
-        a.torque[:] = real[2 * n:]
-        a.statusword[:] = integer[:n]
-        a.error_code[:] = integer[n:]
-        result = self.network.run_cycle(self.cycle, self.setpoints, a)
+        n = N_JOINTS
+        self._real.read()
+        self._integer.read()
+        result = self.network.run_cycle(self.cycle, self.setpoints, self.actuals)
         applied = result.applied
         out = self._real_out
         out[:n] = applied.position
