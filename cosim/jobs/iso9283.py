@@ -347,6 +347,8 @@ def _evaluate_mode(ctx: RunContext, mode: str, cell: robot_cell.CellRun, control
         "controller_phase": controller.phase.name.lower(),
         "stop_reason": controller.stop_reason,
         "ik_iterations_max": float(np.nanmax(log["ik_iterations"])) if log["ik_iterations"].size else None,
+        "compiled_kernel": controller.kernel_note, "kernel_cycles": controller.kernel_cycles,
+        "fallback_cycles": controller.fallback_cycles,
         "fieldbus": {k: cell.fieldbus[k] for k in ("cycles_run", "frames_sent", "frames_dropped", "frames_recorded",
                                                    "log_path", "dead_time_cycles", "node_fault", "comm_fault",
                                                    "scaling_saturations", "event_tally")},
