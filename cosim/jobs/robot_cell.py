@@ -286,7 +286,14 @@ def run_cell(doc: dict[str, Any], controller: Controller, true_robot: TrueRobot,
     folder and into memory (``CellRun.recording``); ``can_log`` is the CAN log (.blf/.asc)
     or None. A SimulationError (failing FMU, NaN output, stopped controller) ends the run:
     everything recorded is flushed and the error is returned in ``CellRun.failure``.
+
+    With ``ctx.execution`` active (``cosim run --realtime`` / ``--split``) the run is handed
+    to it (:mod:`cosim.realtime`, :mod:`cosim.split`): paced and/or split over two processes.
     """
+    execution = getattr(ctx, "execution", None)
+    if execution is not None and execution.active:
+        return execution.run_cell(doc, controller, true_robot, ctx, label=label, stop_time=stop_time,
+                                  fieldbus=fieldbus, tracker=tracker, record_file=record_file, can_log=can_log)
     fb_config = fieldbus if isinstance(fieldbus, FieldbusConfig) else FieldbusConfig.from_dict(fieldbus or {})
     period = fb_config.cycle_time_s
     if abs(period - controller.config.period_s) > 1e-12:
