@@ -1,4 +1,4 @@
-"""``python -m cosim run SCENARIO [--out DIR] [--quiet]``: validate a scenario file and run its job."""
+"""``python -m cosim run SCENARIO [--out DIR] [--quiet] [--realtime] [--split]``: validate a scenario file and run its job."""
 from __future__ import annotations
 
 import argparse
@@ -15,11 +15,15 @@ EXIT_OK, EXIT_FAILED, EXIT_INVALID, EXIT_INTERNAL = 0, 1, 2, 3
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """SCENARIO, --out, --quiet."""
+    """SCENARIO, --out, --quiet, --realtime, --split."""
     parser.add_argument("scenario", type=Path, help="scenario TOML file (see docs/cosim.md)")
     parser.add_argument("--out", type=Path, default=None,
                         help="results folder (default: [output] dir of the scenario, else results/<scenario name>/)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
+    parser.add_argument("--realtime", action="store_true",
+                        help="pace the run at the controller cycle (wall clock); see docs/timing.md")
+    parser.add_argument("--split", action="store_true",
+                        help="controller in this process, drives and plant in another (python-can udp_multicast)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -32,8 +36,17 @@ def run(args: argparse.Namespace) -> int:
     except ScenarioError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return EXIT_INVALID
+    from cosim.realtime.execution import CELL_JOBS, CellExecution
+    from cosim.realtime.config import execution_options
+
+    options = execution_options(scenario.data, realtime=getattr(args, "realtime", False) or None,
+                                split=getattr(args, "split", False) or None)
+    if options.active and scenario.job.name not in CELL_JOBS:
+        print(f"error: {args.scenario}: job {scenario.job.name!r} runs no robot cell; --realtime, --split and "
+              f"[execution] realtime/mode = 'split' apply to the jobs {sorted(CELL_JOBS)}", file=sys.stderr)
+        return EXIT_INVALID
     out_dir = args.out or Path(scenario.data.get("output", {}).get("dir") or Path("results") / scenario.name)
-    ctx = RunContext(scenario, out_dir, quiet=args.quiet)
+    ctx = RunContext(scenario, out_dir, quiet=args.quiet, execution=CellExecution(options) if options.active else None)
     try:
         fields = scenario.job.runner(scenario, ctx) or {}
     except SimulationError as exc:

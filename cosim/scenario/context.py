@@ -37,10 +37,13 @@ class RunContext:
         summary: the SummaryWriter of ``out_dir/summary.json``.
         sim_time_s: simulated seconds completed so far over all executed masters.
         label: label of the master being executed (shown in the bar, reported on failure).
+        execution: how robot cells run (:class:`cosim.realtime.execution.CellExecution`:
+            split, paced) or None (one process, unpaced).
     """
 
-    def __init__(self, scenario: Scenario, out_dir: str | Path, quiet: bool = False) -> None:
+    def __init__(self, scenario: Scenario, out_dir: str | Path, quiet: bool = False, execution=None) -> None:
         self.scenario = scenario
+        self.execution = execution  # cosim.realtime.CellExecution (--realtime/--split) or None
         self.out_dir = Path(out_dir)
         self.out_dir.mkdir(parents=True, exist_ok=True)
         self.quiet = quiet

@@ -23,6 +23,7 @@ from cosim.master import Master, MasterConfigError, Recorder, load_model_descrip
 from cosim.master.master import COUPLINGS, ENGINES
 from cosim.master.variables import (MasterTypeUnsupported, bus_type, check_connection_ends, check_start_value,
                                     is_pattern, matches_pattern, parse_connection, split_signal)
+from cosim.realtime.config import execution_fields
 from cosim.scenario.schema import (AnyValue, Boolean, Field, FilePath, List, Number, String, Table, Where)
 
 if TYPE_CHECKING:
@@ -89,6 +90,7 @@ COSIM_FIELDS: dict[str, Field] = {
     "connections": Field(List(String()), default=[]),
     "record": Field(RECORD_TABLE),
     "output": Field(OUTPUT_TABLE, default={}),
+    **execution_fields(),  # [execution], [realtime]: cosim/realtime/config.py
 }
 
 

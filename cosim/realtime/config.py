@@ -1,0 +1,170 @@
+"""The ``[execution]`` and ``[realtime]`` tables of a scenario and the run options built from them.
+
+```toml
+[execution]
+mode = "in_process"          # or "split": controller in this process, drives + plant in another
+realtime = false             # true = paced at the controller cycle (same as --realtime)
+receive_timeout = "2 s"      # split: WALL time a side waits for the other's frames before counting them lost
+
+[realtime]
+overrun_policy = "hold"      # what the drives get in a cycle whose telegrams missed their SoC:
+                             # "hold" | "skip" | "lost_frame" (docs/timing.md)
+spin = "200 us"              # busy-wait this long before each wall deadline (sleep before it)
+scheduling = "fifo"          # "fifo": ask for SCHED_FIFO (falls back to the normal scheduler) | "normal"
+fifo_priority = 10           # SCHED_FIFO priority (1..99)
+tolerance = "auto"           # lateness above which a cycle is an overrun; "auto" = the time from the
+                             # SoC to the first PReq on the wire (fieldbus schedule), or a time
+histogram_bins = 60
+```
+
+``python -m cosim run SCENARIO --realtime`` and ``--split`` override ``realtime`` and
+``mode``. Every quantity is SI after validation (seconds).
+"""
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass, field
+from typing import Any
+
+
+EXECUTION_MODES = ("in_process", "split")
+OVERRUN_POLICIES = ("hold", "skip", "lost_frame")
+SCHEDULING = ("fifo", "normal")
+DEFAULT_SPIN_S = 200e-6
+DEFAULT_RECEIVE_TIMEOUT_S = 2.0
+
+@functools.lru_cache(maxsize=1)
+def _tables() -> tuple[Any, Any]:
+    """The [execution] and [realtime] table specs (built on first use: ``cosim.scenario``
+    imports this module while it initializes, so the schema helper is imported late)."""
+    from cosim.scenario.schema import Boolean, Field, Integer, Number, String, Table, Where
+
+    class Tolerance(String):
+        """'auto' or a time (s)."""
+
+        @property
+        def expected(self) -> str:  # type: ignore[override]
+            return "'auto' or a time in s >= 0 (e.g. '10 us')"
+
+        def check(self, value: Any, where: Where) -> Any:
+            if value == "auto":
+                return "auto"
+            if isinstance(value, bool):
+                raise where.error(self.expected, value)
+            try:
+                return Number(unit="s", min=0, max=1.0).check(value, where)
+            except ValueError:
+                raise where.error(self.expected, value) from None
+
+    execution = Table({
+        "mode": Field(String(choices=EXECUTION_MODES), default="in_process",
+                      doc="'in_process' (one process) or 'split' (controller | drives + plant, python-can between)"),
+        "realtime": Field(Boolean(), default=False, doc="pace the run at the controller cycle (wall clock)"),
+        "receive_timeout": Field(Number(unit="s", gt=0, max=600), default=DEFAULT_RECEIVE_TIMEOUT_S,
+                                 doc="split mode: wall seconds a side waits for the other side's frames"),
+    }, doc="the [execution] table")
+    realtime = Table({
+        "overrun_policy": Field(String(choices=OVERRUN_POLICIES), default="hold",
+                                doc="what a late cycle's telegrams carry: 'hold', 'skip' or 'lost_frame'"),
+        "spin": Field(Number(unit="s", min=0, max=0.1), default=DEFAULT_SPIN_S,
+                      doc="busy-wait before each wall deadline: a time in s in [0, 0.1]"),
+        "scheduling": Field(String(choices=SCHEDULING), default="fifo"),
+        "fifo_priority": Field(Integer(min=1, max=99), default=10),
+        "tolerance": Field(Tolerance(), default="auto"),
+        "histogram_bins": Field(Integer(min=5, max=1000), default=60),
+    }, doc="the [realtime] table")
+    return execution, realtime
+
+
+def execution_fields() -> dict[str, Any]:
+    """``{"execution": Field, "realtime": Field}`` to merge into a job's document schema
+    (cosim.scenario.cosim_tables.COSIM_FIELDS does)."""
+    from cosim.scenario.schema import Field
+
+    execution, realtime = _tables()
+    return {"execution": Field(execution, default={}), "realtime": Field(realtime, default={})}
+
+
+@dataclass(frozen=True)
+class RealtimeSettings:
+    """The validated ``[realtime]`` table (SI).
+
+    overrun_policy: 'hold' | 'skip' | 'lost_frame'.
+    spin_s: busy-wait before each deadline, s.
+    scheduling: 'fifo' | 'normal'; fifo_priority: 1..99.
+    tolerance_s: lateness above which a cycle counts as an overrun, s (None = from the
+        fieldbus schedule: SoC start to first PReq start).
+    histogram_bins: bins of the jitter histogram figure.
+    """
+
+    overrun_policy: str = "hold"
+    spin_s: float = DEFAULT_SPIN_S
+    scheduling: str = "fifo"
+    fifo_priority: int = 10
+    tolerance_s: float | None = None
+    histogram_bins: int = 60
+
+    def __post_init__(self) -> None:
+        if self.overrun_policy not in OVERRUN_POLICIES:
+            raise ValueError(f"overrun_policy = {self.overrun_policy!r}: expected one of {OVERRUN_POLICIES}")
+        if self.scheduling not in SCHEDULING:
+            raise ValueError(f"scheduling = {self.scheduling!r}: expected one of {SCHEDULING}")
+        if not self.spin_s >= 0.0:
+            raise ValueError(f"spin_s = {self.spin_s!r}: expected a time >= 0 s")
+        if self.tolerance_s is not None and not self.tolerance_s >= 0.0:
+            raise ValueError(f"tolerance_s = {self.tolerance_s!r}: expected a time >= 0 s or None (auto)")
+
+
+@dataclass(frozen=True)
+class ExecutionOptions:
+    """How a robot-cell run executes: one process or split, paced or not (see module doc).
+
+    Built by ``python -m cosim run`` from the scenario's tables and its flags and handed
+    to the job through ``RunContext.execution``; jobs that run a robot cell
+    (:func:`cosim.jobs.robot_cell.run_cell`) honour it.
+    """
+
+    mode: str = "in_process"
+    realtime: bool = False
+    receive_timeout_s: float = DEFAULT_RECEIVE_TIMEOUT_S
+    settings: RealtimeSettings = field(default_factory=RealtimeSettings)
+
+    @property
+    def split(self) -> bool:
+        return self.mode == "split"
+
+    @property
+    def active(self) -> bool:
+        """True when the run differs from the plain in-process, unpaced run."""
+        return self.realtime or self.split
+
+    def as_dict(self) -> dict[str, Any]:
+        s = self.settings
+        return {"mode": self.mode, "realtime": self.realtime, "receive_timeout_s": self.receive_timeout_s,
+                "overrun_policy": s.overrun_policy, "spin_us": s.spin_s * 1e6, "scheduling": s.scheduling,
+                "tolerance_us": None if s.tolerance_s is None else s.tolerance_s * 1e6}
+
+
+def execution_tables(doc: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
+    """The ``[execution]`` and ``[realtime]`` tables of a validated document with every default
+    filled (an absent table validates as ``{}`` without its fields' defaults)."""
+    from cosim.scenario.schema import Where
+
+    tables = []
+    for key, spec in zip(("execution", "realtime"), _tables()):
+        table = doc.get(key) or {}
+        tables.append(spec.check(dict(table), Where(None) / key))
+    return tables[0], tables[1]
+
+
+def execution_options(doc: dict[str, Any], *, realtime: bool | None = None, split: bool | None = None) -> ExecutionOptions:
+    """Options from a validated scenario document; ``realtime``/``split`` (command-line flags)
+    override the file when not None."""
+    ex, rt = execution_tables(doc)
+    settings = RealtimeSettings(overrun_policy=rt["overrun_policy"], spin_s=rt["spin"], scheduling=rt["scheduling"],
+                                fifo_priority=rt["fifo_priority"],
+                                tolerance_s=None if rt["tolerance"] == "auto" else rt["tolerance"],
+                                histogram_bins=rt["histogram_bins"])
+    mode = "split" if split else ex["mode"]
+    return ExecutionOptions(mode=mode, realtime=bool(realtime) or ex["realtime"],
+                            receive_timeout_s=ex["receive_timeout"], settings=settings)

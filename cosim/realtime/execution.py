@@ -1,0 +1,90 @@
+"""Running a robot cell as the options say: one process or split, paced or not.
+
+``python -m cosim run`` puts a :class:`CellExecution` on ``RunContext.execution``;
+:func:`cosim.jobs.robot_cell.run_cell` hands every cell run to
+:meth:`CellExecution.run_cell` when it is active. The execution writes two summary
+fields: ``execution`` (the options) and, for paced runs, ``realtime``::
+
+    "realtime": {"cycles", "overruns", "overrun_fraction",
+                 "lateness": {"p50_us", "p99_us", "max_us", "mean_us"},   # all runs of the job
+                 "histogram": "jitter.png", "policy", "scheduling", "tolerance_us", "spin_us",
+                 "load_average_before", "load_average_after",
+                 "runs": {<label>: {same statistics, "histogram": "jitter_<label>.png", ...}}}
+"""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from cosim.realtime.config import ExecutionOptions
+from cosim.realtime.pacer import LatenessLog
+from cosim.realtime.stats import combine, lateness_summary, load_average, write_histogram
+
+#: Jobs whose runs go through cosim.jobs.robot_cell.run_cell (and so honour --realtime/--split).
+CELL_JOBS = frozenset({"iso9283"})
+
+
+class CellExecution:
+    """The execution options of one ``cosim run`` and what its paced runs measured."""
+
+    def __init__(self, options: ExecutionOptions) -> None:
+        self.options = options
+        self.logs: dict[str, LatenessLog] = {}
+        self.runs: dict[str, dict[str, Any]] = {}
+        self.period_s: float | None = None
+        self.tolerance_s: float | None = None
+        self.split_runs: dict[str, dict[str, Any]] = {}
+
+    @property
+    def active(self) -> bool:
+        return self.options.active
+
+    def run_cell(self, doc: dict[str, Any], controller, true_robot, ctx, *, label: str, stop_time: float,
+                 fieldbus=None, tracker=None, record_file: str = "timeseries.csv", can_log: Path | None = None):
+        """Run one cell as configured; returns a :class:`cosim.jobs.robot_cell.CellRun`."""
+        opts = self.options
+        load_before = load_average()
+        if opts.split:
+            from cosim.split.cell import run_split_cell
+
+            cell, pacer, granted, split_info = run_split_cell(
+                doc, controller, true_robot, ctx, label=label, stop_time=stop_time, fieldbus=fieldbus,
+                tracker=tracker, record_file=record_file, can_log=can_log, options=opts)
+            self.split_runs[label] = split_info
+        else:
+            from cosim.realtime.cell import run_paced_cell
+
+            cell, pacer, granted = run_paced_cell(
+                doc, controller, true_robot, ctx, label=label, stop_time=stop_time, fieldbus=fieldbus,
+                tracker=tracker, record_file=record_file, can_log=can_log, settings=opts.settings)
+        fields: dict[str, Any] = {"execution": {**opts.as_dict(), **({"split": self.split_runs} if opts.split else {})}}
+        if pacer is not None:
+            fields["realtime"] = self._report(ctx, label, pacer, granted, load_before)
+        ctx.summary.update(**fields)
+        return cell
+
+    def _report(self, ctx, label: str, pacer, granted: str, load_before) -> dict[str, Any]:
+        s = self.options.settings
+        period = pacer.period_ns * 1e-9
+        tolerance = pacer.tolerance_ns * 1e-9
+        self.period_s, self.tolerance_s = period, tolerance
+        log = pacer.log
+        self.logs[label] = log
+        run = lateness_summary(log)
+        run["histogram"] = write_histogram(ctx.path(f"jitter_{label}.png"), log, period_s=period,
+                                           tolerance_s=tolerance, bins=s.histogram_bins,
+                                           title=f"{label}: {log.count} paced cycles, "
+                                                 f"{int(log.overrun[:log.count].sum())} overruns").name
+        run["scheduling"] = granted
+        run["load_average_before"] = load_before
+        run["load_average_after"] = load_average()
+        self.runs[label] = run
+        total = combine(list(self.logs.values()))
+        out = lateness_summary(total)
+        out["histogram"] = write_histogram(ctx.path("jitter.png"), total, period_s=period, tolerance_s=tolerance,
+                                           bins=s.histogram_bins).name
+        out.update(policy=s.overrun_policy, period_us=period * 1e6, tolerance_us=tolerance * 1e6,
+                   spin_us=s.spin_s * 1e6, scheduling=granted, mode=self.options.mode,
+                   load_average_before=next(iter(self.runs.values()))["load_average_before"],
+                   load_average_after=run["load_average_after"], runs=self.runs)
+        return out

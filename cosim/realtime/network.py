@@ -1,0 +1,53 @@
+"""A POWERLINK network held to the wall clock: pacing + overrun policy around ``run_cycle``.
+
+:class:`PacedNetwork` has the ``run_cycle(cycle, setpoints, actuals)`` of
+:class:`fieldbus.PowerlinkNetwork`, so the robot cell's controller task
+(:class:`cosim.jobs.robot_cell.FieldbusLink`) drives it unchanged: before the cycle's
+frames go out it waits for the cycle's wall deadline (:class:`Pacer`); a late cycle
+gets the scenario's overrun policy (:mod:`cosim.realtime.policy`).
+"""
+from __future__ import annotations
+
+from typing import Any
+
+from cosim.realtime.pacer import Pacer
+from cosim.realtime.policy import SetpointGate, install_overrun_plan
+from fieldbus import DriveActuals, PowerlinkNetwork, Setpoints
+from fieldbus.process_data import CycleResult
+
+
+def auto_tolerance_s(layout) -> float:
+    """The default overrun tolerance: from the SoC's start to the first PReq's start on the wire, s
+    (the last moment the managing node can still put fresh set-points into this cycle's PReqs)."""
+    return float(layout.nominal_soc_to_preq[1])
+
+
+class PacedNetwork:
+    """``network`` (one process) paced by ``pacer`` with overrun ``policy``.
+
+    Attributes:
+        pacer: the :class:`Pacer` (its ``log`` holds the lateness of every cycle).
+        gate: the :class:`SetpointGate` (managing-node side of ``hold``/``skip``).
+        plan: the :class:`OverrunFaultPlan` both endpoints use (``lost_frame``).
+    """
+
+    def __init__(self, network: PowerlinkNetwork, pacer: Pacer, policy: str) -> None:
+        self.network = network
+        self.pacer = pacer
+        self.policy = policy
+        self.gate = SetpointGate(policy, network.config.nodes)
+        self.plan = install_overrun_plan(network.mn_side, network.drive_side)
+        self.config = network.config
+
+    def run_cycle(self, cycle: int, setpoints: Setpoints, actuals: DriveActuals) -> CycleResult:
+        """Wait for the wall deadline of ``cycle``, apply the policy if it is late, run the cycle."""
+        late = self.pacer.wait(cycle)
+        if late and self.policy == "lost_frame":
+            self.plan.mark_lost(cycle)
+        return self.network.run_cycle(cycle, self.gate.send(setpoints, late), actuals)
+
+    def summary(self) -> dict[str, Any]:
+        return self.network.summary()
+
+    def close(self) -> None:
+        self.network.close()

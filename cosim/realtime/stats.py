@@ -1,0 +1,93 @@
+"""Lateness statistics of a paced run and the jitter histogram figure."""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from cosim.realtime.pacer import LatenessLog
+
+#: At most this many overrun cycle numbers are listed in a summary.
+LISTED_OVERRUNS = 200
+
+
+def load_average() -> list[float] | None:
+    """1, 5 and 15 min load averages of the machine (None where unavailable)."""
+    try:
+        return [round(x, 2) for x in os.getloadavg()]
+    except (AttributeError, OSError):
+        return None
+
+
+def lateness_summary(log: LatenessLog) -> dict[str, Any]:
+    """``cycles``, ``overruns``, ``overrun_fraction``, ``lateness`` {p50_us, p99_us, max_us, mean_us},
+    ``missed_ticks`` (wall ticks dropped after cycles late by whole periods),
+    ``cycle_work`` {p50_us, p99_us, max_us} (wall time of a cycle's work before the next wait),
+    ``overrun_cycles`` (the first :data:`LISTED_OVERRUNS`)."""
+    lat = log.lateness_us
+    cycles = int(lat.size)
+    overruns = int(log.overrun[:cycles].sum())
+    if cycles:
+        p50, p99 = np.percentile(lat, [50.0, 99.0])
+        lateness = {"p50_us": float(p50), "p99_us": float(p99), "max_us": float(lat.max()),
+                    "mean_us": float(lat.mean())}
+    else:
+        lateness = {"p50_us": None, "p99_us": None, "max_us": None, "mean_us": None}
+    work = log.work_us
+    if work.size:
+        w50, w99 = np.percentile(work, [50.0, 99.0])
+        cycle_work = {"p50_us": float(w50), "p99_us": float(w99), "max_us": float(work.max())}
+    else:
+        cycle_work = {"p50_us": None, "p99_us": None, "max_us": None}
+    return {"cycles": cycles, "overruns": overruns, "overrun_fraction": overruns / cycles if cycles else 0.0,
+            "missed_ticks": int(log.missed_ticks), "lateness": lateness, "cycle_work": cycle_work, "overrun_cycles": log.overrun_cycles[:LISTED_OVERRUNS]}
+
+
+def combine(logs: list[LatenessLog]) -> LatenessLog:
+    """One log holding the entries of several (e.g. the modes of a job)."""
+    total = LatenessLog(sum(log.count for log in logs) + 16)
+    for log in logs:
+        n = log.count
+        total.cycles[total.count:total.count + n] = log.cycles[:n]
+        total.lateness_ns[total.count:total.count + n] = log.lateness_ns[:n]
+        total.overrun[total.count:total.count + n] = log.overrun[:n]
+        total.work_ns[total.count:total.count + n] = log.work_ns[:n]
+        total.count += n
+        total.missed_ticks += log.missed_ticks
+    return total
+
+
+def write_histogram(path: str | Path, log: LatenessLog, *, period_s: float, tolerance_s: float, bins: int = 60,
+                    title: str = "") -> Path:
+    """Histogram of the per-cycle lateness (µs, log-scaled counts) with the overrun tolerance and
+    the cycle time marked; PNG at ``path``."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    lat = log.lateness_us
+    path = Path(path)
+    fig, ax = plt.subplots(figsize=(7.0, 4.0))
+    if lat.size:
+        top = max(float(lat.max()), tolerance_s * 1e6 * 1.2, 1.0)
+        edges = np.linspace(0.0, top, bins + 1) if top < 4 * period_s * 1e6 else np.concatenate(
+            [np.linspace(0.0, period_s * 1e6, bins // 2 + 1), np.geomspace(period_s * 1e6 * 1.05, top, bins // 2)])
+        ax.hist(lat, bins=edges, color="tab:blue", alpha=0.85)
+        p50, p99 = np.percentile(lat, [50.0, 99.0])
+        for value, name, style in ((p50, "p50", ":"), (p99, "p99", "--")):
+            ax.axvline(value, color="k", linestyle=style, linewidth=1, label=f"{name} = {value:.1f} µs")
+    ax.axvline(tolerance_s * 1e6, color="tab:red", linewidth=1.2, label=f"overrun above {tolerance_s * 1e6:.1f} µs")
+    ax.set_yscale("log")
+    ax.set_xlabel("cycle lateness vs wall deadline [µs]")
+    ax.set_ylabel("cycles")
+    overruns = int(log.overrun[:log.count].sum())
+    ax.set_title(title or f"{log.count} cycles of {period_s * 1e6:.0f} µs, {overruns} overruns")
+    ax.legend(loc="upper right", fontsize=8)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
