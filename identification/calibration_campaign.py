@@ -249,6 +249,7 @@ def run_calibration_campaign(config: dict | None, out_dir: str | Path, *, write_
         "observation_index_ratio_vs_random": selection.index_value / float(np.median(random_values)),
         "observation_index_ratio_all_candidates_vs_selected": full_value / selection.index_value,
         "selection_time_s": selection.elapsed_s,
+        "selection_cpu_time_s": selection.cpu_s,
         "selection": {
             "configurations": int(len(chosen)),
             "restarts": int(sel_cfg["restarts"]),

@@ -19,7 +19,7 @@ SMALL = {
 @pytest.fixture(scope="module")
 def campaign(tmp_path_factory):
     out = tmp_path_factory.mktemp("campaign")
-    return out, run_calibration_campaign(SMALL, out, figures=True)
+    return out, run_calibration_campaign(SMALL, out, figures=False)
 
 
 def test_campaign_summary_and_accuracy(campaign):
@@ -80,6 +80,8 @@ def test_cosim_run_job(tmp_path):
     assert summary["status"] == "ok" and summary["job"] == "calibration"
     assert summary["identifiable_parameters"] == 25  # position only
     assert summary["calibrated_max_position_error_mm"] < 0.3
+    for name in ("table2.png", "configurations.png", "table2.md", "calibrated.urdf"):
+        assert (tmp_path / "res" / name).stat().st_size > 0
     bad = tmp_path / "bad.toml"
     bad.write_text('[scenario]\nname = "bad"\njob = "calibration"\n[tracker]\nposition_sigma = "0.1 deg"\n')
     assert main(["run", str(bad), "--out", str(tmp_path / "bad"), "--quiet"]) == 2
