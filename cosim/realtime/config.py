@@ -9,7 +9,7 @@ receive_timeout = "2 s"      # split: WALL time a side waits for the other's fra
 [realtime]
 overrun_policy = "hold"      # what the drives get in a cycle whose telegrams missed their SoC:
                              # "hold" | "skip" | "lost_frame" (docs/timing.md)
-spin = "200 us"              # busy-wait this long before each wall deadline (sleep before it)
+spin = "100 us"              # busy-wait this long before each wall deadline (sleep before it)
 scheduling = "fifo"          # "fifo": ask for SCHED_FIFO (falls back to the normal scheduler) | "normal"
 fifo_priority = 10           # SCHED_FIFO priority (1..99)
 tolerance = "auto"           # lateness above which a cycle is an overrun; "auto" = the time from the
@@ -30,7 +30,7 @@ from typing import Any
 EXECUTION_MODES = ("in_process", "split")
 OVERRUN_POLICIES = ("hold", "skip", "lost_frame")
 SCHEDULING = ("fifo", "normal")
-DEFAULT_SPIN_S = 200e-6
+DEFAULT_SPIN_S = 100e-6
 DEFAULT_RECEIVE_TIMEOUT_S = 2.0
 
 @functools.lru_cache(maxsize=1)

@@ -61,7 +61,7 @@ def combine(logs: list[LatenessLog]) -> LatenessLog:
 
 def write_histogram(path: str | Path, log: LatenessLog, *, period_s: float, tolerance_s: float, bins: int = 60,
                     title: str = "") -> Path:
-    """Histogram of the per-cycle lateness (µs, log-scaled counts) with the overrun tolerance and
+    """Histogram of the per-cycle lateness (µs, log axes) with p50, p99, the overrun tolerance and
     the cycle time marked; PNG at ``path``."""
     import matplotlib
 
@@ -70,16 +70,21 @@ def write_histogram(path: str | Path, log: LatenessLog, *, period_s: float, tole
 
     lat = log.lateness_us
     path = Path(path)
+    floor_us = 0.01  # lateness below 10 ns is shown in the first bin (log axis)
     fig, ax = plt.subplots(figsize=(7.0, 4.0))
     if lat.size:
-        top = max(float(lat.max()), tolerance_s * 1e6 * 1.2, 1.0)
-        edges = np.linspace(0.0, top, bins + 1) if top < 4 * period_s * 1e6 else np.concatenate(
-            [np.linspace(0.0, period_s * 1e6, bins // 2 + 1), np.geomspace(period_s * 1e6 * 1.05, top, bins // 2)])
-        ax.hist(lat, bins=edges, color="tab:blue", alpha=0.85)
+        top = max(float(lat.max()), tolerance_s * 1e6 * 2.0, period_s * 1e6 * 1.5)
+        edges = np.geomspace(floor_us, top * 1.01, bins + 1)
+        ax.hist(np.clip(lat, floor_us, None), bins=edges, color="tab:blue", alpha=0.85)
         p50, p99 = np.percentile(lat, [50.0, 99.0])
         for value, name, style in ((p50, "p50", ":"), (p99, "p99", "--")):
-            ax.axvline(value, color="k", linestyle=style, linewidth=1, label=f"{name} = {value:.1f} µs")
-    ax.axvline(tolerance_s * 1e6, color="tab:red", linewidth=1.2, label=f"overrun above {tolerance_s * 1e6:.1f} µs")
+            ax.axvline(max(value, floor_us), color="k", linestyle=style, linewidth=1,
+                       label=f"{name} = {value:.2f} µs")
+    ax.axvline(max(tolerance_s * 1e6, floor_us), color="tab:red", linewidth=1.2,
+               label=f"overrun above {tolerance_s * 1e6:.1f} µs")
+    ax.axvline(period_s * 1e6, color="tab:gray", linewidth=1.0, linestyle="-.",
+               label=f"one cycle = {period_s * 1e6:.0f} µs")
+    ax.set_xscale("log")
     ax.set_yscale("log")
     ax.set_xlabel("cycle lateness vs wall deadline [µs]")
     ax.set_ylabel("cycles")

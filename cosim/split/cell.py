@@ -1,0 +1,235 @@
+"""The controller side of a split run: the controller and the POWERLINK managing node in
+this process, the drives and plant in a spawned drive process (:mod:`cosim.split.drive_side`).
+
+Per cycle k (t_k = k T), optionally paced (:class:`cosim.realtime.pacer.Pacer`):
+cycle marker -> SoC + PReqs carrying the set-points of cycle k-1 (through the overrun
+policy when late) -> wait for the PRes frames of cycle k -> ``Controller.step`` -> the
+set-points for cycle k+1. The run ends at ``stop_time`` (both sides run cycles
+0..stop_time/T, as the one-process cell), or ``stop_grace_s`` after the controller
+stopped (an END marker tells the drive side), or as soon as the controller stopped
+while the drive process is gone (it was detected through the fieldbus threshold
+counters: no PRes -> loss of PRes +8 per cycle -> node fault at 15 -> the controller
+stops commanding motion).
+"""
+from __future__ import annotations
+
+import multiprocessing
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+from cosim.jobs import robot_cell
+from cosim.jobs.laser_tracker import LaserTracker, TrackerConfig
+from cosim.master import MemorySink, SimulationError
+from cosim.realtime.cell import cell_signals, deferred_recording, write_memory_csv
+from cosim.realtime.config import ExecutionOptions
+from cosim.realtime.network import auto_tolerance_s
+from cosim.realtime.pacer import Pacer, no_cyclic_gc, realtime_scheduling
+from cosim.realtime.policy import OverrunFaultPlan, SetpointGate
+from cosim.results.progress import ProgressBar
+from cosim.split.drive_side import DriveSideSpec, drive_side_main, read_raw_rows
+from cosim.split.protocol import END, LOST, free_udp_port, marker_message, side_configs
+from fieldbus import FieldbusConfig, ManagingNodeEndpoint
+from fieldbus.network import network_summary
+
+#: Wall seconds to wait for the drive process to start (imports, FMU instantiation).
+START_TIMEOUT_S = 180.0
+
+
+@dataclass
+class SplitSession:
+    """State of a running split cell, handed to ``on_cycle(cycle, session)`` hooks.
+
+    process: the drive process (``multiprocessing.Process``); endpoint: the managing
+    node; cycle: the cycle just completed; controller_stop_cycle: the cycle in which the
+    controller stopped (None: running); drive_exit_code: the drive process's exit code
+    once it is seen gone (None: alive)."""
+
+    process: Any
+    endpoint: ManagingNodeEndpoint
+    cycle: int = -1
+    controller_stop_cycle: int | None = None
+    drive_exit_code: int | None = None
+    info: dict[str, Any] = field(default_factory=dict)
+
+
+def _merge_fieldbus(mn: dict[str, Any], cn: dict[str, Any] | None) -> dict[str, Any]:
+    """One fieldbus summary from the two sides' (frames, counters, faults of both)."""
+    if cn is None:
+        out = dict(mn)
+        out["drive_side"] = "unavailable (drive process gone)"
+        return out
+    out = dict(mn)
+    for key in ("frames_sent", "frames_dropped", "frames_missing"):
+        out[key] = mn[key] + cn[key]
+    out["decode_errors"] = {**mn["decode_errors"], **cn["decode_errors"]}
+    out["comm_fault"] = cn["comm_fault"]
+    out["counters"] = mn["counters"] + cn["counters"]
+    tally = dict(mn["event_tally"])
+    for k, v in cn["event_tally"].items():
+        tally[k] = tally.get(k, 0) + v
+    out["event_tally"] = tally
+    out["faults"] = sorted(mn["faults"] + cn["faults"], key=lambda e: (e["cycle"], e["time_s"]))
+    out["cycles_run_drive_side"] = cn["cycles_run"]
+    return out
+
+
+def run_split_cell(doc: dict[str, Any], controller, true_robot, ctx, *, label: str, stop_time: float,
+                   fieldbus: FieldbusConfig | dict[str, Any] | None, tracker: TrackerConfig | None,
+                   record_file: str, can_log: Path | None, options: ExecutionOptions,
+                   stop_grace_s: float = 0.5, pacer: Pacer | None = None,
+                   on_cycle: Callable[[int, SplitSession], None] | None = None):
+    """Run one cell split over two processes; returns ``(CellRun, Pacer or None, scheduling granted,
+    info)`` with ``info`` = {"port", "drive_process_exit_code", "controller_stop_cycle",
+    "drive_side_wall_s", "lost_cycles", "frames_missing", ...}."""
+    fb_config = fieldbus if isinstance(fieldbus, FieldbusConfig) else FieldbusConfig.from_dict(fieldbus or {})
+    paced = options.realtime
+    if paced:
+        fb_config = deferred_recording(fb_config)
+    period = fb_config.cycle_time_s
+    if abs(period - controller.config.period_s) > 1e-12:
+        raise ValueError(f"controller period {controller.config.period_s} s differs from the fieldbus cycle "
+                         f"time {period} s")
+    port = free_udp_port()
+    mn_config, cn_config = side_configs(fb_config, port, options.receive_timeout_s)
+    laser = LaserTracker(true_robot.kinematic_model(), tracker)
+    signals, record_period = cell_signals(doc, laser)
+    cell_doc = dict(doc)
+    cell_doc["fmus"] = robot_cell.cell_fmus(doc["fmus"], true_robot, controller.q_start)
+    raw = Path(tempfile.mkdtemp(prefix="cosim-split-")) / "rows.f64"
+    settings = options.settings
+    spec = DriveSideSpec(cell_doc=cell_doc, signals=signals, record_period_s=record_period,
+                         tracker=laser.config, true_model=true_robot.kinematic_model(), stop_time_s=stop_time,
+                         config=cn_config, raw_path=str(raw),
+                         marker_timeout_s=max(30.0, 5.0 * options.receive_timeout_s),
+                         scheduling=settings.scheduling if paced else None, fifo_priority=settings.fifo_priority)
+    context = multiprocessing.get_context("spawn")
+    conn, child_conn = context.Pipe(duplex=False)
+    process = context.Process(target=drive_side_main, args=(spec, child_conn), name=f"cosim-split-drives-{label}",
+                              daemon=True)
+    wall0 = time.perf_counter()
+    endpoint = ManagingNodeEndpoint(mn_config, robot_cell.joint_scaling(), log_path=can_log)
+    n_cycles = int(round(stop_time / period)) + 1
+    info: dict[str, Any] = {"interface": "udp_multicast", "channel": mn_config.bus.channel, "port": port,
+                            "receive_timeout_s": options.receive_timeout_s}
+    session = SplitSession(process, endpoint, info=info)
+    failure: SimulationError | None = None
+    granted = "normal"
+    memory = MemorySink()
+    child: dict[str, Any] | None = None
+    ready: dict[str, Any] = {}
+    try:
+        process.start()
+        child_conn.close()
+        ready = _receive(conn, process, START_TIMEOUT_S, "ready")
+        tolerance = settings.tolerance_s if settings.tolerance_s is not None else auto_tolerance_s(endpoint.layout)
+        if paced and pacer is None:
+            pacer = Pacer(period, settings.spin_s, tolerance, capacity=n_cycles + 16)
+        if not paced:
+            pacer = None
+        gate = SetpointGate(settings.overrun_policy, fb_config.nodes)
+        plan = OverrunFaultPlan(endpoint.plan, fb_config.nodes)
+        endpoint.plan = plan
+        lost_policy = settings.overrun_policy == "lost_frame"
+        bar = ProgressBar(stop_time, f"{ctx.scenario.name} {label} (split)", enabled=not ctx.quiet and not paced)
+        send = endpoint.bus.send
+        t0 = fb_config.start_time_s
+        setpoints = controller.setpoints
+        missing_seen = 0
+        scheduling = settings.scheduling if paced else "normal"
+        with realtime_scheduling(scheduling, settings.fifo_priority) as granted, no_cyclic_gc():
+            for k in range(n_cycles):
+                t = t0 + k * period
+                late = pacer.wait(k) if pacer is not None else False
+                flags = 0
+                if late and lost_policy:
+                    plan.mark_lost(k)
+                    flags = LOST
+                send(marker_message(k, flags))
+                endpoint.send_setpoints(k, gate.send(setpoints, late))
+                observed = endpoint.collect_actuals(k)
+                setpoints = controller.step(k, t, observed)
+                session.cycle = k
+                if controller.stopped and session.controller_stop_cycle is None:
+                    session.controller_stop_cycle = k
+                if endpoint.frames_missing != missing_seen:
+                    missing_seen = endpoint.frames_missing
+                    if not process.is_alive():
+                        session.drive_exit_code = process.exitcode
+                if on_cycle is not None:
+                    on_cycle(k, session)
+                if controller.stopped:
+                    if session.drive_exit_code is not None:
+                        failure = SimulationError(
+                            "split drive side", t, f"drive process ended (exit code {session.drive_exit_code}); "
+                            f"the controller stopped at t = {controller.stopped_at_s:.6g} s: {controller.stop_reason}")
+                        break
+                    if t - controller.stopped_at_s >= stop_grace_s - 1e-12:
+                        failure = SimulationError("controller", controller.stopped_at_s,
+                                                  f"motion stopped: {controller.stop_reason}")
+                        if k + 1 < n_cycles:
+                            send(marker_message(k + 1, END))
+                        break
+                if k % 250 == 0:
+                    bar.update(t - t0)
+        bar.update(session.cycle * period, force=True)
+        bar.close()
+        if process.is_alive() or conn.poll(0):
+            try:
+                child = _receive(conn, process, 120.0, "done")
+            except RuntimeError as error:
+                info["drive_side_error"] = str(error)
+    finally:
+        endpoint.close()
+        if process.is_alive():
+            process.join(timeout=10)
+        if process.is_alive():
+            process.kill()
+            process.join(timeout=5)
+        conn.close()
+    wall = time.perf_counter() - wall0
+    columns = ready.get("columns") or ["time", *signals]
+    memory.open(columns, ready.get("kinds") or ["Real"] * len(columns))
+    rows = read_raw_rows(raw, len(columns))
+    if rows.size:
+        memory.write(rows)
+    raw.unlink(missing_ok=True)
+    raw.parent.rmdir()
+    write_memory_csv(memory, ctx.path(record_file))
+    cycles = session.cycle + 1
+    mn_summary = network_summary(endpoint.config, endpoint.events, endpoint, None, endpoint.recorder, cycles)
+    fieldbus_summary = _merge_fieldbus(mn_summary, child["fieldbus"] if child else None)
+    if failure is None and child and child.get("failure"):
+        f = child["failure"]
+        failure = SimulationError(f["component"], f["time"], f["reason"], f["messages"])
+    reached = child["reached_s"] if child else t0 + (rows[-1, 0] if rows.size else 0.0)
+    info.update(drive_process_exit_code=process.exitcode, controller_stop_cycle=session.controller_stop_cycle,
+                drive_exit_seen_at_cycle=session.cycle if session.drive_exit_code is not None else None,
+                drive_side_wall_s=child["wall_s"] if child else None, cycles=cycles,
+                frames_missing_controller_side=endpoint.frames_missing,
+                frames_missing_drive_side=child["frames_missing"] if child else None,
+                lost_cycles_drive_side=len(child["lost_cycles"]) if child else None,
+                drive_side_scheduling=child.get("scheduling") if child else None,
+                realtime_factor=(cycles * period) / wall if wall > 0 else None)
+    ctx.sim_time_s += cycles * period
+    cell = robot_cell.CellRun(label, ctx.path(record_file), int(rows.shape[0]), reached, fieldbus_summary, wall,
+                              ready.get("engine", ""), memory, failure)
+    return cell, pacer, granted, info
+
+
+def _receive(conn, process, timeout_s: float, expected: str) -> dict[str, Any]:
+    """The drive process's next message, which must be ``expected``."""
+    deadline = time.monotonic() + timeout_s
+    while not conn.poll(0.05):
+        if not process.is_alive() and not conn.poll(0):
+            raise RuntimeError(f"split drive process exited with code {process.exitcode} before '{expected}'")
+        if time.monotonic() > deadline:
+            raise RuntimeError(f"split drive process sent no '{expected}' within {timeout_s} s")
+    kind, payload = conn.recv()
+    if kind == "error":
+        raise RuntimeError(f"split drive process failed:\n{payload}")
+    if kind != expected:
+        raise RuntimeError(f"split drive process sent '{kind}', expected '{expected}'")
+    return payload

@@ -1,0 +1,207 @@
+"""The drive process of a split run: plant + six drive FMUs, the POWERLINK controlled
+nodes, the laser tracker and the recorder, driven by the controller process's frames.
+
+Started by :func:`cosim.split.cell.run_split_cell` with :func:`drive_side_main` as the
+target of a ``spawn`` process. Its controller-cycle task (:class:`DriveLink`) does, at
+cycle k (time t_k): read the drives' actual values at t_k, wait for the cycle marker of
+k (:mod:`cosim.split.protocol`), run the controlled nodes' cycle k
+(``fieldbus.DriveEndpoint.run_cycle``: SoC, PReqs in, PRes out) and write what the
+drives apply from t_k to the ``bus.*`` master variables - the same values the
+one-process cell's :class:`~cosim.jobs.robot_cell.FieldbusLink` writes. The master then
+steps the FMUs to t_k+1.
+
+Rows are appended to a raw float64 file as the recorder hands them over, so what was
+recorded survives a killed process; the controller side turns it into the CSV.
+"""
+from __future__ import annotations
+
+import time
+import traceback
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from cosim.jobs import robot_cell
+from cosim.jobs.laser_tracker import LaserTracker, TrackerConfig
+from cosim.master import EndSimulation, Master, SimulationError
+from cosim.realtime.pacer import no_cyclic_gc, realtime_scheduling
+from cosim.realtime.policy import OverrunFaultPlan
+from cosim.split.protocol import END, LOST, parse_marker
+from fieldbus import DriveActuals, DriveEndpoint, FieldbusConfig
+
+
+@dataclass
+class DriveSideSpec:
+    """Everything the drive process needs (pickled into it).
+
+    cell_doc: the scenario document with the cell's FMU start values filled in.
+    signals, record_period_s: what the recorder samples, and how often (s).
+    tracker, true_model: the laser tracker's settings and the true robot's kinematic model.
+    stop_time_s: end of the run, s. config: the drive side's fieldbus configuration.
+    raw_path: file of recorded rows (float64, row-major). marker_timeout_s: wall seconds
+    to wait for a cycle marker before giving up. scheduling: None (unpaced) or
+    'fifo'/'normal' with fifo_priority. can_log: the drive side's own CAN log or None.
+    """
+
+    cell_doc: dict[str, Any]
+    signals: list[str]
+    record_period_s: float
+    tracker: TrackerConfig | None
+    true_model: Any
+    stop_time_s: float
+    config: FieldbusConfig
+    raw_path: str
+    marker_timeout_s: float
+    scheduling: str | None = None
+    fifo_priority: int = 10
+    can_log: str | None = None
+
+
+class RawRowSink:
+    """Recorder sink appending rows to a raw float64 file (flushed per hand-over)."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        self.columns: list[str] = []
+        self.kinds: list[str] = []
+        self._file = None
+
+    def open(self, columns: Sequence[str], kinds: Sequence[str]) -> None:
+        self.columns, self.kinds = list(columns), list(kinds)
+        self._file = open(self.path, "wb")
+
+    def write(self, block: np.ndarray) -> None:
+        np.ascontiguousarray(block, dtype=np.float64).tofile(self._file)
+
+    def flush(self) -> None:
+        if self._file is not None:
+            self._file.flush()
+
+    def close(self) -> None:
+        if self._file is not None:
+            self._file.close()
+            self._file = None
+
+
+def read_raw_rows(path: str | Path, columns: int) -> np.ndarray:
+    """The complete rows of a RawRowSink file, shape (rows, columns)."""
+    flat = np.fromfile(path, dtype=np.float64) if Path(path).exists() else np.zeros(0)
+    rows = flat.size // columns
+    return flat[:rows * columns].reshape(rows, columns)
+
+
+class DriveLink:
+    """The drive side's controller-cycle task (see module docstring)."""
+
+    def __init__(self, endpoint: DriveEndpoint, plan: OverrunFaultPlan, marker_timeout_s: float) -> None:
+        self.endpoint = endpoint
+        self.plan = plan
+        self.marker_timeout_s = marker_timeout_s
+        self.cycle = 0
+        self.lost_cycles: list[int] = []
+        self.ended_at: int | None = None
+        self.actuals: DriveActuals | None = None
+
+    def setup(self, master: Master) -> None:
+        n = robot_cell.N_JOINTS
+        drives = robot_cell.DRIVES
+        self._real = master.reader([f"{d}.{name}" for name in ("position_actual", "velocity_actual", "torque_actual")
+                                    for d in drives])
+        self._integer = master.reader([f"{d}.{name}" for name in ("statusword", "error_code") for d in drives])
+        self._real_out = master.view([f"bus.{name}[{i}]" for name in robot_cell.BUS_REAL for i in range(1, n + 1)],
+                                     writable=True)
+        self._integer_out = master.view([f"bus.{name}[{i}]" for name in robot_cell.BUS_INTEGER
+                                         for i in range(1, n + 1)], writable=True)
+        real, integer = self._real.read(), self._integer.read()
+        self.actuals = DriveActuals(statusword=integer[:n], position=real[:n], velocity=real[n:2 * n],
+                                    torque=real[2 * n:], error_code=integer[n:])
+
+    def _wait_marker(self, t: float) -> int:
+        bus = self.endpoint.bus
+        deadline = time.monotonic() + self.marker_timeout_s
+        while True:
+            msg = bus.recv(max(deadline - time.monotonic(), 0.0))
+            if msg is None:
+                raise SimulationError("split drive side", t, f"no cycle marker for cycle {self.cycle} from the "
+                                                             f"controller process within {self.marker_timeout_s} s")
+            marker = parse_marker(msg)
+            if marker is None:
+                continue  # a frame of a cycle the endpoint gave up on (arrived after its timeout)
+            cycle, flags = marker
+            if cycle != self.cycle:
+                raise SimulationError("split drive side", t, f"cycle marker for cycle {cycle}, expected {self.cycle}")
+            return flags
+
+    def __call__(self, t: float) -> None:
+        n = robot_cell.N_JOINTS
+        self._real.read()
+        self._integer.read()
+        flags = self._wait_marker(t)
+        if flags & END:
+            self.ended_at = self.cycle
+            raise EndSimulation()
+        if flags & LOST:
+            self.plan.mark_lost(self.cycle)
+            self.lost_cycles.append(self.cycle)
+        applied = self.endpoint.run_cycle(self.cycle, self.actuals)
+        out = self._real_out
+        out[:n] = applied.position
+        out[n:] = applied.torque_offset
+        out = self._integer_out
+        out[:n] = applied.controlword
+        out[n:] = applied.fault_code
+        self.cycle += 1
+
+
+def drive_side_main(spec: DriveSideSpec, conn) -> None:
+    """Process target: build, report ``("ready", {...})``, run, report ``("done", {...})``
+    (or ``("error", text)``) on ``conn``."""
+    from cosim.scenario.cosim_tables import build_master
+    from fieldbus.network import network_summary
+
+    endpoint = None
+    try:
+        master = build_master(spec.cell_doc, master_variables=robot_cell.cell_variables())
+        endpoint = DriveEndpoint(spec.config, robot_cell.joint_scaling(), log_path=spec.can_log)
+        plan = OverrunFaultPlan(endpoint.plan, spec.config.nodes)
+        endpoint.plan = plan
+        link = DriveLink(endpoint, plan, spec.marker_timeout_s)
+        laser = LaserTracker(spec.true_model, spec.tracker)
+        period = spec.config.cycle_time_s
+        master.add_task(link, period, priority=0, name="split drive side", setup=link.setup)
+        master.add_task(laser, laser.config.period_s, priority=1, name="laser_tracker", setup=laser.setup)
+        sink = RawRowSink(spec.raw_path)
+        recorder = master.add_recorder(spec.signals, spec.record_period_s, sink, name="cell")
+        failure = None
+        with master:
+            master.initialize(spec.stop_time_s)
+            conn.send(("ready", {"columns": sink.columns, "kinds": sink.kinds, "engine": master.engine.name}))
+            wall0 = time.perf_counter()
+            policy = spec.scheduling or "normal"
+            with realtime_scheduling(policy, spec.fifo_priority) as granted, no_cyclic_gc():
+                try:
+                    master.run(spec.stop_time_s)
+                except SimulationError as exc:
+                    failure = {"component": exc.component, "time": exc.time, "reason": exc.reason,
+                               "messages": list(exc.messages)}
+            wall = time.perf_counter() - wall0
+            reached = master.time
+        cycles = link.cycle
+        summary = network_summary(endpoint.config, endpoint.events, None, endpoint, endpoint.recorder, cycles)
+        endpoint.close()
+        conn.send(("done", {"reached_s": reached, "rows": recorder.rows_written, "fieldbus": summary,
+                            "failure": failure, "wall_s": wall, "lost_cycles": link.lost_cycles,
+                            "ended_at_cycle": link.ended_at, "scheduling": granted if spec.scheduling else None,
+                            "frames_missing": endpoint.frames_missing}))
+    except BaseException:  # report anything to the controller side, then exit non-zero
+        try:
+            conn.send(("error", traceback.format_exc()))
+        except (BrokenPipeError, OSError):
+            pass
+        if endpoint is not None:
+            endpoint.close()
+        raise
+    finally:
+        conn.close()
