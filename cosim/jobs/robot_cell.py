@@ -222,7 +222,8 @@ class FieldbusLink:
 class CellRun:
     """What one cell run produced: the recorder file and its rows (also in memory), the
     simulated time reached (s), the fieldbus summary, the wall time of the run (s), the
-    stepping engine, and the SimulationError that ended it (None: ran to the end)."""
+    stepping engine, the SimulationError that ended it (None: ran to the end) and the CPU
+    time of this process over the same span as the wall time (s, process_time)."""
 
     label: str
     record_path: Path | None
@@ -233,6 +234,7 @@ class CellRun:
     engine: str
     recording: MemorySink
     failure: SimulationError | None = None
+    loop_cpu_time_s: float = float("nan")
 
 
 @contextlib.contextmanager
@@ -309,6 +311,7 @@ def run_cell(doc: dict[str, Any], controller: Controller, true_robot: TrueRobot,
     engine = ""
     failure: SimulationError | None = None
     wall0 = time.perf_counter()
+    cpu0 = time.process_time()
     network = PowerlinkNetwork(fb_config, joint_scaling(), log_path=can_log)
     try:
         link = FieldbusLink(network, controller, period)
@@ -328,5 +331,6 @@ def run_cell(doc: dict[str, Any], controller: Controller, true_robot: TrueRobot,
     finally:
         network.close()
     wall = time.perf_counter() - wall0
+    cpu = time.process_time() - cpu0
     return CellRun(label, ctx.path(record_file), recorder.rows_written, master.time, network.summary(), wall,
-                   engine, memory, failure)
+                   engine, memory, failure, cpu)
