@@ -25,7 +25,9 @@ def variant(tmp_path: Path, old: str, new: str, count: int = 1) -> Path:
 def test_the_main_scenario_is_valid():
     scenario = load_scenario(ROOT / "scenarios" / "iso9283.toml")
     assert scenario.job.name == "iso9283"
-    assert scenario.data["controller"]["modes"] == ["standard", "model_based"]
+    assert scenario.data["controller"]["modes"] == ["standard", "standard_speed_ff", "model_based"]
+    ctrl = scenario.data["controller"]
+    assert [ctrl[m]["drive_speed_feedforward"] for m in ctrl["modes"]] == [False, True, True]
     assert scenario.data["simulation"]["macro_step"] == pytest.approx(100e-6)
     assert scenario.data["controller"]["period"] == pytest.approx(400e-6)
 
@@ -51,8 +53,16 @@ CASES = [
      'builtin = "rx130l_plant"\n[fmus.parameters]\n"q0[1]" = 0.1', ["fmus[0]", "q0[1]", "set by the job"]),
     ("tracker period vs macro step", 'period = "1 ms"              # Leica', 'period = "1.05 ms"  # Leica',
      ["tracker.period", "multiple of macro_step"]),
-    ("unknown mode", 'modes = ["standard", "model_based"]', 'modes = ["standard", "adaptive"]',
-     ["controller.modes[1]", "'adaptive'", "'model_based'"]),
+    ("unknown mode", 'modes = ["standard", "standard_speed_ff", "model_based"]', 'modes = ["standard", "adaptive"]',
+     ["controller.modes[1]", "'adaptive'", "'model_based'", "'standard_speed_ff'"]),
+    ("per-mode drive speed feed-forward type", "[controller.standard]\ndrive_speed_feedforward = false",
+     '[controller.standard]\ndrive_speed_feedforward = "off"', ["controller.standard.drive_speed_feedforward",
+                                                                "'off'"]),
+    ("per-mode unknown key", "[controller.standard]\n", "[controller.standard]\ntorque_feedforward = true\n",
+     ["controller.standard.torque_feedforward", "unknown key"]),
+    ("drive speed feed-forward set by the job", DRIVE3_BLOCK,
+     DRIVE3_BLOCK + "[fmus.parameters]\nspeed_feedforward_gain = 0.5\n",
+     ["fmus[3].parameters.speed_feedforward_gain", "set by the job", "drive_speed_feedforward"]),
 ]
 
 

@@ -3,10 +3,21 @@
 The EN ISO 9283 test path (``planners.iso9283``: cube, diagonal plane, rectangle,
 line, circles at 1 m/s and 5 m/s^2, constant orientation) is driven through the
 400 µs controller, the POWERLINK-timed CiA 402 fieldbus, six servo-drive FMUs and
-the plant FMU, once per mode in ``[controller] modes`` (``standard``: the drives'
-cascade alone; ``model_based``: plus the eq. 7 feed-forward), on the SAME seeded
-true robot (inertial, friction and rotor deviations, geometric errors, payload). A
-laser tracker samples the true flange every 1 ms. See docs/main_job.md.
+the plant FMU, once per mode in ``[controller] modes`` (:data:`JOB_MODES`), on the
+SAME seeded true robot (inertial, friction and rotor deviations, geometric errors,
+payload). The modes follow the paper (section 2.3, Figure 1, eq. 7):
+
+* ``standard``: position set-points only, the drives' P-PI cascade (drive speed
+  feed-forward gain 0, no torque offset);
+* ``standard_speed_ff`` (optional): the cascade plus the drives' own speed
+  feed-forward from target differences, no torque offset;
+* ``model_based``: eq. 7, ``Q_M = M(q_d) qdd_d + g(q_d, qd_d) + K_p (q_d - q) + K_d (qd_d - qd)``:
+  the velocity reference enters through the drives' speed feed-forward (gain 1), the
+  model torque as torque offset, plus the drive set-point shaping.
+
+The drive speed feed-forward is the servo-drive FMU parameter ``speed_feedforward_gain``,
+set by the job per mode (``[controller.<mode>] drive_speed_feedforward`` overrides the
+mode's default). A laser tracker samples the true flange every 1 ms. See docs/main_job.md.
 
 Results (``results/<name>/`` or ``--out``): ``summary.json``; per mode
 ``timeseries_<mode>.csv`` (1 ms: plant q, qd, drive torques and currents, drive
@@ -18,13 +29,15 @@ on the bus); figures ``figure2a_lag_errors.png``, ``figure2b_tcp_error.png``,
 """
 from __future__ import annotations
 
+import copy
 import math
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from controller import MODES, Controller, ControllerConfig, Phase, TcpTrajectory
+from controller import Controller, ControllerConfig, Phase, TcpTrajectory
 from cosim.jobs import robot_cell
 from cosim.jobs.columns_csv import write_columns_csv
 from cosim.jobs.laser_tracker import DEFAULT_POSITION_SIGMA_M, TrackerConfig
@@ -38,6 +51,49 @@ from cosim.scenario.schema import (AnyValue, Boolean, Field, FilePath, Integer, 
 
 JOB_NAME = "iso9283"
 
+
+@dataclass(frozen=True)
+class JobMode:
+    """One mode of the job.
+
+    controller_mode: the :class:`controller.ControllerConfig` mode (``"standard"``: zero
+        torque offset, target = q_d; ``"model_based"``: eq. 7 torque offset + set-point shaping).
+    drive_speed_feedforward: default of ``[controller.<mode>] drive_speed_feedforward``:
+        True = the drives' ``speed_feedforward_gain`` of fmus/servo_drive/drive_params.toml
+        (1.0), False = 0 (pure P position loop).
+    description: one line for summary.json.
+    """
+
+    controller_mode: str
+    drive_speed_feedforward: bool
+    description: str
+
+
+JOB_MODES: dict[str, JobMode] = {
+    "standard": JobMode("standard", False, "position set-points only: the drives' P position / PI speed / PI current "
+                                           "cascade, no speed or torque feed-forward (paper section 2.3, Figure 1)"),
+    "standard_speed_ff": JobMode("standard", True, "position set-points, the drives' own speed feed-forward from "
+                                                   "target differences, no torque feed-forward"),
+    "model_based": JobMode("model_based", True, "eq. 7: velocity reference through the drives' speed feed-forward, "
+                                                "torque feed-forward M(q_d) qdd_d + g(q_d, qd_d) as torque offset, "
+                                                "drive set-point shaping"),
+}
+"""The job's modes (``[controller] modes``), in the order they are reported."""
+
+SPEED_FEEDFORWARD_PARAMETER = "speed_feedforward_gain"
+"""The servo-drive FMU parameter the job sets per mode."""
+
+
+def _mode_table(mode: str) -> Table:
+    default = JOB_MODES[mode].drive_speed_feedforward
+    return Table({
+        "drive_speed_feedforward": Field(
+            Boolean(), default=default,
+            doc=f"true: the drives add their speed feed-forward from target differences (gain of "
+                f"fmus/servo_drive/drive_params.toml), false: gain 0; default for {mode!r}: "
+                f"{str(default).lower()}"),
+    }, doc=f"the [controller.{mode}] table")
+
 TRUE_ROBOT_TABLE = Table({
     "seed": Field(Integer(min=0), default=1, doc="the seed of the true robot's deviations: an integer >= 0"),
     "payload_mass": Field(Number(unit="kg", min=0, max=10), default=0.0,
@@ -49,7 +105,8 @@ TRUE_ROBOT_TABLE = Table({
 }, doc="the [true_robot] table")
 
 CONTROLLER_TABLE = Table({
-    "modes": Field(List(String(choices=MODES), min_len=1, unique=True), default=list(MODES)),
+    "modes": Field(List(String(choices=tuple(JOB_MODES)), min_len=1, unique=True),
+                   default=["standard", "model_based"]),
     "period": Field(Number(unit="s", gt=0), default=400e-6, doc="the controller cycle: a number in s > 0"),
     "kinematics": Field(String(choices=("nominal", "true")), default="nominal",
                         doc="the controller's IK model: 'nominal' (URDF) or 'true' (perfectly calibrated)"),
@@ -63,6 +120,7 @@ CONTROLLER_TABLE = Table({
                                 doc="model_based: shape the targets for the drives' speed feed-forward and filter"),
     "compute_budget": Field(Number(unit="s", gt=0), default=100e-6),
     "settle_time": Field(Number(unit="s", min=0), default=0.2),
+    **{mode: Field(_mode_table(mode)) for mode in JOB_MODES},
 }, doc="the [controller] table")
 
 PATH_TABLE = Table({
@@ -129,6 +187,13 @@ def check(doc: dict[str, Any], where: Where) -> None:
         if not want <= have:
             raise (where / "fmus")[i].error(f"a {builtin} FMU (variables {sorted(want)})", str(fmu["path"]),
                                             problem=f"instance {name!r} lacks {sorted(want - have)}")
+    for name in robot_cell.DRIVES:
+        i, fmu = by_name[name]
+        if SPEED_FEEDFORWARD_PARAMETER in fmu["parameters"]:
+            raise ((where / "fmus")[i] / "parameters" / SPEED_FEEDFORWARD_PARAMETER).error(
+                "no speed_feedforward_gain here: the job sets it per mode ([controller.<mode>] "
+                "drive_speed_feedforward = true/false)", fmu["parameters"][SPEED_FEEDFORWARD_PARAMETER],
+                problem="parameter set by the job")
     plant_i, plant = by_name[robot_cell.PLANT]
     for key in plant["parameters"]:
         if key.startswith(robot_cell.JOB_SET_PLANT_PARAMETERS):
@@ -203,6 +268,26 @@ def controller_models(ctrl: dict[str, Any], true_robot) -> tuple[Any, Any, str, 
     return kin, dyn, kin_label, dyn_label
 
 
+def drive_speed_feedforward(ctrl: dict[str, Any], mode: str) -> bool:
+    """Whether the drives' speed feed-forward is on in ``mode`` ([controller.<mode>] or the mode's default)."""
+    table = ctrl.get(mode) or {}
+    return bool(table.get("drive_speed_feedforward", JOB_MODES[mode].drive_speed_feedforward))
+
+
+def mode_fmus(doc_fmus: list[dict[str, Any]], speed_feedforward: bool) -> list[dict[str, Any]]:
+    """A copy of the scenario's ``[[fmus]]`` with every drive's ``speed_feedforward_gain`` set:
+    the drive parameter file's value (1.0) when ``speed_feedforward``, else 0."""
+    from fmus.servo_drive.params import drive_start_values
+
+    fmus = copy.deepcopy(doc_fmus)
+    for fmu in fmus:
+        if fmu["name"] in robot_cell.DRIVES:
+            axis = robot_cell.DRIVES.index(fmu["name"]) + 1
+            gain = drive_start_values(axis)[SPEED_FEEDFORWARD_PARAMETER] if speed_feedforward else 0.0
+            fmu["parameters"] = {**fmu["parameters"], SPEED_FEEDFORWARD_PARAMETER: float(gain)}
+    return fmus
+
+
 # ---------------------------------------------------------------------------------------- running
 def run(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
     """Run every mode of the scenario on the same true robot; write results; return summary fields."""
@@ -222,28 +307,39 @@ def run(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
 
     fb = FieldbusConfig.from_dict(doc["fieldbus"], source=str(scenario.path))
     capacity = int(stop_time / period) + 16
-    drive_model = robot_cell.drive_loop_model(doc["fmus"], period) if ctrl_t["drive_compensation"] else None
+    mode_settings = {mode: {"controller_mode": JOB_MODES[mode].controller_mode,
+                            "drive_speed_feedforward": drive_speed_feedforward(ctrl_t, mode),
+                            "torque_feedforward": JOB_MODES[mode].controller_mode == "model_based",
+                            "description": JOB_MODES[mode].description} for mode in ctrl_t["modes"]}
     ctx.summary.update(
         true_robot={"seed": true_robot.seed, "payload_mass_kg": float(true_robot.payload[0]),
                     "payload_com_m": true_robot.payload[1:].tolist(),
                     "dynamic_deviations": doc["true_robot"]["dynamic_deviations"],
                     "geometric_errors": doc["true_robot"]["geometric_errors"]},
         controller_model={"kinematics": kin_label, "dynamics": dyn_label, "payload_known": ctrl_t["payload_known"],
-                          "drive_compensation": ctrl_t["drive_compensation"]},
+                          "drive_compensation": ctrl_t["drive_compensation"], "modes": mode_settings},
         path={"duration_s": path.duration, "length_m": path.length, "speed_m_s": path.speed,
               "acceleration_m_s2": path.acceleration, "segments": path.segment_names},
         definitions=DEFINITIONS, modes={})
     modes: dict[str, Any] = {}
     results: dict[str, TrackingResult] = {}
     for mode in ctrl_t["modes"]:
-        config = ControllerConfig(mode=mode, period_s=period, lead_cycles=1 + fb.dead_time_cycles,
-                                  compute_budget_s=ctrl_t["compute_budget"], settle_time_s=ctrl_t["settle_time"])
+        settings = mode_settings[mode]
+        mode_doc = {**doc, "fmus": mode_fmus(doc["fmus"], settings["drive_speed_feedforward"])}
+        drive_model = (robot_cell.drive_loop_model(mode_doc["fmus"], period)
+                       if ctrl_t["drive_compensation"] and settings["torque_feedforward"] else None)
+        config = ControllerConfig(mode=settings["controller_mode"], period_s=period,
+                                  lead_cycles=1 + fb.dead_time_cycles, compute_budget_s=ctrl_t["compute_budget"],
+                                  settle_time_s=ctrl_t["settle_time"])
         controller = Controller(reference, config, kinematic_model=kin, dynamics=dyn, q_hint=np.array(ISO_Q_HINT),
                                 drive_model=drive_model, capacity=capacity)
         can_log = ctx.path(f"can_{mode}.blf") if doc["results"]["can_log"] else None
-        cell = robot_cell.run_cell(doc, controller, true_robot, ctx, label=mode, stop_time=stop_time, fieldbus=fb,
-                                   tracker=tracker, record_file=f"timeseries_{mode}.csv", can_log=can_log)
+        cell = robot_cell.run_cell(mode_doc, controller, true_robot, ctx, label=mode, stop_time=stop_time,
+                                   fieldbus=fb, tracker=tracker, record_file=f"timeseries_{mode}.csv",
+                                   can_log=can_log)
         entry, result = _evaluate_mode(ctx, mode, cell, controller, reference, path, true_robot)
+        entry = {"drive_speed_feedforward": settings["drive_speed_feedforward"],
+                 "torque_feedforward": settings["torque_feedforward"], **entry}
         modes[mode] = entry
         results[mode] = result
         ctx.summary.update(modes=modes)
@@ -257,6 +353,9 @@ def run(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
                                                   modes["model_based"]["tcp_error_rms_mm"])
         fields["improvement_factor_noise_free"] = _ratio(modes["standard"]["tcp_error_max_noise_free_mm"],
                                                          modes["model_based"]["tcp_error_max_noise_free_mm"])
+    if "standard_speed_ff" in modes and "model_based" in modes:
+        fields["improvement_factor_vs_standard_speed_ff"] = _ratio(modes["standard_speed_ff"]["tcp_error_max_mm"],
+                                                                   modes["model_based"]["tcp_error_max_mm"])
     if doc["results"]["figures"]:
         from cosim.jobs.iso9283_figures import write_figures
 
