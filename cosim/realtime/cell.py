@@ -83,6 +83,7 @@ def run_paced_cell(doc: dict[str, Any], controller, true_robot, ctx: RunContext,
     granted = "normal"
     failure: SimulationError | None = None
     wall0 = time.perf_counter()
+    cpu0 = time.process_time()
     network = PowerlinkNetwork(fb_config, robot_cell.joint_scaling(), log_path=can_log)
     try:
         tolerance = settings.tolerance_s if settings.tolerance_s is not None else auto_tolerance_s(network.layout)
@@ -105,7 +106,8 @@ def run_paced_cell(doc: dict[str, Any], controller, true_robot, ctx: RunContext,
     finally:
         network.close()
     wall = time.perf_counter() - wall0
+    cpu = time.process_time() - cpu0
     write_memory_csv(memory, ctx.path(record_file))
     cell = robot_cell.CellRun(label, ctx.path(record_file), recorder.rows_written, master.time, network.summary(),
-                              wall, engine, memory, failure)
+                              wall, engine, memory, failure, loop_cpu_time_s=cpu)
     return cell, pacer, granted

@@ -110,6 +110,7 @@ def run_split_cell(doc: dict[str, Any], controller, true_robot, ctx, *, label: s
     process = context.Process(target=drive_side_main, args=(spec, child_conn), name=f"cosim-split-drives-{label}",
                               daemon=True)
     wall0 = time.perf_counter()
+    cpu0 = time.process_time()
     endpoint = ManagingNodeEndpoint(mn_config, robot_cell.joint_scaling(), log_path=can_log)
     n_cycles = int(round(stop_time / period)) + 1
     info: dict[str, Any] = {"interface": "udp_multicast", "channel": mn_config.bus.channel, "port": port,
@@ -190,6 +191,7 @@ def run_split_cell(doc: dict[str, Any], controller, true_robot, ctx, *, label: s
             process.join(timeout=5)
         conn.close()
     wall = time.perf_counter() - wall0
+    cpu = time.process_time() - cpu0
     columns = ready.get("columns") or ["time", *signals]
     memory.open(columns, ready.get("kinds") or ["Real"] * len(columns))
     rows = read_raw_rows(raw, len(columns))
@@ -215,7 +217,7 @@ def run_split_cell(doc: dict[str, Any], controller, true_robot, ctx, *, label: s
                 realtime_factor=(cycles * period) / wall if wall > 0 else None)
     ctx.sim_time_s += cycles * period
     cell = robot_cell.CellRun(label, ctx.path(record_file), int(rows.shape[0]), reached, fieldbus_summary, wall,
-                              ready.get("engine", ""), memory, failure)
+                              ready.get("engine", ""), memory, failure, loop_cpu_time_s=cpu)
     return cell, pacer, granted, info
 
 
