@@ -29,6 +29,12 @@ acceptance bound (then NumericIK's tolerance holds, see
 singular; otherwise it takes the Python path (NumericIK with its fallbacks). The
 generated library is cached in ``build/controller_core/`` by the SHA-256 of its C
 source (a lock serialises concurrent builders).
+
+The same library holds ``fast_cycle_run`` (``controller/fast_cycle.c``): the whole
+compiled-path cycle around the kernel (stop check, acceptance, drive set-point
+shaping, set-points, log row) in one foreign call, bound once by
+:meth:`CompiledCycle.bind_fast_cycle`; Python numpy operations on 6-vectors cost about
+1-2 µs each on this machine, a dozen of them per cycle cost more than the kernel.
 """
 from __future__ import annotations
 
@@ -40,6 +46,7 @@ import shutil
 import subprocess
 import tempfile
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import casadi as ca
 import numpy as np
@@ -48,10 +55,19 @@ import pinocchio as pin
 from robot.dynamics import RobotDynamics
 from robot.symbolic import chain_structure, inverse_dynamics_expression
 
+if TYPE_CHECKING:
+    from controller.drive_compensation import SetpointShaper
+    from fieldbus import Setpoints
+
 N_JOINTS = 6
 FUNCTION_NAME = "controller_cycle"
 CACHE_DIR = Path(__file__).resolve().parents[1] / "build" / "controller_core"
-CFLAGS = ("-O2", "-fPIC", "-shared", "-std=c99")
+CFLAGS = ("-O2", "-fPIC", "-shared", "-std=c99", "-ffp-contract=off")
+FAST_CYCLE_SOURCE = Path(__file__).with_name("fast_cycle.c")
+FAST_STOP_CHECK, FAST_REJECTED = 2, -1
+"""``fast_cycle_run`` results besides 0/1 (accepted, IK steps): a drive is not in
+Operation enabled or a node is faulted (the Python path decides), the kernel's result
+failed a check (the Python path redoes the cycle)."""
 _SMALL_ANGLE = 1e-5
 
 
@@ -143,10 +159,12 @@ def _generate_c(function: ca.Function) -> str:
 
 
 def build_library(function: ca.Function, cache_dir: Path = CACHE_DIR) -> Path:
-    """Generate, compile (once per source hash) and return the shared library's path."""
+    """Generate, compile (once per source hash) and return the shared library's path
+    (the generated kernel and ``fast_cycle.c``)."""
     source = _generate_c(function)
+    fast_source = FAST_CYCLE_SOURCE.read_text()
     compiler = os.environ.get("CC", "gcc")
-    digest = hashlib.sha256((source + compiler + " ".join(CFLAGS)).encode()).hexdigest()[:16]
+    digest = hashlib.sha256((source + fast_source + compiler + " ".join(CFLAGS)).encode()).hexdigest()[:16]
     try:
         cache_dir.mkdir(parents=True, exist_ok=True)
         if not os.access(cache_dir, os.W_OK):
@@ -164,9 +182,11 @@ def build_library(function: ca.Function, cache_dir: Path = CACHE_DIR) -> Path:
         with tempfile.TemporaryDirectory(dir=cache_dir) as tmp:
             c_file = Path(tmp) / f"{FUNCTION_NAME}.c"
             c_file.write_text(source)
+            fast_file = Path(tmp) / FAST_CYCLE_SOURCE.name
+            fast_file.write_text(fast_source)
             out = Path(tmp) / library.name
             try:
-                result = subprocess.run([compiler, *CFLAGS, str(c_file), "-o", str(out), "-lm"],
+                result = subprocess.run([compiler, *CFLAGS, str(c_file), str(fast_file), "-o", str(out), "-lm"],
                                         capture_output=True, text=True, timeout=300)
             except (OSError, subprocess.TimeoutExpired) as exc:
                 raise CompiledCycleError(f"controller kernel: could not run the C compiler {compiler!r}: {exc}") \
@@ -177,13 +197,42 @@ def build_library(function: ca.Function, cache_dir: Path = CACHE_DIR) -> Path:
     return library
 
 
+class FastPlan(ctypes.Structure):
+    """Mirror of ``fast_plan`` in fast_cycle.c (pointers and constants of one controller)."""
+
+    _fields_ = [
+        ("arg", ctypes.c_void_p), ("res", ctypes.c_void_p), ("iw", ctypes.c_void_p), ("w", ctypes.c_void_p),
+        ("state", ctypes.c_void_p), ("result", ctypes.c_void_p), ("tau", ctypes.c_void_p),
+        ("info", ctypes.c_void_p),
+        ("accept2", ctypes.c_double), ("tol2", ctypes.c_double), ("singular_tol", ctypes.c_double),
+        ("lower", ctypes.c_double * N_JOINTS), ("upper", ctypes.c_double * N_JOINTS),
+        ("model_based", ctypes.c_longlong), ("shape", ctypes.c_longlong),
+        ("lead", ctypes.c_double * N_JOINTS), ("g_over_t", ctypes.c_double * N_JOINTS),
+        ("denominator", ctypes.c_double * N_JOINTS),
+        ("shaper_delta", ctypes.c_void_p), ("shaper_q_prev", ctypes.c_void_p), ("shaper_target", ctypes.c_void_p),
+        ("q_d", ctypes.c_void_p), ("qd_d", ctypes.c_void_p), ("qdd_d", ctypes.c_void_p),
+        ("sp_position", ctypes.c_void_p), ("sp_torque", ctypes.c_void_p), ("sp_controlword", ctypes.c_void_p),
+        ("enable_operation", ctypes.c_longlong),
+        ("statusword", ctypes.c_void_p), ("node_fault", ctypes.c_void_p), ("q_obs", ctypes.c_void_p),
+    ]
+
+
+def _address(array: np.ndarray, dtype: type, what: str) -> int:
+    """Data address of a C-contiguous (6,) array of ``dtype`` (ValueError otherwise)."""
+    if not (isinstance(array, np.ndarray) and array.dtype == dtype and array.shape == (N_JOINTS,)
+            and array.flags.c_contiguous):
+        raise ValueError(f"fast cycle: {what} must be a contiguous ({N_JOINTS},) {np.dtype(dtype).name} array, "
+                         f"got {getattr(array, 'dtype', type(array).__name__)} {getattr(array, 'shape', '')}")
+    return int(array.ctypes.data)
+
+
 class CompiledCycle:
     """The compiled kernel with prepared ctypes argument arrays.
 
     ``state`` (18,) holds (q, qd, qdd) of the last accepted cycle; :meth:`run` evaluates
     the kernel from it into ``result`` (18,), ``tau`` (6,) and ``info`` (3,); :meth:`accept`
-    makes ``result`` the new state (the two buffers swap roles, no copy); :meth:`reset`
-    sets the state at rest.
+    copies ``result`` into the state; :meth:`reset` sets the state at rest. The arrays keep
+    their memory for the object's life (the fast cycle holds their addresses).
     """
 
     def __init__(self, kinematic_model: pin.Model, dynamics: RobotDynamics | None,
@@ -201,23 +250,25 @@ class CompiledCycle:
         if work(*(ctypes.byref(x) for x in sizes)) != 0:
             raise CompiledCycleError("controller kernel: the work-size query failed")
         n_arg, n_res, n_iw, n_w = (int(x.value) for x in sizes)
-        self._buffers = (np.zeros(18), np.zeros(18))
+        self.state = np.zeros(18)
+        self.result = np.zeros(18)
         self.h = np.zeros(1)
         self.tau = np.zeros(6)
         self.info = np.zeros(3)
         self._iw = (ctypes.c_longlong * max(n_iw, 1))()
         self._w = (ctypes.c_double * max(n_w, 1))()
-        self._args = []
-        for src, dst in ((0, 1), (1, 0)):
-            arg = (ctypes.c_void_p * max(n_arg, 3))(self._buffers[src].ctypes.data, 0, self.h.ctypes.data)
-            res = (ctypes.c_void_p * max(n_res, 3))(self._buffers[dst].ctypes.data, self.tau.ctypes.data,
-                                                   self.info.ctypes.data)
-            self._args.append((arg, (ctypes.cast(arg, ctypes.c_void_p), ctypes.cast(res, ctypes.c_void_p),
-                                     ctypes.cast(self._iw, ctypes.c_void_p), ctypes.cast(self._w, ctypes.c_void_p),
-                                     0)))
-        self._current = 0
-        self.state = self._buffers[0]
-        self.result = self._buffers[1]
+        self._arg = (ctypes.c_void_p * max(n_arg, 3))(self.state.ctypes.data, 0, self.h.ctypes.data)
+        self._res = (ctypes.c_void_p * max(n_res, 3))(self.result.ctypes.data, self.tau.ctypes.data,
+                                                     self.info.ctypes.data)
+        self._call = (ctypes.cast(self._arg, ctypes.c_void_p), ctypes.cast(self._res, ctypes.c_void_p),
+                      ctypes.cast(self._iw, ctypes.c_void_p), ctypes.cast(self._w, ctypes.c_void_p), 0)
+        fast = self._lib.fast_cycle_run
+        fast.restype = ctypes.c_int
+        fast.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p]
+        self._fast = fast
+        self.plan: FastPlan | None = None
+        self._plan_ref = None
+        self._keep: list = []
 
     def reset(self, q: np.ndarray) -> None:
         """State at rest at ``q`` (6,) rad."""
@@ -228,19 +279,74 @@ class CompiledCycle:
         """Evaluate from ``state`` for the packed reference row (24 doubles) at memory address
         ``ref_address`` (e.g. ``TcpTrajectory.packed`` row k: ``packed.ctypes.data + 192 k``)
         and the step ``h`` (s)."""
-        arg, call = self._args[self._current]
-        arg[1] = ref_address
+        self._arg[1] = ref_address
         self.h[0] = h
-        if self._fn(*call) != 0:
+        if self._fn(*self._call) != 0:
             raise CompiledCycleError("controller kernel returned an error")
 
     def accept(self) -> None:
         """Make the last result the state (after checking ``info``)."""
-        self._current ^= 1
-        self.state, self.result = self.result, self.state
+        self.state[:] = self.result
 
     def set_state(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> None:
         """Overwrite the state (after a cycle solved by another path)."""
         self.state[:6] = q
         self.state[6:12] = qd
         self.state[12:] = qdd
+
+    # ------------------------------------------------------------------ whole cycle
+    def bind_fast_cycle(self, *, h: float, accept2: float, tol2: float, singular_tol: float,
+                        lower: np.ndarray, upper: np.ndarray, model_based: bool,
+                        shaper: "SetpointShaper | None", desired: tuple[np.ndarray, np.ndarray, np.ndarray],
+                        setpoints: "Setpoints", enable_operation: int) -> None:
+        """Prepare :meth:`fast_cycle` for one controller: step ``h`` (s), the acceptance
+        bounds (squared norms, Hadamard ratio, joint limits in rad incl. tolerance), the
+        torque offset choice, the set-point shaper (its arrays are updated in place) or
+        None, the controller's desired-motion arrays (q_d, qd_d, qdd_d) and set-points
+        (written on acceptance) and the controlword of a computing cycle."""
+        plan = FastPlan()
+        plan.arg = ctypes.cast(self._arg, ctypes.c_void_p)
+        plan.res = ctypes.cast(self._res, ctypes.c_void_p)
+        plan.iw = ctypes.cast(self._iw, ctypes.c_void_p)
+        plan.w = ctypes.cast(self._w, ctypes.c_void_p)
+        plan.state, plan.result = self.state.ctypes.data, self.result.ctypes.data
+        plan.tau, plan.info = self.tau.ctypes.data, self.info.ctypes.data
+        self.h[0] = h
+        plan.accept2, plan.tol2, plan.singular_tol = accept2, tol2, singular_tol
+        plan.lower[:] = [float(x) for x in lower]
+        plan.upper[:] = [float(x) for x in upper]
+        plan.model_based = int(bool(model_based))
+        plan.shape = int(shaper is not None)
+        if shaper is not None:
+            plan.lead[:] = shaper._lead.tolist()
+            plan.g_over_t[:] = shaper._g_over_t.tolist()
+            plan.denominator[:] = shaper._denominator.tolist()
+            plan.shaper_delta = _address(shaper._delta, np.float64, "shaper delta")
+            plan.shaper_q_prev = _address(shaper._q_prev, np.float64, "shaper q_prev")
+            plan.shaper_target = _address(shaper.target, np.float64, "shaper target")
+        q_d, qd_d, qdd_d = desired
+        plan.q_d = _address(q_d, np.float64, "q_d")
+        plan.qd_d = _address(qd_d, np.float64, "qd_d")
+        plan.qdd_d = _address(qdd_d, np.float64, "qdd_d")
+        plan.sp_position = _address(setpoints.position, np.float64, "setpoints.position")
+        plan.sp_torque = _address(setpoints.torque_offset, np.float64, "setpoints.torque_offset")
+        plan.sp_controlword = _address(setpoints.controlword, np.int64, "setpoints.controlword")
+        plan.enable_operation = int(enable_operation)
+        self._keep = [shaper, q_d, qd_d, qdd_d, setpoints.position, setpoints.torque_offset, setpoints.controlword]
+        self.plan = plan
+        self._plan_ref = ctypes.byref(plan)
+
+    def bind_observed(self, statusword: np.ndarray, node_fault: np.ndarray, position: np.ndarray) -> None:
+        """Point the fast cycle at the arrays it reads (int64 statuswords, bool node faults,
+        float64 positions, (6,) each); ValueError when they do not have that layout."""
+        plan = self.plan
+        plan.statusword = _address(statusword, np.int64, "observed.statusword")
+        plan.node_fault = _address(node_fault, np.bool_, "observed.node_fault")
+        plan.q_obs = _address(position, np.float64, "observed.position")
+        self._keep_observed = (statusword, node_fault, position)
+
+    def fast_cycle(self, ref_address: int, log_row_address: int) -> int:
+        """The whole compiled-path cycle (fast_cycle.c) for the packed reference row at
+        ``ref_address``, writing the log row (36 doubles) at ``log_row_address`` (0: none).
+        Returns 0 or 1 (accepted; IK steps), FAST_STOP_CHECK or FAST_REJECTED."""
+        return self._fast(self._plan_ref, ref_address, log_row_address)

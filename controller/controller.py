@@ -42,9 +42,11 @@ above ``compute_budget_s``). Everything the controller computed is kept per cycl
 from __future__ import annotations
 
 import math
+import struct
 import time
 from dataclasses import asdict, dataclass
 from enum import IntEnum
+from functools import partial
 
 import numpy as np
 import pinocchio as pin
@@ -52,7 +54,7 @@ import pinocchio as pin
 from controller.cycle_timer import CycleTimer, TimingSummary
 from controller.drive_compensation import DriveLoopModel, SetpointShaper
 from controller.feedforward import FeedForward
-from controller.compiled_cycle import CompiledCycle, CompiledCycleError
+from controller.compiled_cycle import FAST_REJECTED, FAST_STOP_CHECK, CompiledCycle, CompiledCycleError
 from controller.joint_reference import SINGULARITY_TOLERANCE, CartesianToJoint, SingularConfigurationError
 from controller.reference import JointTrajectory, TcpTrajectory
 from fieldbus import Command, DriveState, EnableSequencer, ObservedActuals, Setpoints, decode_statusword
@@ -94,6 +96,9 @@ class ControllerConfig:
     compiled: evaluate the cycle's numerics (Newton step, qd, qdd, feed-forward) with the
         generated C kernel of :mod:`controller.compiled_cycle` (same mathematics; the
         Python path stays the fallback of every cycle the kernel's checks reject).
+    fast_cycle: with ``compiled``, run the whole cycle around the kernel (stop check,
+        acceptance, set-point shaping, set-points, log row) in one C call
+        (``controller/fast_cycle.c``, bit-identical to the Python code around the kernel).
     """
 
     mode: str = "model_based"
@@ -103,6 +108,7 @@ class ControllerConfig:
     settle_time_s: float = 0.2
     enable_timeout_s: float = 0.5
     compiled: bool = True
+    fast_cycle: bool = True
 
     def __post_init__(self) -> None:
         if self.mode not in MODES:
@@ -128,6 +134,11 @@ class ControllerConfig:
         return self.lead_cycles * self.period_s
 
 
+_COMPUTING = frozenset((Phase.SETTLING, Phase.TRACKING, Phase.FINISHED))
+_SCALAR_ROW = struct.Struct("@6d")
+_JOINT_ROW_BYTES = 6 * N_JOINTS * 8
+
+
 class ControllerLog:
     """Per-cycle record of the controller (preallocated, grows by doubling).
 
@@ -144,6 +155,29 @@ class ControllerLog:
         n = max(int(capacity), 16)
         self.scalars = np.full((n, 6), np.nan)  # t, t_apply, phase, tau, compute_us, ik_iterations
         self.joints = np.full((n, 6, N_JOINTS), np.nan)  # q_d, qd_d, qdd_d, tau_ff, target, q_obs
+        self._bind()
+
+    def _bind(self) -> None:
+        self._joints_address = int(self.joints.ctypes.data)
+        self._pack_scalars = partial(_SCALAR_ROW.pack_into, memoryview(self.scalars).cast("B"))
+
+    def _grow(self) -> None:
+        self.scalars = np.concatenate([self.scalars, np.full_like(self.scalars, np.nan)])
+        self.joints = np.concatenate([self.joints, np.full_like(self.joints, np.nan)])
+        self._bind()
+
+    def next_joints_address(self) -> int:
+        """Memory address of the next row's joint block (6 x 6 doubles: q_d, qd_d, qdd_d,
+        tau_ff, target, q_obs) for a compiled writer; complete the row with :meth:`commit`."""
+        if self.rows == self.scalars.shape[0]:
+            self._grow()
+        return self._joints_address + _JOINT_ROW_BYTES * self.rows
+
+    def commit(self, t: float, t_apply: float, phase: int, tau: float, compute_us: float, iterations: int) -> None:
+        """Complete the row whose joint block was written at :meth:`next_joints_address`."""
+        k = self.rows
+        self._pack_scalars(_SCALAR_ROW.size * k, t, t_apply, phase, tau, compute_us, iterations)
+        self.rows = k + 1
 
     def append(self, t: float, t_apply: float, phase: int, tau: float, q: np.ndarray, qd: np.ndarray,
                qdd: np.ndarray, tau_ff: np.ndarray, target: np.ndarray, q_obs: np.ndarray, compute_us: float,
@@ -151,8 +185,7 @@ class ControllerLog:
         """Add one row (values copied)."""
         k = self.rows
         if k == self.scalars.shape[0]:
-            self.scalars = np.concatenate([self.scalars, np.full_like(self.scalars, np.nan)])
-            self.joints = np.concatenate([self.joints, np.full_like(self.joints, np.nan)])
+            self._grow()
         row = self.scalars[k]
         row[0] = t
         row[1] = t_apply
@@ -284,6 +317,18 @@ class Controller:
         self._q_d = self.q_start.copy()
         self._qd_d = np.zeros(N_JOINTS)
         self._qdd_d = np.zeros(N_JOINTS)
+        # the compiled path's whole cycle (controller/fast_cycle.c) in one foreign call
+        self._fast = self.kernel if (self.kernel is not None and self.config.fast_cycle) else None
+        self._observed_bound: tuple | None = None
+        if self._fast is not None:
+            self._fast.bind_fast_cycle(
+                h=self.config.period_s, accept2=self._accept2, tol2=self._tol2, singular_tol=SINGULARITY_TOLERANCE,
+                lower=np.array(self._lower), upper=np.array(self._upper), model_based=self.model_based,
+                shaper=self._shaper, desired=(self._q_d, self._qd_d, self._qdd_d), setpoints=self.setpoints,
+                enable_operation=int(Command.ENABLE_OPERATION))
+            self._ref_t_start = reference.t_start
+            self._ref_duration = reference.duration
+            self._lead_time_s = self.config.lead_time_s
 
     # ------------------------------------------------------------------ properties
     @property
@@ -331,6 +376,10 @@ class Controller:
         values, return the set-points for the next cycle (a reused object)."""
         started = time.perf_counter_ns()
         cpu_started = time.thread_time_ns()
+        if self._fast is not None and self.phase in _COMPUTING:
+            done = self._fast_step(cycle, t, observed, started, cpu_started)
+            if done:
+                return self.setpoints
         if self._first_cycle is None:
             self._first_cycle = cycle
         self._last_cycle = cycle
@@ -380,6 +429,48 @@ class Controller:
                         sp.torque_offset, sp.position, observed.position, elapsed * 1e-3 if timed else math.nan,
                         iterations)
         return sp
+
+    def _fast_step(self, cycle: int, t: float, observed: ObservedActuals, started: int, cpu_started: int) -> bool:
+        """A settling/tracking/finished cycle through the compiled whole cycle
+        (``fast_cycle.c``): the same set-points, state, log row and timing as the Python
+        path. False when the Python path must take this cycle (a drive not in Operation
+        enabled or a node fault, a kernel result failing a check, unusual observed
+        arrays); nothing has changed then."""
+        bound = self._observed_bound
+        if bound is None or observed.position is not bound[0] or observed.statusword is not bound[1] \
+                or observed.node_fault is not bound[2]:
+            try:
+                self._fast.bind_observed(observed.statusword, observed.node_fault, observed.position)
+            except ValueError:
+                return False
+            self._observed_bound = (observed.position, observed.statusword, observed.node_fault)
+        phase = self.phase
+        if phase is Phase.SETTLING:
+            tau = 0.0
+        else:
+            tau = (cycle - self.motion_start_cycle) * self.config.period_s
+        ref = self.reference
+        k, offset = ref.grid.locate(self._ref_t_start + tau)
+        if offset == 0.0:
+            address = self._packed_base + 192 * k
+        else:
+            ref.packed_sample(self._ref_t_start + tau, self._scratch)
+            address = self._scratch_address
+        log = self.log
+        status = self._fast.fast_cycle(address, log.next_joints_address())
+        if status == FAST_STOP_CHECK or status == FAST_REJECTED:
+            return False
+        self._last_cycle = cycle
+        if phase is Phase.SETTLING and cycle >= self._settle_until:
+            phase = self.phase = Phase.TRACKING
+            self.motion_start_cycle = cycle
+        self.kernel_cycles += 1
+        if phase is Phase.TRACKING and tau >= self._ref_duration:
+            phase = self.phase = Phase.FINISHED
+        elapsed = time.perf_counter_ns() - started
+        self.timer.record(elapsed, time.thread_time_ns() - cpu_started)
+        log.commit(t, t + self._lead_time_s, int(phase), tau, elapsed * 1e-3, status)
+        return True
 
     def _enable(self, observed: ObservedActuals, sp: Setpoints) -> None:
         """Enable sequence: next controlword per drive, hold the start configuration."""
