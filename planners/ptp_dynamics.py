@@ -156,3 +156,19 @@ def boundary_violation(problem: Any) -> str | None:
             reasons.append(f"{name}[joint {j + 1}] = {qd[j]:.6g} rad/s exceeds the velocity limit "
                            f"{limits.velocity[j]:.6g} rad/s")
     return "; ".join(reasons) if reasons else None
+
+
+def boundary_torque_violation(problem: Any, dyn: PtPDynamics) -> str | None:
+    """Why the torque at the boundary states (qdd = 0 there) breaks the torque limit, or None.
+
+    Both PtP planners start and end with zero acceleration (continuous torque with holding
+    the boundary state), so tau(0) = ID(q0, qd0, 0) and tau(T) = ID(qe, qde, 0) are fixed.
+    """
+    limits: JointLimits = problem.limits
+    reasons = []
+    for label, q, qd in (("start", problem.q0, problem.qd0), ("end", problem.qe, problem.qde)):
+        tau = dyn.torques(q[None, :], qd[None, :], np.zeros((1, N_JOINTS)))[0]
+        for j in np.flatnonzero(np.abs(tau) > limits.torque):
+            reasons.append(f"holding torque at the {label} state, joint {j + 1}: {tau[j]:.6g} N m exceeds the "
+                           f"torque limit {limits.torque[j]:.6g} N m")
+    return "; ".join(reasons) if reasons else None

@@ -6,9 +6,10 @@ and the scales ``s = [s_q, s_qd, s_qdd, s_jerk, s_tau, s_rate]`` (36), the outpu
 
     o = [tau / s_tau (6), rate_before / s_rate (6), rate_after / s_rate (6), tau^T tau (1)]
 
-where ``tau = ID(q, qd, qdd)`` (the arm's RNEA, ``robot.symbolic``, with the 78 dynamic
-parameters and the 4 payload values as INPUTS ``dp`` (82), so one compiled library
-serves every arm, payload and friction model of the same kinematic structure) and
+where ``tau = ID(q, qd, qdd)`` (the arm's RNEA, ``robot.symbolic``, plus friction
+``fv qd + fc tanh(qd / v_s)``, with the 78 dynamic parameters, the 4 payload values and
+the Coulomb smoothing velocity v_s as INPUTS ``dp`` (83), so one compiled library serves
+every arm, payload and friction model of the same kinematic structure) and
 ``rate_* = d tau_s / dt = drift(q, qd, qdd) + M(q) jerk_*`` is the exact derivative of the
 torque without the Coulomb term on either side of the node (the jerk jumps at nodes).
 
@@ -28,6 +29,7 @@ compiler the SX functions are used as they are (slower, same results).
 """
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import os
 import shutil
@@ -40,15 +42,15 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
-from robot.dynamics import COULOMB_SLICE, N_PARAMETERS
+from robot.dynamics import COULOMB_SLICE, N_PARAMETERS, VISCOUS_SLICE
 from robot.symbolic import ChainStructure, inverse_dynamics_expression
 
 N_JOINTS = 6
 N_NODE_INPUTS = 30
 N_NODE_OUTPUTS = 19
 N_SCALES = 36
-N_DYNAMIC_PARAMETERS = N_PARAMETERS + 4
-NODE_CODE_VERSION = "ptp-nodes-2"
+N_DYNAMIC_PARAMETERS = N_PARAMETERS + 5
+NODE_CODE_VERSION = "ptp-nodes-3"
 """Change when the node expressions change (part of the cache key)."""
 CFLAGS: tuple[str, ...] = ("-O0", "-fPIC", "-shared", "-std=c99")
 """gcc flags of the node library: -O0 compiles in ~10 s; -O1 code runs ~1.7x faster but
@@ -78,10 +80,12 @@ def _expressions(structure: ChainStructure) -> tuple[list, ca.SX, ca.SX, ca.SX]:
     s_q, s_qd, s_qdd, s_jerk, s_tau, s_rate = (s[6 * i: 6 * i + 6] for i in range(6))
     q, qd, qdd = s_q * v[0:6], s_qd * v[6:12], s_qdd * v[12:18]
     jerk_before, jerk_after = s_jerk * v[18:24], s_jerk * v[24:30]
-    p, payload = dp[:N_PARAMETERS], dp[N_PARAMETERS:]
-    tau = ca.vertcat(*inverse_dynamics_expression(structure, q, qd, qdd, p, payload))
-    coulomb = p[COULOMB_SLICE]
-    smooth = tau - coulomb * ca.tanh(qd / structure.coulomb_smoothing_velocity)
+    p, payload, smoothing = dp[:N_PARAMETERS], dp[N_PARAMETERS:N_PARAMETERS + 4], dp[N_PARAMETERS + 4]
+    # the Coulomb smoothing velocity is an input too (the structure's value is not used)
+    friction_free = dataclasses.replace(structure, coulomb_smoothing_velocity=1.0)
+    tau = ca.vertcat(*inverse_dynamics_expression(friction_free, q, qd, qdd, p, payload, include_friction=False))
+    tau = tau + p[VISCOUS_SLICE] * qd + p[COULOMB_SLICE] * ca.tanh(qd / smoothing)
+    smooth = tau - p[COULOMB_SLICE] * ca.tanh(qd / smoothing)
     # d tau_s/dt = d tau_s/d(q, qd) (qd, qdd) + M(q) jerk, with v the (scaled) symbols
     drift = ca.jtimes(smooth, v[0:12], ca.vertcat(qd / s_q, qdd / s_qd))
     before = ca.jtimes(tau, v[12:18], jerk_before / s_qdd)
@@ -119,7 +123,6 @@ def _structure_key(structure: ChainStructure) -> str:
             digest.update(np.ascontiguousarray(arr, dtype=float).tobytes())
     digest.update(np.asarray(structure.parents, dtype=np.int64).tobytes())
     digest.update(np.ascontiguousarray(structure.gravity, dtype=float).tobytes())
-    digest.update(np.float64(structure.coulomb_smoothing_velocity).tobytes())
     digest.update(" ".join(CFLAGS).encode())
     return digest.hexdigest()[:16]
 

@@ -43,7 +43,11 @@ x the mean squared scaled jerk, default 1e-4) makes the time-optimal solution un
 (joints that do not limit the motion have a free path otherwise) and IPOPT converge in
 fewer iterations; it changes T by less than 1e-4 relative (docs/planners_ptp.md). The
 warm start is Ruckig tuned to the torque limits (``planners.ruckig_baseline``), sampled
-at the nodes.
+at the nodes. The Coulomb term fc tanh(qd / v_s) with v_s = 0.01 rad/s is nearly a
+step, which makes IPOPT crawl (100-200 iterations instead of 20-40 without it), so the
+problem is first solved with a 10x smoother Coulomb term and the real problem is then
+solved from that primal-dual solution (a few iterations); re-solves after a tightening
+start from the previous primal-dual solution too (``IPOPT_WARM_RESTART``).
 
 Only IPOPT's ``Solve_Succeeded`` gives status OPTIMAL; ``Solved_To_Acceptable_Level``
 gives FEASIBLE (if the dense check passes), ``Infeasible_Problem_Detected`` INFEASIBLE,
@@ -82,12 +86,21 @@ IPOPT_DEFAULTS: dict[str, Any] = {
     "mumps_pivot_order": 0,
 }
 """IPOPT options (73 -> 56 iterations on the paper-like line with bound_push/frac, docs/planners_ptp.md)."""
+IPOPT_WARM_RESTART: dict[str, Any] = {
+    "warm_start_init_point": "yes", "mu_init": 1e-6, "warm_start_bound_push": 1e-9,
+    "warm_start_bound_frac": 1e-9, "warm_start_slack_bound_push": 1e-9, "warm_start_slack_bound_frac": 1e-9,
+    "warm_start_mult_bound_push": 1e-9,
+}
+"""Extra IPOPT options of a re-solve (tightened limits, continuation) from the previous
+primal-dual solution."""
+DEFAULT_COULOMB_CONTINUATION: tuple[float, ...] = (10.0,)
+"""Factors of the Coulomb smoothing velocity of the preliminary solves (10: 0.1 rad/s)."""
 _STATES = 3 * N_JOINTS
 _BLOCK = _STATES + N_JOINTS  # node states + the jerk of the interval that follows
 
 # NLP parameter vector: scales, cost weights and the arm's dynamic parameters.
 _P_FIELDS = (("s_q", 6), ("s_qd", 6), ("s_qdd", 6), ("s_jerk", 6), ("s_tau", 6), ("s_rate", 6),
-             ("s_time", 1), ("s_cost", 1), ("k1", 1), ("k2", 1), ("reg", 1), ("dp", 82))
+             ("s_time", 1), ("s_cost", 1), ("k1", 1), ("k2", 1), ("reg", 1), ("dp", 83))
 _P_INDEX: dict[str, slice] = {}
 _offset = 0
 for _name, _len in _P_FIELDS:
@@ -394,7 +407,9 @@ class OptimalPtPPlanner(Planner):
     ``ipopt_options``: extra IPOPT options (e.g. ``{"max_iter": 200}``);
     ``jerk_regularisation``: weight of the mean squared scaled jerk in the scaled cost;
     ``warm_start_check_dt``: check step of the Ruckig warm start [s];
-    ``compile_code``: compile the node functions with gcc (else CasADi's virtual machine).
+    ``compile_code``: compile the node functions with gcc (else CasADi's virtual machine);
+    ``coulomb_continuation``: factors of the Coulomb smoothing velocity v_s of preliminary
+    solves, each started from the previous solution (() to solve the real problem directly).
     The number of intervals N is ``problem.n_intervals`` (default 100).
     """
 
@@ -404,7 +419,8 @@ class OptimalPtPPlanner(Planner):
     def __init__(self, sample_dt: float = DEFAULT_CHECK_DT, check_dt: float = DEFAULT_CHECK_DT,
                  ratio_tolerance: float = RATIO_TOLERANCE, max_tightenings: int = 3,
                  ipopt_options: dict | None = None, jerk_regularisation: float = DEFAULT_JERK_REGULARISATION,
-                 warm_start_check_dt: float = 4e-3, compile_code: bool = True) -> None:
+                 warm_start_check_dt: float = 4e-3, compile_code: bool = True,
+                 coulomb_continuation: tuple[float, ...] = DEFAULT_COULOMB_CONTINUATION) -> None:
         for arg, value in (("sample_dt", sample_dt), ("check_dt", check_dt),
                            ("warm_start_check_dt", warm_start_check_dt)):
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0.0):
@@ -424,6 +440,7 @@ class OptimalPtPPlanner(Planner):
         self.jerk_regularisation = float(jerk_regularisation)
         self.warm_start_check_dt = float(warm_start_check_dt)
         self.compile_code = bool(compile_code)
+        self.coulomb_continuation = tuple(float(f) for f in coulomb_continuation)
 
     # -- public -------------------------------------------------------------------
     def plan(self, problem: PtPProblem) -> PlanResult:
@@ -454,21 +471,41 @@ class OptimalPtPPlanner(Planner):
         history: list[dict] = []
         solve_time = warm_time
         status, message, motion, ratios = PlanStatus.FAILED, "", None, {}
-        for attempt in range(self.max_tightenings + 1):
+        smoothing = _P_INDEX["dp"].stop - 1
+        previous: dict | None = None  # last solution and multipliers: re-solves start from it
+
+        def solve(p_values: np.ndarray, note: dict) -> tuple[str, dict]:
+            nonlocal solve_time
             lbx, ubx, lbg, ubg = _bounds(transcription, problem, scales, factors)
+            if previous is None:
+                args = {"x0": z0}
+                chosen = solver
+            else:
+                args = {"x0": previous["x"], "lam_x0": previous["lam_x"], "lam_g0": previous["lam_g"]}
+                chosen = transcription.solver({**self.ipopt_options, **IPOPT_WARM_RESTART})
             t0 = time.perf_counter()
-            sol = solver(x0=z0, p=params, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
+            sol = chosen(p=p_values, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg, **args)
             solve_time += time.perf_counter() - t0
-            stats = solver.stats()
-            message = str(stats.get("return_status", ""))
-            z = np.asarray(sol["x"]).reshape(-1)
-            history.append({"return_status": message, "iterations": int(stats.get("iter_count", -1)),
-                            "factors": dict(factors)})
+            stats = chosen.stats()
+            text = str(stats.get("return_status", ""))
+            history.append({"return_status": text, "iterations": int(stats.get("iter_count", -1)), **note})
+            return text, {k: np.asarray(sol[k]).reshape(-1) for k in ("x", "lam_x", "lam_g")}
+
+        for factor in self.coulomb_continuation:
+            # a smoother Coulomb term first: its solution starts the real problem
+            smooth_params = params.copy()
+            smooth_params[smoothing] *= factor
+            text, result = solve(smooth_params, {"coulomb_smoothing_factor": factor})
+            if _status(text).has_trajectory:
+                previous = result
+        for attempt in range(self.max_tightenings + 1):
+            message, result = solve(params, {"factors": dict(factors)})
             status = _status(message)
             if not status.has_trajectory:
                 motion = None
                 break
-            motion = _motion(layout, z, scales)
+            previous = result
+            motion = _motion(layout, result["x"], scales)
             times = uniform_times(0.0, motion.duration, self.check_dt)
             q, qd, qdd, _ = motion.sample(times)
             ratios = dyn.ratios(times, q, qd, qdd, limits)
@@ -486,7 +523,6 @@ class OptimalPtPPlanner(Planner):
                 break
             for kind, value in worst.items():
                 factors[kind] *= (1.0 / value) * (1.0 - 2e-4)
-            z0 = z
         info: dict[str, Any] = {
             "iterations": sum(h["iterations"] for h in history), "attempts": history,
             "warm_start_time_s": warm_time, "warm_start_duration_s": warm.duration, "n_intervals": n,
@@ -581,7 +617,8 @@ def _parameters(scales: dict[str, np.ndarray], problem: PtPProblem, dyn: PtPDyna
     par[_P_INDEX["k1"]] = problem.k1
     par[_P_INDEX["k2"]] = problem.k2
     par[_P_INDEX["reg"]] = regularisation
-    par[_P_INDEX["dp"]] = np.concatenate([dyn.parameter_vector, np.asarray(dyn.dynamics.payload, dtype=float)])
+    par[_P_INDEX["dp"]] = np.concatenate([dyn.parameter_vector, np.asarray(dyn.dynamics.payload, dtype=float),
+                                          [dyn.smoothing_velocity]])
     scales["s_time"] = np.array([duration])
     return par
 

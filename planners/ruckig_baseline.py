@@ -38,7 +38,7 @@ from ruckig import InputParameter, Result, Ruckig
 from ruckig import Trajectory as RuckigTrajectory
 
 from planners.base import JointLimits, N_JOINTS, Planner, PlannerInputError, PlanResult, PlanStatus, PtPProblem
-from planners.ptp_dynamics import PtPDynamics, boundary_violation, ptp_dynamics
+from planners.ptp_dynamics import PtPDynamics, boundary_torque_violation, boundary_violation, ptp_dynamics
 from planners.trajectory import DEFAULT_CHECK_DT, RATIO_KINDS, Trajectory, uniform_times
 
 MIN_SCALE = 2.0**-12
@@ -185,7 +185,8 @@ def _check_request(problem: PtPProblem, planner: str) -> PlanResult | None:
         raise PlannerInputError(f"{planner}.plan: expected a PtPProblem, got {type(problem).__name__}")
     if _trivial(problem):
         raise PlannerInputError(f"{planner}.plan: q0 equals qe and both velocities are zero; nothing to plan")
-    reason = boundary_violation(problem)
+    reason = boundary_violation(problem) or boundary_torque_violation(
+        problem, ptp_dynamics(problem.dynamics, problem.friction))
     if reason:
         return PlanResult(planner, PlanStatus.INFEASIBLE, None, 0.0, message=f"boundary states: {reason}")
     return None
