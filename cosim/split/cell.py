@@ -2,7 +2,7 @@
 this process, the drives and plant in a spawned drive process (:mod:`cosim.split.drive_side`).
 
 Per cycle k (t_k = k T), optionally paced (:class:`cosim.realtime.pacer.Pacer`):
-cycle marker -> SoC + PReqs carrying the set-points of cycle k-1 (through the overrun
+cycle marker (pipe) -> SoC + PReqs carrying the set-points of cycle k-1 (through the overrun
 policy when late) -> wait for the PRes frames of cycle k -> ``Controller.step`` -> the
 set-points for cycle k+1. The run ends at ``stop_time`` (both sides run cycles
 0..stop_time/T, as the one-process cell), or ``stop_grace_s`` after the controller
@@ -30,7 +30,7 @@ from cosim.realtime.pacer import Pacer, no_cyclic_gc, realtime_scheduling
 from cosim.realtime.policy import OverrunFaultPlan, SetpointGate
 from cosim.results.progress import ProgressBar
 from cosim.split.drive_side import DriveSideSpec, drive_side_main, read_raw_rows
-from cosim.split.protocol import END, LOST, free_udp_port, marker_message, side_configs
+from cosim.split.protocol import END, LOST, free_udp_port, pack_marker, pres_expected, side_configs
 from fieldbus import FieldbusConfig, ManagingNodeEndpoint
 from fieldbus.network import network_summary
 
@@ -93,7 +93,7 @@ def run_split_cell(doc: dict[str, Any], controller, true_robot, ctx, *, label: s
         raise ValueError(f"controller period {controller.config.period_s} s differs from the fieldbus cycle "
                          f"time {period} s")
     port = free_udp_port()
-    mn_config, cn_config = side_configs(fb_config, port, options.receive_timeout_s)
+    bus_config = side_configs(fb_config, port, options.receive_timeout_s)
     laser = LaserTracker(true_robot.kinematic_model(), tracker)
     signals, record_period = cell_signals(doc, laser)
     cell_doc = dict(doc)
@@ -102,18 +102,18 @@ def run_split_cell(doc: dict[str, Any], controller, true_robot, ctx, *, label: s
     settings = options.settings
     spec = DriveSideSpec(cell_doc=cell_doc, signals=signals, record_period_s=record_period,
                          tracker=laser.config, true_model=true_robot.kinematic_model(), stop_time_s=stop_time,
-                         config=cn_config, raw_path=str(raw),
+                         config=bus_config, raw_path=str(raw),
                          marker_timeout_s=max(30.0, 5.0 * options.receive_timeout_s),
                          scheduling=settings.scheduling if paced else None, fifo_priority=settings.fifo_priority)
     context = multiprocessing.get_context("spawn")
-    conn, child_conn = context.Pipe(duplex=False)
+    conn, child_conn = context.Pipe(duplex=True)
     process = context.Process(target=drive_side_main, args=(spec, child_conn), name=f"cosim-split-drives-{label}",
                               daemon=True)
     wall0 = time.perf_counter()
     cpu0 = time.process_time()
-    endpoint = ManagingNodeEndpoint(mn_config, robot_cell.joint_scaling(), log_path=can_log)
+    endpoint = ManagingNodeEndpoint(bus_config, robot_cell.joint_scaling(), log_path=can_log)
     n_cycles = int(round(stop_time / period)) + 1
-    info: dict[str, Any] = {"interface": "udp_multicast", "channel": mn_config.bus.channel, "port": port,
+    info: dict[str, Any] = {"interface": "udp_multicast", "channel": bus_config.bus.channel, "port": port,
                             "receive_timeout_s": options.receive_timeout_s}
     session = SplitSession(process, endpoint, info=info)
     failure: SimulationError | None = None
@@ -135,7 +135,15 @@ def run_split_cell(doc: dict[str, Any], controller, true_robot, ctx, *, label: s
         endpoint.plan = plan
         lost_policy = settings.overrun_policy == "lost_frame"
         bar = ProgressBar(stop_time, f"{ctx.scenario.name} {label} (split)", enabled=not ctx.quiet and not paced)
-        send = endpoint.bus.send
+        nodes = fb_config.nodes
+        pipe_open = [True]
+
+        def send(data: bytes) -> None:
+            if pipe_open[0]:
+                try:
+                    conn.send_bytes(data)
+                except (BrokenPipeError, OSError):  # the drive process is gone: the bus counters will tell
+                    pipe_open[0] = False
         t0 = fb_config.start_time_s
         setpoints = controller.setpoints
         missing_seen = 0
@@ -148,9 +156,11 @@ def run_split_cell(doc: dict[str, Any], controller, true_robot, ctx, *, label: s
                 if late and lost_policy:
                     plan.mark_lost(k)
                     flags = LOST
-                send(marker_message(k, flags))
+                send(pack_marker(k, flags))
                 endpoint.send_setpoints(k, gate.send(setpoints, late))
                 observed = endpoint.collect_actuals(k)
+                if not pres_expected(plan.for_cycle(k), nodes) and not _acknowledged(conn, k, options.receive_timeout_s):
+                    session.drive_exit_code = process.exitcode if not process.is_alive() else None
                 setpoints = controller.step(k, t, observed)
                 session.cycle = k
                 if controller.stopped and session.controller_stop_cycle is None:
@@ -171,7 +181,7 @@ def run_split_cell(doc: dict[str, Any], controller, true_robot, ctx, *, label: s
                         failure = SimulationError("controller", controller.stopped_at_s,
                                                   f"motion stopped: {controller.stop_reason}")
                         if k + 1 < n_cycles:
-                            send(marker_message(k + 1, END))
+                            send(pack_marker(k + 1, END))
                         break
                 if k % 250 == 0:
                     bar.update(t - t0)
@@ -221,6 +231,19 @@ def run_split_cell(doc: dict[str, Any], controller, true_robot, ctx, *, label: s
     return cell, pacer, granted, info
 
 
+def _acknowledged(conn, cycle: int, timeout_s: float) -> bool:
+    """Wait for the drive side's ``("ack", cycle)``; False when none came (process gone)."""
+    try:
+        if not conn.poll(timeout_s):
+            return False
+        kind, payload = conn.recv()
+    except (EOFError, OSError):
+        return False
+    if kind != "ack" or payload != cycle:
+        raise RuntimeError(f"split drive process sent {kind!r} {payload!r}, expected the ack of cycle {cycle}")
+    return True
+
+
 def _receive(conn, process, timeout_s: float, expected: str) -> dict[str, Any]:
     """The drive process's next message, which must be ``expected``."""
     deadline = time.monotonic() + timeout_s
@@ -229,7 +252,10 @@ def _receive(conn, process, timeout_s: float, expected: str) -> dict[str, Any]:
             raise RuntimeError(f"split drive process exited with code {process.exitcode} before '{expected}'")
         if time.monotonic() > deadline:
             raise RuntimeError(f"split drive process sent no '{expected}' within {timeout_s} s")
-    kind, payload = conn.recv()
+    try:
+        kind, payload = conn.recv()
+    except (EOFError, OSError):
+        raise RuntimeError(f"split drive process exited with code {process.exitcode} before '{expected}'") from None
     if kind == "error":
         raise RuntimeError(f"split drive process failed:\n{payload}")
     if kind != expected:

@@ -4,7 +4,7 @@ nodes, the laser tracker and the recorder, driven by the controller process's fr
 Started by :func:`cosim.split.cell.run_split_cell` with :func:`drive_side_main` as the
 target of a ``spawn`` process. Its controller-cycle task (:class:`DriveLink`) does, at
 cycle k (time t_k): read the drives' actual values at t_k, wait for the cycle marker of
-k (:mod:`cosim.split.protocol`), run the controlled nodes' cycle k
+k through the pipe (:mod:`cosim.split.protocol`), run the controlled nodes' cycle k
 (``fieldbus.DriveEndpoint.run_cycle``: SoC, PReqs in, PRes out) and write what the
 drives apply from t_k to the ``bus.*`` master variables - the same values the
 one-process cell's :class:`~cosim.jobs.robot_cell.FieldbusLink` writes. The master then
@@ -28,7 +28,7 @@ from cosim.jobs.laser_tracker import LaserTracker, TrackerConfig
 from cosim.master import EndSimulation, Master, SimulationError
 from cosim.realtime.pacer import no_cyclic_gc, realtime_scheduling
 from cosim.realtime.policy import OverrunFaultPlan
-from cosim.split.protocol import END, LOST, parse_marker
+from cosim.split.protocol import END, LOST, pres_expected, unpack_marker
 from fieldbus import DriveActuals, DriveEndpoint, FieldbusConfig
 
 
@@ -95,9 +95,10 @@ def read_raw_rows(path: str | Path, columns: int) -> np.ndarray:
 class DriveLink:
     """The drive side's controller-cycle task (see module docstring)."""
 
-    def __init__(self, endpoint: DriveEndpoint, plan: OverrunFaultPlan, marker_timeout_s: float) -> None:
+    def __init__(self, endpoint: DriveEndpoint, plan: OverrunFaultPlan, conn, marker_timeout_s: float) -> None:
         self.endpoint = endpoint
         self.plan = plan
+        self.conn = conn
         self.marker_timeout_s = marker_timeout_s
         self.cycle = 0
         self.lost_cycles: list[int] = []
@@ -119,20 +120,17 @@ class DriveLink:
                                     torque=real[2 * n:], error_code=integer[n:])
 
     def _wait_marker(self, t: float) -> int:
-        bus = self.endpoint.bus
-        deadline = time.monotonic() + self.marker_timeout_s
-        while True:
-            msg = bus.recv(max(deadline - time.monotonic(), 0.0))
-            if msg is None:
-                raise SimulationError("split drive side", t, f"no cycle marker for cycle {self.cycle} from the "
-                                                             f"controller process within {self.marker_timeout_s} s")
-            marker = parse_marker(msg)
-            if marker is None:
-                continue  # a frame of a cycle the endpoint gave up on (arrived after its timeout)
-            cycle, flags = marker
-            if cycle != self.cycle:
-                raise SimulationError("split drive side", t, f"cycle marker for cycle {cycle}, expected {self.cycle}")
-            return flags
+        conn = self.conn
+        if not conn.poll(self.marker_timeout_s):
+            raise SimulationError("split drive side", t, f"no cycle marker for cycle {self.cycle} from the "
+                                                         f"controller process within {self.marker_timeout_s} s")
+        try:
+            cycle, flags = unpack_marker(conn.recv_bytes())
+        except EOFError:
+            raise SimulationError("split drive side", t, "the controller process closed the pipe") from None
+        if cycle != self.cycle:
+            raise SimulationError("split drive side", t, f"cycle marker for cycle {cycle}, expected {self.cycle}")
+        return flags
 
     def __call__(self, t: float) -> None:
         n = robot_cell.N_JOINTS
@@ -142,22 +140,25 @@ class DriveLink:
         if flags & END:
             self.ended_at = self.cycle
             raise EndSimulation()
+        cycle = self.cycle
         if flags & LOST:
-            self.plan.mark_lost(self.cycle)
-            self.lost_cycles.append(self.cycle)
-        applied = self.endpoint.run_cycle(self.cycle, self.actuals)
+            self.plan.mark_lost(cycle)
+            self.lost_cycles.append(cycle)
+        applied = self.endpoint.run_cycle(cycle, self.actuals)
+        if not pres_expected(self.plan.for_cycle(cycle), n):
+            self.conn.send(("ack", cycle))
         out = self._real_out
         out[:n] = applied.position
         out[n:] = applied.torque_offset
         out = self._integer_out
         out[:n] = applied.controlword
         out[n:] = applied.fault_code
-        self.cycle += 1
+        self.cycle = cycle + 1
 
 
 def drive_side_main(spec: DriveSideSpec, conn) -> None:
-    """Process target: build, report ``("ready", {...})``, run, report ``("done", {...})``
-    (or ``("error", text)``) on ``conn``."""
+    """Process target: build, report ``("ready", {...})``, run (cycle markers in, acks out),
+    report ``("done", {...})`` (or ``("error", text)``) on the duplex pipe ``conn``."""
     from cosim.scenario.cosim_tables import build_master
     from fieldbus.network import network_summary
 
@@ -167,7 +168,7 @@ def drive_side_main(spec: DriveSideSpec, conn) -> None:
         endpoint = DriveEndpoint(spec.config, robot_cell.joint_scaling(), log_path=spec.can_log)
         plan = OverrunFaultPlan(endpoint.plan, spec.config.nodes)
         endpoint.plan = plan
-        link = DriveLink(endpoint, plan, spec.marker_timeout_s)
+        link = DriveLink(endpoint, plan, conn, spec.marker_timeout_s)
         laser = LaserTracker(spec.true_model, spec.tracker)
         period = spec.config.cycle_time_s
         master.add_task(link, period, priority=0, name="split drive side", setup=link.setup)

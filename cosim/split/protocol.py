@@ -1,9 +1,9 @@
 """What the two processes of a split run agree on besides the POWERLINK telegrams.
 
-**Cycle marker.** Before the SoC of every cycle k the controller side sends one CAN
-frame with COB-ID 0x100 (the CANopen TIME object's identifier, used here for the
-simulator's own clock): payload ``<cycle:uint32><flags:uint8>``. The drive side waits
-for it before it runs cycle k, so it knows
+**Cycle marker.** Before the SoC of every cycle k the controller side sends a cycle
+marker ``<cycle:uint32><flags:uint8>`` through the pipe it shares with the drive
+process (the simulator's own clock signal, not bus traffic). The drive side waits for
+it before it runs cycle k, so it knows
 
 * ``LOST`` - the PReqs of cycle k are lost frames (overrun policy ``lost_frame``): its
   fault plan drops them exactly as the controller side's does, and it does not wait
@@ -11,9 +11,15 @@ for it before it runs cycle k, so it knows
 * ``END`` - the run ends before cycle k (the controller stopped, or the controller
   side ends early): the drive side's master stops there.
 
+**Acknowledgement.** Lock-step normally needs no extra message: the controller side
+waits for the PRes frames of cycle k before it sends anything of cycle k+1. In a cycle
+in which it expects no PRes at all (every PReq lost, every node silent, ...; both
+sides derive this from the same fault plan, :func:`pres_expected`) the drive side
+sends ``("ack", k)`` through the pipe after its cycle and the controller side waits
+for it, so frames of cycle k+1 never reach the drive side while it is still in cycle k.
+
 **Buses.** Both sides use ``udp_multicast`` on loopback with the same group and port
-(a fresh ephemeral port per run, so concurrent runs do not hear each other); the drive
-side's filter also passes the marker.
+(a fresh ephemeral port per run, so concurrent runs do not hear each other).
 """
 from __future__ import annotations
 
@@ -21,29 +27,35 @@ import dataclasses
 import socket
 import struct
 
-import can
-
 from fieldbus import FieldbusConfig
-from fieldbus.telegrams import RPDO1_BASE, SYNC_ID
+from fieldbus.faults import CycleFaults
 
-MARKER_ID = 0x100
 MARKER = struct.Struct("<IB")
 LOST = 0x01
 END = 0x02
 MULTICAST_GROUP = "239.74.164.1"
 
 
-def marker_message(cycle: int, flags: int = 0) -> can.Message:
-    """The cycle marker frame of ``cycle`` (simulated timestamp: none; the marker is not POWERLINK traffic)."""
-    return can.Message(arbitration_id=MARKER_ID, is_extended_id=False, data=MARKER.pack(cycle, flags))
+def pack_marker(cycle: int, flags: int = 0) -> bytes:
+    """The cycle marker of ``cycle`` with ``flags`` (LOST, END)."""
+    return MARKER.pack(cycle, flags)
 
 
-def parse_marker(msg: can.Message) -> tuple[int, int] | None:
-    """(cycle, flags) of a marker frame, None for any other frame."""
-    if msg.arbitration_id != MARKER_ID or msg.is_error_frame or len(msg.data) != MARKER.size:
-        return None
-    cycle, flags = MARKER.unpack(bytes(msg.data))
-    return cycle, flags
+def unpack_marker(data: bytes) -> tuple[int, int]:
+    """(cycle, flags) of a cycle marker."""
+    if len(data) != MARKER.size:
+        raise ValueError(f"cycle marker of {len(data)} bytes: expected {MARKER.size}")
+    return MARKER.unpack(data)
+
+
+def pres_expected(faults: CycleFaults | None, nodes: int) -> bool:
+    """True when the managing node waits for at least one PRes in a cycle with ``faults``
+    (a node answers a PReq that reached it, unless silent, and the medium may lose the PRes)."""
+    if faults is None:
+        return True
+    kinds = faults.kinds
+    return any(kinds.get(n) not in ("loss", "corrupt") and kinds.get(nodes + n) not in ("silent", "loss")
+               for n in range(1, nodes + 1))
 
 
 def free_udp_port() -> int:
@@ -54,17 +66,12 @@ def free_udp_port() -> int:
 
 
 def side_configs(config: FieldbusConfig, port: int, receive_timeout_s: float,
-                 group: str = MULTICAST_GROUP) -> tuple[FieldbusConfig, FieldbusConfig]:
-    """(controller side, drive side) configurations: ``config`` on ``udp_multicast`` at
-    ``group``:``port`` with ``receive_timeout_s`` of wall time per wait; the drive side's
-    receive filter also passes the cycle marker."""
-    nodes = config.nodes
-    cn_ids = [SYNC_ID, MARKER_ID] + [RPDO1_BASE + k for k in range(1, nodes + 1)]
-    base = dict(config.bus.options)
-    base.pop("can_filters", None)
-    base["port"] = port
-    mn_bus = dataclasses.replace(config.bus, interface="udp_multicast", channel=group,
-                                 receive_timeout_s=receive_timeout_s, options=dict(base))
-    cn_bus = dataclasses.replace(mn_bus, options={**base, "can_filters": [
-        {"can_id": i, "can_mask": 0x7FF, "extended": False} for i in cn_ids]})
-    return dataclasses.replace(config, bus=mn_bus), dataclasses.replace(config, bus=cn_bus)
+                 group: str = MULTICAST_GROUP) -> FieldbusConfig:
+    """The configuration both sides use: ``config`` on ``udp_multicast`` at ``group``:``port``
+    with ``receive_timeout_s`` of wall time per wait for frames that were sent."""
+    options = dict(config.bus.options)
+    options.pop("can_filters", None)
+    options["port"] = port
+    bus = dataclasses.replace(config.bus, interface="udp_multicast", channel=group,
+                              receive_timeout_s=receive_timeout_s, options=options)
+    return dataclasses.replace(config, bus=bus)
