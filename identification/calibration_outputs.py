@@ -19,12 +19,12 @@ import numpy as np
 
 from identification.calibration_solver import CalibrationResult
 from identification.calibration_tracker import TrackerNoise
-from robot.geometric_errors import GeometricErrorModel, default_error_model
+from robot.geometric_errors import GeometricErrorModel, default_error_model, is_angle_parameter
 
 
 def parameter_unit(name: str) -> tuple[str, str, float]:
     """(SI unit, readable unit, factor SI -> readable) of an error parameter by name."""
-    if name.startswith(("offset", "tilt")):
+    if is_angle_parameter(name):
         return "rad", "deg", 180.0 / math.pi
     return "m", "mm", 1e3
 

@@ -11,43 +11,64 @@ index      names                                   meaning
                                                    the link_6 frame
 18 - 23    ``offset1`` ... ``offset6``             encoder offsets (rad): the arm's true joint
                                                    angle is ``q + offset`` for a reading ``q``
-24 - 35    ``tilt1_x, tilt1_y, tilt2_x, tilt2_z``  misalignment (rad) of each joint frame: two
-           ... ``tilt6_x, tilt6_y``                small rotations about the link axes
-                                                   perpendicular to the joint axis, applied at
-                                                   the joint origin
+24 - 33    ``tilt1_x, tilt1_y, tilt2_x, tilt3_x,`` misalignment (rad) of the joint frames:
+           ``tilt3_z, tilt4_x, tilt4_y, tilt5_x,`` small rotations about link axes
+           ``tilt6_x, tilt6_y``                    perpendicular to the joint axis, applied at
+                                                   the joint origin (see "Tilts" below)
+34 - 35    ``flange_rx``, ``flange_ry``            misalignment (rad) of the flange (tool0)
+                                                   frame: rotations about its own x and y axes
+                                                   at its origin (a tool / probe mounting tilt)
 36 - 38    ``base_x/y/z``                          base tolerances (m): position error of the
                                                    arm (the joint_1 origin) in base_link
 =========  ======================================  ==========================================
 
-This is the paper's split: 6x3 length errors, 6 encoder offsets, 6x2 misalignment
+This is the paper's split: 6x3 length errors, 6 encoder offsets, 12 misalignment
 angles and 3 tolerances of the inertial (base) frame, 39 in all. The 6 length vectors
 are the five link vectors joint_2 ... joint_6 and the flange vector; the error of the
 joint_1 origin vector is a pure translation of the whole arm in base_link and is
 therefore counted as the 3 base tolerances. The base orientation is covered by
-``tilt1_x``, ``tilt1_y`` (tilt of axis 1) and ``offset1`` (rotation about it).
+``tilt1_x``, ``tilt1_y`` (tilt of axis 1) and ``offset1`` (rotation about it). The 12
+misalignment angles are 10 joint tilts and the flange's 2 (below).
+
+Tilts: each joint gets the two rotations about the link axes perpendicular to its axis
+(x/y for the z joints 1, 4, 6; x/z for the y joints 2, 3, 5), except a rotation that
+duplicates the parent joint's encoder offset exactly: when the joint origin lies on
+the parent joint's axis line and one tilt axis is parallel to it (within
+:data:`COLLINEAR_ANGLE_TOLERANCE_RAD` and :data:`COLLINEAR_DISTANCE_TOLERANCE_M`), that
+tilt is a rotation about the parent axis, i.e. the same parameter as the parent's
+offset. On the RX130L this removes the rotation about z at joint 2 (joint 2's origin is
+on axis 1: it would equal ``offset1``) and about z at joint 5 (on axis 4: ``offset4``);
+their two slots go to the flange tilts ``flange_rx``, ``flange_ry``, which no other
+parameter can produce (``tilt6_x/y`` tilt axis 6 *before* its rotation, the flange
+tilts act after it). A URDF for which this rule does not leave exactly 10 joint tilts
+is rejected (the 39-parameter split is defined for this arm's structure).
 
 Folding (exact, not linearised): joint i's placement in its parent link frame becomes
-``SE3(R_nom @ Rot(u, tilt_u) @ Rot(v, tilt_v) @ Rot(axis, offset_i), t_nom + dt)``
-where ``u < v`` are the two link axes perpendicular to the joint axis (x/y for the z
-joints 1, 4, 6; x/z for the y joints 2, 3, 5) and ``dt`` is ``len_i`` (``base`` for
-joint 1). The flange placement becomes ``SE3(R_nom, t_nom + flange)``. Because the
-offset is a rotation about the joint axis folded into the placement, the error model's
-joint angle is the encoder reading ``q``. ``tilt`` rotations commute with nothing, so
-their order (first ``u`` then ``v``) is part of the definition.
+``SE3(R_nom @ Rot(u, tilt_u) [@ Rot(v, tilt_v)] @ Rot(axis, offset_i), t_nom + dt)``
+where ``u < v`` are its tilt axes (link axes of the joint frame) and ``dt`` is ``len_i``
+(``base`` for joint 1). The flange placement (the ``tool0`` fixed joint origin) becomes
+``SE3(R_f @ Rot(x, flange_rx) @ Rot(y, flange_ry), t_f + flange)``: the translation is
+in the link_6 frame, the tilt rotates the flange frame about its own origin. Because
+the offset is a rotation about the joint axis folded into the placement, the error
+model's joint angle is the encoder reading ``q``. Rotations commute with nothing, so
+their order (first ``u`` then ``v``; first ``x`` then ``y``) is part of the definition.
 
 The identification Jacobian ``d(flange pose)/d(p_e)`` has rows 0-2 the flange position
 derivative (m per unit) and rows 3-5 the derivative of the flange orientation as a
 small rotation vector in base-frame axes (rad per unit), i.e. the derivative of
 :func:`robot.kinematics.pose_error` (``target=perturbed``, ``actual=unperturbed``).
-Identifiability: for full pose measurements 28 of the 39 columns are independent
-(checked in tests/test_robot_geometric_errors.py); the other 11 are linear
-combinations of those (e.g. ``len2_y`` and ``len3_y`` move the arm along the common
-direction of the parallel axes 2 and 3), so a calibration must reduce the set by QR
-as the paper does. The paper reports 30 after its reduction, which is the 4R + 2P + 6
-count of a *complete* 6R model; this 39-parameter split has no tilt of the flange
-about the x/y axes of link_6 (a rigid tool/probe mounting error, 2 parameters),
-hence 28. The simulated "true" arm is drawn from the same 39-parameter family, so a
-calibration against it can be exact.
+Identifiability (rank-revealing QR over well-spread configurations, checked in
+tests/test_robot_geometric_errors.py and tests/test_calibration_identifiability.py):
+**30** of the 39 columns are independent for full pose measurements, the paper's 30
+(the 4R + 2P + 6 count of a complete model of a 6R arm); **25** for position-only
+measurements (the flange tilts and ``offset6`` then have no first-order effect, as they
+turn the flange about its own origin, and the wrist tilts ``tilt6_x/y`` merge with
+translations). The other columns are linear combinations of those (e.g. ``len2_y`` and
+``len3_y`` move the arm along the common direction of the parallel axes 2 and 3;
+``offset2``, ``offset3`` merge with ``len3_x``, ``len4_x``, ``tilt4_y``), so a
+calibration must reduce the set by QR as the paper does.
+The simulated "true" arm is drawn from the same 39-parameter family, so a calibration
+against it can be exact.
 """
 from __future__ import annotations
 
@@ -69,6 +90,16 @@ from robot.kinematics import (
 )
 
 N_ERROR_PARAMETERS = 39
+N_JOINT_TILTS = 10
+"""Joint misalignment angles of the 39 (the other 2 of the paper's 12 are the flange's)."""
+FLANGE_TILT_NAMES = ("flange_rx", "flange_ry")
+COLLINEAR_ANGLE_TOLERANCE_RAD = 0.02
+"""A tilt axis counts as parallel to the parent joint's axis within 0.02 rad (1.1 deg);
+loose enough for a calibrated URDF (tilts ~0.1 deg folded into its origins) to keep
+the layout of the nominal one."""
+COLLINEAR_DISTANCE_TOLERANCE_M = 0.02
+"""A joint origin counts as lying on the parent joint's axis line within 0.02 m (again
+loose enough for calibrated URDFs, whose origins move by a few mm)."""
 _AXIS_LETTERS = "xyz"
 
 
@@ -90,10 +121,10 @@ class ErrorMagnitudes:
     the paper (RX130L, uncalibrated: maximum e_x 7.8, e_y 19.0, e_z 12.6 mm and
     1.1 - 1.8 deg in the Cardan angles). Measured over 4000 random configurations
     and seeds 0 - 29 (``benchmarks/bench_ik.py`` prints it, the tests check a band):
-    maximum |e_x|, |e_y|, |e_z| median 16, 15, 13 mm (range 9 - 30 mm); maximum
-    Cardan-angle errors (|beta| < 45 deg) median 1.1, 0.8, 1.1 deg (range 0.4 - 1.8).
+    maximum |e_x|, |e_y|, |e_z| median 16, 16, 13 mm (range 8 - 22 mm); maximum
+    Cardan-angle errors (|beta| < 45 deg) median 1.1, 0.9, 1.1 deg (range 0.3 - 2.1).
     Source: assembly tolerances of a 200 kg class arm (about +-1 mm per link
-    vector, +-2 mm base placement, +-0.1 deg joint-axis misalignment) and encoder
+    vector, +-2 mm base placement, +-0.1 deg joint-axis and flange misalignment) and encoder
     zero offsets of a resolver-fed drive after a manual zeroing (about 0.2 deg);
     scaled to reproduce the paper's Table 2.
     """
@@ -103,7 +134,7 @@ class ErrorMagnitudes:
     encoder_offset_deg: float = 0.2
     """each encoder offset (deg)"""
     tilt_deg: float = 0.1
-    """each misalignment angle (deg)"""
+    """each misalignment angle, joint and flange tilts (deg)"""
     base_mm: float = 2.0
     """each base-frame tolerance (mm)"""
 
@@ -120,14 +151,15 @@ class _JointGeometry:
     rotation: np.ndarray  # nominal placement rotation (3, 3)
     translation: np.ndarray  # nominal placement translation (3,) m
     axis: np.ndarray  # unit joint axis in the joint frame (3,)
-    perpendicular: tuple[int, int]  # indices of the two link axes perpendicular to axis
+    tilt_axes: tuple[int, ...]  # indices of the link axes (0 x, 1 y, 2 z) it is tilted about
 
 
 class GeometricErrorModel:
     """The arm's kinematics with the 39 error parameters on top of one nominal URDF.
 
     ``urdf_path`` defaults to the project's ``rx130l.urdf``. The nominal joint axes
-    must be link axes (x, y or z) for the tilt parameters to be named after them.
+    must be link axes (x, y or z) for the tilt parameters to be named after them, and
+    exactly two joints must sit on their parent joint's axis (see the module docstring).
     """
 
     def __init__(self, urdf_path: str | Path | None = None) -> None:
@@ -145,16 +177,25 @@ class GeometricErrorModel:
                     f"URDF {str(self.urdf_path)!r}: joint {JOINT_NAMES[i - 1]!r} axis {axis} is "
                     "not a link axis (x, y or z); tilt parameters need one"
                 )
-            perpendicular = tuple(k for k in range(3) if k != along[0])
-            joints.append(
-                _JointGeometry(
-                    np.array(placement.rotation),
-                    np.array(placement.translation),
-                    axis,
-                    perpendicular,  # type: ignore[arg-type]
-                )
+            rotation = np.array(placement.rotation)
+            translation = np.array(placement.translation)
+            parent_axis = nominal._axes[i - 2] if i > 1 else None
+            tilt_axes = tuple(
+                k for k in range(3)
+                if k != along[0] and not _duplicates_parent_offset(rotation[:, k], translation, parent_axis)
             )
+            joints.append(_JointGeometry(rotation, translation, axis, tilt_axes))
         self._joints: tuple[_JointGeometry, ...] = tuple(joints)
+        n_tilts = sum(len(j.tilt_axes) for j in joints)
+        if n_tilts != N_JOINT_TILTS:
+            raise GeometricErrorInputError(
+                f"URDF {str(self.urdf_path)!r}: the 39-parameter split needs {N_JOINT_TILTS} joint tilts "
+                f"(two joints on their parent joint's axis, like the RX130L's joints 2 and 5), got "
+                f"{n_tilts}: {[(JOINT_NAMES[i], [_AXIS_LETTERS[k] for k in j.tilt_axes]) for i, j in enumerate(joints)]}"
+            )
+        # parameter index of each joint's first tilt
+        starts = np.cumsum([0] + [len(j.tilt_axes) for j in joints])[:-1] + _TILT_START
+        self._tilt_start: tuple[int, ...] = tuple(int(s) for s in starts)
         flange = self.nominal_model.frames[self._flange_id].placement
         self._flange_rotation = np.array(flange.rotation)
         self._flange_translation = np.array(flange.translation)
@@ -166,7 +207,8 @@ class GeometricErrorModel:
         names += [f"flange_{c}" for c in _AXIS_LETTERS]
         names += [f"offset{i}" for i in range(1, N_JOINTS + 1)]
         for i, joint in enumerate(self._joints, start=1):
-            names += [f"tilt{i}_{_AXIS_LETTERS[k]}" for k in joint.perpendicular]
+            names += [f"tilt{i}_{_AXIS_LETTERS[k]}" for k in joint.tilt_axes]
+        names += list(FLANGE_TILT_NAMES)
         names += [f"base_{c}" for c in _AXIS_LETTERS]
         assert len(names) == N_ERROR_PARAMETERS
         return tuple(names)
@@ -186,27 +228,30 @@ class GeometricErrorModel:
             raise GeometricErrorInputError(f"argument {name!r}: non-finite values for {bad}")
         return arr
 
-    def _split(self, errors: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """(translations (6, 3) m for joints 1..6, flange (3,) m, offsets (6,), tilts (6, 2))."""
+    def _split(self, errors: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(translations (6, 3) m for joints 1..6, flange (3,) m, offsets (6,) rad)."""
         translations = np.empty((N_JOINTS, 3))
         translations[0] = errors[36:39]
         translations[1:] = errors[0:15].reshape(5, 3)
-        return translations, errors[15:18], errors[18:24], errors[24:36].reshape(N_JOINTS, 2)
+        return translations, errors[15:18], errors[18:24]
+
+    def _joint_tilts(self, i: int, errors: np.ndarray) -> np.ndarray:
+        """Tilt angles (rad) of joint i (0-based), in the order of its tilt axes."""
+        start = self._tilt_start[i]
+        return errors[start : start + len(self._joints[i].tilt_axes)]
 
     def joint_placements(self, errors: ArrayLike | None) -> tuple[list[pin.SE3], pin.SE3]:
         """Placements (pinocchio SE3, m) of joints 1..6 in their parent frames and of
         the flange in link_6, with ``errors`` (39,) folded in exactly."""
         p = self.check_errors(errors)
-        translations, flange, offsets, tilts = self._split(p)
+        translations, flange, offsets = self._split(p)
         placements = []
         for i, joint in enumerate(self._joints):
-            rot = joint.rotation @ self._tilt_rotation(i, tilts[i]) @ _rot(joint.axis, offsets[i])
+            tilt = _tilt_rotation(joint.tilt_axes, self._joint_tilts(i, p))
+            rot = joint.rotation @ tilt @ _rot(joint.axis, offsets[i])
             placements.append(pin.SE3(rot, joint.translation + translations[i]))
-        return placements, pin.SE3(self._flange_rotation, self._flange_translation + flange)
-
-    def _tilt_rotation(self, i: int, tilt: np.ndarray) -> np.ndarray:
-        u, v = self._joints[i].perpendicular
-        return _rot(np.eye(3)[u], tilt[0]) @ _rot(np.eye(3)[v], tilt[1])
+        flange_tilt = _tilt_rotation((0, 1), p[_FLANGE_TILT])
+        return placements, pin.SE3(self._flange_rotation @ flange_tilt, self._flange_translation + flange)
 
     # models ----------------------------------------------------------------------
     def model(self, errors: ArrayLike | None = None) -> pin.Model:
@@ -282,7 +327,6 @@ class GeometricErrorModel:
         the folding above (no linearisation around p_e = 0).
         """
         p = self.check_errors(errors)
-        _, _, _, tilts = self._split(p)
         try:
             frames = self.kinematics(p).chain_frames(q)
         except KinematicsInputError as exc:
@@ -301,22 +345,60 @@ class GeometricErrorModel:
             # translation of the joint origin, in the parent link frame
             first = 36 if i == 0 else 3 * (i - 1)
             out[:, :3, first : first + 3] = parent
-            # misalignment: first about u, then about v (rotated by the first)
-            u, v = joint.perpendicular
-            omega_u = joint.rotation @ np.eye(3)[u]
-            omega_v = joint.rotation @ _rot(np.eye(3)[u], tilts[i, 0]) @ np.eye(3)[v]
-            put_rotation(24 + 2 * i, parent @ omega_u, origin)
-            put_rotation(25 + 2 * i, parent @ omega_v, origin)
+            # misalignment: about u, then about v (rotated by the first)
+            for column, omega in zip(
+                range(self._tilt_start[i], self._tilt_start[i] + len(joint.tilt_axes)),
+                _tilt_axes_in_frame(joint.rotation, joint.tilt_axes, self._joint_tilts(i, p)),
+            ):
+                put_rotation(column, parent @ omega, origin)
             # encoder offset: rotation about the joint axis (a geometric-Jacobian column)
             put_rotation(18 + i, frames.joint_axes[:, i], origin)
-        # flange vector, in the link_6 frame: link_6 rotation = flange rotation @ R_f^T
-        link6 = frames.flange_rotation @ self._flange_rotation.T
+        # flange vector, in the link_6 frame: link_6 rotation = flange rotation @ (R_f R_tilt)^T
+        flange_tilts = p[_FLANGE_TILT]
+        link6 = frames.flange_rotation @ (self._flange_rotation @ _tilt_rotation((0, 1), flange_tilts)).T
         out[:, :3, 15:18] = link6
+        # flange tilt: rotation about the flange's own x, then y axis at its origin
+        for column, omega in zip(range(_FLANGE_TILT.start, _FLANGE_TILT.stop),
+                                 _tilt_axes_in_frame(self._flange_rotation, (0, 1), flange_tilts)):
+            out[:, 3:, column] = link6 @ omega
         return out
+
+
+_TILT_START = 24
+_FLANGE_TILT = slice(34, 36)
 
 
 def _rot(axis: np.ndarray, angle: float) -> np.ndarray:
     return axis_rotations(np.asarray(axis, dtype=float), np.array([angle]))[0]
+
+
+def _tilt_rotation(axes: tuple[int, ...], angles: np.ndarray) -> np.ndarray:
+    """Product of rotations about the link axes ``axes`` by ``angles`` (rad), in order."""
+    out = np.eye(3)
+    for k, angle in zip(axes, angles):
+        out = out @ _rot(np.eye(3)[k], float(angle))
+    return out
+
+
+def _tilt_axes_in_frame(rotation: np.ndarray, axes: tuple[int, ...], angles: np.ndarray) -> list[np.ndarray]:
+    """Rotation axis of each tilt in the parent frame of ``rotation @ tilts``: the k-th
+    tilt turns about its link axis rotated by the tilts before it."""
+    out, acc = [], np.array(rotation, dtype=float)
+    for k, angle in zip(axes, angles):
+        out.append(acc @ np.eye(3)[k])
+        acc = acc @ _rot(np.eye(3)[k], float(angle))
+    return out
+
+
+def _duplicates_parent_offset(tilt_axis: np.ndarray, origin: np.ndarray, parent_axis: np.ndarray | None) -> bool:
+    """True when a tilt about ``tilt_axis`` (parent-frame direction) at the joint origin
+    ``origin`` (m, parent frame) is a rotation about the parent joint's axis line
+    (``parent_axis`` through the parent frame's origin), i.e. its encoder offset."""
+    if parent_axis is None:
+        return False
+    parallel = abs(float(np.dot(tilt_axis, parent_axis))) >= math.cos(COLLINEAR_ANGLE_TOLERANCE_RAD)
+    distance = float(np.linalg.norm(origin - np.dot(origin, parent_axis) * parent_axis))
+    return parallel and distance <= COLLINEAR_DISTANCE_TOLERANCE_M
 
 
 def _child(joint: ET.Element) -> str | None:
@@ -370,6 +452,12 @@ def identification_jacobian(q: ArrayLike, errors: ArrayLike | None = None) -> np
     """Identification Jacobian (n, 6, 39) of the nominal arm at ``errors``; see
     :meth:`GeometricErrorModel.identification_jacobian`."""
     return default_error_model().identification_jacobian(q, errors)
+
+
+def is_angle_parameter(name: str) -> bool:
+    """True for the error parameters in rad (encoder offsets, joint and flange tilts),
+    False for those in m (lengths, flange vector, base)."""
+    return name.startswith(("offset", "tilt")) or name in FLANGE_TILT_NAMES
 
 
 def errors_as_dict(errors: ArrayLike) -> dict[str, float]:

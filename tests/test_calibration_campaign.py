@@ -34,7 +34,7 @@ def test_campaign_summary_and_accuracy(campaign):
     # the calibrated robot (true pose, no tracker noise) within three times the tracker noise
     assert summary["calibrated_max_position_error_mm"] <= 3.0 * noise_mm
     assert summary["calibrated_within_3_sigma"] is True
-    assert summary["identifiable_parameters"] == 28
+    assert summary["identifiable_parameters"] == 30
     assert summary["identifiable_parameters_position_only"] == 25
     assert summary["observation_index_ratio_vs_linear_scan"] > 1.0
     assert summary["observation_index_ratio_vs_random"] > 1.0

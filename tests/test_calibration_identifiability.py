@@ -44,22 +44,24 @@ def test_rank_matches_svd_and_dependencies_are_exact(jacobians, rows):
 def test_counts_and_reasons(jacobians):
     pose = identifiable_parameters(jacobians, list(ERROR_PARAMETER_NAMES))
     position = identifiable_parameters(jacobians[:, :3], list(ERROR_PARAMETER_NAMES))
-    # this model: 28 with orientation (the paper reports 30 for its 39-parameter set; the
-    # difference is the flange orientation about its x/y axes, not in robot.geometric_errors),
-    # position only: 25 (offset6 then has no first-order effect: the flange origin is on axis 6)
-    assert (pose.rank, position.rank) == (28, 25)
-    assert "offset6" in position.dropped_names
+    # the paper's 30 with orientation; position only: 25 (offset6 and the flange tilts then
+    # have no first-order effect: they turn the flange about its own origin, on axis 6)
+    assert (pose.rank, position.rank) == (30, 25)
+    assert {"offset6", "flange_rx", "flange_ry"} <= set(position.dropped_names)
+    assert {"offset6", "flange_rx", "flange_ry"} <= set(pose.identifiable_names)
     by_name = {d.parameter: d for d in pose.dependencies}
     # joints 2 and 3 are parallel: translations along their common axis are one parameter
     merged_y = {"len2_y", "len3_y", "len4_y"}
     assert len(merged_y & set(pose.identifiable_names)) == 1
-    # a rotation about axis 1 at joint 2's origin (on axis 1) is the encoder offset of joint 1
-    pair = {"tilt2_z", "offset1"}
+    # joint 5 sits on axis 4: translations of joints 4 and 5 along it are one parameter
+    pair = {"len4_z", "len5_z"}
     assert len(pair & set(pose.identifiable_names)) == 1
     dropped = (pair - set(pose.identifiable_names)).pop()
     assert abs(list(by_name[dropped].coefficients.values())[0]) == pytest.approx(1.0, abs=1e-9)
     assert "merged" in by_name[dropped].describe()
-    assert generic_identifiability(orientation=True).rank == 28
+    # the encoder offsets of the parallel joints 2 and 3 merge into lengths and tilt4_y
+    assert set(by_name["offset3"].coefficients) == {"len4_x", "tilt4_y"}
+    assert generic_identifiability(orientation=True).rank == 30
 
 
 def test_zero_column_and_input_errors():

@@ -68,7 +68,7 @@ def test_cli_recovers_pose_accuracy_of_an_unseen_robot(unseen_robot, orientation
     assert "calibrated" in capsys.readouterr().err
     params = json.loads((out / "parameters.json").read_text())
     summary = json.loads((out / "summary.json").read_text())
-    assert summary["identified_parameters"] == (28 if orientation else 25)
+    assert summary["identified_parameters"] == (30 if orientation else 25)
     assert 0.7 < summary["sigma_hat"] < 1.3  # residuals consistent with the tracker noise
     assert all(p["std"] > 0 for p in params["parameters"].values() if p["identified"])
     # fresh poses over the whole joint range: calibrated URDF (loaded by pinocchio) vs the true one
@@ -120,14 +120,14 @@ def test_too_few_and_rank_deficient_poses(tmp_path, capsys):
     q = np.zeros((4, 6))
     q[:, 0] = [0.1, 0.2, 0.3, 0.4]
     poses = model.flange_transforms(q)
-    with pytest.raises(TooFewPosesError, match="4 poses give 24 equations for 28"):
+    with pytest.raises(TooFewPosesError, match="4 poses give 24 equations for 30"):
         calibrate(Measurements(q, poses[:, :3, 3], poses[:, :3, :3]))
     # twenty poses that differ only in joint 1: most parameters are not excited
     q = np.zeros((20, 6))
     q[:, 0] = np.linspace(-1.0, 1.0, 20)
     q[:, 2] = 0.5
     poses = model.flange_transforms(q)
-    with pytest.raises(RankDeficientDataError, match="determine only .* of the 28 identifiable parameters"):
+    with pytest.raises(RankDeficientDataError, match="determine only .* of the 30 identifiable parameters"):
         calibrate(Measurements(q, poses[:, :3, 3], poses[:, :3, :3]))
     # the same through the CLI: exit code 2 and the message on stderr
     path = _write_csv(tmp_path / "line.csv", q, poses, np.random.default_rng(0))

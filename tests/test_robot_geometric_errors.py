@@ -16,11 +16,13 @@ from robot.geometric_errors import (
     N_ERROR_PARAMETERS,
     ErrorMagnitudes,
     GeometricErrorInputError,
+    GeometricErrorModel,
     default_error_model,
     error_model,
     errors_as_dict,
     export_error_urdf,
     identification_jacobian,
+    is_angle_parameter,
     random_geometric_errors,
 )
 from robot.kinematics import FlangeKinematics, pose_error, pose_from_transform
@@ -41,15 +43,31 @@ def single(name: str, value: float) -> np.ndarray:
 def test_there_are_39_named_parameters_in_the_paper_groups() -> None:
     names = ERROR_PARAMETER_NAMES
     assert len(names) == 39 == len(set(names))
-    assert sum(n.startswith(("len", "flange_")) for n in names) == 18
-    assert sum(n.startswith("offset") for n in names) == 6
-    assert sum(n.startswith("tilt") for n in names) == 12
-    assert names[-3:] == ("base_x", "base_y", "base_z")
-    # tilts are about the two link axes perpendicular to each joint axis (z, y, y, z, y, z)
-    assert [n for n in names if n.startswith("tilt")] == [
-        "tilt1_x", "tilt1_y", "tilt2_x", "tilt2_z", "tilt3_x", "tilt3_z",
-        "tilt4_x", "tilt4_y", "tilt5_x", "tilt5_z", "tilt6_x", "tilt6_y",
-    ]
+    # paper: 6x3 lengths, 6 encoder offsets, 12 misalignment angles, 3 base tolerances
+    assert names[:18] == tuple(f"len{i}_{c}" for i in range(2, 7) for c in "xyz") + ("flange_x", "flange_y", "flange_z")
+    assert names[18:24] == tuple(f"offset{i}" for i in range(1, 7))
+    assert names[36:] == ("base_x", "base_y", "base_z")
+    # tilts about the link axes perpendicular to each joint axis (z, y, y, z, y, z), without
+    # the rotations about z at joints 2 and 5 (on axes 1 and 4: they would be offset1/offset4),
+    # plus the flange's own x/y tilt
+    assert names[24:36] == (
+        "tilt1_x", "tilt1_y", "tilt2_x", "tilt3_x", "tilt3_z", "tilt4_x",
+        "tilt4_y", "tilt5_x", "tilt6_x", "tilt6_y", "flange_rx", "flange_ry",
+    )
+    assert [i for i, n in enumerate(names) if is_angle_parameter(n)] == list(range(18, 36))
+
+
+def test_no_rotation_parameter_duplicates_another() -> None:
+    """The reason for the layout: an earlier split had tilt2_z (= offset1: joint 2 sits on
+    axis 1) and tilt5_z (= offset4). Collinear translations (len2_y, len3_y, len4_y ...)
+    are identical columns by nature and are merged by the QR reduction."""
+    theta = identification_jacobian(configurations(50, 9)).reshape(-1, 39)
+    unit = theta / np.linalg.norm(theta, axis=0)
+    cosine = np.abs(unit.T @ unit) - np.eye(39)
+    identical = [(ERROR_PARAMETER_NAMES[i], ERROR_PARAMETER_NAMES[j])
+                 for i, j in np.argwhere(cosine > 1.0 - 1e-9) if i < j]
+    assert identical  # the translations along common axes
+    assert not [pair for pair in identical if is_angle_parameter(pair[0]) or is_angle_parameter(pair[1])], identical
 
 
 def test_zero_errors_give_the_nominal_arm() -> None:
@@ -83,6 +101,32 @@ def test_each_parameter_group_acts_as_documented() -> None:
     rx = Rotation.from_euler("x", 0.01).as_matrix()
     np.testing.assert_allclose(t[:3, 3], [0, 0, 0.30] + rx @ (top[:3, 3] - [0, 0, 0.30]), atol=1e-15)
     np.testing.assert_allclose(t[:3, :3], rx, atol=1e-15)
+    # flange tilt: the flange frame turns about its own x (then y) axis, its origin stays
+    nominal_t = NOMINAL.transform(q)
+    for name, axis in (("flange_rx", "x"), ("flange_ry", "y")):
+        t = FlangeKinematics(error_model(single(name, 0.01))).transform(q)
+        np.testing.assert_allclose(t[:3, 3], nominal_t[:3, 3], atol=1e-15)
+        np.testing.assert_allclose(t[:3, :3], nominal_t[:3, :3] @ Rotation.from_euler(axis, 0.01).as_matrix(), atol=1e-15)
+    # the wrist tilt tilt6_x acts before joint 6 turns, the flange tilt after it
+    q6 = q.copy()
+    q6[5] += 0.7
+    t_wrist = FlangeKinematics(error_model(single("tilt6_x", 0.01))).transform(q6)
+    t_flange = FlangeKinematics(error_model(single("flange_rx", 0.01))).transform(q6)
+    assert np.abs(t_wrist[:3, :3] - t_flange[:3, :3]).max() > 1e-3
+
+
+def test_layout_follows_the_urdf_structure(tmp_path: Path) -> None:
+    # a calibrated description (errors folded into the origins) keeps the same layout
+    path = export_error_urdf(tmp_path / "calibrated.urdf", random_geometric_errors(4))
+    assert GeometricErrorModel(path).parameter_names == ERROR_PARAMETER_NAMES
+    # a shoulder offset (joint 2 off axis 1) leaves 11 joint tilts: not this 39-split
+    text = (default_error_model().urdf_path).read_text()
+    shifted = text.replace('<origin xyz="0 0 0.25" rpy="0 0 0"/>', '<origin xyz="0.15 0 0.25" rpy="0 0 0"/>')
+    assert shifted != text
+    (tmp_path / "offset.urdf").write_text(shifted)
+    with pytest.raises(GeometricErrorInputError, match=r"offset\.urdf.*10 joint tilts.*got 11"):
+        GeometricErrorModel(tmp_path / "offset.urdf")
+
 
 
 def test_batched_numpy_fk_equals_pinocchio_on_the_error_model() -> None:
@@ -147,12 +191,20 @@ def test_offset_columns_are_the_geometric_jacobian() -> None:
     np.testing.assert_allclose(jac[:, :, offsets], geometric, atol=1e-14)
 
 
-def test_28_of_the_39_parameters_are_identifiable_from_full_poses() -> None:
-    theta = identification_jacobian(configurations(300, 4)).reshape(-1, 39)
+def test_30_of_the_39_parameters_are_identifiable_from_full_poses() -> None:
+    """The paper's count (30, section 3.2); 25 from positions only."""
+    jac = identification_jacobian(configurations(300, 4))
+    theta = jac.reshape(-1, 39)
     theta = theta / np.linalg.norm(theta, axis=0)
     singular_values = np.linalg.svd(theta, compute_uv=False)
-    assert singular_values[27] > 1e-3 * singular_values[0]
-    assert singular_values[28] < 1e-12 * singular_values[0]
+    assert singular_values[29] > 1e-3 * singular_values[0]
+    assert singular_values[30] < 1e-12 * singular_values[0]
+    position = jac[:, :3].reshape(-1, 39)
+    norms = np.linalg.norm(position, axis=0)
+    zero = norms < 1e-12 * norms.max()
+    assert [ERROR_PARAMETER_NAMES[i] for i in np.flatnonzero(zero)] == ["offset6", "flange_rx", "flange_ry"]
+    s_pos = np.linalg.svd(position[:, ~zero] / norms[~zero], compute_uv=False)
+    assert s_pos[24] > 1e-4 * s_pos[0] and s_pos[25] < 1e-12 * s_pos[0]
     # two examples of the dependencies: parallel axes 2 and 3 share their y axis
     names = ERROR_PARAMETER_NAMES
     np.testing.assert_allclose(theta[:, names.index("len2_y")], theta[:, names.index("len3_y")], atol=1e-12)
