@@ -156,11 +156,12 @@ def monolithic_reference(commands: Commands, duration: float, dynamics: RobotDyn
     x = np.concatenate((Q0, np.zeros(12)))  # q, qd, winding currents
     u = np.zeros(6)
     powered = np.zeros(6, dtype=bool)
+    brake = np.zeros(6)  # holding-brake torques, held over a tick (closed until Operation enabled)
 
     def rhs(_t: float, s: np.ndarray) -> np.ndarray:
         qd, current = s[6:12], s[12:]
         di = np.where(powered, (u - resistance * current - emf * qd) / inductance, 0.0)
-        qdd = dynamics.forward_dynamics(s[:6], qd, gear * torque_constant * current)
+        qdd = dynamics.forward_dynamics(s[:6], qd, gear * torque_constant * current + brake)
         return np.concatenate((qd, qdd, di))
 
     ticks = int(round(duration / TICK))
@@ -175,6 +176,7 @@ def monolithic_reference(commands: Commands, duration: float, dynamics: RobotDyn
         target, offset, controlword = commands.at(t)
         for j, oracle in enumerate(oracles):
             u[j], powered[j] = oracle.tick_voltage(x[j], x[6 + j], x[12 + j], target[j], offset[j], controlword)
+            brake[j] = oracle.brake_torque
         x[12:][~powered] = 0.0
         x = solve_ivp(rhs, (t, t + TICK), x, method="DOP853", rtol=rtol, atol=atol).y[:, -1]
     return Trajectory(np.array(times), np.array(positions), time.perf_counter() - start)

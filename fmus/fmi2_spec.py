@@ -39,6 +39,7 @@ UNITS: dict[str, dict[str, int]] = {
     "kg.m": {"kg": 1, "m": 1},
     "kg.m2": {"kg": 1, "m": 2},
     "N.m.s/rad": {"kg": 1, "m": 2, "s": -1, "rad": -1},
+    "N.m/rad": {"kg": 1, "m": 2, "s": -2, "rad": -1},
 }
 
 INPUT, OUTPUT, PARAMETER, LOCAL = "input", "output", "parameter", "local"

@@ -1,5 +1,6 @@
 """CiA 402 state machine of the servo-drive FMU: transitions, statuswords, power only
-when enabled, quick-stop and fault-reaction ramps, fault reset, following-error fault."""
+when enabled, quick-stop and fault-reaction ramps, fault reset, following-error fault,
+holding brake while the power stage is off."""
 import numpy as np
 import pytest
 
@@ -22,11 +23,13 @@ class Axis:
         values.update(overrides)
         self.drive = FastFmu2Slave(ensure_fmus()["servo_drive"], "cia402", values,
                                    real_inputs=("target_position", "torque_offset", "q_meas", "qd_meas"),
-                                   real_outputs=("tau_out", "position_actual", "velocity_actual"),
+                                   real_outputs=("tau_out", "position_actual", "velocity_actual",
+                                                 "torque_actual", "brake_torque"),
                                    integer_inputs=("controlword", "fault_code"),
                                    integer_outputs=("statusword", "error_code"))
         self.inertia, self.q, self.qd, self.t, self.target = 0.21, 0.0, 0.0, 0.0, 0.0
         self.velocity = 0.0  # rad/s of the target ramp
+        self.load = 0.0  # N m, external torque on the axis (e.g. gravity)
 
     def run(self, controlword, samples=1, fault_code=0):
         h = 50e-6
@@ -37,7 +40,7 @@ class Axis:
             self.drive.do_step(self.t, h)
             self.t += h
             tau = self.drive.get_outputs()[0]
-            acc = tau / self.inertia
+            acc = (tau + self.load) / self.inertia
             self.q, self.qd = self.q + self.qd * h + 0.5 * acc * h * h, self.qd + acc * h
         return self.state
 
@@ -52,6 +55,14 @@ class Axis:
     @property
     def tau(self):
         return float(self.drive.get_outputs()[0])
+
+    @property
+    def motor_torque(self):
+        return float(self.drive.get_outputs()[3])
+
+    @property
+    def brake_torque(self):
+        return float(self.drive.get_outputs()[4])
 
     def enable(self):
         assert self.run(SHUTDOWN) == READY
@@ -87,9 +98,11 @@ def test_torque_only_when_enabled():
         assert axis.run(command, samples=5) == state
         assert axis.tau == 0.0 and axis.q == 0.0
     assert axis.run(ENABLE, samples=5) == ENABLED
-    assert axis.tau != 0.0 and axis.q > 0.0
+    assert axis.tau != 0.0 and axis.q > 0.0 and axis.brake_torque == 0.0
     assert axis.run(SWITCH_ON) == SWITCHED_ON
-    assert axis.tau == 0.0
+    # power off: no motor torque; the holding brake closes on the moving axis and brakes it
+    assert axis.motor_torque == 0.0
+    assert axis.tau == axis.brake_torque and axis.brake_torque * axis.qd < 0.0
 
 
 def _ramp_deceleration(axis, active_state, command, samples, **kw):
@@ -124,7 +137,7 @@ def test_quick_stop_ramp(option_code, final):
         axis.target = axis.q
         assert axis.run(ENABLE) == ENABLED             # 16
     else:
-        assert axis.tau == 0.0                         # 12: power off
+        assert axis.motor_torque == 0.0                # 12: power off (the brake holds)
 
 
 def test_fault_reaction_fault_and_reset():
@@ -138,7 +151,13 @@ def test_fault_reaction_fault_and_reset():
     assert states[0] == FAULT_REACTION                 # 13
     assert slope == pytest.approx(-values["fault_reaction_deceleration"], rel=0.05)
     assert states[-1] == FAULT                         # 14
-    assert axis.tau == 0.0
+    assert axis.motor_torque == 0.0                    # power off, the brake holds
+    held = axis.q
+    axis.load = -0.5 * values["brake_holding_torque"]
+    axis.run(ENABLE, samples=500, fault_code=0x8130)  # 0.2 s
+    assert axis.state == FAULT and abs(axis.qd) < 1e-4
+    assert axis.q - held == pytest.approx(axis.load / values["brake_stiffness"], rel=0.05)  # the brake's sag
+    axis.load = 0.0
     assert int(axis.drive.get_integer_outputs()[1]) == 0x8130
     # reset while the cause is still present: back into Fault
     axis.run(FAULT_RESET, fault_code=0x8130)
@@ -165,3 +184,31 @@ def test_following_error_window_raises_fault_8611():
     assert axis.state == FAULT
     assert int(axis.drive.get_integer_outputs()[1]) == 0x8611
     assert any("following error" in message for _, message in axis.drive.messages)
+
+
+def test_brake_holds_below_its_holding_torque_and_slips_above():
+    """Power off (Switch on disabled from power-up): the closed brake holds a static load
+    with the sag load / stiffness and settles; a load above the holding torque makes it
+    slip with the acceleration (load - holding torque) / inertia."""
+    values = drive_start_values(4)
+    limit, stiffness = values["brake_holding_torque"], values["brake_stiffness"]
+    axis = Axis()
+    axis.load = 0.8 * limit
+    axis.run(0x00, samples=500)  # 0.2 s
+    assert axis.state == SWITCH_ON_DISABLED
+    assert axis.q == pytest.approx(axis.load / stiffness, rel=1e-3) and abs(axis.qd) < 1e-6
+    assert axis.brake_torque == pytest.approx(-axis.load, rel=1e-4) and axis.motor_torque == 0.0
+    axis.load = 1.5 * limit
+    axis.run(0x00, samples=50)
+    qd0, t0 = axis.qd, axis.t
+    axis.run(0x00, samples=50)
+    assert axis.brake_torque == pytest.approx(-limit)
+    assert (axis.qd - qd0) / (axis.t - t0) == pytest.approx((axis.load - limit) / axis.inertia, rel=1e-3)
+
+
+def test_no_brake_when_holding_torque_is_zero():
+    axis = Axis(brake_holding_torque=0.0)
+    axis.load = 1.0
+    axis.run(0x00, samples=25)
+    assert axis.brake_torque == 0.0 and axis.tau == 0.0
+    assert axis.qd == pytest.approx(axis.load / axis.inertia * axis.t, rel=1e-9)  # free fall

@@ -145,14 +145,15 @@ def test_drive_fault_stops_the_controller_and_fails_the_run(tmp_path):
         (MODES_LINE, 'modes = ["standard"]'),
         ('settle_time = "0.2 s"', 'settle_time = "0.05 s"'),
         ('can_log = true', 'can_log = false'),
-        ('name = "drive4"\nbuiltin = "servo_drive"      # gains: fmus/servo_drive/drive_params.toml (axis 4)\n',
-         'name = "drive4"\nbuiltin = "servo_drive"\n[fmus.parameters]\nfollowing_error_window = 1e-6\n'),
+        # the standard cascade lags axis 1 by qd/Kv (34 mrad at the path's speed): a 10 mrad window trips
+        ('name = "drive1"\nbuiltin = "servo_drive"      # gains: fmus/servo_drive/drive_params.toml (axis 1)\n',
+         'name = "drive1"\nbuiltin = "servo_drive"\n[fmus.parameters]\nfollowing_error_window = 0.01\n'),
     ])
     out = tmp_path / "out"
     assert main(["run", str(path), "--out", str(out), "--quiet"]) == 1
     summary = json.loads((out / "summary.json").read_text())
     assert summary["status"] == "failed" and summary["failed_component"] == "controller"
-    assert "motion stopped" in summary["reason"] and "drive 4" in summary["reason"]
+    assert "motion stopped" in summary["reason"] and "drive 1" in summary["reason"]
     assert "0x8611" in summary["reason"]  # CiA 402 following error
     entry = summary["modes"]["standard"]
     assert entry["controller_phase"] == "stopped" and entry["stopped_at_s"] < 0.5

@@ -37,6 +37,12 @@ typedef struct {
     double ramp_velocity;    /* rad/s */
     int standstill_samples;  /* position samples at standstill since the ramp ended */
 
+    /* holding brake (closed while the power stage is off) */
+    int brake_closed;        /* 1 while the brake holds */
+    int brake_anchor_pending;/* 1: closed, the anchor is taken at the next current sample */
+    double brake_anchor;     /* rad, where the closed brake's spring is relaxed */
+    double brake_torque;     /* N m joint side, at the last current sample */
+
     /* constants derived from the parameters at initialization */
     double counts_per_rad;   /* encoder counts per joint rad */
     double current_max;      /* A, min(current_limit, torque_limit / (N kt)) */

@@ -56,6 +56,9 @@ _ENTRIES: tuple[tuple[str, str, int | None, str], ...] = (
     ("stops", "quick_stop_deceleration", N_AXES, "positive"),
     ("stops", "fault_reaction_deceleration", N_AXES, "positive"),
     ("stops", "quick_stop_option_code", None, "option_code"),
+    ("brake", "holding_torque_factor", None, "nonnegative"),
+    ("brake", "natural_frequency", None, "positive"),
+    ("brake", "damping_ratio", None, "nonnegative"),
 )
 
 
@@ -160,12 +163,15 @@ def drive_start_values(axis: int, robot: RobotParameters | None = None,
     def d(section: str, key: str) -> float:
         return drive.axis_value(section, key, axis)
 
+    torque_limit = d("limits", "torque_limit_factor") * float(robot.effort_limit[j])
+    j_max = d("tuning", "inertia_max")
+    brake_stiffness = j_max * (2.0 * math.pi * d("brake", "natural_frequency")) ** 2
     return {
         "gear_ratio": float(robot.gear_ratio[j]),
         "torque_constant": float(robot.torque_constant[j]),
         "back_emf_constant": d("motor", "back_emf_ratio") * float(robot.torque_constant[j]),
         "current_limit": float(robot.current_limit[j]),
-        "torque_limit": d("limits", "torque_limit_factor") * float(robot.effort_limit[j]),
+        "torque_limit": torque_limit,
         "velocity_limit": d("limits", "velocity_limit_factor") * float(robot.velocity_limit[j]),
         "resistance": d("motor", "resistance"),
         "inductance": d("motor", "inductance"),
@@ -185,6 +191,9 @@ def drive_start_values(axis: int, robot: RobotParameters | None = None,
         "following_error_window": d("limits", "following_error_window"),
         "standstill_velocity": d("stops", "standstill_velocity"),
         "standstill_time": d("stops", "standstill_time"),
+        "brake_holding_torque": d("brake", "holding_torque_factor") * torque_limit,
+        "brake_stiffness": brake_stiffness,
+        "brake_damping": 2.0 * d("brake", "damping_ratio") * math.sqrt(brake_stiffness * j_max),
         "encoder_counts_per_rev": int(robot.encoder_counts_per_motor_rev),
         "quick_stop_option_code": int(drive.get("stops", "quick_stop_option_code")),
     }

@@ -7,8 +7,10 @@ measurements into the voltage of the next current period) and direct comparison 
 the FMU. Covered: the enable sequence of the CiA 402 state machine (power off until
 Operation enabled), the position/speed/current loops with speed and torque
 feed-forward, limits, anti-windup, encoder quantisation, speed filter, computation
-delay and back-EMF compensation. Not covered: quick stop, fault reaction, following-
-error fault (tested on the FMU directly).
+delay and back-EMF compensation, and the holding brake while the power stage is off
+(closed from initialisation until Operation enabled: a spring-damper to where it
+closed, torque limited to the holding torque, slipping beyond). Not covered: quick
+stop, fault reaction, following-error fault (tested on the FMU directly).
 """
 from __future__ import annotations
 
@@ -32,6 +34,8 @@ class DriveReference:
     target_prev: float = 0.0
     position_actual: float = 0.0
     u_next: float = 0.0
+    brake_anchor: float | None = None  # None: closed, anchored at the next sample
+    brake_torque: float = 0.0
     _derived: dict[str, float] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -50,6 +54,8 @@ class DriveReference:
         self.speed_filtered = qd
         self.position_actual = self._quantise(q)
         self.target_prev = target
+        self.brake_anchor = None  # closed; anchored where the axis is at the first sample
+        self.brake_torque = 0.0
 
     def _quantise(self, q: float) -> float:
         return math.floor(q * self.counts_per_rad) / self.counts_per_rad
@@ -66,6 +72,7 @@ class DriveReference:
             self.state = "enabled"
             self._power_off()
             self.target_prev = target
+            self.brake_torque = 0.0  # the brake opens
         elif self.state == "ready" and (controlword & 0x8F) == 0x07:
             self.state = "switched_on"
         self.enabled = self.state == "enabled"
@@ -101,6 +108,7 @@ class DriveReference:
                 self.current_demand = limited
         self.tick += 1
         if not self.enabled:
+            self._brake(q, qd)
             return 0.0, False
         error = self.current_demand - current
         emf = p["back_emf_constant"] * n * qd
@@ -110,6 +118,21 @@ class DriveReference:
             self.current_integral += p["current_kp"] * p["current_sample_time"] / p["current_tn"] * error
         applied, self.u_next = self.u_next, limited
         return applied, True
+
+    def _brake(self, q: float, qd: float) -> None:
+        """Torque of the closed holding brake (elasto-plastic contact), N m."""
+        p = self.params
+        limit, k = p["brake_holding_torque"], p["brake_stiffness"]
+        if limit <= 0.0:
+            return
+        if self.brake_anchor is None:
+            self.brake_anchor = q
+        stretch = q - self.brake_anchor
+        if k * abs(stretch) > limit:  # slipping: the anchor follows at the holding torque
+            self.brake_anchor = q - math.copysign(limit / k, stretch)
+            stretch = q - self.brake_anchor
+        tau = -k * stretch - p["brake_damping"] * qd
+        self.brake_torque = limit if tau > limit else (-limit if tau < -limit else tau)
 
     def current_derivative(self, current: float, u: float, qd: float) -> float:
         """d i / dt of the winding (A/s) for voltage ``u`` and joint speed ``qd``."""
@@ -124,5 +147,6 @@ class DriveReference:
         return i_inf + (current - i_inf) * decay
 
     def torque(self, current: float) -> float:
-        """Joint-side motor torque N k_t i (N m)."""
-        return self.params["gear_ratio"] * self.params["torque_constant"] * current
+        """Joint-side torque to the arm (N m): motor N k_t i plus the holding brake's torque
+        (:attr:`brake_torque`, held over the current period; 0 while the brake is open)."""
+        return self.params["gear_ratio"] * self.params["torque_constant"] * current + self.brake_torque

@@ -24,6 +24,13 @@
  * reaction ends in Fault (power off). A nonzero fault_code input, or a following
  * error beyond following_error_window, triggers the fault reaction.
  *
+ * Holding brake: closed whenever the power stage is off (from initialisation until
+ * Operation enabled, and again in Switch on disabled / Fault), opened when it is on;
+ * both instantly. Closed, it is an elasto-plastic friction contact evaluated at every
+ * current sample: a spring-damper to the position where it closed, its torque limited
+ * to brake_holding_torque (beyond, it slips and the anchor is dragged along). Its
+ * torque is part of tau_out (brake_torque output); torque_actual is the motor's only.
+ *
  * Units: joint side rad, rad/s, N m; motor current A; voltage V; time s.
  */
 #include <math.h>
@@ -88,6 +95,37 @@ static void power_off(ModelState *s)
     s->following_error_flag = 0;
 }
 
+/* Close the brake when the power stage is off (anchored at the position measured at the
+ * next current sample: at initialisation the inputs may not be set yet), open it otherwise. */
+static void update_brake(Instance *inst)
+{
+    ModelState *s = &inst->d.s;
+    int closed = R(BRAKE_HOLDING_TORQUE) > 0.0 && !power_on(s->cia_state);
+    if (closed && !s->brake_closed) s->brake_anchor_pending = 1;
+    if (!closed) s->brake_torque = 0.0;
+    s->brake_closed = closed;
+}
+
+/* Torque of the closed brake from the measured joint position and speed (elasto-plastic contact). */
+static void brake_sample(Instance *inst)
+{
+    ModelState *s = &inst->d.s;
+    const double k = R(BRAKE_STIFFNESS), limit = R(BRAKE_HOLDING_TORQUE);
+    double stretch, tau;
+    if (!s->brake_closed) return;
+    if (s->brake_anchor_pending) {
+        s->brake_anchor = R(Q_MEAS);
+        s->brake_anchor_pending = 0;
+    }
+    stretch = R(Q_MEAS) - s->brake_anchor;
+    if (k * fabs(stretch) > limit) { /* slipping: the anchor follows at the holding torque */
+        s->brake_anchor = R(Q_MEAS) - copysign(limit / k, stretch);
+        stretch = R(Q_MEAS) - s->brake_anchor;
+    }
+    tau = -k * stretch - R(BRAKE_DAMPING) * R(QD_MEAS);
+    s->brake_torque = tau > limit ? limit : (tau < -limit ? -limit : tau);
+}
+
 static void enter(Instance *inst, int state)
 {
     ModelState *s = &inst->d.s;
@@ -106,6 +144,7 @@ static void enter(Instance *inst, int state)
     }
     s->cia_state = state;
     if (!power_on(state)) power_off(s);
+    update_brake(inst);
 }
 
 static void raise_fault(Instance *inst, int code)
@@ -251,6 +290,7 @@ static void current_sample(Instance *inst)
 
     if (!power_on(s->cia_state)) {
         s->current = 0.0;
+        brake_sample(inst);
         return;
     }
     error = s->current_demand - s->current;
@@ -269,7 +309,8 @@ static void write_outputs(Instance *inst)
 {
     ModelState *s = &inst->d.s;
     const double torque = R(GEAR_RATIO) * R(TORQUE_CONSTANT) * s->current;
-    R(TAU_OUT) = torque;
+    R(TAU_OUT) = torque + s->brake_torque;
+    R(BRAKE_TORQUE) = s->brake_torque;
     R(TORQUE_ACTUAL) = torque;
     R(CURRENT_ACTUAL) = s->current;
     R(CURRENT_DEMAND) = s->current_demand;
@@ -324,8 +365,11 @@ int model_initialize(Instance *inst)
     s->controlword_prev = I(CONTROLWORD);
     s->error_code = 0;
     power_off(s);
+    s->brake_closed = 0;
+    s->brake_anchor_pending = 0;
+    s->brake_torque = 0.0;
     s->cia_state = CIA_NOT_READY;
-    enter(inst, CIA_SWITCH_ON_DISABLED); /* automatic after initialisation */
+    enter(inst, CIA_SWITCH_ON_DISABLED); /* automatic after initialisation; closes the brake */
     s->position_actual = quantise(s, R(Q_MEAS));
     s->target_prev = R(TARGET_POSITION);
     write_outputs(inst);

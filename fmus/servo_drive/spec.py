@@ -38,6 +38,11 @@ REAL_PARAMETERS: tuple[tuple[str, str, float | None, float | None, str], ...] = 
     ("standstill_velocity", "rad/s", 0.0, None,
      "velocity threshold (0x606F): a stop ramp ends when the axis is this slow ..."),
     ("standstill_time", "s", 0.0, None, "... for this long (velocity threshold time 0x6070)"),
+    ("brake_holding_torque", "N.m", 0.0, None,
+     "holding brake, joint side: largest torque it transmits before slipping (0: no brake); closed whenever "
+     "the power stage is off"),
+    ("brake_stiffness", "N.m/rad", 1e-9, None, "torsional stiffness of the closed brake, joint side"),
+    ("brake_damping", "N.m.s/rad", 0.0, None, "damping of the closed brake, joint side"),
 )
 
 
@@ -48,7 +53,8 @@ def servo_drive_spec() -> FmuSpec:
         model_identifier=MODEL_IDENTIFIER,
         description="One axis of a CiA 402 servo drive (cyclic synchronous position): P position loop, "
                     "PI speed loop, PI current loop on a q-axis R-L-EMF motor model, torque feed-forward, "
-                    "limits, encoder quantisation, state machine with quick-stop and fault ramps",
+                    "limits, encoder quantisation, state machine with quick-stop and fault ramps, "
+                    "holding brake while the power stage is off",
         source_files=SOURCE_FILES,
         default_step=defaults["current_sample_time"],
         default_stop=0.1,
@@ -71,6 +77,8 @@ def servo_drive_spec() -> FmuSpec:
              unit="rad")
     for name, unit, lo, hi, text in REAL_PARAMETERS:
         spec.add(name, "Real", PARAMETER, text, unit=unit, start=defaults[name], min=lo, max=hi)
+    spec.add("brake_torque", "Real", OUTPUT,
+             "joint-side torque of the holding brake (part of tau_out; 0 while the power stage is on)", unit="N.m")
     spec.add("controlword", "Integer", INPUT, "CiA 402 0x6040 controlword", start=0, min=0, max=65535)
     spec.add("fault_code", "Integer", INPUT,
              "external fault (e.g. fieldbus threshold reaction): 0 none, otherwise the 0x603F error code "
