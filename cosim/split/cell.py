@@ -83,7 +83,8 @@ def run_split_cell(doc: dict[str, Any], controller, true_robot, ctx, *, label: s
                    on_cycle: Callable[[int, SplitSession], None] | None = None):
     """Run one cell split over two processes; returns ``(CellRun, Pacer or None, scheduling granted,
     info)`` with ``info`` = {"port", "drive_process_exit_code", "controller_stop_cycle",
-    "drive_side_wall_s", "lost_cycles", "frames_missing", ...}."""
+    "drive_side_wall_s", "loop_wall_s" (cycles only, after the drive process is ready),
+    "realtime_factor" (incl. start-up), "loop_realtime_factor", "frames_missing_*", ...}."""
     fb_config = fieldbus if isinstance(fieldbus, FieldbusConfig) else FieldbusConfig.from_dict(fieldbus or {})
     paced = options.realtime
     if paced:
@@ -125,6 +126,7 @@ def run_split_cell(doc: dict[str, Any], controller, true_robot, ctx, *, label: s
         process.start()
         child_conn.close()
         ready = _receive(conn, process, START_TIMEOUT_S, "ready")
+        loop_t0 = time.perf_counter()
         tolerance = settings.tolerance_s if settings.tolerance_s is not None else auto_tolerance_s(endpoint.layout)
         if paced and pacer is None:
             pacer = Pacer(period, settings.spin_s, tolerance, capacity=n_cycles + 16)
@@ -185,6 +187,7 @@ def run_split_cell(doc: dict[str, Any], controller, true_robot, ctx, *, label: s
                         break
                 if k % 250 == 0:
                     bar.update(t - t0)
+        info["loop_wall_s"] = time.perf_counter() - loop_t0
         bar.update(session.cycle * period, force=True)
         bar.close()
         if process.is_alive() or conn.poll(0):
@@ -224,7 +227,8 @@ def run_split_cell(doc: dict[str, Any], controller, true_robot, ctx, *, label: s
                 frames_missing_drive_side=child["frames_missing"] if child else None,
                 lost_cycles_drive_side=len(child["lost_cycles"]) if child else None,
                 drive_side_scheduling=child.get("scheduling") if child else None,
-                realtime_factor=(cycles * period) / wall if wall > 0 else None)
+                realtime_factor=(cycles * period) / wall if wall > 0 else None,
+                loop_realtime_factor=(cycles * period) / info["loop_wall_s"] if info.get("loop_wall_s") else None)
     ctx.sim_time_s += cycles * period
     cell = robot_cell.CellRun(label, ctx.path(record_file), int(rows.shape[0]), reached, fieldbus_summary, wall,
                               ready.get("engine", ""), memory, failure, loop_cpu_time_s=cpu)

@@ -1,0 +1,412 @@
+"""The performance suite behind ``python -m cosim bench [--out DIR] [--quick]``.
+
+Every figure of the project's performance claims, measured in one run on this machine,
+each a median over repeated runs, with the machine described and the ratios against
+the baselines computed from the same run. The timing code is the benchmarks' own
+(``bench_closed_loop``, ``bench_fieldbus``, ``bench_fmu``, ``bench_planners_cp``,
+``bench_calibration``, ``bench_identification``); this module only chooses the problem
+sizes and repetitions, collects the numbers, writes ``bench.json`` and prints a table.
+
+Sections (keys of ``bench.json["figures"]``):
+
+=====================  ==================================================================
+closed_loop            in-process cell (ISO 9283 path, model-based): wall/CPU real-time
+                       factor, controller compute p50/p99 (wall, µs)
+closed_loop_split      the same cell split over two processes (udp_multicast): RTF of the
+                       cycles (without process start-up), start-up time
+paced                  the in-process cell paced at 400 µs: overrun fraction, lateness p99
+bus                    one POWERLINK cycle with six nodes (simbus, no recording): µs
+fmu                    plant and drive doStep (fast path, 100 µs and 400 µs steps): µs
+planners               own CP vs TOPP-RA (paper line, 200 intervals), own PtP vs Ruckig
+                       (plain and torque-feasible) between the line's end poses: solve
+                       times and trajectory durations
+calibration            selecting 32 of the campaign's visible candidates (min eigenvalue)
+identification         base regressor + weighted least squares on a record
+=====================  ==================================================================
+
+``ratios``: own CP / TOPP-RA solve time and duration, own PtP / ruckig_feasible
+duration and solve time, in-process / split real-time factor.
+
+BLAS runs single-threaded during the suite (threadpoolctl). Wall times on a shared
+machine depend on its load: ``machine.load_average`` (before) and
+``load_average_after`` say how busy it was; CPU times are given where the benchmark
+measures them.
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+import platform
+import statistics
+import sys
+import tempfile
+import time
+import traceback
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+BENCH_DIR = Path(__file__).resolve().parent
+ROOT = BENCH_DIR.parent
+if str(BENCH_DIR) not in sys.path:
+    sys.path.insert(0, str(BENCH_DIR))
+os.environ.setdefault("MPLBACKEND", "Agg")
+
+
+@dataclass(frozen=True)
+class Sizes:
+    """Problem sizes and repetitions of one suite run."""
+
+    repeats: int
+    closed_loop_sim_s: float
+    split_sim_s: float
+    paced_sim_s: float
+    bus_cycles: int
+    fmu_batches: int
+    cp_intervals: int
+    ptp_intervals: int
+    calibration_candidates: int | None
+    calibration_restarts: int
+    identification_samples: int
+
+
+FULL = Sizes(repeats=3, closed_loop_sim_s=2.0, split_sim_s=0.4, paced_sim_s=10.0, bus_cycles=5000, fmu_batches=60,
+             cp_intervals=200, ptp_intervals=100, calibration_candidates=None, calibration_restarts=5,
+             identification_samples=5000)
+QUICK = Sizes(repeats=1, closed_loop_sim_s=0.1, split_sim_s=0.04, paced_sim_s=0.1, bus_cycles=300, fmu_batches=3,
+              cp_intervals=30, ptp_intervals=20, calibration_candidates=300, calibration_restarts=1,
+              identification_samples=300)
+
+
+def _median(values: list[float]) -> float:
+    return float(statistics.median(values))
+
+
+# ------------------------------------------------------------------------------------ machine
+def machine() -> dict[str, Any]:
+    """CPU model, cores, OS, Python and library versions, load average now."""
+    import can
+    import casadi
+    import fmpy
+    import numpy
+    import pinocchio
+    import scipy
+
+    model = platform.processor() or "unknown"
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                model = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    affinity = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else None
+    return {"cpu_model": model, "logical_cpus": os.cpu_count(), "cpus_usable": affinity,
+            "platform": platform.platform(), "python": platform.python_version(), "numpy": numpy.__version__,
+            "scipy": scipy.__version__, "pinocchio": pinocchio.__version__, "casadi": casadi.__version__,
+            "fmpy": fmpy.__version__, "python_can": can.__version__,
+            "load_average": [round(x, 2) for x in os.getloadavg()]}
+
+
+# ------------------------------------------------------------------------------------ sections
+def closed_loop(sizes: Sizes, work: Path) -> dict[str, Any]:
+    """bench_closed_loop.one_run, median over runs."""
+    import bench_closed_loop
+
+    runs = [bench_closed_loop.one_run(sizes.closed_loop_sim_s, "model_based", False, work / f"cl{k}")
+            for k in range(sizes.repeats)]
+    return {"sim_time_s": sizes.closed_loop_sim_s, "runs": sizes.repeats,
+            "realtime_factor": _median([r["realtime"] for r in runs]),
+            "cpu_realtime_factor": _median([r["cpu_realtime"] for r in runs]),
+            "controller_compute_p50_us": _median([r["p50"] for r in runs]),
+            "controller_compute_p99_us": _median([r["p99"] for r in runs]),
+            "controller_cpu_p99_us": _median([r["cpu_p99"] for r in runs]),
+            "engine": runs[0]["engine"]}
+
+
+def closed_loop_split(sizes: Sizes, work: Path) -> dict[str, Any]:
+    """The bench_closed_loop cell split over two processes (cosim.split), unpaced."""
+    import bench_closed_loop
+
+    from cosim.realtime.config import ExecutionOptions
+    from cosim.scenario import RunContext
+    from cosim.split.cell import run_split_cell
+
+    rtf, startup = [], []
+    for k in range(sizes.repeats):
+        scenario, doc, controller, true_robot, fb, tracker = bench_closed_loop.build(sizes.split_sim_s, "model_based")
+        ctx = RunContext(scenario, work / f"split{k}", quiet=True)
+        cell, _, _, info = run_split_cell(doc, controller, true_robot, ctx, label="split",
+                                          stop_time=sizes.split_sim_s, fieldbus=fb, tracker=tracker,
+                                          record_file="timeseries.csv", can_log=None,
+                                          options=ExecutionOptions(mode="split"))
+        if cell.failure is not None:
+            raise cell.failure
+        rtf.append(info["loop_realtime_factor"])
+        startup.append(cell.loop_wall_time_s - info["loop_wall_s"])
+    return {"sim_time_s": sizes.split_sim_s, "runs": sizes.repeats, "realtime_factor": _median(rtf),
+            "cycle_wall_us": 400.0 / _median(rtf), "startup_s": _median(startup), "interface": "udp_multicast"}
+
+
+def paced(sizes: Sizes, work: Path) -> dict[str, Any]:
+    """One paced in-process run (400 µs, SCHED_FIFO when granted, hold policy)."""
+    import bench_closed_loop
+
+    from cosim.realtime.cell import run_paced_cell
+    from cosim.realtime.config import RealtimeSettings
+    from cosim.realtime.stats import lateness_summary, load_average
+    from cosim.scenario import RunContext
+
+    scenario, doc, controller, true_robot, fb, tracker = bench_closed_loop.build(sizes.paced_sim_s, "model_based")
+    ctx = RunContext(scenario, work / "paced", quiet=True)
+    load = load_average()
+    cell, pacer, granted = run_paced_cell(doc, controller, true_robot, ctx, label="paced",
+                                          stop_time=sizes.paced_sim_s, fieldbus=fb, tracker=tracker,
+                                          record_file="timeseries.csv", can_log=None, settings=RealtimeSettings())
+    s = lateness_summary(pacer.log)
+    return {"sim_time_s": sizes.paced_sim_s, "cycles": s["cycles"], "overruns": s["overruns"],
+            "overrun_fraction": s["overrun_fraction"], "missed_ticks": s["missed_ticks"],
+            "lateness_p50_us": s["lateness"]["p50_us"], "lateness_p99_us": s["lateness"]["p99_us"],
+            "lateness_max_us": s["lateness"]["max_us"], "cycle_work_p50_us": s["cycle_work"]["p50_us"],
+            "scheduling": granted, "policy": "hold", "load_average_before": load,
+            "completed": cell.failure is None}
+
+
+def bus(sizes: Sizes, work: Path) -> dict[str, Any]:
+    """bench_fieldbus.measure: one six-node cycle on simbus without recording, median of runs."""
+    import bench_fieldbus
+
+    runs = [bench_fieldbus.measure({}, None, sizes.bus_cycles) for _ in range(sizes.repeats)]
+    return {"cycles": sizes.bus_cycles, "cycle_median_us": _median([r["median"] for r in runs]),
+            "cycle_p90_us": _median([r["p90"] for r in runs]), "cycle_cpu_us": _median([r["cpu"] for r in runs])}
+
+
+def fmu(sizes: Sizes, work: Path) -> dict[str, Any]:
+    """bench_fmu.bench_plant / bench_drive: doStep of the fast path (and fmpy for reference), µs."""
+    import bench_fmu
+
+    from fmus.build import ensure_fmus
+
+    paths = ensure_fmus()
+    out: dict[str, Any] = {"batches": sizes.fmu_batches}
+    for name, fn, path in (("plant", bench_fmu.bench_plant, paths["rx130l_plant"]),
+                           ("drive", bench_fmu.bench_drive, paths["servo_drive"])):
+        rows = [fn(path, sizes.fmu_batches) for _ in range(sizes.repeats)]
+        for h in (100, 400):
+            label = f"{name} doStep {h} us"
+            fast = _median([dict((r[0], r[2]) for r in run)[label] for run in rows])
+            slow = _median([dict((r[0], r[1]) for r in run)[label] for run in rows])
+            out[f"{name}_step_{h}us_us"] = fast
+            out[f"{name}_step_{h}us_fmpy_us"] = slow
+    return out
+
+
+def planners(sizes: Sizes, work: Path) -> dict[str, Any]:
+    """Own CP vs TOPP-RA on the paper line (bench_planners_cp._median_runs); own PtP vs Ruckig
+    between the line's end poses."""
+    import bench_planners_cp
+
+    from planners.base import JointLimits, PtPProblem
+    from planners.cp_optimal import OwnCPPlanner
+    from planners.paper_line import paper_cp_problem, paper_line_configurations
+    from planners.ptp_optimal import OptimalPtPPlanner
+    from planners.ruckig_baseline import FeasibleRuckigPlanner, RuckigPlanner
+    from planners.toppra_baseline import ToppraPlanner
+    from robot.dynamics import RobotDynamics
+
+    dyn = RobotDynamics()
+    out: dict[str, Any] = {"cp_intervals": sizes.cp_intervals, "ptp_intervals": sizes.ptp_intervals}
+    cp = paper_cp_problem(dynamics=dyn, friction="full", kinematic_only_limits=True, n_intervals=sizes.cp_intervals)
+    for key, planner in (("own_cp", OwnCPPlanner()), ("toppra", ToppraPlanner())):
+        result, solve, build = bench_planners_cp._median_runs(planner, cp, sizes.repeats)
+        out[f"{key}_solve_s"] = solve
+        out[f"{key}_build_s"] = build
+        out[f"{key}_duration_s"] = result.trajectory.duration
+        out[f"{key}_status"] = result.status.name.lower()
+    q0, qe = paper_line_configurations()
+    ptp = PtPProblem(q0, qe, JointLimits.from_robot(), dynamics=dyn, n_intervals=sizes.ptp_intervals)
+    for key, planner in (("own_ptp", OptimalPtPPlanner()), ("ruckig", RuckigPlanner()),
+                         ("ruckig_feasible", FeasibleRuckigPlanner())):
+        result, solve, build = bench_planners_cp._median_runs(planner, ptp, sizes.repeats)
+        out[f"{key}_solve_s"] = solve
+        out[f"{key}_duration_s"] = result.trajectory.duration
+        out[f"{key}_status"] = result.status.name.lower()
+    return out
+
+
+def calibration(sizes: Sizes, work: Path) -> dict[str, Any]:
+    """bench_calibration.selection_problem + time_selection: 32 configurations, min eigenvalue."""
+    import bench_calibration
+
+    from identification.calibration_tracker import TrackerSetup
+
+    _, theta = bench_calibration.selection_problem(TrackerSetup(), sizes.calibration_candidates)
+    wall, cpu, _ = bench_calibration.time_selection(theta, "min_eigenvalue", sizes.repeats,
+                                                   restarts=sizes.calibration_restarts)
+    return {"candidates": int(theta.shape[0]), "selected": 32, "restarts": sizes.calibration_restarts,
+            "selection_s": float(wall), "selection_cpu_s": float(cpu)}
+
+
+def identification(sizes: Sizes, work: Path) -> dict[str, Any]:
+    """bench_identification.bench_identify: base regressor + WLS."""
+    import bench_identification
+
+    return bench_identification.bench_identify(sizes.identification_samples, max(sizes.repeats, 1))
+
+
+SECTIONS: dict[str, Callable[[Sizes, Path], dict[str, Any]]] = {
+    "closed_loop": closed_loop, "closed_loop_split": closed_loop_split, "paced": paced, "bus": bus, "fmu": fmu,
+    "planners": planners, "calibration": calibration, "identification": identification,
+}
+
+#: The figures bench.json must hold (section -> keys), checked by the test and by run_suite.
+REQUIRED: dict[str, tuple[str, ...]] = {
+    "closed_loop": ("realtime_factor", "cpu_realtime_factor", "controller_compute_p50_us",
+                    "controller_compute_p99_us"),
+    "closed_loop_split": ("realtime_factor", "startup_s"),
+    "paced": ("overrun_fraction", "lateness_p99_us"),
+    "bus": ("cycle_median_us",),
+    "fmu": ("plant_step_100us_us", "plant_step_400us_us", "drive_step_100us_us", "drive_step_400us_us"),
+    "planners": ("own_cp_solve_s", "toppra_solve_s", "own_cp_duration_s", "toppra_duration_s", "own_ptp_solve_s",
+                 "ruckig_solve_s", "ruckig_feasible_solve_s", "own_ptp_duration_s", "ruckig_feasible_duration_s"),
+    "calibration": ("selection_s",),
+    "identification": ("identification_s",),
+}
+RATIOS = ("own_cp_vs_toppra_solve_time", "own_cp_vs_toppra_duration", "own_ptp_vs_ruckig_feasible_duration",
+          "own_ptp_vs_ruckig_feasible_solve_time", "in_process_vs_split_realtime_factor")
+
+
+def ratios(figures: dict[str, dict[str, Any]]) -> dict[str, float | None]:
+    """Ratios against the baselines, from this run's figures (None when a figure is missing)."""
+    def get(section: str, key: str) -> float | None:
+        value = figures.get(section, {}).get(key)
+        return float(value) if isinstance(value, (int, float)) and math.isfinite(value) else None
+
+    def ratio(a: float | None, b: float | None) -> float | None:
+        return a / b if a is not None and b else None
+
+    return {
+        "own_cp_vs_toppra_solve_time": ratio(get("planners", "own_cp_solve_s"), get("planners", "toppra_solve_s")),
+        "own_cp_vs_toppra_duration": ratio(get("planners", "own_cp_duration_s"), get("planners", "toppra_duration_s")),
+        "own_ptp_vs_ruckig_feasible_duration": ratio(get("planners", "own_ptp_duration_s"),
+                                                     get("planners", "ruckig_feasible_duration_s")),
+        "own_ptp_vs_ruckig_feasible_solve_time": ratio(get("planners", "own_ptp_solve_s"),
+                                                       get("planners", "ruckig_feasible_solve_s")),
+        "in_process_vs_split_realtime_factor": ratio(get("closed_loop", "realtime_factor"),
+                                                     get("closed_loop_split", "realtime_factor")),
+    }
+
+
+def missing_figures(result: dict[str, Any]) -> list[str]:
+    """'section.key' of every required figure that is absent or not a finite number."""
+    out = []
+    for section, keys in REQUIRED.items():
+        for key in keys:
+            value = result.get("figures", {}).get(section, {}).get(key)
+            if not (isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)):
+                out.append(f"{section}.{key}")
+    for key in RATIOS:
+        value = result.get("ratios", {}).get(key)
+        if not (isinstance(value, (int, float)) and math.isfinite(value)):
+            out.append(f"ratios.{key}")
+    return out
+
+
+def run_suite(out_dir: str | Path, quick: bool = False, sections: list[str] | None = None,
+              log: Callable[[str], None] = print) -> dict[str, Any]:
+    """Run the suite (all sections or ``sections``), write ``out_dir/bench.json``, return its content."""
+    sizes = QUICK if quick else FULL
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    result: dict[str, Any] = {"suite": "cosim bench", "quick": quick, "started_at": time.strftime(
+        "%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "sizes": sizes.__dict__, "machine": machine(), "figures": {},
+        "section_wall_s": {}, "errors": {}}
+    t_start = time.perf_counter()
+    from threadpoolctl import threadpool_limits
+
+    # single-threaded BLAS: the problems are small, and on a shared 2-core machine BLAS
+    # threads spinning against other processes multiply wall times (seen: 36 s vs 1.1 s)
+    with tempfile.TemporaryDirectory(prefix="cosim-bench-") as tmp, threadpool_limits(1):
+        for name, fn in SECTIONS.items():
+            if sections and name not in sections:
+                continue
+            log(f"[bench] {name} ...")
+            t0 = time.perf_counter()
+            try:
+                result["figures"][name] = fn(sizes, Path(tmp) / name)
+            except Exception as exc:  # one broken section must not hide the others' figures
+                result["errors"][name] = f"{type(exc).__name__}: {exc}\n{traceback.format_exc(limit=4)}"
+                log(f"[bench] {name} FAILED: {type(exc).__name__}: {exc}")
+            result["section_wall_s"][name] = time.perf_counter() - t0
+    result["ratios"] = ratios(result["figures"])
+    result["wall_time_s"] = time.perf_counter() - t_start
+    result["machine"]["load_average_after"] = [round(x, 2) for x in os.getloadavg()]
+    result["missing"] = missing_figures(result) if not sections else []
+    (out_dir / "bench.json").write_text(json.dumps(result, indent=2, default=str) + "\n")
+    return result
+
+
+# ------------------------------------------------------------------------------------ table
+ROWS: tuple[tuple[str, str, str, str], ...] = (
+    ("closed_loop", "realtime_factor", "closed-loop real-time factor, in-process (wall)", "x"),
+    ("closed_loop", "cpu_realtime_factor", "closed-loop real-time factor, in-process (CPU time)", "x"),
+    ("closed_loop_split", "realtime_factor", "closed-loop real-time factor, split (cycles only)", "x"),
+    ("closed_loop_split", "startup_s", "split: drive process start-up", "s"),
+    ("closed_loop", "controller_compute_p50_us", "controller compute p50 (wall)", "us"),
+    ("closed_loop", "controller_compute_p99_us", "controller compute p99 (wall)", "us"),
+    ("paced", "overrun_fraction", "paced 400 us in-process: overrun fraction", ""),
+    ("paced", "lateness_p99_us", "paced 400 us in-process: lateness p99", "us"),
+    ("bus", "cycle_median_us", "POWERLINK cycle, 6 nodes (simbus)", "us"),
+    ("fmu", "plant_step_100us_us", "plant FMU doStep 100 us", "us"),
+    ("fmu", "plant_step_400us_us", "plant FMU doStep 400 us", "us"),
+    ("fmu", "drive_step_100us_us", "drive FMU doStep 100 us", "us"),
+    ("fmu", "drive_step_400us_us", "drive FMU doStep 400 us", "us"),
+    ("planners", "own_cp_solve_s", "own CP solve (paper line)", "s"),
+    ("planners", "toppra_solve_s", "TOPP-RA solve (paper line)", "s"),
+    ("planners", "own_ptp_solve_s", "own PtP solve", "s"),
+    ("planners", "ruckig_solve_s", "Ruckig solve", "s"),
+    ("planners", "ruckig_feasible_solve_s", "Ruckig torque-feasible solve", "s"),
+    ("planners", "own_cp_duration_s", "own CP trajectory duration", "s"),
+    ("planners", "toppra_duration_s", "TOPP-RA trajectory duration", "s"),
+    ("planners", "own_ptp_duration_s", "own PtP trajectory duration", "s"),
+    ("planners", "ruckig_feasible_duration_s", "Ruckig torque-feasible duration", "s"),
+    ("calibration", "selection_s", "calibration: select 32 configurations", "s"),
+    ("identification", "identification_s", "identification: regressor + WLS", "s"),
+)
+
+
+def _fmt(value: Any) -> str:
+    if isinstance(value, float):
+        return f"{value:.4g}"
+    return "-" if value is None else str(value)
+
+
+def format_table(result: dict[str, Any]) -> str:
+    """The figures and ratios as an aligned text table, machine first."""
+    m = result["machine"]
+    lines = [f"machine: {m['cpu_model']}, {m['cpus_usable']} usable of {m['logical_cpus']} CPUs, "
+             f"Python {m['python']}, numpy {m['numpy']}, load average {m['load_average']} -> "
+             f"{m.get('load_average_after')}",
+             f"{'figure':58s} {'median':>12s}  unit"]
+    for section, key, label, unit in ROWS:
+        lines.append(f"{label:58s} {_fmt(result['figures'].get(section, {}).get(key)):>12s}  {unit}")
+    lines.append("ratios (same run):")
+    for key, value in result["ratios"].items():
+        lines.append(f"  {key:56s} {_fmt(value):>12s}")
+    for name, error in result["errors"].items():
+        lines.append(f"ERROR in {name}: {error.splitlines()[0]}")
+    lines.append(f"suite wall time {result['wall_time_s']:.1f} s ({'quick' if result['quick'] else 'full'}); "
+                 f"repetitions {result['sizes']['repeats']}")
+    return "\n".join(lines)
+
+
+if __name__ == "__main__":
+    import argparse
+
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--out", type=Path, default=Path("results") / "bench")
+    parser.add_argument("--quick", action="store_true")
+    args = parser.parse_args()
+    print(format_table(run_suite(args.out, args.quick)))
