@@ -17,6 +17,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "cosim.commands.calibrate",
     "cosim.commands.sweep",
     "cosim.commands.identify",
+    "cosim.commands.bench",
 )
 
 
