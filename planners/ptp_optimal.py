@@ -409,7 +409,9 @@ class OptimalPtPPlanner(Planner):
     ``warm_start_check_dt``: check step of the Ruckig warm start [s];
     ``compile_code``: compile the node functions with gcc (else CasADi's virtual machine);
     ``coulomb_continuation``: factors of the Coulomb smoothing velocity v_s of preliminary
-    solves, each started from the previous solution (() to solve the real problem directly).
+    solves, each started from the previous solution (() to solve the real problem directly);
+    ``solve_time_limit_s``: wall-time limit of each IPOPT call (IPOPT ``max_wall_time``;
+    proving infeasibility can take IPOPT minutes).
     The number of intervals N is ``problem.n_intervals`` (default 100).
     """
 
@@ -420,7 +422,8 @@ class OptimalPtPPlanner(Planner):
                  ratio_tolerance: float = RATIO_TOLERANCE, max_tightenings: int = 3,
                  ipopt_options: dict | None = None, jerk_regularisation: float = DEFAULT_JERK_REGULARISATION,
                  warm_start_check_dt: float = 4e-3, compile_code: bool = True,
-                 coulomb_continuation: tuple[float, ...] = DEFAULT_COULOMB_CONTINUATION) -> None:
+                 coulomb_continuation: tuple[float, ...] = DEFAULT_COULOMB_CONTINUATION,
+                 solve_time_limit_s: float = 60.0) -> None:
         for arg, value in (("sample_dt", sample_dt), ("check_dt", check_dt),
                            ("warm_start_check_dt", warm_start_check_dt)):
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0.0):
@@ -441,6 +444,10 @@ class OptimalPtPPlanner(Planner):
         self.warm_start_check_dt = float(warm_start_check_dt)
         self.compile_code = bool(compile_code)
         self.coulomb_continuation = tuple(float(f) for f in coulomb_continuation)
+        if not (isinstance(solve_time_limit_s, (int, float)) and solve_time_limit_s > 0.0):
+            raise PlannerInputError(
+                f"OptimalPtPPlanner solve_time_limit_s: expected a positive time in s, got {solve_time_limit_s!r}")
+        self.solve_time_limit_s = float(solve_time_limit_s)
 
     # -- public -------------------------------------------------------------------
     def plan(self, problem: PtPProblem) -> PlanResult:
@@ -453,7 +460,6 @@ class OptimalPtPPlanner(Planner):
         limits = problem.limits
         dyn = ptp_dynamics(problem.dynamics, problem.friction)
         transcription, build_time = _transcription(dyn, n, self.compile_code)
-        solver = transcription.solver(self.ipopt_options)
         layout = transcription.layout
 
         t_start = time.perf_counter()
@@ -477,12 +483,13 @@ class OptimalPtPPlanner(Planner):
         def solve(p_values: np.ndarray, note: dict) -> tuple[str, dict]:
             nonlocal solve_time
             lbx, ubx, lbg, ubg = _bounds(transcription, problem, scales, factors)
+            limit = {"max_wall_time": self.solve_time_limit_s}
             if previous is None:
                 args = {"x0": z0}
-                chosen = solver
+                chosen = transcription.solver({**limit, **self.ipopt_options})
             else:
                 args = {"x0": previous["x"], "lam_x0": previous["lam_x"], "lam_g0": previous["lam_g"]}
-                chosen = transcription.solver({**self.ipopt_options, **IPOPT_WARM_RESTART})
+                chosen = transcription.solver({**limit, **self.ipopt_options, **IPOPT_WARM_RESTART})
             t0 = time.perf_counter()
             sol = chosen(p=p_values, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg, **args)
             solve_time += time.perf_counter() - t0

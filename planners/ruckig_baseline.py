@@ -41,8 +41,10 @@ from planners.base import JointLimits, N_JOINTS, Planner, PlannerInputError, Pla
 from planners.ptp_dynamics import PtPDynamics, boundary_torque_violation, boundary_violation, ptp_dynamics
 from planners.trajectory import DEFAULT_CHECK_DT, RATIO_KINDS, Trajectory, uniform_times
 
-MIN_SCALE = 2.0**-12
+MIN_SCALE = 2.0**-6
 """Smallest common limit scale factor tried by FeasibleRuckigPlanner before giving up."""
+COARSE_SAMPLES = 500
+"""Samples of the quick pre-check of a long candidate trajectory (violations only)."""
 MAX_SCALE_UP = 8.0
 """Largest common scale of the stand-in acceleration/jerk limits when the problem sets none."""
 
@@ -64,10 +66,11 @@ class RuckigMotion:
 
 
 def ruckig_motion(problem: PtPProblem, velocity: np.ndarray, acceleration: np.ndarray, jerk: np.ndarray,
-                  sample_dt: float = DEFAULT_CHECK_DT) -> RuckigMotion:
+                  sample_dt: float = DEFAULT_CHECK_DT, max_samples: int | None = None) -> RuckigMotion:
     """Ruckig's time-optimal trajectory for ``problem``'s boundary states under the given
     kinematic limits (rad/s, rad/s^2, rad/s^3; (6,), jerk may be inf), sampled every
-    ``sample_dt`` s from 0 to the duration (the last sample exactly at the end)."""
+    ``sample_dt`` s from 0 to the duration (the last sample exactly at the end), or at
+    ``max_samples`` evenly spaced times if that is fewer."""
     inp = InputParameter(N_JOINTS)
     inp.current_position = problem.q0.tolist()
     inp.current_velocity = problem.qd0.tolist()
@@ -84,6 +87,8 @@ def ruckig_motion(problem: PtPProblem, velocity: np.ndarray, acceleration: np.nd
         return RuckigMotion(result, math.nan)
     duration = float(trajectory.duration)
     times = uniform_times(0.0, duration, sample_dt)
+    if max_samples is not None and times.size > max_samples:
+        times = np.linspace(0.0, duration, int(max_samples))
     states = np.array([np.concatenate(trajectory.at_time(float(t))[:3]) for t in times])
     q, qd, qdd = (states[:, k * N_JOINTS:(k + 1) * N_JOINTS] for k in range(3))
     return RuckigMotion(result, duration, times, q, qd, qdd)
@@ -149,9 +154,15 @@ def torque_tuned_motion(problem: PtPProblem, dyn: PtPDynamics, check_dt: float =
         nonlocal count
         count += 1
         v = velocity * min(scale, 1.0) if with_velocity else velocity
-        motion = ruckig_motion(problem, v, acceleration * scale, jerk * scale, check_dt)
+        # a coarse look first: a violation at any sample (or of a mean rate) is a real one
+        motion = ruckig_motion(problem, v, acceleration * scale, jerk * scale, check_dt, COARSE_SAMPLES)
         if not motion.ok:
             return False, motion, {}
+        ratios = dyn.ratios(motion.t, motion.q, motion.qd, motion.qdd, limits)
+        if _max_ratio(ratios, ("torque", "torque_rate")) > 1.0:
+            return False, motion, ratios
+        if motion.t.size == COARSE_SAMPLES:
+            motion = ruckig_motion(problem, v, acceleration * scale, jerk * scale, check_dt)
         ratios = dyn.ratios(motion.t, motion.q, motion.qd, motion.qdd, limits)
         return _max_ratio(ratios, ("torque", "torque_rate")) <= 1.0, motion, ratios
 
