@@ -104,11 +104,11 @@ def plot_report(rows: Sequence[dict[str, Any]], report: Report, path: str | Path
                        color=color)
             ax.plot(xs, [float(np.mean(by_x[x])) for x in xs], "-o", color=color, lw=1.5, ms=4,
                     label=(label + " (mean)") if label else "mean")
+    ax.set_xscale(report.x_scale if numeric_x else "linear")    # (resets the ticks: set them after)
     if not numeric_x:
         ax.set_xticks(range(len(categories)), categories)
-    ax.set_xscale(report.x_scale if numeric_x else "linear")
     ax.set_yscale(report.y_scale)
-    ax.set_xlabel(report.parameter + (" (SI units)" if numeric_x else ""))
+    ax.set_xlabel(report.parameter + (" (SI units)" if all(_is_number(x) for x, _, _ in points) else ""))
     ax.set_ylabel(metric_name)
     title = report.title or f"sweep {sweep_name}: {metric_name} vs {report.parameter}"
     if left_out:
