@@ -68,15 +68,16 @@ class Sizes:
     cp_intervals: int
     ptp_intervals: int
     calibration_candidates: int | None
+    calibration_grid: int | None
     calibration_restarts: int
     identification_samples: int
 
 
 FULL = Sizes(repeats=3, closed_loop_sim_s=2.0, split_sim_s=0.4, paced_sim_s=10.0, bus_cycles=5000, fmu_batches=60,
-             cp_intervals=200, ptp_intervals=100, calibration_candidates=None, calibration_restarts=5,
+             cp_intervals=200, ptp_intervals=100, calibration_candidates=None, calibration_grid=None, calibration_restarts=5,
              identification_samples=5000)
 QUICK = Sizes(repeats=1, closed_loop_sim_s=0.1, split_sim_s=0.04, paced_sim_s=0.1, bus_cycles=300, fmu_batches=3,
-              cp_intervals=30, ptp_intervals=20, calibration_candidates=300, calibration_restarts=1,
+              cp_intervals=30, ptp_intervals=20, calibration_candidates=300, calibration_grid=7, calibration_restarts=1,
               identification_samples=300)
 
 
@@ -227,7 +228,8 @@ def planners(sizes: Sizes, work: Path) -> dict[str, Any]:
         out[f"{key}_status"] = result.status.name.lower()
     q0, qe = paper_line_configurations()
     ptp = PtPProblem(q0, qe, JointLimits.from_robot(), dynamics=dyn, n_intervals=sizes.ptp_intervals)
-    for key, planner in (("own_ptp", OptimalPtPPlanner()), ("ruckig", RuckigPlanner()),
+    own_ptp = OptimalPtPPlanner(compile_code=sizes.ptp_intervals >= 50)  # tiny problems: no gcc compile
+    for key, planner in (("own_ptp", own_ptp), ("ruckig", RuckigPlanner()),
                          ("ruckig_feasible", FeasibleRuckigPlanner())):
         result, solve, build = bench_planners_cp._median_runs(planner, ptp, sizes.repeats)
         out[f"{key}_solve_s"] = solve
@@ -242,7 +244,8 @@ def calibration(sizes: Sizes, work: Path) -> dict[str, Any]:
 
     from identification.calibration_tracker import TrackerSetup
 
-    _, theta = bench_calibration.selection_problem(TrackerSetup(), sizes.calibration_candidates)
+    _, theta = bench_calibration.selection_problem(TrackerSetup(), sizes.calibration_candidates,
+                                                   values_per_axis=sizes.calibration_grid)
     wall, cpu, _ = bench_calibration.time_selection(theta, "min_eigenvalue", sizes.repeats,
                                                    restarts=sizes.calibration_restarts)
     return {"candidates": int(theta.shape[0]), "selected": 32, "restarts": sizes.calibration_restarts,
