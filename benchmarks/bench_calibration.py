@@ -33,9 +33,12 @@ TARGET_TIME_S = 10.0
 TARGET_RATIO = 18.5
 
 
-def selection_problem(setup: TrackerSetup, max_candidates: int | None, orientation: bool = True):
-    """Noise-weighted, column-normalised identifiable Jacobians of the visible candidates."""
-    cands = visible_candidates(setup, max_candidates=max_candidates)
+def selection_problem(setup: TrackerSetup, max_candidates: int | None, orientation: bool = True,
+                      values_per_axis: int | None = None):
+    """Noise-weighted, column-normalised identifiable Jacobians of the visible candidates
+    (``values_per_axis``: grid values per joint, default the campaign's)."""
+    grid = {} if values_per_axis is None else {"values_per_axis": values_per_axis}
+    cands = visible_candidates(setup, max_candidates=max_candidates, **grid)
     model = default_error_model()
     rows = 6 if orientation else 3
     jac = model.identification_jacobian(cands.q)[:, :rows] / TrackerNoise().row_sigmas(orientation)[None, :, None]
