@@ -241,8 +241,9 @@ def test_second_run_skips_finished_variants(tmp_path, client):
     summary_path.write_text(json.dumps({**summary, "status": "running"}))
     (tmp_path / "sweep.toml").write_text(sweep_text.replace("[1.0, 1.2, 1.4]", "[1.0, 1.1, 1.2, 1.4]"),
                                          encoding="utf-8")
-    third = run_sweep(load_sweep(tmp_path / "sweep.toml"), out, client=client, progress=False)
-    assert (third.ran, third.reused, third.ok) == (2, 2, 4)
+    # (this time through the scheduler address, as with --scheduler: the same cluster, a new client)
+    third = run_sweep(load_sweep(tmp_path / "sweep.toml"), out, scheduler=client.scheduler.address, progress=False)
+    assert (third.ran, third.reused, third.ok, third.workers) == (2, 2, 4, 2)
     rows = read_table(third.table)
     assert [float(r['fmus[0].parameters."q0[3]"']) for r in rows] == [1.0, 1.1, 1.2, 1.4]
     moved = next(r for r in third.rows if r["variant"] == "v0002")
