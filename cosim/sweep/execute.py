@@ -61,6 +61,8 @@ class SweepResult:
         ok, failed: rows by status.
         workers: Dask workers when the sweep started (0 when nothing had to run).
         wall_time_s: wall time of run_sweep, s.
+        scheduler: address of the scheduler used ("" when nothing had to run).
+        notes: remarks for the user (e.g. variants the figure left out).
     """
 
     out_dir: Path
@@ -76,10 +78,12 @@ class SweepResult:
 
     @property
     def ok(self) -> int:
+        """Rows with status ok."""
         return sum(r["status"] == "ok" for r in self.rows)
 
     @property
     def failed(self) -> int:
+        """Rows with status failed."""
         return sum(r["status"] != "ok" for r in self.rows)
 
 
