@@ -47,6 +47,7 @@ import scipy.signal
 from numpy.typing import ArrayLike
 
 from identification.dynamic_base_parameters import BaseParameters, nominal_base_parameters
+from identification.dynamic_consistent import ConsistentEstimate, consistent_estimate
 from identification.dynamic_data import MotionRecord, write_prediction_csv
 from identification.dynamic_errors import IdentificationDataError, IdentificationError
 from identification.dynamic_estimation import (MAX_CONDITION_NUMBER, BaseEstimate, ordinary_least_squares,
@@ -54,7 +55,7 @@ from identification.dynamic_estimation import (MAX_CONDITION_NUMBER, BaseEstimat
 from identification.dynamic_signals import (DEFAULT_CUTOFF_HZ, FILTER_ORDER, average_periods, minimum_samples,
                                             periodic_derivatives, periodic_lowpass, zero_phase_derivatives,
                                             zero_phase_lowpass)
-from robot.dynamics import PARAMETER_NAMES, RobotDynamics, nominal_parameter_vector
+from robot.dynamics import PARAMETER_NAMES, RobotDynamics, is_physically_consistent, nominal_parameter_vector
 
 DEFAULT_MAX_SAMPLES = 5000
 """Time samples of the least-squares problem at most (after parallel filtering, by decimation;
@@ -135,7 +136,9 @@ class DynamicIdentification:
     ``estimate``: the chosen estimate (``wls`` default), ``ordinary``: the OLS estimate;
     ``full_parameters``: a 78-vector with exactly these base values, closest to the
     nominal parameters (:meth:`BaseParameters.full_parameters`), payload included in
-    link 6; ``data``: samples, duration and processing of the identification record.
+    link 6; ``data``: samples, duration and processing of the identification record;
+    ``consistent``: the physically consistent fit (:mod:`identification.dynamic_consistent`)
+    when requested.
     """
 
     base: BaseParameters
@@ -143,14 +146,27 @@ class DynamicIdentification:
     ordinary: BaseEstimate
     full_parameters: np.ndarray
     data: dict[str, Any]
+    consistent: ConsistentEstimate | None = None
 
     @property
     def values(self) -> np.ndarray:
         return self.estimate.values
 
-    def dynamics(self) -> RobotDynamics:
-        """A RobotDynamics of the identified model (payload zero: it is in the parameters)."""
+    def dynamics(self, consistent: bool = False) -> RobotDynamics:
+        """A RobotDynamics of the identified model (payload zero: it is in the parameters);
+        ``consistent=True``: the physically consistent fit's parameters."""
+        if consistent:
+            if self.consistent is None:
+                raise IdentificationError("no physically consistent estimate was computed (consistent=True)")
+            return RobotDynamics(self.consistent.parameters, np.zeros(4))
         return RobotDynamics(self.full_parameters, np.zeros(4))
+
+    def consistent_model(self) -> "DynamicIdentification":
+        """This identification with the physically consistent fit's base values and parameters."""
+        if self.consistent is None:
+            raise IdentificationError("no physically consistent estimate was computed (consistent=True)")
+        estimate = dataclasses.replace(self.estimate, values=self.consistent.base_values)
+        return dataclasses.replace(self, estimate=estimate, full_parameters=self.consistent.parameters)
 
     def predict(self, q: ArrayLike, qd: ArrayLike, qdd: ArrayLike) -> np.ndarray:
         """Model torques (n, 6) in N m along joint states (n, 6) (evaluated in chunks)."""
@@ -174,6 +190,16 @@ class DynamicIdentification:
                             "relative_std_percent": float(rel[k]) if math.isfinite(rel[k]) else None,
                             "ols_value": float(self.ordinary.values[k])})
         structure = self.base.to_dict()
+        consistent = None
+        if self.consistent is not None:
+            c = self.consistent
+            consistent = {
+                "method": "nonlinear least squares on log-Cholesky pseudo-inertias (identification.dynamic_consistent)",
+                "misfit_in_noise_units": c.misfit, "physically_consistent": c.consistent, "evaluations": c.nfev,
+                "base_values": dict(zip(self.base.base_names, c.base_values.tolist())),
+                "standard_parameters": dict(zip(PARAMETER_NAMES, c.parameters.tolist())),
+            }
+        links_ok = [bool(is_physically_consistent(self.full_parameters[10 * i:10 * i + 10])) for i in range(6)]
         return {
             "method": self.estimate.method,
             "count": self.base.count,
@@ -185,25 +211,30 @@ class DynamicIdentification:
             "data": self.data,
             "structure": {k: structure[k] for k in ("rank_tolerance", "pivot_gap", "kappa_residual", "states",
                                                     "no_effect", "merged")},
-            "standard_parameters_consistent": {
+            "standard_parameters_matching_base_values": {
                 "note": "one 78-vector with exactly these base values (closest to the nominal parameters; payload "
                         "folded into link 6); only the base values are determined by the data",
+                "links_physically_consistent": links_ok,
                 "values": dict(zip(PARAMETER_NAMES, self.full_parameters.tolist())),
             },
+            "physically_consistent_estimate": consistent,
         }
 
 
 def identify_regressor(w: ArrayLike, tau: ArrayLike, *, base: BaseParameters | None = None, method: str = "wls",
                        max_condition: float = MAX_CONDITION_NUMBER, reference: ArrayLike | None = None,
-                       data: dict[str, Any] | None = None,
-                       independent_samples: float | None = None) -> DynamicIdentification:
+                       data: dict[str, Any] | None = None, independent_samples: float | None = None,
+                       consistent: bool = False) -> DynamicIdentification:
     """Estimate the base parameters from a (filtered) base regressor (n, 6, n_base) and torques (n, 6).
 
     ``reference`` (78,) is the vector the consistent full parameters stay closest to
     (default: nominal). ``independent_samples``: how many of the n samples carry
     independent noise (low-pass filtered data: about 2 x cut-off x duration); the
     standard deviations are scaled by sqrt(n / independent_samples) (least squares
-    assumes independent rows). Raises InsufficientExcitationError / IdentificationDataError.
+    assumes independent rows). ``consistent``: also fit a physically consistent 78-vector
+    (:func:`identification.dynamic_consistent.consistent_estimate`, started from the
+    least-squares solution, weighted like the WLS). Raises InsufficientExcitationError /
+    IdentificationDataError.
     """
     if method not in METHODS:
         raise IdentificationError(f"method = {method!r}, expected one of {METHODS}")
@@ -221,7 +252,10 @@ def identify_regressor(w: ArrayLike, tau: ArrayLike, *, base: BaseParameters | N
     ref = nominal_parameter_vector() if reference is None else np.asarray(reference, dtype=float)
     full = base.full_parameters(estimate.values, ref)
     full.setflags(write=False)
-    return DynamicIdentification(base, estimate, ordinary, full, info)
+    fit = None
+    if consistent:
+        fit = consistent_estimate(base, w, tau, ref, weights=1.0 / np.maximum(estimate.joint_sigma, 1e-300))
+    return DynamicIdentification(base, estimate, ordinary, full, info, fit)
 
 
 def identify_states(q: ArrayLike, qd: ArrayLike, qdd: ArrayLike, tau: ArrayLike, *,
@@ -236,7 +270,7 @@ def identify_states(q: ArrayLike, qd: ArrayLike, qdd: ArrayLike, tau: ArrayLike,
 
 def identify(record: MotionRecord, *, base: BaseParameters | None = None, method: str = "wls",
              cutoff_hz: float = DEFAULT_CUTOFF_HZ, max_condition: float = MAX_CONDITION_NUMBER,
-             max_samples: int | None = DEFAULT_MAX_SAMPLES) -> DynamicIdentification:
+             max_samples: int | None = DEFAULT_MAX_SAMPLES, consistent: bool = False) -> DynamicIdentification:
     """Identify the base parameters from a record (prepare, parallel filtering, least squares)."""
     base = base or nominal_base_parameters()
     prepared = prepare_motion(record, cutoff_hz)
@@ -254,7 +288,8 @@ def identify(record: MotionRecord, *, base: BaseParameters | None = None, method
             **prepared.how, "decimation": stride}
     filtered = prepared.how["derivatives"] != "given in the record"
     return identify_regressor(w[::stride], tau[::stride], base=base, method=method, max_condition=max_condition,
-                              data=data, independent_samples=2.0 * cutoff_hz * record.duration if filtered else None)
+                              data=data, independent_samples=2.0 * cutoff_hz * record.duration if filtered else None,
+                              consistent=consistent)
 
 
 def prepare_periodic(q: ArrayLike, tau: ArrayLike, sample_time: float, samples_per_period: int, *,
@@ -289,8 +324,8 @@ def prepare_periodic(q: ArrayLike, tau: ArrayLike, sample_time: float, samples_p
 def identify_periodic(q: ArrayLike, tau: ArrayLike, sample_time: float, samples_per_period: int, *,
                       skip_periods: int = 1, periods: int | None = None, cutoff_hz: float = DEFAULT_CUTOFF_HZ,
                       base: BaseParameters | None = None, method: str = "wls",
-                      max_condition: float = MAX_CONDITION_NUMBER,
-                      max_samples: int | None = DEFAULT_MAX_SAMPLES) -> DynamicIdentification:
+                      max_condition: float = MAX_CONDITION_NUMBER, max_samples: int | None = DEFAULT_MAX_SAMPLES,
+                      consistent: bool = False) -> DynamicIdentification:
     """Identify from a record of a repeated periodic trajectory (:func:`prepare_periodic`,
     then the same harmonics dropped from tau and the regressor, then least squares)."""
     base = base or nominal_base_parameters()
@@ -306,7 +341,7 @@ def identify_periodic(q: ArrayLike, tau: ArrayLike, sample_time: float, samples_
     # band-limited to cutoff_hz over one period T: about 2 cutoff T independent values per joint
     return identify_regressor(w[::stride], tau_f[::stride], base=base, method=method, max_condition=max_condition,
                               data=dict(prepared.how, decimation=stride),
-                              independent_samples=2.0 * cutoff_hz * n * sample_time)
+                              independent_samples=2.0 * cutoff_hz * n * sample_time, consistent=consistent)
 
 
 @dataclass(frozen=True)

@@ -74,8 +74,8 @@ def _write_record(path, t, q, qd, qdd, noise_seed: int, derivatives: bool = Fals
 def records(tmp_path_factory):
     folder = tmp_path_factory.mktemp("identify")
     data, val = folder / "data.csv", folder / "val.csv"
-    _write_record(data, *_sines(11, 16.0), noise_seed=1)
-    truth = _write_record(val, *_sines(22, 8.0), noise_seed=2)
+    _write_record(data, *_sines(11, 12.0), noise_seed=1)
+    truth = _write_record(val, *_sines(22, 5.0), noise_seed=2)
     return data, val, truth
 
 
@@ -102,7 +102,7 @@ def test_identify_from_foreign_csv_predicts_another_trajectory(records, tmp_path
 
 def test_identify_with_given_derivatives(tmp_path):
     data = tmp_path / "with_qd.csv"
-    _write_record(data, *_sines(33, 12.0), noise_seed=3, derivatives=True)
+    _write_record(data, *_sines(33, 8.0), noise_seed=3, derivatives=True)
     out = tmp_path / "out"
     assert main(["identify", str(data), "--out", str(out), "--method", "ols"]) == 0
     params = json.loads((out / "parameters.json").read_text())
@@ -126,7 +126,7 @@ def _rows(n: int):
 
 def test_not_exciting_data_is_refused_naming_the_parameters(tmp_path, capsys):
     data = tmp_path / "joint1_only.csv"
-    _write_record(data, *_sines(44, 10.0, joints=(0,)), noise_seed=4)
+    _write_record(data, *_sines(44, 4.0, joints=(0,)), noise_seed=4)
     assert main(["identify", str(data), "--out", str(tmp_path / "out")]) == 2
     err = capsys.readouterr().err
     assert "rank deficient" in err and "poorly excited base parameters" in err and "fv2" in err

@@ -29,6 +29,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="weighted (per-joint noise, default) or ordinary least squares")
     parser.add_argument("--cutoff-hz", type=float, default=DEFAULT_CUTOFF_HZ,
                         help=f"zero-phase low-pass cut-off for differentiating q, Hz (default {DEFAULT_CUTOFF_HZ:g})")
+    parser.add_argument("--consistent", action="store_true",
+                        help="also fit a physically consistent parameter vector (positive-definite pseudo-inertias) "
+                             "and report its validation error")
     parser.add_argument("--max-condition", type=float, default=MAX_CONDITION_NUMBER,
                         help="largest accepted condition number of the column-normalised base regressor "
                              f"(default {MAX_CONDITION_NUMBER:g})")
@@ -43,12 +46,17 @@ def run(args: argparse.Namespace) -> int:
     try:
         record = read_motion_csv(args.data)
         validation_record = read_motion_csv(args.validate) if args.validate is not None else None
-        result = identify(record, method=args.method, cutoff_hz=args.cutoff_hz, max_condition=args.max_condition)
+        result = identify(record, method=args.method, cutoff_hz=args.cutoff_hz, max_condition=args.max_condition,
+                          consistent=args.consistent)
         validation = validate(result, validation_record, args.cutoff_hz) if validation_record is not None else None
+        extra = {}
+        if validation is not None and args.consistent:
+            check = validate(result.consistent_model(), validation_record, args.cutoff_hz)
+            extra["relative_rms_error_consistent_model"] = check.relative_rms_error.tolist()
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return EXIT_INVALID
-    paths = write_identification_outputs(out_dir, result, validation)
+    paths = write_identification_outputs(out_dir, result, validation, extra)
     text = (f"identified {result.base.count} base parameters ({result.estimate.method}) from {record.samples} "
             f"samples ({record.duration:.3g} s); condition number {result.estimate.condition_number:.3g}; ")
     if validation is not None:
