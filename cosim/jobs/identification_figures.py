@@ -38,7 +38,7 @@ def figure_excitation_path(path: Path, excitation: Any, samples: int = 2000) -> 
     ax.set_xlabel("x in m")
     ax.set_ylabel("y in m")
     ax.set_zlabel("z in m")
-    ax.set_title(f"flange path, one period ({traj.period:.2f} s); max speed {speed.max():.2f} m/s")
+    ax.set_title(f"flange path, one period ({traj.period:.2f} s)\nmax flange speed {speed.max():.2f} m/s", fontsize=10)
     fig.colorbar(points, ax=ax, shrink=0.6, label="flange speed in m/s")
     ax2 = fig.add_subplot(1, 2, 2)
     ax2.semilogy(np.arange(len(excitation.history)), excitation.history, label="SLSQP iterate")
@@ -46,7 +46,8 @@ def figure_excitation_path(path: Path, excitation: Any, samples: int = 2000) -> 
         ax2.axhline(c, color="0.8", lw=0.6, label="random feasible series" if k == 0 else None)
     ax2.set_xlabel("iteration")
     ax2.set_ylabel("condition number of the normalised base regressor")
-    ax2.set_title(f"optimised {excitation.condition_number:.3g} vs random median {excitation.random_median:.3g}")
+    ax2.set_title(f"optimised {excitation.condition_number:.3g} vs random median {excitation.random_median:.3g}",
+                  fontsize=10)
     ax2.legend()
     fig.tight_layout()
     fig.savefig(path, dpi=110)
