@@ -63,13 +63,15 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
-from planners.base import N_JOINTS, Planner, PlannerInputError, PlanResult, PlanStatus, PtPProblem
+from planners.base import JointLimits, N_JOINTS, Planner, PlannerInputError, PlanResult, PlanStatus, PtPProblem
 from planners.ptp_dynamics import PtPDynamics, ptp_dynamics
 from planners.ptp_nodes import N_NODE_INPUTS, NodeFunctions, node_functions
 from planners.ruckig_baseline import (
     RuckigMotion, _check_request, kinematic_limits, ruckig_motion, torque_tuned_motion,
 )
 from planners.trajectory import DEFAULT_CHECK_DT, RATIO_KINDS, Trajectory, uniform_times
+from robot.inverse_kinematics import AnalyticIK, UnreachablePoseError
+from robot.kinematics import transform_from_pose
 from robot.symbolic import chain_structure
 
 RATIO_TOLERANCE = 1.001
@@ -568,6 +570,61 @@ class OptimalPtPPlanner(Planner):
                     "k1": problem.k1, "k2": problem.k2, "friction": problem.friction,
                     "n_intervals": int(problem.n_intervals)}
         return Trajectory(times, q, qd, qdd, tau, metadata=metadata)
+
+
+# -----------------------------------------------------------------------------------
+# problems: the paper's PtP and PtP between Cartesian end points
+# -----------------------------------------------------------------------------------
+
+
+def eq40_limits(limits: JointLimits | None = None) -> JointLimits:
+    """The limits of the paper's eq. 40: torque, torque rate, velocity and position of
+    ``limits`` (default the robot's), acceleration and jerk switched off (inf)."""
+    return (limits or JointLimits.from_robot()).replace(acceleration=math.inf, jerk=math.inf)
+
+
+def paper_ptp_problem(limits: JointLimits | None = None, dynamics: Any = None, k1: float = 1.0, k2: float = 0.0,
+                      friction: str = "full", n_intervals: int = 100, paper_limits: bool = True) -> PtPProblem:
+    """PtP at rest between the end points of the paper line (``planners.paper_line``, the
+    same IK branch as the CP path), paper sec. 5.5. ``paper_limits``: use
+    :func:`eq40_limits` of ``limits`` (the paper's PtP limits); False keeps every limit."""
+    from planners.paper_line import paper_line_configurations
+
+    q0, qe = paper_line_configurations()
+    lim = limits or JointLimits.from_robot()
+    if paper_limits:
+        lim = eq40_limits(lim)
+    return PtPProblem(q0, qe, lim, dynamics=dynamics, k1=k1, k2=k2, friction=friction, n_intervals=n_intervals)
+
+
+class PtPUnreachableError(PlannerInputError, UnreachablePoseError):
+    """A PtP end pose is out of the arm's reach (or has no IK solution within the joint limits)."""
+
+
+def ptp_problem_from_poses(start_pose: Any, end_pose: Any, limits: JointLimits, q_hint: Any,
+                           **problem_fields: Any) -> PtPProblem:
+    """A PtPProblem between two flange poses (the paper's z_E,0 and z_E,end).
+
+    Poses: Cardan poses (x, y, z [m], alpha, beta, gamma [rad]) or 4x4 transforms of
+    ``tool0`` in ``base_link``. ``q_hint`` (6,) [rad] picks the IK branch of the start;
+    the end takes the branch nearest to the start. Nominal arm (analytic IK). Further
+    PtPProblem fields (qd0, qde, dynamics, k1, k2, friction, n_intervals) pass through.
+    Raises PtPUnreachableError naming the pose when a pose is out of reach.
+    """
+    ik = AnalyticIK()
+    configurations = []
+    seed = np.asarray(q_hint, dtype=float)
+    for name, pose in (("start_pose", start_pose), ("end_pose", end_pose)):
+        arr = np.asarray(pose, dtype=float)
+        target = transform_from_pose(arr) if arr.shape == (6,) else arr
+        if target.shape != (4, 4):
+            raise PlannerInputError(f"{name}: expected a Cardan pose (6,) or a 4x4 transform, got shape {arr.shape}")
+        try:
+            seed = ik.nearest(target, seed)
+        except UnreachablePoseError as exc:
+            raise PtPUnreachableError(f"{name} {np.round(arr, 4).tolist()}: {exc}") from exc
+        configurations.append(seed)
+    return PtPProblem(configurations[0], configurations[1], limits, **problem_fields)
 
 
 # -----------------------------------------------------------------------------------
