@@ -18,13 +18,14 @@ def _run(*args):
 
 
 def test_paced_run_writes_realtime_statistics_and_histogram(tmp_path):
-    scenario = write_scenario(tmp_path, "40 ms", extra='[realtime]\noverrun_policy = "skip"\nscheduling = "normal"\n')
+    scenario = write_scenario(tmp_path, "40 ms", extra='[realtime]\noverrun_policy = "skip"\nscheduling = "normal"\n'
+                                                          'cpu = "none"\n')
     out = tmp_path / "out"
     done = _run(scenario, "--realtime", "--quiet", "--out", out)
     assert done.returncode == 0, done.stderr
     summary = json.loads((out / "summary.json").read_text())
     rt = summary["realtime"]
-    assert rt["cycles"] == 101 and rt["policy"] == "skip" and rt["scheduling"] == "normal"
+    assert rt["cycles"] == 101 and rt["policy"] == "skip" and rt["scheduling"] == "normal, not pinned"
     assert 0 <= rt["overruns"] <= rt["cycles"] and rt["overrun_fraction"] == rt["overruns"] / rt["cycles"]
     lat = rt["lateness"]
     assert 0.0 <= lat["p50_us"] <= lat["p99_us"] <= lat["max_us"]
@@ -34,14 +35,15 @@ def test_paced_run_writes_realtime_statistics_and_histogram(tmp_path):
     assert (out / "jitter_model_based.png").exists()
     assert summary["execution"]["realtime"] is True and summary["execution"]["mode"] == "in_process"
     assert summary["status"] == "ok" and summary["modes"]["model_based"]["status"] == "ok"
-    assert (out / "timeseries_model_based.csv").read_text().count("\n") == 101
+    assert (out / "timeseries_model_based.csv").read_text().count("\n") == 1 + 101   # header + 400 us rows
 
 
 def test_bad_realtime_settings_name_the_key(tmp_path):
     for extra, key in (('[realtime]\noverrun_policy = "drop"\n', "realtime.overrun_policy"),
                        ('[realtime]\ntolerance = "soon"\n', "realtime.tolerance"),
                        ('[realtime]\nspin = "1 s"\n', "realtime.spin"),
-                       ('[execution]\nmode = "threads"\n', "execution.mode")):
+                       ('[execution]\nmode = "threads"\n', "execution.mode"),
+                       ('[realtime]\ncpu = -1\n', "realtime.cpu")):
         with pytest.raises(ScenarioError, match=key.replace(".", r"\.")):
             load_scenario(write_scenario(tmp_path, "40 ms", extra=extra))
 

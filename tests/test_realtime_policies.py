@@ -42,7 +42,8 @@ def _run(tmp_path, policy: str, delays: dict[int, int], stop_time: str = "100 ms
     pacer = Pacer(PERIOD, 0.0, tolerance, clock_ns=clock.now_ns, sleep=clock.sleep)
     cell, pacer, _ = run_paced_cell(doc, controller, true_robot, ctx, label=policy, stop_time=doc["simulation"]["stop_time"],
                                     fieldbus=fb, tracker=tracker, record_file="ts.csv", can_log=None,
-                                    settings=RealtimeSettings(overrun_policy=policy, scheduling="normal"), pacer=pacer)
+                                    settings=RealtimeSettings(overrun_policy=policy, scheduling="normal", cpu=None),
+                                    pacer=pacer)
     rec = cell.recording
     t = rec.column("time")
     np.testing.assert_allclose(t, np.arange(t.size) * PERIOD, atol=1e-12)  # row k = cycle k
@@ -145,7 +146,7 @@ def test_real_wall_clock_slowed_controller_overruns_after_each_slow_cycle(tmp_pa
     wall0 = time.perf_counter()
     cell, pacer, _ = run_paced_cell(doc, controller, true_robot, ctx, label="real", stop_time=0.06, fieldbus=fb,
                                     tracker=tracker, record_file="ts.csv", can_log=None,
-                                    settings=RealtimeSettings(scheduling="normal"))
+                                    settings=RealtimeSettings(scheduling="normal", cpu=None))
     wall = time.perf_counter() - wall0
     log = pacer.log
     lat = log.lateness_us

@@ -60,7 +60,7 @@ def test_paced_split_lost_frames_trip_the_drive_side_counters(tmp_path):
 
     pacer = Pacer(PERIOD, 0.0, auto_tolerance_s(check_cycle_budget(fb)), clock_ns=clock.now_ns, sleep=clock.sleep)
     options = ExecutionOptions(mode="split", realtime=True, receive_timeout_s=2.0,
-                               settings=RealtimeSettings(overrun_policy="lost_frame", scheduling="normal"))
+                               settings=RealtimeSettings(overrun_policy="lost_frame", scheduling="normal", cpu=None))
     cell, pacer, _, info = run_split_cell(doc, controller, true_robot, ctx, label="lost", stop_time=0.08, fieldbus=fb,
                                           tracker=tracker, record_file="ts.csv", can_log=None, options=options,
                                           pacer=pacer)

@@ -10,7 +10,7 @@ must not do:
 * time series are kept in memory during the loop and written as CSV afterwards; the
   CAN log is buffered in memory (python-can writes it when the run ends); no
   summary.json heartbeat;
-* the loop runs with cyclic GC off and, when granted, under SCHED_FIFO.
+* the loop runs with cyclic GC off, pinned to one CPU and, when granted, under SCHED_FIFO.
 """
 from __future__ import annotations
 
@@ -99,7 +99,8 @@ def run_paced_cell(doc: dict[str, Any], controller, true_robot, ctx: RunContext,
                 master.initialize(stop_time)
                 engine = master.engine.name
                 ctx.label = label
-                with realtime_scheduling(settings.scheduling, settings.fifo_priority) as granted, no_cyclic_gc():
+                with realtime_scheduling(settings.scheduling, settings.fifo_priority,
+                                                             settings.cpu) as granted, no_cyclic_gc():
                     ctx.execute(master, stop_time)
             except SimulationError as exc:
                 failure = exc

@@ -12,6 +12,7 @@ overrun_policy = "hold"      # what the drives get in a cycle whose telegrams mi
 spin = "100 us"              # busy-wait this long before each wall deadline (sleep before it)
 scheduling = "fifo"          # "fifo": ask for SCHED_FIFO (falls back to the normal scheduler) | "normal"
 fifo_priority = 10           # SCHED_FIFO priority (1..99)
+cpu = "auto"                 # pin the paced loop to one CPU: "auto" (highest-numbered usable), "none", or an index
 tolerance = "auto"           # lateness above which a cycle is an overrun; "auto" = the time from the
                              # SoC to the first PReq on the wire (fieldbus schedule), or a time
 histogram_bins = 60
@@ -56,6 +57,20 @@ def _tables() -> tuple[Any, Any]:
             except ValueError:
                 raise where.error(self.expected, value) from None
 
+    class Cpu(String):
+        """'auto', 'none' or a CPU index."""
+
+        @property
+        def expected(self) -> str:  # type: ignore[override]
+            return "'auto' (the highest-numbered usable CPU), 'none' (not pinned) or a CPU index >= 0"
+
+        def check(self, value: Any, where: Where) -> Any:
+            if value in ("auto", "none"):
+                return value
+            if isinstance(value, int) and not isinstance(value, bool) and value >= 0:
+                return value
+            raise where.error(self.expected, value)
+
     execution = Table({
         "mode": Field(String(choices=EXECUTION_MODES), default="in_process",
                       doc="'in_process' (one process) or 'split' (controller | drives + plant, python-can between)"),
@@ -70,6 +85,7 @@ def _tables() -> tuple[Any, Any]:
                       doc="busy-wait before each wall deadline: a time in s in [0, 0.1]"),
         "scheduling": Field(String(choices=SCHEDULING), default="fifo"),
         "fifo_priority": Field(Integer(min=1, max=99), default=10),
+        "cpu": Field(Cpu(), default="auto"),
         "tolerance": Field(Tolerance(), default="auto"),
         "histogram_bins": Field(Integer(min=5, max=1000), default=60),
     }, doc="the [realtime] table")
@@ -92,6 +108,7 @@ class RealtimeSettings:
     overrun_policy: 'hold' | 'skip' | 'lost_frame'.
     spin_s: busy-wait before each deadline, s.
     scheduling: 'fifo' | 'normal'; fifo_priority: 1..99.
+    cpu: pin the paced loop to this CPU ('auto': highest-numbered usable; 'none'/None: no pinning).
     tolerance_s: lateness above which a cycle counts as an overrun, s (None = from the
         fieldbus schedule: SoC start to first PReq start).
     histogram_bins: bins of the jitter histogram figure.
@@ -101,6 +118,7 @@ class RealtimeSettings:
     spin_s: float = DEFAULT_SPIN_S
     scheduling: str = "fifo"
     fifo_priority: int = 10
+    cpu: int | str | None = "auto"
     tolerance_s: float | None = None
     histogram_bins: int = 60
 
@@ -142,6 +160,7 @@ class ExecutionOptions:
         s = self.settings
         return {"mode": self.mode, "realtime": self.realtime, "receive_timeout_s": self.receive_timeout_s,
                 "overrun_policy": s.overrun_policy, "spin_us": s.spin_s * 1e6, "scheduling": s.scheduling,
+                "cpu": s.cpu,
                 "tolerance_us": None if s.tolerance_s is None else s.tolerance_s * 1e6}
 
 
@@ -162,7 +181,7 @@ def execution_options(doc: dict[str, Any], *, realtime: bool | None = None, spli
     override the file when not None."""
     ex, rt = execution_tables(doc)
     settings = RealtimeSettings(overrun_policy=rt["overrun_policy"], spin_s=rt["spin"], scheduling=rt["scheduling"],
-                                fifo_priority=rt["fifo_priority"],
+                                fifo_priority=rt["fifo_priority"], cpu=rt["cpu"],
                                 tolerance_s=None if rt["tolerance"] == "auto" else rt["tolerance"],
                                 histogram_bins=rt["histogram_bins"])
     mode = "split" if split else ex["mode"]

@@ -154,27 +154,54 @@ class Pacer:
         return overrun
 
 
+def _pin(cpu: int | str | None) -> tuple[str, set[int] | None]:
+    """Pin this process to one CPU ('auto': the highest-numbered usable one); returns
+    (description, previous affinity or None when unchanged)."""
+    if cpu is None or cpu == "none" or not hasattr(os, "sched_setaffinity"):
+        return "not pinned", None
+    previous = os.sched_getaffinity(0)
+    target = max(previous) if cpu == "auto" else int(cpu)
+    if target not in previous:
+        return f"not pinned (CPU {target} not usable: {sorted(previous)})", None
+    try:
+        os.sched_setaffinity(0, {target})
+    except OSError as error:
+        return f"not pinned ({error.strerror or error})", None
+    return f"CPU {target}", previous
+
+
 @contextlib.contextmanager
-def realtime_scheduling(policy: str, priority: int = 10) -> Iterator[str]:
-    """Run the block under SCHED_FIFO at ``priority`` when ``policy == 'fifo'`` and the OS allows it;
-    yields what was granted ('fifo' or 'normal (<reason>)') and restores the previous policy."""
-    if policy != "fifo" or not hasattr(os, "sched_setscheduler"):
-        yield "normal" if policy != "fifo" else "normal (SCHED_FIFO not available on this OS)"
-        return
+def realtime_scheduling(policy: str, priority: int = 10, cpu: int | str | None = None) -> Iterator[str]:
+    """Run the block under SCHED_FIFO at ``priority`` when ``policy == 'fifo'`` and the OS allows
+    it, pinned to ``cpu`` ('auto', an index, or None/'none'); yields what was granted, e.g.
+    'fifo, CPU 1' or 'normal (SCHED_FIFO refused: ...), not pinned', and restores both after."""
+    pinned, previous_affinity = _pin(cpu)
+    granted = "normal"
+    restore = None
+    if policy == "fifo":
+        if not hasattr(os, "sched_setscheduler"):
+            granted = "normal (SCHED_FIFO not available on this OS)"
+        else:
+            try:
+                restore = (os.sched_getscheduler(0), os.sched_getparam(0))
+                os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+                granted = "fifo"
+            except (PermissionError, OSError) as error:
+                restore = None
+                granted = f"normal (SCHED_FIFO refused: {error.strerror or error})"
     try:
-        previous = os.sched_getscheduler(0)
-        previous_param = os.sched_getparam(0)
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
-    except (PermissionError, OSError) as error:
-        yield f"normal (SCHED_FIFO refused: {error.strerror or error})"
-        return
-    try:
-        yield "fifo"
+        yield granted if cpu is None else f"{granted}, {pinned}"
     finally:
-        try:
-            os.sched_setscheduler(0, previous, previous_param)
-        except OSError:
-            pass
+        if restore is not None:
+            try:
+                os.sched_setscheduler(0, *restore)
+            except OSError:
+                pass
+        if previous_affinity is not None:
+            try:
+                os.sched_setaffinity(0, previous_affinity)
+            except OSError:
+                pass
 
 
 @contextlib.contextmanager

@@ -150,7 +150,8 @@ def run_split_cell(doc: dict[str, Any], controller, true_robot, ctx, *, label: s
         setpoints = controller.setpoints
         missing_seen = 0
         scheduling = settings.scheduling if paced else "normal"
-        with realtime_scheduling(scheduling, settings.fifo_priority) as granted, no_cyclic_gc():
+        with realtime_scheduling(scheduling, settings.fifo_priority, settings.cpu if paced else None) as granted, \
+                no_cyclic_gc():
             for k in range(n_cycles):
                 t = t0 + k * period
                 late = pacer.wait(k) if pacer is not None else False
