@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import copy
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -289,57 +290,113 @@ def mode_fmus(doc_fmus: list[dict[str, Any]], speed_feedforward: bool) -> list[d
 
 
 # ---------------------------------------------------------------------------------------- running
-def run(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
-    """Run every mode of the scenario on the same true robot; write results; return summary fields."""
-    from planners.iso9283 import ISO_Q_HINT, iso9283_test_path
+@dataclass
+class JobSetup:
+    """Everything the modes of one scenario share (built once by :func:`prepare`).
 
-    doc = scenario.data
+    doc: the validated scenario document; true_robot; path (planners.iso9283 test path);
+    reference (:class:`TcpTrajectory` on the controller grid); kinematics/dynamics of the
+    controller and their labels; tracker; fieldbus (FieldbusConfig); capacity (controller
+    log rows); mode_settings (per mode: controller_mode, drive_speed_feedforward,
+    torque_feedforward, description).
+    """
+
+    doc: dict[str, Any]
+    true_robot: Any
+    path: Any
+    reference: TcpTrajectory
+    kinematics: Any
+    dynamics: Any
+    kinematics_label: str
+    dynamics_label: str
+    tracker: TrackerConfig
+    fieldbus: Any
+    capacity: int
+    mode_settings: dict[str, dict[str, Any]]
+
+    def summary_fields(self) -> dict[str, Any]:
+        """summary.json fields describing the set-up (true robot, controller model, path, definitions)."""
+        tr, ctrl_t = self.true_robot, self.doc["controller"]
+        return {
+            "true_robot": {"seed": tr.seed, "payload_mass_kg": float(tr.payload[0]),
+                           "payload_com_m": tr.payload[1:].tolist(),
+                           "dynamic_deviations": self.doc["true_robot"]["dynamic_deviations"],
+                           "geometric_errors": self.doc["true_robot"]["geometric_errors"]},
+            "controller_model": {"kinematics": self.kinematics_label, "dynamics": self.dynamics_label,
+                                 "payload_known": ctrl_t["payload_known"],
+                                 "drive_compensation": ctrl_t["drive_compensation"], "modes": self.mode_settings},
+            "path": {"duration_s": self.path.duration, "length_m": self.path.length, "speed_m_s": self.path.speed,
+                     "acceleration_m_s2": self.path.acceleration, "segments": self.path.segment_names},
+            "definitions": DEFINITIONS,
+        }
+
+
+def prepare(doc: dict[str, Any], source: str) -> JobSetup:
+    """Build the shared set-up of a validated iso9283-style document (``source``: the file, for messages)."""
+    from fieldbus import FieldbusConfig
+    from planners.iso9283 import iso9283_test_path
+
     _fill_table_defaults(doc)
-    ctrl_t, sim = doc["controller"], doc["simulation"]
-    stop_time = sim["stop_time"]
+    ctrl_t = doc["controller"]
     period = ctrl_t["period"]
     true_robot = make_true_robot(doc["true_robot"])
     path = iso9283_test_path(speed=doc["path"]["speed"], acceleration=doc["path"]["acceleration"])
     reference = TcpTrajectory.from_reference(path.reference, path.duration, period)
     kin, dyn, kin_label, dyn_label = controller_models(ctrl_t, true_robot)
     tracker = TrackerConfig(doc["tracker"]["period"], doc["tracker"]["noise_sigma"], doc["tracker"]["seed"])
-    from fieldbus import FieldbusConfig
-
-    fb = FieldbusConfig.from_dict(doc["fieldbus"], source=str(scenario.path))
-    capacity = int(stop_time / period) + 16
+    fb = FieldbusConfig.from_dict(doc["fieldbus"], source=source)
     mode_settings = {mode: {"controller_mode": JOB_MODES[mode].controller_mode,
                             "drive_speed_feedforward": drive_speed_feedforward(ctrl_t, mode),
                             "torque_feedforward": JOB_MODES[mode].controller_mode == "model_based",
                             "description": JOB_MODES[mode].description} for mode in ctrl_t["modes"]}
-    ctx.summary.update(
-        true_robot={"seed": true_robot.seed, "payload_mass_kg": float(true_robot.payload[0]),
-                    "payload_com_m": true_robot.payload[1:].tolist(),
-                    "dynamic_deviations": doc["true_robot"]["dynamic_deviations"],
-                    "geometric_errors": doc["true_robot"]["geometric_errors"]},
-        controller_model={"kinematics": kin_label, "dynamics": dyn_label, "payload_known": ctrl_t["payload_known"],
-                          "drive_compensation": ctrl_t["drive_compensation"], "modes": mode_settings},
-        path={"duration_s": path.duration, "length_m": path.length, "speed_m_s": path.speed,
-              "acceleration_m_s2": path.acceleration, "segments": path.segment_names},
-        definitions=DEFINITIONS, modes={})
+    return JobSetup(doc, true_robot, path, reference, kin, dyn, kin_label, dyn_label, tracker, fb,
+                    int(doc["simulation"]["stop_time"] / period) + 16, mode_settings)
+
+
+def run_mode(ctx: RunContext, setup: JobSetup, mode: str, extra_signals: Sequence[str] = ()
+             ) -> tuple[dict[str, Any], TrackingResult, robot_cell.CellRun, Controller]:
+    """Run one mode on the cell and evaluate it: (summary entry, tracking result, cell run, controller).
+
+    The drives get the mode's ``speed_feedforward_gain``; ``extra_signals`` are recorded
+    besides the scenario's [record] signals. A failure of the run is in ``cell.failure``
+    (not raised); everything recorded up to it is evaluated and written.
+    """
+    from planners.iso9283 import ISO_Q_HINT
+
+    doc, ctrl_t = setup.doc, setup.doc["controller"]
+    period = ctrl_t["period"]
+    settings = setup.mode_settings[mode]
+    mode_doc = {**doc, "fmus": mode_fmus(doc["fmus"], settings["drive_speed_feedforward"])}
+    if extra_signals:
+        record = dict(doc.get("record") or {"period": setup.tracker.period_s, "signals": []})
+        record["signals"] = list(record["signals"]) + [s for s in extra_signals if s not in record["signals"]]
+        mode_doc["record"] = record
+    drive_model = (robot_cell.drive_loop_model(mode_doc["fmus"], period)
+                   if ctrl_t["drive_compensation"] and settings["torque_feedforward"] else None)
+    config = ControllerConfig(mode=settings["controller_mode"], period_s=period,
+                              lead_cycles=1 + setup.fieldbus.dead_time_cycles,
+                              compute_budget_s=ctrl_t["compute_budget"], settle_time_s=ctrl_t["settle_time"])
+    controller = Controller(setup.reference, config, kinematic_model=setup.kinematics, dynamics=setup.dynamics,
+                            q_hint=np.array(ISO_Q_HINT), drive_model=drive_model, capacity=setup.capacity)
+    can_log = ctx.path(f"can_{mode}.blf") if doc["results"]["can_log"] else None
+    cell = robot_cell.run_cell(mode_doc, controller, setup.true_robot, ctx, label=mode,
+                               stop_time=doc["simulation"]["stop_time"], fieldbus=setup.fieldbus,
+                               tracker=setup.tracker, record_file=f"timeseries_{mode}.csv", can_log=can_log)
+    entry, result = _evaluate_mode(ctx, mode, cell, controller, setup.reference, setup.path, setup.true_robot)
+    entry = {"drive_speed_feedforward": settings["drive_speed_feedforward"],
+             "torque_feedforward": settings["torque_feedforward"], **entry}
+    return entry, result, cell, controller
+
+
+def run(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
+    """Run every mode of the scenario on the same true robot; write results; return summary fields."""
+    setup = prepare(scenario.data, str(scenario.path))
+    path = setup.path
+    ctx.summary.update(**setup.summary_fields(), modes={})
     modes: dict[str, Any] = {}
     results: dict[str, TrackingResult] = {}
-    for mode in ctrl_t["modes"]:
-        settings = mode_settings[mode]
-        mode_doc = {**doc, "fmus": mode_fmus(doc["fmus"], settings["drive_speed_feedforward"])}
-        drive_model = (robot_cell.drive_loop_model(mode_doc["fmus"], period)
-                       if ctrl_t["drive_compensation"] and settings["torque_feedforward"] else None)
-        config = ControllerConfig(mode=settings["controller_mode"], period_s=period,
-                                  lead_cycles=1 + fb.dead_time_cycles, compute_budget_s=ctrl_t["compute_budget"],
-                                  settle_time_s=ctrl_t["settle_time"])
-        controller = Controller(reference, config, kinematic_model=kin, dynamics=dyn, q_hint=np.array(ISO_Q_HINT),
-                                drive_model=drive_model, capacity=capacity)
-        can_log = ctx.path(f"can_{mode}.blf") if doc["results"]["can_log"] else None
-        cell = robot_cell.run_cell(mode_doc, controller, true_robot, ctx, label=mode, stop_time=stop_time,
-                                   fieldbus=fb, tracker=tracker, record_file=f"timeseries_{mode}.csv",
-                                   can_log=can_log)
-        entry, result = _evaluate_mode(ctx, mode, cell, controller, reference, path, true_robot)
-        entry = {"drive_speed_feedforward": settings["drive_speed_feedforward"],
-                 "torque_feedforward": settings["torque_feedforward"], **entry}
+    for mode in setup.doc["controller"]["modes"]:
+        entry, result, cell, _ = run_mode(ctx, setup, mode)
         modes[mode] = entry
         results[mode] = result
         ctx.summary.update(modes=modes)
@@ -356,7 +413,7 @@ def run(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
     if "standard_speed_ff" in modes and "model_based" in modes:
         fields["improvement_factor_vs_standard_speed_ff"] = _ratio(modes["standard_speed_ff"]["tcp_error_max_mm"],
                                                                    modes["model_based"]["tcp_error_max_mm"])
-    if doc["results"]["figures"]:
+    if setup.doc["results"]["figures"]:
         from cosim.jobs.iso9283_figures import write_figures
 
         fields["figures"] = [p.name for p in write_figures(ctx.out_dir, results, path)]

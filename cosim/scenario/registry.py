@@ -21,6 +21,7 @@ JOB_MODULES: tuple[str, ...] = (
     "cosim.jobs.calibration",
     "cosim.jobs.iso9283",
     "cosim.jobs.identification",
+    "cosim.jobs.fieldbus_fault",
 )
 
 #: runner(scenario, context) -> extra summary.json fields (or None)
