@@ -89,7 +89,7 @@ def run_paced_cell(doc: dict[str, Any], controller, true_robot, ctx: RunContext,
         tolerance = settings.tolerance_s if settings.tolerance_s is not None else auto_tolerance_s(network.layout)
         if pacer is None:
             pacer = Pacer(period, settings.spin_s, tolerance, capacity=int(stop_time / period) + 16)
-        paced = PacedNetwork(network, pacer, settings.overrun_policy)
+        paced = PacedNetwork(network, pacer, settings.overrun_policy, cycles=int(round(stop_time / period)) + 1)
         link = robot_cell.FieldbusLink(paced, controller, period)
         master.add_task(link, period, priority=0, name="fieldbus+controller", setup=link.setup)
         master.add_task(laser, laser.config.period_s, priority=1, name="laser_tracker", setup=laser.setup)

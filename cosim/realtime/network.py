@@ -12,6 +12,7 @@ from typing import Any
 
 from cosim.realtime.pacer import Pacer
 from cosim.realtime.policy import SetpointGate, install_overrun_plan
+from cosim.realtime.schedule import precompute_schedules
 from fieldbus import DriveActuals, PowerlinkNetwork, Setpoints
 from fieldbus.process_data import CycleResult
 
@@ -23,7 +24,8 @@ def auto_tolerance_s(layout) -> float:
 
 
 class PacedNetwork:
-    """``network`` (one process) paced by ``pacer`` with overrun ``policy``.
+    """``network`` (one process) paced by ``pacer`` with overrun ``policy``; with ``cycles``
+    the frame timestamps of cycles 0..cycles-1 are computed at construction.
 
     Attributes:
         pacer: the :class:`Pacer` (its ``log`` holds the lateness of every cycle).
@@ -31,13 +33,15 @@ class PacedNetwork:
         plan: the :class:`OverrunFaultPlan` both endpoints use (``lost_frame``).
     """
 
-    def __init__(self, network: PowerlinkNetwork, pacer: Pacer, policy: str) -> None:
+    def __init__(self, network: PowerlinkNetwork, pacer: Pacer, policy: str, cycles: int | None = None) -> None:
         self.network = network
         self.pacer = pacer
         self.policy = policy
         self.gate = SetpointGate(policy, network.config.nodes)
         self.plan = install_overrun_plan(network.mn_side, network.drive_side)
         self.config = network.config
+        if cycles is not None:  # frame timestamps of the whole run now, not in the loop
+            precompute_schedules((network.mn_side, network.drive_side), cycles, policy == "lost_frame")
 
     def run_cycle(self, cycle: int, setpoints: Setpoints, actuals: DriveActuals) -> CycleResult:
         """Wait for the wall deadline of ``cycle``, apply the policy if it is late, run the cycle."""

@@ -28,6 +28,7 @@ from cosim.realtime.config import ExecutionOptions
 from cosim.realtime.network import auto_tolerance_s
 from cosim.realtime.pacer import Pacer, no_cyclic_gc, realtime_scheduling
 from cosim.realtime.policy import OverrunFaultPlan, SetpointGate
+from cosim.realtime.schedule import precompute_schedules
 from cosim.results.progress import ProgressBar
 from cosim.split.drive_side import DriveSideSpec, drive_side_main, read_raw_rows
 from cosim.split.protocol import END, LOST, free_udp_port, pack_marker, pres_expected, side_configs
@@ -135,6 +136,8 @@ def run_split_cell(doc: dict[str, Any], controller, true_robot, ctx, *, label: s
         gate = SetpointGate(settings.overrun_policy, fb_config.nodes)
         plan = OverrunFaultPlan(endpoint.plan, fb_config.nodes)
         endpoint.plan = plan
+        if paced:
+            precompute_schedules((endpoint,), n_cycles, settings.overrun_policy == "lost_frame")
         lost_policy = settings.overrun_policy == "lost_frame"
         bar = ProgressBar(stop_time, f"{ctx.scenario.name} {label} (split)", enabled=not ctx.quiet and not paced)
         nodes = fb_config.nodes
