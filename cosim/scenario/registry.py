@@ -22,6 +22,7 @@ JOB_MODULES: tuple[str, ...] = (
     "cosim.jobs.iso9283",
     "cosim.jobs.identification",
     "cosim.jobs.fieldbus_fault",
+    "cosim.jobs.planners",
 )
 
 #: runner(scenario, context) -> extra summary.json fields (or None)

@@ -1,0 +1,314 @@
+"""Job ``planners``: the paper's section 5 side by side (issue 6), optionally executed on the cell.
+
+A scenario names the planners to run (``[planners] run``, names of :data:`PLANNERS`) and
+the problem (``[problem]``: the paper's straight line, ``planners.paper_line``; weights
+k1, k2 of eq. 36/38/40; interval counts; the robot's limits, optionally scaled). CP
+planners (``own_cp``, ``toppra``) get the CP problem along the line; PtP planners
+(``own_ptp``, ``ruckig``, ``ruckig_feasible``) get the PtP problem between its end
+points. Each plan is summarised (``planners.report.planner_summary``: status, duration_s,
+solve_time_s, max_constraint_ratio at 1 ms with the torque recomputed by the nominal
+inverse dynamics, energy = integral tau^T tau dt) and written as ``trajectory_<name>.csv``.
+
+With ``[planners] execute = true`` each trajectory is driven through the co-simulated
+cell (the iso9283 job's wiring and tables: controller in ``model_based`` mode with the
+joint trajectory as reference, POWERLINK-timed fieldbus, servo-drive FMUs, plant =
+the seeded true robot or, with ``[planners] plant = "nominal"``, the nominal robot):
+``tcp_error_max_mm`` (tracker reading vs TRUE kinematics at the applied set-points, as
+the iso9283 job), ``tcp_error_max_noise_free_mm`` and ``drive_saturated`` (some drive's
+current set-point ``current_demand`` reached its clamp min(current_limit, torque_limit /
+(gear_ratio torque_constant))).
+
+Results: ``summary.json`` (updated after every planner), ``trajectory_<name>.csv``,
+``timeseries_<name>.csv`` when executed, figures ``figure7_velocity_profile.png`` (CP
+planners), ``figure8_active_constraints.png`` (own_cp), ``figure9_ptp.png`` (own_ptp).
+See docs/planners.md.
+"""
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from cosim.jobs import iso9283, robot_cell
+from cosim.jobs.tracking_metrics import desired_joints
+from cosim.scenario.context import RunContext
+from cosim.scenario.loader import Scenario
+from cosim.scenario.registry import register_job
+from cosim.scenario.schema import Boolean, Field, Integer, List, Number, String, Table, Where
+
+JOB_NAME = "planners"
+
+CP_PLANNERS: tuple[str, ...] = ("own_cp", "toppra")
+PTP_PLANNERS: tuple[str, ...] = ("own_ptp", "ruckig", "ruckig_feasible")
+PLANNERS: tuple[str, ...] = CP_PLANNERS + PTP_PLANNERS
+"""Planner names a scenario may list in ``[planners] run``."""
+
+SATURATION_FRACTION = 1.0 - 1e-6
+"""A drive counts as saturated when |current_demand| >= this fraction of its current clamp."""
+
+SCALE_KINDS: tuple[str, ...] = ("velocity", "acceleration", "jerk", "torque", "torque_rate")
+
+PLANNERS_TABLE = Table({
+    "run": Field(List(String(choices=PLANNERS), min_len=1, unique=True), required=True,
+                 doc=f"the planners to run, names among {list(PLANNERS)}"),
+    "execute": Field(Boolean(), default=False,
+                     doc="true: drive each planned trajectory through the co-simulated cell"),
+    "execute_only": Field(List(String(choices=PLANNERS), unique=True),
+                          doc="with execute = true: only these planners (default: all of run)"),
+    "plant": Field(String(choices=("true", "nominal")), default="true",
+                   doc="the executing plant: 'true' (the [true_robot] table) or 'nominal' (no deviations)"),
+    "figures": Field(Boolean(), default=True, doc="write Figures 7, 8, 9"),
+}, doc="the [planners] table")
+
+SCALE_TABLE = Table({kind: Field(Number(gt=0, max=1.0), default=1.0,
+                                 doc=f"factor on the robot's {kind} limits: a number in (0, 1]")
+                     for kind in SCALE_KINDS}, doc="the [problem.limit_scale] table")
+
+PROBLEM_TABLE = Table({
+    "path": Field(String(choices=("paper_line",)), default="paper_line",
+                  doc="the motion: 'paper_line' (planners.paper_line, eq. 39)"),
+    "k1": Field(Number(min=0), default=1.0, doc="time weight of eq. 36: a number >= 0"),
+    "k2": Field(Number(min=0), default=0.0, doc="energy weight of eq. 36 (tau^T tau): a number >= 0"),
+    "n_intervals": Field(Integer(min=2, max=5000), default=200, doc="CP transcription intervals: an integer >= 2"),
+    "ptp_intervals": Field(Integer(min=4, max=1000), default=100, doc="PtP transcription intervals: an integer >= 4"),
+    "friction": Field(String(choices=("full", "coulomb", "none")), default="full"),
+    "cp_limits": Field(String(choices=("eq38", "all")), default="eq38",
+                       doc="CP limits: 'eq38' (velocity, acceleration, torque: what TOPP-RA can represent) "
+                           "or 'all' (plus jerk and torque rate)"),
+    "ptp_limits": Field(String(choices=("eq40", "all")), default="eq40",
+                        doc="PtP limits: 'eq40' (torque, torque rate, velocity, position) or 'all'"),
+    "limit_scale": Field(SCALE_TABLE, default={}),
+}, doc="the [problem] table")
+
+SCHEMA = Table({**iso9283.SCHEMA.fields,
+                "planners": Field(PLANNERS_TABLE, required=True),
+                "problem": Field(PROBLEM_TABLE, default={})},
+               doc="a planners scenario document")
+
+
+def _fill(doc: dict[str, Any]) -> None:
+    for key in ("problem",):
+        if not doc.get(key):
+            doc[key] = SCHEMA.fields[key].spec.check({}, Where(None) / key)
+    if not doc["problem"].get("limit_scale"):
+        doc["problem"]["limit_scale"] = SCALE_TABLE.check({}, Where(None) / "problem" / "limit_scale")
+
+
+def check(doc: dict[str, Any], where: Where) -> None:
+    """The cell's checks (as the iso9283 job) plus the planners' and problem's consistency."""
+    iso9283.check(doc, where)
+    _fill(doc)
+    problem, planners = doc["problem"], doc["planners"]
+    if problem["k1"] + problem["k2"] <= 0.0:
+        raise (where / "problem" / "k2").error("k1 + k2 > 0 (k1 = 1, k2 = 0 is time-optimal)", problem["k2"],
+                                               problem="both weights are 0")
+    only = planners.get("execute_only")
+    if only is not None:
+        if not planners["execute"]:
+            raise (where / "planners" / "execute_only").error("no execute_only unless execute = true", only)
+        missing = [n for n in only if n not in planners["run"]]
+        if missing:
+            raise (where / "planners" / "execute_only").error(
+                f"names among [planners] run = {planners['run']}", only, problem=f"{missing} not run")
+
+
+# ------------------------------------------------------------------------------------- problems
+def _limits(problem_t: dict[str, Any]):
+    from planners.base import JointLimits
+
+    lim = JointLimits.from_robot()
+    scale = problem_t["limit_scale"]
+    return lim.replace(**{k: getattr(lim, k) * scale[k] for k in SCALE_KINDS})
+
+
+def _cp_problem(problem_t: dict[str, Any], dynamics: Any):
+    from planners.paper_line import paper_cp_problem
+
+    return paper_cp_problem(_limits(problem_t), dynamics, k1=problem_t["k1"], k2=problem_t["k2"],
+                            friction=problem_t["friction"], n_intervals=problem_t["n_intervals"],
+                            kinematic_only_limits=problem_t["cp_limits"] == "eq38")
+
+
+def _ptp_problem(problem_t: dict[str, Any], dynamics: Any):
+    from planners.ptp_optimal import paper_ptp_problem
+
+    return paper_ptp_problem(_limits(problem_t), dynamics, k1=problem_t["k1"], k2=problem_t["k2"],
+                             friction=problem_t["friction"], n_intervals=problem_t["ptp_intervals"],
+                             paper_limits=problem_t["ptp_limits"] == "eq40")
+
+
+def _planner(name: str):
+    """A fresh planner instance for ``name`` (one of :data:`PLANNERS`)."""
+    if name == "own_cp":
+        from planners.cp_optimal import OwnCPPlanner
+        return OwnCPPlanner()
+    if name == "toppra":
+        from planners.toppra_baseline import ToppraPlanner
+        return ToppraPlanner()
+    if name == "own_ptp":
+        from planners.ptp_optimal import OptimalPtPPlanner
+        return OptimalPtPPlanner()
+    if name == "ruckig":
+        from planners.ruckig_baseline import RuckigPlanner
+        return RuckigPlanner()
+    if name == "ruckig_feasible":
+        from planners.ruckig_baseline import FeasibleRuckigPlanner
+        return FeasibleRuckigPlanner()
+    raise ValueError(f"planner name {name!r}: expected one of {list(PLANNERS)}")
+
+
+def ratios(entries: dict[str, dict[str, Any]]) -> dict[str, float]:
+    """Duration ratios between the planners run (only pairs with both durations)."""
+    pairs = {"own_cp_over_toppra": ("own_cp", "toppra"), "own_ptp_over_own_cp": ("own_ptp", "own_cp"),
+             "own_ptp_over_ruckig_feasible": ("own_ptp", "ruckig_feasible"),
+             "own_ptp_over_toppra": ("own_ptp", "toppra"), "ruckig_feasible_over_ruckig": ("ruckig_feasible", "ruckig")}
+    out: dict[str, float] = {}
+    for key, (a, b) in pairs.items():
+        da = (entries.get(a) or {}).get("duration_s")
+        db = (entries.get(b) or {}).get("duration_s")
+        if da is not None and db:
+            out[key] = float(da / db)
+    return out
+
+
+# ------------------------------------------------------------------------------------- execution
+def _execute(ctx: RunContext, doc: dict[str, Any], name: str, traj: Any, true_robot: Any,
+             fieldbus: Any) -> dict[str, Any]:
+    """Drive ``traj`` (a planners Trajectory) through the cell; the summary fields of the run."""
+    from controller import Controller, ControllerConfig, JointTrajectory
+    from cosim.jobs.laser_tracker import TrackerConfig
+    from robot.kinematics import FlangeKinematics
+
+    ctrl_t = doc["controller"]
+    period = ctrl_t["period"]
+    settings = iso9283.JOB_MODES["model_based"]
+    speed_ff = iso9283.drive_speed_feedforward(ctrl_t, "model_based")
+    run_doc = {**doc, "fmus": iso9283.mode_fmus(doc["fmus"], speed_ff)}
+    record = dict(doc.get("record") or {"period": doc["tracker"]["period"], "signals": []})
+    demand = [f"{d}.current_demand" for d in robot_cell.DRIVES]
+    record["signals"] = list(record["signals"]) + [s for s in demand if s not in record["signals"]]
+    run_doc["record"] = record
+    kin, dyn, kin_label, dyn_label = iso9283.controller_models(ctrl_t, true_robot)
+    drive_model = robot_cell.drive_loop_model(run_doc["fmus"], period) if ctrl_t["drive_compensation"] else None
+    reference = JointTrajectory.from_planner_trajectory(traj, period)
+    stop_time = 0.02 + ctrl_t["settle_time"] + reference.duration + 0.2
+    config = ControllerConfig(mode=settings.controller_mode, period_s=period, lead_cycles=1 + fieldbus.dead_time_cycles,
+                              compute_budget_s=ctrl_t["compute_budget"], settle_time_s=ctrl_t["settle_time"])
+    controller = Controller(reference, config, kinematic_model=kin, dynamics=dyn, drive_model=drive_model,
+                            capacity=int(stop_time / period) + 16)
+    tracker = TrackerConfig(doc["tracker"]["period"], doc["tracker"]["noise_sigma"], doc["tracker"]["seed"])
+    cell = robot_cell.run_cell(run_doc, controller, true_robot, ctx, label=name, stop_time=stop_time,
+                               fieldbus=fieldbus, tracker=tracker, record_file=f"timeseries_{name}.csv",
+                               can_log=ctx.path(f"can_{name}.blf") if doc["results"]["can_log"] else None)
+    rec = cell.recording
+    cols, data = rec.columns, rec.data
+    t = data[:, 0]
+    q = data[:, [cols.index(f"{robot_cell.PLANT}.q[{i}]") for i in range(1, 7)]]
+    measured = data[:, [cols.index(s) for s in ("tracker.x", "tracker.y", "tracker.z")]]
+    log = controller.log.columns()
+    stack = [np.column_stack([log[f"{g}{j}"] for j in range(1, 7)]) for g in ("q_d", "qd_d", "qdd_d")]
+    ok = np.isfinite(stack[0]).all(axis=1)
+    q_d = desired_joints(t, log["t_apply"][ok], stack[0][ok], stack[1][ok], stack[2][ok]) if ok.any() else q
+    true_kin = FlangeKinematics(true_robot.kinematic_model())
+    commanded = true_kin.transforms(q_d)[:, :3, 3]
+    actual = true_kin.transforms(q)[:, :3, 3]
+    start = controller.motion_start_s
+    window = (t >= start) & (t <= start + reference.duration) if start is not None else np.zeros(t.size, bool)
+    err = np.linalg.norm(measured - commanded, axis=1) * 1e3
+    err_free = np.linalg.norm(actual - commanded, axis=1) * 1e3
+    params = robot_cell.drive_parameters(run_doc["fmus"])
+    clamp = np.array([min(p["current_limit"], p["torque_limit"] / (p["gear_ratio"] * p["torque_constant"]))
+                      for p in params])
+    current = np.abs(data[:, [cols.index(s) for s in demand]])
+    peak_ratio = current.max(axis=0) / clamp if t.size else np.zeros(6)
+    entry: dict[str, Any] = {
+        "status": "ok" if cell.failure is None else "failed",
+        "plant": doc["planners"]["plant"],
+        "controller": {"mode": settings.controller_mode, "drive_speed_feedforward": speed_ff,
+                       "kinematics": kin_label, "dynamics": dyn_label},
+        "motion_start_s": start,
+        "path_completed": bool(start is not None and t.size and t[-1] >= start + reference.duration - 1e-9),
+        "tcp_error_max_mm": float(err[window].max()) if window.any() else None,
+        "tcp_error_rms_mm": float(np.sqrt(np.mean(err[window] ** 2))) if window.any() else None,
+        "tcp_error_max_noise_free_mm": float(err_free[window].max()) if window.any() else None,
+        "joint_lag_max_rad": (np.abs(q_d - q)[window].max(axis=0).tolist() if window.any() else None),
+        "drive_saturated": bool(np.any(current >= SATURATION_FRACTION * clamp)),
+        "current_demand_peak_ratio": peak_ratio.tolist(),
+        "sim_time_s": cell.reached_s,
+        "loop_wall_time_s": cell.loop_wall_time_s,
+        "files": {"timeseries": f"timeseries_{name}.csv"},
+    }
+    if cell.failure is not None:
+        entry["failure"] = str(cell.failure)
+    return entry
+
+
+# ------------------------------------------------------------------------------------- run
+def run(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
+    """Plan with every listed planner, summarise, write CSVs and figures, optionally execute."""
+    from fieldbus import FieldbusConfig
+    from planners.report import planner_summary
+    from robot.dynamics import RobotDynamics
+
+    doc = scenario.data
+    iso9283._fill_table_defaults(doc)
+    _fill(doc)
+    problem_t, planners_t = doc["problem"], doc["planners"]
+    dynamics = RobotDynamics()
+    cp = _cp_problem(problem_t, dynamics) if any(n in CP_PLANNERS for n in planners_t["run"]) else None
+    ptp = _ptp_problem(problem_t, dynamics) if any(n in PTP_PLANNERS for n in planners_t["run"]) else None
+    executed = (planners_t.get("execute_only") or planners_t["run"]) if planners_t["execute"] else []
+    true_robot = fieldbus = None
+    if executed:
+        table = dict(doc["true_robot"])
+        if planners_t["plant"] == "nominal":
+            table.update(dynamic_deviations=False, geometric_errors=False)
+        true_robot = iso9283.make_true_robot(table)
+        fieldbus = FieldbusConfig.from_dict(doc["fieldbus"], source=str(scenario.path))
+    ctx.summary.update(problem={**problem_t, "cp_limits_note": "eq38: velocity, acceleration, torque",
+                                "ptp_limits_note": "eq40: torque, torque rate, velocity, position"},
+                       planners={})
+    entries: dict[str, dict[str, Any]] = {}
+    trajectories: dict[str, Any] = {}
+    for name in planners_t["run"]:
+        problem = cp if name in CP_PLANNERS else ptp
+        result = _planner(name).plan(problem)
+        entry = planner_summary(result, problem.limits, dynamics)
+        entry["kind"] = "cp" if name in CP_PLANNERS else "ptp"
+        if result.ok:
+            trajectories[name] = result.trajectory
+            result.trajectory.write_csv(ctx.path(f"trajectory_{name}.csv"))
+            entry["files"] = {"trajectory": f"trajectory_{name}.csv"}
+        entries[name] = entry
+        ctx.summary.update(planners=entries, ratios=ratios(entries))
+        if name in executed and result.ok:
+            entry["execution"] = _execute(ctx, doc, name, result.trajectory, true_robot, fieldbus)
+            entry["tcp_error_max_mm"] = entry["execution"]["tcp_error_max_mm"]
+            entry["drive_saturated"] = entry["execution"]["drive_saturated"]
+            ctx.summary.update(planners=entries)
+    fields: dict[str, Any] = {"planners": entries, "ratios": ratios(entries)}
+    if planners_t["figures"]:
+        fields["figures"] = _figures(ctx, trajectories, cp, ptp, dynamics)
+    return fields
+
+
+def _figures(ctx: RunContext, trajectories: dict[str, Any], cp: Any, ptp: Any, dynamics: Any) -> list[str]:
+    from planners.ptp_figures import plot_ptp_torques_velocities
+    from planners.report import plot_active_constraints, plot_velocity_profile
+
+    written = []
+    cp_trajs = {n: t for n, t in trajectories.items() if n in CP_PLANNERS}
+    if cp_trajs:
+        written.append(plot_velocity_profile(cp_trajs, ctx.path("figure7_velocity_profile.png")))
+    if "own_cp" in trajectories:
+        written.append(plot_active_constraints(trajectories["own_cp"], cp.limits,
+                                               ctx.path("figure8_active_constraints.png"), dynamics))
+    if "own_ptp" in trajectories:
+        written.append(plot_ptp_torques_velocities(trajectories["own_ptp"], ptp.limits, ctx.path("figure9_ptp.png"),
+                                                   dynamics))
+    return [p.name for p in written]
+
+
+register_job(JOB_NAME, run, SCHEMA, check,
+             "time/energy-optimal CP and PtP planners vs TOPP-RA and Ruckig, optionally executed on the cell")
