@@ -537,6 +537,7 @@ class OptimalPtPPlanner(Planner):
             "iterations": sum(h["iterations"] for h in history), "attempts": history,
             "warm_start_time_s": warm_time, "warm_start_duration_s": warm.duration, "n_intervals": n,
             "constraints": transcription.n_constraints, "compiled": transcription.nodes.compiled,
+            "transcription": f"piecewise-cubic q (constant jerk per interval), implicit inverse dynamics, N={n}",
         }
         if motion is None:
             explain = {PlanStatus.INFEASIBLE: "infeasible request (IPOPT: Infeasible_Problem_Detected): the "
