@@ -484,6 +484,13 @@ def random_geometric_errors(
         raise GeometricErrorInputError(
             f"argument 'seed': expected a non-negative int or a numpy Generator, got {seed!r}"
         )
+    scale = error_standard_deviations(magnitudes)
+    return rng.standard_normal(N_ERROR_PARAMETERS) * scale
+
+
+def error_standard_deviations(magnitudes: ErrorMagnitudes = DEFAULT_ERROR_MAGNITUDES) -> np.ndarray:
+    """Standard deviation (39,) of each error parameter in m and rad, from ``magnitudes``
+    (mm and deg): the prior of a calibration (how large each error is expected to be)."""
     for field in ("length_mm", "encoder_offset_deg", "tilt_deg", "base_mm"):
         value = getattr(magnitudes, field)
         if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0.0):
@@ -495,4 +502,4 @@ def random_geometric_errors(
     scale[18:24] = math.radians(magnitudes.encoder_offset_deg)
     scale[24:36] = math.radians(magnitudes.tilt_deg)
     scale[36:39] = magnitudes.base_mm * 1e-3
-    return rng.standard_normal(N_ERROR_PARAMETERS) * scale
+    return scale
