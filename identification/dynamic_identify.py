@@ -5,8 +5,10 @@ Pipeline (paper section 4.1):
 1. :func:`prepare_motion`: joint speeds and accelerations by zero-phase filtering and
    central differences (:mod:`identification.dynamic_signals`) unless the record
    carries them. Records longer than :data:`MAX_PROCESSED_SAMPLES` are first
-   decimated by an integer factor with a zero-phase anti-aliasing filter
-   (``scipy.signal.decimate``) on q and tau.
+   decimated by an integer factor after a zero-phase anti-aliasing low-pass (the same
+   Butterworth with cubic end padding, at 0.8 x the new Nyquist frequency) on q and
+   tau (``scipy.signal.decimate`` pads with zeros and ruins the ends of a record with
+   non-zero angles).
 2. **Parallel filtering** (Gautier 1997): the base regressor ``Theta_1`` is evaluated
    on the states at the full rate, then the SAME zero-phase low-pass is applied to the
    measured torque and to every column of ``Theta_1`` (the model is linear in the
@@ -43,7 +45,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import scipy.signal
 from numpy.typing import ArrayLike
 
 from identification.dynamic_base_parameters import BaseParameters, nominal_base_parameters
@@ -60,6 +61,8 @@ from robot.dynamics import PARAMETER_NAMES, RobotDynamics, is_physically_consist
 DEFAULT_MAX_SAMPLES = 5000
 """Time samples of the least-squares problem at most (after parallel filtering, by decimation;
 never below 4 samples per period of the cut-off, where nothing is lost)."""
+ANTI_ALIAS_FRACTION = 0.8
+"""Anti-aliasing cut-off before pre-decimation, as a fraction of the new Nyquist frequency."""
 MAX_PROCESSED_SAMPLES = 50000
 """Longer records are decimated before the regressor is built (memory: 50000 x 6 x 52 doubles
 = 125 MB for the parallel-filtered regressor)."""
@@ -91,8 +94,10 @@ def prepare_motion(record: MotionRecord, cutoff_hz: float = DEFAULT_CUTOFF_HZ) -
         factor = max(1, min(int(math.ceil(record.samples / MAX_PROCESSED_SAMPLES)),
                             int(1.0 / (DECIMATION_CUTOFF_MARGIN * cutoff_hz * dt))))
     if factor > 1:
+        anti_alias_hz = ANTI_ALIAS_FRACTION * 0.5 / (dt * factor)
+
         def down(x):
-            return None if x is None else scipy.signal.decimate(x, factor, ftype="fir", axis=0, zero_phase=True)
+            return None if x is None else zero_phase_lowpass(x, dt, anti_alias_hz)[::factor]
         t, q_raw, tau, qd_raw, qdd_raw = t[::factor], down(q_raw), down(tau), down(qd_raw), down(qdd_raw)
         dt *= factor
     if qd_raw is not None and qdd_raw is not None:

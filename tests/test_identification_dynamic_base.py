@@ -171,3 +171,21 @@ def test_average_periods_and_sampling_checks():
         sample_time_of([0.0, 0.1, 0.1, 0.2])
     with pytest.raises(IdentificationDataError, match="uniform sampling"):
         sample_time_of([0.0, 0.1, 0.2, 0.35, 0.45])
+
+
+def test_long_records_are_pre_decimated_without_edge_damage():
+    """Records above MAX_PROCESSED_SAMPLES are low-passed and decimated; angles far from zero
+    must survive at the ends (zero-padding decimation would pull them towards 0)."""
+    from identification.dynamic_data import motion_record
+    from identification.dynamic_identify import MAX_PROCESSED_SAMPLES, prepare_motion
+
+    dt = 4e-4
+    t = np.arange(MAX_PROCESSED_SAMPLES + 5000) * dt
+    q = 1.2 + 0.3 * np.sin(np.outer(t, [0.5, 0.7, 0.9, 1.1, 1.3, 1.5]))
+    prepared = prepare_motion(motion_record(t, q, np.zeros_like(q)), cutoff_hz=20.0)
+    assert prepared.how["pre_decimation"] == 2
+    factor = prepared.how["pre_decimation"]
+    assert np.max(np.abs(prepared.q - q[::factor])) < 1e-6
+    w = np.array([0.5, 0.7, 0.9, 1.1, 1.3, 1.5])
+    qdd = -0.3 * w**2 * np.sin(np.outer(t[::factor], w))
+    assert np.max(np.abs(prepared.qdd - qdd)) < 1e-3
