@@ -41,8 +41,8 @@ class DriveSideSpec:
     tracker, true_model: the laser tracker's settings and the true robot's kinematic model.
     stop_time_s: end of the run, s. config: the drive side's fieldbus configuration.
     raw_path: file of recorded rows (float64, row-major). marker_timeout_s: wall seconds
-    to wait for a cycle marker before giving up. scheduling: None (unpaced) or
-    'fifo'/'normal' with fifo_priority. can_log: the drive side's own CAN log or None.
+    to wait for a cycle marker before giving up. scheduling: 'fifo'/'normal' (None =
+    'normal') with fifo_priority. can_log: the drive side's own CAN log or None.
     """
 
     cell_doc: dict[str, Any]
@@ -174,13 +174,13 @@ def drive_side_main(spec: DriveSideSpec, conn) -> None:
         master.add_task(link, period, priority=0, name="split drive side", setup=link.setup)
         master.add_task(laser, laser.config.period_s, priority=1, name="laser_tracker", setup=laser.setup)
         sink = RawRowSink(spec.raw_path)
-        recorder = master.add_recorder(spec.signals, spec.record_period_s, sink, name="cell")
+        recorder = master.add_recorder(spec.signals, spec.record_period_s, sink, name="cell", flush_interval_s=0.25)
         failure = None
         with master:
             master.initialize(spec.stop_time_s)
             conn.send(("ready", {"columns": sink.columns, "kinds": sink.kinds, "engine": master.engine.name}))
             wall0 = time.perf_counter()
-            policy = spec.scheduling or "normal"
+            policy = spec.scheduling or "normal"  # SCHED_FIFO when asked, paced or not (see cosim.split.cell)
             with realtime_scheduling(policy, spec.fifo_priority) as granted, no_cyclic_gc():
                 try:
                     master.run(spec.stop_time_s)
@@ -194,7 +194,7 @@ def drive_side_main(spec: DriveSideSpec, conn) -> None:
         endpoint.close()
         conn.send(("done", {"reached_s": reached, "rows": recorder.rows_written, "fieldbus": summary,
                             "failure": failure, "wall_s": wall, "lost_cycles": link.lost_cycles,
-                            "ended_at_cycle": link.ended_at, "scheduling": granted if spec.scheduling else None,
+                            "ended_at_cycle": link.ended_at, "scheduling": granted,
                             "frames_missing": endpoint.frames_missing}))
     except BaseException:  # report anything to the controller side, then exit non-zero
         try:
