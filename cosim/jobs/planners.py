@@ -276,6 +276,9 @@ def run(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
         result = _planner(name).plan(problem)
         entry = planner_summary(result, problem.limits, dynamics)
         entry["kind"] = "cp" if name in CP_PLANNERS else "ptp"
+        extras = {k: v for k, v in result.info.items() if isinstance(v, (bool, int, float, str))}
+        if extras:
+            entry["info"] = extras      # planner-specific scalars (e.g. ruckig_feasible's limit scale)
         if result.ok:
             trajectories[name] = result.trajectory
             result.trajectory.write_csv(ctx.path(f"trajectory_{name}.csv"))
