@@ -31,7 +31,8 @@ from cosim.realtime.policy import OverrunFaultPlan, SetpointGate
 from cosim.realtime.schedule import precompute_schedules
 from cosim.results.progress import ProgressBar
 from cosim.split.drive_side import DriveSideSpec, drive_side_main, read_raw_rows
-from cosim.split.protocol import END, LOST, free_udp_port, pack_marker, pres_expected, side_configs
+from cosim.split.protocol import (END, LOST, free_udp_port, pack_marker, pres_expected, side_configs,
+                                  use_directional_bus)
 from fieldbus import FieldbusConfig, ManagingNodeEndpoint
 from fieldbus.network import network_summary
 
@@ -94,7 +95,9 @@ def run_split_cell(doc: dict[str, Any], controller, true_robot, ctx, *, label: s
     if abs(period - controller.config.period_s) > 1e-12:
         raise ValueError(f"controller period {controller.config.period_s} s differs from the fieldbus cycle "
                          f"time {period} s")
-    port = free_udp_port()
+    port, up_port = free_udp_port(), free_udp_port()
+    while up_port == port:
+        up_port = free_udp_port()
     bus_config = side_configs(fb_config, port, options.receive_timeout_s)
     laser = LaserTracker(true_robot.kinematic_model(), tracker)
     signals, record_period = cell_signals(doc, laser)
@@ -106,7 +109,8 @@ def run_split_cell(doc: dict[str, Any], controller, true_robot, ctx, *, label: s
                          tracker=laser.config, true_model=true_robot.kinematic_model(), stop_time_s=stop_time,
                          config=bus_config, raw_path=str(raw),
                          marker_timeout_s=max(30.0, 5.0 * options.receive_timeout_s),
-                         scheduling=settings.scheduling, fifo_priority=settings.fifo_priority)
+                         scheduling=settings.scheduling, fifo_priority=settings.fifo_priority,
+                         ports=(port, up_port))
     context = multiprocessing.get_context("spawn")
     conn, child_conn = context.Pipe(duplex=True)
     process = context.Process(target=drive_side_main, args=(spec, child_conn), name=f"cosim-split-drives-{label}",
@@ -114,8 +118,10 @@ def run_split_cell(doc: dict[str, Any], controller, true_robot, ctx, *, label: s
     wall0 = time.perf_counter()
     cpu0 = time.process_time()
     endpoint = ManagingNodeEndpoint(bus_config, robot_cell.joint_scaling(), log_path=can_log)
+    use_directional_bus(endpoint, "mn", bus_config.bus.channel, port, up_port)
     n_cycles = int(round(stop_time / period)) + 1
-    info: dict[str, Any] = {"interface": "udp_multicast", "channel": bus_config.bus.channel, "port": port,
+    info: dict[str, Any] = {"interface": "udp_multicast", "channel": bus_config.bus.channel,
+                            "ports": {"down": port, "up": up_port},
                             "receive_timeout_s": options.receive_timeout_s}
     session = SplitSession(process, endpoint, info=info)
     failure: SimulationError | None = None

@@ -28,7 +28,7 @@ from cosim.jobs.laser_tracker import LaserTracker, TrackerConfig
 from cosim.master import EndSimulation, Master, SimulationError
 from cosim.realtime.pacer import no_cyclic_gc, realtime_scheduling
 from cosim.realtime.policy import OverrunFaultPlan
-from cosim.split.protocol import END, LOST, pres_expected, unpack_marker
+from cosim.split.protocol import END, LOST, pres_expected, unpack_marker, use_directional_bus
 from fieldbus import DriveActuals, DriveEndpoint, FieldbusConfig
 
 
@@ -43,6 +43,7 @@ class DriveSideSpec:
     raw_path: file of recorded rows (float64, row-major). marker_timeout_s: wall seconds
     to wait for a cycle marker before giving up. scheduling: 'fifo'/'normal' (None =
     'normal') with fifo_priority. can_log: the drive side's own CAN log or None.
+    ports: the (down, up) multicast ports (:func:`cosim.split.protocol.use_directional_bus`).
     """
 
     cell_doc: dict[str, Any]
@@ -57,6 +58,7 @@ class DriveSideSpec:
     scheduling: str | None = None
     fifo_priority: int = 10
     can_log: str | None = None
+    ports: tuple[int, int] = (0, 0)
 
 
 class RawRowSink:
@@ -166,6 +168,7 @@ def drive_side_main(spec: DriveSideSpec, conn) -> None:
     try:
         master = build_master(spec.cell_doc, master_variables=robot_cell.cell_variables())
         endpoint = DriveEndpoint(spec.config, robot_cell.joint_scaling(), log_path=spec.can_log)
+        use_directional_bus(endpoint, "cn", spec.config.bus.channel, *spec.ports)
         plan = OverrunFaultPlan(endpoint.plan, spec.config.nodes)
         endpoint.plan = plan
         link = DriveLink(endpoint, plan, conn, spec.marker_timeout_s)
