@@ -134,7 +134,11 @@ def test_snapped_omega_and_recorder():
 
     rec = FieldbusRecorder(Inner(), capacity=10, torque_noise_sigma=np.zeros(6), seed=0)
     for k in range(4):
-        assert rec.step(k, k * 4e-4, Observed()) == ("setpoints", k)
+        observed = Observed()
+        observed.position = np.full(6, float(k))
+        assert rec.step(k, k * 4e-4, observed) == ("setpoints", k)
     assert rec.stopped is False  # delegated
     t, q, tau = rec.window(4e-4, 2 * 4e-4, 4e-4)
-    assert np.allclose(t, [4e-4, 8e-4]) and np.allclose(q[0], np.arange(6.0)) and np.allclose(tau, 1.0)
+    assert np.allclose(t, [4e-4, 8e-4]) and np.allclose(q[:, 0], [1.0, 2.0]) and np.allclose(tau, 1.0)
+    t, q, tau = rec.window(4e-4, 2 * 4e-4, 4e-4, position_lag_cycles=1)  # position of t_k arrives at t_k+1
+    assert np.allclose(t, [4e-4, 8e-4]) and np.allclose(q[:, 0], [2.0, 3.0])

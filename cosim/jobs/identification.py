@@ -82,6 +82,8 @@ MEASUREMENT_TABLE = Table({
                                         doc="added Gaussian current-measurement noise, sigma in % of rated torque"),
     "noise_seed": Field(Integer(min=0), default=0),
     "method": Field(String(choices=("wls", "ols")), default="wls"),
+    "position_lag_cycles": Field(Integer(min=0, max=10), default=1,
+                                 doc="cycles by which position actual lags torque actual (drive latching)"),
     "consistent": Field(Boolean(), default=True,
                         doc="also fit a physically consistent parameter vector and validate it"),
 }, doc="the [measurement] table")
@@ -233,13 +235,20 @@ class FieldbusRecorder:
             self.rows = k + 1
         return self._controller.step(cycle, t, observed)
 
-    def window(self, start_s: float, duration_s: float, period_s: float) -> tuple[np.ndarray, ...]:
-        """Rows with start_s - 1e-9 <= t < start_s + duration_s - 1e-9: (t, position, torque)."""
+    def window(self, start_s: float, duration_s: float, period_s: float,
+               position_lag_cycles: int = 0) -> tuple[np.ndarray, ...]:
+        """Rows with start_s - 1e-9 <= t < start_s + duration_s - 1e-9: (t, position, torque).
+
+        ``position_lag_cycles``: the positions are taken that many rows later (a drive that
+        latches position actual one cycle before torque actual reports at t_k + T the
+        position of t_k), so that position and torque of a row belong to the same instant.
+        """
         n = self.rows
         first = int(np.searchsorted(self.t[:n], start_s - 1e-9))
         count = int(round(duration_s / period_s))
-        last = min(first + count, n)
-        return self.t[first:last], self.position[first:last], self.torque[first:last]
+        last = min(first + count, n - position_lag_cycles)
+        lag = position_lag_cycles
+        return self.t[first:last], self.position[first + lag:last + lag], self.torque[first:last]
 
 
 # ---------------------------------------------------------------------------------------- set-up
@@ -333,7 +342,8 @@ def run(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
         raise cell.failure
     if controller.motion_start_s is None:
         raise RuntimeError("the controller never started the exciting trajectory")
-    t_x, q_x, tau_x = recorder.window(controller.motion_start_s, duration, period)
+    lag = meas["position_lag_cycles"]
+    t_x, q_x, tau_x = recorder.window(controller.motion_start_s, duration, period, lag)
     excite_summary = {"motion_start_s": controller.motion_start_s, "duration_s": duration,
                       "samples": int(t_x.size), "sim_time_s": cell.reached_s, "loop_wall_time_s": cell.loop_wall_time_s,
                       "controller_mode": ctrl["excitation_mode"],
@@ -440,7 +450,7 @@ def _validate(ctx: RunContext, doc: dict[str, Any], rec: FieldbusRecorder, ctl: 
     from identification.dynamic_signals import zero_phase_lowpass
 
     period = doc["controller"]["period"]
-    t, q, tau = rec.window(ctl.motion_start_s, path.duration, period)
+    t, q, tau = rec.window(ctl.motion_start_s, path.duration, period, doc["measurement"]["position_lag_cycles"])
     record = motion_record(t, q, tau, source=f"ISO 9283 run with the {label} model (fieldbus actual values)")
     if doc["results"]["records"]:
         write_motion_csv(ctx.path("validation_record.csv"),
