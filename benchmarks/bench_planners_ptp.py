@@ -140,6 +140,25 @@ def main() -> int:
             res, solve, cpu, _ = _runs(planner, problem, 1)
             s = planner_summary(res, problem.limits, dyn)
             print(_line(name, res, s, solve, cpu, f"  iterations {[a['iterations'] for a in res.info['attempts']]}"))
+        print("\n== random PtP problems (eq. 40 limits, positions in 80 % of the ranges, N = 100, seed 7) ==")
+        import numpy as np
+
+        from planners.base import PtPProblem
+        from planners.ptp_optimal import eq40_limits
+
+        limits = eq40_limits()
+        rng = np.random.default_rng(7)
+        for i in range(6):
+            q0 = rng.uniform(0.8 * limits.position_lower, 0.8 * limits.position_upper)
+            qe = rng.uniform(0.8 * limits.position_lower, 0.8 * limits.position_upper)
+            random_problem = PtPProblem(q0, qe, limits, dynamics=dyn)
+            res, solve, cpu, _ = _runs(OptimalPtPPlanner(), random_problem, 1)
+            tuned = FeasibleRuckigPlanner().plan(random_problem)
+            s = planner_summary(res, limits, dyn)
+            ratio = (f"  / ruckig_feasible {s['duration_s'] / tuned.trajectory.duration:.3f}"
+                     if res.ok and tuned.ok else "")
+            print(_line(f"problem {i}", res, s, solve, cpu,
+                        f"  iterations {[a['iterations'] for a in res.info['attempts']]}{ratio}"))
     print(f"\nload average at end: {os.getloadavg()[0]:.1f}")
     return 0
 
