@@ -171,8 +171,9 @@ def paced(sizes: Sizes, work: Path) -> dict[str, Any]:
                                               stop_time=sizes.paced_sim_s, fieldbus=fb, tracker=tracker,
                                               record_file="timeseries.csv", can_log=None,
                                               settings=RealtimeSettings())
-        s = lateness_summary(pacer.log)
+        s = lateness_summary(pacer.log, pacer.thresholds)
         runs.append({"cycles": s["cycles"], "overruns": s["overruns"], "overrun_fraction": s["overrun_fraction"],
+                     "late_fraction": s["late_fraction"], "thresholds_us": s["thresholds_us"],
                      "missed_ticks": s["missed_ticks"], "lateness_p50_us": s["lateness"]["p50_us"],
                      "lateness_p99_us": s["lateness"]["p99_us"], "lateness_max_us": s["lateness"]["max_us"],
                      "cycle_work_p50_us": s["cycle_work"]["p50_us"], "cycle_work_p99_us": s["cycle_work"]["p99_us"],

@@ -29,7 +29,10 @@ def test_paced_run_writes_realtime_statistics_and_histogram(tmp_path):
     assert 0 <= rt["overruns"] <= rt["cycles"] and rt["overrun_fraction"] == rt["overruns"] / rt["cycles"]
     lat = rt["lateness"]
     assert 0.0 <= lat["p50_us"] <= lat["p99_us"] <= lat["max_us"]
-    assert rt["tolerance_us"] == pytest.approx(8.72)   # SoC start to first PReq start on the wire
+    assert rt["tolerance_us"] == pytest.approx(400.0 - 136.56)   # cycle minus the isochronous phase
+    assert rt["thresholds_us"]["first_preq_slot"] == pytest.approx(8.72)
+    assert set(rt["late_fraction"]) == {"first_preq_slot", "isochronous_phase", "whole_cycle"}
+    assert rt["late_fraction"]["isochronous_phase"] == rt["overrun_fraction"]
     assert rt["runs"]["model_based"]["cycles"] == 101
     assert (out / rt["histogram"]).read_bytes()[:4] == b"\x89PNG"
     assert (out / "jitter_model_based.png").exists()

@@ -14,8 +14,8 @@ from cosim.realtime.network import auto_tolerance_s
 from cosim.realtime.pacer import Pacer, VirtualClock
 from realtime_support import BUS_TARGETS, PERIOD, build_cell, column_block, write_scenario
 
-SLOW_AT = (150, 200)        # controller cycles that take 500 us of (virtual) wall time
-SLOW_NS = 500_000
+SLOW_AT = (150, 200)        # controller cycles that take 700 us of (virtual) wall time
+SLOW_NS = 700_000           # -> the next cycle starts 300 us late: past the 263.44 us tolerance
 
 
 def _slow_down(controller, delays: dict[int, float], advance) -> None:
@@ -63,10 +63,11 @@ def test_exact_overruns_and_hold_keeps_the_last_setpoint(tmp_path):
     cell, pacer, controller, targets = _run(tmp_path, "hold", {k: SLOW_NS for k in SLOW_AT})
     assert cell.failure is None
     assert controller.motion_start_cycle is not None and controller.motion_start_cycle < min(SLOW_AT) - 5
-    # the cycle after each slowed one starts 100 us late: an overrun; nothing else is late
+    # the cycle after each slowed one starts 300 us late (> 400 - 136.56 us: its isochronous phase
+    # would end after the next SoC): an overrun; nothing else is late
     assert pacer.log.overrun_cycles == [k + 1 for k in SLOW_AT]
     lat = dict(zip(pacer.log.cycles[:pacer.log.count].tolist(), pacer.log.lateness_us.tolist()))
-    assert [lat[k + 1] for k in SLOW_AT] == [100.0, 100.0]
+    assert [lat[k + 1] for k in SLOW_AT] == [300.0, 300.0]
     assert pacer.log.missed_ticks == 0
     d = 1
     for k in SLOW_AT:

@@ -23,7 +23,7 @@ from cosim.jobs import robot_cell
 from cosim.jobs.laser_tracker import LaserTracker, TrackerConfig
 from cosim.master import MemorySink, SimulationError
 from cosim.realtime.config import RealtimeSettings
-from cosim.realtime.network import PacedNetwork, auto_tolerance_s
+from cosim.realtime.network import PacedNetwork, auto_tolerance_s, lateness_thresholds
 from cosim.realtime.pacer import Pacer, no_cyclic_gc, realtime_scheduling
 from cosim.results.timeseries import CsvSink
 from cosim.scenario.context import RunContext
@@ -89,6 +89,7 @@ def run_paced_cell(doc: dict[str, Any], controller, true_robot, ctx: RunContext,
         tolerance = settings.tolerance_s if settings.tolerance_s is not None else auto_tolerance_s(network.layout)
         if pacer is None:
             pacer = Pacer(period, settings.spin_s, tolerance, capacity=int(stop_time / period) + 16)
+        pacer.thresholds = lateness_thresholds(network.layout)
         paced = PacedNetwork(network, pacer, settings.overrun_policy, cycles=int(round(stop_time / period)) + 1)
         link = robot_cell.FieldbusLink(paced, controller, period)
         master.add_task(link, period, priority=0, name="fieldbus+controller", setup=link.setup)

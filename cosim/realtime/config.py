@@ -13,8 +13,9 @@ spin = "100 us"              # busy-wait this long before each wall deadline (sl
 scheduling = "fifo"          # "fifo": ask for SCHED_FIFO (falls back to the normal scheduler) | "normal"
 fifo_priority = 10           # SCHED_FIFO priority (1..99)
 cpu = "auto"                 # pin the paced loop to one CPU: "auto" (highest-numbered usable), "none", or an index
-tolerance = "auto"           # lateness above which a cycle is an overrun; "auto" = the time from the
-                             # SoC to the first PReq on the wire (fieldbus schedule), or a time
+tolerance = "auto"           # lateness above which a cycle is an overrun; "auto" = the cycle time minus
+                             # the isochronous phase of the fieldbus schedule (400 - 136.56 us: a later
+                             # start puts the cycle's telegrams on the bus after the next SoC), or a time
 histogram_bins = 60
 ```
 
@@ -110,7 +111,7 @@ class RealtimeSettings:
     scheduling: 'fifo' | 'normal'; fifo_priority: 1..99.
     cpu: pin the paced loop to this CPU ('auto': highest-numbered usable; 'none'/None: no pinning).
     tolerance_s: lateness above which a cycle counts as an overrun, s (None = from the
-        fieldbus schedule: SoC start to first PReq start).
+        fieldbus schedule: cycle time minus the isochronous phase).
     histogram_bins: bins of the jitter histogram figure.
     """
 

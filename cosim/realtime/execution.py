@@ -70,7 +70,7 @@ class CellExecution:
         self.period_s, self.tolerance_s = period, tolerance
         log = pacer.log
         self.logs[label] = log
-        run = lateness_summary(log)
+        run = lateness_summary(log, pacer.thresholds)
         run["histogram"] = write_histogram(ctx.path(f"jitter_{label}.png"), log, period_s=period,
                                            tolerance_s=tolerance, bins=s.histogram_bins,
                                            title=f"{label}: {log.count} paced cycles, "
@@ -80,7 +80,7 @@ class CellExecution:
         run["load_average_after"] = load_average()
         self.runs[label] = run
         total = combine(list(self.logs.values()))
-        out = lateness_summary(total)
+        out = lateness_summary(total, pacer.thresholds)
         out["histogram"] = write_histogram(ctx.path("jitter.png"), total, period_s=period, tolerance_s=tolerance,
                                            bins=s.histogram_bins).name
         out.update(policy=s.overrun_policy, period_us=period * 1e6, tolerance_us=tolerance * 1e6,

@@ -18,9 +18,18 @@ from fieldbus.process_data import CycleResult
 
 
 def auto_tolerance_s(layout) -> float:
-    """The default overrun tolerance: from the SoC's start to the first PReq's start on the wire, s
-    (the last moment the managing node can still put fresh set-points into this cycle's PReqs)."""
-    return float(layout.nominal_soc_to_preq[1])
+    """The default overrun tolerance, s: the cycle time minus the isochronous phase (SoC, then
+    PReq/PRes of every node until the last PRes is at the managing node). A cycle that starts
+    later than this has telegrams that are not all on the bus by the next SoC: an overrun."""
+    return float(layout.cycle_time - layout.nominal_end_of_isochronous)
+
+
+def lateness_thresholds(layout) -> dict[str, float]:
+    """Lateness thresholds reported besides the tolerance (s): the first PReq's slot (stricter:
+    fresh set-points miss the first PReq), the isochronous phase's end (the default
+    tolerance) and a whole cycle (a wall tick missed)."""
+    return {"first_preq_slot": float(layout.nominal_soc_to_preq[1]), "isochronous_phase": auto_tolerance_s(layout),
+            "whole_cycle": float(layout.cycle_time)}
 
 
 class PacedNetwork:

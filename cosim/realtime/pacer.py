@@ -118,6 +118,7 @@ class Pacer:
         self.origin_ns: int | None = None
         self._started: int | None = None
         self.log = LatenessLog(capacity)
+        self.thresholds: dict[str, float] = {}  # named lateness thresholds (s) to report (runner sets them)
 
     def deadline_ns(self, cycle: int) -> int:
         """W_k in the clock's ns (after the first :meth:`wait`)."""

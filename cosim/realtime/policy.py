@@ -1,9 +1,11 @@
 """What the telegrams of a late cycle carry: the overrun policies.
 
-A cycle is an *overrun* when its telegrams (the SoC and the PReqs carrying the
-set-points the controller computed in the previous cycle) could not be on the bus at
-their wall deadline (:class:`cosim.realtime.pacer.Pacer`). The scenario chooses the
-reaction (``[realtime] overrun_policy``):
+A cycle is an *overrun* when its telegrams (SoC, the PReqs carrying the set-points the
+controller computed in the previous cycle, the PRes frames) are not all on the bus by
+the next SoC: it starts later than its wall deadline by more than the tolerance (the
+cycle time minus the isochronous phase, :func:`cosim.realtime.network.auto_tolerance_s`;
+:class:`cosim.realtime.pacer.Pacer` judges it before the cycle's frames are sent). The
+scenario chooses the reaction (``[realtime] overrun_policy``):
 
 ``hold``
     The PReqs leave on time with the set-points of the previous cycle (the managing

@@ -21,11 +21,12 @@ def load_average() -> list[float] | None:
         return None
 
 
-def lateness_summary(log: LatenessLog) -> dict[str, Any]:
+def lateness_summary(log: LatenessLog, thresholds: dict[str, float] | None = None) -> dict[str, Any]:
     """``cycles``, ``overruns``, ``overrun_fraction``, ``lateness`` {p50_us, p99_us, max_us, mean_us},
     ``missed_ticks`` (wall ticks dropped after cycles late by whole periods),
     ``cycle_work`` {p50_us, p99_us, max_us} (wall time of a cycle's work before the next wait),
-    ``overrun_cycles`` (the first :data:`LISTED_OVERRUNS`)."""
+    ``overrun_cycles`` (the first :data:`LISTED_OVERRUNS`); with ``thresholds`` (name -> s) also
+    ``late_fraction`` {name: fraction of cycles whose lateness exceeds it} and ``thresholds_us``."""
     lat = log.lateness_us
     cycles = int(lat.size)
     overruns = int(log.overrun[:cycles].sum())
@@ -41,8 +42,14 @@ def lateness_summary(log: LatenessLog) -> dict[str, Any]:
         cycle_work = {"p50_us": float(w50), "p99_us": float(w99), "max_us": float(work.max())}
     else:
         cycle_work = {"p50_us": None, "p99_us": None, "max_us": None}
+    extra: dict[str, Any] = {}
+    if thresholds:
+        extra["thresholds_us"] = {k: v * 1e6 for k, v in thresholds.items()}
+        extra["late_fraction"] = {k: float((lat > v * 1e6).sum()) / cycles if cycles else 0.0
+                                  for k, v in thresholds.items()}
     return {"cycles": cycles, "overruns": overruns, "overrun_fraction": overruns / cycles if cycles else 0.0,
-            "missed_ticks": int(log.missed_ticks), "lateness": lateness, "cycle_work": cycle_work, "overrun_cycles": log.overrun_cycles[:LISTED_OVERRUNS]}
+            "missed_ticks": int(log.missed_ticks), "lateness": lateness, "cycle_work": cycle_work, **extra,
+            "overrun_cycles": log.overrun_cycles[:LISTED_OVERRUNS]}
 
 
 def combine(logs: list[LatenessLog]) -> LatenessLog:

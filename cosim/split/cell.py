@@ -25,7 +25,7 @@ from cosim.jobs.laser_tracker import LaserTracker, TrackerConfig
 from cosim.master import MemorySink, SimulationError
 from cosim.realtime.cell import cell_signals, deferred_recording, write_memory_csv
 from cosim.realtime.config import ExecutionOptions
-from cosim.realtime.network import auto_tolerance_s
+from cosim.realtime.network import auto_tolerance_s, lateness_thresholds
 from cosim.realtime.pacer import Pacer, no_cyclic_gc, realtime_scheduling
 from cosim.realtime.policy import OverrunFaultPlan, SetpointGate
 from cosim.realtime.schedule import precompute_schedules
@@ -139,6 +139,8 @@ def run_split_cell(doc: dict[str, Any], controller, true_robot, ctx, *, label: s
             pacer = Pacer(period, settings.spin_s, tolerance, capacity=n_cycles + 16)
         if not paced:
             pacer = None
+        else:
+            pacer.thresholds = lateness_thresholds(endpoint.layout)
         gate = SetpointGate(settings.overrun_policy, fb_config.nodes)
         plan = OverrunFaultPlan(endpoint.plan, fb_config.nodes)
         endpoint.plan = plan
