@@ -21,8 +21,9 @@ few thousand inequality constraints of which q, qd, qdd are linear in the unknow
 SciPy's SLSQP (sequential quadratic programming with a BFGS Hessian) converges in
 a few hundred iterations; no smooth surrogate is needed. IPOPT on the smooth
 surrogate ``log tr((Theta_n^T Theta_n)^-1)`` (A-optimality; with unit columns
-``tr(Theta_n^T Theta_n) = n`` so ``cond <= n tr(...)``) is measured against it in
-``benchmarks/bench_identification.py``.
+``tr(Theta_n^T Theta_n) = n`` so ``cond^2 <= n tr(...)``) is measured against it in
+``benchmarks/bench_identification.py``: on a reduced problem (order 2, k = 30, same start,
+100 iterations each) SLSQP reached cond 13.1 in 7.3 s, IPOPT on the surrogate 23.5 in 60 s.
 
 The random baseline (:func:`random_feasible_trajectory`): Gaussian coefficients of
 the same order, projected on the start-at-rest equalities, offsets at the centre
