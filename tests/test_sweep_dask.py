@@ -243,7 +243,10 @@ def test_second_run_skips_finished_variants(tmp_path, client):
                                          encoding="utf-8")
     # (this time through the scheduler address, as with --scheduler: the same cluster, a new client)
     third = run_sweep(load_sweep(tmp_path / "sweep.toml"), out, scheduler=client.scheduler.address, progress=False)
-    assert (third.ran, third.reused, third.ok, third.workers) == (2, 2, 4, 2)
+    assert (third.ran, third.reused, third.ok) == (2, 2, 4)
+    # the shared cluster's nanny may still be restarting a worker killed by an earlier test,
+    # so the count seen at connection time is 1 or 2 (the same scheduler either way)
+    assert third.workers in (1, 2)
     rows = read_table(third.table)
     assert [float(r['fmus[0].parameters."q0[3]"']) for r in rows] == [1.0, 1.1, 1.2, 1.4]
     moved = next(r for r in third.rows if r["variant"] == "v0002")
