@@ -36,8 +36,23 @@ def test_campaign_summary_and_accuracy(campaign):
     assert summary["calibrated_within_3_sigma"] is True
     assert summary["identifiable_parameters"] == 30
     assert summary["identifiable_parameters_position_only"] == 25
-    assert summary["observation_index_ratio_vs_linear_scan"] > 1.0
-    assert summary["observation_index_ratio_vs_random"] > 1.0
+    # the paper's index (lambda_min of Lambda, whitened units) on this 434-candidate set:
+    # measured 2.19x the linear scan, 2.70x the median random selection, 0.93 of the
+    # certified upper bound with 2 restarts (the 18.5 of the paper is out of reach here:
+    # the bound allows at most 2.35x; docs/calibration.md)
+    assert summary["observation_index"] == "min_eigenvalue"
+    assert summary["observation_index_scaling"] == "whitened"
+    assert summary["observation_index_ratio_vs_linear_scan"] > 2.0
+    assert summary["observation_index_ratio_vs_random"] > 2.4
+    assert summary["observation_index_selected_over_upper_bound"] > 0.9
+    ratios = summary["observation_index_ratios"]
+    assert set(ratios) == {"min_eigenvalue", "d_optimality", "inverse_condition", "noise_amplification"}
+    assert ratios["min_eigenvalue"]["ratio_vs_linear_scan"] == summary["observation_index_ratio_vs_linear_scan"]
+    for entry in ratios.values():
+        assert entry["ratio_vs_linear_scan"] > 1.1 and entry["ratio_vs_random"] > 1.1
+    verdict = summary["observation_index_paper_factor"]
+    assert all(v >= 18.5 for v in verdict["met"].values()) and all(v < 18.5 for v in verdict["not_met"].values())
+    assert len(verdict["met"]) + len(verdict["not_met"]) == 10  # 4 indices + 6 equivalent forms
     assert summary["selection"]["configurations"] == 32
     assert summary["validation_poses"] == 100
     # identified base parameters agree with the hidden truth within their standard deviations

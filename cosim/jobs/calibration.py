@@ -4,7 +4,8 @@ Runs :func:`identification.calibration_campaign.run_calibration_campaign` with t
 scenario's tables (all optional; defaults and meaning in that module and in
 docs/calibration.md) and puts its summary into ``summary.json``: Table 2 figures
 (``uncalibrated``/``calibrated``), identifiable parameters, observation-index ratios
-against a linear scan and random selections, selection time. Files written next to
+against a linear scan and random selections (per index: ``observation_index_ratios``),
+selection time. Files written next to
 it: measurements.csv, calibrated.urdf, parameters.json, calibration_residuals.json,
 table2.md, table2.png, configurations.png.
 """
@@ -18,6 +19,7 @@ from cosim.scenario.registry import register_job
 from cosim.scenario.schema import Boolean, Field, Integer, List, Number, String, Table
 from identification.calibration_campaign import run_calibration_campaign
 from identification.calibration_observability import OBSERVATION_INDICES
+from identification.calibration_scaling import COLUMN_SCALINGS
 
 TRUE_ROBOT = Table({
     "seed": Field(Integer(min=0), doc="seed of robot.true_robot.make_true_robot (its geometric errors)"),
@@ -52,6 +54,8 @@ SELECTION = Table({
     "seed": Field(Integer(min=0)),
     "start_size": Field(Integer(min=0), doc="0: default start size"),
     "random_draws": Field(Integer(min=1)),
+    "scaling": Field(String(choices=COLUMN_SCALINGS), doc="units of the selection problem"),
+    "compare_indices": Field(Boolean(), doc="select for every observation index and report the ratios"),
 }, doc="the [selection] table")
 
 VALIDATION = Table({
