@@ -6,10 +6,11 @@ Target (issue 5): at least 3x faster than real time on one core (median of 5 run
 <= 100 us.
 
 Each run builds the cell of ``scenarios/iso9283.toml`` (true robot, macro step, plant
-integration step, drive gains, fieldbus defaults) exactly as ``python -m cosim run``
-does (``cosim.jobs.robot_cell.run_cell``), with ``stop_time`` = 2 s, into a temporary
-results folder; the CAN log is off unless ``--can-log`` (its BLF encoding is file
-output, not loop work).
+parameters, drive gains and the mode's drive speed feed-forward, fieldbus defaults)
+exactly as ``python -m cosim run`` does (``cosim.jobs.iso9283.prepare``, the settings of
+``run_mode``, ``cosim.jobs.robot_cell.run_cell``), with ``stop_time`` = 2 s, into a
+temporary results folder; the CAN log is off unless ``--can-log`` (its BLF encoding is
+file output, not loop work), and the time-series CSV is written after the loop.
 
 Printed per run and as medians:
 
@@ -51,31 +52,30 @@ TARGET_P99_US = 100.0
 
 
 def build(sim_time: float, mode: str):
-    """Scenario document, controller, true robot and tracker config of one run."""
-    from controller import Controller, ControllerConfig, TcpTrajectory
+    """Scenario, cell document, controller, true robot, fieldbus and tracker config of one
+    run: ``cosim.jobs.iso9283.prepare`` and the controller/drive settings of ``run_mode``."""
+    from controller import Controller, ControllerConfig
     from cosim.jobs import iso9283, robot_cell
-    from cosim.jobs.laser_tracker import TrackerConfig
     from cosim.scenario import load_scenario
-    from fieldbus import FieldbusConfig
-    from planners.iso9283 import ISO_Q_HINT, iso9283_test_path
+    from planners.iso9283 import ISO_Q_HINT
 
     scenario = load_scenario(ROOT / "scenarios" / "iso9283.toml")
     doc = scenario.data
     doc["simulation"]["stop_time"] = sim_time
+    doc["controller"]["modes"] = [mode]
+    setup = iso9283.prepare(doc, str(scenario.path))
     ctrl_t = doc["controller"]
     period = ctrl_t["period"]
-    true_robot = iso9283.make_true_robot(doc["true_robot"])
-    path = iso9283_test_path(speed=doc["path"]["speed"], acceleration=doc["path"]["acceleration"])
-    reference = TcpTrajectory.from_reference(path.reference, path.duration, period)
-    kin, dyn, _, _ = iso9283.controller_models(ctrl_t, true_robot)
-    fb = FieldbusConfig.from_dict(doc["fieldbus"])
-    config = ControllerConfig(mode=mode, period_s=period, lead_cycles=1 + fb.dead_time_cycles,
+    settings = setup.mode_settings[mode]
+    mode_doc = {**doc, "fmus": iso9283.mode_fmus(doc["fmus"], settings["drive_speed_feedforward"])}
+    drive_model = (robot_cell.drive_loop_model(mode_doc["fmus"], period)
+                   if ctrl_t["drive_compensation"] and settings["torque_feedforward"] else None)
+    config = ControllerConfig(mode=settings["controller_mode"], period_s=period,
+                              lead_cycles=1 + setup.fieldbus.dead_time_cycles,
                               compute_budget_s=ctrl_t["compute_budget"], settle_time_s=ctrl_t["settle_time"])
-    drive_model = robot_cell.drive_loop_model(doc["fmus"], period)
-    controller = Controller(reference, config, kinematic_model=kin, dynamics=dyn, q_hint=np.array(ISO_Q_HINT),
-                            drive_model=drive_model, capacity=int(sim_time / period) + 16)
-    tracker = TrackerConfig(doc["tracker"]["period"], doc["tracker"]["noise_sigma"], doc["tracker"]["seed"])
-    return scenario, doc, controller, true_robot, fb, tracker
+    controller = Controller(setup.reference, config, kinematic_model=setup.kinematics, dynamics=setup.dynamics,
+                            q_hint=np.array(ISO_Q_HINT), drive_model=drive_model, capacity=setup.capacity)
+    return scenario, mode_doc, controller, setup.true_robot, setup.fieldbus, setup.tracker
 
 
 def one_run(sim_time: float, mode: str, can_log: bool, out_dir: Path) -> dict[str, float]:
@@ -168,7 +168,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--runs", type=int, default=5)
     parser.add_argument("--sim-time", type=float, default=2.0, help="simulated seconds per run")
-    parser.add_argument("--mode", default="model_based", choices=("standard", "model_based"))
+    parser.add_argument("--mode", default="model_based", choices=("standard", "standard_speed_ff", "model_based"))
     parser.add_argument("--can-log", action="store_true", help="also write the CAN log (BLF)")
     parser.add_argument("--breakdown", action="store_true", help="one more run with a CPU-time breakdown per part")
     args = parser.parse_args()
