@@ -1,6 +1,10 @@
 """The plant FMU, stepped by fmpy, against an independent solve: pinocchio forward
 dynamics (ABA with armature) + friction from robot.dynamics, integrated by scipy
 solve_ivp (DOP853, rtol = atol = 1e-12) with the same zero-order-hold torques."""
+import tomllib
+from functools import lru_cache
+from pathlib import Path
+
 import numpy as np
 import pytest
 from fmpy import extract, read_model_description
@@ -67,14 +71,35 @@ PROFILES = {
 }
 
 
+@lru_cache(maxsize=None)
+def reference_of(profile: str) -> np.ndarray:
+    return run_reference(NOMINAL, PROFILES[profile])
+
+
 @pytest.mark.parametrize("profile", sorted(PROFILES))
 def test_plant_matches_pinocchio_solve_ivp(plant, profile):
     fmu = run_fmu(plant, PROFILES[profile])
-    ref = run_reference(NOMINAL, PROFILES[profile])
+    ref = reference_of(profile)
     error = np.abs(fmu[:, :6] - ref[:, :6]).max()
     assert error < 1e-8, f"{profile}: max |q_fmu - q_ref| = {error:.3e} rad over 1 s"
     assert np.abs(fmu[:, 6:12] - ref[:, 6:]).max() < 1e-6  # rad/s
     assert np.ptp(ref[:, :6], axis=0).max() > 0.5  # the arm really moved
+
+
+def main_job_integration_step() -> float:
+    scenario = Path(__file__).resolve().parents[1] / "scenarios" / "iso9283.toml"
+    plant = next(f for f in tomllib.loads(scenario.read_text())["fmus"] if f["name"] == "plant")
+    return float(plant.get("parameters", {}).get("integration_step", 50e-6))
+
+
+@pytest.mark.parametrize("profile", sorted(PROFILES))
+def test_plant_at_the_main_jobs_integration_step(plant, profile):
+    """The RK4 sub-step scenarios/iso9283.toml chooses (100 us) keeps the 1e-8 rad bound."""
+    step = main_job_integration_step()
+    assert step >= 50e-6
+    fmu = run_fmu(plant, PROFILES[profile], start={"integration_step": step})
+    error = np.abs(fmu[:, :6] - reference_of(profile)[:, :6]).max()
+    assert error < 1e-8, f"{profile}: integration_step {step} s: max |q_fmu - q_ref| = {error:.3e} rad over 1 s"
 
 
 def test_qdd_output_is_the_forward_dynamics_at_the_step_end(plant):
