@@ -265,14 +265,19 @@ class ManagingNodeEndpoint(_Endpoint):
         if setpoints.controlword.dtype.kind not in "iu":
             raise ValueError(f"setpoints.controlword has dtype {setpoints.controlword.dtype}: expected integers")
         self._begin(cycle)
-        cws = setpoints.controlword.tolist()
-        poss = setpoints.position.tolist()
-        tqs = setpoints.torque_offset.tolist()
-        n = self.config.nodes
-        if len(cws) != n or len(poss) != n or len(tqs) != n:
-            raise ValueError(f"setpoints: expected {n} entries per field, got {len(cws)}, {len(poss)}, {len(tqs)}")
-        self.node.start_cycle(cycle)
-        self._transmit(self.node.frames(cycle, self._times, cws, poss, tqs))
+        node = self.node
+        node.start_cycle(cycle)
+        frames = node.encode(cycle, self._times, setpoints)  # compiled codec, None: Python
+        if frames is None:
+            cws = setpoints.controlword.tolist()
+            poss = setpoints.position.tolist()
+            tqs = setpoints.torque_offset.tolist()
+            n = self.config.nodes
+            if len(cws) != n or len(poss) != n or len(tqs) != n:
+                raise ValueError(f"setpoints: expected {n} entries per field, got {len(cws)}, {len(poss)}, "
+                                 f"{len(tqs)}")
+            frames = node.frames(cycle, self._times, cws, poss, tqs)
+        self._transmit(frames)
 
     def collect_actuals(self, cycle: int) -> ObservedActuals:
         """Receive this cycle's PRes frames (and EMCYs); the controller's view of cycle k."""

@@ -40,6 +40,7 @@ import can
 import numpy as np
 
 from fieldbus.cia402 import CW_FAULT_RESET, Command
+from fieldbus.codec import load_codec
 from fieldbus.events import CounterBank, EventLog, FieldbusEvent, ThresholdCounter
 from fieldbus.process_data import AppliedSetpoints, DriveActuals, ObservedActuals
 from fieldbus.telegrams import (
@@ -50,6 +51,7 @@ from fieldbus.telegrams import (
 
 if TYPE_CHECKING:
     from fieldbus.config import FieldbusConfig
+    from fieldbus.process_data import Setpoints
     from fieldbus.scaling import JointScaling
     from fieldbus.timing import CycleLayout
 
@@ -71,6 +73,11 @@ def _array_writer(array: np.ndarray) -> Callable[..., None]:
     buffer: about twice as fast as ``array[:] = values`` for six entries)."""
     code = {"float64": "d", "int64": "q", "bool": "?"}[array.dtype.name]
     return partial(struct.Struct(f"@{array.size}{code}").pack_into, memoryview(array).cast("B"), 0)
+
+
+def _doubles(values: list[float]) -> bytes:
+    """Native float64 packing of constants for the compiled codec."""
+    return struct.pack(f"@{len(values)}d", *values)
 
 
 def _decode_error(log: EventLog, side: str, msg: can.Message, cycle: int, time_s: float) -> tuple[str, int]:
@@ -137,6 +144,11 @@ class ManagingNode:
         self._upn = scaling.units_per_newton_metre.tolist()
         self._rpc = scaling.rad_per_count.tolist()
         self._npu = scaling.newton_metre_per_unit.tolist()
+        # the compiled codec (fieldbus/codec.c) and its packed constants; None: Python only
+        self._codec = load_codec()
+        self._packed = {name: _doubles(values) for name, values in
+                        (("cpr", self._cpr), ("upn", self._upn), ("rpc", self._rpc), ("npu", self._npu),
+                         ("wait", self._pres_wait))}
         th = config.thresholds
         self.counters = CounterBank(log, self._on_threshold)
         new = self.counters.new
@@ -156,6 +168,23 @@ class ManagingNode:
         self._got2 = [False] * n
         self._late = [False] * n
         self._crc = [False] * n
+
+    def encode(self, cycle: int, times: list, setpoints: "Setpoints") -> list[FastMessage] | None:
+        """:meth:`frames` for ``setpoints`` (arrays) through the compiled codec; None when
+        the codec is unavailable or declines (a node fault latched, a value outside the
+        telegram range or not finite, unusual arrays): then call :meth:`frames`."""
+        codec = self._codec
+        if codec is None or True in self.node_fault:
+            return None
+        packed = self._packed
+        if codec.pack_preq(self._preq_msgs, times, setpoints.controlword, setpoints.position,
+                           setpoints.torque_offset, packed["cpr"], packed["upn"], packed["wait"], self._latest,
+                           self._last_cw):
+            return None
+        sync = self._sync_msg
+        sync.timestamp = times[0]
+        sync.data[0] = (cycle % self._sync_overflow) + 1
+        return self._frames
 
     def frames(self, cycle: int, times: list, controlword: list, position: list,
                torque_offset: list) -> list[FastMessage]:
@@ -206,6 +235,19 @@ class ManagingNode:
     def receive_all(self, msgs: list | tuple) -> None:
         """Digest received frames in order; never raises."""
         self.frames_received += len(msgs)
+        codec = self._codec
+        if codec is None:
+            self._receive_frames(msgs)
+            return
+        count, k = len(msgs), 0
+        while k < count:  # the codec digests the PDOs; any other frame goes through Python, in order
+            k = codec.receive_pres(msgs, k, self._latest, self._sw, self._pos, self._tq, self._vel, self._err,
+                                   self._got1, self._got2, self._late)
+            if k < count:
+                self._receive_frames(msgs[k:k + 1])
+                k += 1
+
+    def _receive_frames(self, msgs: list | tuple) -> None:
         tpdo1, tpdo2, latest = self._tpdo1_index, self._tpdo2_index, self._latest
         sw, pos, tq, vel, err = self._sw, self._pos, self._tq, self._vel, self._err
         got1, got2, late = self._got1, self._got2, self._late
@@ -287,6 +329,13 @@ class ManagingNode:
         if self._err != self._last_err:
             obs.error_code[:] = self._err
             self._last_err = list(self._err)
+        codec = self._codec
+        if codec is not None:
+            packed = self._packed
+            if not (codec.scale_into(self._pos, packed["rpc"], obs.position)
+                    or codec.scale_into(self._vel, packed["rpc"], obs.velocity)
+                    or codec.scale_into(self._tq, packed["npu"], obs.torque)):
+                return obs
         rpc = self._rpc
         self._write_position(*map(mul, self._pos, rpc))
         self._write_velocity(*map(mul, self._vel, rpc))
@@ -377,6 +426,12 @@ class ControlledNodes:
         self._upn = scaling.units_per_newton_metre.tolist()
         self._rpc = scaling.rad_per_count.tolist()
         self._npu = scaling.newton_metre_per_unit.tolist()
+        # the compiled codec (fieldbus/codec.c) and its packed constants; None: Python only
+        self._codec = load_codec()
+        self._packed = {name: _doubles(values) for name, values in
+                        (("cpr", self._cpr), ("upn", self._upn), ("rpc", self._rpc), ("npu", self._npu),
+                         ("arrival", self._arrival))}
+        self._prepacked = False  # this cycle's PRes payloads were packed at the SoC by the codec
         th = config.thresholds
         self.counters = CounterBank(log, self._on_threshold)
         new = self.counters.new
@@ -397,25 +452,34 @@ class ControlledNodes:
         n = self.nodes
         t = self._t0 + cycle * self._cycle_time
         self._next_soc = t + self._cycle_time
-        s = self.scaling
+        codec, packed = self._codec, self._packed
         # latch actual values (quantised as they enter the PRes; range-checked when packed)
-        self._a_sw = actuals.statusword.tolist()
-        self._a_err = actuals.error_code.tolist()
-        pos, vel, tq = actuals.position.tolist(), actuals.velocity.tolist(), actuals.torque.tolist()
-        cpr = self._cpr
-        try:
-            self._a_pos = a_pos = [floor(q * c + 0.5) for q, c in zip(pos, cpr)]
-            self._a_vel = [floor(v * c + 0.5) for v, c in zip(vel, cpr)]
-            self._a_tq = [floor(t * u + 0.5) for t, u in zip(tq, self._upn)]
-        except (ValueError, OverflowError) as error:
-            raise ValueError(f"actuals: position = {pos}, velocity = {vel}, torque = {tq}: "
-                             f"expected finite numbers ({error})") from error
-        self._a_si = (pos, vel, tq)
+        self._prepacked = codec is not None and codec.latch_pres(
+            actuals.statusword, actuals.position, actuals.velocity, actuals.torque, actuals.error_code,
+            packed["cpr"], packed["upn"], self._tpdo1_msgs, self._tpdo2_msgs, self._a_pos) == 0
+        if self._prepacked:
+            a_pos = self._a_pos
+        else:
+            self._a_sw = actuals.statusword.tolist()
+            self._a_err = actuals.error_code.tolist()
+            pos, vel, tq = actuals.position.tolist(), actuals.velocity.tolist(), actuals.torque.tolist()
+            cpr = self._cpr
+            try:
+                self._a_pos = a_pos = [floor(q * c + 0.5) for q, c in zip(pos, cpr)]
+                self._a_vel = [floor(v * c + 0.5) for v, c in zip(vel, cpr)]
+                self._a_tq = [floor(t * u + 0.5) for t, u in zip(tq, self._upn)]
+            except (ValueError, OverflowError) as error:
+                raise ValueError(f"actuals: position = {pos}, velocity = {vel}, torque = {tq}: "
+                                 f"expected finite numbers ({error})") from error
+            self._a_si = (pos, vel, tq)
         # apply the set-points due at this SoC
         slot = cycle % self._d
         cws, poss, prev, tqs, fresh = self._cw, self._pos, self._prev_pos, self._tq, self._fresh
-        all_fresh = True
-        for i in range(n):
+        done = -1
+        if codec is not None and not self._any_fault:
+            done = codec.apply_due(self._pipe, slot, cws, poss, prev, tqs, fresh, a_pos, self._hold)
+        all_fresh = bool(done) if done >= 0 else True
+        for i in range(n if done < 0 else 0):  # (nothing left when the codec applied them)
             pipe = self._pipe[i]
             due = pipe[slot]
             if due is not None:
@@ -455,8 +519,10 @@ class ControlledNodes:
         elif cws != self._last_app_cw:
             app.controlword[:] = cws
             self._last_app_cw = list(cws)
-        self._write_position(*map(mul, poss, self._rpc))
-        self._write_torque(*map(mul, tqs, self._npu))
+        if codec is None or codec.scale_into(poss, packed["rpc"], app.position) \
+                or codec.scale_into(tqs, packed["npu"], app.torque_offset):
+            self._write_position(*map(mul, poss, self._rpc))
+            self._write_torque(*map(mul, tqs, self._npu))
         if not (all_fresh and self._all_fresh):
             app.fresh[:] = fresh
         self._all_fresh = all_fresh
@@ -470,6 +536,19 @@ class ControlledNodes:
     def receive_all(self, msgs: list | tuple) -> None:
         """Digest received frames in order; never raises."""
         self.frames_received += len(msgs)
+        codec = self._codec
+        if codec is None:
+            self._receive_frames(msgs)
+            return
+        count, k, slot = len(msgs), 0, self.cycle % self._d
+        while k < count:  # the codec digests the PReqs; the SoC and any other frame go through Python, in order
+            k = codec.receive_preq(msgs, k, self._pipe, slot, self._packed["arrival"], self._next_soc,
+                                   self._preq_ok, self._preq_late)
+            if k < count:
+                self._receive_frames(msgs[k:k + 1])
+                k += 1
+
+    def _receive_frames(self, msgs: list | tuple) -> None:
         ids, arrival, next_soc = self._ids, self._arrival, self._next_soc
         pipe, ok, late = self._pipe, self._preq_ok, self._preq_late
         slot = self.cycle % self._d
@@ -526,6 +605,8 @@ class ControlledNodes:
         POWERLINK CN answers every PReq) and whose entry in ``times`` (= [soc,
         preq_1..N, pres_1..N] send times) is not None. The messages are reused next
         cycle (receivers that keep a frame beyond the cycle must copy it)."""
+        if self._prepacked:  # payloads packed at the SoC by the codec
+            return self._codec.pres_frames(self._tpdo1_msgs, self._tpdo2_msgs, times, self._preq_ok, self._preq_late)
         n = self.nodes
         out: list[FastMessage] = []
         append = out.append

@@ -1,0 +1,621 @@
+/* fieldbus_codec: the per-node and per-frame work of the POWERLINK nodes in C.
+ *
+ * A CPython extension module built on first use by fieldbus/codec.py. Each function
+ * does exactly what a loop of fieldbus/nodes.py does, on the same Python objects
+ * (python-can messages, the nodes' lists, numpy arrays through the buffer protocol),
+ * with the same floating-point operations (compiled with -ffp-contract=off), so the
+ * results are bit-identical. A function that meets anything unusual - a non-finite or
+ * out-of-range value, an unexpected type or size - changes nothing and returns a
+ * nonzero status; the caller then runs the Python code, which handles (saturates,
+ * counts, reports) it.
+ *
+ *   pack_preq      quantise the set-points, pack the RPDO1 payloads, stamp the PReqs
+ *   latch_pres     quantise the actual values, pack the TPDO1/TPDO2 payloads
+ *   apply_due      apply the set-points due at the SoC (no comm fault latched)
+ *   scale_into     telegram integers (list) times scale factors -> float64 array
+ *   pres_frames    stamp and list the PRes frames of the nodes that answer
+ *   receive_pres   digest TPDO1/TPDO2 frames at the MN, up to the first other frame
+ *   receive_preq   digest RPDO1 frames at the CNs, up to the first other frame
+ */
+#define PY_SSIZE_T_CLEAN
+#include <Python.h>
+#include <math.h>
+#include <string.h>
+
+#define MAX_NODES 127
+#define RPDO1_BASE 0x200
+#define TPDO1_BASE 0x180
+#define TPDO2_BASE 0x280
+
+enum { OK = 0, OUT_OF_RANGE = 1, UNSUPPORTED = 2, NOT_FINITE = -1 };
+
+static PyObject *s_timestamp, *s_data, *s_arbitration_id, *s_is_error_frame, *s_is_remote_frame,
+    *s_is_extended_id;
+
+/* ------------------------------------------------------------------ buffers */
+
+typedef struct {
+    Py_buffer view;
+    int held;
+    int itemsize;
+    int is_float;
+} Array;
+
+/* A C-contiguous 1-D numeric array of n items: float64, or int32/int64. */
+static int array_get(Array *a, PyObject *obj, Py_ssize_t n, int want_float)
+{
+    a->held = 0;
+    if (PyObject_GetBuffer(obj, &a->view, PyBUF_C_CONTIGUOUS | PyBUF_FORMAT) != 0) {
+        PyErr_Clear();
+        return -1;
+    }
+    a->held = 1;
+    const char *f = a->view.format ? a->view.format : "B";
+    if (*f == '<' || *f == '=' || *f == '@') f++;
+    a->itemsize = (int)a->view.itemsize;
+    a->is_float = (f[0] == 'd' && f[1] == 0 && a->itemsize == 8);
+    int is_int = ((f[0] == 'i' || f[0] == 'l' || f[0] == 'q') && f[1] == 0 && (a->itemsize == 4 || a->itemsize == 8));
+    if (a->view.len != n * a->view.itemsize || (want_float ? !a->is_float : !is_int)) return -1;
+    return 0;
+}
+
+static void array_release(Array *a)
+{
+    if (a->held) PyBuffer_Release(&a->view);
+    a->held = 0;
+}
+
+static inline double array_double(const Array *a, Py_ssize_t i) { return ((const double *)a->view.buf)[i]; }
+
+static inline long long array_int(const Array *a, Py_ssize_t i)
+{
+    return a->itemsize == 8 ? ((const long long *)a->view.buf)[i] : (long long)((const int *)a->view.buf)[i];
+}
+
+/* n packed float64 constants held in a bytes object */
+static const double *doubles_of(PyObject *obj, Py_ssize_t n)
+{
+    if (!PyBytes_Check(obj) || PyBytes_GET_SIZE(obj) != n * (Py_ssize_t)sizeof(double)) return NULL;
+    return (const double *)PyBytes_AS_STRING(obj);
+}
+
+/* the bytearray payload of a message, exactly `size` bytes, or NULL (error cleared) */
+static unsigned char *payload_of(PyObject *msg, Py_ssize_t size)
+{
+    PyObject *data = PyObject_GetAttr(msg, s_data);
+    if (data == NULL) {
+        PyErr_Clear();
+        return NULL;
+    }
+    unsigned char *out = NULL;
+    if (PyByteArray_CheckExact(data) && PyByteArray_GET_SIZE(data) == size)
+        out = (unsigned char *)PyByteArray_AS_STRING(data);
+    Py_DECREF(data); /* the message keeps the bytearray alive */
+    return out;
+}
+
+static inline void put_u16(unsigned char *p, long long v) { p[0] = (unsigned char)(v & 0xFF); p[1] = (unsigned char)((v >> 8) & 0xFF); }
+static inline void put_i32(unsigned char *p, long long v)
+{
+    unsigned long u = (unsigned long)(v & 0xFFFFFFFFLL);
+    p[0] = (unsigned char)(u & 0xFF); p[1] = (unsigned char)((u >> 8) & 0xFF);
+    p[2] = (unsigned char)((u >> 16) & 0xFF); p[3] = (unsigned char)((u >> 24) & 0xFF);
+}
+static inline long get_u16(const unsigned char *p) { return (long)p[0] | ((long)p[1] << 8); }
+static inline long get_i16(const unsigned char *p) { return (long)(short)(unsigned short)((unsigned)p[0] | ((unsigned)p[1] << 8)); }
+static inline long get_i32(const unsigned char *p)
+{
+    unsigned int u = (unsigned)p[0] | ((unsigned)p[1] << 8) | ((unsigned)p[2] << 16) | ((unsigned)p[3] << 24);
+    return (long)(int)u;
+}
+
+/* list[i] = new object (reference stolen), dropping the old item */
+static void list_replace(PyObject *list, Py_ssize_t i, PyObject *o)
+{
+    PyObject *old = PyList_GET_ITEM(list, i);
+    PyList_SET_ITEM(list, i, o);
+    Py_XDECREF(old);
+}
+
+static int list_replace_long(PyObject *list, Py_ssize_t i, long long v)
+{
+    PyObject *o = PyLong_FromLongLong(v);
+    if (o == NULL) return -1;
+    list_replace(list, i, o);
+    return 0;
+}
+
+static int list_replace_double(PyObject *list, Py_ssize_t i, double v)
+{
+    PyObject *o = PyFloat_FromDouble(v);
+    if (o == NULL) return -1;
+    list_replace(list, i, o);
+    return 0;
+}
+
+static int list_replace_bool(PyObject *list, Py_ssize_t i, int v)
+{
+    PyObject *o = v ? Py_True : Py_False;
+    Py_INCREF(o);
+    list_replace(list, i, o);
+    return 0;
+}
+
+#define CHECK_ARGS(count)                                                               \
+    if (nargs != (count)) {                                                             \
+        PyErr_Format(PyExc_TypeError, "expected %d arguments, got %zd", (count), nargs); \
+        return NULL;                                                                    \
+    }
+
+/* ------------------------------------------------------------------ pack_preq
+ * pack_preq(msgs, times, controlword, position, torque, cpr, upn, wait, latest, last_cw) -> int
+ * ManagingNode.frames for the PReqs: msgs[i] (RPDO1 of node i+1) gets timestamp times[i+1]
+ * and the payload (controlword, floor(position*cpr+0.5), floor(torque*upn+0.5));
+ * latest[i] = times[i+1] + wait[i]; last_cw[i] = controlword[i]. */
+static PyObject *pack_preq(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    CHECK_ARGS(10);
+    PyObject *msgs = args[0], *times = args[1], *latest = args[8], *last_cw = args[9];
+    if (!PyList_CheckExact(msgs) || !PyList_CheckExact(times) || !PyList_CheckExact(latest) ||
+        !PyList_CheckExact(last_cw))
+        return PyLong_FromLong(UNSUPPORTED);
+    Py_ssize_t n = PyList_GET_SIZE(msgs);
+    if (n < 1 || n > MAX_NODES || PyList_GET_SIZE(times) < n + 1 || PyList_GET_SIZE(latest) != n ||
+        PyList_GET_SIZE(last_cw) != n)
+        return PyLong_FromLong(UNSUPPORTED);
+    const double *cpr = doubles_of(args[5], n), *upn = doubles_of(args[6], n), *wait = doubles_of(args[7], n);
+    if (!cpr || !upn || !wait) return PyLong_FromLong(UNSUPPORTED);
+    Array cw, pos, tq;
+    int status = OK;
+    cw.held = pos.held = tq.held = 0;
+    if (array_get(&cw, args[2], n, 0) || array_get(&pos, args[3], n, 1) || array_get(&tq, args[4], n, 1)) {
+        status = UNSUPPORTED;
+        goto done;
+    }
+    long long cwv[MAX_NODES], counts[MAX_NODES], units[MAX_NODES];
+    unsigned char *payload[MAX_NODES];
+    for (Py_ssize_t i = 0; i < n; ++i) {
+        double x = array_double(&pos, i) * cpr[i] + 0.5;
+        double y = array_double(&tq, i) * upn[i] + 0.5;
+        if (!isfinite(x) || !isfinite(y)) { status = NOT_FINITE; goto done; }
+        double fx = floor(x), fy = floor(y);
+        cwv[i] = array_int(&cw, i);
+        if (cwv[i] < 0 || cwv[i] > 0xFFFF || fx < -2147483648.0 || fx > 2147483647.0 || fy < -32768.0 ||
+            fy > 32767.0) { status = OUT_OF_RANGE; goto done; }
+        counts[i] = (long long)fx;
+        units[i] = (long long)fy;
+        if (!PyFloat_CheckExact(PyList_GET_ITEM(times, i + 1))) { status = UNSUPPORTED; goto done; }
+        payload[i] = payload_of(PyList_GET_ITEM(msgs, i), 8);
+        if (payload[i] == NULL) { status = UNSUPPORTED; goto done; }
+    }
+    for (Py_ssize_t i = 0; i < n; ++i) {
+        PyObject *ts = PyList_GET_ITEM(times, i + 1);
+        if (PyObject_SetAttr(PyList_GET_ITEM(msgs, i), s_timestamp, ts) != 0) { status = -3; goto done; }
+        unsigned char *p = payload[i];
+        put_u16(p, cwv[i]);
+        put_i32(p + 2, counts[i]);
+        put_u16(p + 6, units[i]);
+        if (list_replace_double(latest, i, PyFloat_AS_DOUBLE(ts) + wait[i]) || list_replace_long(last_cw, i, cwv[i])) {
+            status = -3;
+            goto done;
+        }
+    }
+done:
+    array_release(&cw);
+    array_release(&pos);
+    array_release(&tq);
+    if (status == -3) return NULL;
+    return PyLong_FromLong(status);
+}
+
+/* ------------------------------------------------------------------ latch_pres
+ * latch_pres(statusword, position, velocity, torque, error_code, cpr, upn, msgs1, msgs2, a_pos) -> int
+ * ControlledNodes.start_cycle's quantisation and ControlledNodes.responses' packing:
+ * msgs1[i] (TPDO1) <- (statusword, floor(position*cpr+0.5), floor(torque*upn+0.5)),
+ * msgs2[i] (TPDO2) <- (floor(velocity*cpr+0.5), error_code); a_pos[i] = the position count. */
+static PyObject *latch_pres(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    CHECK_ARGS(10);
+    PyObject *msgs1 = args[7], *msgs2 = args[8], *a_pos = args[9];
+    if (!PyList_CheckExact(msgs1) || !PyList_CheckExact(msgs2) || !PyList_CheckExact(a_pos))
+        return PyLong_FromLong(UNSUPPORTED);
+    Py_ssize_t n = PyList_GET_SIZE(msgs1);
+    if (n < 1 || n > MAX_NODES || PyList_GET_SIZE(msgs2) != n || PyList_GET_SIZE(a_pos) != n)
+        return PyLong_FromLong(UNSUPPORTED);
+    const double *cpr = doubles_of(args[5], n), *upn = doubles_of(args[6], n);
+    if (!cpr || !upn) return PyLong_FromLong(UNSUPPORTED);
+    Array sw, pos, vel, tq, err;
+    sw.held = pos.held = vel.held = tq.held = err.held = 0;
+    int status = OK;
+    if (array_get(&sw, args[0], n, 0) || array_get(&pos, args[1], n, 1) || array_get(&vel, args[2], n, 1) ||
+        array_get(&tq, args[3], n, 1) || array_get(&err, args[4], n, 0)) {
+        status = UNSUPPORTED;
+        goto done;
+    }
+    long long swv[MAX_NODES], errv[MAX_NODES], pc[MAX_NODES], vc[MAX_NODES], tc[MAX_NODES];
+    unsigned char *p1[MAX_NODES], *p2[MAX_NODES];
+    for (Py_ssize_t i = 0; i < n; ++i) {
+        double x = array_double(&pos, i) * cpr[i] + 0.5;
+        double v = array_double(&vel, i) * cpr[i] + 0.5;
+        double t = array_double(&tq, i) * upn[i] + 0.5;
+        if (!isfinite(x) || !isfinite(v) || !isfinite(t)) { status = NOT_FINITE; goto done; }
+        double fx = floor(x), fv = floor(v), ft = floor(t);
+        swv[i] = array_int(&sw, i);
+        errv[i] = array_int(&err, i);
+        if (swv[i] < 0 || swv[i] > 0xFFFF || errv[i] < 0 || errv[i] > 0xFFFF || fx < -2147483648.0 ||
+            fx > 2147483647.0 || fv < -2147483648.0 || fv > 2147483647.0 || ft < -32768.0 || ft > 32767.0) {
+            status = OUT_OF_RANGE;
+            goto done;
+        }
+        pc[i] = (long long)fx;
+        vc[i] = (long long)fv;
+        tc[i] = (long long)ft;
+        p1[i] = payload_of(PyList_GET_ITEM(msgs1, i), 8);
+        p2[i] = payload_of(PyList_GET_ITEM(msgs2, i), 6);
+        if (p1[i] == NULL || p2[i] == NULL) { status = UNSUPPORTED; goto done; }
+    }
+    for (Py_ssize_t i = 0; i < n; ++i) {
+        put_u16(p1[i], swv[i]);
+        put_i32(p1[i] + 2, pc[i]);
+        put_u16(p1[i] + 6, tc[i]);
+        put_i32(p2[i], vc[i]);
+        put_u16(p2[i] + 4, errv[i]);
+        if (list_replace_long(a_pos, i, pc[i])) { status = -3; goto done; }
+    }
+done:
+    array_release(&sw);
+    array_release(&pos);
+    array_release(&vel);
+    array_release(&tq);
+    array_release(&err);
+    if (status == -3) return NULL;
+    return PyLong_FromLong(status);
+}
+
+/* ------------------------------------------------------------------ apply_due
+ * apply_due(pipe, slot, cws, poss, prev, tqs, fresh, a_pos, hold) -> int (1: all fresh)
+ * ControlledNodes.start_cycle's application of the set-points due at this SoC when no
+ * comm fault is latched: pipe[i][slot] = (cw, pos, tq) or None. */
+static PyObject *apply_due(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    CHECK_ARGS(9);
+    PyObject *pipe = args[0], *cws = args[2], *poss = args[3], *prev = args[4], *tqs = args[5], *fresh = args[6],
+             *a_pos = args[7];
+    Py_ssize_t slot = PyLong_AsSsize_t(args[1]);
+    int hold = PyObject_IsTrue(args[8]);
+    if ((slot == -1 && PyErr_Occurred()) || hold < 0) return NULL;
+    Py_ssize_t n = PyList_Check(pipe) ? PyList_GET_SIZE(pipe) : -1;
+    if (n < 1 || !PyList_CheckExact(cws) || !PyList_CheckExact(poss) || !PyList_CheckExact(prev) ||
+        !PyList_CheckExact(tqs) || !PyList_CheckExact(fresh) || !PyList_CheckExact(a_pos) ||
+        PyList_GET_SIZE(cws) != n || PyList_GET_SIZE(poss) != n || PyList_GET_SIZE(prev) != n ||
+        PyList_GET_SIZE(tqs) != n || PyList_GET_SIZE(fresh) != n || PyList_GET_SIZE(a_pos) != n)
+        return PyLong_FromLong(-UNSUPPORTED);
+    for (Py_ssize_t i = 0; i < n; ++i) {
+        PyObject *slots = PyList_GET_ITEM(pipe, i);
+        if (!PyList_CheckExact(slots) || slot < 0 || slot >= PyList_GET_SIZE(slots)) return PyLong_FromLong(-UNSUPPORTED);
+        PyObject *due = PyList_GET_ITEM(slots, slot);
+        if (due != Py_None && !(PyTuple_CheckExact(due) && PyTuple_GET_SIZE(due) == 3)) return PyLong_FromLong(-UNSUPPORTED);
+    }
+    int all_fresh = 1;
+    for (Py_ssize_t i = 0; i < n; ++i) {
+        PyObject *slots = PyList_GET_ITEM(pipe, i);
+        PyObject *due = PyList_GET_ITEM(slots, slot);
+        if (due != Py_None) {
+            Py_INCREF(due);
+            Py_INCREF(Py_None);
+            list_replace(slots, slot, Py_None);
+            PyObject *cw = PyTuple_GET_ITEM(due, 0), *p = PyTuple_GET_ITEM(due, 1), *t = PyTuple_GET_ITEM(due, 2);
+            Py_INCREF(cw);
+            list_replace(cws, i, cw);
+            PyObject *old = PyList_GET_ITEM(poss, i);
+            Py_INCREF(old);
+            list_replace(prev, i, old);
+            Py_INCREF(p);
+            list_replace(poss, i, p);
+            Py_INCREF(t);
+            list_replace(tqs, i, t);
+            list_replace_bool(fresh, i, 1);
+            Py_DECREF(due);
+        } else {
+            all_fresh = 0;
+            list_replace_bool(fresh, i, 0);
+            PyObject *last = PyList_GET_ITEM(poss, i);
+            if (last == Py_None) {
+                PyObject *a = PyList_GET_ITEM(a_pos, i);
+                Py_INCREF(a);
+                list_replace(poss, i, a);
+            } else if (!hold && PyList_GET_ITEM(prev, i) != Py_None) {
+                PyObject *diff = PyNumber_Subtract(last, PyList_GET_ITEM(prev, i));
+                if (diff == NULL) return NULL;
+                PyObject *next = PyNumber_Add(last, diff);
+                Py_DECREF(diff);
+                if (next == NULL) return NULL;
+                Py_INCREF(last);
+                list_replace(prev, i, last);
+                list_replace(poss, i, next);
+            }
+        }
+    }
+    return PyLong_FromLong(all_fresh);
+}
+
+/* ------------------------------------------------------------------ scale_into
+ * scale_into(values, scale, out) -> int: out[i] = values[i] * scale[i] (Python's int * float:
+ * the integer converted to the nearest double first). 0 done; nonzero: nothing written. */
+static PyObject *scale_into(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    CHECK_ARGS(3);
+    PyObject *values = args[0];
+    if (!PyList_CheckExact(values)) return PyLong_FromLong(UNSUPPORTED);
+    Py_ssize_t n = PyList_GET_SIZE(values);
+    const double *scale = doubles_of(args[1], n);
+    if (n < 1 || n > MAX_NODES || scale == NULL) return PyLong_FromLong(UNSUPPORTED);
+    double tmp[MAX_NODES];
+    for (Py_ssize_t i = 0; i < n; ++i) {
+        PyObject *v = PyList_GET_ITEM(values, i);
+        double d;
+        if (PyLong_CheckExact(v)) {
+            d = PyLong_AsDouble(v);
+            if (d == -1.0 && PyErr_Occurred()) { PyErr_Clear(); return PyLong_FromLong(UNSUPPORTED); }
+        } else if (PyFloat_CheckExact(v)) {
+            d = PyFloat_AS_DOUBLE(v);
+        } else {
+            return PyLong_FromLong(UNSUPPORTED);
+        }
+        tmp[i] = d * scale[i];
+    }
+    Array out;
+    if (array_get(&out, args[2], n, 1) || out.view.readonly) {
+        array_release(&out);
+        return PyLong_FromLong(UNSUPPORTED);
+    }
+    memcpy(out.view.buf, tmp, (size_t)n * sizeof(double));
+    array_release(&out);
+    return PyLong_FromLong(OK);
+}
+
+/* ------------------------------------------------------------------ pres_frames
+ * pres_frames(msgs1, msgs2, times, ok, late) -> list: ControlledNodes.responses without
+ * packing (done by latch_pres): for each node whose PReq arrived (ok or late) and whose
+ * PRes time times[n+1+i] is not None, both messages stamped with it, in order. */
+static PyObject *pres_frames(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    CHECK_ARGS(5);
+    PyObject *msgs1 = args[0], *msgs2 = args[1], *times = args[2], *ok = args[3], *late = args[4];
+    if (!PyList_CheckExact(msgs1) || !PyList_CheckExact(msgs2) || !PyList_CheckExact(times) ||
+        !PyList_CheckExact(ok) || !PyList_CheckExact(late)) {
+        PyErr_SetString(PyExc_TypeError, "pres_frames: expected lists");
+        return NULL;
+    }
+    Py_ssize_t n = PyList_GET_SIZE(msgs1);
+    if (PyList_GET_SIZE(msgs2) != n || PyList_GET_SIZE(ok) != n || PyList_GET_SIZE(late) != n ||
+        PyList_GET_SIZE(times) < 2 * n + 1) {
+        PyErr_SetString(PyExc_ValueError, "pres_frames: inconsistent lengths");
+        return NULL;
+    }
+    PyObject *out = PyList_New(0);
+    if (out == NULL) return NULL;
+    for (Py_ssize_t i = 0; i < n; ++i) {
+        PyObject *ts = PyList_GET_ITEM(times, n + 1 + i);
+        int answered = PyObject_IsTrue(PyList_GET_ITEM(ok, i));
+        if (answered < 0) goto fail;
+        if (!answered) {
+            answered = PyObject_IsTrue(PyList_GET_ITEM(late, i));
+            if (answered < 0) goto fail;
+        }
+        if (!answered || ts == Py_None) continue;
+        PyObject *m1 = PyList_GET_ITEM(msgs1, i), *m2 = PyList_GET_ITEM(msgs2, i);
+        if (PyObject_SetAttr(m1, s_timestamp, ts) || PyObject_SetAttr(m2, s_timestamp, ts) ||
+            PyList_Append(out, m1) || PyList_Append(out, m2))
+            goto fail;
+    }
+    return out;
+fail:
+    Py_DECREF(out);
+    return NULL;
+}
+
+/* ------------------------------------------------------------------ frame attributes */
+
+typedef struct {
+    long id;
+    double timestamp;
+    const unsigned char *data;
+    Py_ssize_t size;
+    int plain; /* not an error, remote or extended frame */
+} Frame;
+
+/* Reads what the nodes look at; 0 ok, 1 not readable this way (the caller hands the
+ * frame to Python), -1 error. `hold` keeps the data object alive while used. */
+static int frame_read(PyObject *msg, Frame *f, PyObject **hold)
+{
+    *hold = NULL;
+    PyObject *o = PyObject_GetAttr(msg, s_is_error_frame);
+    if (o == NULL) { PyErr_Clear(); return 1; }
+    int flag = PyObject_IsTrue(o);
+    Py_DECREF(o);
+    if (flag < 0) { PyErr_Clear(); return 1; }
+    f->plain = !flag;
+    if (f->plain) {
+        o = PyObject_GetAttr(msg, s_is_remote_frame);
+        if (o == NULL) { PyErr_Clear(); return 1; }
+        flag = PyObject_IsTrue(o);
+        Py_DECREF(o);
+        if (flag < 0) { PyErr_Clear(); return 1; }
+        f->plain = !flag;
+    }
+    if (f->plain) {
+        o = PyObject_GetAttr(msg, s_is_extended_id);
+        if (o == NULL) { PyErr_Clear(); return 1; }
+        flag = PyObject_IsTrue(o);
+        Py_DECREF(o);
+        if (flag < 0) { PyErr_Clear(); return 1; }
+        f->plain = !flag;
+    }
+    if (!f->plain) return 1;
+    o = PyObject_GetAttr(msg, s_arbitration_id);
+    if (o == NULL) { PyErr_Clear(); return 1; }
+    if (!PyLong_CheckExact(o)) { Py_DECREF(o); return 1; }
+    f->id = PyLong_AsLong(o);
+    Py_DECREF(o);
+    if (f->id == -1 && PyErr_Occurred()) { PyErr_Clear(); return 1; }
+    o = PyObject_GetAttr(msg, s_timestamp);
+    if (o == NULL) { PyErr_Clear(); return 1; }
+    if (!PyFloat_CheckExact(o)) { Py_DECREF(o); return 1; }
+    f->timestamp = PyFloat_AS_DOUBLE(o);
+    Py_DECREF(o);
+    o = PyObject_GetAttr(msg, s_data);
+    if (o == NULL) { PyErr_Clear(); return 1; }
+    if (PyByteArray_CheckExact(o)) {
+        f->data = (const unsigned char *)PyByteArray_AS_STRING(o);
+        f->size = PyByteArray_GET_SIZE(o);
+    } else if (PyBytes_CheckExact(o)) {
+        f->data = (const unsigned char *)PyBytes_AS_STRING(o);
+        f->size = PyBytes_GET_SIZE(o);
+    } else {
+        Py_DECREF(o);
+        return 1;
+    }
+    *hold = o;
+    return 0;
+}
+
+/* ------------------------------------------------------------------ receive_pres
+ * receive_pres(msgs, start, latest, sw, pos, tq, vel, err, got1, got2, late) -> int
+ * ManagingNode.receive_all's loop from msgs[start] on, for the frames it decodes itself
+ * (plain TPDO1 of 8 bytes / TPDO2 of 6 bytes of nodes 1..n); returns the index of the
+ * first other frame (for ManagingNode._other_frame), or len(msgs). */
+static PyObject *receive_pres(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    CHECK_ARGS(11);
+    PyObject *msgs = args[0], *latest = args[2];
+    PyObject *sw = args[3], *pos = args[4], *tq = args[5], *vel = args[6], *err = args[7], *got1 = args[8],
+             *got2 = args[9], *late = args[10];
+    Py_ssize_t start = PyLong_AsSsize_t(args[1]);
+    if (start == -1 && PyErr_Occurred()) return NULL;
+    if (!(PyList_CheckExact(msgs) || PyTuple_CheckExact(msgs)) || !PyList_CheckExact(latest)) {
+        PyErr_SetString(PyExc_TypeError, "receive_pres: expected a list of messages and a list of times");
+        return NULL;
+    }
+    Py_ssize_t n = PyList_GET_SIZE(latest);
+    PyObject *lists[8] = {sw, pos, tq, vel, err, got1, got2, late};
+    for (int k = 0; k < 8; ++k)
+        if (!PyList_CheckExact(lists[k]) || PyList_GET_SIZE(lists[k]) != n) {
+            PyErr_SetString(PyExc_TypeError, "receive_pres: inconsistent node lists");
+            return NULL;
+        }
+    Py_ssize_t k;
+    for (k = start; k < PySequence_Fast_GET_SIZE(msgs); ++k) {
+        Frame f;
+        PyObject *hold;
+        int r = frame_read(PySequence_Fast_GET_ITEM(msgs, k), &f, &hold);
+        if (r != 0) break;
+        long base = f.id & ~0x7FL, node = f.id & 0x7FL;
+        int kind = 0;
+        if (node >= 1 && node <= n && f.id <= 0x7FF) {
+            if (base == TPDO1_BASE && f.size == 8) kind = 1;
+            else if (base == TPDO2_BASE && f.size == 6) kind = 2;
+        }
+        if (kind == 0) { Py_DECREF(hold); break; }
+        Py_ssize_t i = node - 1;
+        PyObject *lim = PyList_GET_ITEM(latest, i);
+        double limit = PyFloat_Check(lim) ? PyFloat_AS_DOUBLE(lim) : PyFloat_AsDouble(lim);
+        if (limit == -1.0 && PyErr_Occurred()) { Py_DECREF(hold); return NULL; }
+        int failed = 0;
+        if (f.timestamp > limit) {
+            list_replace_bool(late, i, 1);
+        } else if (kind == 1) {
+            failed = list_replace_long(sw, i, get_u16(f.data)) || list_replace_long(pos, i, get_i32(f.data + 2)) ||
+                     list_replace_long(tq, i, get_i16(f.data + 6));
+            list_replace_bool(got1, i, 1);
+        } else {
+            failed = list_replace_long(vel, i, get_i32(f.data)) || list_replace_long(err, i, get_u16(f.data + 4));
+            list_replace_bool(got2, i, 1);
+        }
+        Py_DECREF(hold);
+        if (failed) return NULL;
+    }
+    return PyLong_FromSsize_t(k);
+}
+
+/* ------------------------------------------------------------------ receive_preq
+ * receive_preq(msgs, start, pipe, slot, arrival, next_soc, ok, late) -> int
+ * ControlledNodes.receive_all's loop from msgs[start] on for plain RPDO1 frames of 8
+ * bytes of nodes 1..n: late when timestamp + arrival[i] > next_soc, else pipe[i][slot] =
+ * (controlword, target, torque) and ok[i]; returns the index of the first other frame
+ * (for ControlledNodes._other_frame: the SYNC, other traffic, bad frames) or len(msgs). */
+static PyObject *receive_preq(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    CHECK_ARGS(8);
+    PyObject *msgs = args[0], *pipe = args[2], *ok = args[6], *late = args[7];
+    Py_ssize_t start = PyLong_AsSsize_t(args[1]);
+    Py_ssize_t slot = PyLong_AsSsize_t(args[3]);
+    double next_soc = PyFloat_AsDouble(args[5]);
+    if (((start == -1 || slot == -1) && PyErr_Occurred()) || (next_soc == -1.0 && PyErr_Occurred())) return NULL;
+    if (!(PyList_CheckExact(msgs) || PyTuple_CheckExact(msgs)) || !PyList_CheckExact(pipe) ||
+        !PyList_CheckExact(ok) || !PyList_CheckExact(late)) {
+        PyErr_SetString(PyExc_TypeError, "receive_preq: expected lists");
+        return NULL;
+    }
+    Py_ssize_t n = PyList_GET_SIZE(pipe);
+    const double *arrival = doubles_of(args[4], n);
+    if (arrival == NULL || PyList_GET_SIZE(ok) != n || PyList_GET_SIZE(late) != n) {
+        PyErr_SetString(PyExc_TypeError, "receive_preq: inconsistent node lists");
+        return NULL;
+    }
+    Py_ssize_t k;
+    for (k = start; k < PySequence_Fast_GET_SIZE(msgs); ++k) {
+        Frame f;
+        PyObject *hold;
+        int r = frame_read(PySequence_Fast_GET_ITEM(msgs, k), &f, &hold);
+        if (r != 0) break;
+        long node = f.id & 0x7FL;
+        if (!((f.id & ~0x7FL) == RPDO1_BASE && node >= 1 && node <= n && f.size == 8)) { Py_DECREF(hold); break; }
+        Py_ssize_t i = node - 1;
+        PyObject *slots = PyList_GET_ITEM(pipe, i);
+        if (!PyList_CheckExact(slots) || slot < 0 || slot >= PyList_GET_SIZE(slots)) {
+            Py_DECREF(hold);
+            PyErr_SetString(PyExc_TypeError, "receive_preq: bad pipe");
+            return NULL;
+        }
+        if (f.timestamp + arrival[i] > next_soc) {
+            list_replace_bool(late, i, 1);
+        } else {
+            PyObject *due = Py_BuildValue("(lll)", get_u16(f.data), get_i32(f.data + 2), get_i16(f.data + 6));
+            if (due == NULL) { Py_DECREF(hold); return NULL; }
+            list_replace(slots, slot, due);
+            list_replace_bool(ok, i, 1);
+        }
+        Py_DECREF(hold);
+    }
+    return PyLong_FromSsize_t(k);
+}
+
+/* ------------------------------------------------------------------ module */
+
+static PyMethodDef methods[] = {
+    {"pack_preq", (PyCFunction)(void (*)(void))pack_preq, METH_FASTCALL, "Quantise, pack and stamp the PReqs."},
+    {"latch_pres", (PyCFunction)(void (*)(void))latch_pres, METH_FASTCALL, "Quantise and pack the PRes payloads."},
+    {"apply_due", (PyCFunction)(void (*)(void))apply_due, METH_FASTCALL, "Apply the set-points due at the SoC."},
+    {"scale_into", (PyCFunction)(void (*)(void))scale_into, METH_FASTCALL, "Integers times scales into an array."},
+    {"pres_frames", (PyCFunction)(void (*)(void))pres_frames, METH_FASTCALL, "Stamp and list the PRes frames."},
+    {"receive_pres", (PyCFunction)(void (*)(void))receive_pres, METH_FASTCALL, "Digest TPDO1/TPDO2 frames."},
+    {"receive_preq", (PyCFunction)(void (*)(void))receive_preq, METH_FASTCALL, "Digest RPDO1 frames."},
+    {NULL, NULL, 0, NULL},
+};
+
+static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "fieldbus_codec",
+                                    "Compiled per-node and per-frame work of fieldbus.nodes.", -1, methods};
+
+PyMODINIT_FUNC PyInit_fieldbus_codec(void)
+{
+    s_timestamp = PyUnicode_InternFromString("timestamp");
+    s_data = PyUnicode_InternFromString("data");
+    s_arbitration_id = PyUnicode_InternFromString("arbitration_id");
+    s_is_error_frame = PyUnicode_InternFromString("is_error_frame");
+    s_is_remote_frame = PyUnicode_InternFromString("is_remote_frame");
+    s_is_extended_id = PyUnicode_InternFromString("is_extended_id");
+    if (!s_timestamp || !s_data || !s_arbitration_id || !s_is_error_frame || !s_is_remote_frame || !s_is_extended_id)
+        return NULL;
+    return PyModule_Create(&module);
+}

@@ -1,0 +1,123 @@
+"""The compiled fieldbus codec (fieldbus/codec.c) gives exactly what the Python nodes give:
+every applied and observed value and the whole summary (counters, faults, saturations),
+with random losses, late and corrupted frames, saturating values, fault reactions and
+fault reset, on simbus and python-can's virtual interface."""
+from __future__ import annotations
+
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fieldbus import DriveActuals, DriveState, JointScaling, PowerlinkNetwork, Setpoints, statusword_for
+from fieldbus import nodes
+from fieldbus.codec import load_codec
+
+PARAMS = tomllib.loads((Path(__file__).resolve().parents[1] / "robot" / "rx130l_params.toml").read_text())
+TRAIN = PARAMS["drive_train"]
+ENABLED = statusword_for(DriveState.OPERATION_ENABLED)
+
+
+def scaling() -> JointScaling:
+    return JointScaling(TRAIN["gear_ratio"]["value"], TRAIN["encoder_counts_per_motor_rev"]["value"],
+                        TRAIN["rated_torque"]["value"])
+
+
+def trace(config: dict, cycles: int, seed: int) -> tuple[list, dict]:
+    """Everything the network returns per cycle, and its summary, for varied set-points
+    and actual values (including out-of-range ones that saturate) and fault resets."""
+    rng = np.random.default_rng(seed)
+    setpoints, actuals = Setpoints.zeros(6), DriveActuals.zeros(6)
+    actuals.statusword[:] = ENABLED
+    out = []
+    with PowerlinkNetwork(config, scaling()) as network:
+        for k in range(cycles):
+            setpoints.controlword[:] = 0x8F if k % 97 == 50 else 0x0F
+            setpoints.position[:] = rng.normal(0.0, 1.0, 6)
+            setpoints.torque_offset[:] = rng.normal(0.0, 100.0, 6)
+            actuals.position[:] = rng.normal(0.0, 1.0, 6)
+            actuals.velocity[:] = rng.normal(0.0, 2.0, 6)
+            actuals.torque[:] = rng.normal(0.0, 100.0, 6)
+            if k % 53 == 7:  # beyond the telegram ranges: saturated on both sides
+                setpoints.torque_offset[2] = 1e6
+                actuals.velocity[4] = -1e9
+            result = network.run_cycle(k, setpoints, actuals)
+            out.append((result.applied.copy(), result.observed.copy()))
+        summary = network.summary()
+    return out, summary
+
+
+CONFIGS = {
+    "clean": {},
+    "random faults": {"seed": 5, "faults": {"loss_probability": 3e-3, "late_probability": 3e-3,
+                                            "corrupt_probability": 3e-3}},
+    "bursts": {"faults": {"bursts": [{"node": 2, "start_cycle": 40, "cycles": 20, "frames": "pres", "kind": "loss"},
+                                     {"node": 5, "start_cycle": 120, "cycles": 20, "frames": "preq",
+                                      "kind": "corrupt"},
+                                     {"node": 1, "start_cycle": 200, "cycles": 3, "frames": "soc", "kind": "late"}]}},
+    "virtual": {"bus": {"interface": "virtual"}, "seed": 2, "faults": {"loss_probability": 5e-3}},
+}
+
+
+class CountingCodec:
+    """The compiled codec, counting the calls that did the work (status 0 / a result)."""
+
+    def __init__(self, codec) -> None:
+        self.codec = codec
+        self.done: dict[str, int] = {}
+
+    def __getattr__(self, name: str):
+        fn = getattr(self.codec, name)
+
+        def call(*args):
+            result = fn(*args)
+            if name in ("receive_pres", "receive_preq", "pres_frames") or result == 0 or \
+                    (name == "apply_due" and result >= 0):
+                self.done[name] = self.done.get(name, 0) + 1
+            return result
+        return call
+
+
+needs_codec = pytest.mark.skipif(load_codec() is None, reason="no C compiler / Python headers for the fieldbus codec")
+
+
+@needs_codec
+@pytest.mark.parametrize("name", sorted(CONFIGS))
+def test_compiled_codec_equals_the_python_nodes(monkeypatch, name):
+    counting = CountingCodec(load_codec())
+    monkeypatch.setattr(nodes, "load_codec", lambda: counting)
+    fast, fast_summary = trace(CONFIGS[name], 300, 1)
+    least = 250 if name == "clean" else 30  # latched faults go through Python: both paths are exercised
+    for fn in ("pack_preq", "latch_pres", "apply_due", "scale_into", "pres_frames", "receive_pres", "receive_preq"):
+        assert counting.done.get(fn, 0) > least, (fn, counting.done)
+    monkeypatch.setattr(nodes, "load_codec", lambda: None)
+    slow, slow_summary = trace(CONFIGS[name], 300, 1)
+    assert fast_summary == slow_summary
+    if name != "clean":
+        assert fast_summary["faults"], "the faulty configurations must produce faults"
+    assert fast_summary["scaling_saturations"]["torque"] > 0 and fast_summary["scaling_saturations"]["velocity"] > 0
+    for k, ((fa, fo), (sa, so)) in enumerate(zip(fast, slow)):
+        for field in ("controlword", "position", "torque_offset", "fresh", "comm_fault", "fault_code"):
+            np.testing.assert_array_equal(getattr(fa, field), getattr(sa, field), err_msg=f"cycle {k} applied.{field}")
+        for field in ("statusword", "position", "velocity", "torque", "error_code", "fresh", "node_fault"):
+            np.testing.assert_array_equal(getattr(fo, field), getattr(so, field), err_msg=f"cycle {k} observed.{field}")
+
+
+@needs_codec
+def test_codec_declines_what_python_must_report(monkeypatch):
+    """Non-finite set-points and a statusword beyond 16 bits: the codec leaves them to
+    Python, which raises the documented errors."""
+    network = PowerlinkNetwork({}, scaling())
+    setpoints, actuals = Setpoints.zeros(6), DriveActuals.zeros(6)
+    actuals.statusword[:] = ENABLED
+    network.run_cycle(0, setpoints, actuals)
+    setpoints.position[3] = np.nan
+    with pytest.raises(ValueError, match="expected finite numbers"):
+        network.run_cycle(1, setpoints, actuals)
+    network.close()
+    network = PowerlinkNetwork({}, scaling())
+    actuals.statusword[2] = 0x1_0000
+    with pytest.raises(ValueError, match=r"actuals.statusword\[2\] = 65536"):
+        network.run_cycle(0, Setpoints.zeros(6), actuals)
+    network.close()
