@@ -19,6 +19,7 @@
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
+#include <structmember.h>
 #include <math.h>
 #include <string.h>
 
@@ -34,35 +35,52 @@ static PyObject *s_timestamp, *s_data, *s_arbitration_id, *s_is_error_frame, *s_
 
 /* ------------------------------------------------------------------ buffers */
 
+/* Numeric arrays are read through the buffer protocol. Acquiring a numpy buffer costs
+ * several hundred instructions, so the views of the last CACHE_SIZE arrays are kept
+ * (holding the export, which also keeps the object alive and its memory in place:
+ * numpy refuses to resize an exported array). */
+#define CACHE_SIZE 24
+
 typedef struct {
+    PyObject *obj;
     Py_buffer view;
-    int held;
     int itemsize;
-    int is_float;
+    int is_float; /* float64 */
+    int is_int;   /* int32 or int64 */
 } Array;
 
-/* A C-contiguous 1-D numeric array of n items: float64, or int32/int64. */
-static int array_get(Array *a, PyObject *obj, Py_ssize_t n, int want_float)
+static Array cache[CACHE_SIZE];
+static int cache_next;
+
+static Array *array_of(PyObject *obj)
 {
-    a->held = 0;
+    for (int i = 0; i < CACHE_SIZE; ++i)
+        if (cache[i].obj == obj) return &cache[i];
+    Array *a = &cache[cache_next];
+    cache_next = (cache_next + 1) % CACHE_SIZE;
+    if (a->obj != NULL) {
+        PyBuffer_Release(&a->view);
+        a->obj = NULL;
+    }
     if (PyObject_GetBuffer(obj, &a->view, PyBUF_C_CONTIGUOUS | PyBUF_FORMAT) != 0) {
         PyErr_Clear();
-        return -1;
+        return NULL;
     }
-    a->held = 1;
+    a->obj = obj;
     const char *f = a->view.format ? a->view.format : "B";
     if (*f == '<' || *f == '=' || *f == '@') f++;
     a->itemsize = (int)a->view.itemsize;
     a->is_float = (f[0] == 'd' && f[1] == 0 && a->itemsize == 8);
-    int is_int = ((f[0] == 'i' || f[0] == 'l' || f[0] == 'q') && f[1] == 0 && (a->itemsize == 4 || a->itemsize == 8));
-    if (a->view.len != n * a->view.itemsize || (want_float ? !a->is_float : !is_int)) return -1;
-    return 0;
+    a->is_int = ((f[0] == 'i' || f[0] == 'l' || f[0] == 'q') && f[1] == 0 && (a->itemsize == 4 || a->itemsize == 8));
+    return a;
 }
 
-static void array_release(Array *a)
+/* A C-contiguous 1-D array of n float64 (want_float) or int32/int64 items, or NULL. */
+static const Array *array_get(PyObject *obj, Py_ssize_t n, int want_float)
 {
-    if (a->held) PyBuffer_Release(&a->view);
-    a->held = 0;
+    const Array *a = array_of(obj);
+    if (a == NULL || a->view.len != n * a->view.itemsize || !(want_float ? a->is_float : a->is_int)) return NULL;
+    return a;
 }
 
 static inline double array_double(const Array *a, Py_ssize_t i) { return ((const double *)a->view.buf)[i]; }
@@ -70,6 +88,105 @@ static inline double array_double(const Array *a, Py_ssize_t i) { return ((const
 static inline long long array_int(const Array *a, Py_ssize_t i)
 {
     return a->itemsize == 8 ? ((const long long *)a->view.buf)[i] : (long long)((const int *)a->view.buf)[i];
+}
+
+/* ------------------------------------------------------------------ message slots
+ * python-can's Message keeps its attributes in __slots__; for the registered message
+ * types (exact types whose attributes are those plain member slots, checked at
+ * registration) they are read and written at their offsets, as the generic attribute
+ * access does, without the lookup. Other objects go through PyObject_GetAttr/SetAttr. */
+#define MAX_TYPES 8
+static PyTypeObject *fast_types[MAX_TYPES];
+static int n_fast_types;
+static Py_ssize_t off_timestamp = -1, off_data, off_arbitration_id, off_is_error_frame, off_is_remote_frame,
+                  off_is_extended_id;
+
+#define SLOT(o, off) (*(PyObject **)((char *)(o) + (off)))
+
+static inline int fast_message(PyObject *o)
+{
+    PyTypeObject *t = Py_TYPE(o);
+    for (int i = 0; i < n_fast_types; ++i)
+        if (t == fast_types[i]) return 1;
+    return 0;
+}
+
+/* borrowed attribute value, or NULL (unset, or not a registered type: use get_attr) */
+static inline PyObject *slot_get(PyObject *o, Py_ssize_t off) { return fast_message(o) ? SLOT(o, off) : NULL; }
+
+/* new reference to msg.<name> (fast slot or generic), NULL with the error cleared */
+static PyObject *get_attr(PyObject *msg, PyObject *name, Py_ssize_t off)
+{
+    PyObject *v = slot_get(msg, off);
+    if (v != NULL) {
+        Py_INCREF(v);
+        return v;
+    }
+    v = PyObject_GetAttr(msg, name);
+    if (v == NULL) PyErr_Clear();
+    return v;
+}
+
+/* msg.<name> = value; -1 with an exception set on failure */
+static int set_attr(PyObject *msg, PyObject *name, Py_ssize_t off, PyObject *value)
+{
+    if (fast_message(msg)) {
+        PyObject *old = SLOT(msg, off);
+        Py_INCREF(value);
+        SLOT(msg, off) = value;
+        Py_XDECREF(old);
+        return 0;
+    }
+    return PyObject_SetAttr(msg, name, value);
+}
+
+static Py_ssize_t member_offset(PyTypeObject *type, PyObject *name)
+{
+    PyObject *descr = PyObject_GetAttr((PyObject *)type, name);
+    Py_ssize_t off = -1;
+    if (descr == NULL) {
+        PyErr_Clear();
+        return -1;
+    }
+    if (Py_IS_TYPE(descr, &PyMemberDescr_Type)) {
+        PyMemberDef *m = ((PyMemberDescrObject *)descr)->d_member;
+        if (m->type == T_OBJECT_EX && !(m->flags & READONLY)) off = m->offset;
+    }
+    Py_DECREF(descr);
+    return off;
+}
+
+/* register_message_types(*types) -> int: how many of the types take the slot path */
+static PyObject *register_message_types(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    (void)self;
+    for (Py_ssize_t k = 0; k < nargs; ++k) {
+        if (!PyType_Check(args[k]) || n_fast_types == MAX_TYPES) continue;
+        PyTypeObject *t = (PyTypeObject *)args[k];
+        if (t->tp_getattro != PyObject_GenericGetAttr || t->tp_setattro != PyObject_GenericSetAttr ||
+            t->tp_dictoffset != 0)
+            continue;
+        Py_ssize_t o[6] = {member_offset(t, s_timestamp), member_offset(t, s_data),
+                           member_offset(t, s_arbitration_id), member_offset(t, s_is_error_frame),
+                           member_offset(t, s_is_remote_frame), member_offset(t, s_is_extended_id)};
+        int ok = 1;
+        for (int i = 0; i < 6; ++i) ok &= (o[i] > 0);
+        if (!ok) continue;
+        if (off_timestamp < 0) {
+            off_timestamp = o[0]; off_data = o[1]; off_arbitration_id = o[2];
+            off_is_error_frame = o[3]; off_is_remote_frame = o[4]; off_is_extended_id = o[5];
+        } else if (o[0] != off_timestamp || o[1] != off_data || o[2] != off_arbitration_id ||
+                   o[3] != off_is_error_frame || o[4] != off_is_remote_frame || o[5] != off_is_extended_id) {
+            continue;
+        }
+        int known = 0;
+        for (int i = 0; i < n_fast_types; ++i) known |= (fast_types[i] == t);
+        if (!known) {
+            Py_INCREF(t);
+            fast_types[n_fast_types++] = t;
+        }
+    }
+    return PyLong_FromLong(n_fast_types);
 }
 
 /* n packed float64 constants held in a bytes object */
@@ -82,11 +199,8 @@ static const double *doubles_of(PyObject *obj, Py_ssize_t n)
 /* the bytearray payload of a message, exactly `size` bytes, or NULL (error cleared) */
 static unsigned char *payload_of(PyObject *msg, Py_ssize_t size)
 {
-    PyObject *data = PyObject_GetAttr(msg, s_data);
-    if (data == NULL) {
-        PyErr_Clear();
-        return NULL;
-    }
+    PyObject *data = get_attr(msg, s_data, off_data);
+    if (data == NULL) return NULL;
     unsigned char *out = NULL;
     if (PyByteArray_CheckExact(data) && PyByteArray_GET_SIZE(data) == size)
         out = (unsigned char *)PyByteArray_AS_STRING(data);
@@ -165,13 +279,10 @@ static PyObject *pack_preq(PyObject *self, PyObject *const *args, Py_ssize_t nar
         return PyLong_FromLong(UNSUPPORTED);
     const double *cpr = doubles_of(args[5], n), *upn = doubles_of(args[6], n), *wait = doubles_of(args[7], n);
     if (!cpr || !upn || !wait) return PyLong_FromLong(UNSUPPORTED);
-    Array cw, pos, tq;
     int status = OK;
-    cw.held = pos.held = tq.held = 0;
-    if (array_get(&cw, args[2], n, 0) || array_get(&pos, args[3], n, 1) || array_get(&tq, args[4], n, 1)) {
-        status = UNSUPPORTED;
-        goto done;
-    }
+    const Array *cwa = array_get(args[2], n, 0), *posa = array_get(args[3], n, 1), *tqa = array_get(args[4], n, 1);
+    if (cwa == NULL || posa == NULL || tqa == NULL) return PyLong_FromLong(UNSUPPORTED);
+    const Array cw = *cwa, pos = *posa, tq = *tqa;
     long long cwv[MAX_NODES], counts[MAX_NODES], units[MAX_NODES];
     unsigned char *payload[MAX_NODES];
     for (Py_ssize_t i = 0; i < n; ++i) {
@@ -190,7 +301,7 @@ static PyObject *pack_preq(PyObject *self, PyObject *const *args, Py_ssize_t nar
     }
     for (Py_ssize_t i = 0; i < n; ++i) {
         PyObject *ts = PyList_GET_ITEM(times, i + 1);
-        if (PyObject_SetAttr(PyList_GET_ITEM(msgs, i), s_timestamp, ts) != 0) { status = -3; goto done; }
+        if (set_attr(PyList_GET_ITEM(msgs, i), s_timestamp, off_timestamp, ts) != 0) { status = -3; goto done; }
         unsigned char *p = payload[i];
         put_u16(p, cwv[i]);
         put_i32(p + 2, counts[i]);
@@ -201,9 +312,6 @@ static PyObject *pack_preq(PyObject *self, PyObject *const *args, Py_ssize_t nar
         }
     }
 done:
-    array_release(&cw);
-    array_release(&pos);
-    array_release(&tq);
     if (status == -3) return NULL;
     return PyLong_FromLong(status);
 }
@@ -224,14 +332,11 @@ static PyObject *latch_pres(PyObject *self, PyObject *const *args, Py_ssize_t na
         return PyLong_FromLong(UNSUPPORTED);
     const double *cpr = doubles_of(args[5], n), *upn = doubles_of(args[6], n);
     if (!cpr || !upn) return PyLong_FromLong(UNSUPPORTED);
-    Array sw, pos, vel, tq, err;
-    sw.held = pos.held = vel.held = tq.held = err.held = 0;
     int status = OK;
-    if (array_get(&sw, args[0], n, 0) || array_get(&pos, args[1], n, 1) || array_get(&vel, args[2], n, 1) ||
-        array_get(&tq, args[3], n, 1) || array_get(&err, args[4], n, 0)) {
-        status = UNSUPPORTED;
-        goto done;
-    }
+    const Array *swa = array_get(args[0], n, 0), *posa = array_get(args[1], n, 1), *vela = array_get(args[2], n, 1),
+                *tqa = array_get(args[3], n, 1), *erra = array_get(args[4], n, 0);
+    if (swa == NULL || posa == NULL || vela == NULL || tqa == NULL || erra == NULL) return PyLong_FromLong(UNSUPPORTED);
+    const Array sw = *swa, pos = *posa, vel = *vela, tq = *tqa, err = *erra;
     long long swv[MAX_NODES], errv[MAX_NODES], pc[MAX_NODES], vc[MAX_NODES], tc[MAX_NODES];
     unsigned char *p1[MAX_NODES], *p2[MAX_NODES];
     for (Py_ssize_t i = 0; i < n; ++i) {
@@ -263,11 +368,6 @@ static PyObject *latch_pres(PyObject *self, PyObject *const *args, Py_ssize_t na
         if (list_replace_long(a_pos, i, pc[i])) { status = -3; goto done; }
     }
 done:
-    array_release(&sw);
-    array_release(&pos);
-    array_release(&vel);
-    array_release(&tq);
-    array_release(&err);
     if (status == -3) return NULL;
     return PyLong_FromLong(status);
 }
@@ -364,13 +464,9 @@ static PyObject *scale_into(PyObject *self, PyObject *const *args, Py_ssize_t na
         }
         tmp[i] = d * scale[i];
     }
-    Array out;
-    if (array_get(&out, args[2], n, 1) || out.view.readonly) {
-        array_release(&out);
-        return PyLong_FromLong(UNSUPPORTED);
-    }
-    memcpy(out.view.buf, tmp, (size_t)n * sizeof(double));
-    array_release(&out);
+    const Array *out = array_get(args[2], n, 1);
+    if (out == NULL || out->view.readonly) return PyLong_FromLong(UNSUPPORTED);
+    memcpy(out->view.buf, tmp, (size_t)n * sizeof(double));
     return PyLong_FromLong(OK);
 }
 
@@ -405,7 +501,7 @@ static PyObject *pres_frames(PyObject *self, PyObject *const *args, Py_ssize_t n
         }
         if (!answered || ts == Py_None) continue;
         PyObject *m1 = PyList_GET_ITEM(msgs1, i), *m2 = PyList_GET_ITEM(msgs2, i);
-        if (PyObject_SetAttr(m1, s_timestamp, ts) || PyObject_SetAttr(m2, s_timestamp, ts) ||
+        if (set_attr(m1, s_timestamp, off_timestamp, ts) || set_attr(m2, s_timestamp, off_timestamp, ts) ||
             PyList_Append(out, m1) || PyList_Append(out, m2))
             goto fail;
     }
@@ -427,57 +523,57 @@ typedef struct {
 
 /* Reads what the nodes look at; 0 ok, 1 not readable this way (the caller hands the
  * frame to Python), -1 error. `hold` keeps the data object alive while used. */
+static inline int truth(PyObject *o)
+{
+    if (o == Py_False) return 0;
+    if (o == Py_True) return 1;
+    return PyObject_IsTrue(o);
+}
+
 static int frame_read(PyObject *msg, Frame *f, PyObject **hold)
 {
     *hold = NULL;
-    PyObject *o = PyObject_GetAttr(msg, s_is_error_frame);
-    if (o == NULL) { PyErr_Clear(); return 1; }
-    int flag = PyObject_IsTrue(o);
-    Py_DECREF(o);
-    if (flag < 0) { PyErr_Clear(); return 1; }
-    f->plain = !flag;
-    if (f->plain) {
-        o = PyObject_GetAttr(msg, s_is_remote_frame);
-        if (o == NULL) { PyErr_Clear(); return 1; }
-        flag = PyObject_IsTrue(o);
-        Py_DECREF(o);
-        if (flag < 0) { PyErr_Clear(); return 1; }
-        f->plain = !flag;
+    PyObject *e = get_attr(msg, s_is_error_frame, off_is_error_frame);
+    PyObject *r = get_attr(msg, s_is_remote_frame, off_is_remote_frame);
+    PyObject *x = get_attr(msg, s_is_extended_id, off_is_extended_id);
+    PyObject *id = get_attr(msg, s_arbitration_id, off_arbitration_id);
+    PyObject *ts = get_attr(msg, s_timestamp, off_timestamp);
+    PyObject *d = get_attr(msg, s_data, off_data);
+    int result = 1;
+    if (e && r && x && id && ts && d) {
+        /* `is_error_frame or is_remote_frame or is_extended_id`, evaluated in that order */
+        int flag = truth(e);
+        if (flag == 0) flag = truth(r);
+        if (flag == 0) flag = truth(x);
+        if (flag < 0) PyErr_Clear();
+        f->plain = (flag == 0);
+        if (f->plain && PyLong_CheckExact(id) && PyFloat_CheckExact(ts)) {
+            f->id = PyLong_AsLong(id);
+            f->timestamp = PyFloat_AS_DOUBLE(ts);
+            if (f->id == -1 && PyErr_Occurred()) {
+                PyErr_Clear();
+            } else if (PyByteArray_CheckExact(d)) {
+                f->data = (const unsigned char *)PyByteArray_AS_STRING(d);
+                f->size = PyByteArray_GET_SIZE(d);
+                result = 0;
+            } else if (PyBytes_CheckExact(d)) {
+                f->data = (const unsigned char *)PyBytes_AS_STRING(d);
+                f->size = PyBytes_GET_SIZE(d);
+                result = 0;
+            }
+        }
     }
-    if (f->plain) {
-        o = PyObject_GetAttr(msg, s_is_extended_id);
-        if (o == NULL) { PyErr_Clear(); return 1; }
-        flag = PyObject_IsTrue(o);
-        Py_DECREF(o);
-        if (flag < 0) { PyErr_Clear(); return 1; }
-        f->plain = !flag;
-    }
-    if (!f->plain) return 1;
-    o = PyObject_GetAttr(msg, s_arbitration_id);
-    if (o == NULL) { PyErr_Clear(); return 1; }
-    if (!PyLong_CheckExact(o)) { Py_DECREF(o); return 1; }
-    f->id = PyLong_AsLong(o);
-    Py_DECREF(o);
-    if (f->id == -1 && PyErr_Occurred()) { PyErr_Clear(); return 1; }
-    o = PyObject_GetAttr(msg, s_timestamp);
-    if (o == NULL) { PyErr_Clear(); return 1; }
-    if (!PyFloat_CheckExact(o)) { Py_DECREF(o); return 1; }
-    f->timestamp = PyFloat_AS_DOUBLE(o);
-    Py_DECREF(o);
-    o = PyObject_GetAttr(msg, s_data);
-    if (o == NULL) { PyErr_Clear(); return 1; }
-    if (PyByteArray_CheckExact(o)) {
-        f->data = (const unsigned char *)PyByteArray_AS_STRING(o);
-        f->size = PyByteArray_GET_SIZE(o);
-    } else if (PyBytes_CheckExact(o)) {
-        f->data = (const unsigned char *)PyBytes_AS_STRING(o);
-        f->size = PyBytes_GET_SIZE(o);
+    Py_XDECREF(e);
+    Py_XDECREF(r);
+    Py_XDECREF(x);
+    Py_XDECREF(id);
+    Py_XDECREF(ts);
+    if (result == 0) {
+        *hold = d;
     } else {
-        Py_DECREF(o);
-        return 1;
+        Py_XDECREF(d);
     }
-    *hold = o;
-    return 0;
+    return result;
 }
 
 /* ------------------------------------------------------------------ receive_pres
@@ -601,11 +697,14 @@ static PyMethodDef methods[] = {
     {"pres_frames", (PyCFunction)(void (*)(void))pres_frames, METH_FASTCALL, "Stamp and list the PRes frames."},
     {"receive_pres", (PyCFunction)(void (*)(void))receive_pres, METH_FASTCALL, "Digest TPDO1/TPDO2 frames."},
     {"receive_preq", (PyCFunction)(void (*)(void))receive_preq, METH_FASTCALL, "Digest RPDO1 frames."},
+    {"register_message_types", (PyCFunction)(void (*)(void))register_message_types, METH_FASTCALL,
+     "Message types whose attributes are read and written at their slot offsets."},
     {NULL, NULL, 0, NULL},
 };
 
 static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "fieldbus_codec",
-                                    "Compiled per-node and per-frame work of fieldbus.nodes.", -1, methods};
+                                    "Compiled per-node and per-frame work of fieldbus.nodes.", -1, methods,
+                                    NULL, NULL, NULL, NULL};
 
 PyMODINIT_FUNC PyInit_fieldbus_codec(void)
 {

@@ -58,6 +58,15 @@ def _compile(target: Path, compiler: str, include: str) -> None:
             os.unlink(tmp)
 
 
+def _register_message_types(module: ModuleType) -> None:
+    """Let the codec access python-can messages (and the nodes' FastMessage) by slot offset."""
+    import can
+
+    from fieldbus.telegrams import FastMessage
+
+    module.register_message_types(can.Message, FastMessage)
+
+
 @lru_cache(maxsize=1)
 def load_codec() -> ModuleType | None:
     """The compiled codec module (built if needed), or None (no compiler or headers, or
@@ -80,6 +89,7 @@ def load_codec() -> ModuleType | None:
             spec = importlib.util.spec_from_file_location(MODULE_NAME, str(target), loader=loader)
             module = importlib.util.module_from_spec(spec)
             loader.exec_module(module)
+            _register_message_types(module)
             return module
         except (OSError, ImportError, subprocess.SubprocessError):
             continue
