@@ -40,6 +40,7 @@ from fieldbus.telegrams import EMCY_BASE, RPDO1_BASE, SYNC_ID, TPDO1_BASE, TPDO2
 from fieldbus.timing import CycleLayout, CycleSchedule, check_cycle_budget
 
 SYNCHRONOUS_INTERFACES = ("simbus", "virtual")  # deliver inside send(), keep timestamps
+_NO_FAULTS: dict[int, str] = {}  # the medium's faults of a fault-free cycle (never modified)
 
 
 def default_channel(config: FieldbusConfig) -> str | int:
@@ -107,6 +108,7 @@ class _Endpoint:
         self.synchronous = config.bus.interface in SYNCHRONOUS_INTERFACES
         self.bus = open_bus(config, self.side, self.channel)
         self._drain = getattr(self.bus, "drain", None)  # simbus: all queued frames at once
+        self._send_many = getattr(self.bus, "send_many", None)  # simbus: a cycle's frames at once
         if recorder is None and log_path is not None:
             recorder = FrameRecorder(log_path, config.recording.flush_every_cycles, config.recording.background)
             self._owns_recorder = True
@@ -134,7 +136,7 @@ class _Endpoint:
         faults = self.plan.for_cycle(cycle)
         if faults is None:
             self._times = self.schedule.timestamps(cycle)
-            self._kinds = {}
+            self._kinds = _NO_FAULTS
         else:
             self._times = self.schedule.faulty_timestamps(cycle, faults)
             self._kinds = faults.kinds
@@ -181,9 +183,12 @@ class _Endpoint:
         kinds = self._kinds
         if kinds:
             frames = [m for m in (self._through_medium(m, kinds) for m in frames) if m is not None]
-        send = self.bus.send
-        for msg in frames:
-            send(msg)
+        if self._send_many is not None:
+            self._send_many(frames)
+        else:
+            send = self.bus.send
+            for msg in frames:
+                send(msg)
         self.frames_sent += len(frames)
         if self._record is not None:
             self._record(frames)
@@ -338,7 +343,7 @@ class DriveEndpoint(_Endpoint):
         cn.end_cycle(cycle)
         emcy = cn.emergency_messages(self._t0 + cycle * self._cycle_time + self._emcy_offset)
         if emcy:
-            saved, self._kinds = self._kinds, {}
+            saved, self._kinds = self._kinds, _NO_FAULTS
             self._transmit(emcy)
             self._kinds = saved
         self._flush_own_recording(cycle)

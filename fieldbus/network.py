@@ -113,6 +113,12 @@ class PowerlinkNetwork:
             self.recorder.end_cycle(cycle, t)
         return CycleResult(cycle, t, applied, observed)
 
+    def bind_applied(self, applied: AppliedSetpoints) -> None:
+        """Have the drives' applied set-points written into ``applied``'s arrays (e.g. views
+        of a co-simulation master's variables; see ``ControlledNodes.bind_applied``):
+        ``run_cycle(...).applied`` is then that object."""
+        self.cn.bind_applied(applied)
+
     # ------------------------------------------------------------------ reporting
     @property
     def applied(self) -> AppliedSetpoints:

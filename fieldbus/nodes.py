@@ -442,6 +442,31 @@ class ControlledNodes:
         self.frames_received = 0
         self.decode_errors = 0
 
+    def bind_applied(self, applied: AppliedSetpoints) -> None:
+        """Write what the drives apply into ``applied``'s arrays from now on (e.g. views of a
+        co-simulation master's variables, so nothing is copied per cycle): (N,) each,
+        float64 C-contiguous writable ``position`` and ``torque_offset``, integer
+        ``controlword`` and ``fault_code``, bool ``fresh`` and ``comm_fault``. Their values
+        are set to the current ones; ValueError naming the array otherwise."""
+        n = self.nodes
+        kinds = {"position": "f", "torque_offset": "f", "controlword": "iu", "fault_code": "iu", "fresh": "b",
+                 "comm_fault": "b"}
+        for name, kind in kinds.items():
+            array = getattr(applied, name)
+            if not (isinstance(array, np.ndarray) and array.shape == (n,) and array.dtype.kind in kind
+                    and array.flags.writeable and (kind != "f" or (array.dtype == np.float64
+                                                                    and array.flags.c_contiguous))):
+                raise ValueError(f"bind_applied: applied.{name} must be a writable ({n},) "
+                                 f"{'C-contiguous float64' if kind == 'f' else 'integer' if kind == 'iu' else 'bool'} "
+                                 f"array, got {getattr(array, 'dtype', type(array).__name__)} "
+                                 f"{getattr(array, 'shape', '')}")
+        old = self.applied
+        for name in kinds:
+            getattr(applied, name)[:] = getattr(old, name)
+        self.applied = applied
+        self._write_position = _array_writer(applied.position)
+        self._write_torque = _array_writer(applied.torque_offset)
+
     # ------------------------------------------------------------------ SoC
     def start_cycle(self, cycle: int, actuals: DriveActuals) -> AppliedSetpoints:
         """SoC of ``cycle``: latch ``actuals`` (quantised), apply the set-points due now.

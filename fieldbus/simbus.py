@@ -68,6 +68,12 @@ class SimulatedTimeBus(BusABC):
         for target in targets:
             target.append(msg)
 
+    def send_many(self, msgs: list[Message]) -> None:
+        """Queue ``msgs`` in order, as ``send`` one after the other would; an extension of
+        this interface for batch senders (the counterpart of :meth:`drain`)."""
+        for target in self._targets:
+            target.extend(msgs)
+
     def _recv_internal(self, timeout: float | None) -> tuple[Message | None, bool]:
         queue = self._queue
         return (queue.popleft() if queue else None), False

@@ -42,7 +42,7 @@ from cosim.jobs.laser_tracker import TRACKER_VARIABLES, LaserTracker, TrackerCon
 from cosim.master import Master, MemorySink, SimulationError
 from cosim.scenario.context import RunContext
 from cosim.scenario.cosim_tables import build_master
-from fieldbus import DriveActuals, FieldbusConfig, JointScaling, PowerlinkNetwork
+from fieldbus import AppliedSetpoints, DriveActuals, FieldbusConfig, JointScaling, PowerlinkNetwork
 from fmus.servo_drive.params import drive_start_values
 from robot.parameters import RobotParameters, load_parameters
 from robot.true_robot import TrueRobot
@@ -165,7 +165,8 @@ class FieldbusLink:
     the controlled nodes latch; ``run_cycle(k, setpoints, actuals)`` carries the
     set-points the controller returned in cycle ``k - 1``; what the network applies
     from ``t_k`` (quantised target, torque offset, controlword, fault code of a tripped
-    controlled node) is written to the ``bus.*`` master variables; then the controller
+    controlled node) is written to the ``bus.*`` master variables (the network writes
+    into views of them, ``PowerlinkNetwork.bind_applied``); then the controller
     computes the set-points for cycle ``k + 1`` from what it observed in cycle ``k``.
     ``stop_grace_s`` after the controller stopped (drive fault, node fault) the task
     ends the run with a SimulationError naming the reason.
@@ -198,19 +199,15 @@ class FieldbusLink:
         real, integer = self._real.read(), self._integer.read()
         self.actuals = DriveActuals(statusword=integer[:n], position=real[:n], velocity=real[n:2 * n],
                                     torque=real[2 * n:], error_code=integer[n:])
+        # the network writes what the drives apply straight into the bus.* variables
+        self.network.bind_applied(AppliedSetpoints(
+            controlword=self._integer_out[:n], position=self._real_out[:n], torque_offset=self._real_out[n:],
+            fresh=np.zeros(n, dtype=bool), comm_fault=np.zeros(n, dtype=bool), fault_code=self._integer_out[n:]))
 
     def __call__(self, t: float) -> None:
-        n = N_JOINTS
         self._real.read()
         self._integer.read()
         result = self.network.run_cycle(self.cycle, self.setpoints, self.actuals)
-        applied = result.applied
-        out = self._real_out
-        out[:n] = applied.position
-        out[n:] = applied.torque_offset
-        out = self._integer_out
-        out[:n] = applied.controlword
-        out[n:] = applied.fault_code
         self.setpoints = self.controller.step(self.cycle, t, result.observed)
         self.cycle += 1
         ctrl = self.controller
