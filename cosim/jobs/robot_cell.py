@@ -183,6 +183,7 @@ class FieldbusLink:
         self.setpoints = controller.setpoints
         self._real = self._integer = None
         self._real_out = self._integer_out = None
+        self._copy_applied = True
 
     def setup(self, master: Master) -> None:
         """Bind one reader per bus type for the drives' actual values and one writable
@@ -199,15 +200,25 @@ class FieldbusLink:
         real, integer = self._real.read(), self._integer.read()
         self.actuals = DriveActuals(statusword=integer[:n], position=real[:n], velocity=real[n:2 * n],
                                     torque=real[2 * n:], error_code=integer[n:])
-        # the network writes what the drives apply straight into the bus.* variables
-        self.network.bind_applied(AppliedSetpoints(
-            controlword=self._integer_out[:n], position=self._real_out[:n], torque_offset=self._real_out[n:],
-            fresh=np.zeros(n, dtype=bool), comm_fault=np.zeros(n, dtype=bool), fault_code=self._integer_out[n:]))
+        # a PowerlinkNetwork writes what the drives apply straight into the bus.* variables;
+        # other networks (e.g. cosim.realtime's PacedNetwork wrapper) get it copied each cycle
+        bind = getattr(self.network, "bind_applied", None)
+        self._copy_applied = bind is None
+        if bind is not None:
+            bind(AppliedSetpoints(controlword=self._integer_out[:n], position=self._real_out[:n],
+                                  torque_offset=self._real_out[n:], fresh=np.zeros(n, dtype=bool),
+                                  comm_fault=np.zeros(n, dtype=bool), fault_code=self._integer_out[n:]))
 
     def __call__(self, t: float) -> None:
         self._real.read()
         self._integer.read()
         result = self.network.run_cycle(self.cycle, self.setpoints, self.actuals)
+        if self._copy_applied:
+            n, applied = N_JOINTS, result.applied
+            self._real_out[:n] = applied.position
+            self._real_out[n:] = applied.torque_offset
+            self._integer_out[:n] = applied.controlword
+            self._integer_out[n:] = applied.fault_code
         self.setpoints = self.controller.step(self.cycle, t, result.observed)
         self.cycle += 1
         ctrl = self.controller
