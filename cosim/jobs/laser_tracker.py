@@ -18,16 +18,65 @@ the mm-level geometric errors change the dynamics negligibly.)
 
 The tracker is registered to ``base_link`` (its own placement and registration
 errors are not modelled); it always sees the reflector.
+
+Each sample is one call of a small compiled function (``tracker_kernel.c``, built by
+:mod:`cosim.native`): the same forward kinematics as pinocchio on the same model (to
+round-off, tested), reading ``q`` from the master's bus and writing the noisy position
+to the tracker variables; pinocchio's ``forwardKinematics`` through its Python binding
+costs several times more per sample. Without a C compiler, or for a chain the kernel
+does not cover, the task uses pinocchio (:meth:`LaserTracker.flange_position`).
 """
 from __future__ import annotations
 
+import ctypes
 import math
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
 
+from cosim.native import load_library
 from robot.description import FLANGE_FRAME
+
+KERNEL_SOURCE = Path(__file__).with_name("tracker_kernel.c")
+_AXIS_KINDS = {"JointModelRX": 0, "JointModelRY": 1, "JointModelRZ": 2, "JointModelRevoluteUnaligned": 3}
+
+
+class _TrackerPlan(ctypes.Structure):
+    """Mirror of ``tracker_plan`` in tracker_kernel.c."""
+
+    _fields_ = [("R", (ctypes.c_double * 9) * 6), ("p", (ctypes.c_double * 3) * 6),
+                ("axis", (ctypes.c_double * 3) * 6), ("kind", ctypes.c_longlong * 6),
+                ("flange", ctypes.c_double * 3), ("q", ctypes.c_void_p), ("out", ctypes.c_void_p)]
+
+
+def compiled_chain(model: pin.Model, frame_id: int) -> _TrackerPlan | None:
+    """The kernel's description of ``model`` (six revolute joints in a serial chain, the
+    frame on joint 6), or None when the model is not such a chain."""
+    if model.nq != 6 or model.njoints != 7 or list(model.parents) != [0, 0, 1, 2, 3, 4, 5]:
+        return None
+    frame = model.frames[frame_id]
+    if frame.parentJoint != 6:
+        return None
+    plan = _TrackerPlan()
+    for j in range(1, 7):
+        joint = model.joints[j]
+        kind = _AXIS_KINDS.get(joint.shortname())
+        if kind is None:
+            return None
+        axis = np.zeros(3)
+        if kind == 3:
+            axis = np.asarray(joint.extract().axis, dtype=float)
+        else:
+            axis[kind] = 1.0
+        placement = model.jointPlacements[j]
+        plan.R[j - 1][:] = placement.rotation.reshape(9).tolist()
+        plan.p[j - 1][:] = placement.translation.tolist()
+        plan.axis[j - 1][:] = axis.tolist()
+        plan.kind[j - 1] = kind
+    plan.flange[:] = frame.placement.translation.tolist()
+    return plan
 
 TRACKER_VARIABLES: tuple[str, ...] = ("tracker.x", "tracker.y", "tracker.z")
 
@@ -91,19 +140,40 @@ class LaserTracker:
         self._q = None
         self._out = None
         self.samples = 0
+        self._sample = None  # the compiled sample (tracker_kernel.c), bound in setup
+        self.compiled = False
 
     def setup(self, master) -> None:
         """Bind to the master (called at the end of its initialize)."""
         self._q = master.reader(list(self.joint_signals))
         self._out = master.view(list(TRACKER_VARIABLES), writable=True)
+        library = load_library(KERNEL_SOURCE)
+        plan = compiled_chain(self.model, self.frame_id)
+        try:
+            q_view = master.view(list(self.joint_signals))
+        except ValueError:  # the joint signals are not contiguous on the bus
+            q_view = None
+        if library is not None and plan is not None and q_view is not None:
+            plan.q = q_view.ctypes.data
+            plan.out = self._out.ctypes.data
+            fn = library.tracker_sample
+            fn.argtypes = [ctypes.c_void_p, ctypes.c_void_p]
+            fn.restype = None
+            self._plan, self._plan_ref, self._q_view = plan, ctypes.byref(plan), q_view
+            self._sample = fn
+            self.compiled = True
 
     def _draw(self) -> np.ndarray:
         if self._next == self.NOISE_BLOCK:
-            self._noise = self._rng.normal(0.0, self.config.noise_sigma_m, size=(self.NOISE_BLOCK, 3))
-            self._next = 0
+            self._refill()
         row = self._noise[self._next]
         self._next += 1
         return row
+
+    def _refill(self) -> None:
+        self._noise = self._rng.normal(0.0, self.config.noise_sigma_m, size=(self.NOISE_BLOCK, 3))
+        self._noise_address = self._noise.ctypes.data
+        self._next = 0
 
     def flange_position(self, q: np.ndarray) -> np.ndarray:
         """True flange position (3,) m for joint angles q (6,) rad (no noise)."""
@@ -111,6 +181,12 @@ class LaserTracker:
         return pin.updateFramePlacement(self.model, self.data, self.frame_id).translation
 
     def __call__(self, t: float) -> None:
-        position = self.flange_position(self._q.read())
-        np.add(position, self._draw(), out=self._out)
+        if self._sample is not None:
+            if self._next == self.NOISE_BLOCK:
+                self._refill()
+            self._sample(self._plan_ref, self._noise_address + 24 * self._next)
+            self._next += 1
+        else:
+            position = self.flange_position(self._q.read())
+            np.add(position, self._draw(), out=self._out)
         self.samples += 1
