@@ -27,11 +27,12 @@
 #define RPDO1_BASE 0x200
 #define TPDO1_BASE 0x180
 #define TPDO2_BASE 0x280
+#define SYNC_ID 0x080
 
 enum { OK = 0, OUT_OF_RANGE = 1, UNSUPPORTED = 2, NOT_FINITE = -1 };
 
 static PyObject *s_timestamp, *s_data, *s_arbitration_id, *s_is_error_frame, *s_is_remote_frame,
-    *s_is_extended_id;
+    *s_is_extended_id, *s_sync_seen, *s_sync_ts;
 
 /* ------------------------------------------------------------------ buffers */
 
@@ -635,19 +636,24 @@ static PyObject *receive_pres(PyObject *self, PyObject *const *args, Py_ssize_t 
 }
 
 /* ------------------------------------------------------------------ receive_preq
- * receive_preq(msgs, start, pipe, slot, arrival, next_soc, ok, late) -> int
+ * receive_preq(msgs, start, pipe, slot, arrival, next_soc, ok, late, node, sync_counter) -> int
  * ControlledNodes.receive_all's loop from msgs[start] on for plain RPDO1 frames of 8
- * bytes of nodes 1..n: late when timestamp + arrival[i] > next_soc, else pipe[i][slot] =
- * (controlword, target, torque) and ok[i]; returns the index of the first other frame
- * (for ControlledNodes._other_frame: the SYNC, other traffic, bad frames) or len(msgs). */
+ * bytes of nodes 1..n (late when timestamp + arrival[i] > next_soc, else pipe[i][slot] =
+ * (controlword, target, torque) and ok[i]) and for a plain SYNC of at most one byte
+ * carrying no counter or ``sync_counter`` (node._sync_seen = True, node._sync_ts = its
+ * timestamp); returns the index of the first other frame (for
+ * ControlledNodes._other_frame: a wrong counter, other traffic, bad frames) or len(msgs). */
 static PyObject *receive_preq(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
 {
-    CHECK_ARGS(8);
-    PyObject *msgs = args[0], *pipe = args[2], *ok = args[6], *late = args[7];
+    CHECK_ARGS(10);
+    PyObject *msgs = args[0], *pipe = args[2], *ok = args[6], *late = args[7], *node_obj = args[8];
     Py_ssize_t start = PyLong_AsSsize_t(args[1]);
     Py_ssize_t slot = PyLong_AsSsize_t(args[3]);
     double next_soc = PyFloat_AsDouble(args[5]);
-    if (((start == -1 || slot == -1) && PyErr_Occurred()) || (next_soc == -1.0 && PyErr_Occurred())) return NULL;
+    long sync_counter = PyLong_AsLong(args[9]);
+    if (((start == -1 || slot == -1 || sync_counter == -1) && PyErr_Occurred()) ||
+        (next_soc == -1.0 && PyErr_Occurred()))
+        return NULL;
     if (!(PyList_CheckExact(msgs) || PyTuple_CheckExact(msgs)) || !PyList_CheckExact(pipe) ||
         !PyList_CheckExact(ok) || !PyList_CheckExact(late)) {
         PyErr_SetString(PyExc_TypeError, "receive_preq: expected lists");
@@ -665,6 +671,16 @@ static PyObject *receive_preq(PyObject *self, PyObject *const *args, Py_ssize_t 
         PyObject *hold;
         int r = frame_read(PySequence_Fast_GET_ITEM(msgs, k), &f, &hold);
         if (r != 0) break;
+        if (f.id == SYNC_ID && f.size <= 1) {
+            if (f.size == 1 && (long)f.data[0] != sync_counter) { Py_DECREF(hold); break; }
+            PyObject *ts = PyFloat_FromDouble(f.timestamp);
+            Py_DECREF(hold);
+            if (ts == NULL) return NULL;
+            int failed = PyObject_SetAttr(node_obj, s_sync_seen, Py_True) || PyObject_SetAttr(node_obj, s_sync_ts, ts);
+            Py_DECREF(ts);
+            if (failed) return NULL;
+            continue;
+        }
         long node = f.id & 0x7FL;
         if (!((f.id & ~0x7FL) == RPDO1_BASE && node >= 1 && node <= n && f.size == 8)) { Py_DECREF(hold); break; }
         Py_ssize_t i = node - 1;
@@ -677,8 +693,17 @@ static PyObject *receive_preq(PyObject *self, PyObject *const *args, Py_ssize_t 
         if (f.timestamp + arrival[i] > next_soc) {
             list_replace_bool(late, i, 1);
         } else {
-            PyObject *due = Py_BuildValue("(lll)", get_u16(f.data), get_i32(f.data + 2), get_i16(f.data + 6));
+            PyObject *due = PyTuple_New(3);
             if (due == NULL) { Py_DECREF(hold); return NULL; }
+            PyObject *a = PyLong_FromLong(get_u16(f.data)), *b = PyLong_FromLong(get_i32(f.data + 2)),
+                     *c = PyLong_FromLong(get_i16(f.data + 6));
+            if (a == NULL || b == NULL || c == NULL) {
+                Py_XDECREF(a); Py_XDECREF(b); Py_XDECREF(c); Py_DECREF(due); Py_DECREF(hold);
+                return NULL;
+            }
+            PyTuple_SET_ITEM(due, 0, a);
+            PyTuple_SET_ITEM(due, 1, b);
+            PyTuple_SET_ITEM(due, 2, c);
             list_replace(slots, slot, due);
             list_replace_bool(ok, i, 1);
         }
@@ -714,7 +739,10 @@ PyMODINIT_FUNC PyInit_fieldbus_codec(void)
     s_is_error_frame = PyUnicode_InternFromString("is_error_frame");
     s_is_remote_frame = PyUnicode_InternFromString("is_remote_frame");
     s_is_extended_id = PyUnicode_InternFromString("is_extended_id");
-    if (!s_timestamp || !s_data || !s_arbitration_id || !s_is_error_frame || !s_is_remote_frame || !s_is_extended_id)
+    s_sync_seen = PyUnicode_InternFromString("_sync_seen");
+    s_sync_ts = PyUnicode_InternFromString("_sync_ts");
+    if (!s_timestamp || !s_data || !s_arbitration_id || !s_is_error_frame || !s_is_remote_frame || !s_is_extended_id ||
+        !s_sync_seen || !s_sync_ts)
         return NULL;
     return PyModule_Create(&module);
 }

@@ -565,10 +565,11 @@ class ControlledNodes:
         if codec is None:
             self._receive_frames(msgs)
             return
-        count, k, slot = len(msgs), 0, self.cycle % self._d
-        while k < count:  # the codec digests the PReqs; the SoC and any other frame go through Python, in order
+        count, k, cycle = len(msgs), 0, self.cycle
+        slot, counter = cycle % self._d, cycle % self._sync_overflow + 1
+        while k < count:  # the codec digests the SoC and the PReqs; any other frame goes through Python, in order
             k = codec.receive_preq(msgs, k, self._pipe, slot, self._packed["arrival"], self._next_soc,
-                                   self._preq_ok, self._preq_late)
+                                   self._preq_ok, self._preq_late, self, counter)
             if k < count:
                 self._receive_frames(msgs[k:k + 1])
                 k += 1
