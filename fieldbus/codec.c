@@ -712,6 +712,62 @@ static PyObject *receive_preq(PyObject *self, PyObject *const *args, Py_ssize_t 
     return PyLong_FromSsize_t(k);
 }
 
+/* ------------------------------------------------------------------ pack_records
+ * pack_records(frames) -> bytes | None: the FrameRecorder's records of `frames`, as
+ * b"".join(RECORD.pack(m.timestamp, m.arbitration_id, m.is_error_frame, len(m.data), m.data))
+ * with RECORD = struct.Struct("<dHBB8s") would make them; None (the caller packs in Python,
+ * which raises struct.error) when a value does not fit that layout. */
+static PyObject *pack_records(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    CHECK_ARGS(1);
+    PyObject *frames = args[0];
+    if (!(PyList_CheckExact(frames) || PyTuple_CheckExact(frames))) Py_RETURN_NONE;
+    Py_ssize_t count = PySequence_Fast_GET_SIZE(frames);
+    PyObject *out = PyBytes_FromStringAndSize(NULL, count * 20);
+    if (out == NULL) return NULL;
+    unsigned char *p = (unsigned char *)PyBytes_AS_STRING(out);
+    for (Py_ssize_t k = 0; k < count; ++k, p += 20) {
+        PyObject *msg = PySequence_Fast_GET_ITEM(frames, k);
+        PyObject *ts = get_attr(msg, s_timestamp, off_timestamp);
+        PyObject *id = get_attr(msg, s_arbitration_id, off_arbitration_id);
+        PyObject *err = get_attr(msg, s_is_error_frame, off_is_error_frame);
+        PyObject *data = get_attr(msg, s_data, off_data);
+        int ok = ts && id && err && data && (PyFloat_CheckExact(ts) || PyLong_CheckExact(ts)) && PyLong_Check(id) &&
+                 PyLong_Check(err) && (PyByteArray_CheckExact(data) || PyBytes_CheckExact(data));
+        double t = 0.0;
+        long idv = -1, errv = -1;
+        Py_ssize_t size = 0;
+        const char *bytes = NULL;
+        if (ok) {
+            t = PyFloat_CheckExact(ts) ? PyFloat_AS_DOUBLE(ts) : PyLong_AsDouble(ts);
+            idv = PyLong_AsLong(id);
+            errv = PyLong_AsLong(err);
+            if (PyErr_Occurred()) PyErr_Clear();
+            size = PyByteArray_CheckExact(data) ? PyByteArray_GET_SIZE(data) : PyBytes_GET_SIZE(data);
+            bytes = PyByteArray_CheckExact(data) ? PyByteArray_AS_STRING(data) : PyBytes_AS_STRING(data);
+            ok = (idv >= 0 && idv <= 0xFFFF && errv >= 0 && errv <= 0xFF && size <= 0xFF);
+        }
+        if (ok) {
+            memcpy(p, &t, 8); /* little-endian host (x86-64), as "<d" */
+            p[8] = (unsigned char)(idv & 0xFF);
+            p[9] = (unsigned char)((idv >> 8) & 0xFF);
+            p[10] = (unsigned char)errv;
+            p[11] = (unsigned char)size;
+            memset(p + 12, 0, 8);
+            memcpy(p + 12, bytes, (size_t)(size < 8 ? size : 8));
+        }
+        Py_XDECREF(ts);
+        Py_XDECREF(id);
+        Py_XDECREF(err);
+        Py_XDECREF(data);
+        if (!ok) {
+            Py_DECREF(out);
+            Py_RETURN_NONE;
+        }
+    }
+    return out;
+}
+
 /* ------------------------------------------------------------------ module */
 
 static PyMethodDef methods[] = {
@@ -722,6 +778,7 @@ static PyMethodDef methods[] = {
     {"pres_frames", (PyCFunction)(void (*)(void))pres_frames, METH_FASTCALL, "Stamp and list the PRes frames."},
     {"receive_pres", (PyCFunction)(void (*)(void))receive_pres, METH_FASTCALL, "Digest TPDO1/TPDO2 frames."},
     {"receive_preq", (PyCFunction)(void (*)(void))receive_preq, METH_FASTCALL, "Digest RPDO1 frames."},
+    {"pack_records", (PyCFunction)(void (*)(void))pack_records, METH_FASTCALL, "Recorder records of frames."},
     {"register_message_types", (PyCFunction)(void (*)(void))register_message_types, METH_FASTCALL,
      "Message types whose attributes are read and written at their slot offsets."},
     {NULL, NULL, 0, NULL},
@@ -733,6 +790,11 @@ static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "fieldbus_codec",
 
 PyMODINIT_FUNC PyInit_fieldbus_codec(void)
 {
+    const unsigned short probe = 1;
+    if (*(const unsigned char *)&probe != 1) {
+        PyErr_SetString(PyExc_ImportError, "fieldbus_codec: little-endian hosts only");
+        return NULL;
+    }
     s_timestamp = PyUnicode_InternFromString("timestamp");
     s_data = PyUnicode_InternFromString("data");
     s_arbitration_id = PyUnicode_InternFromString("arbitration_id");

@@ -121,3 +121,21 @@ def test_codec_declines_what_python_must_report(monkeypatch):
     with pytest.raises(ValueError, match=r"actuals.statusword\[2\] = 65536"):
         network.run_cycle(0, Setpoints.zeros(6), actuals)
     network.close()
+
+
+@needs_codec
+def test_recorder_records_packed_by_the_codec_equal_struct_pack():
+    import can
+
+    from fieldbus.recorder import RECORD
+    from fieldbus.telegrams import FastMessage
+
+    frames = [FastMessage(0.25, 0x181, bytearray(b"\x01\x02\x03\x04\x05\x06\x07\x08")),
+              FastMessage(1e-4, 0x080, bytearray(b"\x05")),
+              FastMessage(3, 0x205, bytearray(b"\xa5"), is_error_frame=True),
+              can.Message(timestamp=7.5, arbitration_id=0x7FF, is_extended_id=False, data=b"\x01\x02"),
+              FastMessage(2.0, 0x281, bytearray(range(12)))]
+    expected = b"".join(RECORD.pack(m.timestamp, m.arbitration_id, m.is_error_frame, len(m.data), m.data)
+                        for m in frames)
+    assert load_codec().pack_records(frames) == expected
+    assert load_codec().pack_records([FastMessage(0.0, 0x1_0000, bytearray(8))]) is None  # struct.error in Python
