@@ -86,17 +86,25 @@ def _with_toml_hint(exc: ScenarioError, job: JobType | None, document: dict[str,
     return exc
 
 
+def read_toml_file(path: Path, kind: str) -> dict[str, Any]:
+    """Parse the TOML file ``path``; ScenarioError naming the file if it is missing or not valid TOML.
+
+    ``kind`` names what the file should be in the error ("scenario" -> "an existing scenario .toml file").
+    """
+    if not path.is_file():
+        raise ScenarioError(path, "", f"an existing {kind} .toml file", problem="file not found")
+    try:
+        with open(path, "rb") as f:
+            return tomllib.load(f)
+    except tomllib.TOMLDecodeError as exc:
+        raise ScenarioError(path, "", "valid TOML", problem=str(exc)) from None
+
+
 def load_scenario(path: str | Path) -> Scenario:
     """Read and validate the scenario file ``path``; ScenarioError on any problem."""
     path = Path(path)
-    if not path.is_file():
-        raise ScenarioError(path, "", "an existing scenario .toml file", problem="file not found")
-    try:
-        with open(path, "rb") as f:
-            document = tomllib.load(f)
-    except tomllib.TOMLDecodeError as exc:
-        raise ScenarioError(path, "", "valid TOML", problem=str(exc)) from None
-    return load_document(document, path)
+    return load_document(read_toml_file(path, "scenario"), path)
 
 
-__all__ = ["SCENARIO_FIELD", "SCENARIO_TABLE", "Scenario", "load_document", "load_scenario", "Table"]
+__all__ = ["SCENARIO_FIELD", "SCENARIO_TABLE", "Scenario", "load_document", "load_scenario", "read_toml_file",
+           "Table"]

@@ -35,13 +35,12 @@ from __future__ import annotations
 import hashlib
 import itertools
 import json
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from cosim.scenario import ScenarioError, load_document, load_scenario
-from cosim.scenario.loader import NAME_PATTERN, Scenario
+from cosim.scenario.loader import NAME_PATTERN, Scenario, read_toml_file
 from cosim.scenario.schema import AnyValue, Field, FilePath, Integer, List, String, Table, Where, validate
 from cosim.sweep.axes import DISTRIBUTION, DISTRIBUTIONS, GRID, SEEDS, Axis, distribution_draws, seed_values
 from cosim.sweep.keypath import (KeyPath, KeyPathSyntaxError, absolute_paths, format_key_path, get_path,
@@ -326,14 +325,7 @@ def load_sweep(path: str | Path) -> Sweep:
     Nothing runs here (the base job's checks may build the project's FMUs once).
     """
     path = Path(path)
-    if not path.is_file():
-        raise ScenarioError(path, "", "an existing sweep .toml file", problem="file not found")
-    try:
-        with open(path, "rb") as f:
-            raw = tomllib.load(f)
-    except tomllib.TOMLDecodeError as exc:
-        raise ScenarioError(path, "", "valid TOML", problem=str(exc)) from None
-    return load_sweep_document(raw, path)
+    return load_sweep_document(read_toml_file(path, "sweep"), path)
 
 
 def load_sweep_document(raw: dict[str, Any], path: str | Path) -> Sweep:
