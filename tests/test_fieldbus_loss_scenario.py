@@ -17,6 +17,7 @@ import pytest
 from cosim.cli import main
 from cosim.results import read_csv
 from cosim.scenario import ScenarioError, load_scenario
+from scenario_variants import write_variant
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENARIO = (ROOT / "scenarios" / "fieldbus_loss.toml").read_text(encoding="utf-8")
@@ -26,13 +27,7 @@ TRIP = FIRST_LOST + math.ceil(15 / 8) - 1       # the 2nd error brings the count
 
 
 def variant(tmp_path: Path, replacements: list[tuple[str, str]]) -> Path:
-    text = SCENARIO
-    for old, new in replacements:
-        assert old in text, old
-        text = text.replace(old, new, 1)
-    path = tmp_path / "loss.toml"
-    path.write_text(text, encoding="utf-8")
-    return path
+    return write_variant(SCENARIO, tmp_path / "loss.toml", replacements)
 
 
 @pytest.fixture(scope="module")

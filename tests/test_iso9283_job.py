@@ -13,6 +13,7 @@ import pytest
 from cosim.cli import main
 from cosim.results import read_csv
 from fmus.servo_drive.params import drive_start_values
+from scenario_variants import write_variant
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENARIO = (ROOT / "scenarios" / "iso9283.toml").read_text(encoding="utf-8")
@@ -23,13 +24,7 @@ MODE_KEYS = ("tcp_error_max_mm", "tcp_error_rms_mm", "path_accuracy_AT_mm", "joi
 
 
 def write_scenario(tmp_path: Path, replacements: list[tuple[str, str]]) -> Path:
-    text = SCENARIO
-    for old, new in replacements:
-        assert old in text, old
-        text = text.replace(old, new, 1)
-    path = tmp_path / "iso.toml"
-    path.write_text(text, encoding="utf-8")
-    return path
+    return write_variant(SCENARIO, tmp_path / "iso.toml", replacements)
 
 
 @pytest.fixture(scope="module")

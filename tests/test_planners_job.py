@@ -11,6 +11,7 @@ import pytest
 from cosim.cli import main
 from cosim.scenario import ScenarioError, load_scenario
 from planners.trajectory import Trajectory
+from scenario_variants import write_variant
 
 ROOT = Path(__file__).resolve().parents[1]
 CP_TEXT = (ROOT / "scenarios" / "cp_line.toml").read_text(encoding="utf-8")
@@ -19,12 +20,7 @@ FIELDS = ("status", "duration_s", "solve_time_s", "max_constraint_ratio", "energ
 
 
 def variant(tmp_path: Path, text: str, replacements: list[tuple[str, str]], name: str = "v.toml") -> Path:
-    for old, new in replacements:
-        assert old in text, old
-        text = text.replace(old, new, 1)
-    path = tmp_path / name
-    path.write_text(text, encoding="utf-8")
-    return path
+    return write_variant(text, tmp_path / name, replacements)
 
 
 def run(path: Path, out: Path) -> dict:
