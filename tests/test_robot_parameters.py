@@ -11,6 +11,8 @@ import pytest
 from robot.description import PARAMS_PATH, URDF_PATH
 from robot.parameters import ParameterFileError, RobotParameters, load_parameters
 
+from error_checks import assert_names_file_and_fragments
+
 NOMINAL_TEXT = PARAMS_PATH.read_text(encoding="utf-8")
 
 
@@ -89,11 +91,7 @@ def test_malformed_file_names_file_key_value_and_expectation(
     path = _write_variant(tmp_path, key, new_line)
     with pytest.raises(ParameterFileError) as info:
         load_parameters(path)
-    message = str(info.value)
-    assert str(path) in message
-    for fragment in expected_fragments:
-        assert fragment in message, (fragment, message)
-    assert isinstance(info.value, ValueError)
+    assert_names_file_and_fragments(info.value, path, expected_fragments)
 
 
 def test_missing_file_and_broken_toml(tmp_path: Path) -> None:
