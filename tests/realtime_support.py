@@ -51,7 +51,7 @@ def build_cell(scenario_path: Path, out_dir: Path):
 
     scenario = load_scenario(scenario_path)
     doc = scenario.data
-    iso9283._fill_table_defaults(doc)
+    iso9283.fill_table_defaults(doc)
     ctrl_t = doc["controller"]
     stop_time = doc["simulation"]["stop_time"]
     true_robot = iso9283.make_true_robot(doc["true_robot"])

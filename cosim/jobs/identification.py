@@ -42,10 +42,11 @@ import numpy as np
 
 from controller import Controller, ControllerConfig, JointTrajectory, TcpTrajectory
 from cosim.jobs import robot_cell
-from cosim.jobs.iso9283 import TRACKER_TABLE, TRUE_ROBOT_TABLE, make_true_robot
+from cosim.jobs.cell_checks import check_cell, fill_defaults
+from cosim.jobs.iso9283 import TRACKER_TABLE, TRUE_ROBOT_TABLE, evaluate_run, make_true_robot
 from cosim.jobs.laser_tracker import TrackerConfig
 from cosim.scenario.context import RunContext
-from cosim.scenario.cosim_tables import COSIM_FIELDS, check_cosim_tables
+from cosim.scenario.cosim_tables import COSIM_FIELDS
 from cosim.scenario.loader import SCENARIO_FIELD, Scenario
 from cosim.scenario.registry import register_job
 from cosim.scenario.schema import AnyValue, Boolean, Field, Integer, List, Number, String, Table, Where
@@ -129,59 +130,14 @@ _TABLES = ("true_robot", "controller", "excitation", "measurement", "path", "tra
 
 
 def _fill_table_defaults(doc: dict[str, Any]) -> None:
-    for key in _TABLES:
-        if not doc.get(key):
-            doc[key] = SCHEMA.fields[key].spec.check({}, Where(None) / key)
-
-
-def _multiple(value: float, base: float) -> bool:
-    ratio = value / base
-    return round(ratio) >= 1 and abs(ratio - round(ratio)) <= 1e-9 * max(1.0, ratio)
+    fill_defaults(doc, SCHEMA, _TABLES)
 
 
 def check(doc: dict[str, Any], where: Where) -> None:
-    """The cell's FMUs, connections and fieldbus, periods, excitation settings."""
-    from cosim.master import load_model_description
-    from fieldbus import FieldbusConfig, FieldbusConfigError
-
+    """The cell (:func:`cosim.jobs.cell_checks.check_cell`), the excitation and measurement settings."""
     _fill_table_defaults(doc)
-    by_name = {fmu["name"]: (i, fmu) for i, fmu in enumerate(doc["fmus"])}
-    needed = {robot_cell.PLANT: robot_cell.PLANT_FMU, **{d: robot_cell.DRIVE_FMU for d in robot_cell.DRIVES}}
-    for name, builtin in needed.items():
-        if name not in by_name:
-            raise (where / "fmus").error(f"an [[fmus]] table with name = {name!r} (builtin = {builtin!r})",
-                                         problem=f"FMU {name!r} missing")
-    variables = {name: type_ for name, (type_, _) in robot_cell.cell_variables().items()}
-    check_cosim_tables(doc, where, master_variables=variables)
-    for name, builtin in needed.items():
-        i, fmu = by_name[name]
-        have = {v.name for v in load_model_description(fmu["path"]).modelVariables}
-        want = {"tau[1]", "q[6]", "p[78]", "payload_mass"} if name == robot_cell.PLANT else {
-            "target_position", "torque_offset", "controlword", "position_actual", "torque_actual"}
-        if not want <= have:
-            raise (where / "fmus")[i].error(f"a {builtin} FMU (variables {sorted(want)})", str(fmu["path"]),
-                                            problem=f"instance {name!r} lacks {sorted(want - have)}")
-    plant_i, plant = by_name[robot_cell.PLANT]
-    for key in plant["parameters"]:
-        if key.startswith(robot_cell.JOB_SET_PLANT_PARAMETERS):
-            raise (where / "fmus")[plant_i].error("no q0/qd0/p/payload parameters: the job sets them",
-                                                  problem=f"parameter {key!r} is set by the job")
-    given = set(doc["connections"])
-    for text in robot_cell.cell_connections():
-        if text not in given:
-            raise (where / "connections").error(f"the connection {text!r} (cosim.jobs.robot_cell.cell_connections())",
-                                                problem="connection missing")
-    try:
-        fb = FieldbusConfig.from_dict(doc["fieldbus"], source=str(where.file) if where.file else "<scenario>")
-    except FieldbusConfigError as exc:
-        raise (where / "fieldbus" / exc.key).error(exc.expected, exc.given) from None
-    ctrl, base = doc["controller"], doc["simulation"]["macro_step"]
-    if abs(fb.cycle_time_s - ctrl["period"]) > 1e-12:
-        raise (where / "controller" / "period").error(
-            f"the fieldbus cycle time {fb.cycle_time_s * 1e6:g} us ([fieldbus] cycle_time_us)", ctrl["period"])
-    for table, value in (("controller", ctrl["period"]), ("tracker", doc["tracker"]["period"])):
-        if not _multiple(value, base):
-            raise (where / table / "period").error(f"a positive integer multiple of macro_step = {base!r} s", value)
+    check_cell(doc, where)
+    ctrl = doc["controller"]
     exc_t = doc["excitation"]
     if exc_t["skip_periods"] >= exc_t["periods"]:
         raise (where / "excitation" / "skip_periods").error(
@@ -399,7 +355,7 @@ def run(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
         iso_cell = robot_cell.run_cell(doc, rec, true_robot, ctx, label=f"iso9283_{label}", stop_time=iso_stop,
                                        fieldbus=fb, tracker=tracker, record_file=f"timeseries_{label}.csv",
                                        can_log=ctx.path(f"can_{label}.blf") if doc["results"]["can_log"] else None)
-        entry, _ = _evaluate_iso(ctx, label, iso_cell, ctl, tcp_ref, path, true_robot)
+        entry, _ = evaluate_run(ctx, label, iso_cell, ctl, tcp_ref, path, true_robot)
         runs[label] = {k: entry[k] for k in ("status", "tcp_error_max_mm", "tcp_error_rms_mm",
                                              "tcp_error_max_noise_free_mm", "tcp_error_rms_noise_free_mm",
                                              "path_accuracy_AT_mm", "joint_lag_max_rad", "path_completed",
@@ -432,13 +388,6 @@ def run(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
 
 def _ratio(a: float, b: float) -> float:
     return a / b if (b and math.isfinite(a) and math.isfinite(b)) else float("nan")
-
-
-def _evaluate_iso(ctx, label, cell, controller, reference, path, true_robot):
-    """The main job's ISO 9283 evaluation (same metrics and files as job ``iso9283``)."""
-    from cosim.jobs.iso9283 import _evaluate_mode
-
-    return _evaluate_mode(ctx, label, cell, controller, reference, path, true_robot)
 
 
 def _validate(ctx: RunContext, doc: dict[str, Any], rec: FieldbusRecorder, ctl: Controller, path, ident, models,

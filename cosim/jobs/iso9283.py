@@ -40,12 +40,13 @@ import numpy as np
 
 from controller import Controller, ControllerConfig, Phase, TcpTrajectory
 from cosim.jobs import robot_cell
+from cosim.jobs.cell_checks import check_cell, fill_defaults
 from cosim.jobs.columns_csv import write_columns_csv
 from cosim.jobs.laser_tracker import DEFAULT_POSITION_SIGMA_M, TrackerConfig
 from cosim.jobs.tracking_metrics import TrackingResult, desired_joints, evaluate
 from cosim.master import SimulationError
 from cosim.scenario.context import RunContext
-from cosim.scenario.cosim_tables import COSIM_FIELDS, check_cosim_tables
+from cosim.scenario.cosim_tables import COSIM_FIELDS
 from cosim.scenario.loader import SCENARIO_FIELD, Scenario
 from cosim.scenario.registry import register_job
 from cosim.scenario.schema import (AnyValue, Boolean, Field, FilePath, Integer, List, Number, String, Table, Where)
@@ -154,82 +155,18 @@ SCHEMA = Table({
 
 
 # ---------------------------------------------------------------------------------------- checks
-def _fill_table_defaults(doc: dict[str, Any]) -> None:
-    """An absent table gets the schema default ``{}`` without its fields' defaults: fill them."""
-    for key in ("true_robot", "controller", "path", "tracker", "results"):
-        if not doc.get(key):
-            doc[key] = SCHEMA.fields[key].spec.check({}, Where(None) / key)
-
-
-def _multiple(value: float, base: float) -> bool:
-    ratio = value / base
-    return round(ratio) >= 1 and abs(ratio - round(ratio)) <= 1e-9 * max(1.0, ratio)
+def fill_table_defaults(doc: dict[str, Any]) -> None:
+    """Give the job's tables ([true_robot], [controller], [path], [tracker], [results]) their
+    fields' defaults where the document leaves them out (the jobs built on this schema call it too)."""
+    fill_defaults(doc, SCHEMA, ("true_robot", "controller", "path", "tracker", "results"))
 
 
 def check(doc: dict[str, Any], where: Where) -> None:
     """Everything that can be checked before running (raises ScenarioError at the key)."""
-    _fill_table_defaults(doc)
-    by_name = {fmu["name"]: (i, fmu) for i, fmu in enumerate(doc["fmus"])}
-    needed = {robot_cell.PLANT: robot_cell.PLANT_FMU, **{d: robot_cell.DRIVE_FMU for d in robot_cell.DRIVES}}
-    for name, builtin in needed.items():
-        if name not in by_name:
-            raise (where / "fmus").error(f"an [[fmus]] table with name = {name!r} (builtin = {builtin!r}): "
-                                         f"the cell needs {sorted(needed)}", problem=f"FMU {name!r} missing")
-    variables = {name: type_ for name, (type_, _) in robot_cell.cell_variables().items()}
-    check_cosim_tables(doc, where, master_variables=variables)
-    for name, builtin in needed.items():
-        i, fmu = by_name[name]
-        from cosim.master import load_model_description
-
-        md = load_model_description(fmu["path"])
-        have = {v.name for v in md.modelVariables}
-        want = {"tau[1]", "q[6]", "p[78]", "payload_mass"} if name == robot_cell.PLANT else {
-            "target_position", "torque_offset", "controlword", "statusword", "position_actual"}
-        if not want <= have:
-            raise (where / "fmus")[i].error(f"a {builtin} FMU (variables {sorted(want)})", str(fmu["path"]),
-                                            problem=f"instance {name!r} lacks {sorted(want - have)}")
-    for name in robot_cell.DRIVES:
-        i, fmu = by_name[name]
-        if SPEED_FEEDFORWARD_PARAMETER in fmu["parameters"]:
-            raise ((where / "fmus")[i] / "parameters" / SPEED_FEEDFORWARD_PARAMETER).error(
-                "no speed_feedforward_gain here: the job sets it per mode ([controller.<mode>] "
-                "drive_speed_feedforward = true/false)", fmu["parameters"][SPEED_FEEDFORWARD_PARAMETER],
-                problem="parameter set by the job")
-    plant_i, plant = by_name[robot_cell.PLANT]
-    for key in plant["parameters"]:
-        if key.startswith(robot_cell.JOB_SET_PLANT_PARAMETERS):
-            raise (where / "fmus")[plant_i].error(
-                "no q0/qd0/p/payload parameters: the job sets them from [true_robot] and the path start",
-                problem=f"parameter {key!r} is set by the job")
-    given = set(doc["connections"])
-    for text in robot_cell.cell_connections():
-        if text not in given:
-            raise (where / "connections").error(f"the connection {text!r} among the cell's connections "
-                                                f"(cosim.jobs.robot_cell.cell_connections())",
-                                                problem="connection missing")
-    from fieldbus import FieldbusConfig, FieldbusConfigError
-
-    try:
-        fb = FieldbusConfig.from_dict(doc["fieldbus"], source=str(where.file) if where.file else "<scenario>")
-    except FieldbusConfigError as exc:
-        raise (where / "fieldbus" / exc.key).error(exc.expected, exc.given) from None
-    ctrl, sim = doc["controller"], doc["simulation"]
-    base = sim["macro_step"]
-    if abs(fb.cycle_time_s - ctrl["period"]) > 1e-12:
-        raise (where / "controller" / "period").error(
-            f"the fieldbus cycle time {fb.cycle_time_s * 1e6:g} us ([fieldbus] cycle_time_us)", ctrl["period"])
-    for key, table, value in (("period", "controller", ctrl["period"]), ("period", "tracker", doc["tracker"]["period"])):
-        if not _multiple(value, base):
-            raise (where / table / key).error(f"a positive integer multiple of macro_step = {base!r} s", value)
-        for fmu in doc["fmus"]:
-            step = fmu.get("step", base)
-            if fmu["name"] in needed and not _multiple(value, step):
-                raise (where / "fmus")[by_name[fmu["name"]][0]].error(
-                    f"a step that divides the {table} period {value!r} s (it reads FMU outputs then)", step,
-                    problem="FMU step does not divide the period")
-    if doc.get("record") is not None and not _multiple(doc["record"]["period"], base):
-        raise (where / "record" / "period").error(f"a positive integer multiple of macro_step = {base!r} s",
-                                                  doc["record"]["period"])
+    fill_table_defaults(doc)
+    check_cell(doc, where, job_set_drive_parameters={
+        SPEED_FEEDFORWARD_PARAMETER: "no speed_feedforward_gain here: the job sets it per mode "
+                                     "([controller.<mode>] drive_speed_feedforward = true/false)"})
 
 
 # ---------------------------------------------------------------------------------------- set-up
@@ -336,7 +273,7 @@ def prepare(doc: dict[str, Any], source: str) -> JobSetup:
     from fieldbus import FieldbusConfig
     from planners.iso9283 import iso9283_test_path
 
-    _fill_table_defaults(doc)
+    fill_table_defaults(doc)
     ctrl_t = doc["controller"]
     period = ctrl_t["period"]
     true_robot = make_true_robot(doc["true_robot"])
@@ -382,7 +319,7 @@ def run_mode(ctx: RunContext, setup: JobSetup, mode: str, extra_signals: Sequenc
     cell = robot_cell.run_cell(mode_doc, controller, setup.true_robot, ctx, label=mode,
                                stop_time=doc["simulation"]["stop_time"], fieldbus=setup.fieldbus,
                                tracker=setup.tracker, record_file=f"timeseries_{mode}.csv", can_log=can_log)
-    entry, result = _evaluate_mode(ctx, mode, cell, controller, setup.reference, setup.path, setup.true_robot)
+    entry, result = evaluate_run(ctx, mode, cell, controller, setup.reference, setup.path, setup.true_robot)
     entry = {"drive_speed_feedforward": settings["drive_speed_feedforward"],
              "torque_feedforward": settings["torque_feedforward"], **entry}
     return entry, result, cell, controller
@@ -441,9 +378,16 @@ def _ratio(a: float, b: float) -> float:
     return a / b if (b and math.isfinite(a) and math.isfinite(b)) else float("nan")
 
 
-def _evaluate_mode(ctx: RunContext, mode: str, cell: robot_cell.CellRun, controller: Controller,
-                   reference: TcpTrajectory, path, true_robot) -> tuple[dict[str, Any], TrackingResult]:
-    """Post-process one mode: controller log, TCP series, metrics (also after a failure)."""
+def evaluate_run(ctx: RunContext, mode: str, cell: robot_cell.CellRun, controller: Controller,
+                 reference: TcpTrajectory, path, true_robot) -> tuple[dict[str, Any], TrackingResult]:
+    """Post-process one run of the ISO 9283 path on the cell (also after a failure): write
+    ``controller_<mode>.csv`` (the controller log), ``tcp_<mode>.csv`` (programmed, commanded
+    and measured TCP in m, base_link; TCP and path errors in mm; joint set-points and lag
+    errors in rad) and return (the summary entry of the run, the tracking result).
+
+    ``mode`` names the run in the file names; ``reference`` is the controller's TCP
+    trajectory, ``path`` the planners.iso9283 test path, ``true_robot`` the plant's robot
+    (its kinematics turn joint angles into the commanded and true flange positions)."""
     from robot.kinematics import FlangeKinematics
 
     log = controller.log.columns()

@@ -252,7 +252,7 @@ def run(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
     from robot.dynamics import RobotDynamics
 
     doc = scenario.data
-    iso9283._fill_table_defaults(doc)
+    iso9283.fill_table_defaults(doc)
     _fill(doc)
     problem_t, planners_t = doc["problem"], doc["planners"]
     dynamics = RobotDynamics()
