@@ -13,12 +13,11 @@ from identification.calibration_design_bounds import (
 from identification.calibration_index_comparison import compare_observation_indices
 from identification.calibration_observability import OBSERVATION_INDICES, get_index
 
+from calibration_jacobians import correlated_jacobians
+
 
 def _jacobians(n=16, k=3, p=5, seed=0):
-    rng = np.random.default_rng(seed)
-    mix = np.eye(p) + 0.8 * rng.standard_normal((p, p)) / np.sqrt(p)
-    scale = np.exp(rng.uniform(-1.5, 1.0, size=(n, 1, p)))
-    return (rng.standard_normal((n, k, p)) * scale) @ mix
+    return correlated_jacobians(n, k, p, seed)
 
 
 def _brute_force_best(theta, n_select, index):

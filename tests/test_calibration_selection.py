@@ -17,13 +17,11 @@ from identification.calibration_observability import (
     observation_index,
 )
 
+from calibration_jacobians import correlated_jacobians
+
 
 def _jacobians(n=150, k=6, p=12, seed=0):
-    rng = np.random.default_rng(seed)
-    # correlated columns so that the conditioning depends strongly on the choice
-    mix = np.eye(p) + 0.8 * rng.standard_normal((p, p)) / np.sqrt(p)
-    scale = np.exp(rng.uniform(-1.5, 1.0, size=(n, 1, p)))
-    return (rng.standard_normal((n, k, p)) * scale) @ mix
+    return correlated_jacobians(n, k, p, seed)
 
 
 def test_index_values_match_singular_values():
