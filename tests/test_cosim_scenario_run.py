@@ -1,6 +1,5 @@
 """``python -m cosim run``: summary.json and time series for ok and failed runs; custom job types."""
 import json
-import shutil
 import subprocess
 import sys
 
@@ -13,7 +12,6 @@ from cosim.results import read_csv
 from cosim.scenario import (COSIM_FIELDS, SCENARIO_FIELD, RunContext, ScenarioError, add_record, build_master,
                             check_cosim_tables, load_scenario, register_job)
 from cosim.scenario.schema import Field, List, Number, String, Table
-from cosim_fmu_models import build_test_fmu
 
 FAILING = """
 [scenario]
@@ -42,26 +40,11 @@ signals = ["bad.y", "clock.clock"]
 """
 
 
-@pytest.fixture(scope="module")
-def fmu_dir(tmp_path_factory):
-    d = tmp_path_factory.mktemp("run_fmus")
-    for m in ("integrator", "sampler", "faulty"):
-        build_test_fmu(m, d)
-    return d
-
-
-@pytest.fixture
-def workdir(fmu_dir, tmp_path):
-    for f in fmu_dir.glob("*.fmu"):
-        shutil.copy(f, tmp_path / f.name)
-    return tmp_path
-
-
 @pytest.mark.parametrize("mode, stopped_at, text", [(1, 0.49, "fmi2Discard"), (2, 0.5, "output 'y' is nan")])
-def test_failed_run_writes_failed_summary_and_keeps_time_series(workdir, mode, stopped_at, text):
-    path = workdir / "failing.toml"
+def test_failed_run_writes_failed_summary_and_keeps_time_series(fmu_workdir, mode, stopped_at, text):
+    path = fmu_workdir / "failing.toml"
     path.write_text(FAILING.format(mode=mode))
-    out = workdir / "out"
+    out = fmu_workdir / "out"
     assert main(["run", str(path), "--out", str(out), "--quiet"]) == 1
     summary = json.loads((out / "summary.json").read_text())
     assert summary["status"] == "failed" and summary["scenario"] == "failing"
@@ -76,19 +59,19 @@ def test_failed_run_writes_failed_summary_and_keeps_time_series(workdir, mode, s
     assert np.allclose(data[1:, 1], data[1:, 0], atol=1e-12)
 
 
-def test_ok_run_via_subprocess_default_results_folder(workdir):
-    path = workdir / "chain.toml"
+def test_ok_run_via_subprocess_default_results_folder(fmu_workdir):
+    path = fmu_workdir / "chain.toml"
     path.write_text(FAILING.format(mode=1).replace('name = "failing"', 'name = "fine"').replace(
         "fail_time = 0.5", "fail_time = 99.0"))
-    proc = subprocess.run([sys.executable, "-m", "cosim", "run", str(path)], cwd=workdir, capture_output=True,
+    proc = subprocess.run([sys.executable, "-m", "cosim", "run", str(path)], cwd=fmu_workdir, capture_output=True,
                           text=True, timeout=120)
     assert proc.returncode == 0, proc.stderr
     assert "\r" not in proc.stderr  # no progress bar when stderr is not a terminal
-    summary = json.loads((workdir / "results" / "fine" / "summary.json").read_text())
+    summary = json.loads((fmu_workdir / "results" / "fine" / "summary.json").read_text())
     assert summary["status"] == "ok" and "reason" not in summary
     assert summary["sim_time_s"] == pytest.approx(2.0)
     assert summary["wall_time_s"] > 0 and summary["realtime_factor"] == pytest.approx(2.0 / summary["wall_time_s"])
-    _, data = read_csv(workdir / "results" / "fine" / "timeseries.csv")
+    _, data = read_csv(fmu_workdir / "results" / "fine" / "timeseries.csv")
     assert len(data) == 41 and data[-1, 0] == pytest.approx(2.0)
 
 
@@ -161,14 +144,14 @@ signals = ["a.y", "ramp.u", "a.u"]
 """
 
 
-def test_custom_job_reuses_schema_and_cosim_tables(workdir):
-    path = workdir / "ramp.toml"
+def test_custom_job_reuses_schema_and_cosim_tables(fmu_workdir):
+    path = fmu_workdir / "ramp.toml"
     path.write_text(RAMP)
-    assert main(["run", str(path), "--out", str(workdir / "o"), "--quiet"]) == 0
-    summary = json.loads((workdir / "o" / "summary.json").read_text())
+    assert main(["run", str(path), "--out", str(fmu_workdir / "o"), "--quiet"]) == 0
+    summary = json.loads((fmu_workdir / "o" / "summary.json").read_text())
     assert summary["job"] == "test_ramp" and summary["tag"] == "a" and summary["status_at_start"] == "running"
     assert summary["ended_at_s"] == pytest.approx(0.6) and summary["sim_time_s"] == pytest.approx(0.6)
-    columns, data = read_csv(workdir / "o" / "timeseries.csv")
+    columns, data = read_csv(fmu_workdir / "o" / "timeseries.csv")
     assert columns == ["time", "a.y", "ramp.u", "a.u"]
     t = data[:, 0]
     assert np.allclose(data[:, 2], 0.5 * t, atol=1e-12)  # "500 mm/s" converted to 0.5 m/s
@@ -182,8 +165,8 @@ def test_custom_job_reuses_schema_and_cosim_tables(workdir):
     ('["ramp.u -> a.u"]', '["ramp.v -> a.u"]', "connections[0]"),
     ("until = 0.6", "until = 0.6\nuntill = 1", "ramp.untill"),
 ])
-def test_custom_job_errors(workdir, old, new, key):
-    path = workdir / "ramp.toml"
+def test_custom_job_errors(fmu_workdir, old, new, key):
+    path = fmu_workdir / "ramp.toml"
     path.write_text(RAMP.replace(old, new))
     with pytest.raises(ScenarioError) as info:
         load_scenario(path)

@@ -1,12 +1,10 @@
 """Scenario files are validated before anything runs: each mistake is a ScenarioError
 (a ValueError) naming the file, the key path, the value given and what was expected."""
-import shutil
 
 import pytest
 
 from cosim.cli import main
 from cosim.scenario import ScenarioError, load_scenario
-from cosim_fmu_models import build_test_fmu
 
 GOOD = """
 connections = ["a.y -> s.u"]
@@ -38,21 +36,10 @@ signals = ["a.y", "s.*"]
 """
 
 
-@pytest.fixture(scope="module")
-def fmu_dir(tmp_path_factory):
-    d = tmp_path_factory.mktemp("scenario_fmus")
-    for m in ("integrator", "sampler"):
-        build_test_fmu(m, d)
-    return d
-
-
 @pytest.fixture
-def write(fmu_dir, tmp_path):
-    for f in fmu_dir.glob("*.fmu"):
-        shutil.copy(f, tmp_path / f.name)
-
+def write(fmu_workdir):
     def _write(text: str):
-        path = tmp_path / "scenario.toml"
+        path = fmu_workdir / "scenario.toml"
         path.write_text(text)
         return path
     return _write

@@ -1,0 +1,26 @@
+"""Fixtures shared by several test modules (helpers without pytest state live in modules beside it)."""
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import pytest
+
+from cosim_fmu_models import MODELS, build_test_fmu
+
+
+@pytest.fixture(scope="session")
+def pythonfmu_models_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A folder with the pythonfmu test models built once per test process: Integrator.fmu, Sampler.fmu, Faulty.fmu."""
+    folder = tmp_path_factory.mktemp("test_fmus")
+    for model in MODELS:
+        build_test_fmu(model, folder)
+    return folder
+
+
+@pytest.fixture
+def fmu_workdir(pythonfmu_models_dir: Path, tmp_path: Path) -> Path:
+    """This test's ``tmp_path`` with copies of the test FMUs (scenario files name them by relative path)."""
+    for fmu in pythonfmu_models_dir.glob("*.fmu"):
+        shutil.copy(fmu, tmp_path / fmu.name)
+    return tmp_path
