@@ -1,8 +1,9 @@
 """Sweep throughput on Dask: variants per minute with 1 and 2 worker processes.
 
-Each variant is a CPU-bound run of the generic ``fmus`` job: the project's rx130l_plant
-FMU alone (the arm falling under gravity from a bent pose, no recorder), ``--sim-time``
-simulated seconds at a 200 us macro step (a few seconds of wall time each). The
+Each variant is a CPU-bound run of the generic ``fmus`` job: scenarios/plant_drop.toml (the
+project's rx130l_plant FMU alone, the arm falling under gravity from a bent pose) without
+its recorder, ``--sim-time`` simulated seconds at a 200 us macro step (a few seconds of
+wall time each). The
 variants differ in the start pose. For each worker count an embedded LocalCluster
 (one thread per worker process) is started and warmed up (every worker runs one
 short scenario with the ordinary runner), then the timed sweep runs every variant anew
@@ -19,32 +20,27 @@ import statistics
 import tempfile
 import textwrap
 import time
+import tomllib
 from pathlib import Path
 
-BASE = """
-connections = []
+import tomli_w
 
-[scenario]
-name = "bench_drop"
-job = "fmus"
+ROOT = Path(__file__).resolve().parents[1]
 
-[simulation]
-stop_time = {stop}
-macro_step = "200 us"
 
-[[fmus]]
-name = "plant"
-builtin = "rx130l_plant"
-[fmus.parameters]
-"q0[2]" = -0.3
-"q0[3]" = 1.2
-"q0[5]" = 0.6
-"""
+def base_scenario(stop: float) -> str:
+    """scenarios/plant_drop.toml run for ``stop`` simulated seconds, without its recorder."""
+    with open(ROOT / "scenarios" / "plant_drop.toml", "rb") as f:
+        document = tomllib.load(f)
+    document["scenario"]["name"] = "bench_drop"
+    document["simulation"]["stop_time"] = stop
+    del document["record"]
+    return tomli_w.dumps(document)
 
 
 def write_sweep(folder: Path, name: str, stop: float, variants: int) -> Path:
     """A base scenario and a sweep over ``variants`` start angles of joint 2."""
-    (folder / f"{name}_base.toml").write_text(BASE.format(stop=stop), encoding="utf-8")
+    (folder / f"{name}_base.toml").write_text(base_scenario(stop), encoding="utf-8")
     values = ", ".join(f"{-0.4 + 0.8 * i / max(1, variants - 1):.4f}" for i in range(variants))
     path = folder / f"{name}.toml"
     path.write_text(textwrap.dedent(f"""
