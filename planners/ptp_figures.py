@@ -8,15 +8,13 @@ Matplotlib with the Agg backend (no display).
 """
 from __future__ import annotations
 
-import os
 from pathlib import Path
 from typing import Any, Sequence
-
-os.environ.setdefault("MPLBACKEND", "Agg")
 
 import numpy as np
 
 from planners.base import JointLimits, PlannerInputError
+from planners.figure_file import save_figure
 from planners.trajectory import Trajectory
 
 FIGURE9_THRESHOLD = 0.9
@@ -72,9 +70,4 @@ def plot_ptp_torques_velocities(traj: Trajectory, limits: JointLimits, path: str
         ax.legend(loc="lower right", ncol=len(chosen), fontsize=8)
     ax_qd.set_xlabel("time [s]")
     ax_tau.set_title(f"{title}, duration {traj.duration:.3f} s")
-    fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)

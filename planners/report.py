@@ -8,15 +8,13 @@ Figures use matplotlib with the Agg backend (no display).
 """
 from __future__ import annotations
 
-import os
 from pathlib import Path
 from typing import Any, Mapping, Sequence
-
-os.environ.setdefault("MPLBACKEND", "Agg")
 
 import numpy as np
 
 from planners.base import JointLimits, PlanResult
+from planners.figure_file import save_figure
 from planners.trajectory import RATIO_KINDS, Trajectory, constraint_ratios, energy
 from robot.kinematics import FlangeKinematics
 
@@ -78,12 +76,7 @@ def plot_velocity_profile(trajectories: Mapping[str, Trajectory], path: str | Pa
         ax.grid(True, alpha=0.3)
         ax.legend()
     fig.suptitle(title)
-    fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)
 
 
 def normalised_signals(traj: Trajectory, limits: JointLimits, dynamics: Any = None,
@@ -147,12 +140,7 @@ def plot_active_constraints(traj: Trajectory, limits: JointLimits, path: str | P
     ax.grid(True, alpha=0.3)
     ax.legend(loc="lower center", ncol=4, fontsize=8)
     ax.set_title(title)
-    fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)
 
 
 def energy_table(rows: Sequence[tuple[float, PlanResult]]) -> str:
