@@ -7,8 +7,8 @@ Target (issue 5): at least 3x faster than real time on one core (median of 5 run
 
 Each run builds the cell of ``scenarios/iso9283.toml`` (true robot, macro step, plant
 parameters, drive gains and the mode's drive speed feed-forward, fieldbus defaults)
-exactly as ``python -m cosim run`` does (``cosim.jobs.iso9283.prepare``, the settings of
-``run_mode``, ``cosim.jobs.robot_cell.run_cell``), with ``stop_time`` = 2 s, into a
+exactly as ``python -m cosim run`` does (``cosim.jobs.iso9283.prepare``, ``mode_controller``
+as ``run_mode`` uses it, ``cosim.jobs.robot_cell.run_cell``), with ``stop_time`` = 2 s, into a
 temporary results folder; the CAN log is off unless ``--can-log`` (its BLF encoding is
 file output, not loop work), and the time-series CSV is written after the loop.
 
@@ -44,8 +44,6 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-import numpy as np
-
 ROOT = Path(__file__).resolve().parents[1]
 TARGET_REALTIME = 3.0
 TARGET_P99_US = 100.0
@@ -53,28 +51,16 @@ TARGET_P99_US = 100.0
 
 def build(sim_time: float, mode: str):
     """Scenario, cell document, controller, true robot, fieldbus and tracker config of one
-    run: ``cosim.jobs.iso9283.prepare`` and the controller/drive settings of ``run_mode``."""
-    from controller import Controller, ControllerConfig
-    from cosim.jobs import iso9283, robot_cell
+    run: ``cosim.jobs.iso9283.prepare`` and ``mode_controller`` (as ``run_mode``)."""
+    from cosim.jobs import iso9283
     from cosim.scenario import load_scenario
-    from planners.iso9283 import ISO_Q_HINT
 
     scenario = load_scenario(ROOT / "scenarios" / "iso9283.toml")
     doc = scenario.data
     doc["simulation"]["stop_time"] = sim_time
     doc["controller"]["modes"] = [mode]
     setup = iso9283.prepare(doc, str(scenario.path))
-    ctrl_t = doc["controller"]
-    period = ctrl_t["period"]
-    settings = setup.mode_settings[mode]
-    mode_doc = {**doc, "fmus": iso9283.mode_fmus(doc["fmus"], settings["drive_speed_feedforward"])}
-    drive_model = (robot_cell.drive_loop_model(mode_doc["fmus"], period)
-                   if ctrl_t["drive_compensation"] and settings["torque_feedforward"] else None)
-    config = ControllerConfig(mode=settings["controller_mode"], period_s=period,
-                              lead_cycles=1 + setup.fieldbus.dead_time_cycles,
-                              compute_budget_s=ctrl_t["compute_budget"], settle_time_s=ctrl_t["settle_time"])
-    controller = Controller(setup.reference, config, kinematic_model=setup.kinematics, dynamics=setup.dynamics,
-                            q_hint=np.array(ISO_Q_HINT), drive_model=drive_model, capacity=setup.capacity)
+    mode_doc, controller = iso9283.mode_controller(setup, mode)
     return scenario, mode_doc, controller, setup.true_robot, setup.fieldbus, setup.tracker
 
 

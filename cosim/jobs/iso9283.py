@@ -290,6 +290,29 @@ def prepare(doc: dict[str, Any], source: str) -> JobSetup:
                     int(doc["simulation"]["stop_time"] / period) + 16, mode_settings)
 
 
+def mode_controller(setup: JobSetup, mode: str) -> tuple[dict[str, Any], Controller]:
+    """The scenario document and the controller of one mode: the document's drives get the
+    mode's ``speed_feedforward_gain`` (:func:`mode_fmus`); the controller runs the mode's
+    controller mode at ``[controller] period`` (s) with the set-up's models, set-points
+    ``1 + dead_time_cycles`` cycles ahead of the fieldbus, and the drives' position loops
+    (:func:`cosim.jobs.robot_cell.drive_loop_model`) when it feeds torque forward with
+    ``drive_compensation``."""
+    from planners.iso9283 import ISO_Q_HINT
+
+    doc, ctrl_t = setup.doc, setup.doc["controller"]
+    period = ctrl_t["period"]
+    settings = setup.mode_settings[mode]
+    mode_doc = {**doc, "fmus": mode_fmus(doc["fmus"], settings["drive_speed_feedforward"])}
+    drive_model = (robot_cell.drive_loop_model(mode_doc["fmus"], period)
+                   if ctrl_t["drive_compensation"] and settings["torque_feedforward"] else None)
+    config = ControllerConfig(mode=settings["controller_mode"], period_s=period,
+                              lead_cycles=1 + setup.fieldbus.dead_time_cycles,
+                              compute_budget_s=ctrl_t["compute_budget"], settle_time_s=ctrl_t["settle_time"])
+    controller = Controller(setup.reference, config, kinematic_model=setup.kinematics, dynamics=setup.dynamics,
+                            q_hint=np.array(ISO_Q_HINT), drive_model=drive_model, capacity=setup.capacity)
+    return mode_doc, controller
+
+
 def run_mode(ctx: RunContext, setup: JobSetup, mode: str, extra_signals: Sequence[str] = ()
              ) -> tuple[dict[str, Any], TrackingResult, robot_cell.CellRun, Controller]:
     """Run one mode on the cell and evaluate it: (summary entry, tracking result, cell run, controller).
@@ -298,23 +321,13 @@ def run_mode(ctx: RunContext, setup: JobSetup, mode: str, extra_signals: Sequenc
     besides the scenario's [record] signals. A failure of the run is in ``cell.failure``
     (not raised); everything recorded up to it is evaluated and written.
     """
-    from planners.iso9283 import ISO_Q_HINT
-
-    doc, ctrl_t = setup.doc, setup.doc["controller"]
-    period = ctrl_t["period"]
+    doc = setup.doc
     settings = setup.mode_settings[mode]
-    mode_doc = {**doc, "fmus": mode_fmus(doc["fmus"], settings["drive_speed_feedforward"])}
+    mode_doc, controller = mode_controller(setup, mode)
     if extra_signals:
         record = dict(doc.get("record") or {"period": setup.tracker.period_s, "signals": []})
         record["signals"] = list(record["signals"]) + [s for s in extra_signals if s not in record["signals"]]
         mode_doc["record"] = record
-    drive_model = (robot_cell.drive_loop_model(mode_doc["fmus"], period)
-                   if ctrl_t["drive_compensation"] and settings["torque_feedforward"] else None)
-    config = ControllerConfig(mode=settings["controller_mode"], period_s=period,
-                              lead_cycles=1 + setup.fieldbus.dead_time_cycles,
-                              compute_budget_s=ctrl_t["compute_budget"], settle_time_s=ctrl_t["settle_time"])
-    controller = Controller(setup.reference, config, kinematic_model=setup.kinematics, dynamics=setup.dynamics,
-                            q_hint=np.array(ISO_Q_HINT), drive_model=drive_model, capacity=setup.capacity)
     can_log = ctx.path(f"can_{mode}.blf") if doc["results"]["can_log"] else None
     cell = robot_cell.run_cell(mode_doc, controller, setup.true_robot, ctx, label=mode,
                                stop_time=doc["simulation"]["stop_time"], fieldbus=setup.fieldbus,
