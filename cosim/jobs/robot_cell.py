@@ -26,9 +26,7 @@ scenario's ``[fmus.parameters]``.
 """
 from __future__ import annotations
 
-import contextlib
 import copy
-import gc
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -39,7 +37,8 @@ import numpy as np
 
 from controller import Controller, DriveLoopModel, speed_comparison_lead
 from cosim.jobs.laser_tracker import TRACKER_VARIABLES, LaserTracker, TrackerConfig
-from cosim.master import Master, MemorySink, SimulationError
+from cosim.master import Master, MemorySink, Recorder, SimulationError
+from cosim.realtime.pacer import no_cyclic_gc
 from cosim.scenario.context import RunContext
 from cosim.scenario.cosim_tables import build_master
 from fieldbus import AppliedSetpoints, DriveActuals, FieldbusConfig, JointScaling, PowerlinkNetwork
@@ -245,22 +244,6 @@ class CellRun:
     loop_cpu_time_s: float = float("nan")
 
 
-@contextlib.contextmanager
-def _no_cyclic_gc():
-    """No cyclic garbage collection while the loop runs (reference counting still frees
-    everything the loop allocates; a collection pass would stall a cycle by ms)."""
-    enabled = gc.isenabled()
-    gc.collect()
-    gc.freeze()
-    gc.disable()
-    try:
-        yield
-    finally:
-        gc.unfreeze()
-        if enabled:
-            gc.enable()
-
-
 class TeeSink:
     """A recorder sink that forwards every call to several sinks (e.g. CSV on disk + memory)."""
 
@@ -293,6 +276,45 @@ def write_recording(memory: MemorySink, sink: Any) -> None:
     sink.close()
 
 
+def cell_fieldbus_config(fieldbus: FieldbusConfig | dict[str, Any] | None, controller: Controller) -> FieldbusConfig:
+    """The cell's fieldbus configuration (a FieldbusConfig, a [fieldbus] table, or None for the
+    defaults); ValueError when its cycle time differs from the controller period (s)."""
+    config = fieldbus if isinstance(fieldbus, FieldbusConfig) else FieldbusConfig.from_dict(fieldbus or {})
+    period = config.cycle_time_s
+    if abs(period - controller.config.period_s) > 1e-12:
+        raise ValueError(f"controller period {controller.config.period_s} s differs from the fieldbus cycle "
+                         f"time {period} s")
+    return config
+
+
+def cell_document(doc: dict[str, Any], true_robot: TrueRobot, q0: Sequence[float]) -> dict[str, Any]:
+    """A shallow copy of the scenario document whose ``[[fmus]]`` carry the cell's start values
+    (:func:`cell_fmus`: the true robot at rest at ``q0``, rad)."""
+    cell_doc = dict(doc)
+    cell_doc["fmus"] = cell_fmus(doc["fmus"], true_robot, q0)
+    return cell_doc
+
+
+def cell_signals(doc: dict[str, Any], laser: LaserTracker) -> tuple[list[str], float]:
+    """What the cell records and how often (s): the ``[record]`` signals plus
+    :data:`RECORDED_SIGNALS`, every ``[record] period`` (default: the tracker period)."""
+    record = doc.get("record") or {"period": laser.config.period_s, "signals": []}
+    signals = list(record["signals"]) + [s for s in RECORDED_SIGNALS if s not in record["signals"]]
+    return signals, record["period"]
+
+
+def add_cell_tasks(master: Master, network: Any, controller: Controller, period_s: float, laser: LaserTracker,
+                   signals: Sequence[str], record_period_s: float, sink: Any) -> Recorder:
+    """Add the cell's tasks to ``master`` (before initialize): the :class:`FieldbusLink` of
+    ``network`` and ``controller`` every ``period_s`` (priority 0), the laser tracker at its
+    period (priority 1) and the recorder of ``signals`` every ``record_period_s`` into ``sink``;
+    returns the recorder."""
+    link = FieldbusLink(network, controller, period_s)
+    master.add_task(link, period_s, priority=0, name="fieldbus+controller", setup=link.setup)
+    master.add_task(laser, laser.config.period_s, priority=1, name="laser_tracker", setup=laser.setup)
+    return master.add_recorder(signals, record_period_s, sink, name="cell")
+
+
 def run_cell(doc: dict[str, Any], controller: Controller, true_robot: TrueRobot, ctx: RunContext, *,
              label: str, stop_time: float, fieldbus: FieldbusConfig | dict[str, Any] | None = None,
              tracker: TrackerConfig | None = None, record_file: str = "timeseries.csv",
@@ -316,17 +338,11 @@ def run_cell(doc: dict[str, Any], controller: Controller, true_robot: TrueRobot,
     if execution is not None and execution.active:
         return execution.run_cell(doc, controller, true_robot, ctx, label=label, stop_time=stop_time,
                                   fieldbus=fieldbus, tracker=tracker, record_file=record_file, can_log=can_log)
-    fb_config = fieldbus if isinstance(fieldbus, FieldbusConfig) else FieldbusConfig.from_dict(fieldbus or {})
+    fb_config = cell_fieldbus_config(fieldbus, controller)
     period = fb_config.cycle_time_s
-    if abs(period - controller.config.period_s) > 1e-12:
-        raise ValueError(f"controller period {controller.config.period_s} s differs from the fieldbus cycle "
-                         f"time {period} s")
     laser = LaserTracker(true_robot.kinematic_model(), tracker)
-    record = doc.get("record") or {"period": laser.config.period_s, "signals": []}
-    signals = list(record["signals"]) + [s for s in RECORDED_SIGNALS if s not in record["signals"]]
-    cell_doc = dict(doc)
-    cell_doc["fmus"] = cell_fmus(doc["fmus"], true_robot, controller.q_start)
-    master = build_master(cell_doc, master_variables=cell_variables())
+    signals, record_period = cell_signals(doc, laser)
+    master = build_master(cell_document(doc, true_robot, controller.q_start), master_variables=cell_variables())
     memory = MemorySink()
     engine = ""
     failure: SimulationError | None = None
@@ -334,16 +350,13 @@ def run_cell(doc: dict[str, Any], controller: Controller, true_robot: TrueRobot,
     cpu0 = time.process_time()
     network = PowerlinkNetwork(fb_config, joint_scaling(), log_path=can_log)
     try:
-        link = FieldbusLink(network, controller, period)
-        master.add_task(link, period, priority=0, name="fieldbus+controller", setup=link.setup)
-        master.add_task(laser, laser.config.period_s, priority=1, name="laser_tracker", setup=laser.setup)
-        recorder = master.add_recorder(signals, record["period"], memory, name="cell")
+        recorder = add_cell_tasks(master, network, controller, period, laser, signals, record_period, memory)
         ctx.attach(master, stop_time, label=label)
         with master:
             try:
                 master.initialize(stop_time)
                 engine = master.engine.name
-                with _no_cyclic_gc():
+                with no_cyclic_gc():
                     ctx.execute(master, stop_time)
             except SimulationError as exc:
                 failure = exc

@@ -25,7 +25,6 @@ from cosim.master import MemorySink, SimulationError
 from cosim.realtime.config import RealtimeSettings
 from cosim.realtime.network import PacedNetwork, auto_tolerance_s, lateness_thresholds
 from cosim.realtime.pacer import Pacer, no_cyclic_gc, realtime_scheduling
-from cosim.results.timeseries import CsvSink
 from cosim.scenario.context import RunContext
 from cosim.scenario.cosim_tables import build_master
 from fieldbus import FieldbusConfig, PowerlinkNetwork
@@ -41,23 +40,6 @@ def deferred_recording(config: FieldbusConfig) -> FieldbusConfig:
                                                                      flush_every_cycles=DEFERRED_FLUSH_CYCLES))
 
 
-def write_memory_csv(sink: MemorySink, path: Path) -> None:
-    """Write what a MemorySink holds as the CSV a CsvSink would have streamed."""
-    csv = CsvSink(path)
-    csv.open(sink.columns, sink.kinds)
-    data = sink.data
-    if data.size:
-        csv.write(data)
-    csv.close()
-
-
-def cell_signals(doc: dict[str, Any], laser: LaserTracker) -> tuple[list[str], float]:
-    """The recorded signals and period of a cell (as robot_cell.run_cell records)."""
-    record = doc.get("record") or {"period": laser.config.period_s, "signals": []}
-    signals = list(record["signals"]) + [s for s in robot_cell.RECORDED_SIGNALS if s not in record["signals"]]
-    return signals, record["period"]
-
-
 def run_paced_cell(doc: dict[str, Any], controller, true_robot, ctx: RunContext, *, label: str, stop_time: float,
                    fieldbus: FieldbusConfig | dict[str, Any] | None, tracker: TrackerConfig | None,
                    record_file: str, can_log: Path | None, settings: RealtimeSettings,
@@ -67,17 +49,12 @@ def run_paced_cell(doc: dict[str, Any], controller, true_robot, ctx: RunContext,
     Returns the CellRun (as run_cell), the :class:`Pacer` (its ``log``: lateness per cycle)
     and the scheduling granted ('fifo' or 'normal (...)'). ``pacer`` may be given (tests:
     a Pacer on a :class:`~cosim.realtime.pacer.VirtualClock`)."""
-    fb_config = fieldbus if isinstance(fieldbus, FieldbusConfig) else FieldbusConfig.from_dict(fieldbus or {})
-    fb_config = deferred_recording(fb_config)
+    fb_config = deferred_recording(robot_cell.cell_fieldbus_config(fieldbus, controller))
     period = fb_config.cycle_time_s
-    if abs(period - controller.config.period_s) > 1e-12:
-        raise ValueError(f"controller period {controller.config.period_s} s differs from the fieldbus cycle "
-                         f"time {period} s")
     laser = LaserTracker(true_robot.kinematic_model(), tracker)
-    signals, record_period = cell_signals(doc, laser)
-    cell_doc = dict(doc)
-    cell_doc["fmus"] = robot_cell.cell_fmus(doc["fmus"], true_robot, controller.q_start)
-    master = build_master(cell_doc, master_variables=robot_cell.cell_variables())
+    signals, record_period = robot_cell.cell_signals(doc, laser)
+    master = build_master(robot_cell.cell_document(doc, true_robot, controller.q_start),
+                          master_variables=robot_cell.cell_variables())
     memory = MemorySink()
     engine = ""
     granted = "normal"
@@ -91,10 +68,7 @@ def run_paced_cell(doc: dict[str, Any], controller, true_robot, ctx: RunContext,
             pacer = Pacer(period, settings.spin_s, tolerance, capacity=int(stop_time / period) + 16)
         pacer.thresholds = lateness_thresholds(network.layout)
         paced = PacedNetwork(network, pacer, settings.overrun_policy, cycles=int(round(stop_time / period)) + 1)
-        link = robot_cell.FieldbusLink(paced, controller, period)
-        master.add_task(link, period, priority=0, name="fieldbus+controller", setup=link.setup)
-        master.add_task(laser, laser.config.period_s, priority=1, name="laser_tracker", setup=laser.setup)
-        recorder = master.add_recorder(signals, record_period, memory, name="cell")
+        recorder = robot_cell.add_cell_tasks(master, paced, controller, period, laser, signals, record_period, memory)
         with master:
             try:
                 master.initialize(stop_time)
@@ -109,7 +83,7 @@ def run_paced_cell(doc: dict[str, Any], controller, true_robot, ctx: RunContext,
         network.close()
     wall = time.perf_counter() - wall0
     cpu = time.process_time() - cpu0
-    write_memory_csv(memory, ctx.path(record_file))
+    robot_cell.write_recording(memory, ctx.csv_sink(record_file))
     cell = robot_cell.CellRun(label, ctx.path(record_file), recorder.rows_written, master.time, network.summary(),
                               wall, engine, memory, failure, loop_cpu_time_s=cpu)
     return cell, pacer, granted

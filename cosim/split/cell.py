@@ -23,7 +23,7 @@ from typing import Any, Callable
 from cosim.jobs import robot_cell
 from cosim.jobs.laser_tracker import LaserTracker, TrackerConfig
 from cosim.master import MemorySink, SimulationError
-from cosim.realtime.cell import cell_signals, deferred_recording, write_memory_csv
+from cosim.realtime.cell import deferred_recording
 from cosim.realtime.config import ExecutionOptions
 from cosim.realtime.network import auto_tolerance_s, lateness_thresholds
 from cosim.realtime.pacer import Pacer, no_cyclic_gc, realtime_scheduling
@@ -87,22 +87,18 @@ def run_split_cell(doc: dict[str, Any], controller, true_robot, ctx, *, label: s
     info)`` with ``info`` = {"port", "drive_process_exit_code", "controller_stop_cycle",
     "drive_side_wall_s", "loop_wall_s" (cycles only, after the drive process is ready),
     "realtime_factor" (incl. start-up), "loop_realtime_factor", "frames_missing_*", ...}."""
-    fb_config = fieldbus if isinstance(fieldbus, FieldbusConfig) else FieldbusConfig.from_dict(fieldbus or {})
+    fb_config = robot_cell.cell_fieldbus_config(fieldbus, controller)
     paced = options.realtime
     if paced:
         fb_config = deferred_recording(fb_config)
     period = fb_config.cycle_time_s
-    if abs(period - controller.config.period_s) > 1e-12:
-        raise ValueError(f"controller period {controller.config.period_s} s differs from the fieldbus cycle "
-                         f"time {period} s")
     port, up_port = free_udp_port(), free_udp_port()
     while up_port == port:
         up_port = free_udp_port()
     bus_config = side_configs(fb_config, port, options.receive_timeout_s)
     laser = LaserTracker(true_robot.kinematic_model(), tracker)
-    signals, record_period = cell_signals(doc, laser)
-    cell_doc = dict(doc)
-    cell_doc["fmus"] = robot_cell.cell_fmus(doc["fmus"], true_robot, controller.q_start)
+    signals, record_period = robot_cell.cell_signals(doc, laser)
+    cell_doc = robot_cell.cell_document(doc, true_robot, controller.q_start)
     raw = Path(tempfile.mkdtemp(prefix="cosim-split-")) / "rows.f64"
     settings = options.settings
     spec = DriveSideSpec(cell_doc=cell_doc, signals=signals, record_period_s=record_period,
@@ -227,7 +223,7 @@ def run_split_cell(doc: dict[str, Any], controller, true_robot, ctx, *, label: s
         memory.write(rows)
     raw.unlink(missing_ok=True)
     raw.parent.rmdir()
-    write_memory_csv(memory, ctx.path(record_file))
+    robot_cell.write_recording(memory, ctx.csv_sink(record_file))
     cycles = session.cycle + 1
     mn_summary = network_summary(endpoint.config, endpoint.events, endpoint, None, endpoint.recorder, cycles)
     fieldbus_summary = _merge_fieldbus(mn_summary, child["fieldbus"] if child else None)
