@@ -136,6 +136,14 @@ class JointLimits:
         )
 
 
+def _check_cost_and_friction(problem: str, k1: float, k2: float, friction: str) -> None:
+    """PlannerInputError naming ``problem`` unless friction is a FrictionModel and the cost weights are usable."""
+    if friction not in ("full", "coulomb", "none"):
+        raise PlannerInputError(f"{problem}.friction: expected 'full', 'coulomb' or 'none', got {friction!r}")
+    if not (k1 >= 0.0 and k2 >= 0.0 and k1 + k2 > 0.0):
+        raise PlannerInputError(f"{problem}: k1, k2 must be >= 0 and not both 0, got k1={k1}, k2={k2}")
+
+
 @dataclass(frozen=True)
 class CPProblem:
     """A continuous-path request: move along a fixed joint path q(sigma), sigma in [0, 1].
@@ -160,12 +168,7 @@ class CPProblem:
     n_intervals: int = 200
 
     def __post_init__(self) -> None:
-        if self.friction not in ("full", "coulomb", "none"):
-            raise PlannerInputError(
-                f"CPProblem.friction: expected 'full', 'coulomb' or 'none', got {self.friction!r}"
-            )
-        if not (self.k1 >= 0.0 and self.k2 >= 0.0 and self.k1 + self.k2 > 0.0):
-            raise PlannerInputError(f"CPProblem: k1, k2 must be >= 0 and not both 0, got k1={self.k1}, k2={self.k2}")
+        _check_cost_and_friction("CPProblem", self.k1, self.k2, self.friction)
         if int(self.n_intervals) < 2:
             raise PlannerInputError(f"CPProblem.n_intervals: expected an integer >= 2, got {self.n_intervals!r}")
 
@@ -191,12 +194,7 @@ class PtPProblem:
     def __post_init__(self) -> None:
         for name in ("q0", "qe", "qd0", "qde"):
             object.__setattr__(self, name, _as_joint_vector(getattr(self, name), f"PtPProblem.{name}", allow_inf=False))
-        if self.friction not in ("full", "coulomb", "none"):
-            raise PlannerInputError(
-                f"PtPProblem.friction: expected 'full', 'coulomb' or 'none', got {self.friction!r}"
-            )
-        if not (self.k1 >= 0.0 and self.k2 >= 0.0 and self.k1 + self.k2 > 0.0):
-            raise PlannerInputError(f"PtPProblem: k1, k2 must be >= 0 and not both 0, got k1={self.k1}, k2={self.k2}")
+        _check_cost_and_friction("PtPProblem", self.k1, self.k2, self.friction)
 
 
 @dataclass
