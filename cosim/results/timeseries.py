@@ -4,17 +4,36 @@ The header is ``time,<signal>,...``; time is in s, values in the FMU's units (SI
 this project). Reals are written with ``repr`` (shortest round-trip decimal), Integer
 and Boolean columns as integers. Rows are appended as blocks arrive and the file is
 flushed on every ``flush()``, so a run that fails keeps every row recorded before.
+:class:`FileSink` is the flush/close part any one-file sink shares (also the split
+run's raw-row sink).
 """
 from __future__ import annotations
 
 import csv
 from collections.abc import Sequence
 from pathlib import Path
+from typing import IO
 
 import numpy as np
 
 
-class CsvSink:
+class FileSink:
+    """Base of the recorder sinks that write one file, ``self._file`` (None until ``open``):
+    ``flush`` pushes what was written to the OS, ``close`` closes the file (again: no-op)."""
+
+    _file: IO | None = None
+
+    def flush(self) -> None:
+        if self._file is not None:
+            self._file.flush()
+
+    def close(self) -> None:
+        if self._file is not None:
+            self._file.close()
+            self._file = None
+
+
+class CsvSink(FileSink):
     """Write recorder rows to ``path`` (created with its directory; overwritten)."""
 
     def __init__(self, path: str | Path) -> None:
@@ -36,15 +55,6 @@ class CsvSink:
                 for i in self._int_columns:
                     row[i] = int(row[i])
         self._file.write("".join(",".join(map(repr, row)) + "\n" for row in rows))
-
-    def flush(self) -> None:
-        if self._file is not None:
-            self._file.flush()
-
-    def close(self) -> None:
-        if self._file is not None:
-            self._file.close()
-            self._file = None
 
 
 def read_csv(path: str | Path) -> tuple[list[str], np.ndarray]:

@@ -28,6 +28,7 @@ from cosim.jobs.laser_tracker import LaserTracker, TrackerConfig
 from cosim.master import EndSimulation, Master, SimulationError
 from cosim.realtime.pacer import no_cyclic_gc, realtime_scheduling
 from cosim.realtime.policy import OverrunFaultPlan
+from cosim.results.timeseries import FileSink
 from cosim.split.protocol import END, LOST, pres_expected, unpack_marker, use_directional_bus
 from fieldbus import DriveActuals, DriveEndpoint, FieldbusConfig
 
@@ -61,7 +62,7 @@ class DriveSideSpec:
     ports: tuple[int, int] = (0, 0)
 
 
-class RawRowSink:
+class RawRowSink(FileSink):
     """Recorder sink appending rows to a raw float64 file (flushed per hand-over)."""
 
     def __init__(self, path: str | Path) -> None:
@@ -76,15 +77,6 @@ class RawRowSink:
 
     def write(self, block: np.ndarray) -> None:
         np.ascontiguousarray(block, dtype=np.float64).tofile(self._file)
-
-    def flush(self) -> None:
-        if self._file is not None:
-            self._file.flush()
-
-    def close(self) -> None:
-        if self._file is not None:
-            self._file.close()
-            self._file = None
 
 
 def read_raw_rows(path: str | Path, columns: int) -> np.ndarray:
