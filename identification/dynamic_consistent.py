@@ -42,6 +42,8 @@ from robot.dynamics import N_PARAMETERS, is_physically_consistent, pseudo_inerti
 N_LINKS = 6
 N_LINK_THETA = 10
 _TRIL = np.tril_indices(4)
+_TRIL_DIAGONAL = np.array([0, 2, 5, 9])
+"""Positions of L00, L11, L22, L33 in the row-major lower-triangle order of ``_TRIL``."""
 START_EIGENVALUE_FLOOR = 1e-3
 """A start link whose pseudo-inertia has an eigenvalue below this fraction of its largest is
 moved to the nearest consistent one (eigenvalues clipped), away from the degenerate boundary."""
@@ -66,27 +68,27 @@ def _theta_of_link(link: np.ndarray, relative_floor: float) -> np.ndarray:
         j = (vectors * np.maximum(values, floor)) @ vectors.T
     low = np.linalg.cholesky(j)
     values = low[_TRIL].copy()
-    diag = np.array([0, 2, 5, 9])  # positions of L00, L11, L22, L33 in the row-major tril order
-    values[diag] = np.log(values[diag])
+    values[_TRIL_DIAGONAL] = np.log(values[_TRIL_DIAGONAL])
     return values
 
 
-def _link_of_theta(values: np.ndarray) -> np.ndarray:
+def _cholesky_factor(values: np.ndarray) -> np.ndarray:
+    """The lower-triangular 4x4 L of a link's 10 log-Cholesky coordinates (diagonal entries as logs)."""
     low = np.zeros((4, 4))
     entries = values.copy()
-    diag = np.array([0, 2, 5, 9])
-    entries[diag] = np.exp(entries[diag])
+    entries[_TRIL_DIAGONAL] = np.exp(entries[_TRIL_DIAGONAL])
     low[_TRIL] = entries
+    return low
+
+
+def _link_of_theta(values: np.ndarray) -> np.ndarray:
+    low = _cholesky_factor(values)
     return link_parameters_from_pseudo_inertia(low @ low.T)
 
 
 def _link_jacobian(values: np.ndarray) -> np.ndarray:
     """d(10 link parameters) / d(10 log-Cholesky coordinates), analytic (J = L L^T is bilinear)."""
-    low = np.zeros((4, 4))
-    entries = values.copy()
-    diag = np.array([0, 2, 5, 9])
-    entries[diag] = np.exp(entries[diag])
-    low[_TRIL] = entries
+    low = _cholesky_factor(values)
     out = np.empty((10, 10))
     for k, (a, b) in enumerate(zip(*_TRIL)):
         d_low = np.zeros((4, 4))
