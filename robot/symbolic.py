@@ -182,6 +182,22 @@ def _joint_transforms(structure: ChainStructure, q: Expr) -> list[tuple[list, li
     return out
 
 
+def _link_velocities(structure: ChainStructure, transforms: list[tuple[list, list]], qd: Expr) -> list[tuple]:
+    """Forward pass: (v, w, joint_rate) of each link in its own frame (m/s, rad/s).
+
+    ``joint_rate`` is ``qd_i`` times the joint axis, the part of ``w`` the joint itself adds.
+    """
+    out: list[tuple] = []
+    for i in range(N_JOINTS):
+        rot, t = transforms[i]
+        parent = structure.parents[i]
+        v_p, w_p = out[parent][:2] if parent >= 0 else ([0.0] * 3, [0.0] * 3)
+        v, w = sp.motion_to_child(rot, t, v_p, w_p)
+        joint_rate = sp.scale(qd[i], sp.numeric(structure.axes[i]))
+        out.append((v, sp.add(w, joint_rate), joint_rate))
+    return out
+
+
 # ----------------------------------------------------------------------------------
 # Recursive Newton-Euler: inverse dynamics
 # ----------------------------------------------------------------------------------
@@ -193,22 +209,18 @@ def inverse_dynamics_expression(structure: ChainStructure, q: Expr, qd: Expr, qd
     bodies = _bodies(structure, p, payload)
     transforms = _joint_transforms(structure, q)
     base_acc = sp.scale(-1.0, sp.numeric(structure.gravity)) if include_gravity else [0.0] * 3
-    vel: list = []
+    velocities = _link_velocities(structure, transforms, qd)
     acc: list = []
     forces: list = []
     for i in range(N_JOINTS):
         rot, t = transforms[i]
         axis = sp.numeric(structure.axes[i])
         parent = structure.parents[i]
-        v_p, w_p = vel[parent] if parent >= 0 else ([0.0] * 3, [0.0] * 3)
+        v, w, joint_rate = velocities[i]
         a_p, aw_p = acc[parent] if parent >= 0 else (base_acc, [0.0] * 3)
-        v, w = sp.motion_to_child(rot, t, v_p, w_p)
-        joint_rate = sp.scale(qd[i], axis)
-        w = sp.add(w, joint_rate)
         a, aw = sp.motion_to_child(rot, t, a_p, aw_p)
         a = sp.add(a, sp.cross(v, joint_rate))
         aw = sp.add(sp.add(aw, sp.scale(qdd[i], axis)), sp.cross(w, joint_rate))
-        vel.append((v, w))
         acc.append((a, aw))
         body = bodies[i]
         f, n = body.momentum(a, aw)
@@ -241,19 +253,10 @@ def forward_dynamics_expression(structure: ChainStructure, q: Expr, qd: Expr, ta
     transforms = _joint_transforms(structure, q)
     friction = _friction(structure, p, qd)
     rotor = p[ROTOR_INERTIA_SLICE]
-    vel: list = []
     bias_acc: list = []
     art_inertia: list = []
     art_bias: list = []
-    for i in range(N_JOINTS):
-        rot, t = transforms[i]
-        axis = sp.numeric(structure.axes[i])
-        parent = structure.parents[i]
-        v_p, w_p = vel[parent] if parent >= 0 else ([0.0] * 3, [0.0] * 3)
-        v, w = sp.motion_to_child(rot, t, v_p, w_p)
-        joint_rate = sp.scale(qd[i], axis)
-        w = sp.add(w, joint_rate)
-        vel.append((v, w))
+    for i, (v, w, joint_rate) in enumerate(_link_velocities(structure, transforms, qd)):
         bias_acc.append(sp.cross(v, joint_rate) + sp.cross(w, joint_rate))
         body = bodies[i]
         pl, pa = body.momentum(v, w)
