@@ -12,6 +12,7 @@ from cosim.results import read_csv
 from cosim.scenario import (COSIM_FIELDS, SCENARIO_FIELD, RunContext, ScenarioError, add_record, build_master,
                             check_cosim_tables, load_scenario, register_job)
 from cosim.scenario.schema import Field, List, Number, String, Table
+from scenario_files import run_scenario
 
 FAILING = """
 [scenario]
@@ -45,8 +46,8 @@ def test_failed_run_writes_failed_summary_and_keeps_time_series(fmu_workdir, mod
     path = fmu_workdir / "failing.toml"
     path.write_text(FAILING.format(mode=mode))
     out = fmu_workdir / "out"
-    assert main(["run", str(path), "--out", str(out), "--quiet"]) == 1
-    summary = json.loads((out / "summary.json").read_text())
+    code, summary = run_scenario(path, out)
+    assert code == 1
     assert summary["status"] == "failed" and summary["scenario"] == "failing"
     assert text in summary["reason"] and "bad at t = " in summary["reason"]
     assert summary["stopped_at_s"] == pytest.approx(stopped_at)

@@ -5,7 +5,6 @@ holding brake taking the gravity load; the controller stops commanding motion; t
 comes to rest; summary.json, the time series and the CAN log keep the whole story."""
 from __future__ import annotations
 
-import json
 import math
 from collections import defaultdict
 from pathlib import Path
@@ -14,10 +13,9 @@ import can
 import numpy as np
 import pytest
 
-from cosim.cli import main
 from cosim.results import read_csv
 from cosim.scenario import ScenarioError, load_scenario
-from scenario_variants import write_variant
+from scenario_files import run_scenario, write_variant
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENARIO = (ROOT / "scenarios" / "fieldbus_loss.toml").read_text(encoding="utf-8")
@@ -38,8 +36,8 @@ def loss_run(tmp_path_factory):
                          ("start_cycle = 2500", f"start_cycle = {FIRST_LOST}"),
                          ("figures = true", "figures = false")])
     out = tmp / "out"
-    code = main(["run", str(path), "--out", str(out), "--quiet"])
-    return code, out, json.loads((out / "summary.json").read_text())
+    code, summary = run_scenario(path, out)
+    return code, out, summary
 
 
 def test_the_scenario_is_valid_and_injects_a_burst():

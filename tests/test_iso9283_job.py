@@ -3,17 +3,15 @@ fieldbus, six drive FMUs and the plant FMU), and its failure paths: a failing FM
 drive fault that makes the controller stop."""
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import can
 import numpy as np
 import pytest
 
-from cosim.cli import main
 from cosim.results import read_csv
 from fmus.servo_drive.params import drive_start_values
-from scenario_variants import write_variant
+from scenario_files import run_scenario, write_variant
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENARIO = (ROOT / "scenarios" / "iso9283.toml").read_text(encoding="utf-8")
@@ -34,8 +32,8 @@ def short_run(tmp_path_factory):
     path = write_scenario(tmp, [('stop_time = "12.6 s"', 'stop_time = "0.8 s"'),
                                 ('settle_time = "0.2 s"', 'settle_time = "0.1 s"')])
     out = tmp / "out"
-    code = main(["run", str(path), "--out", str(out), "--quiet"])
-    return code, out, json.loads((out / "summary.json").read_text())
+    code, summary = run_scenario(path, out)
+    return code, out, summary
 
 
 def test_short_run_summary_and_improvement(short_run):
@@ -122,8 +120,8 @@ def test_failing_fmu_stops_cleanly_with_partial_results(tmp_path):
          'name = "drive2"\nbuiltin = "servo_drive"\n[fmus.parameters]\nback_emf_constant = 1e300\n'),
     ])
     out = tmp_path / "out"
-    assert main(["run", str(path), "--out", str(out), "--quiet"]) == 1
-    summary = json.loads((out / "summary.json").read_text())
+    code, summary = run_scenario(path, out)
+    assert code == 1
     assert summary["status"] == "failed"
     assert "fmi2Error" in summary["reason"] or "nan" in summary["reason"] or "inf" in summary["reason"]
     assert summary["failed_component"] in ("plant", "drive2")
@@ -145,8 +143,8 @@ def test_drive_fault_stops_the_controller_and_fails_the_run(tmp_path):
          'name = "drive1"\nbuiltin = "servo_drive"\n[fmus.parameters]\nfollowing_error_window = 0.01\n'),
     ])
     out = tmp_path / "out"
-    assert main(["run", str(path), "--out", str(out), "--quiet"]) == 1
-    summary = json.loads((out / "summary.json").read_text())
+    code, summary = run_scenario(path, out)
+    assert code == 1
     assert summary["status"] == "failed" and summary["failed_component"] == "controller"
     assert "motion stopped" in summary["reason"] and "drive 1" in summary["reason"]
     assert "0x8611" in summary["reason"]  # CiA 402 following error
@@ -173,8 +171,9 @@ def test_model_based_without_drive_speed_feedforward_puts_the_velocity_into_the_
          "[controller.model_based]\ndrive_speed_feedforward = false"),
     ])
     out = tmp_path / "out"
-    assert main(["run", str(path), "--out", str(out), "--quiet"]) == 0
-    entry = json.loads((out / "summary.json").read_text())["modes"]["model_based"]
+    code, summary = run_scenario(path, out)
+    assert code == 0
+    entry = summary["modes"]["model_based"]
     assert entry["drive_speed_feedforward"] is False and entry["torque_feedforward"] is True
     assert entry["tcp_error_max_noise_free_mm"] < 0.01  # measured 1.6 um (standard: 18 mm)
     header, ctrl = read_csv(out / "controller_model_based.csv")

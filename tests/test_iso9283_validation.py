@@ -10,7 +10,7 @@ import pytest
 from cosim.cli import main
 from cosim.scenario import ScenarioError, load_scenario
 from error_checks import assert_names_file_and_fragments
-from scenario_variants import write_variant
+from scenario_files import write_variant
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENARIO = (ROOT / "scenarios" / "iso9283.toml").read_text(encoding="utf-8")

@@ -3,15 +3,13 @@ short settle time, scenarios/ptp_line.toml with a coarse PtP grid and no executi
 summary fields carry real values, the files are written, bad scenarios are refused."""
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import pytest
 
-from cosim.cli import main
 from cosim.scenario import ScenarioError, load_scenario
 from planners.trajectory import Trajectory
-from scenario_variants import write_variant
+from scenario_files import run_scenario, write_variant
 
 ROOT = Path(__file__).resolve().parents[1]
 CP_TEXT = (ROOT / "scenarios" / "cp_line.toml").read_text(encoding="utf-8")
@@ -24,8 +22,7 @@ def variant(tmp_path: Path, text: str, replacements: list[tuple[str, str]], name
 
 
 def run(path: Path, out: Path) -> dict:
-    code = main(["run", str(path), "--out", str(out), "--quiet"])
-    summary = json.loads((out / "summary.json").read_text())
+    code, summary = run_scenario(path, out)
     assert code == 0 and summary["status"] == "ok", summary.get("reason")
     return summary
 
