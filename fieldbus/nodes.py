@@ -93,31 +93,97 @@ def _decode_error(log: EventLog, side: str, msg: can.Message, cycle: int, time_s
     return reason, node
 
 
-class ManagingNode:
+class _Node:
+    """What the managing node and the controlled nodes share: configuration, cycle
+    clock, the per-joint scaling constants (plain lists for the Python code, packed
+    float64 for the compiled codec), the threshold counters and the reception loop.
+
+    A subclass sets ``side`` ('mn' or 'cn') and implements ``_codec_receive`` (the
+    codec digests the frames it knows), ``_receive_frames`` (the Python reference for
+    every frame) and ``_on_threshold`` (its fault reaction)."""
+
+    side = ""
+
+    def __init__(self, config: "FieldbusConfig", scaling: "JointScaling",
+                 layout: "CycleLayout", log: EventLog) -> None:
+        self.nodes = config.nodes
+        self.config = config
+        self.scaling = scaling
+        self.layout = layout
+        self.log = log
+        self.cycle = -1
+        self._t0 = config.start_time_s
+        self._cycle_time = config.cycle_time_s
+        self._sync_overflow = config.scaling.sync_counter_overflow
+        self._cpr = scaling.counts_per_rad.tolist()
+        self._upn = scaling.units_per_newton_metre.tolist()
+        self._rpc = scaling.rad_per_count.tolist()
+        self._npu = scaling.newton_metre_per_unit.tolist()
+        # the compiled codec (fieldbus/codec.c) and its packed constants; None: Python only
+        self._codec = load_codec()
+        self._packed = {name: _doubles(values) for name, values in
+                        (("cpr", self._cpr), ("upn", self._upn), ("rpc", self._rpc), ("npu", self._npu))}
+        self.counters = CounterBank(log, self._on_threshold)
+        self.frames_received = 0
+        self.decode_errors = 0
+
+    def _node_counters(self, kind: str, threshold: int) -> list[ThresholdCounter]:
+        """One threshold counter of ``kind`` per node (index = node - 1), counting
+        with the configured increment and decrement."""
+        th = self.config.thresholds
+        new = self.counters.new
+        return [new(self.side, i + 1, kind, threshold, th.increment, th.decrement) for i in range(self.nodes)]
+
+    # ------------------------------------------------------------------ receiving
+    def receive(self, msg: can.Message) -> None:
+        """Digest one received frame; never raises (bad frames are counted and recorded)."""
+        self.receive_all((msg,))
+
+    def receive_all(self, msgs: list | tuple) -> None:
+        """Digest received frames in order; never raises."""
+        self.frames_received += len(msgs)
+        if self._codec is None:
+            self._receive_frames(msgs)
+            return
+        count, k = len(msgs), 0
+        while k < count:  # the codec digests the frames it knows; any other frame goes through Python, in order
+            k = self._codec_receive(msgs, k)
+            if k < count:
+                self._receive_frames(msgs[k:k + 1])
+                k += 1
+
+    def _codec_receive(self, msgs: list | tuple, start: int) -> int:
+        """The codec digests ``msgs`` from ``start`` on; returns the index of the first
+        frame it leaves to :meth:`_receive_frames` (``len(msgs)``: none)."""
+        raise NotImplementedError
+
+    def _receive_frames(self, msgs: list | tuple) -> None:
+        raise NotImplementedError
+
+    def _on_threshold(self, counter: ThresholdCounter, cycle: int, time_s: float) -> None:
+        raise NotImplementedError
+
+
+class ManagingNode(_Node):
     """Controller-side POWERLINK MN: builds the SoC (SYNC) and PReqs (RPDO1), collects
     the PRes frames (TPDO1 + TPDO2) into :class:`ObservedActuals`.
 
     Per cycle: :meth:`start_cycle`, :meth:`frames`, :meth:`receive` for every frame
     that arrived, :meth:`end_cycle` (returns the observed actual values)."""
 
+    side = "mn"
+
     def __init__(self, config: "FieldbusConfig", scaling: "JointScaling",
                  layout: "CycleLayout", log: EventLog) -> None:
-        n = config.nodes
-        self.nodes = n
-        self.config = config
-        self.scaling = scaling
-        self.layout = layout
-        self.log = log
+        super().__init__(config, scaling, layout, log)
+        n = self.nodes
         self.observed = ObservedActuals.zeros(n)
         self._write_position = _array_writer(self.observed.position)
         self._write_velocity = _array_writer(self.observed.velocity)
         self._write_torque = _array_writer(self.observed.torque)
-        self.cycle = -1
-        self._cycle_time = config.cycle_time_s
-        self._t0 = config.start_time_s
-        self._sync_overflow = config.scaling.sync_counter_overflow
         # a PRes counts as in time if it reaches the MN within pres_timeout after the PReq
         self._pres_wait = [layout.wire_preq + layout.pres_timeout - layout.propagation[i + 1] for i in range(n)]
+        self._packed["wait"] = _doubles(self._pres_wait)
         # per node (index = node - 1), raw telegram values of the last valid PRes
         self._sw = [0] * n
         self._pos = [0] * n
@@ -140,23 +206,10 @@ class ManagingNode:
         self._sync_msg = FastMessage(0.0, SYNC_ID, bytearray(1))
         self._preq_msgs = [FastMessage(0.0, RPDO1_BASE + i + 1, bytearray(_RPDO1_LEN)) for i in range(n)]
         self._frames = [self._sync_msg] + self._preq_msgs
-        self._cpr = scaling.counts_per_rad.tolist()
-        self._upn = scaling.units_per_newton_metre.tolist()
-        self._rpc = scaling.rad_per_count.tolist()
-        self._npu = scaling.newton_metre_per_unit.tolist()
-        # the compiled codec (fieldbus/codec.c) and its packed constants; None: Python only
-        self._codec = load_codec()
-        self._packed = {name: _doubles(values) for name, values in
-                        (("cpr", self._cpr), ("upn", self._upn), ("rpc", self._rpc), ("npu", self._npu),
-                         ("wait", self._pres_wait))}
         th = config.thresholds
-        self.counters = CounterBank(log, self._on_threshold)
-        new = self.counters.new
-        self._c_loss = [new("mn", i + 1, "loss_of_pres", th.mn_loss_of_pres, th.increment, th.decrement) for i in range(n)]
-        self._c_late = [new("mn", i + 1, "late_pres", th.mn_late_pres, th.increment, th.decrement) for i in range(n)]
-        self._c_crc = [new("mn", i + 1, "crc_error", th.mn_crc_error, th.increment, th.decrement) for i in range(n)]
-        self.frames_received = 0
-        self.decode_errors = 0
+        self._c_loss = self._node_counters("loss_of_pres", th.mn_loss_of_pres)
+        self._c_late = self._node_counters("late_pres", th.mn_late_pres)
+        self._c_crc = self._node_counters("crc_error", th.mn_crc_error)
         self.emcy_received: list[FieldbusEvent] = []
 
     # ------------------------------------------------------------------ sending
@@ -228,24 +281,10 @@ class ManagingNode:
                          self.scaling.torque_unit(i, torque))
 
     # ------------------------------------------------------------------ receiving
-    def receive(self, msg: can.Message) -> None:
-        """Digest one received frame; never raises (bad frames are counted and recorded)."""
-        self.receive_all((msg,))
-
-    def receive_all(self, msgs: list | tuple) -> None:
-        """Digest received frames in order; never raises."""
-        self.frames_received += len(msgs)
-        codec = self._codec
-        if codec is None:
-            self._receive_frames(msgs)
-            return
-        count, k = len(msgs), 0
-        while k < count:  # the codec digests the PDOs; any other frame goes through Python, in order
-            k = codec.receive_pres(msgs, k, self._latest, self._sw, self._pos, self._tq, self._vel, self._err,
-                                   self._got1, self._got2, self._late)
-            if k < count:
-                self._receive_frames(msgs[k:k + 1])
-                k += 1
+    def _codec_receive(self, msgs: list | tuple, start: int) -> int:
+        """The codec digests the PDOs (TPDO1, TPDO2) of the PRes frames."""
+        return self._codec.receive_pres(msgs, start, self._latest, self._sw, self._pos, self._tq, self._vel,
+                                        self._err, self._got1, self._got2, self._late)
 
     def _receive_frames(self, msgs: list | tuple) -> None:
         tpdo1, tpdo2, latest = self._tpdo1_index, self._tpdo2_index, self._latest
@@ -354,7 +393,7 @@ class ManagingNode:
 
     def _clear_fault(self, i: int, time_s: float) -> None:
         node = i + 1
-        if any(c.node == node and c.tripped for c in self.counters.counters):
+        if self.counters.node_tripped(node):
             return
         self.node_fault[i] = False
         self.observed.node_fault[i] = False
@@ -362,7 +401,7 @@ class ManagingNode:
                                    -1, -1, -1, "fault reset sent with all counters below threshold"))
 
 
-class ControlledNodes:
+class ControlledNodes(_Node):
     """The drive-side POWERLINK CNs (node ids 1..N) sharing one bus connection.
 
     Per cycle: :meth:`start_cycle` (the SoC: latch actuals, apply due set-points),
@@ -370,26 +409,21 @@ class ControlledNodes:
     the nodes whose PReq arrived), :meth:`end_cycle` (judge SoC and PReqs, counters),
     :meth:`emergency_messages` (EMCY of nodes that tripped, for the async slot)."""
 
+    side = "cn"
+
     def __init__(self, config: "FieldbusConfig", scaling: "JointScaling",
                  layout: "CycleLayout", log: EventLog) -> None:
-        n = config.nodes
-        self.nodes = n
-        self.config = config
-        self.scaling = scaling
-        self.layout = layout
-        self.log = log
+        super().__init__(config, scaling, layout, log)
+        n = self.nodes
         self.applied = AppliedSetpoints.zeros(n)
         self._write_position = _array_writer(self.applied.position)
         self._write_torque = _array_writer(self.applied.torque_offset)
-        self.cycle = -1
-        self._t0 = config.start_time_s
-        self._cycle_time = config.cycle_time_s
         self._d = config.dead_time_cycles
         self._hold = config.reaction.missing_setpoint == "hold"
         self._quick_stop = config.reaction.abort_connection_option == "quick_stop"
         self._jitter_range = config.timing.cn_soc_jitter_range_s
-        self._sync_overflow = config.scaling.sync_counter_overflow
         self._arrival = [layout.wire_preq + layout.propagation[i + 1] for i in range(n)]
+        self._packed["arrival"] = _doubles(self._arrival)
         self._pipe: list[list[tuple[int, int, int] | None]] = [[None] * self._d for _ in range(n)]
         self._preq_ok = [False] * n
         self._preq_late = [False] * n
@@ -422,25 +456,12 @@ class ControlledNodes:
         self._tpdo1_msgs = [FastMessage(0.0, i, bytearray(_TPDO1_LEN)) for i in self._tpdo1_ids]
         self._tpdo2_msgs = [FastMessage(0.0, i, bytearray(_TPDO2_LEN)) for i in self._tpdo2_ids]
         self._traffic = set(self._tpdo1_ids) | set(self._tpdo2_ids) | {EMCY_BASE + i + 1 for i in range(n)}
-        self._cpr = scaling.counts_per_rad.tolist()
-        self._upn = scaling.units_per_newton_metre.tolist()
-        self._rpc = scaling.rad_per_count.tolist()
-        self._npu = scaling.newton_metre_per_unit.tolist()
-        # the compiled codec (fieldbus/codec.c) and its packed constants; None: Python only
-        self._codec = load_codec()
-        self._packed = {name: _doubles(values) for name, values in
-                        (("cpr", self._cpr), ("upn", self._upn), ("rpc", self._rpc), ("npu", self._npu),
-                         ("arrival", self._arrival))}
         self._prepacked = False  # this cycle's PRes payloads were packed at the SoC by the codec
         th = config.thresholds
-        self.counters = CounterBank(log, self._on_threshold)
-        new = self.counters.new
-        self._c_soc = [new("cn", i + 1, "loss_of_soc", th.cn_loss_of_soc, th.increment, th.decrement) for i in range(n)]
-        self._c_preq = [new("cn", i + 1, "loss_of_preq", th.cn_loss_of_preq, th.increment, th.decrement) for i in range(n)]
-        self._c_crc = [new("cn", i + 1, "crc_error", th.cn_crc_error, th.increment, th.decrement) for i in range(n)]
-        self._c_jit = [new("cn", i + 1, "soc_jitter", th.cn_soc_jitter, th.increment, th.decrement) for i in range(n)]
-        self.frames_received = 0
-        self.decode_errors = 0
+        self._c_soc = self._node_counters("loss_of_soc", th.cn_loss_of_soc)
+        self._c_preq = self._node_counters("loss_of_preq", th.cn_loss_of_preq)
+        self._c_crc = self._node_counters("crc_error", th.cn_crc_error)
+        self._c_jit = self._node_counters("soc_jitter", th.cn_soc_jitter)
 
     def bind_applied(self, applied: AppliedSetpoints) -> None:
         """Write what the drives apply into ``applied``'s arrays from now on (e.g. views of a
@@ -554,25 +575,12 @@ class ControlledNodes:
         return app
 
     # ------------------------------------------------------------------ receiving
-    def receive(self, msg: can.Message) -> None:
-        """Digest one received frame; never raises (bad frames are counted and recorded)."""
-        self.receive_all((msg,))
-
-    def receive_all(self, msgs: list | tuple) -> None:
-        """Digest received frames in order; never raises."""
-        self.frames_received += len(msgs)
-        codec = self._codec
-        if codec is None:
-            self._receive_frames(msgs)
-            return
-        count, k, cycle = len(msgs), 0, self.cycle
-        slot, counter = cycle % self._d, cycle % self._sync_overflow + 1
-        while k < count:  # the codec digests the SoC and the PReqs; any other frame goes through Python, in order
-            k = codec.receive_preq(msgs, k, self._pipe, slot, self._packed["arrival"], self._next_soc,
-                                   self._preq_ok, self._preq_late, self, counter)
-            if k < count:
-                self._receive_frames(msgs[k:k + 1])
-                k += 1
+    def _codec_receive(self, msgs: list | tuple, start: int) -> int:
+        """The codec digests the SoC (SYNC with this cycle's counter) and the PReqs (RPDO1)."""
+        cycle = self.cycle
+        return self._codec.receive_preq(msgs, start, self._pipe, cycle % self._d, self._packed["arrival"],
+                                        self._next_soc, self._preq_ok, self._preq_late, self,
+                                        cycle % self._sync_overflow + 1)
 
     def _receive_frames(self, msgs: list | tuple) -> None:
         ids, arrival, next_soc = self._ids, self._arrival, self._next_soc
@@ -726,7 +734,7 @@ class ControlledNodes:
 
     def _clear_fault(self, i: int, cycle: int, time_s: float) -> None:
         node = i + 1
-        if any(c.node == node and c.tripped for c in self.counters.counters):
+        if self.counters.node_tripped(node):
             return
         self.comm_fault[i] = False
         self._any_fault = any(self.comm_fault)
