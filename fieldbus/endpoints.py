@@ -30,6 +30,7 @@ import can
 from fieldbus.config import FieldbusConfig
 from fieldbus.events import EventLog, FieldbusEvent
 from fieldbus.faults import CycleFaults, FaultPlan
+from fieldbus.lifecycle import Closeable
 from fieldbus.nodes import ControlledNodes, ManagingNode
 from fieldbus.process_data import AppliedSetpoints, DriveActuals, ObservedActuals, Setpoints
 from fieldbus.recorder import FrameRecorder
@@ -83,7 +84,7 @@ def open_bus(config: FieldbusConfig, side: str, channel: str | int) -> can.BusAB
                                   f"and options {dict(bus_cfg.options)!r} ({type(error).__name__}: {error})") from error
 
 
-class _Endpoint:
+class _Endpoint(Closeable):
     """One side: configuration, schedule, fault plan, bus, medium, optional recording."""
 
     side = ""
@@ -125,7 +126,6 @@ class _Endpoint:
         self.frames_sent = 0
         self.frames_dropped = 0
         self.frames_missing = 0  # sent, but an asynchronous interface did not deliver it in time
-        self._closed = False
 
     # ------------------------------------------------------------------ cycle bookkeeping
     def _begin(self, cycle: int) -> None:
@@ -236,17 +236,8 @@ class _Endpoint:
         return self.config.faults.late_delay_s if self._kinds.get(index) == "late" else 0.0
 
     # ------------------------------------------------------------------ life cycle
-    def __enter__(self) -> "_Endpoint":
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
-    def close(self) -> None:
-        """Flush an own recording and shut the bus down (idempotent)."""
-        if self._closed:
-            return
-        self._closed = True
+    def _release(self) -> None:
+        """Flush an own recording and shut the bus down."""
         try:
             if self.recorder is not None and self._owns_recorder:
                 self.recorder.close()

@@ -33,12 +33,13 @@ from typing import Any
 from fieldbus.config import FieldbusConfig
 from fieldbus.endpoints import DriveEndpoint, ManagingNodeEndpoint, default_channel
 from fieldbus.events import EventLog
+from fieldbus.lifecycle import Closeable
 from fieldbus.process_data import AppliedSetpoints, CycleResult, DriveActuals, ObservedActuals, Setpoints
 from fieldbus.recorder import FrameRecorder
 from fieldbus.scaling import JointScaling
 
 
-class PowerlinkNetwork:
+class PowerlinkNetwork(Closeable):
     """POWERLINK-timed CiA 402 network of one MN and ``config.nodes`` CNs in one process.
 
     Args:
@@ -80,20 +81,10 @@ class PowerlinkNetwork:
         self._t0 = config.start_time_s
         self._cycle_time = config.cycle_time_s
         self._last_cycle: int | None = None
-        self._closed = False
 
-    # ------------------------------------------------------------------ context
-    def __enter__(self) -> "PowerlinkNetwork":
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
-    def close(self) -> None:
-        """Flush the recording and shut the buses down (idempotent)."""
-        if self._closed:
-            return
-        self._closed = True
+    # ------------------------------------------------------------------ life cycle
+    def _release(self) -> None:
+        """Flush the recording and shut the buses down."""
         try:
             if self.recorder is not None:
                 self.recorder.close()

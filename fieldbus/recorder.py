@@ -23,6 +23,7 @@ import can
 
 from fieldbus.codec import load_codec
 from fieldbus.errors import FieldbusConfigError
+from fieldbus.lifecycle import Closeable
 from fieldbus.telegrams import FastMessage
 
 RECORD = struct.Struct("<dHBB8s")  # timestamp, id, is_error_frame, dlc, data (padded)
@@ -73,7 +74,7 @@ def _writer_process(path: str, connection: Any) -> None:
         connection.close()
 
 
-class FrameRecorder:
+class FrameRecorder(Closeable):
     """Collects sent frames and writes them, time-ordered, with ``can.Logger``.
 
     Args:
@@ -96,7 +97,6 @@ class FrameRecorder:
         self._pack_records = getattr(load_codec(), "pack_records", None)  # compiled, or None
         self.frames_recorded = 0
         self.frames_written = 0
-        self._closed = False
         self._sink: _LogSink | None = None
         if background:
             context = multiprocessing.get_context("spawn")
@@ -141,11 +141,8 @@ class FrameRecorder:
         except (BrokenPipeError, OSError) as error:
             raise RuntimeError(f"fieldbus recorder process for {self.path} died: {error}") from error
 
-    def close(self) -> None:
-        """Write everything and close the file (idempotent)."""
-        if self._closed:
-            return
-        self._closed = True
+    def _release(self) -> None:
+        """Write everything and close the file."""
         self.flush(None)
         if self._sink is not None:
             self._sink.close()
