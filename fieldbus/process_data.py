@@ -5,15 +5,35 @@ Joint side: rad, rad/s, N·m. Controlwords and statuswords are CiA 402 integers.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
+from typing import Self
 
 import numpy as np
 
 from fieldbus.cia402 import motion_enabled
 
+# element type of each per-node array by field name; any other field is float64 (SI units)
+_DTYPES = {"controlword": np.int64, "statusword": np.int64, "error_code": np.int64, "fault_code": np.int64,
+           "fresh": np.bool_, "comm_fault": np.bool_, "node_fault": np.bool_}
+
+
+class _PerNode:
+    """Base of the records below: every field an array of shape (N,), one entry per node."""
+
+    __slots__ = ()
+
+    @classmethod
+    def zeros(cls, nodes: int) -> Self:
+        """Zeros (False for flags) for ``nodes`` nodes."""
+        return cls(*(np.zeros(nodes, dtype=_DTYPES.get(f.name, np.float64)) for f in fields(cls)))
+
+    def copy(self) -> Self:
+        """A copy with arrays of its own."""
+        return type(self)(*(getattr(self, f.name).copy() for f in fields(self)))
+
 
 @dataclass(slots=True)
-class Setpoints:
+class Setpoints(_PerNode):
     """What the controller commands for the next cycle (goes into the PReqs).
 
     controlword: CiA 402 controlword per node (0x6040).
@@ -25,13 +45,9 @@ class Setpoints:
     position: np.ndarray
     torque_offset: np.ndarray
 
-    @classmethod
-    def zeros(cls, nodes: int) -> "Setpoints":
-        return cls(np.zeros(nodes, dtype=np.int64), np.zeros(nodes), np.zeros(nodes))
-
 
 @dataclass(slots=True)
-class DriveActuals:
+class DriveActuals(_PerNode):
     """What the drives report, sampled at the SoC (goes into the PRes).
 
     statusword: CiA 402 statusword per node (0x6041).
@@ -45,14 +61,9 @@ class DriveActuals:
     torque: np.ndarray
     error_code: np.ndarray
 
-    @classmethod
-    def zeros(cls, nodes: int) -> "DriveActuals":
-        return cls(np.zeros(nodes, dtype=np.int64), np.zeros(nodes), np.zeros(nodes),
-                   np.zeros(nodes), np.zeros(nodes, dtype=np.int64))
-
 
 @dataclass(slots=True)
-class AppliedSetpoints:
+class AppliedSetpoints(_PerNode):
     """What each drive applies from the SoC of this cycle until the next SoC (quantised).
 
     controlword/position/torque_offset: as received (or held / extrapolated when
@@ -74,19 +85,9 @@ class AppliedSetpoints:
     comm_fault: np.ndarray
     fault_code: np.ndarray
 
-    @classmethod
-    def zeros(cls, nodes: int) -> "AppliedSetpoints":
-        return cls(np.zeros(nodes, dtype=np.int64), np.zeros(nodes), np.zeros(nodes),
-                   np.zeros(nodes, dtype=bool), np.zeros(nodes, dtype=bool),
-                   np.zeros(nodes, dtype=np.int64))
-
-    def copy(self) -> "AppliedSetpoints":
-        return AppliedSetpoints(*(a.copy() for a in (self.controlword, self.position, self.torque_offset,
-                                                     self.fresh, self.comm_fault, self.fault_code)))
-
 
 @dataclass(slots=True)
-class ObservedActuals:
+class ObservedActuals(_PerNode):
     """What the controller sees after this cycle's PRes frames (latched at this SoC).
 
     Values of a node whose PRes did not arrive valid are held from before, with
@@ -102,17 +103,6 @@ class ObservedActuals:
     error_code: np.ndarray
     fresh: np.ndarray
     node_fault: np.ndarray
-
-    @classmethod
-    def zeros(cls, nodes: int) -> "ObservedActuals":
-        return cls(np.zeros(nodes, dtype=np.int64), np.zeros(nodes), np.zeros(nodes),
-                   np.zeros(nodes), np.zeros(nodes, dtype=np.int64),
-                   np.zeros(nodes, dtype=bool), np.zeros(nodes, dtype=bool))
-
-    def copy(self) -> "ObservedActuals":
-        return ObservedActuals(*(a.copy() for a in (self.statusword, self.position, self.velocity,
-                                                    self.torque, self.error_code, self.fresh,
-                                                    self.node_fault)))
 
     @property
     def motion_allowed(self) -> bool:
