@@ -120,7 +120,10 @@ class JointScaling:
         return INT16_MAX * self.newton_metre_per_unit
 
     # ---------------------------------------------------------------- vectors
-    def _saturate(self, raw: np.ndarray, low: int, high: int, counter: str) -> np.ndarray:
+    def _encode(self, values: np.ndarray, per_si: np.ndarray, low: int, high: int, counter: str) -> np.ndarray:
+        """``floor(values * per_si + 0.5)`` clipped to [low, high] (int64 array); clipped
+        entries are added to the saturation counter named ``counter``."""
+        raw = np.floor(np.asarray(values, dtype=float) * per_si + 0.5)
         if not np.all(np.isfinite(raw)):
             raise ScalingError(f"cannot encode {raw.tolist()}: expected finite values")
         clipped = np.clip(raw, low, high)
@@ -131,8 +134,7 @@ class JointScaling:
 
     def position_to_counts(self, q: np.ndarray) -> np.ndarray:
         """Joint angles (rad, shape (joints,)) -> INT32 counts (int64 array), saturating."""
-        return self._saturate(np.floor(np.asarray(q, dtype=float) * self.counts_per_rad + 0.5),
-                              INT32_MIN, INT32_MAX, "position_saturations")
+        return self._encode(q, self.counts_per_rad, INT32_MIN, INT32_MAX, "position_saturations")
 
     def counts_to_position(self, counts: np.ndarray) -> np.ndarray:
         """INT32 counts -> joint angles in rad."""
@@ -140,8 +142,7 @@ class JointScaling:
 
     def velocity_to_counts(self, qd: np.ndarray) -> np.ndarray:
         """Joint velocities (rad/s) -> INT32 counts/s, saturating."""
-        return self._saturate(np.floor(np.asarray(qd, dtype=float) * self.counts_per_rad + 0.5),
-                              INT32_MIN, INT32_MAX, "velocity_saturations")
+        return self._encode(qd, self.counts_per_rad, INT32_MIN, INT32_MAX, "velocity_saturations")
 
     def counts_to_velocity(self, counts_per_s: np.ndarray) -> np.ndarray:
         """INT32 counts/s -> joint velocities in rad/s."""
@@ -149,8 +150,7 @@ class JointScaling:
 
     def torque_to_units(self, tau: np.ndarray) -> np.ndarray:
         """Joint torques (N·m) -> INT16 units of rated torque, saturating."""
-        return self._saturate(np.floor(np.asarray(tau, dtype=float) * self.units_per_newton_metre + 0.5),
-                              INT16_MIN, INT16_MAX, "torque_saturations")
+        return self._encode(tau, self.units_per_newton_metre, INT16_MIN, INT16_MAX, "torque_saturations")
 
     def units_to_torque(self, units: np.ndarray) -> np.ndarray:
         """INT16 torque units -> joint torques in N·m."""
@@ -164,30 +164,26 @@ class JointScaling:
         """What a torque becomes after a trip through the torque telegram (N·m)."""
         return self.units_to_torque(self.torque_to_units(tau))
 
-    # ---------------------------------------------------------------- scalars (hot path)
+    # ---------------------------------------------------------------- scalars
+    def _encode_one(self, value: float, per_si: float, low: int, high: int, counter: str) -> int:
+        """Scalar :meth:`_encode` (the nodes' fallback when a value leaves the telegram range)."""
+        code = floor(value * per_si + 0.5)
+        if low <= code <= high:
+            return code
+        setattr(self, counter, getattr(self, counter) + 1)
+        return high if code > 0 else low
+
     def position_count(self, index: int, q: float) -> int:
         """Scalar ``position_to_counts`` for joint ``index`` (0-based)."""
-        value = floor(q * self._cpr[index] + 0.5)
-        if INT32_MIN <= value <= INT32_MAX:
-            return value
-        self.position_saturations += 1
-        return INT32_MAX if value > 0 else INT32_MIN
+        return self._encode_one(q, self._cpr[index], INT32_MIN, INT32_MAX, "position_saturations")
 
     def velocity_count(self, index: int, qd: float) -> int:
         """Scalar ``velocity_to_counts`` for joint ``index`` (0-based)."""
-        value = floor(qd * self._cpr[index] + 0.5)
-        if INT32_MIN <= value <= INT32_MAX:
-            return value
-        self.velocity_saturations += 1
-        return INT32_MAX if value > 0 else INT32_MIN
+        return self._encode_one(qd, self._cpr[index], INT32_MIN, INT32_MAX, "velocity_saturations")
 
     def torque_unit(self, index: int, tau: float) -> int:
         """Scalar ``torque_to_units`` for joint ``index`` (0-based)."""
-        value = floor(tau * self._upn[index] + 0.5)
-        if INT16_MIN <= value <= INT16_MAX:
-            return value
-        self.torque_saturations += 1
-        return INT16_MAX if value > 0 else INT16_MIN
+        return self._encode_one(tau, self._upn[index], INT16_MIN, INT16_MAX, "torque_saturations")
 
     def saturations(self) -> dict[str, int]:
         """How many values were clipped to the telegram range, per quantity."""
