@@ -520,10 +520,9 @@ typedef struct {
     const unsigned char *data;
     Py_ssize_t size;
     int plain; /* not an error, remote or extended frame */
+    PyObject *hold; /* a reference to the data object, keeping `data` alive while used */
 } Frame;
 
-/* Reads what the nodes look at; 0 ok, 1 not readable this way (the caller hands the
- * frame to Python), -1 error. `hold` keeps the data object alive while used. */
 static inline int truth(PyObject *o)
 {
     if (o == Py_False) return 0;
@@ -531,9 +530,11 @@ static inline int truth(PyObject *o)
     return PyObject_IsTrue(o);
 }
 
-static int frame_read(PyObject *msg, Frame *f, PyObject **hold)
+/* Reads what the nodes look at; 0 ok (the caller releases f->hold), 1 not readable this
+ * way (the caller hands the frame to Python), -1 error. */
+static int frame_read(PyObject *msg, Frame *f)
 {
-    *hold = NULL;
+    f->hold = NULL;
     PyObject *e = get_attr(msg, s_is_error_frame, off_is_error_frame);
     PyObject *r = get_attr(msg, s_is_remote_frame, off_is_remote_frame);
     PyObject *x = get_attr(msg, s_is_extended_id, off_is_extended_id);
@@ -570,11 +571,18 @@ static int frame_read(PyObject *msg, Frame *f, PyObject **hold)
     Py_XDECREF(id);
     Py_XDECREF(ts);
     if (result == 0) {
-        *hold = d;
+        f->hold = d;
     } else {
         Py_XDECREF(d);
     }
     return result;
+}
+
+/* The receive loops' step: msgs[k] read by frame_read (1) while k < len(msgs); 0 ends the
+ * loop at k (the end, or a frame the caller hands to Python). */
+static inline int frame_at(PyObject *msgs, Py_ssize_t k, Frame *f)
+{
+    return k < PySequence_Fast_GET_SIZE(msgs) && frame_read(PySequence_Fast_GET_ITEM(msgs, k), f) == 0;
 }
 
 /* ------------------------------------------------------------------ receive_pres
@@ -601,23 +609,20 @@ static PyObject *receive_pres(PyObject *self, PyObject *const *args, Py_ssize_t 
             PyErr_SetString(PyExc_TypeError, "receive_pres: inconsistent node lists");
             return NULL;
         }
+    Frame f;
     Py_ssize_t k;
-    for (k = start; k < PySequence_Fast_GET_SIZE(msgs); ++k) {
-        Frame f;
-        PyObject *hold;
-        int r = frame_read(PySequence_Fast_GET_ITEM(msgs, k), &f, &hold);
-        if (r != 0) break;
+    for (k = start; frame_at(msgs, k, &f); ++k) {
         long base = f.id & ~0x7FL, node = f.id & 0x7FL;
         int kind = 0;
         if (node >= 1 && node <= n && f.id <= 0x7FF) {
             if (base == TPDO1_BASE && f.size == 8) kind = 1;
             else if (base == TPDO2_BASE && f.size == 6) kind = 2;
         }
-        if (kind == 0) { Py_DECREF(hold); break; }
+        if (kind == 0) { Py_DECREF(f.hold); break; }
         Py_ssize_t i = node - 1;
         PyObject *lim = PyList_GET_ITEM(latest, i);
         double limit = PyFloat_Check(lim) ? PyFloat_AS_DOUBLE(lim) : PyFloat_AsDouble(lim);
-        if (limit == -1.0 && PyErr_Occurred()) { Py_DECREF(hold); return NULL; }
+        if (limit == -1.0 && PyErr_Occurred()) { Py_DECREF(f.hold); return NULL; }
         int failed = 0;
         if (f.timestamp > limit) {
             list_replace_bool(late, i, 1);
@@ -629,7 +634,7 @@ static PyObject *receive_pres(PyObject *self, PyObject *const *args, Py_ssize_t 
             failed = list_replace_long(vel, i, get_i32(f.data)) || list_replace_long(err, i, get_u16(f.data + 4));
             list_replace_bool(got2, i, 1);
         }
-        Py_DECREF(hold);
+        Py_DECREF(f.hold);
         if (failed) return NULL;
     }
     return PyLong_FromSsize_t(k);
@@ -665,16 +670,13 @@ static PyObject *receive_preq(PyObject *self, PyObject *const *args, Py_ssize_t 
         PyErr_SetString(PyExc_TypeError, "receive_preq: inconsistent node lists");
         return NULL;
     }
+    Frame f;
     Py_ssize_t k;
-    for (k = start; k < PySequence_Fast_GET_SIZE(msgs); ++k) {
-        Frame f;
-        PyObject *hold;
-        int r = frame_read(PySequence_Fast_GET_ITEM(msgs, k), &f, &hold);
-        if (r != 0) break;
+    for (k = start; frame_at(msgs, k, &f); ++k) {
         if (f.id == SYNC_ID && f.size <= 1) {
-            if (f.size == 1 && (long)f.data[0] != sync_counter) { Py_DECREF(hold); break; }
+            if (f.size == 1 && (long)f.data[0] != sync_counter) { Py_DECREF(f.hold); break; }
             PyObject *ts = PyFloat_FromDouble(f.timestamp);
-            Py_DECREF(hold);
+            Py_DECREF(f.hold);
             if (ts == NULL) return NULL;
             int failed = PyObject_SetAttr(node_obj, s_sync_seen, Py_True) || PyObject_SetAttr(node_obj, s_sync_ts, ts);
             Py_DECREF(ts);
@@ -682,11 +684,11 @@ static PyObject *receive_preq(PyObject *self, PyObject *const *args, Py_ssize_t 
             continue;
         }
         long node = f.id & 0x7FL;
-        if (!((f.id & ~0x7FL) == RPDO1_BASE && node >= 1 && node <= n && f.size == 8)) { Py_DECREF(hold); break; }
+        if (!((f.id & ~0x7FL) == RPDO1_BASE && node >= 1 && node <= n && f.size == 8)) { Py_DECREF(f.hold); break; }
         Py_ssize_t i = node - 1;
         PyObject *slots = PyList_GET_ITEM(pipe, i);
         if (!PyList_CheckExact(slots) || slot < 0 || slot >= PyList_GET_SIZE(slots)) {
-            Py_DECREF(hold);
+            Py_DECREF(f.hold);
             PyErr_SetString(PyExc_TypeError, "receive_preq: bad pipe");
             return NULL;
         }
@@ -694,11 +696,11 @@ static PyObject *receive_preq(PyObject *self, PyObject *const *args, Py_ssize_t 
             list_replace_bool(late, i, 1);
         } else {
             PyObject *due = PyTuple_New(3);
-            if (due == NULL) { Py_DECREF(hold); return NULL; }
+            if (due == NULL) { Py_DECREF(f.hold); return NULL; }
             PyObject *a = PyLong_FromLong(get_u16(f.data)), *b = PyLong_FromLong(get_i32(f.data + 2)),
                      *c = PyLong_FromLong(get_i16(f.data + 6));
             if (a == NULL || b == NULL || c == NULL) {
-                Py_XDECREF(a); Py_XDECREF(b); Py_XDECREF(c); Py_DECREF(due); Py_DECREF(hold);
+                Py_XDECREF(a); Py_XDECREF(b); Py_XDECREF(c); Py_DECREF(due); Py_DECREF(f.hold);
                 return NULL;
             }
             PyTuple_SET_ITEM(due, 0, a);
@@ -707,7 +709,7 @@ static PyObject *receive_preq(PyObject *self, PyObject *const *args, Py_ssize_t 
             list_replace(slots, slot, due);
             list_replace_bool(ok, i, 1);
         }
-        Py_DECREF(hold);
+        Py_DECREF(f.hold);
     }
     return PyLong_FromSsize_t(k);
 }
