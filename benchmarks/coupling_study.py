@@ -11,13 +11,12 @@ without the drives' speed feed-forward, and writes the step/ramp figures.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 from pathlib import Path
 
 import numpy as np
 
 from fmus.build import ensure_fmus
-from fmus.coupling import CONTROLLER_PERIOD, controller_commands, cosimulate, coupling_errors, desired_motion, \
+from fmus.coupling import controller_commands, cosimulate, coupling_errors, desired_motion, \
     monolithic_reference
 from fmus.servo_drive.axis_bench import simulate_axis, step_metrics
 from fmus.servo_drive.params import drive_start_values, load_drive_parameters

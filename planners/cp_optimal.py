@@ -48,7 +48,6 @@ FEASIBLE; infeasibility detection gives INFEASIBLE; anything else FAILED.
 """
 from __future__ import annotations
 
-import math
 import time
 from dataclasses import dataclass
 from typing import Any

@@ -44,7 +44,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-from planners.paths import CartesianPath, CirclePath, LinePath, PathError, joint_path
+from planners.paths import CartesianPath, CirclePath, LinePath, joint_path
 from planners.trajectory import Trajectory, uniform_times
 from robot.kinematics import cardan_from_rotation, rotation_from_cardan
 

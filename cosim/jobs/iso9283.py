@@ -44,7 +44,6 @@ from cosim.jobs.cell_checks import check_cell, fill_defaults
 from cosim.jobs.columns_csv import write_columns_csv
 from cosim.jobs.laser_tracker import DEFAULT_POSITION_SIGMA_M, TrackerConfig
 from cosim.jobs.tracking_metrics import TrackingResult, desired_joints, evaluate
-from cosim.master import SimulationError
 from cosim.scenario.context import RunContext
 from cosim.scenario.cosim_tables import COSIM_FIELDS
 from cosim.scenario.loader import SCENARIO_FIELD, Scenario

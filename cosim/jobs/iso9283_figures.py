@@ -14,7 +14,6 @@ import os
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 
 COLOURS = {"standard": "tab:red", "standard_speed_ff": "tab:orange", "model_based": "tab:blue"}
 LABELS = {"standard": "standard (drive cascade, position set-points)",

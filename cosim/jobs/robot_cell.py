@@ -244,29 +244,6 @@ class CellRun:
     loop_cpu_time_s: float = float("nan")
 
 
-class TeeSink:
-    """A recorder sink that forwards every call to several sinks (e.g. CSV on disk + memory)."""
-
-    def __init__(self, *sinks: Any) -> None:
-        self.sinks = sinks
-
-    def open(self, columns: Sequence[str], kinds: Sequence[str]) -> None:
-        for sink in self.sinks:
-            sink.open(columns, kinds)
-
-    def write(self, block: np.ndarray) -> None:
-        for sink in self.sinks:
-            sink.write(block)
-
-    def flush(self) -> None:
-        for sink in self.sinks:
-            sink.flush()
-
-    def close(self) -> None:
-        for sink in self.sinks:
-            sink.close()
-
-
 def write_recording(memory: MemorySink, sink: Any) -> None:
     """Write what a MemorySink holds to another sink (e.g. ``ctx.csv_sink(name)``) and close it."""
     sink.open(memory.columns, memory.kinds)
