@@ -37,6 +37,7 @@ from fieldbus.recorder import FrameRecorder
 from fieldbus.scaling import JointScaling
 from fieldbus.simbus import register as register_simbus
 from fieldbus.simbus import unique_channel
+from fieldbus.udpcycle import register as register_udpcycle
 from fieldbus.telegrams import EMCY_BASE, RPDO1_BASE, SYNC_ID, TPDO1_BASE, TPDO2_BASE, FastMessage
 from fieldbus.timing import CycleLayout, CycleSchedule, check_cycle_budget
 
@@ -64,6 +65,8 @@ def open_bus(config: FieldbusConfig, side: str, channel: str | int) -> can.BusAB
     bus_cfg = config.bus
     kwargs: dict[str, Any] = dict(bus_cfg.options)
     interface = bus_cfg.interface
+    if interface == "udpcycle":
+        register_udpcycle()
     if interface == "simbus":
         register_simbus()
     elif interface == "virtual":
