@@ -94,8 +94,8 @@ def test_table_ranks_every_entry_and_is_written_as_csv_and_json(runs):
     assert len(table) == 6 and float(table[0]["tcp_error_max_mm"]) == rows[0]["tcp_error_max_mm"]
     data = json.loads((out / "compare.json").read_text())
     assert data["rank_by"] == "tcp_error_max_mm" and data["rows"] == rows
-    for name in ("trajectory_wave.csv", "trajectory_quintic_ptp.csv", "timeseries_standard__wave.csv",
-                 "tcp_model_based__quintic_ptp.csv", "controller_standard__iso9283.csv"):
+    for name in ("trajectory_wave.csv", "trajectory_quintic_ptp.csv", "timeseries_standard__wave.parquet",
+                 "tcp_model_based__quintic_ptp.parquet", "controller_standard__iso9283.parquet"):
         assert (out / name).stat().st_size > 0, name
     assert summary["trajectories"]["wave"]["kind"] == "joint"
     assert summary["trajectories"]["quintic_ptp"]["planner"].endswith("quintic_planner.py:QuinticPtP")

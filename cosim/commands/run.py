@@ -24,6 +24,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="pace the run at the controller cycle (wall clock); see docs/timing.md")
     parser.add_argument("--split", action="store_true",
                         help="controller in this process, drives and plant in another (python-can udp_multicast)")
+    parser.add_argument("--max-output", default=None, metavar="SIZE",
+                        help="refuse a run estimated to write more (e.g. '5 GB'; default: $COSIM_MAX_OUTPUT, else the "
+                             "free disk space)")
+    parser.add_argument("--max-memory", default=None, metavar="SIZE",
+                        help="refuse a run estimated to hold more in memory (default: $COSIM_MAX_MEMORY, else half "
+                             "the RAM)")
+    parser.add_argument("--ignore-budget", action="store_true", help="run even above --max-output/--max-memory")
+    parser.add_argument("--timeseries", choices=("parquet", "csv"), default=None,
+                        help="format of the time-series files (default: parquet, or $COSIM_TIMESERIES); "
+                             "see docs/ARCHITECTURE.md")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -46,7 +56,19 @@ def run(args: argparse.Namespace) -> int:
               f"[execution] realtime/mode = 'split' apply to the jobs {sorted(CELL_JOBS)}", file=sys.stderr)
         return EXIT_INVALID
     out_dir = args.out or Path(scenario.data.get("output", {}).get("dir") or Path("results") / scenario.name)
-    ctx = RunContext(scenario, out_dir, quiet=args.quiet, execution=CellExecution(options) if options.active else None)
+    if not getattr(args, "ignore_budget", False):
+        from cosim.results.budget import check_budget, estimate_run
+        from cosim.results.timeseries import default_format
+
+        try:
+            fmt = getattr(args, "timeseries", None) or default_format()
+            check_budget(estimate_run(scenario.data, fmt), out_dir, getattr(args, "max_output", None),
+                         getattr(args, "max_memory", None))
+        except ValueError as exc:  # BudgetError, or a bad size / $COSIM_TIMESERIES
+            print(f"error: {args.scenario}: {exc}", file=sys.stderr)
+            return EXIT_INVALID
+    ctx = RunContext(scenario, out_dir, quiet=args.quiet, execution=CellExecution(options) if options.active else None,
+                     timeseries_format=getattr(args, "timeseries", None))
     try:
         fields = scenario.job.runner(scenario, ctx) or {}
     except SimulationError as exc:

@@ -23,8 +23,8 @@ controller's deadline misses.
 
 Results: ``compare.csv`` and ``compare.json`` (the table, one row per entry, ranked per
 trajectory by ``[compare] rank_by``), ``summary.json`` (the table plus every entry's full
-record, updated after each entry), per entry ``timeseries_<label>.csv``,
-``tcp_<label>.csv``, ``controller_<label>.csv`` (label ``<controller>__<trajectory>``),
+record, updated after each entry), per entry ``timeseries_<label>``,
+``tcp_<label>``, ``controller_<label>`` (Parquet, or CSV on request) (label ``<controller>__<trajectory>``),
 per planned or file trajectory ``trajectory_<name>.csv``; figures
 ``compare_metrics.png`` (every metric for every entry, log axes where values span
 decades) and ``compare_tcp_error.png`` (TCP error over the motion per trajectory).
@@ -344,12 +344,12 @@ def _with_current_demand(doc: dict[str, Any], tracker_period: float) -> dict[str
 def _evaluate_joint(ctx: RunContext, label: str, cell: robot_cell.CellRun, controller: Any, motion: _Motion,
                     setup: iso9283.JobSetup):
     """Metrics of a joint-trajectory run (the main job's definitions; programmed = the planned flange
-    by the controller's kinematic model; one segment); writes tcp_<label>.csv and controller_<label>.csv."""
-    from cosim.jobs.columns_csv import write_columns_csv
+    by the controller's kinematic model; one segment); writes tcp_<label> and controller_<label> (Parquet, or CSV on request)."""
+    from cosim.jobs.iso9283 import series_units
     from robot.kinematics import FlangeKinematics
 
     log = controller.log.columns()
-    write_columns_csv(ctx.path(f"controller_{label}.csv"), log)
+    controller_file = ctx.write_series(f"controller_{label}", log, series_units(log))
     rec = cell.recording
     cols, data = rec.columns, rec.data
     t = data[:, 0]
@@ -375,7 +375,7 @@ def _evaluate_joint(ctx: RunContext, label: str, cell: robot_cell.CellRun, contr
             series[f"{axis}_{name}"] = arr[:, k]
     for j in range(6):
         series[f"lag{j + 1}"] = q_d[:, j] - q[:, j]
-    write_columns_csv(ctx.path(f"tcp_{label}.csv"), series)
+    tcp_file = ctx.write_series(f"tcp_{label}", series, series_units(series))
     timing = controller.timing()
     entry = {"status": "ok" if cell.failure is None else "failed", **result.metrics([motion.name]),
              "deadline_misses": timing.deadline_misses, "compute_budget_us": timing.budget_us,
@@ -383,8 +383,8 @@ def _evaluate_joint(ctx: RunContext, label: str, cell: robot_cell.CellRun, contr
              "motion_start_s": start, "sim_time_s": cell.reached_s, "loop_wall_time_s": cell.loop_wall_time_s,
              "path_completed": bool(start is not None and t.size and t[-1] >= t_end - 1e-9),
              "stop_reason": controller.stop_reason,
-             "files": {"timeseries": f"timeseries_{label}.csv", "controller": f"controller_{label}.csv",
-                       "tcp": f"tcp_{label}.csv"}}
+             "files": {"timeseries": ctx.series_name(f"timeseries_{label}"), "controller": controller_file,
+                       "tcp": tcp_file}}
     if cell.failure is not None:
         entry["failure"] = str(cell.failure)
     return entry, result

@@ -41,7 +41,6 @@ import numpy as np
 from controller import Controller, ControllerConfig, Phase, TcpTrajectory
 from cosim.jobs import robot_cell
 from cosim.jobs.cell_checks import check_cell, fill_defaults
-from cosim.jobs.columns_csv import write_columns_csv
 from cosim.jobs.laser_tracker import DEFAULT_POSITION_SIGMA_M, TrackerConfig
 from cosim.jobs.tracking_metrics import TrackingResult, desired_joints, evaluate
 from cosim.scenario.context import RunContext
@@ -386,6 +385,27 @@ DEFINITIONS = {
 }
 
 
+SERIES_UNITS = (("t_apply", "s"), ("tau_ff", "N.m"), ("qdd_d", "rad/s2"), ("qd_d", "rad/s"), ("q_d", "rad"),
+                ("q_obs", "rad"), ("target", "rad"), ("compute_us", "us"), ("lag", "rad"), ("arc_length", "m"),
+                ("x_", "m"), ("y_", "m"), ("z_", "m"), ("q", "rad"), ("t", "s"), ("tau", "s"))
+"""Units of the controller log and TCP series columns by name prefix (first match; ``*_mm`` are mm)."""
+
+
+def series_units(columns) -> dict[str, str]:
+    """Units of the columns of ``controller_<mode>`` and ``tcp_<mode>`` (see :data:`SERIES_UNITS`)."""
+    units = {}
+    for name in columns:
+        if name.endswith("_mm"):
+            units[name] = "mm"
+            continue
+        for prefix, unit in SERIES_UNITS:
+            if name == prefix or (name.startswith(prefix) and (prefix.endswith("_") or name[len(prefix):].isdigit()
+                                                               or prefix in ("t_apply", "compute_us", "arc_length"))):
+                units[name] = unit
+                break
+    return units
+
+
 def _ratio(a: float, b: float) -> float:
     return a / b if (b and math.isfinite(a) and math.isfinite(b)) else float("nan")
 
@@ -393,7 +413,7 @@ def _ratio(a: float, b: float) -> float:
 def evaluate_run(ctx: RunContext, mode: str, cell: robot_cell.CellRun, controller: Controller,
                  reference: TcpTrajectory, path, true_robot) -> tuple[dict[str, Any], TrackingResult]:
     """Post-process one run of the ISO 9283 path on the cell (also after a failure): write
-    ``controller_<mode>.csv`` (the controller log), ``tcp_<mode>.csv`` (programmed, commanded
+    ``controller_<mode>`` (the controller log), ``tcp_<mode>`` (Parquet, or CSV on request: programmed, commanded
     and measured TCP in m, base_link; TCP and path errors in mm; joint set-points and lag
     errors in rad) and return (the summary entry of the run, the tracking result).
 
@@ -403,7 +423,7 @@ def evaluate_run(ctx: RunContext, mode: str, cell: robot_cell.CellRun, controlle
     from robot.kinematics import FlangeKinematics
 
     log = controller.log.columns()
-    write_columns_csv(ctx.path(f"controller_{mode}.csv"), log)
+    controller_file = ctx.write_series(f"controller_{mode}", log, series_units(log))
     rec = cell.recording
     cols = rec.columns
     data = rec.data
@@ -438,7 +458,7 @@ def evaluate_run(ctx: RunContext, mode: str, cell: robot_cell.CellRun, controlle
         series[f"q{j + 1}"] = q[:, j]
     for j in range(6):
         series[f"lag{j + 1}"] = lag[:, j]
-    write_columns_csv(ctx.path(f"tcp_{mode}.csv"), series)
+    tcp_file = ctx.write_series(f"tcp_{mode}", series, series_units(series))
     timing = controller.timing()
     entry: dict[str, Any] = {
         "status": "ok" if cell.failure is None else "failed",
@@ -464,8 +484,8 @@ def evaluate_run(ctx: RunContext, mode: str, cell: robot_cell.CellRun, controlle
         "fieldbus": {k: cell.fieldbus[k] for k in ("cycles_run", "frames_sent", "frames_dropped", "frames_recorded",
                                                    "log_path", "dead_time_cycles", "node_fault", "comm_fault",
                                                    "scaling_saturations", "event_tally")},
-        "files": {"timeseries": f"timeseries_{mode}.csv", "controller": f"controller_{mode}.csv",
-                  "tcp": f"tcp_{mode}.csv", "can_log": Path(cell.fieldbus["log_path"]).name
+        "files": {"timeseries": ctx.series_name(f"timeseries_{mode}"), "controller": controller_file,
+                  "tcp": tcp_file, "can_log": Path(cell.fieldbus["log_path"]).name
                   if cell.fieldbus.get("log_path") else None},
     }
     if cell.failure is not None:

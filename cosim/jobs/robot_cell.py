@@ -39,6 +39,7 @@ from controller import CellController, Controller, ControllerInfo, DriveLoopMode
 from controller.port import ControllerFailure, ControllerPort
 from cosim.jobs.laser_tracker import TRACKER_VARIABLES, LaserTracker, TrackerConfig
 from cosim.master import Master, MemorySink, Recorder, SimulationError
+from cosim.results.timeseries import SeriesFile
 from cosim.realtime.pacer import no_cyclic_gc
 from cosim.scenario.context import RunContext
 from cosim.scenario.cosim_tables import build_master
@@ -257,9 +258,22 @@ class CellRun:
     fieldbus: dict[str, Any]
     loop_wall_time_s: float
     engine: str
-    recording: MemorySink
+    recording: MemorySink | SeriesFile
     failure: SimulationError | None = None
     loop_cpu_time_s: float = float("nan")
+
+
+def master_units(master: Master, signals: Sequence[str]) -> dict[str, str]:
+    """The unit of each recorded signal the FMUs declare (``unit`` or declared type's unit)."""
+    units = {"time": "s", **{name: "m" for name in TRACKER_VARIABLES}}
+    for signal in signals:
+        try:
+            unit = master.unit(signal)
+        except (AttributeError, KeyError, ValueError):
+            continue
+        if unit:
+            units[signal] = unit
+    return units
 
 
 def write_recording(memory: MemorySink, sink: Any) -> None:
@@ -342,10 +356,10 @@ def run_cell(doc: dict[str, Any], controller: CellController, true_robot: TrueRo
 
     ``doc`` is the validated scenario (its [simulation], [[fmus]], connections, [record]);
     the recorder samples the ``[record]`` signals plus :data:`RECORDED_SIGNALS` every
-    ``[record] period`` (default: the tracker period) into memory (``CellRun.recording``),
-    written to ``record_file`` in the results folder when the loop has ended (formatting
-    CSV text costs about 50 µs per row-millisecond, as much as the bus; it is output, not
-    loop work, and stays out of ``loop_wall_time_s``); ``can_log`` is the CAN log
+    ``[record] period`` (default: the tracker period), streamed to ``record_file`` in the
+    results folder as the run goes (Parquet by default, bounded buffer,
+    :class:`cosim.results.timeseries.ParquetSink`; the suffix follows the run's format) and
+    read back for the evaluation as ``CellRun.recording``; ``can_log`` is the CAN log
     (.blf/.asc) or None. A SimulationError (failing FMU, NaN output, stopped controller)
     ends the run: everything recorded is written and the error is returned in
     ``CellRun.failure``.
@@ -365,7 +379,8 @@ def run_cell(doc: dict[str, Any], controller: CellController, true_robot: TrueRo
     laser = LaserTracker(true_robot.kinematic_model(), tracker)
     signals, record_period = cell_signals(doc, laser)
     master = build_master(cell_document(doc, true_robot, info.q_start), master_variables=cell_variables())
-    memory = MemorySink()
+    record_file = ctx.series_name(record_file)
+    sink = ctx.series_sink(record_file, master_units(master, signals))
     engine = ""
     failure: SimulationError | None = None
     wall0 = time.perf_counter()
@@ -373,7 +388,7 @@ def run_cell(doc: dict[str, Any], controller: CellController, true_robot: TrueRo
     network = PowerlinkNetwork(fb_config, joint_scaling(), log_path=can_log)
     link = None
     try:
-        recorder, link = add_cell_tasks(master, network, controller, period, laser, signals, record_period, memory,
+        recorder, link = add_cell_tasks(master, network, controller, period, laser, signals, record_period, sink,
                                         info)
         ctx.attach(master, stop_time, label=label)
         with master:
@@ -390,7 +405,6 @@ def run_cell(doc: dict[str, Any], controller: CellController, true_robot: TrueRo
         network.close()
         wall = time.perf_counter() - wall0
         cpu = time.process_time() - cpu0
-        if memory.columns:
-            write_recording(memory, ctx.csv_sink(record_file))
+        sink.close()  # the master closed its recorder (footer written); again is a no-op
     return CellRun(label, ctx.path(record_file), recorder.rows_written, master.time, network.summary(), wall,
-                   engine, memory, failure, cpu)
+                   engine, SeriesFile(ctx.path(record_file)), failure, cpu)

@@ -89,7 +89,8 @@ def run_paced_cell(doc: dict[str, Any], controller, true_robot, ctx: RunContext,
         network.close()
     wall = time.perf_counter() - wall0
     cpu = time.process_time() - cpu0
-    robot_cell.write_recording(memory, ctx.csv_sink(record_file))
+    record_file = ctx.series_name(record_file)
+    robot_cell.write_recording(memory, ctx.series_sink(record_file))
     cell = robot_cell.CellRun(label, ctx.path(record_file), recorder.rows_written, master.time, network.summary(),
                               wall, engine, memory, failure, loop_cpu_time_s=cpu)
     return cell, pacer, granted

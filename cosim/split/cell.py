@@ -239,7 +239,8 @@ def run_split_cell(doc: dict[str, Any], controller, true_robot, ctx, *, label: s
         memory.write(rows)
     raw.unlink(missing_ok=True)
     raw.parent.rmdir()
-    robot_cell.write_recording(memory, ctx.csv_sink(record_file))
+    record_file = ctx.series_name(record_file)
+    robot_cell.write_recording(memory, ctx.series_sink(record_file))
     cycles = session.cycle + 1
     mn_summary = network_summary(endpoint.config, endpoint.events, endpoint, None, endpoint.recorder, cycles)
     fieldbus_summary = _merge_fieldbus(mn_summary, child["fieldbus"] if child else None)
