@@ -40,6 +40,7 @@ UNITS: dict[str, dict[str, int]] = {
     "kg.m2": {"kg": 1, "m": 2},
     "N.m.s/rad": {"kg": 1, "m": 2, "s": -1, "rad": -1},
     "N.m/rad": {"kg": 1, "m": 2, "s": -2, "rad": -1},
+    "N.m/rad3": {"kg": 1, "m": 2, "s": -2, "rad": -3},
 }
 
 INPUT, OUTPUT, PARAMETER, LOCAL = "input", "output", "parameter", "local"
@@ -69,6 +70,9 @@ class Variable:
     max: float | None = None
     index: int = 0
     array_length: int = 1
+    #: names of the knowns (parameters, inputs) an output depends on in Initialization
+    #: Mode; () = none, None = all knowns (the ``dependencies`` attribute is omitted)
+    initial_dependencies: tuple[str, ...] | None = ()
 
     @property
     def variability(self) -> str:
@@ -134,6 +138,24 @@ class FmuSpec:
             raise SpecError(f"variable {v.name!r} declared twice")
         self.variables.append(v)
 
+    def set_initial_dependencies(self, name: str, knowns: tuple[str, ...] | None) -> None:
+        """Declare which knowns output ``name`` depends on in Initialization Mode
+        (``None``: all of them)."""
+        import dataclasses
+
+        for k, v in enumerate(self.variables):
+            if v.name == name:
+                if v.causality != OUTPUT:
+                    raise SpecError(f"variable {name!r}: initial dependencies are for outputs, it is a {v.causality}")
+                names = {w.name: w for w in self.variables}
+                for known in knowns or ():
+                    if known not in names or names[known].causality not in (INPUT, PARAMETER):
+                        raise SpecError(f"variable {name!r}: initial dependency {known!r} is not an input or parameter")
+                self.variables[k] = dataclasses.replace(v, initial_dependencies=None if knowns is None
+                                                        else tuple(knowns))
+                return
+        raise SpecError(f"{self.model_identifier}: no variable named {name!r}")
+
     # -- queries --------------------------------------------------------------
     def of_type(self, type_: str) -> list[Variable]:
         return [v for v in self.variables if v.type == type_]
@@ -185,6 +207,15 @@ class FmuSpec:
                             else f'    <Unit name="{unit}"/>')
         outputs = [i + 1 for i, v in enumerate(self.variables) if v.causality == OUTPUT]
         unknowns = "\n".join(f'      <Unknown index="{i}" dependencies=""/>' for i in outputs)
+        index = {v.name: i + 1 for i, v in enumerate(self.variables)}
+        initial = []
+        for i in outputs:
+            deps = self.variables[i - 1].initial_dependencies
+            if deps is None:
+                initial.append(f'      <Unknown index="{i}"/>')
+            else:
+                initial.append(f'      <Unknown index="{i}" dependencies="{" ".join(str(j) for j in sorted(index[d] for d in deps))}"/>')
+        initial_unknowns = "\n".join(initial)
         sources = "\n".join(f'      <File name="{f}"/>' for f in self.source_files)
         return f"""<?xml version="1.0" encoding="UTF-8"?>
 <fmiModelDescription
@@ -222,7 +253,7 @@ class FmuSpec:
 {unknowns}
     </Outputs>
     <InitialUnknowns>
-{unknowns}
+{initial_unknowns}
     </InitialUnknowns>
   </ModelStructure>
 </fmiModelDescription>

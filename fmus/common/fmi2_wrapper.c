@@ -209,12 +209,18 @@ static int check_vr_args(Instance *inst, const char *fn, const fmi2ValueReferenc
     return 1;
 }
 
+#if defined(__GNUC__)
+/* default for models that do not compute their outputs in Initialization Mode */
+__attribute__((weak)) void model_initial_outputs(Instance *inst) { (void)inst; }
+#endif
+
 fmi2Status fmi2GetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, fmi2Real value[])
 {
     Instance *inst = (Instance *)c;
     size_t k;
     if (!check_instance(inst, "fmi2GetReal")) return fmi2Error;
     if (!check_vr_args(inst, "fmi2GetReal", vr, nvr, value, N_REALS)) return fmi2Error;
+    if (inst->d.mode == MODE_INITIALIZATION) model_initial_outputs(inst);
     for (k = 0; k < nvr; k++) value[k] = inst->d.r[vr[k]];
     return fmi2OK;
 }
@@ -225,6 +231,7 @@ fmi2Status fmi2GetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t
     size_t k;
     if (!check_instance(inst, "fmi2GetInteger")) return fmi2Error;
     if (!check_vr_args(inst, "fmi2GetInteger", vr, nvr, value, N_INTEGERS)) return fmi2Error;
+    if (inst->d.mode == MODE_INITIALIZATION) model_initial_outputs(inst);
     for (k = 0; k < nvr; k++) value[k] = inst->d.i[vr[k]];
     return fmi2OK;
 }

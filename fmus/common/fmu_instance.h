@@ -59,6 +59,11 @@ int model_initialize(Instance *inst);
 /* Advance from time t by h > 0 (both already checked). Return 0 on success. Otherwise
  * log the reason and return MODEL_STEP_REJECTED (bad argument, nothing changed, the
  * instance stays usable) or MODEL_STEP_FAILED (numerical failure: error mode). */
+/* In Initialization Mode, before fmi2GetReal/fmi2GetInteger return values: compute the
+ * outputs from the current parameters and inputs (log nothing; model_initialize does the
+ * checks). Optional: the wrapper's weak default does nothing. */
+void model_initial_outputs(Instance *inst);
+
 #define MODEL_STEP_REJECTED 1
 #define MODEL_STEP_FAILED 2
 int model_do_step(Instance *inst, double t, double h);
