@@ -11,6 +11,7 @@ and ``N_Q`` (length).
 """
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import math
 import re
@@ -70,9 +71,9 @@ class Variable:
     max: float | None = None
     index: int = 0
     array_length: int = 1
-    #: names of the knowns (parameters, inputs) an output depends on in Initialization
-    #: Mode; () = none, None = all knowns (the ``dependencies`` attribute is omitted)
-    initial_dependencies: tuple[str, ...] | None = ()
+    #: names of the knowns (inputs and parameters) an output depends on in Initialization
+    #: Mode (ModelStructure/InitialUnknowns); () = none
+    depends_on: tuple[str, ...] = ()
 
     @property
     def variability(self) -> str:
@@ -103,10 +104,12 @@ class FmuSpec:
     # -- building the list -------------------------------------------------
     def add(self, name: str, type_: str, causality: str, description: str, *,
             unit: str | None = None, start: float | int | None = None,
-            min: float | None = None, max: float | None = None) -> None:
-        """Add one scalar variable named ``name`` (C name derived from it)."""
+            min: float | None = None, max: float | None = None, depends_on: tuple[str, ...] = ()) -> None:
+        """Add one scalar variable named ``name`` (C name derived from it). ``depends_on``
+        (outputs only): the inputs and parameters its value in Initialization Mode depends on."""
         c_name = re.sub(r"[^A-Za-z0-9]", "_", name).upper()
-        self._append(Variable(name, c_name, type_, causality, description, unit, start, min, max))
+        self._append(Variable(name, c_name, type_, causality, description, unit, start, min, max,
+                              depends_on=tuple(depends_on)))
 
     def add_array(self, base: str, starts: list[float], causality: str, description: str, *,
                   unit: str | None = None, min: float | None = None, max: float | None = None,
@@ -118,6 +121,14 @@ class FmuSpec:
             text = descriptions[k] if descriptions else f"{description} (element {k + 1})"
             self._append(Variable(f"{base}[{k + 1}]", c_name, "Real", causality, text,
                                   units[k] if units else unit, start, min, max, index=k, array_length=n))
+
+    def set_depends_on(self, name: str, knowns: tuple[str, ...]) -> None:
+        """Set ``depends_on`` of the output ``name`` after it was added (e.g. an array element)."""
+        for k, v in enumerate(self.variables):
+            if v.name == name:
+                self.variables[k] = dataclasses.replace(v, depends_on=tuple(knowns))
+                return
+        raise SpecError(f"{self.model_identifier}: no variable named {name!r}")
 
     def _append(self, v: Variable) -> None:
         if v.type not in ("Real", "Integer"):
@@ -137,24 +148,6 @@ class FmuSpec:
         if any(w.name == v.name for w in self.variables):
             raise SpecError(f"variable {v.name!r} declared twice")
         self.variables.append(v)
-
-    def set_initial_dependencies(self, name: str, knowns: tuple[str, ...] | None) -> None:
-        """Declare which knowns output ``name`` depends on in Initialization Mode
-        (``None``: all of them)."""
-        import dataclasses
-
-        for k, v in enumerate(self.variables):
-            if v.name == name:
-                if v.causality != OUTPUT:
-                    raise SpecError(f"variable {name!r}: initial dependencies are for outputs, it is a {v.causality}")
-                names = {w.name: w for w in self.variables}
-                for known in knowns or ():
-                    if known not in names or names[known].causality not in (INPUT, PARAMETER):
-                        raise SpecError(f"variable {name!r}: initial dependency {known!r} is not an input or parameter")
-                self.variables[k] = dataclasses.replace(v, initial_dependencies=None if knowns is None
-                                                        else tuple(knowns))
-                return
-        raise SpecError(f"{self.model_identifier}: no variable named {name!r}")
 
     # -- queries --------------------------------------------------------------
     def of_type(self, type_: str) -> list[Variable]:
@@ -205,17 +198,19 @@ class FmuSpec:
             exps = " ".join(f'{k}="{e}"' for k, e in UNITS[unit].items())
             unit_xml.append(f'    <Unit name="{unit}"><BaseUnit {exps}/></Unit>' if exps
                             else f'    <Unit name="{unit}"/>')
-        outputs = [i + 1 for i, v in enumerate(self.variables) if v.causality == OUTPUT]
-        unknowns = "\n".join(f'      <Unknown index="{i}" dependencies=""/>' for i in outputs)
         index = {v.name: i + 1 for i, v in enumerate(self.variables)}
-        initial = []
-        for i in outputs:
-            deps = self.variables[i - 1].initial_dependencies
-            if deps is None:
-                initial.append(f'      <Unknown index="{i}"/>')
-            else:
-                initial.append(f'      <Unknown index="{i}" dependencies="{" ".join(str(j) for j in sorted(index[d] for d in deps))}"/>')
-        initial_unknowns = "\n".join(initial)
+        outputs = [v for v in self.variables if v.causality == OUTPUT]
+        for v in outputs:
+            for name in v.depends_on:
+                known = next((w for w in self.variables if w.name == name), None)
+                if known is None or known.causality not in (INPUT, PARAMETER):
+                    raise SpecError(f"variable {v.name!r}: depends_on names {name!r}, expected an input or "
+                                    "parameter of this FMU")
+        # co-simulation outputs change only in fmi2DoStep: no direct feed-through
+        unknowns = "\n".join(f'      <Unknown index="{index[v.name]}" dependencies=""/>' for v in outputs)
+        initial = "\n".join(
+            f'      <Unknown index="{index[v.name]}" dependencies="{" ".join(str(i) for i in sorted(index[n] for n in v.depends_on))}"/>'
+            for v in outputs)
         sources = "\n".join(f'      <File name="{f}"/>' for f in self.source_files)
         return f"""<?xml version="1.0" encoding="UTF-8"?>
 <fmiModelDescription
@@ -253,7 +248,7 @@ class FmuSpec:
 {unknowns}
     </Outputs>
     <InitialUnknowns>
-{initial_unknowns}
+{initial}
     </InitialUnknowns>
   </ModelStructure>
 </fmiModelDescription>

@@ -2,6 +2,9 @@
 #ifndef MODEL_STATE_H
 #define MODEL_STATE_H
 
+/* rx130l_plant.c computes its outputs in Initialization Mode (model_initial_outputs) */
+#define MODEL_INITIAL_OUTPUTS 1
+
 typedef struct {
     /* q[6] (rad), qd[6] (rad/s) of the links, then (elastic joints only) the motor
      * angles th[6] (rad) and speeds thd[6] (rad/s) divided by the gear ratios; joint 1 first */

@@ -16,7 +16,7 @@
  *     f_l(v) = (1 - s) (fv v + fc tanh(v/vs))
  * Outputs at the end of the step: q, qd, qdd (with the step's inputs), q_motor = th,
  * qd_motor = thd (rigid: q, qd), tau_gear. In Initialization Mode the outputs are
- * computed from the parameters (fmi2GetReal calls model_initial_outputs). The elastic
+ * computed from the parameters (the wrapper calls model_initial_outputs before a get). The elastic
  * model starts with the motor where the gear holds the link at rest (static deflection
  * under gravity, Coriolis at qd0, link friction and tau_ext).
  * Units: rad, rad/s, rad/s^2, N m; parameters as robot/dynamics.py.
@@ -251,7 +251,7 @@ static double static_deflection(const Instance *inst, int j, double torque)
 }
 
 /* Set the state from the parameters (and, elastic, check the gear parameters); with
- * report = 0 nothing is logged (outputs requested in Initialization Mode). */
+ * report = 0 nothing is logged. */
 static int set_initial_state(Instance *inst, int report)
 {
     double minv[6], tau_hold[6];
@@ -313,9 +313,15 @@ void model_reset(Instance *inst)
     memset(&inst->d.s, 0, sizeof inst->d.s);
 }
 
-void model_initial_outputs(Instance *inst)
+int model_initial_outputs(Instance *inst)
 {
-    if (set_initial_state(inst, 0) == 0) write_outputs(inst);
+    if (set_initial_state(inst, 1) != 0) return 1;
+    if (write_outputs(inst) != 0) {
+        fmu_log(inst, fmi2Error, "logStatusError", "the dynamics are not defined at the initial state "
+                "with these parameters (check the link masses and inertias p[1]..p[78])");
+        return 1;
+    }
+    return 0;
 }
 
 int model_initialize(Instance *inst)

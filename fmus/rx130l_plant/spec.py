@@ -105,10 +105,12 @@ def _add_elastic_variables(spec: FmuSpec, robot) -> None:
 def _declare_initial_dependencies(spec: FmuSpec) -> None:
     """Honest InitialUnknowns: which parameters and inputs each output depends on before
     the first step (the plant computes its outputs in Initialization Mode)."""
+    knowns = tuple(v.name for v in spec.variables if v.causality in (INPUT, PARAMETER))
     for k in range(1, 7):
-        spec.set_initial_dependencies(f"q[{k}]", (f"q0[{k}]",))
-        spec.set_initial_dependencies(f"qd[{k}]", (f"qd0[{k}]",))
-        spec.set_initial_dependencies(f"qd_motor[{k}]", (f"qd0[{k}]",))
-        # the motor starts where the gear holds the link at rest: depends on the whole arm
+        spec.set_depends_on(f"q[{k}]", (f"q0[{k}]",))
+        spec.set_depends_on(f"qd[{k}]", (f"qd0[{k}]",))
+        spec.set_depends_on(f"qd_motor[{k}]", (f"qd0[{k}]",))
+        # qdd and the gear torque depend on the whole arm and the inputs; so does the
+        # motor's start angle (where the gear holds the links at rest)
         for name in ("qdd", "q_motor", "tau_gear"):
-            spec.set_initial_dependencies(f"{name}[{k}]", None)
+            spec.set_depends_on(f"{name}[{k}]", knowns)
