@@ -22,7 +22,9 @@ from pathlib import Path
 SOURCE = Path(__file__).with_name("kernel.c")
 
 #: Failure kinds reported by the kernel (``cosim_failure.what``).
-FAIL_SET, FAIL_STEP, FAIL_GET, FAIL_NONFINITE = 1, 2, 3, 4
+FAIL_SET, FAIL_STEP, FAIL_GET, FAIL_NONFINITE, FAIL_ENDED = 1, 2, 3, 4, 5
+#: The FMI 3.0 adapter (fmi3_adapter.c), built the same way into its own library.
+ADAPTER_SOURCE = Path(__file__).with_name("fmi3_adapter.c")
 
 LongArray3 = c_longlong * 3
 PtrArray3 = c_void_p * 3
@@ -67,6 +69,7 @@ class CPlan(Structure):
         ("base_step", c_double),
         ("gauss_seidel", c_int),
         ("step_seconds", c_void_p),
+        ("stop_at", c_void_p),
     ]
 
 
@@ -91,7 +94,7 @@ def _build_dirs() -> list[Path]:
     return dirs
 
 
-def _compile(target: Path) -> None:
+def _compile(target: Path, source: Path = SOURCE) -> None:
     compiler = os.environ.get("CC") or shutil.which("cc") or shutil.which("gcc")
     if compiler is None:
         raise OSError("no C compiler found (set CC)")
@@ -99,33 +102,44 @@ def _compile(target: Path) -> None:
     fd, tmp = tempfile.mkstemp(suffix=".so", dir=target.parent)
     os.close(fd)
     try:
-        subprocess.run([compiler, "-O2", "-shared", "-fPIC", "-std=c99", "-o", tmp, str(SOURCE), "-lm"],
+        subprocess.run([compiler, "-O2", "-shared", "-fPIC", "-std=c99", "-o", tmp, str(source), "-lm"],
                        check=True, capture_output=True, text=True)
         os.replace(tmp, target)
     except subprocess.CalledProcessError as exc:
-        raise OSError(f"compiling {SOURCE} failed:\n{exc.stderr}") from exc
+        raise OSError(f"compiling {source} failed:\n{exc.stderr}") from exc
     finally:
         if os.path.exists(tmp):
             os.unlink(tmp)
 
 
-@lru_cache(maxsize=1)
-def load_kernel() -> ctypes.CDLL | None:
-    """Return the compiled kernel library (building it if needed), or None if it cannot be built."""
-    digest = hashlib.sha1(SOURCE.read_bytes()).hexdigest()[:12]
-    name = f"libcosimkernel-{digest}.so"
+def _load(source: Path, stem: str) -> ctypes.CDLL | None:
+    digest = hashlib.sha1(source.read_bytes()).hexdigest()[:12]
+    name = f"{stem}-{digest}.so"
     for directory in _build_dirs():
         target = directory / name
         try:
             if not target.exists():
-                _compile(target)
-            lib = ctypes.CDLL(str(target))
+                _compile(target, source)
+            return ctypes.CDLL(str(target))
         except OSError:
             continue
+    return None
+
+
+@lru_cache(maxsize=1)
+def load_kernel() -> ctypes.CDLL | None:
+    """Return the compiled kernel library (building it if needed), or None if it cannot be built."""
+    lib = _load(SOURCE, "libcosimkernel")
+    if lib is not None:
         lib.cosim_advance.argtypes = [POINTER(CPlan), c_longlong, c_longlong, POINTER(CFailure)]
         lib.cosim_advance.restype = c_int
-        return lib
-    return None
+    return lib
+
+
+@lru_cache(maxsize=1)
+def load_fmi3_adapter() -> ctypes.CDLL | None:
+    """Return the compiled FMI 3.0 adapter library (fmi3_adapter.c), or None if it cannot be built."""
+    return _load(ADAPTER_SOURCE, "libcosimfmi3")
 
 
 def address_of(array) -> int:
@@ -133,5 +147,5 @@ def address_of(array) -> int:
     return int(array.ctypes.data)
 
 
-__all__ = ["CFailure", "CPlan", "CSlave", "FAIL_GET", "FAIL_NONFINITE", "FAIL_SET", "FAIL_STEP",
-           "load_kernel", "address_of", "c_uint"]
+__all__ = ["CFailure", "CPlan", "CSlave", "FAIL_ENDED", "FAIL_GET", "FAIL_NONFINITE", "FAIL_SET", "FAIL_STEP",
+           "load_fmi3_adapter", "load_kernel", "address_of", "c_uint"]
