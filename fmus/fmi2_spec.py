@@ -11,6 +11,7 @@ and ``N_Q`` (length).
 """
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import math
 import re
@@ -40,6 +41,7 @@ UNITS: dict[str, dict[str, int]] = {
     "kg.m2": {"kg": 1, "m": 2},
     "N.m.s/rad": {"kg": 1, "m": 2, "s": -1, "rad": -1},
     "N.m/rad": {"kg": 1, "m": 2, "s": -2, "rad": -1},
+    "N.m/rad3": {"kg": 1, "m": 2, "s": -2, "rad": -3},
 }
 
 INPUT, OUTPUT, PARAMETER, LOCAL = "input", "output", "parameter", "local"
@@ -69,6 +71,9 @@ class Variable:
     max: float | None = None
     index: int = 0
     array_length: int = 1
+    #: names of the knowns (inputs and parameters) an output depends on in Initialization
+    #: Mode (ModelStructure/InitialUnknowns); () = none
+    depends_on: tuple[str, ...] = ()
 
     @property
     def variability(self) -> str:
@@ -99,10 +104,12 @@ class FmuSpec:
     # -- building the list -------------------------------------------------
     def add(self, name: str, type_: str, causality: str, description: str, *,
             unit: str | None = None, start: float | int | None = None,
-            min: float | None = None, max: float | None = None) -> None:
-        """Add one scalar variable named ``name`` (C name derived from it)."""
+            min: float | None = None, max: float | None = None, depends_on: tuple[str, ...] = ()) -> None:
+        """Add one scalar variable named ``name`` (C name derived from it). ``depends_on``
+        (outputs only): the inputs and parameters its value in Initialization Mode depends on."""
         c_name = re.sub(r"[^A-Za-z0-9]", "_", name).upper()
-        self._append(Variable(name, c_name, type_, causality, description, unit, start, min, max))
+        self._append(Variable(name, c_name, type_, causality, description, unit, start, min, max,
+                              depends_on=tuple(depends_on)))
 
     def add_array(self, base: str, starts: list[float], causality: str, description: str, *,
                   unit: str | None = None, min: float | None = None, max: float | None = None,
@@ -114,6 +121,14 @@ class FmuSpec:
             text = descriptions[k] if descriptions else f"{description} (element {k + 1})"
             self._append(Variable(f"{base}[{k + 1}]", c_name, "Real", causality, text,
                                   units[k] if units else unit, start, min, max, index=k, array_length=n))
+
+    def set_depends_on(self, name: str, knowns: tuple[str, ...]) -> None:
+        """Set ``depends_on`` of the output ``name`` after it was added (e.g. an array element)."""
+        for k, v in enumerate(self.variables):
+            if v.name == name:
+                self.variables[k] = dataclasses.replace(v, depends_on=tuple(knowns))
+                return
+        raise SpecError(f"{self.model_identifier}: no variable named {name!r}")
 
     def _append(self, v: Variable) -> None:
         if v.type not in ("Real", "Integer"):
@@ -183,8 +198,19 @@ class FmuSpec:
             exps = " ".join(f'{k}="{e}"' for k, e in UNITS[unit].items())
             unit_xml.append(f'    <Unit name="{unit}"><BaseUnit {exps}/></Unit>' if exps
                             else f'    <Unit name="{unit}"/>')
-        outputs = [i + 1 for i, v in enumerate(self.variables) if v.causality == OUTPUT]
-        unknowns = "\n".join(f'      <Unknown index="{i}" dependencies=""/>' for i in outputs)
+        index = {v.name: i + 1 for i, v in enumerate(self.variables)}
+        outputs = [v for v in self.variables if v.causality == OUTPUT]
+        for v in outputs:
+            for name in v.depends_on:
+                known = next((w for w in self.variables if w.name == name), None)
+                if known is None or known.causality not in (INPUT, PARAMETER):
+                    raise SpecError(f"variable {v.name!r}: depends_on names {name!r}, expected an input or "
+                                    "parameter of this FMU")
+        # co-simulation outputs change only in fmi2DoStep: no direct feed-through
+        unknowns = "\n".join(f'      <Unknown index="{index[v.name]}" dependencies=""/>' for v in outputs)
+        initial = "\n".join(
+            f'      <Unknown index="{index[v.name]}" dependencies="{" ".join(str(i) for i in sorted(index[n] for n in v.depends_on))}"/>'
+            for v in outputs)
         sources = "\n".join(f'      <File name="{f}"/>' for f in self.source_files)
         return f"""<?xml version="1.0" encoding="UTF-8"?>
 <fmiModelDescription
@@ -222,7 +248,7 @@ class FmuSpec:
 {unknowns}
     </Outputs>
     <InitialUnknowns>
-{unknowns}
+{initial}
     </InitialUnknowns>
   </ModelStructure>
 </fmiModelDescription>
