@@ -100,6 +100,14 @@ def variant_tasks(sweep: Sweep, out_dir: Path) -> list[VariantTask]:
                         metrics) for v in sweep.variants]
 
 
+#: How long to wait for an existing Dask scheduler (--scheduler) to answer, s.
+SCHEDULER_CONNECT_TIMEOUT_S = 5.0
+
+
+class SchedulerUnreachable(ConnectionError):
+    """The --scheduler address did not answer (message names it and the timeout)."""
+
+
 @contextlib.contextmanager
 def dask_client(workers: int | None = None, scheduler: str | None = None, retries: int = 2) -> Iterator[Any]:
     """A ``dask.distributed.Client``: on ``scheduler`` if given, else on a new embedded LocalCluster of
@@ -108,7 +116,14 @@ def dask_client(workers: int | None = None, scheduler: str | None = None, retrie
     from dask.distributed import Client, LocalCluster
 
     if scheduler:
-        with Client(scheduler) as client:
+        try:
+            client = Client(scheduler, timeout=SCHEDULER_CONNECT_TIMEOUT_S)
+        except (OSError, TimeoutError, ValueError, TypeError) as exc:
+            raise SchedulerUnreachable(f"--scheduler {scheduler!r}: no Dask scheduler answered within "
+                                       f"{SCHEDULER_CONNECT_TIMEOUT_S:g} s ({type(exc).__name__}: "
+                                       f"{str(exc).splitlines()[0] if str(exc) else ''}); expected the address "
+                                       f"of a running scheduler such as tcp://host:8786") from None
+        with client:
             yield client
         return
     with dask.config.set({"distributed.scheduler.allowed-failures": retries}):
@@ -237,5 +252,5 @@ def _run_tasks(client: Any, sweep: Sweep, todo: list[VariantTask], rows: dict[in
         bar.close()
 
 
-__all__ = ["SWEEP_FILE", "SweepResult", "TABLE_FILE", "VARIANTS_DIR", "dask_client", "default_out_dir", "run_sweep",
+__all__ = ["SCHEDULER_CONNECT_TIMEOUT_S", "SWEEP_FILE", "SchedulerUnreachable", "SweepResult", "TABLE_FILE", "VARIANTS_DIR", "dask_client", "default_out_dir", "run_sweep",
            "variant_tasks"]
