@@ -27,8 +27,8 @@ The caller accepts the result only when ``|e|^2`` and ``|dq|^2`` are below Numer
 acceptance bound (then NumericIK's tolerance holds, see
 ``NumericIK._acceptance_bound``), ``q`` is inside the limits and the Jacobian is not
 singular; otherwise it takes the Python path (NumericIK with its fallbacks). The
-generated library is cached in ``build/controller_core/`` by the SHA-256 of its C
-source (a lock serialises concurrent builders).
+generated library is built and cached by the project's native layer (:mod:`native`,
+keyed by the SHA-256 of its generated C source, compiler, flags and Python version).
 
 The same library holds ``fast_cycle_run`` (``controller/fast_cycle.c``): the whole
 compiled-path cycle around the kernel (stop check, acceptance, drive set-point
@@ -39,11 +39,7 @@ shaping, set-points, log row) in one foreign call, bound once by
 from __future__ import annotations
 
 import ctypes
-import fcntl
 import hashlib
-import os
-import shutil
-import subprocess
 import tempfile
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -51,6 +47,8 @@ from typing import TYPE_CHECKING
 import casadi as ca
 import numpy as np
 import pinocchio as pin
+
+import native
 
 from robot.dynamics import RobotDynamics
 from robot.symbolic import chain_structure, inverse_dynamics_expression
@@ -61,7 +59,6 @@ if TYPE_CHECKING:
 
 N_JOINTS = 6
 FUNCTION_NAME = "controller_cycle"
-CACHE_DIR = Path(__file__).resolve().parents[1] / "build" / "controller_core"
 CFLAGS = ("-O2", "-fPIC", "-shared", "-std=c99", "-ffp-contract=off")
 FAST_CYCLE_SOURCE = Path(__file__).with_name("fast_cycle.c")
 FAST_STOP_CHECK, FAST_REJECTED = 2, -1
@@ -71,7 +68,7 @@ failed a check (the Python path redoes the cycle)."""
 _SMALL_ANGLE = 1e-5
 
 
-class CompiledCycleError(RuntimeError):
+class CompiledCycleError(native.NativeBuildError):
     """Generating or compiling the cycle kernel failed (message holds the compiler output)."""
 
 
@@ -158,43 +155,21 @@ def _generate_c(function: ca.Function) -> str:
         return (Path(tmp) / f"{FUNCTION_NAME}.c").read_text()
 
 
-def build_library(function: ca.Function, cache_dir: Path = CACHE_DIR) -> Path:
-    """Generate, compile (once per source hash) and return the shared library's path
-    (the generated kernel and ``fast_cycle.c``)."""
+def build_library(function: ca.Function) -> Path:
+    """Generate, compile (once per cache key, :func:`native.build`) and return the shared
+    library's path (the generated kernel and ``fast_cycle.c``)."""
     source = _generate_c(function)
-    fast_source = FAST_CYCLE_SOURCE.read_text()
-    compiler = os.environ.get("CC", "gcc")
-    digest = hashlib.sha256((source + fast_source + compiler + " ".join(CFLAGS)).encode()).hexdigest()[:16]
+
+    def generate(folder: Path) -> list[Path]:
+        c_file = folder / f"{FUNCTION_NAME}.c"
+        c_file.write_text(source)
+        return [c_file]
+
     try:
-        cache_dir.mkdir(parents=True, exist_ok=True)
-        if not os.access(cache_dir, os.W_OK):
-            raise PermissionError(str(cache_dir))
-    except OSError:  # e.g. a read-only installation: use a per-user temporary cache
-        cache_dir = Path(tempfile.gettempdir()) / f"controller_core-{os.getuid()}"
-        cache_dir.mkdir(parents=True, exist_ok=True)
-    library = cache_dir / f"{FUNCTION_NAME}-{digest}.so"
-    if library.is_file():
-        return library
-    with open(cache_dir / ".lock", "w") as lock:
-        fcntl.flock(lock, fcntl.LOCK_EX)
-        if library.is_file():
-            return library
-        with tempfile.TemporaryDirectory(dir=cache_dir) as tmp:
-            c_file = Path(tmp) / f"{FUNCTION_NAME}.c"
-            c_file.write_text(source)
-            fast_file = Path(tmp) / FAST_CYCLE_SOURCE.name
-            fast_file.write_text(fast_source)
-            out = Path(tmp) / library.name
-            try:
-                result = subprocess.run([compiler, *CFLAGS, str(c_file), str(fast_file), "-o", str(out), "-lm"],
-                                        capture_output=True, text=True, timeout=300)
-            except (OSError, subprocess.TimeoutExpired) as exc:
-                raise CompiledCycleError(f"controller kernel: could not run the C compiler {compiler!r}: {exc}") \
-                    from None
-            if result.returncode != 0:
-                raise CompiledCycleError(f"controller kernel: {compiler} failed:\n{result.stderr[-4000:]}")
-            shutil.move(str(out), library)
-    return library
+        return native.build("controller_cycle", [FAST_CYCLE_SOURCE], generate=generate,
+                            key=hashlib.sha256(source.encode()).digest(), cflags=CFLAGS)
+    except native.NativeBuildError as exc:
+        raise CompiledCycleError(f"controller kernel: {exc}") from None
 
 
 class FastPlan(ctypes.Structure):
@@ -235,11 +210,13 @@ class CompiledCycle:
     their memory for the object's life (the fast cycle holds their addresses).
     """
 
-    def __init__(self, kinematic_model: pin.Model, dynamics: RobotDynamics | None,
-                 cache_dir: Path = CACHE_DIR) -> None:
+    def __init__(self, kinematic_model: pin.Model, dynamics: RobotDynamics | None) -> None:
         function = cycle_function(kinematic_model, dynamics)
-        self.library_path = build_library(function, cache_dir)
-        self._lib = ctypes.CDLL(str(self.library_path))
+        self.library_path = build_library(function)
+        try:
+            self._lib = native.load_ctypes(self.library_path)
+        except native.NativeBuildError as exc:
+            raise CompiledCycleError(f"controller kernel: {exc}") from None
         fn = getattr(self._lib, FUNCTION_NAME)
         fn.restype = ctypes.c_int
         fn.argtypes = [ctypes.c_void_p] * 4 + [ctypes.c_int]

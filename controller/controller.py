@@ -51,6 +51,7 @@ from functools import partial
 import numpy as np
 import pinocchio as pin
 
+import native
 from controller.cycle_timer import CycleTimer, TimingSummary
 from controller.drive_compensation import DriveLoopModel, SetpointShaper
 from controller.feedforward import FeedForward
@@ -272,10 +273,13 @@ class Controller:
             self._ik.reset(self.q_start)
         self.kernel: CompiledCycle | None = None
         self.kernel_note = "not used (joint reference)" if self._ik is None else "disabled (config.compiled)"
-        if self._ik is not None and self.config.compiled:
+        if self._ik is not None and self.config.compiled and native.mode() == "off":
+            self.kernel_note = "disabled (COSIM_NATIVE=off)"
+        elif self._ik is not None and self.config.compiled:
             try:
                 self.kernel = CompiledCycle(self.kinematic_model, self.dynamics)
             except CompiledCycleError as exc:
+                native.fallback("controller cycle kernel", exc)  # raises under COSIM_NATIVE=require
                 self.kernel_note = f"unavailable, Python path used: {exc}"
             else:
                 self.kernel_note = str(self.kernel.library_path)

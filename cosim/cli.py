@@ -86,14 +86,26 @@ def defer_signals() -> Iterator[None]:
         _SignalState.armed = armed
 
 
-def install_signal_handlers() -> None:
-    """SIGINT and SIGTERM raise :class:`~cosim.commands.exits.Interrupted` (a KeyboardInterrupt) once."""
+def install_signal_handlers() -> dict[int, object]:
+    """SIGINT and SIGTERM raise :class:`~cosim.commands.exits.Interrupted` (a KeyboardInterrupt) once;
+    returns the previous handlers (for :func:`restore_signal_handlers`)."""
     _SignalState.armed = True
     _SignalState.deferred = []
+    previous: dict[int, object] = {}
     for signum in (signal.SIGINT, signal.SIGTERM):
         try:
-            signal.signal(signum, _on_signal)
+            previous[signum] = signal.signal(signum, _on_signal)
         except (ValueError, OSError):  # not the main thread: leave the defaults
+            pass
+    return previous
+
+
+def restore_signal_handlers(previous: dict[int, object]) -> None:
+    """Put back the handlers :func:`install_signal_handlers` replaced."""
+    for signum, handler in previous.items():
+        try:
+            signal.signal(signum, handler if handler is not None else signal.SIG_DFL)
+        except (ValueError, OSError, TypeError):
             pass
 
 
@@ -111,7 +123,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     debug = bool(getattr(args, "debug", False))
-    install_signal_handlers()
+    previous = install_signal_handlers()
     try:
         return int(args._run(args) or 0)
     except CommandError as exc:
@@ -140,3 +152,5 @@ def main(argv: Sequence[str] | None = None) -> int:
             traceback.print_exc()
         return _error(f"internal error in '{args.command}': {type(exc).__name__}: {exc}"
                       + ("" if debug else " (run with --debug for the traceback)"), EXIT_FAILED)
+    finally:
+        restore_signal_handlers(previous)

@@ -8,54 +8,23 @@ their Python code, which stays the reference (identical results, tested in
 ``tests/test_fieldbus_fast_paths.py``). On this machine a cycle of six nodes costs
 about 250 000 instructions in Python and about a half of that with the codec.
 
-The extension is compiled with the system C compiler (``$CC``, default ``cc``) against
-this interpreter's headers into ``<repo>/build/fieldbus_codec/`` (or
-``$COSIM_BUILD_DIR/fieldbus_codec/``, else ``~/.cache/rx130l-cosim/fieldbus_codec/``); the
-file name carries a hash of the source, compiler and interpreter, the build is atomic.
+The extension is built against this interpreter's headers and cached by the project's
+native layer (:mod:`native`: per-user cache, lock, atomic replacement; ``COSIM_NATIVE=require``
+turns a failed build into an error, ``auto`` runs the Python path and says so once).
 ``FIELDBUS_CODEC=python`` in the environment disables it.
 """
 from __future__ import annotations
 
-import hashlib
-import importlib.machinery
-import importlib.util
 import os
-import shutil
-import subprocess
-import sys
-import sysconfig
-import tempfile
 from functools import lru_cache
 from pathlib import Path
 from types import ModuleType
 
+import native
+
 SOURCE = Path(__file__).with_name("codec.c")
 MODULE_NAME = "fieldbus_codec"
 CFLAGS = ("-O2", "-shared", "-fPIC", "-std=c99", "-ffp-contract=off", "-fno-strict-aliasing")
-
-
-def _build_dirs() -> list[Path]:
-    dirs = []
-    if os.environ.get("COSIM_BUILD_DIR"):
-        dirs.append(Path(os.environ["COSIM_BUILD_DIR"]) / MODULE_NAME)
-    dirs.append(Path(__file__).resolve().parents[1] / "build" / MODULE_NAME)
-    dirs.append(Path.home() / ".cache" / "rx130l-cosim" / MODULE_NAME)
-    return dirs
-
-
-def _compile(target: Path, compiler: str, include: str) -> None:
-    target.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(suffix=".so", dir=target.parent)
-    os.close(fd)
-    try:
-        subprocess.run([compiler, *CFLAGS, f"-I{include}", "-o", tmp, str(SOURCE), "-lm"],
-                       check=True, capture_output=True, text=True, timeout=300)
-        os.replace(tmp, target)
-    except subprocess.CalledProcessError as exc:
-        raise OSError(f"compiling {SOURCE} failed:\n{exc.stderr[-4000:]}") from exc
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
 
 
 def _register_message_types(module: ModuleType) -> None:
@@ -67,33 +36,20 @@ def _register_message_types(module: ModuleType) -> None:
     module.register_message_types(can.Message, FastMessage)
 
 
+def _build_and_load() -> ModuleType:
+    library = native.build(MODULE_NAME, [SOURCE], cflags=CFLAGS, python_extension=True)
+    module = native.load_extension(MODULE_NAME, library)
+    _register_message_types(module)
+    return module
+
+
 @lru_cache(maxsize=1)
 def load_codec() -> ModuleType | None:
-    """The compiled codec module (built if needed), or None (no compiler or headers, or
-    ``FIELDBUS_CODEC=python``)."""
+    """The compiled codec module (built if needed), or None (``FIELDBUS_CODEC=python``,
+    ``COSIM_NATIVE=off``, or it cannot be built and ``COSIM_NATIVE`` is not ``require``)."""
     if os.environ.get("FIELDBUS_CODEC", "").lower() == "python":
         return None
-    compiler = os.environ.get("CC") or shutil.which("cc") or shutil.which("gcc")
-    include = sysconfig.get_paths().get("include", "")
-    if compiler is None or not (Path(include) / "Python.h").is_file():
-        return None
-    suffix = importlib.machinery.EXTENSION_SUFFIXES[0]
-    digest = hashlib.sha1(SOURCE.read_bytes() + compiler.encode() + " ".join(CFLAGS).encode()
-                          + sys.version.encode()).hexdigest()[:12]
-    for directory in _build_dirs():
-        target = directory / f"{MODULE_NAME}-{digest}{suffix}"
-        try:
-            if not target.exists():
-                _compile(target, compiler, include)
-            loader = importlib.machinery.ExtensionFileLoader(MODULE_NAME, str(target))
-            spec = importlib.util.spec_from_file_location(MODULE_NAME, str(target), loader=loader)
-            module = importlib.util.module_from_spec(spec)
-            loader.exec_module(module)
-            _register_message_types(module)
-            return module
-        except (OSError, ImportError, subprocess.SubprocessError):
-            continue
-    return None
+    return native.optional("fieldbus codec", _build_and_load)
 
 
 __all__ = ["load_codec", "SOURCE"]

@@ -37,6 +37,7 @@ from fieldbus.recorder import FrameRecorder
 from fieldbus.scaling import JointScaling
 from fieldbus.simbus import register as register_simbus
 from fieldbus.simbus import unique_channel
+from fieldbus.udpcycle import register as register_udpcycle
 from fieldbus.telegrams import EMCY_BASE, RPDO1_BASE, SYNC_ID, TPDO1_BASE, TPDO2_BASE, FastMessage
 from fieldbus.timing import CycleLayout, CycleSchedule, check_cycle_budget
 
@@ -64,6 +65,8 @@ def open_bus(config: FieldbusConfig, side: str, channel: str | int) -> can.BusAB
     bus_cfg = config.bus
     kwargs: dict[str, Any] = dict(bus_cfg.options)
     interface = bus_cfg.interface
+    if interface == "udpcycle":
+        register_udpcycle()
     if interface == "simbus":
         register_simbus()
     elif interface == "virtual":
@@ -126,6 +129,9 @@ class _Endpoint(Closeable):
         self.frames_sent = 0
         self.frames_dropped = 0
         self.frames_missing = 0  # sent, but an asynchronous interface did not deliver it in time
+        self.frames_late = 0  # paced cell side: frames that missed their cycle's window
+        self._align: int | None = None  # paced cell side: controller SoC counter - 1 - cycle (mod overflow)
+        self._last_taken = -1  # paced cell side: last cycle whose group was taken
 
     # ------------------------------------------------------------------ cycle bookkeeping
     def _begin(self, cycle: int) -> None:
@@ -305,12 +311,113 @@ class DriveEndpoint(_Endpoint):
     ``log_path`` records the frames this side sends and receives."""
 
     side = "cn"
+    #: paced cell side: cycles without the controller's group after which its next SoC re-synchronises
+    REALIGN_AFTER = 2
 
     def __init__(self, config: FieldbusConfig | dict | None, scaling: JointScaling, **kwargs: Any) -> None:
         super().__init__(config, scaling, **kwargs)
         self.nodes = ControlledNodes(self.config, scaling, self.layout, self.events)
         self._emcy_offset = (self.layout.nominal_end_of_isochronous + self.layout.mn_turnaround
                              + self.layout.wire_soa + self.layout.cn_response)
+
+    def run_cycle_paced(self, cycle: int, actuals: DriveActuals, deadline: float,
+                        clock=time.monotonic) -> AppliedSetpoints:
+        """The cell side of a hardware-in-the-loop run: like :meth:`run_cycle`, but the
+        drives keep their own time and never wait for the controller beyond ``deadline``
+        (a ``clock()`` value, wall seconds).
+
+        The window of cycle k collects what the controller (the managing node, any
+        program on the bus) sent: a *group* is a SoC followed by PReqs. The first group
+        taken fixes how the controller's SoC counter maps onto the cell's cycles; from
+        then on cycle k takes only the group carrying cycle k's counter (its frames get
+        this cycle's scheduled timestamps). Anything else in the window - a group that
+        missed its own cycle's window, frames without a SoC - is late and dropped
+        (counted in :attr:`frames_late`, logged). A cycle whose window ends without its
+        group has lost its SoC and PReqs: the nodes' threshold counters count it (+8,
+        -1 per good cycle) exactly as for frames lost on the wire, and the drives hold
+        or extrapolate the set-point. After more than ``REALIGN_AFTER`` cycles without
+        a group (a controller that restarted), the newest group is taken and fixes the
+        mapping anew. The PRes frames go out every cycle, polled or
+        not, so a controller can pace itself on them."""
+        self._begin(cycle)
+        cn = self.nodes
+        applied = cn.start_cycle(cycle, actuals)
+        group = self._newest_group(cycle, deadline, clock)
+        if group:
+            cn.receive_all(group)
+        self._transmit(cn.responses(self._times, answer_all=True))
+        cn.end_cycle(cycle)
+        emcy = cn.emergency_messages(self._t0 + cycle * self._cycle_time + self._emcy_offset)
+        if emcy:
+            saved, self._kinds = self._kinds, _NO_FAULTS
+            self._transmit(emcy)
+            self._kinds = saved
+        self._flush_own_recording(cycle)
+        return applied
+
+    def _read_now(self) -> list:
+        """Every frame that has arrived, without waiting."""
+        if self._drain is not None:
+            return self._drain()
+        bus, batch = self.bus, []
+        msg = bus.recv(0)
+        while msg is not None:
+            batch.append(msg)
+            msg = bus.recv(0)
+        return batch
+
+    def _newest_group(self, cycle: int, deadline: float, clock) -> list:
+        """This cycle's SoC + PReqs (restamped), see :meth:`run_cycle_paced`."""
+        n = self.config.nodes
+        overflow = self.nodes._sync_overflow
+        groups: list[list] = []
+        stale = 0
+        preqs = {RPDO1_BASE + i + 1 for i in range(n)}
+        expected = None if self._align is None else bytes([(cycle + self._align) % overflow + 1])
+        pending: list = []
+        while True:
+            for msg in pending + self._read_now():
+                if msg.arbitration_id == SYNC_ID and not msg.is_error_frame:
+                    groups.append([msg])
+                elif groups:
+                    groups[-1].append(msg)
+                else:
+                    stale += 1
+            if groups and bytes(groups[-1][0].data[:1]) == expected and \
+                    preqs <= {m.arbitration_id for m in groups[-1]}:
+                break
+            remaining = deadline - clock()
+            if remaining <= 0.0:
+                break
+            msg = self.bus.recv(min(remaining, 0.002))
+            pending = [] if msg is None else [msg]
+        chosen = None
+        for index in range(len(groups) - 1, -1, -1):
+            if bytes(groups[index][0].data[:1]) == expected:
+                chosen = index
+                break
+        if chosen is None and groups and (self._align is None or cycle - self._last_taken > self.REALIGN_AFTER):
+            chosen = len(groups) - 1  # (re)synchronise on the controller's newest SoC
+            self._align = (groups[chosen][0].data[0] - 1 - cycle) % overflow if groups[chosen][0].data else 0
+        late = stale + sum(len(g) for i, g in enumerate(groups) if i != chosen)
+        if late:
+            self.frames_late += late
+            self.events.add(FieldbusEvent(self._t0 + cycle * self._cycle_time, cycle, "cn", 0, "late_frames",
+                                          "dropped", late, self.frames_late, -1,
+                                          f"{late} frame(s) from the controller missed their cycle's window"))
+        if chosen is None:
+            return []
+        self._last_taken = cycle
+        times = self._times
+        out = [FastMessage(times[0], SYNC_ID, bytearray([cycle % overflow + 1]))]
+        for msg in groups[chosen][1:]:
+            base, node = msg.arbitration_id & ~0x7F, msg.arbitration_id & 0x7F
+            on_time = base == RPDO1_BASE and 1 <= node <= n and times[node] is not None
+            msg.timestamp = times[node] if on_time else times[0]
+            out.append(msg)
+        if self._record is not None and (self._record_received or self._owns_recorder):
+            self._record(out)  # what the cell took, with the cycle's timestamps
+        return out
 
     def run_cycle(self, cycle: int, actuals: DriveActuals) -> AppliedSetpoints:
         """SoC of ``cycle``: latch ``actuals``, apply the due set-points, receive the

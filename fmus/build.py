@@ -18,7 +18,6 @@ import hashlib
 import os
 import platform
 import shutil
-import subprocess
 import sys
 import tempfile
 import zipfile
@@ -28,6 +27,7 @@ from typing import Callable
 
 import fmpy
 
+import native
 from fmus.fmi2_spec import FmuSpec
 
 FMUS_DIR: Path = Path(__file__).resolve().parent
@@ -45,7 +45,7 @@ _COMMON_INPUTS: tuple[tuple[Path, str], ...] = (
 )
 
 
-class FmuBuildError(RuntimeError):
+class FmuBuildError(native.NativeBuildError):
     """Generating, compiling or packing an FMU failed (the message has the compiler output)."""
 
 
@@ -89,7 +89,19 @@ RECIPES: dict[str, Callable[[], FmuRecipe]] = {
 
 
 def _compiler() -> str:
-    return os.environ.get("CC", "gcc")
+    """The C compiler of the native layer (:func:`native.compiler`)."""
+    cc = native.compiler()
+    if cc is None:
+        raise FmuBuildError("C compiler not found: install gcc or set $CC")
+    return cc
+
+
+def default_out_dir() -> Path:
+    """``build/fmus`` in a source checkout, else ``fmus/`` in the per-user cache of the
+    native layer (an installed package never writes into its own folder)."""
+    if (REPO_ROOT / "pyproject.toml").is_file() and os.access(REPO_ROOT, os.W_OK):
+        return DEFAULT_OUT_DIR
+    return native.cache_root() / "fmus"
 
 
 def _platform_dir() -> str:
@@ -128,18 +140,16 @@ def compile_binary(sources: Path, c_files: tuple[str, ...], output: Path) -> Non
     output.parent.mkdir(parents=True, exist_ok=True)
     command = [_compiler(), *CFLAGS, f"-I{sources}", *(str(sources / f) for f in c_files), "-o", str(output), "-lm"]
     try:
-        result = subprocess.run(command, capture_output=True, text=True, check=False)
-    except FileNotFoundError as exc:
-        raise FmuBuildError(f"C compiler {command[0]!r} not found (set $CC): {exc}") from exc
-    if result.returncode != 0:
-        raise FmuBuildError(f"compiling {output.name} failed ({' '.join(command)}):\n{result.stderr}")
+        native.run_compiler(command, f"compiling {output.name}")
+    except native.NativeBuildError as exc:
+        raise FmuBuildError(str(exc)) from None
 
 
 def build_fmu(model_identifier: str, out_dir: str | Path | None = None, force: bool = False) -> tuple[Path, bool]:
     """Build one FMU if its inputs changed; return ``(path, rebuilt)``."""
     if model_identifier not in RECIPES:
         raise ValueError(f"model_identifier = {model_identifier!r}, expected one of {sorted(RECIPES)}")
-    out = Path(out_dir or DEFAULT_OUT_DIR)
+    out = Path(out_dir or default_out_dir())
     out.mkdir(parents=True, exist_ok=True)
     recipe = RECIPES[model_identifier]()
     target = out / f"{model_identifier}.fmu"

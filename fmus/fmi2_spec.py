@@ -69,6 +69,9 @@ class Variable:
     max: float | None = None
     index: int = 0
     array_length: int = 1
+    #: names of the knowns (inputs and parameters) an output depends on in Initialization
+    #: Mode (ModelStructure/InitialUnknowns); () = none
+    depends_on: tuple[str, ...] = ()
 
     @property
     def variability(self) -> str:
@@ -99,10 +102,12 @@ class FmuSpec:
     # -- building the list -------------------------------------------------
     def add(self, name: str, type_: str, causality: str, description: str, *,
             unit: str | None = None, start: float | int | None = None,
-            min: float | None = None, max: float | None = None) -> None:
-        """Add one scalar variable named ``name`` (C name derived from it)."""
+            min: float | None = None, max: float | None = None, depends_on: tuple[str, ...] = ()) -> None:
+        """Add one scalar variable named ``name`` (C name derived from it). ``depends_on``
+        (outputs only): the inputs and parameters its value in Initialization Mode depends on."""
         c_name = re.sub(r"[^A-Za-z0-9]", "_", name).upper()
-        self._append(Variable(name, c_name, type_, causality, description, unit, start, min, max))
+        self._append(Variable(name, c_name, type_, causality, description, unit, start, min, max,
+                              depends_on=tuple(depends_on)))
 
     def add_array(self, base: str, starts: list[float], causality: str, description: str, *,
                   unit: str | None = None, min: float | None = None, max: float | None = None,
@@ -183,8 +188,19 @@ class FmuSpec:
             exps = " ".join(f'{k}="{e}"' for k, e in UNITS[unit].items())
             unit_xml.append(f'    <Unit name="{unit}"><BaseUnit {exps}/></Unit>' if exps
                             else f'    <Unit name="{unit}"/>')
-        outputs = [i + 1 for i, v in enumerate(self.variables) if v.causality == OUTPUT]
-        unknowns = "\n".join(f'      <Unknown index="{i}" dependencies=""/>' for i in outputs)
+        index = {v.name: i + 1 for i, v in enumerate(self.variables)}
+        outputs = [v for v in self.variables if v.causality == OUTPUT]
+        for v in outputs:
+            for name in v.depends_on:
+                known = next((w for w in self.variables if w.name == name), None)
+                if known is None or known.causality not in (INPUT, PARAMETER):
+                    raise SpecError(f"variable {v.name!r}: depends_on names {name!r}, expected an input or "
+                                    "parameter of this FMU")
+        # co-simulation outputs change only in fmi2DoStep: no direct feed-through
+        unknowns = "\n".join(f'      <Unknown index="{index[v.name]}" dependencies=""/>' for v in outputs)
+        initial = "\n".join(
+            f'      <Unknown index="{index[v.name]}" dependencies="{" ".join(str(i) for i in sorted(index[n] for n in v.depends_on))}"/>'
+            for v in outputs)
         sources = "\n".join(f'      <File name="{f}"/>' for f in self.source_files)
         return f"""<?xml version="1.0" encoding="UTF-8"?>
 <fmiModelDescription
@@ -222,7 +238,7 @@ class FmuSpec:
 {unknowns}
     </Outputs>
     <InitialUnknowns>
-{unknowns}
+{initial}
     </InitialUnknowns>
   </ModelStructure>
 </fmiModelDescription>

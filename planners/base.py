@@ -4,8 +4,9 @@ A planner is a small class with a ``name`` and a ``plan(problem) -> PlanResult``
 method. Every planner of this package (own CP/PtP, TOPP-RA, Ruckig) implements it,
 so a user can add their own planner and compare it in the same scenario:
 
->>> class MyPlanner(Planner):
+>>> class MyPlanner:                 # satisfies the Planner protocol (inheriting is optional)
 ...     name = "mine"
+...     kind = "cp"
 ...     def plan(self, problem):
 ...         ...                      # build a Trajectory
 ...         return PlanResult(status=PlanStatus.FEASIBLE, trajectory=traj, solve_time_s=dt)
@@ -19,7 +20,7 @@ import dataclasses
 import math
 from dataclasses import dataclass, field
 from enum import Enum
-from typing import Any, Literal
+from typing import Any, Literal, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -221,13 +222,31 @@ class PlanResult:
         return self.status.has_trajectory and self.trajectory is not None
 
 
-class Planner(abc.ABC):
-    """Interface of every trajectory planner: ``plan(problem) -> PlanResult``.
+@runtime_checkable
+class Planner(Protocol):
+    """The planner contract: ``name``, ``kind`` and ``plan(problem) -> PlanResult``.
 
-    ``kind`` says which problem type the planner accepts ("cp" for CPProblem,
-    "ptp" for PtPProblem). A planner never raises for a request that simply cannot
-    be met; it returns a PlanResult whose status says so. It raises
-    PlannerInputError (a ValueError) for malformed input.
+    A ``typing.Protocol``: a user's planner satisfies it by having these three members,
+    with or without inheriting from ``Planner`` (inheriting gives the defaults below and
+    makes a missing ``plan`` an error at instantiation). Contract:
+
+    * ``name`` (str): a short identifier (letters, digits, ``_ - .``) unique in a scenario;
+      the scenario's results use it (``trajectory_<name>.csv``, ``planners.<name>``).
+    * ``kind`` ("cp" or "ptp"): which problem ``plan`` accepts — a :class:`CPProblem`
+      (a fixed joint path q(sigma), find the time law) or a :class:`PtPProblem` (start
+      and end state, free path).
+    * ``plan(problem)``: returns a :class:`PlanResult`; its ``trajectory`` is a
+      :class:`planners.trajectory.Trajectory` (t strictly increasing, sampled at 1 ms or
+      finer; q, qd, qdd, tau of shape (n, 6) in rad, rad/s, rad/s^2, N m) when
+      ``status`` is OPTIMAL or FEASIBLE, else None. A planner never raises for a request
+      that simply cannot be met: it returns status INFEASIBLE or FAILED with a
+      ``message``. It raises :class:`PlannerInputError` (a ValueError) for malformed input.
+      ``plan`` is called once per scenario entry, before the cell runs (never inside
+      the 400 us cycle), so it may take seconds.
+
+    A scenario names a user planner in ``[planners] run`` as ``"file.py:MyPlanner"`` or
+    ``"package.module:MyPlanner"``; it is instantiated with the keyword arguments of
+    ``[planners.parameters."<that entry>"]`` (docs/bring_your_own.md).
     """
 
     name: str = "planner"

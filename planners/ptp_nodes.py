@@ -22,19 +22,16 @@ Three CasADi functions are generated from these SX expressions:
 
 Building the symbolic Hessian takes a few seconds and evaluating it in CasADi's virtual
 machine about 4x longer than compiled C, so the three functions are compiled once with
-gcc (CasADi code generation) into ``build/ptp_nodes/`` (``$COSIM_BUILD_DIR/ptp_nodes``
-if set, ``~/.cache/rx130l-cosim/ptp_nodes`` if the repository is read-only), named by a
-SHA-256 of the kinematic structure and this module's ``NODE_CODE_VERSION``. Without a C
-compiler the SX functions are used as they are (slower, same results).
+gcc (CasADi code generation) by the project's native layer (:mod:`native`, per-user
+cache), keyed by a SHA-256 of the kinematic structure and this module's
+``NODE_CODE_VERSION``. Without a C compiler the SX functions are used as they are
+(slower, same results; ``COSIM_NATIVE=require`` makes that an error).
 """
 from __future__ import annotations
 
 import dataclasses
 import hashlib
 import os
-import shutil
-import subprocess
-import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -42,6 +39,7 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
+import native
 from robot.dynamics import COULOMB_SLICE, N_PARAMETERS, VISCOUS_SLICE
 from robot.symbolic import ChainStructure, inverse_dynamics_expression
 
@@ -127,15 +125,6 @@ def _structure_key(structure: ChainStructure) -> str:
     return digest.hexdigest()[:16]
 
 
-def _build_dirs() -> list[Path]:
-    dirs = []
-    if os.environ.get("COSIM_BUILD_DIR"):
-        dirs.append(Path(os.environ["COSIM_BUILD_DIR"]) / "ptp_nodes")
-    dirs.append(Path(__file__).resolve().parents[1] / "build" / "ptp_nodes")
-    dirs.append(Path.home() / ".cache" / "rx130l-cosim" / "ptp_nodes")
-    return dirs
-
-
 def _sparsity_to_text(sp: ca.Sparsity) -> str:
     rows, cols = sp.get_triplet()
     return f"{sp.size1()} {sp.size2()}\n" + " ".join(map(str, rows)) + "\n" + " ".join(map(str, cols)) + "\n"
@@ -149,28 +138,28 @@ def _sparsity_from_text(text: str) -> ca.Sparsity:
     return ca.Sparsity.triplet(n1, n2, rows, cols)
 
 
-def _compile(functions: tuple[ca.Function, ...], sparsities: tuple[ca.Sparsity, ca.Sparsity],
-             library: Path) -> None:
-    compiler = os.environ.get("CC") or shutil.which("gcc") or shutil.which("cc")
-    if compiler is None:
-        raise OSError("no C compiler (gcc/cc) found")
-    library.parent.mkdir(parents=True, exist_ok=True)
-    with tempfile.TemporaryDirectory(dir=library.parent) as tmp:
-        source = Path(tmp) / "ptp_nodes.c"
+def _build(structure: ChainStructure, key: str, made: dict) -> Path:
+    """The compiled library of the node functions (generated only when not cached)."""
+
+    def generate(folder: Path) -> list[Path]:
+        functions = _symbolic_functions(structure)
+        sparsities = _SPARSITY_CACHE.pop(id(functions[0]))
+        made["functions"], made["sparsities"] = functions, sparsities
+        source = folder / "ptp_nodes.c"
         generator = ca.CodeGenerator(source.name, {"with_header": False})
         for function in functions:
             generator.add(function)
-        generator.generate(str(Path(tmp)) + os.sep)
-        built = Path(tmp) / library.name
-        subprocess.run([compiler, *CFLAGS, str(source), "-o", str(built), "-lm"], check=True,
-                       capture_output=True, text=True)
-        sidecar = Path(tmp) / (library.name + ".sparsity")
-        sidecar.write_text(_sparsity_to_text(sparsities[0]) + _sparsity_to_text(sparsities[1]))
-        os.replace(sidecar, library.with_name(library.name + ".sparsity"))
-        os.replace(built, library)
+        generator.generate(str(folder) + os.sep)
+        (folder / "ptp_nodes.so.sparsity").write_text(_sparsity_to_text(sparsities[0])
+                                                      + _sparsity_to_text(sparsities[1]))
+        return [source]
+
+    return native.build("ptp_nodes", generate=generate, key=key.encode(), cflags=CFLAGS)
 
 
 def _load(library: Path) -> tuple[tuple[ca.Function, ...], tuple[ca.Sparsity, ca.Sparsity]]:
+    native.check_private(library.parent)
+    native.check_private(library)
     text = library.with_name(library.name + ".sparsity").read_text().splitlines()
     jac = _sparsity_from_text("\n".join(text[0:3]))
     hess = _sparsity_from_text("\n".join(text[3:6]))
@@ -190,24 +179,17 @@ def node_functions(structure: ChainStructure, compile_code: bool = True) -> Node
 
 def _node_functions(structure: ChainStructure, key: str, compile_code: bool) -> NodeFunctions:
     start = time.perf_counter()
-    if compile_code:
-        for directory in _build_dirs():
-            library = directory / f"ptp_nodes-{key}.so"
-            if library.is_file() and library.with_name(library.name + ".sparsity").is_file():
-                try:
-                    (f, j, h, e), (jsp, hsp) = _load(library)
-                    return NodeFunctions(f, j, h, e, jsp, hsp, True, library, time.perf_counter() - start)
-                except RuntimeError:
-                    continue
-    f, j, h, e = _symbolic_functions(structure)
-    jsp, hsp = _SPARSITY_CACHE.pop(id(f))
-    if compile_code:
-        for directory in _build_dirs():
-            library = directory / f"ptp_nodes-{key}.so"
-            try:
-                _compile((f, j, h, e), (jsp, hsp), library)
-                (fc, jc, hc, ec), _ = _load(library)
-                return NodeFunctions(fc, jc, hc, ec, jsp, hsp, True, library, time.perf_counter() - start)
-            except (OSError, subprocess.CalledProcessError, RuntimeError):
-                continue
+    made: dict = {}
+    if compile_code and native.mode() != "off":
+        try:
+            library = _build(structure, key, made)
+            (f, j, h, e), (jsp, hsp) = _load(library)
+            return NodeFunctions(f, j, h, e, jsp, hsp, True, library, time.perf_counter() - start)
+        except (native.NativeBuildError, OSError, RuntimeError) as exc:
+            native.fallback("PtP node functions", exc)
+    if "functions" in made:
+        (f, j, h, e), (jsp, hsp) = made["functions"], made["sparsities"]
+    else:
+        f, j, h, e = _symbolic_functions(structure)
+        jsp, hsp = _SPARSITY_CACHE.pop(id(f))
     return NodeFunctions(f, j, h, e, jsp, hsp, False, None, time.perf_counter() - start)

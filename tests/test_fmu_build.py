@@ -3,6 +3,7 @@ carry sources that rebuild them, and export only the FMI functions."""
 import ctypes
 import shutil
 import subprocess
+import sys
 import zipfile
 from pathlib import Path
 
@@ -92,7 +93,7 @@ def test_only_fmi_symbols_are_exported(paths, tmp_path, name, hidden):
 
 
 def test_cli_build_fmus(tmp_path):
-    result = subprocess.run(["python", "-m", "cosim", "build-fmus", "--out", str(tmp_path)],
+    result = subprocess.run([sys.executable, "-m", "cosim", "build-fmus", "--out", str(tmp_path)],
                             capture_output=True, text=True, check=False, cwd=Path(__file__).resolve().parents[1])
     assert result.returncode == 0, result.stderr
     assert "rx130l_plant" in result.stdout and "valid" in result.stdout

@@ -76,6 +76,7 @@ def describe_os_error(exc: OSError, what: str = "") -> str:
         errno.EPERM: "no permission",
         errno.ENOTDIR: "a path component is a file, not a folder",
         errno.EEXIST: "it exists already",
+        errno.EFBIG: "the file size limit (ulimit -f) is reached",
     }.get(exc.errno or 0, "")
     head = f"{what}: " if what else ""
     text = f"{head}{files + ': ' if files else ''}{reason}"

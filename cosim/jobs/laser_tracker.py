@@ -20,7 +20,7 @@ The tracker is registered to ``base_link`` (its own placement and registration
 errors are not modelled); it always sees the reflector.
 
 Each sample is one call of a small compiled function (``tracker_kernel.c``, built by
-:mod:`cosim.native`): the same forward kinematics as pinocchio on the same model (to
+:mod:`native`): the same forward kinematics as pinocchio on the same model (to
 round-off, tested), reading ``q`` from the master's bus and writing the noisy position
 to the tracker variables; pinocchio's ``forwardKinematics`` through its Python binding
 costs several times more per sample. Without a C compiler, or for a chain the kernel
@@ -36,7 +36,7 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
-from cosim.native import load_library
+from native import load_library
 from robot.description import FLANGE_FRAME
 
 KERNEL_SOURCE = Path(__file__).with_name("tracker_kernel.c")

@@ -34,30 +34,49 @@ from cosim.jobs.tracking_metrics import desired_joints
 from cosim.scenario.context import RunContext
 from cosim.scenario.loader import Scenario
 from cosim.scenario.registry import register_job
-from cosim.scenario.schema import Boolean, Field, Integer, List, Number, String, Table, Where
+from cosim.scenario.schema import AnyValue, Boolean, Field, Integer, List, Number, Spec, String, Table, Where
+from cosim.scenario.user_class import SPEC_FORM, instantiate, is_class_spec, load_user_class
 
 JOB_NAME = "planners"
 
 CP_PLANNERS: tuple[str, ...] = ("own_cp", "toppra")
 PTP_PLANNERS: tuple[str, ...] = ("own_ptp", "ruckig", "ruckig_feasible")
 PLANNERS: tuple[str, ...] = CP_PLANNERS + PTP_PLANNERS
-"""Planner names a scenario may list in ``[planners] run``."""
+"""Built-in planner names a scenario may list in ``[planners] run`` (besides user planner classes)."""
+USER_NAME_PATTERN = r"[A-Za-z0-9_.-]+"
+"""What a user planner's ``name`` may contain (it names result files)."""
 
 SATURATION_FRACTION = 1.0 - 1e-6
 """A drive counts as saturated when |current_demand| >= this fraction of its current clamp."""
 
 SCALE_KINDS: tuple[str, ...] = ("velocity", "acceleration", "jerk", "torque", "torque_rate")
 
+
+
+class PlannerEntry(Spec):
+    """A built-in planner name or a user planner class (``file.py:Class`` / ``module:Class``)."""
+
+    expected = f"one of {', '.join(repr(p) for p in PLANNERS)} or a planner class as {SPEC_FORM}"
+
+    def check(self, value: Any, where: Where) -> str:
+        if isinstance(value, str) and (value in PLANNERS or is_class_spec(value)):
+            return value
+        raise where.error(self.expected, value)
+
+
 PLANNERS_TABLE = Table({
-    "run": Field(List(String(choices=PLANNERS), min_len=1, unique=True), required=True,
-                 doc=f"the planners to run, names among {list(PLANNERS)}"),
+    "run": Field(List(PlannerEntry(), min_len=1, unique=True), required=True,
+                 doc=f"the planners to run: names among {list(PLANNERS)} or user classes as {SPEC_FORM}"),
     "execute": Field(Boolean(), default=False,
                      doc="true: drive each planned trajectory through the co-simulated cell"),
-    "execute_only": Field(List(String(choices=PLANNERS), unique=True),
+    "execute_only": Field(List(PlannerEntry(), unique=True),
                           doc="with execute = true: only these planners (default: all of run)"),
     "plant": Field(String(choices=("true", "nominal")), default="true",
                    doc="the executing plant: 'true' (the [true_robot] table) or 'nominal' (no deviations)"),
     "figures": Field(Boolean(), default=True, doc="write Figures 7, 8, 9"),
+    "parameters": Field(Table({}, extra=Table({}, extra=AnyValue(), doc="keyword arguments of the planner class"),
+                              doc="per user planner entry of run: a table of its constructor's keyword arguments"),
+                        default={}),
 }, doc="the [planners] table")
 
 SCALE_TABLE = Table({kind: Field(Number(gt=0, max=1.0), default=1.0,
@@ -102,6 +121,7 @@ def check(doc: dict[str, Any], where: Where) -> None:
     if problem["k1"] + problem["k2"] <= 0.0:
         raise (where / "problem" / "k2").error("k1 + k2 > 0 (k1 = 1, k2 = 0 is time-optimal)", problem["k2"],
                                                problem="both weights are 0")
+    user_planners(planners, where / "planners")
     only = planners.get("execute_only")
     if only is not None:
         if not planners["execute"]:
@@ -135,6 +155,46 @@ def _ptp_problem(problem_t: dict[str, Any], dynamics: Any):
     return paper_ptp_problem(_limits(problem_t), dynamics, k1=problem_t["k1"], k2=problem_t["k2"],
                              friction=problem_t["friction"], n_intervals=problem_t["ptp_intervals"],
                              paper_limits=problem_t["ptp_limits"] == "eq40")
+
+
+def user_planners(planners_t: dict[str, Any], where: Where) -> dict[str, Any]:
+    """The user planners of ``[planners] run`` (entry -> instance), loaded, instantiated with their
+    ``[planners.parameters."<entry>"]`` and checked against the :class:`planners.base.Planner`
+    contract; ScenarioError at the entry otherwise (also for a name clash)."""
+    import re
+
+    from planners.base import Planner
+
+    params = planners_t.get("parameters") or {}
+    for key in params:
+        if key not in planners_t["run"] or key in PLANNERS:
+            raise (where / "parameters" / key).error("a user planner entry of [planners] run",
+                                                      problem="no such user planner in run")
+    out: dict[str, Any] = {}
+    names = {n: n for n in planners_t["run"] if n in PLANNERS}
+    for k, entry in enumerate(planners_t["run"]):
+        if entry in PLANNERS:
+            continue
+        at = (where / "run")[k]
+        cls = load_user_class(entry, at, "planner class")
+        planner = instantiate(cls, dict(params.get(entry) or {}), (where / "parameters" / entry), "planner class")
+        missing = [m for m in ("name", "kind", "plan") if not hasattr(planner, m)]
+        if missing or not callable(getattr(planner, "plan", None)):
+            raise at.error("a class satisfying planners.base.Planner (name, kind, plan(problem) -> PlanResult)",
+                           entry, problem=f"{cls.__name__} lacks {missing or ['a callable plan']}")
+        if not isinstance(planner, Planner):
+            raise at.error("a class satisfying planners.base.Planner", entry)
+        if planner.kind not in ("cp", "ptp"):
+            raise at.error("a planner whose kind is 'cp' or 'ptp'", entry, problem=f"kind = {planner.kind!r}")
+        name = planner.name
+        if not (isinstance(name, str) and re.fullmatch(USER_NAME_PATTERN, name)):
+            raise at.error(f"a planner whose name matches {USER_NAME_PATTERN}", entry, problem=f"name = {name!r}")
+        if name in names:
+            raise at.error("a planner name not used by another entry of run", entry,
+                           problem=f"name {name!r} is also {names[name]!r}")
+        names[name] = entry
+        out[entry] = planner
+    return out
 
 
 def _planner(name: str):
@@ -244,6 +304,33 @@ def _execute(ctx: RunContext, doc: dict[str, Any], name: str, traj: Any, true_ro
 
 
 # ------------------------------------------------------------------------------------- run
+def plan_checked(planner: Any, problem: Any, entry: str):
+    """``planner.plan(problem)``, its result checked against the contract: a PlanResult whose
+    trajectory is a planners Trajectory when its status has one. A user planner that raises
+    or returns something else gives a PlanResult with status FAILED and the reason as message
+    (the scenario goes on with the other planners)."""
+    import time
+
+    from planners.base import PlanResult, PlanStatus
+    from planners.trajectory import Trajectory
+
+    start = time.perf_counter()
+    try:
+        result = planner.plan(problem)
+    except Exception as exc:  # a user's planner: record, do not crash the scenario
+        return PlanResult(getattr(planner, "name", entry), PlanStatus.FAILED, None, time.perf_counter() - start,
+                          message=f"{entry}: plan() raised {type(exc).__name__}: {exc}")
+    if not isinstance(result, PlanResult):
+        return PlanResult(getattr(planner, "name", entry), PlanStatus.FAILED, None, time.perf_counter() - start,
+                          message=f"{entry}: plan() returned {type(result).__name__}, expected a "
+                                  "planners.base.PlanResult")
+    if result.status.has_trajectory and not isinstance(result.trajectory, Trajectory):
+        return PlanResult(result.planner, PlanStatus.FAILED, None, result.solve_time_s,
+                          message=f"{entry}: status {result.status.value} but trajectory is "
+                                  f"{type(result.trajectory).__name__}, expected a planners.trajectory.Trajectory")
+    return result
+
+
 def run(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
     """Plan with every listed planner, summarise, write CSVs and figures, optionally execute."""
     from fieldbus import FieldbusConfig
@@ -255,8 +342,11 @@ def run(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
     _fill(doc)
     problem_t, planners_t = doc["problem"], doc["planners"]
     dynamics = RobotDynamics()
-    cp = _cp_problem(problem_t, dynamics) if any(n in CP_PLANNERS for n in planners_t["run"]) else None
-    ptp = _ptp_problem(problem_t, dynamics) if any(n in PTP_PLANNERS for n in planners_t["run"]) else None
+    users = user_planners(planners_t, Where(scenario.path) / "planners")
+    instances = {entry: users.get(entry) or _planner(entry) for entry in planners_t["run"]}
+    kinds = {entry: p.kind for entry, p in instances.items()}
+    cp = _cp_problem(problem_t, dynamics) if "cp" in kinds.values() else None
+    ptp = _ptp_problem(problem_t, dynamics) if "ptp" in kinds.values() else None
     executed = (planners_t.get("execute_only") or planners_t["run"]) if planners_t["execute"] else []
     true_robot = fieldbus = None
     if executed:
@@ -270,11 +360,15 @@ def run(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
                        planners={})
     entries: dict[str, dict[str, Any]] = {}
     trajectories: dict[str, Any] = {}
-    for name in planners_t["run"]:
-        problem = cp if name in CP_PLANNERS else ptp
-        result = _planner(name).plan(problem)
+    for run_entry in planners_t["run"]:
+        planner = instances[run_entry]
+        name = planner.name if run_entry in users else run_entry
+        problem = cp if kinds[run_entry] == "cp" else ptp
+        result = plan_checked(planner, problem, run_entry)
         entry = planner_summary(result, problem.limits, dynamics)
-        entry["kind"] = "cp" if name in CP_PLANNERS else "ptp"
+        entry["kind"] = kinds[run_entry]
+        if run_entry in users:
+            entry["class"] = run_entry
         extras = {k: v for k, v in result.info.items() if isinstance(v, (bool, int, float, str))}
         if extras:
             entry["info"] = extras      # planner-specific scalars (e.g. ruckig_feasible's limit scale)
@@ -284,23 +378,25 @@ def run(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
             entry["files"] = {"trajectory": f"trajectory_{name}.csv"}
         entries[name] = entry
         ctx.summary.update(planners=entries, ratios=ratios(entries))
-        if name in executed and result.ok:
+        if run_entry in executed and result.ok:
             entry["execution"] = _execute(ctx, doc, name, result.trajectory, true_robot, fieldbus)
             entry["tcp_error_max_mm"] = entry["execution"]["tcp_error_max_mm"]
             entry["drive_saturated"] = entry["execution"]["drive_saturated"]
             ctx.summary.update(planners=entries)
     fields: dict[str, Any] = {"planners": entries, "ratios": ratios(entries)}
     if planners_t["figures"]:
-        fields["figures"] = _figures(ctx, trajectories, cp, ptp, dynamics)
+        cp_names = {(instances[e].name if e in users else e) for e, k in kinds.items() if k == "cp"}
+        fields["figures"] = _figures(ctx, trajectories, cp, ptp, dynamics, cp_names)
     return fields
 
 
-def _figures(ctx: RunContext, trajectories: dict[str, Any], cp: Any, ptp: Any, dynamics: Any) -> list[str]:
+def _figures(ctx: RunContext, trajectories: dict[str, Any], cp: Any, ptp: Any, dynamics: Any,
+             cp_names: set[str] = set(CP_PLANNERS)) -> list[str]:
     from planners.ptp_figures import plot_ptp_torques_velocities
     from planners.report import plot_active_constraints, plot_velocity_profile
 
     written = []
-    cp_trajs = {n: t for n, t in trajectories.items() if n in CP_PLANNERS}
+    cp_trajs = {n: t for n, t in trajectories.items() if n in cp_names}
     if cp_trajs:
         written.append(plot_velocity_profile(cp_trajs, ctx.path("figure7_velocity_profile.png")))
     if "own_cp" in trajectories:

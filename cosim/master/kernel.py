@@ -1,23 +1,18 @@
 """Build and bind the native stepping kernel (``kernel.c``).
 
-The kernel is compiled once with the system C compiler (``$CC``, default ``cc``) into
-``<repo>/build/cosim_kernel/`` (or ``$COSIM_BUILD_DIR/cosim_kernel/``; falls back to
-``~/.cache/rx130l-cosim/`` when the repository is read-only). The file name carries a
-hash of the source so an edited kernel is rebuilt; the build is atomic, so parallel
-test workers do not race. ``load_kernel()`` returns None when no compiler is
-available and the master then uses the pure-Python engine.
+The kernel is built and cached by the project's native layer (:mod:`native`: the
+per-user cache, one lock, atomic replacement, ``$COSIM_NATIVE``). ``load_kernel()``
+returns None when it cannot be built (``COSIM_NATIVE=require`` makes that an error) and
+the master then uses the pure-Python engine.
 """
 from __future__ import annotations
 
 import ctypes
-import hashlib
-import os
-import shutil
-import subprocess
-import tempfile
 from ctypes import POINTER, Structure, c_double, c_int, c_longlong, c_uint, c_void_p
 from functools import lru_cache
 from pathlib import Path
+
+import native
 
 SOURCE = Path(__file__).with_name("kernel.c")
 
@@ -82,50 +77,18 @@ class CFailure(Structure):
     ]
 
 
-def _build_dirs() -> list[Path]:
-    dirs = []
-    if os.environ.get("COSIM_BUILD_DIR"):
-        dirs.append(Path(os.environ["COSIM_BUILD_DIR"]) / "cosim_kernel")
-    dirs.append(Path(__file__).resolve().parents[2] / "build" / "cosim_kernel")
-    dirs.append(Path.home() / ".cache" / "rx130l-cosim" / "cosim_kernel")
-    return dirs
-
-
-def _compile(target: Path) -> None:
-    compiler = os.environ.get("CC") or shutil.which("cc") or shutil.which("gcc")
-    if compiler is None:
-        raise OSError("no C compiler found (set CC)")
-    target.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(suffix=".so", dir=target.parent)
-    os.close(fd)
-    try:
-        subprocess.run([compiler, "-O2", "-shared", "-fPIC", "-std=c99", "-o", tmp, str(SOURCE), "-lm"],
-                       check=True, capture_output=True, text=True)
-        os.replace(tmp, target)
-    except subprocess.CalledProcessError as exc:
-        raise OSError(f"compiling {SOURCE} failed:\n{exc.stderr}") from exc
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+CFLAGS = ("-O2", "-shared", "-fPIC", "-std=c99")
 
 
 @lru_cache(maxsize=1)
 def load_kernel() -> ctypes.CDLL | None:
     """Return the compiled kernel library (building it if needed), or None if it cannot be built."""
-    digest = hashlib.sha1(SOURCE.read_bytes()).hexdigest()[:12]
-    name = f"libcosimkernel-{digest}.so"
-    for directory in _build_dirs():
-        target = directory / name
-        try:
-            if not target.exists():
-                _compile(target)
-            lib = ctypes.CDLL(str(target))
-        except OSError:
-            continue
-        lib.cosim_advance.argtypes = [POINTER(CPlan), c_longlong, c_longlong, POINTER(CFailure)]
-        lib.cosim_advance.restype = c_int
-        return lib
-    return None
+    lib = native.load_library(SOURCE, CFLAGS, what="co-simulation master kernel")
+    if lib is None:
+        return None
+    lib.cosim_advance.argtypes = [POINTER(CPlan), c_longlong, c_longlong, POINTER(CFailure)]
+    lib.cosim_advance.restype = c_int
+    return lib
 
 
 def address_of(array) -> int:

@@ -126,7 +126,7 @@ def check_cosim_tables(doc: dict, where: Where, master_variables: Mapping[str, s
         raise (where / "simulation" / "macro_step").error(
             f"a step giving a finite number of base steps in stop_time = {sim['stop_time']:g} s", sim["macro_step"],
             problem="stop_time / macro_step overflows")
-    if steps > limit:
+    if steps > limit * (1 + 1e-9):
         raise (where / "simulation" / "stop_time").error(
             f"at most [simulation] max_base_steps = {limit:g} base steps, i.e. stop_time <= {limit * base:.6g} s "
             f"with macro_step = {base:g} s (raise max_base_steps to run longer)", sim["stop_time"],

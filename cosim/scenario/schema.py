@@ -40,7 +40,7 @@ MISSING: Any = object()
 class Where:
     """A position in a scenario document: the file and the key path."""
 
-    file: Path | None = None
+    file: Path | str | None = None   # a str is a label such as "<dict>" (no folder: paths are relative to the cwd)
     keys: tuple[str | int, ...] = ()
 
     def __truediv__(self, key: str) -> "Where":
@@ -64,7 +64,7 @@ class Where:
     @property
     def base_dir(self) -> Path:
         """Folder relative paths are resolved against (the scenario file's, else the cwd)."""
-        return self.file.parent if self.file is not None else Path.cwd()
+        return self.file.parent if isinstance(self.file, Path) else Path.cwd()
 
     def error(self, expected: str, given: object = MISSING, problem: str | None = None) -> ScenarioError:
         """A ScenarioError at this position."""

@@ -209,12 +209,29 @@ static int check_vr_args(Instance *inst, const char *fn, const fmi2ValueReferenc
     return 1;
 }
 
+/* In Initialization Mode the outputs follow the parameters and inputs set so far (for a
+ * model that provides model_initial_outputs; otherwise they keep their start values). */
+static int initial_outputs(Instance *inst, const char *fn)
+{
+#ifdef MODEL_INITIAL_OUTPUTS
+    if (inst->d.mode == MODE_INITIALIZATION && model_initial_outputs(inst) != 0) {
+        LOG_ERROR(inst, "%s: the outputs cannot be computed in initialization mode (see the message before)", fn);
+        return 0;
+    }
+#else
+    (void)inst;
+    (void)fn;
+#endif
+    return 1;
+}
+
 fmi2Status fmi2GetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, fmi2Real value[])
 {
     Instance *inst = (Instance *)c;
     size_t k;
     if (!check_instance(inst, "fmi2GetReal")) return fmi2Error;
     if (!check_vr_args(inst, "fmi2GetReal", vr, nvr, value, N_REALS)) return fmi2Error;
+    if (!initial_outputs(inst, "fmi2GetReal")) return fmi2Error;
     for (k = 0; k < nvr; k++) value[k] = inst->d.r[vr[k]];
     return fmi2OK;
 }
@@ -225,6 +242,7 @@ fmi2Status fmi2GetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t
     size_t k;
     if (!check_instance(inst, "fmi2GetInteger")) return fmi2Error;
     if (!check_vr_args(inst, "fmi2GetInteger", vr, nvr, value, N_INTEGERS)) return fmi2Error;
+    if (!initial_outputs(inst, "fmi2GetInteger")) return fmi2Error;
     for (k = 0; k < nvr; k++) value[k] = inst->d.i[vr[k]];
     return fmi2OK;
 }

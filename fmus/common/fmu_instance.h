@@ -56,6 +56,15 @@ void model_reset(Instance *inst);
  * otherwise log the reason and return nonzero. */
 int model_initialize(Instance *inst);
 
+#ifdef MODEL_INITIAL_OUTPUTS
+/* Optional (a model defines MODEL_INITIAL_OUTPUTS in its model_state.h): compute the
+ * outputs from the current parameters and inputs while in Initialization Mode; the
+ * wrapper calls it before fmi2GetReal/fmi2GetInteger there. Must not log anything but
+ * errors (it runs at every get). Return 0 on success; otherwise log the reason and
+ * return nonzero (the get then fails with fmi2Error). */
+int model_initial_outputs(Instance *inst);
+#endif
+
 /* Advance from time t by h > 0 (both already checked). Return 0 on success. Otherwise
  * log the reason and return MODEL_STEP_REJECTED (bad argument, nothing changed, the
  * instance stays usable) or MODEL_STEP_FAILED (numerical failure: error mode). */

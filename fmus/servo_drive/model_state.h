@@ -4,6 +4,9 @@
 #ifndef MODEL_STATE_H
 #define MODEL_STATE_H
 
+/* servo_drive.c computes its outputs in Initialization Mode (model_initial_outputs) */
+#define MODEL_INITIAL_OUTPUTS 1
+
 typedef struct {
     /* timing */
     long long tick;          /* current-loop samples done since the start time */
@@ -16,6 +19,10 @@ typedef struct {
     int error_code;          /* 0x603F */
     int limit_active;        /* current set-point clamped at the last speed sample */
     int following_error_flag;/* |following error| > window at the last position sample */
+    int mode;                /* active mode of operation (0x6061): 8 CSP, 9 CSV, 10 CST */
+    int mode_rejected;       /* 1 while modes_of_operation (0x6060) holds an unsupported value */
+    int mode_rejected_value; /* that value (a new one is counted and logged once) */
+    int mode_rejections;     /* number of unsupported mode requests so far */
 
     /* electrical motor and current loop */
     double current;          /* A */

@@ -1,11 +1,22 @@
 /*
- * One axis of an industrial servo drive (CiA 402 cyclic synchronous position mode).
+ * One axis of an industrial servo drive (CiA 402 cyclic synchronous modes).
+ *
+ * Modes of operation (0x6060 input modes_of_operation, 0x6061 output
+ * modes_of_operation_display): 8 cyclic synchronous position (CSP), 9 cyclic synchronous
+ * velocity (CSV), 10 cyclic synchronous torque (CST). A requested mode takes effect at the
+ * next position sample (the sync), bumplessly in Operation enabled (see switch_mode); an
+ * unsupported value leaves the active mode and its display unchanged, sets statusword
+ * bit 7 (warning) while it is requested, is logged once and counted
+ * (unsupported_mode_requests). Quick stop and fault reaction defer a mode change.
  *
  * Three cascaded discrete loops, each at its own sample time inside fmi2DoStep:
  *   position loop (P, Kv) every position_sample_time, plus speed feed-forward from the
- *       difference of consecutive target positions;
+ *       difference of consecutive target positions, plus velocity_offset (0x60B1) [CSP];
+ *       in CSV the speed set-point is target_velocity + velocity_offset (0x60FF + 0x60B1);
  *   speed loop (PI) every speed_sample_time on the filtered measured speed, plus the
- *       feed-forward current torque_offset / (gear_ratio * torque_constant) (0x60B2);
+ *       feed-forward current torque_offset / (gear_ratio * torque_constant) (0x60B2)
+ *       [CSP, CSV]; in CST the current set-point is
+ *       (target_torque + torque_offset) / (N kt) (0x6071 + 0x60B2), the speed PI idle;
  *       current set-point clamped to min(current_limit, torque_limit / (N kt));
  *   current loop (PI with back-EMF compensation) every current_sample_time on the
  *       q-axis winding  L di/dt = u - R i - k_e N qd ; the voltage computed at a sample
@@ -54,6 +65,9 @@ static const char *const CIA_NAME[] = {"Not ready to switch on", "Switch on disa
                                        "Fault reaction active", "Fault"};
 
 #define ERROR_FOLLOWING 0x8611
+#define MODE_CSP 8  /* cyclic synchronous position */
+#define MODE_CSV 9  /* cyclic synchronous velocity */
+#define MODE_CST 10 /* cyclic synchronous torque */
 #define PI 3.14159265358979323846
 
 #define R(name) (inst->d.r[VR_##name])
@@ -70,8 +84,9 @@ static int statusword(const ModelState *s)
     int sw = base[s->cia_state] | 0x0200; /* bit 9: remote */
     if (s->cia_state >= CIA_READY_TO_SWITCH_ON && s->cia_state <= CIA_FAULT_REACTION_ACTIVE)
         sw |= 0x0010; /* bit 4: voltage enabled */
+    if (s->mode_rejected) sw |= 0x0080;                               /* bit 7: warning (unsupported mode requested) */
     if (power_on(s->cia_state) && s->limit_active) sw |= 0x0800;   /* bit 11: internal limit active */
-    if (s->cia_state == CIA_OPERATION_ENABLED) sw |= 0x1000;        /* bit 12 (CSP): drive follows the command value */
+    if (s->cia_state == CIA_OPERATION_ENABLED) sw |= 0x1000;        /* bit 12 (CSx): drive follows the command value */
     if (s->following_error_flag) sw |= 0x2000;                      /* bit 13 (CSP): following error */
     return sw;
 }
@@ -136,6 +151,8 @@ static void enter(Instance *inst, int state)
             s->ramp_position = s->position_actual;
             s->ramp_velocity = s->speed_filtered;
         }
+        if (s->cia_state == CIA_OPERATION_ENABLED && s->mode == MODE_CST)
+            s->speed_integral = s->current_demand; /* the speed loop starts from the torque the motor makes */
         s->standstill_samples = 0;
     }
     if (state == CIA_OPERATION_ENABLED) {
@@ -211,19 +228,95 @@ static void state_machine(Instance *inst)
     }
 }
 
+static int mode_supported(int mode)
+{
+    return mode == MODE_CSP || mode == MODE_CSV || mode == MODE_CST;
+}
+
+static const char *mode_name(int mode)
+{
+    return mode == MODE_CSP ? "CSP" : mode == MODE_CSV ? "CSV" : mode == MODE_CST ? "CST" : "unsupported";
+}
+
+/* Make `mode` the active one. In Operation enabled the switch is bumpless: the speed set-point
+ * continues from velocity actual, the position loop's reference starts from position actual
+ * (position_sample: zero position error at the switch sample) and the speed feed-forward
+ * from the target of this sample; leaving CST, the speed integrator takes over the current
+ * set-point the motor runs on; entering CST it is cleared (the current set-point follows
+ * the target torque from the next speed sample). Returns 1 for a switch in Operation enabled. */
+static int switch_mode(Instance *inst, int mode)
+{
+    ModelState *s = &inst->d.s;
+    int live = s->cia_state == CIA_OPERATION_ENABLED;
+    fmu_log(inst, fmi2OK, "logEvents", "t=%.6f s: mode of operation %d (%s) -> %d (%s)", inst->d.time, s->mode,
+            mode_name(s->mode), mode, mode_name(mode));
+    if (live) {
+        if (s->mode == MODE_CST)
+            s->speed_integral = s->current_demand - R(TORQUE_OFFSET) / (R(GEAR_RATIO) * R(TORQUE_CONSTANT));
+        if (mode == MODE_CST) s->speed_integral = 0.0;
+        s->speed_demand = s->speed_filtered;
+        s->target_prev = R(TARGET_POSITION);
+    }
+    s->mode = mode;
+    return live;
+}
+
+/* Take a supported modes_of_operation (0x6060) request (deferred during quick stop and fault
+ * reaction); report an unsupported one. Returns 1 when the mode changed in Operation enabled. */
+static int select_mode(Instance *inst)
+{
+    ModelState *s = &inst->d.s;
+    int requested = I(MODES_OF_OPERATION);
+    if (!mode_supported(requested)) {
+        if (!s->mode_rejected || requested != s->mode_rejected_value) {
+            s->mode_rejections++;
+            fmu_log(inst, fmi2Warning, "logStatusWarning",
+                    "t=%.6f s: modes_of_operation (0x6060) = %d is not supported (8 = CSP, 9 = CSV, 10 = CST): "
+                    "the drive stays in mode %d (%s)", inst->d.time, requested, s->mode, mode_name(s->mode));
+        }
+        s->mode_rejected = 1;
+        s->mode_rejected_value = requested;
+        return 0;
+    }
+    s->mode_rejected = 0;
+    if (requested == s->mode || s->cia_state == CIA_QUICK_STOP_ACTIVE || s->cia_state == CIA_FAULT_REACTION_ACTIVE)
+        return 0;
+    return switch_mode(inst, requested);
+}
+
 static void position_sample(Instance *inst)
 {
     ModelState *s = &inst->d.s;
     const double ts = R(POSITION_SAMPLE_TIME);
     double reference, feedforward, error, v;
+    int switched;
 
     s->position_actual = quantise(s, R(Q_MEAS));
     state_machine(inst);
+    switched = select_mode(inst);
     if (!power_on(s->cia_state)) {
         s->target_prev = R(TARGET_POSITION);
         return;
     }
-    if (s->cia_state == CIA_OPERATION_ENABLED) {
+    if (s->cia_state == CIA_OPERATION_ENABLED && s->mode != MODE_CSP) {
+        s->target_prev = R(TARGET_POSITION);
+        s->following_error = 0.0;
+        s->following_error_flag = 0;
+        if (s->mode == MODE_CSV) {
+            v = R(TARGET_VELOCITY) + R(VELOCITY_OFFSET);
+            if (v > R(VELOCITY_LIMIT)) v = R(VELOCITY_LIMIT);
+            if (v < -R(VELOCITY_LIMIT)) v = -R(VELOCITY_LIMIT);
+            s->speed_demand = v;
+        } else {
+            s->speed_demand = s->speed_filtered; /* CST: the speed loop is idle */
+        }
+        return;
+    }
+    if (s->cia_state == CIA_OPERATION_ENABLED && switched) { /* entering CSP: start from position actual */
+        reference = s->position_actual;
+        feedforward = s->speed_demand;
+        s->target_prev = R(TARGET_POSITION);
+    } else if (s->cia_state == CIA_OPERATION_ENABLED) {
         reference = R(TARGET_POSITION);
         feedforward = R(SPEED_FEEDFORWARD_GAIN) * (reference - s->target_prev) / ts;
         s->target_prev = reference;
@@ -240,6 +333,7 @@ static void position_sample(Instance *inst)
     }
     error = reference - s->position_actual;
     v = R(POSITION_KV) * error + feedforward;
+    if (s->cia_state == CIA_OPERATION_ENABLED) v += R(VELOCITY_OFFSET);
     if (v > R(VELOCITY_LIMIT)) v = R(VELOCITY_LIMIT);
     if (v < -R(VELOCITY_LIMIT)) v = -R(VELOCITY_LIMIT);
     s->speed_demand = v;
@@ -270,6 +364,13 @@ static void speed_sample(Instance *inst)
 
     s->speed_filtered += s->filter_alpha * (R(QD_MEAS) - s->speed_filtered);
     if (!power_on(s->cia_state)) return;
+    if (s->cia_state == CIA_OPERATION_ENABLED && s->mode == MODE_CST) {
+        demand = (R(TARGET_TORQUE) + R(TORQUE_OFFSET)) / (n * R(TORQUE_CONSTANT));
+        limited = demand > s->current_max ? s->current_max : (demand < -s->current_max ? -s->current_max : demand);
+        s->limit_active = limited != demand;
+        s->current_demand = limited;
+        return;
+    }
     error = n * (s->speed_demand - s->speed_filtered); /* motor side, rad/s */
     feedforward = s->cia_state == CIA_OPERATION_ENABLED ? R(TORQUE_OFFSET) / (n * R(TORQUE_CONSTANT)) : 0.0;
     demand = kp * error + s->speed_integral + feedforward;
@@ -319,12 +420,15 @@ static void write_outputs(Instance *inst)
     R(FOLLOWING_ERROR) = s->following_error;
     I(STATUSWORD) = statusword(s);
     I(ERROR_CODE) = s->error_code;
+    I(MODES_OF_OPERATION_DISPLAY) = s->mode;
+    I(UNSUPPORTED_MODE_REQUESTS) = s->mode_rejections;
 }
 
 void model_reset(Instance *inst)
 {
     ModelState *s = &inst->d.s;
     s->cia_state = CIA_NOT_READY;
+    s->mode = MODE_CSP;
     write_outputs(inst);
 }
 
@@ -337,10 +441,13 @@ static int multiple_of(double value, double base, int *n)
     return k >= 1 && fabs(ratio - (double)k) <= 1e-6;
 }
 
-int model_initialize(Instance *inst)
+/* Check the parameters and set the state at the start time from them and the inputs
+ * (drive in Switch on disabled, brake closed); compute the outputs. Logs only errors. */
+static int initial_state(Instance *inst)
 {
     ModelState *s = &inst->d.s;
     const double ts_i = R(CURRENT_SAMPLE_TIME);
+    int requested = I(MODES_OF_OPERATION);
     if (!multiple_of(R(SPEED_SAMPLE_TIME), ts_i, &s->n_speed) ||
         !multiple_of(R(POSITION_SAMPLE_TIME), ts_i, &s->n_position) ||
         s->n_position % s->n_speed != 0) {
@@ -368,11 +475,33 @@ int model_initialize(Instance *inst)
     s->brake_closed = 0;
     s->brake_anchor_pending = 0;
     s->brake_torque = 0.0;
-    s->cia_state = CIA_NOT_READY;
-    enter(inst, CIA_SWITCH_ON_DISABLED); /* automatic after initialisation; closes the brake */
+    s->cia_state = CIA_SWITCH_ON_DISABLED; /* automatic after initialisation */
+    update_brake(inst);                    /* closes the brake */
     s->position_actual = quantise(s, R(Q_MEAS));
     s->target_prev = R(TARGET_POSITION);
+    s->mode = mode_supported(requested) ? requested : MODE_CSP;
+    s->mode_rejected = !mode_supported(requested);
+    s->mode_rejected_value = requested;
+    s->mode_rejections = s->mode_rejected;
     write_outputs(inst);
+    return 0;
+}
+
+int model_initial_outputs(Instance *inst)
+{
+    return initial_state(inst);
+}
+
+int model_initialize(Instance *inst)
+{
+    ModelState *s = &inst->d.s;
+    if (initial_state(inst) != 0) return 1;
+    fmu_log(inst, fmi2OK, "logEvents", "t=%.6f s: %s -> %s", inst->d.time, CIA_NAME[CIA_NOT_READY],
+            CIA_NAME[s->cia_state]);
+    if (s->mode_rejected)
+        fmu_log(inst, fmi2Warning, "logStatusWarning",
+                "t=%.6f s: modes_of_operation (0x6060) = %d is not supported (8 = CSP, 9 = CSV, 10 = CST): "
+                "the drive starts in mode %d (%s)", inst->d.time, s->mode_rejected_value, s->mode, mode_name(s->mode));
     return 0;
 }
 
@@ -382,7 +511,8 @@ int model_do_step(Instance *inst, double t, double h)
     int n_steps, k;
     if (!multiple_of(h, R(CURRENT_SAMPLE_TIME), &n_steps)) {
         fmu_log(inst, fmi2Error, "logStatusError",
-                "fmi2DoStep: communicationStepSize=%g s is not a multiple of current_sample_time=%g s", h,
+                "fmi2DoStep: communicationStepSize=%.9g s is not a multiple of current_sample_time=%g s: "
+                "this drive accepts positive integer multiples of its current-loop sample time only", h,
                 R(CURRENT_SAMPLE_TIME));
         return MODEL_STEP_REJECTED;
     }

@@ -51,10 +51,12 @@ def servo_drive_spec() -> FmuSpec:
     defaults = drive_start_values(1)
     spec = FmuSpec(
         model_identifier=MODEL_IDENTIFIER,
-        description="One axis of a CiA 402 servo drive (cyclic synchronous position): P position loop, "
-                    "PI speed loop, PI current loop on a q-axis R-L-EMF motor model, torque feed-forward, "
-                    "limits, encoder quantisation, state machine with quick-stop and fault ramps, "
-                    "holding brake while the power stage is off",
+        description="One axis of a CiA 402 servo drive, modes of operation 8 (cyclic synchronous position), "
+                    "9 (velocity) and 10 (torque): P position loop, PI speed loop, PI current loop on a q-axis "
+                    "R-L-EMF motor model, velocity and torque feed-forward, limits, encoder quantisation, state "
+                    "machine with quick-stop and fault ramps, holding brake while the power stage is off. "
+                    f"Communication step: any positive integer multiple of current_sample_time (default "
+                    f"{defaults['current_sample_time']:g} s); other steps are rejected with fmi2Error",
         source_files=SOURCE_FILES,
         default_step=defaults["current_sample_time"],
         default_stop=0.1,
@@ -67,9 +69,9 @@ def servo_drive_spec() -> FmuSpec:
     spec.add("tau_out", "Real", OUTPUT, "joint-side motor torque N k_t i applied to the plant", unit="N.m")
     spec.add("position_actual", "Real", OUTPUT,
              "CiA 402 0x6064 position actual: quantised encoder position latched at the last position sample",
-             unit="rad")
+             unit="rad", depends_on=("q_meas", "gear_ratio", "encoder_counts_per_rev"))
     spec.add("velocity_actual", "Real", OUTPUT, "CiA 402 0x606C velocity actual: filtered measured speed",
-             unit="rad/s")
+             unit="rad/s", depends_on=("qd_meas",))
     spec.add("current_actual", "Real", OUTPUT, "motor q-axis current", unit="A")
     spec.add("current_demand", "Real", OUTPUT, "current set-point (speed PI + feed-forward, limited)", unit="A")
     spec.add("torque_actual", "Real", OUTPUT, "CiA 402 0x6077 torque actual, joint side N k_t i", unit="N.m")
@@ -83,11 +85,28 @@ def servo_drive_spec() -> FmuSpec:
     spec.add("fault_code", "Integer", INPUT,
              "external fault (e.g. fieldbus threshold reaction): 0 none, otherwise the 0x603F error code "
              "to raise", start=0, min=0, max=65535)
-    spec.add("statusword", "Integer", OUTPUT, "CiA 402 0x6041 statusword")
+    spec.add("statusword", "Integer", OUTPUT, "CiA 402 0x6041 statusword", depends_on=("modes_of_operation",))
     spec.add("error_code", "Integer", OUTPUT, "CiA 402 0x603F error code of the active fault (0: none)")
     spec.add("encoder_counts_per_rev", "Integer", PARAMETER, "encoder counts per motor revolution",
              start=defaults["encoder_counts_per_rev"], min=1, max=2**30)
     spec.add("quick_stop_option_code", "Integer", PARAMETER,
              "CiA 402 0x605A: 2 = ramp then switch on disabled, 6 = ramp then hold in quick stop",
              start=defaults["quick_stop_option_code"], min=2, max=6)
+    # added after the original variables so that every earlier value reference stays the same
+    spec.add("target_velocity", "Real", INPUT, "CiA 402 0x60FF target velocity, joint side (CSV)", unit="rad/s",
+             start=0.0)
+    spec.add("velocity_offset", "Real", INPUT,
+             "CiA 402 0x60B1 velocity offset, joint side: added to the speed set-point (CSP, CSV)", unit="rad/s",
+             start=0.0)
+    spec.add("target_torque", "Real", INPUT, "CiA 402 0x6071 target torque, joint side (CST)", unit="N.m",
+             start=0.0)
+    spec.add("modes_of_operation", "Integer", INPUT,
+             "CiA 402 0x6060 modes of operation: 8 cyclic synchronous position, 9 velocity, 10 torque; "
+             "takes effect at the next position sample; another value is refused (mode kept, statusword "
+             "bit 7, counted in unsupported_mode_requests)", start=8, min=-128, max=127)
+    spec.add("modes_of_operation_display", "Integer", OUTPUT, "CiA 402 0x6061 active mode of operation",
+             depends_on=("modes_of_operation",))
+    spec.add("unsupported_mode_requests", "Integer", OUTPUT,
+             "how many times modes_of_operation was set to a value the drive does not support",
+             depends_on=("modes_of_operation",))
     return spec
