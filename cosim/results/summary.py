@@ -125,7 +125,7 @@ class SummaryWriter:
         self.data.update(fields)
         self.data["status"] = "failed"
         self.data["reason"] = reason
-        self.data["stopped_at_s"] = stopped_at_s
+        self.data["stopped_at_s"] = None if stopped_at_s is None else round(float(stopped_at_s), 12)
         self._finish(sim_time_s)
         self.write_final()
 
@@ -137,6 +137,6 @@ class SummaryWriter:
         self.data["status"] = "interrupted"
         self.data["signal"] = signal_name
         self.data["reason"] = f"interrupted by {signal_name}"
-        self.data["stopped_at_s"] = stopped_at_s
+        self.data["stopped_at_s"] = None if stopped_at_s is None else round(float(stopped_at_s), 12)
         self._finish(sim_time_s)
         self.write_final()

@@ -56,6 +56,12 @@ class RunContext:
         self._running: Master | None = None
         self._last_time_s: float | None = None
 
+    def note_position(self, label: str, time_s: float) -> None:
+        """Record where a run that does not go through :meth:`execute` (the split cell) stopped:
+        its ``label`` and simulated time (s), for the final status."""
+        self.label = label
+        self._last_time_s = float(time_s)
+
     @property
     def stopped_at_s(self) -> float | None:
         """Simulated time (s) of the master being executed, else where the last one stopped (None before any)."""

@@ -180,6 +180,25 @@ class SchedulerUnreachable(ConnectionError):
 
 
 @contextlib.contextmanager
+def _children_ignore_interrupts() -> Iterator[None]:
+    """Processes started inside ignore SIGINT/SIGTERM (they inherit the disposition across exec):
+    Ctrl-C reaches the whole process group, and the workers must stay up until this process
+    has cancelled the sweep and closes the cluster in order. Restored afterwards."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = {s: signal.signal(s, signal.SIG_IGN) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler if handler is not None else signal.SIG_DFL)
+
+
+@contextlib.contextmanager
 def dask_client(workers: int | None = None, scheduler: str | None = None, retries: int = 2) -> Iterator[Any]:
     """A ``dask.distributed.Client``: on ``scheduler`` if given, else on a new embedded LocalCluster of
     ``workers`` single-threaded worker processes (closed on exit)."""
@@ -197,7 +216,7 @@ def dask_client(workers: int | None = None, scheduler: str | None = None, retrie
         with client:
             yield client
         return
-    with dask.config.set({"distributed.scheduler.allowed-failures": retries}):
+    with dask.config.set({"distributed.scheduler.allowed-failures": retries}), _children_ignore_interrupts():
         cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1, processes=True,
                                dashboard_address=":0", silence_logs=logging.ERROR)
     with cluster, Client(cluster) as client:
