@@ -7,6 +7,8 @@ a ``ScenarioError`` naming the file, the key path, the value and what was expect
 """
 from __future__ import annotations
 
+import site
+import sys
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -113,11 +115,43 @@ def read_toml_file(path: Path, kind: str) -> dict[str, Any]:
         raise ScenarioError(path, "", "valid TOML", problem=str(exc)) from None
 
 
-def load_scenario(path: str | Path) -> Scenario:
-    """Read and validate the scenario file ``path``; ScenarioError on any problem."""
+PACKAGED_SCENARIOS = Path("share") / "rx130l-cosim" / "scenarios"
+"""Where an installed package (``pip install .`` or the wheel) puts the project's
+``scenarios/*.toml``, below the installation prefix (pyproject ``data-files``)."""
+
+
+def packaged_scenarios_dir() -> Path | None:
+    """The installed copy of ``scenarios/`` (venv or system prefix, then the user base), or None."""
+    for prefix in (sys.prefix, site.getuserbase(), sys.base_prefix):
+        folder = Path(prefix) / PACKAGED_SCENARIOS
+        if folder.is_dir():
+            return folder
+    return None
+
+
+def resolve_path(path: str | Path) -> Path:
+    """``path`` if it exists; else the installed copy of a project scenario given as
+    ``scenarios/NAME.toml``, ``NAME.toml`` or ``NAME`` (so the README's commands work from
+    any folder after a non-editable install); else ``path`` unchanged (the caller reports
+    it as not found)."""
     path = Path(path)
+    if path.is_file() or path.is_absolute() or len(path.parts) > 2 or \
+            (len(path.parts) == 2 and path.parts[0] != "scenarios"):
+        return path
+    folder = packaged_scenarios_dir()
+    if folder is None:
+        return path
+    name = path.name if path.suffix == ".toml" else f"{path.name}.toml"
+    return folder / name if (folder / name).is_file() else path
+
+
+def load_scenario(path: str | Path) -> Scenario:
+    """Read and validate the scenario file ``path`` (see :func:`resolve_path`); ScenarioError
+    on any problem."""
+    path = resolve_path(path)
     return load_document(read_toml_file(path, "scenario"), path)
 
 
-__all__ = ["SCENARIO_FIELD", "SCENARIO_TABLE", "Scenario", "load_document", "load_scenario", "read_toml_file",
+__all__ = ["PACKAGED_SCENARIOS", "SCENARIO_FIELD", "SCENARIO_TABLE", "Scenario", "load_document", "load_scenario",
+           "packaged_scenarios_dir", "read_toml_file", "resolve_path",
            "Table"]

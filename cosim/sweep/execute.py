@@ -31,7 +31,7 @@ import sys
 import time
 import uuid
 from collections.abc import Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
@@ -112,25 +112,25 @@ def default_out_dir(sweep: Sweep) -> Path:
     return Path("results") / sweep.name
 
 
-def variant_tasks(sweep: Sweep, out_dir: Path, ship: bool = False) -> list[VariantTask]:
-    """The tasks of every variant, with their folders under ``out_dir/variants/``.
-
-    ``ship``: list the files each document refers to (``task.inputs``: key path, SHA-256, name)
-    so that they travel with the task (:func:`input_blobs` reads them).
-    """
+def variant_tasks(sweep: Sweep, out_dir: Path) -> list[VariantTask]:
+    """The tasks of every variant, with their folders under ``out_dir/variants/``."""
     variants_dir = (out_dir / VARIANTS_DIR).resolve()
     metrics = tuple(sweep.metrics) if sweep.metrics else None
+    return [VariantTask(v.index, v.id, v.hash, str(variants_dir / f"{v.id}-{v.hash[:8]}"), v.document, v.values,
+                        metrics, f"{VARIANTS_DIR}/{v.id}-{v.hash[:8]}", (), tuple(sweep.collect), sweep.store)
+            for v in sweep.variants]
+
+
+def with_inputs(sweep: Sweep, tasks: list[VariantTask]) -> list[VariantTask]:
+    """``tasks`` listing the files their documents refer to (``task.inputs``: key path, SHA-256,
+    file name), so that the files travel with the tasks (each file is read once)."""
     digests: dict[str, str] = {}
-    tasks = []
-    for v in sweep.variants:
-        inputs: tuple = ()
-        if ship:
-            inputs = tuple((path, digests.setdefault(text, _sha256(text)), Path(text).name)
-                           for path, text in referenced_files(sweep.base.job.schema, v.document))
-        rel = f"{VARIANTS_DIR}/{v.id}-{v.hash[:8]}"
-        tasks.append(VariantTask(v.index, v.id, v.hash, str(variants_dir / f"{v.id}-{v.hash[:8]}"), v.document,
-                                 v.values, metrics, rel, inputs, tuple(sweep.collect), sweep.store))
-    return tasks
+    out = []
+    for task in tasks:
+        inputs = tuple((tuple(path), digests.setdefault(text, _sha256(text)), Path(text).name)
+                       for path, text in referenced_files(sweep.base.job.schema, task.document))
+        out.append(replace(task, inputs=inputs))
+    return out
 
 
 def _sha256(path: str) -> str:
@@ -273,7 +273,7 @@ def run_sweep(sweep: Sweep, out_dir: str | Path | None = None, *, workers: int |
     mode = resolve_transfer(transfer, scheduler, client)
     out_dir = Path(out_dir) if out_dir is not None else default_out_dir(sweep)
     (out_dir / VARIANTS_DIR).mkdir(parents=True, exist_ok=True)
-    tasks = variant_tasks(sweep, out_dir, ship=mode == "ship")
+    tasks = variant_tasks(sweep, out_dir)
     rows: dict[int, dict[str, Any]] = {}
     if resume:
         for task in tasks:
@@ -281,6 +281,8 @@ def run_sweep(sweep: Sweep, out_dir: str | Path | None = None, *, workers: int |
             if row is not None:
                 rows[task.index] = row
     todo = [t for t in tasks if t.index not in rows]
+    if mode == "ship":   # only the variants that run read their input files
+        todo = with_inputs(sweep, todo)
     reused = len(rows)
     started_at = datetime.now(timezone.utc).isoformat(timespec="seconds")
     _write_definition(sweep, out_dir, {"status": "running", "started_at": started_at, "reused": reused})
@@ -368,4 +370,4 @@ def _run_tasks(client: Any, sweep: Sweep, todo: list[VariantTask], rows: dict[in
 
 
 __all__ = ["SCHEDULER_CONNECT_TIMEOUT_S", "SWEEP_FILE", "SchedulerUnreachable", "SweepResult", "TABLE_FILE", "TRANSFERS", "VARIANTS_DIR", "dask_client", "default_out_dir",
-           "input_files", "resolve_transfer", "run_sweep", "variant_tasks"]
+           "input_files", "resolve_transfer", "run_sweep", "variant_tasks", "with_inputs"]

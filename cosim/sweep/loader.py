@@ -40,7 +40,7 @@ from pathlib import Path
 from typing import Any
 
 from cosim.scenario import ScenarioError, load_document, load_scenario
-from cosim.scenario.loader import NAME_PATTERN, Scenario, read_toml_file
+from cosim.scenario.loader import NAME_PATTERN, Scenario, read_toml_file, resolve_path
 from cosim.scenario.schema import AnyValue, Field, FilePath, Integer, List, String, Table, Where, validate
 from cosim.sweep.axes import DISTRIBUTION, DISTRIBUTIONS, GRID, SEEDS, Axis, distribution_draws, seed_values
 from cosim.sweep.keypath import (KeyPath, KeyPathSyntaxError, absolute_paths, format_key_path, get_path,
@@ -398,7 +398,7 @@ def load_sweep(path: str | Path, on_count=None) -> Sweep:
     Nothing runs here (the base job's checks may build the project's FMUs once).
     ``on_count(n)`` is called with the number of variants before they are validated.
     """
-    path = Path(path)
+    path = resolve_path(path)
     return load_sweep_document(read_toml_file(path, "sweep"), path, on_count=on_count)
 
 
