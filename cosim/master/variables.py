@@ -16,6 +16,8 @@ from fnmatch import fnmatchcase
 
 from fmpy.model_description import ModelDescription, ScalarVariable
 
+from cosim.master.fmi3 import FMI3_BUS, READ_ONLY_TYPES, Fmi3Element, check_fmi3_start
+
 #: FMI 2.0 scalar types a start value may have.
 VALUE_TYPES: tuple[str, ...] = ("Real", "Integer", "Enumeration", "Boolean", "String")
 #: Types that can travel on the master's signal buses (connections, tasks, recorders).
@@ -31,12 +33,15 @@ _EXPECTED_PYTHON = {
 
 
 def bus_type(fmi_type: str) -> str:
-    """Return the bus a variable of FMI type ``fmi_type`` travels on (Enumeration uses Integer)."""
+    """Return the bus a variable of FMI type ``fmi_type`` travels on (Enumeration uses Integer;
+    FMI 3.0 types: see cosim/master/fmi3.py)."""
     if fmi_type == "Enumeration":
         return "Integer"
-    if fmi_type not in BUS_TYPES:
-        raise MasterTypeUnsupported(fmi_type)
-    return fmi_type
+    if fmi_type in BUS_TYPES:
+        return fmi_type
+    if fmi_type in FMI3_BUS:
+        return FMI3_BUS[fmi_type]
+    raise MasterTypeUnsupported(fmi_type)
 
 
 class MasterTypeUnsupported(ValueError):
@@ -44,7 +49,8 @@ class MasterTypeUnsupported(ValueError):
 
     def __init__(self, fmi_type: str) -> None:
         super().__init__(f"variables of type {fmi_type} cannot be connected, read by tasks or recorded "
-                         f"(supported: {', '.join(BUS_TYPES)}, Enumeration)")
+                         f"(supported: {', '.join(BUS_TYPES)}, Enumeration; FMI 3.0: Float32/64, Int8..Int64, "
+                         f"UInt8..UInt64, Boolean, and output Clock/Binary read and recorded)")
 
 
 def split_signal(name: str) -> tuple[str, str]:
@@ -109,7 +115,10 @@ def check_start_value(variable: ScalarVariable, value: object) -> str | None:
     Real takes int or float (not bool, not NaN/Inf); Integer/Enumeration take int (not
     bool); Boolean takes bool; String takes str. The variable must be settable before
     initialization (an input, or a non-constant variable with initial exact/approx).
+    FMI 3.0 elements: the value must fit the element's type (``fmi3.check_fmi3_start``).
     """
+    if isinstance(variable, Fmi3Element):
+        return check_fmi3_start(variable, value)
     if not settable_start(variable):
         return (f"a variable whose start value can be set (causality {variable.causality}, "
                 f"variability {variable.variability}, initial {variable.initial} cannot be set)")
@@ -176,6 +185,10 @@ def check_connection_ends(source: ScalarVariable | None, destination: ScalarVari
     if source is not None and source.causality != "output":
         return f"an output as source ('{source.name}' has causality {source.causality})"
     src_type = source.type if source is not None else source_type
+    for end, what in ((source, "source"), (destination, "destination")):
+        if end is not None and end.type in READ_ONLY_TYPES:
+            return (f"a Float, Int, UInt, Boolean or Enumeration variable as {what} ('{end.name}' is an FMI 3.0 "
+                    f"{end.type}: clocks and binaries are read and recorded, not connected)")
     try:
         if bus_type(src_type) != bus_type(destination.type):
             return (f"matching types (source is {src_type}, destination '{destination.name}' "

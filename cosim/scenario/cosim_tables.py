@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from cosim.master import Master, MasterConfigError, Recorder, load_model_description
+from cosim.master.component import SUPPORTED_FMUS, variables_of
 from cosim.master.master import COUPLINGS, ENGINES
 from cosim.master.variables import (MasterTypeUnsupported, bus_type, check_connection_ends, check_declared_range,
                                     check_start_value, is_pattern, matches_pattern, parse_connection, split_signal)
@@ -109,8 +110,8 @@ COSIM_FIELDS: dict[str, Field] = {
 def check_cosim_tables(doc: dict, where: Where, master_variables: Mapping[str, str] | None = None) -> None:
     """Check the co-simulation tables of a validated document against the FMUs themselves.
 
-    Resolves ``builtin`` FMUs to files (``doc["fmus"][i]["path"]``), then checks: FMI 2.0
-    co-simulation FMU, unique instance names, steps and periods multiples of macro_step,
+    Resolves ``builtin`` FMUs to files (``doc["fmus"][i]["path"]``), then checks: FMI 2.0 or
+    3.0 co-simulation FMU, unique instance names, steps and periods multiples of macro_step,
     stop_time a multiple of macro_step, every parameter exists and has the right type,
     every connection joins an existing output (or master variable) to an existing input
     of the same type once, every recorded signal exists. ``master_variables`` (name ->
@@ -148,15 +149,15 @@ def check_cosim_tables(doc: dict, where: Where, master_variables: Mapping[str, s
             md = load_model_description(fmu["path"])
         except MasterConfigError as exc:
             raise (w[i] / ("builtin" if "builtin" in fmu else "path")).error(
-                "an FMI 2.0 co-simulation FMU", str(fmu["path"]), problem=str(exc)) from None
-        descriptions[fmu["name"]] = {v.name: v for v in md.modelVariables}
+                SUPPORTED_FMUS, str(fmu["path"]), problem=getattr(exc, "problem", str(exc))) from None
+        descriptions[fmu["name"]] = variables_of(md)
         if "step" in fmu and not _multiple_check(fmu["step"], base):
             raise (w[i] / "step").error(f"a positive integer multiple of macro_step = {base!r} s", fmu["step"])
         variables = descriptions[fmu["name"]]
         for key, value in fmu["parameters"].items():
             kw = w[i] / "parameters" / key
             if key not in variables:
-                settable = [v.name for v in md.modelVariables if v.causality == "parameter"]
+                settable = [v.name for v in variables.values() if v.causality == "parameter"]
                 raise kw.error(f"a variable of {Path(fmu['path']).name} (parameters: {_short(settable)})",
                                problem="unknown key")
             problem = check_start_value(variables[key], value) or check_declared_range(variables[key], value, md)
