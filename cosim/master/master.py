@@ -46,7 +46,8 @@ from cosim.master.engines import (BUS_DTYPE, BUS_ORDER, Exchange, NativeEngine, 
                                   gather, make_engine, publish, set_inputs)
 from cosim.master.errors import EndSimulation, FmuEnded, MasterConfigError, SimulationError
 from cosim.master.recorder import Recorder, Sink
-from cosim.master.variables import (MasterTypeUnsupported, bus_type, check_connection_ends, check_start_value,
+from cosim.master.variables import (MasterTypeUnsupported, bus_type, check_connection_ends, check_declared_range,
+                                    check_start_value,
                                     is_pattern, matches_pattern, parse_connection, split_signal)
 
 COUPLINGS = ("jacobi", "gauss_seidel")
@@ -64,6 +65,9 @@ def ticks_of(value: float, base_step: float, what: str, allow_zero: bool = False
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
         raise MasterConfigError(f"{what}: expected a number of seconds, got {value!r}")
     ratio = value / base_step
+    if not math.isfinite(ratio):
+        raise MasterConfigError(f"{what}: expected a whole number of base steps of {base_step!r} s, got {value!r} s "
+                                f"(the ratio overflows)")
     n = round(ratio)
     if (n < 1 and not allow_zero) or n < 0 or abs(ratio - n) > 1e-9 * max(1.0, abs(ratio)):
         smallest = "a non-negative" if allow_zero else "a positive"
@@ -191,7 +195,8 @@ class Master:
         step_ticks = 1 if step is None else ticks_of(step, self.base_step, f"step of FMU '{name}'")
         component = FmuComponent(name, path, step_ticks, start_values or {}, debug_logging)
         for var_name, value in component.start_values.items():
-            problem = check_start_value(component.variable(var_name), value)
+            problem = check_start_value(component.variable(var_name), value) \
+                or check_declared_range(component.variable(var_name), value)
             if problem:
                 raise MasterConfigError(f"start value of '{name}.{var_name}': expected {problem}, got {value!r}")
         self._fmus[name] = component
