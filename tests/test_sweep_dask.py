@@ -252,3 +252,19 @@ def test_second_run_skips_finished_variants(tmp_path, client):
     assert [float(r['fmus[0].parameters."q0[3]"']) for r in rows] == [1.0, 1.1, 1.2, 1.4]
     moved = next(r for r in third.rows if r["variant"] == "v0002")
     assert (Path(moved["folder"]) / "summary.json").stat().st_mtime_ns == stamps["v0001"]
+
+
+def test_local_cluster_ship_equals_shared(tmp_path, client):
+    """transfer = "ship" on the embedded cluster gives the rows and files of the shared file system
+    (tests/test_sweep_ship.py runs it on separate worker programs without the client's files)."""
+    import cosim
+    from test_sweep_ship import _client_files
+
+    sweep = cosim.load_sweep(_client_files(tmp_path / "client"))
+    shipped = cosim.run_sweep(sweep, tmp_path / "ship", client=client, transfer="ship")
+    shared = cosim.run_sweep(sweep, tmp_path / "shared", client=client)
+    assert (shipped.transfer, shared.transfer) == ("ship", "shared")
+    for a, b in zip(shipped.records(), shared.records()):
+        for column in ("variant", "status", "reason", "hash", "rows_recorded", "sim_time_s"):
+            assert a.get(column) == b.get(column)
+        assert (Path(a["folder"]) / "timeseries.csv").read_bytes() == (Path(b["folder"]) / "timeseries.csv").read_bytes()
