@@ -66,21 +66,21 @@ def run(args: argparse.Namespace) -> int:
         out_dir, origin = Path(scenario.data["output"]["dir"]), f"{args.scenario}: output.dir"
     else:
         out_dir, origin = Path("results") / scenario.name, "results folder"
-    if not getattr(args, "ignore_budget", False):
-        from cosim.results.budget import check_budget, estimate_run
-        from cosim.results.timeseries import default_format
-
-        try:
-            fmt = getattr(args, "timeseries", None) or default_format()
-            check_budget(estimate_run(scenario.data, fmt), out_dir, getattr(args, "max_output", None),
-                         getattr(args, "max_memory", None))
-        except ValueError as exc:  # BudgetError, or a bad size / $COSIM_TIMESERIES
-            raise InvalidInput(f"{args.scenario}: {exc}") from None
     try:
         lock = open_results_folder(out_dir, origin)
     except OutputFolderError as exc:
         raise InvalidInput(str(exc)) from None
-    with lock:
+    with lock:  # the folder is usable: now the budget, before anything runs or is written
+        if not getattr(args, "ignore_budget", False):
+            from cosim.results.budget import check_budget, estimate_run
+            from cosim.results.timeseries import default_format
+
+            try:
+                fmt = getattr(args, "timeseries", None) or default_format()
+                check_budget(estimate_run(scenario.data, fmt), out_dir, getattr(args, "max_output", None),
+                             getattr(args, "max_memory", None))
+            except ValueError as exc:  # BudgetError, or a bad size / $COSIM_TIMESERIES
+                raise InvalidInput(f"{args.scenario}: {exc}") from None
         try:
             ctx = RunContext(scenario, out_dir, quiet=args.quiet,
                              execution=CellExecution(options) if options.active else None,

@@ -128,8 +128,8 @@ def default_limits(out_dir: Path) -> tuple[float, float]:
     probe = Path(out_dir)
     while not probe.exists() and probe != probe.parent:
         probe = probe.parent
-    try:
-        free = shutil.disk_usage(probe).free * 0.95
+    try:  # an unwritable folder is reported by the results-folder check, not as a full disk
+        free = shutil.disk_usage(probe).free * 0.95 if os.access(probe, os.W_OK) else math.inf
     except OSError:
         free = math.inf
     try:
