@@ -171,6 +171,33 @@ def resolve_transfer(transfer: str, scheduler: str | None, client: Any) -> str:
     return "shared" if isinstance(getattr(client, "cluster", None), LocalCluster) else "ship"
 
 
+#: How long to wait for an existing Dask scheduler (--scheduler) to answer, s.
+SCHEDULER_CONNECT_TIMEOUT_S = 5.0
+
+
+class SchedulerUnreachable(ConnectionError):
+    """The --scheduler address did not answer (message names it and the timeout)."""
+
+
+@contextlib.contextmanager
+def _children_ignore_interrupts() -> Iterator[None]:
+    """Processes started inside ignore SIGINT/SIGTERM (they inherit the disposition across exec):
+    Ctrl-C reaches the whole process group, and the workers must stay up until this process
+    has cancelled the sweep and closes the cluster in order. Restored afterwards."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = {s: signal.signal(s, signal.SIG_IGN) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler if handler is not None else signal.SIG_DFL)
+
+
 @contextlib.contextmanager
 def dask_client(workers: int | None = None, scheduler: str | None = None, retries: int = 2) -> Iterator[Any]:
     """A ``dask.distributed.Client``: on ``scheduler`` if given, else on a new embedded LocalCluster of
@@ -179,10 +206,17 @@ def dask_client(workers: int | None = None, scheduler: str | None = None, retrie
     from dask.distributed import Client, LocalCluster
 
     if scheduler:
-        with Client(scheduler) as client:
+        try:
+            client = Client(scheduler, timeout=SCHEDULER_CONNECT_TIMEOUT_S)
+        except (OSError, TimeoutError, ValueError, TypeError) as exc:
+            raise SchedulerUnreachable(f"--scheduler {scheduler!r}: no Dask scheduler answered within "
+                                       f"{SCHEDULER_CONNECT_TIMEOUT_S:g} s ({type(exc).__name__}: "
+                                       f"{str(exc).splitlines()[0] if str(exc) else ''}); expected the address "
+                                       f"of a running scheduler such as tcp://host:8786") from None
+        with client:
             yield client
         return
-    with dask.config.set({"distributed.scheduler.allowed-failures": retries}):
+    with dask.config.set({"distributed.scheduler.allowed-failures": retries}), _children_ignore_interrupts():
         cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1, processes=True,
                                dashboard_address=":0", silence_logs=logging.ERROR)
     with cluster, Client(cluster) as client:
@@ -335,5 +369,5 @@ def _run_tasks(client: Any, sweep: Sweep, todo: list[VariantTask], rows: dict[in
             blob.release()
 
 
-__all__ = ["SWEEP_FILE", "SweepResult", "TABLE_FILE", "TRANSFERS", "VARIANTS_DIR", "dask_client", "default_out_dir",
+__all__ = ["SCHEDULER_CONNECT_TIMEOUT_S", "SWEEP_FILE", "SchedulerUnreachable", "SweepResult", "TABLE_FILE", "TRANSFERS", "VARIANTS_DIR", "dask_client", "default_out_dir",
            "input_files", "resolve_transfer", "run_sweep", "variant_tasks", "with_inputs"]
