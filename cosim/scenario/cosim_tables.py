@@ -3,9 +3,11 @@
 Tables (all quantities SI numbers or unit strings, see units.py)::
 
     [simulation]  stop_time, macro_step, coupling = "jacobi"|"gauss_seidel", order = [...], engine
-    [[fmus]]      name, path = "x.fmu" | builtin = "rx130l_plant"|"servo_drive", step, debug_logging
+    [[fmus]]      name, path = "x.fmu" | builtin = "rx130l_plant"|"servo_drive" | source = "folder", step,
+                  debug_logging
     [fmus.parameters]  <variable> = <start value>
     connections = ["a.x -> b.y", ...]
+    system = "cell.ssp"   (instead of [[fmus]]: the FMUs, connections and parameters of an SSP 1.0 archive)
     [record]      period, signals = ["plant.q[1]", "drive1.*", ...], file = "timeseries.csv"
     [output]      dir
 
@@ -51,6 +53,21 @@ def resolve_builtin(name: str) -> Path:
     return Path(ensure_fmus()[name])
 
 
+def resolve_source(folder: str, where: Where) -> Path:
+    """The FMU built from the C source folder ``folder`` (``fmus.source_fmu``; relative to the
+    scenario file's folder); ScenarioError at ``where`` when it is not a source folder or does not build."""
+    from fmus.source_fmu import SourceFmuError, build_source_fmu
+
+    path = Path(folder).expanduser()
+    if not path.is_absolute():
+        path = where.base_dir / path
+    try:
+        return build_source_fmu(path)
+    except SourceFmuError as exc:
+        raise where.error("a folder with modelDescription.xml and the FMU's C files that compiles to a valid "
+                          "FMI 2.0 co-simulation FMU", folder, problem=str(exc)) from None
+
+
 def _multiple_check(value: float, base: float) -> bool:
     ratio = value / base
     if not math.isfinite(ratio):  # e.g. macro_step = 5e-324: no whole number of steps
@@ -79,10 +96,12 @@ FMU_TABLE = Table({
                   required=True),
     "path": Field(FilePath(must_exist=True, suffix=".fmu")),
     "builtin": Field(String(), doc="the name of one of the project's FMUs"),
+    "source": Field(String(), doc="a folder with modelDescription.xml and C files (relative to the scenario "
+                                  "file's folder): the FMU is built from it with the system C compiler"),
     "step": Field(Number(unit="s", gt=0)),
     "parameters": Field(Table({}, extra=AnyValue(), doc="a table of <variable> = <start value>"), default={}),
     "debug_logging": Field(Boolean(), default=False),
-}, one_of=[("path", "builtin")], doc="an [[fmus]] table")
+}, one_of=[("path", "builtin", "source")], doc="an [[fmus]] table")
 
 RECORD_TABLE = Table({
     "period": Field(Number(unit="s", gt=0), required=True, doc="the sampling period: a number in s > 0"),
@@ -99,7 +118,9 @@ OUTPUT_TABLE = Table({
 #: Fields of the standard co-simulation tables, to merge into a job's document schema.
 COSIM_FIELDS: dict[str, Field] = {
     "simulation": Field(SIMULATION_TABLE, required=True, doc="a [simulation] table with stop_time and macro_step"),
-    "fmus": Field(List(FMU_TABLE, min_len=1), required=True, doc="at least one [[fmus]] table"),
+    "fmus": Field(List(FMU_TABLE, min_len=1), default=[], doc="at least one [[fmus]] table"),
+    "system": Field(FilePath(must_exist=True, suffix=".ssp"),
+                    doc="an .ssp file (SSP 1.0) whose FMUs, connections and parameter values replace [[fmus]]"),
     "connections": Field(List(String()), default=[]),
     "record": Field(RECORD_TABLE),
     "output": Field(OUTPUT_TABLE, default={}),
@@ -119,6 +140,7 @@ def check_cosim_tables(doc: dict, where: Where, master_variables: Mapping[str, s
     Raises ScenarioError at the offending key.
     """
     master_variables = dict(master_variables or {})
+    expand_system(doc, where, master_variables)
     sim = doc["simulation"]
     base = sim["macro_step"]
     steps = sim["stop_time"] / base
@@ -145,10 +167,12 @@ def check_cosim_tables(doc: dict, where: Where, master_variables: Mapping[str, s
             if fmu["builtin"] not in names:
                 raise (w[i] / "builtin").error(f"one of the project's FMUs {list(names)}", fmu["builtin"])
             fmu["path"] = resolve_builtin(fmu["builtin"])
+        if "source" in fmu:
+            fmu["path"] = resolve_source(fmu["source"], w[i] / "source")
         try:
             md = load_model_description(fmu["path"])
         except MasterConfigError as exc:
-            raise (w[i] / ("builtin" if "builtin" in fmu else "path")).error(
+            raise (w[i] / next(k for k in ("builtin", "source", "path") if k in fmu)).error(
                 SUPPORTED_FMUS, str(fmu["path"]), problem=getattr(exc, "problem", str(exc))) from None
         descriptions[fmu["name"]] = variables_of(md)
         if "step" in fmu and not _multiple_check(fmu["step"], base):
@@ -226,6 +250,36 @@ def check_cosim_tables(doc: dict, where: Where, master_variables: Mapping[str, s
                 raise w.error("a Real, Integer, Boolean or Enumeration variable", signal, problem=str(exc)) from None
 
 
+def expand_system(doc: dict, where: Where, master_variables: Mapping[str, str] | None = None) -> None:
+    """Replace ``system = "x.ssp"`` by its ``[[fmus]]`` tables and connections (idempotent).
+
+    The archive's connections between components come first, then its system inputs'
+    connections whose source is one of ``master_variables`` (a job that drives them), then
+    the scenario's own ``connections``. System inputs no job variable drives stay
+    unconnected: those FMU inputs keep their start values. Raises ScenarioError at
+    ``system`` (naming the archive member and element) for a bad archive.
+    """
+    if doc.get("_system_expanded") or "system" not in doc:
+        if not doc.get("fmus") and "system" not in doc:
+            raise (where / "fmus").error("at least one [[fmus]] table, or system = 'file.ssp'",
+                                         problem="no FMU given")
+        return
+    if doc.get("fmus"):
+        raise (where / "system").error("either system = 'file.ssp' or [[fmus]] tables, not both", str(doc["system"]),
+                                       problem="both given")
+    from cosim.ssp import SspError, load_ssp
+
+    try:
+        system = load_ssp(doc["system"])
+    except SspError as exc:
+        raise (where / "system").error(exc.expected, str(doc["system"]),
+                                       problem=f"{exc.element}: {exc.problem}" if exc.problem else exc.element) from None
+    driven = [c for c in system.inputs_connections if parse_connection(c).source in (master_variables or {})]
+    doc["fmus"] = system.fmus
+    doc["connections"] = system.connections + driven + list(doc.get("connections", []))
+    doc["_system_expanded"] = True
+
+
 def _short(names: list[str], limit: int = 12) -> str:
     return ", ".join(names[:limit]) + (f", ... ({len(names)} in all)" if len(names) > limit else "") or "none"
 
@@ -265,4 +319,5 @@ def add_record(master: Master, doc: dict, ctx: "RunContext", file: str | None = 
 
 
 __all__ = ["COSIM_FIELDS", "FMU_TABLE", "OUTPUT_TABLE", "RECORD_TABLE", "SIMULATION_TABLE", "add_record",
-           "build_master", "builtin_fmu_names", "check_cosim_tables", "resolve_builtin"]
+           "build_master", "builtin_fmu_names", "check_cosim_tables", "expand_system", "resolve_builtin",
+           "resolve_source"]
