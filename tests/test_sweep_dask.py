@@ -267,7 +267,8 @@ def test_local_cluster_ship_equals_shared(tmp_path, client):
     for a, b in zip(shipped.records(), shared.records()):
         for column in ("variant", "status", "reason", "hash", "rows_recorded", "sim_time_s"):
             assert a.get(column) == b.get(column)
-        assert (Path(a["folder"]) / "timeseries.csv").read_bytes() == (Path(b["folder"]) / "timeseries.csv").read_bytes()
+        assert (Path(a["folder"]) / "timeseries.parquet").read_bytes() == \
+            (Path(b["folder"]) / "timeseries.parquet").read_bytes()
 
 
 def test_user_planner_file_relative_to_the_base_scenario(tmp_path, client):
