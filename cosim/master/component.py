@@ -258,6 +258,18 @@ class FmuComponent:
             else:
                 self.call(f"setting start value {name}", time, self.slave.setString, vr, [str(value)])
 
+    def ended_itself(self) -> float | None:
+        """After an fmi2DoStep that returned fmi2Discard: the FMU's fmi2LastSuccessfulTime (s) when it
+        reports fmi2Terminated (it ended the simulation, as fmpy.simulate_fmu accepts), else None."""
+        if self.fmi3 or self.slave is None:
+            return None
+        try:
+            if not self.slave.getBooleanStatus(3):  # fmi2Terminated
+                return None
+            return float(self.slave.getRealStatus(2))  # fmi2LastSuccessfulTime
+        except Exception:  # noqa: BLE001 - status not provided: an ordinary discard
+            return None
+
     def error(self, time: float, reason: str) -> SimulationError:
         """SimulationError for this instance at ``time`` (s) quoting its log messages (and, for FMI 3.0,
         what the adapter found: a value out of range, an early return, the variable concerned)."""
