@@ -63,6 +63,7 @@ def check_cell(doc: dict[str, Any], where: Where, job_set_drive_parameters: Mapp
     Raises ScenarioError (a ValueError) at the first key that is wrong.
     """
     from cosim.master import load_model_description
+    from cosim.master.component import variables_of
     from fieldbus import FieldbusConfig, FieldbusConfigError
 
     by_name = {fmu["name"]: (i, fmu) for i, fmu in enumerate(doc["fmus"])}
@@ -75,7 +76,7 @@ def check_cell(doc: dict[str, Any], where: Where, job_set_drive_parameters: Mapp
     check_cosim_tables(doc, where, master_variables=variables)
     for name, builtin in needed.items():
         i, fmu = by_name[name]
-        have = {v.name for v in load_model_description(fmu["path"]).modelVariables}
+        have = set(variables_of(load_model_description(fmu["path"])))  # FMI 3.0: array elements q[1]..
         want = PLANT_VARIABLES if name == robot_cell.PLANT else DRIVE_VARIABLES
         if not want <= have:
             raise (where / "fmus")[i].error(f"a {builtin} FMU (variables {sorted(want)})", str(fmu["path"]),

@@ -47,7 +47,8 @@ from cosim.scenario.context import RunContext
 from cosim.scenario.loader import Scenario
 from cosim.scenario.registry import register_job
 from cosim.scenario.schema import (AnyValue, Boolean, Field, List, Number, Spec, String, Table, Where)
-from cosim.scenario.user_class import SPEC_FORM, instantiate, is_class_spec, load_user_class
+from cosim.scenario.user_class import (SPEC_FORM, class_spec_file, instantiate, is_class_spec, load_user_class,
+                                      with_class_file)
 
 JOB_NAME = "compare"
 ISO_TRAJECTORY = "iso9283"
@@ -126,6 +127,23 @@ class TrajectoryEntry(Spec):
                         doc="Cartesian files: the IK branch of the first sample is the one nearest to these 6 "
                             "angles (default: planners.iso9283.ISO_Q_HINT)"),
     }, one_of=[("path", "planner", "file")], doc="a trajectory table")
+
+    # the trajectory file or planner file of an entry travels with a sweep's tasks
+    # (cosim.sweep.keypath.referenced_files)
+    def referenced_file(self, value: Any) -> str | None:
+        if isinstance(value, dict):
+            if isinstance(value.get("file"), str):
+                return value["file"]
+            return class_spec_file(value.get("planner"))
+        if isinstance(value, str) and value.lower().endswith(".csv"):
+            return value
+        return class_spec_file(value)
+
+    def relocated(self, value: Any, path: str) -> Any:
+        if isinstance(value, dict):
+            key = "file" if isinstance(value.get("file"), str) else "planner"
+            return {**value, key: path if key == "file" else with_class_file(value[key], path)}
+        return path if value.lower().endswith(".csv") else with_class_file(value, path)
 
     def check(self, value: Any, where: Where) -> dict[str, Any]:
         if isinstance(value, str):

@@ -3,7 +3,8 @@
 Tables (all quantities SI numbers or unit strings, see units.py)::
 
     [simulation]  stop_time, macro_step, coupling = "jacobi"|"gauss_seidel", order = [...], engine
-    [[fmus]]      name, path = "x.fmu" | builtin = "rx130l_plant"|"servo_drive", step, debug_logging
+    [[fmus]]      name, path = "x.fmu" | builtin = "rx130l_plant"|"servo_drive" | source = "folder", step,
+                  debug_logging
     [fmus.parameters]  <variable> = <start value>
     connections = ["a.x -> b.y", ...]
     [record]      period, signals = ["plant.q[1]", "drive1.*", ...], file = "timeseries.csv"
@@ -51,6 +52,21 @@ def resolve_builtin(name: str) -> Path:
     return Path(ensure_fmus()[name])
 
 
+def resolve_source(folder: str, where: Where) -> Path:
+    """The FMU built from the C source folder ``folder`` (``fmus.source_fmu``; relative to the
+    scenario file's folder); ScenarioError at ``where`` when it is not a source folder or does not build."""
+    from fmus.source_fmu import SourceFmuError, build_source_fmu
+
+    path = Path(folder).expanduser()
+    if not path.is_absolute():
+        path = where.base_dir / path
+    try:
+        return build_source_fmu(path)
+    except SourceFmuError as exc:
+        raise where.error("a folder with modelDescription.xml and the FMU's C files that compiles to a valid "
+                          "FMI 2.0 co-simulation FMU", folder, problem=str(exc)) from None
+
+
 def _multiple_check(value: float, base: float) -> bool:
     ratio = value / base
     if not math.isfinite(ratio):  # e.g. macro_step = 5e-324: no whole number of steps
@@ -76,7 +92,7 @@ SIMULATION_TABLE = Table({
     "max_base_steps": Field(Integer(min=1), default=MAX_BASE_STEPS,
                             doc="the largest stop_time / macro_step accepted (a guard against typos)"),
     "isolation": Field(String(choices=ISOLATIONS), default="none",
-                       doc="which FMUs run out of process: 'none', 'third_party' (every FMU given by path), 'all'"),
+                       doc="which FMUs run out of process: 'none', 'third_party' (every FMU given by path or source, not builtin), 'all'"),
 }, doc="the [simulation] table")
 
 FMU_TABLE = Table({
@@ -84,13 +100,15 @@ FMU_TABLE = Table({
                   required=True),
     "path": Field(FilePath(must_exist=True, suffix=".fmu")),
     "builtin": Field(String(), doc="the name of one of the project's FMUs"),
+    "source": Field(String(), doc="a folder with modelDescription.xml and C files (relative to the scenario "
+                                  "file's folder): the FMU is built from it with the system C compiler"),
     "step": Field(Number(unit="s", gt=0)),
     "parameters": Field(Table({}, extra=AnyValue(), doc="a table of <variable> = <start value>"), default={}),
     "debug_logging": Field(Boolean(), default=False),
     "out_of_process": Field(Boolean(), doc="run this FMU in a child process (default from [simulation] isolation)"),
     "step_timeout": Field(Number(unit="s", gt=0),
                           doc="longest wall time of one step of an out-of-process FMU before it counts as hung"),
-}, one_of=[("path", "builtin")], doc="an [[fmus]] table")
+}, one_of=[("path", "builtin", "source")], doc="an [[fmus]] table")
 
 RECORD_TABLE = Table({
     "period": Field(Number(unit="s", gt=0), required=True, doc="the sampling period: a number in s > 0"),
@@ -153,10 +171,12 @@ def check_cosim_tables(doc: dict, where: Where, master_variables: Mapping[str, s
             if fmu["builtin"] not in names:
                 raise (w[i] / "builtin").error(f"one of the project's FMUs {list(names)}", fmu["builtin"])
             fmu["path"] = resolve_builtin(fmu["builtin"])
+        if "source" in fmu:
+            fmu["path"] = resolve_source(fmu["source"], w[i] / "source")
         try:
             md = load_model_description(fmu["path"])
         except MasterConfigError as exc:
-            raise (w[i] / ("builtin" if "builtin" in fmu else "path")).error(
+            raise (w[i] / next(k for k in ("builtin", "source", "path") if k in fmu)).error(
                 SUPPORTED_FMUS, str(fmu["path"]), problem=getattr(exc, "problem", str(exc))) from None
         descriptions[fmu["name"]] = variables_of(md)
         isolated = out_of_process(fmu, sim)
@@ -247,7 +267,7 @@ def _short(names: list[str], limit: int = 12) -> str:
 
 def out_of_process(fmu: dict, sim: dict) -> bool:
     """Whether the [[fmus]] table ``fmu`` runs in a child process: its own ``out_of_process``, else
-    ``[simulation] isolation`` ('all'; 'third_party': FMUs given by ``path``, not ``builtin``)."""
+    ``[simulation] isolation`` ('all'; 'third_party': FMUs given by ``path`` or ``source``, not ``builtin``)."""
     if fmu.get("out_of_process") is not None:
         return bool(fmu["out_of_process"])
     isolation = sim.get("isolation", "none")
@@ -291,4 +311,4 @@ def add_record(master: Master, doc: dict, ctx: "RunContext", file: str | None = 
 
 
 __all__ = ["COSIM_FIELDS", "FMU_TABLE", "OUTPUT_TABLE", "RECORD_TABLE", "SIMULATION_TABLE", "add_record",
-           "build_master", "builtin_fmu_names", "check_cosim_tables", "resolve_builtin"]
+           "build_master", "builtin_fmu_names", "check_cosim_tables", "resolve_builtin", "resolve_source"]

@@ -116,9 +116,10 @@ def variant_tasks(sweep: Sweep, out_dir: Path) -> list[VariantTask]:
     """The tasks of every variant, with their folders under ``out_dir/variants/``."""
     variants_dir = (out_dir / VARIANTS_DIR).resolve()
     metrics = tuple(sweep.metrics) if sweep.metrics else None
+    anchor = str(sweep.base.where.base_dir)
     return [VariantTask(v.index, v.id, v.hash, str(variants_dir / f"{v.id}-{v.hash[:8]}"), v.document, v.values,
-                        metrics, f"{VARIANTS_DIR}/{v.id}-{v.hash[:8]}", (), tuple(sweep.collect), sweep.store)
-            for v in sweep.variants]
+                        metrics, f"{VARIANTS_DIR}/{v.id}-{v.hash[:8]}", (), tuple(sweep.collect), sweep.store,
+                        anchor) for v in sweep.variants]
 
 
 def with_inputs(sweep: Sweep, tasks: list[VariantTask]) -> list[VariantTask]:
@@ -127,10 +128,19 @@ def with_inputs(sweep: Sweep, tasks: list[VariantTask]) -> list[VariantTask]:
     digests: dict[str, str] = {}
     out = []
     for task in tasks:
-        inputs = tuple((tuple(path), digests.setdefault(text, _sha256(text)), Path(text).name)
-                       for path, text in referenced_files(sweep.base.job.schema, task.document))
-        out.append(replace(task, inputs=inputs))
+        inputs = []
+        for path, text in referenced_files(sweep.base.job.schema, task.document):
+            file = _client_file(task, text)
+            inputs.append((tuple(path), digests.setdefault(file, _sha256(file)), Path(file).name,
+                           "" if Path(text).expanduser().is_absolute() else text))
+        out.append(replace(task, inputs=tuple(inputs)))
     return out
+
+
+def _client_file(task: VariantTask, text: str) -> str:
+    """The client's path of a file reference (relative ones are relative to the task's anchor)."""
+    path = Path(text).expanduser()
+    return str(path if path.is_absolute() else Path(task.anchor) / path)
 
 
 def _sha256(path: str) -> str:
@@ -146,8 +156,8 @@ def input_files(sweep: Sweep, tasks: list[VariantTask]) -> dict[str, str]:
     out: dict[str, str] = {}
     for task in tasks:
         refs = dict(referenced_files(sweep.base.job.schema, task.document))
-        for path, digest, _ in task.inputs:
-            out.setdefault(digest, refs[tuple(path)])
+        for path, digest, _, _ in task.inputs:
+            out.setdefault(digest, _client_file(task, refs[tuple(path)]))
     return out
 
 
@@ -331,7 +341,7 @@ def _run_tasks(client: Any, sweep: Sweep, todo: list[VariantTask], rows: dict[in
         blobs = {digest: client.submit(_identity, Path(path).read_bytes(), key=f"cosim-input-{digest[:32]}-{token}",
                                        pure=False)
                  for digest, path in input_files(sweep, todo).items()}
-        futures = {client.submit(run_shipped_variant, task, *(blobs[d] for _, d, _ in task.inputs),
+        futures = {client.submit(run_shipped_variant, task, *(blobs[d] for _, d, _, _ in task.inputs),
                                  key=f"{sweep.name}-{task.id}-{token}", retries=sweep.retries, pure=False): task
                    for task in todo}
     else:
