@@ -190,7 +190,7 @@ class PythonEngine:
                 else:
                     status = comp.do_step_fn(handle, t, h, 1)
                 if status > 1:
-                    if status == 2 and (last := comp.ended_itself()) is not None:
+                    if status == 2 and (last := comp.ended_itself(t, h)) is not None:
                         raise FmuTerminated(n, comp.name, last)
                     comp.check(f"{comp.api}DoStep(t={t:.9g} s, h={h:.9g} s)", t, status)
                 if gauss_seidel:
@@ -257,8 +257,9 @@ class NativeEngine:
             if f.what == FAIL_ENDED:
                 raise FmuEnded(int(f.tick))
             if f.what == FAIL_STEP and f.status == 2:
-                comp = self.plan.slaves[f.slave].component
-                last = comp.ended_itself()
+                slave = self.plan.slaves[f.slave]
+                comp = slave.component
+                last = comp.ended_itself(self.plan.time(f.tick), self.plan.step_size(f.tick, slave))
                 if last is not None:
                     raise FmuTerminated(int(f.tick), comp.name, last)
             raise self._error()
