@@ -39,6 +39,7 @@ from typing import Any
 import numpy as np
 
 from controller import Controller, ControllerConfig, Phase, TcpTrajectory
+from controller.elastic import make_controller
 from cosim.jobs import robot_cell
 from cosim.jobs.cell_checks import check_cell, fill_defaults
 from cosim.jobs.columns_csv import write_columns_csv
@@ -78,6 +79,10 @@ JOB_MODES: dict[str, JobMode] = {
     "model_based": JobMode("model_based", True, "eq. 7: velocity reference through the drives' speed feed-forward, "
                                                 "torque feed-forward M(q_d) qdd_d + g(q_d, qd_d) as torque offset, "
                                                 "drive set-point shaping"),
+    "model_based_elastic": JobMode("model_based_elastic", True,
+                                   "flatness-based feed-forward for elastic gears: motor reference q_d + K^-1 tau_g "
+                                   "(from q_d and its derivatives up to the 4th) as target, motor torque as torque "
+                                   "offset, drive set-point shaping (controller/elastic.py)"),
 }
 """The job's modes (``[controller] modes``), in the order they are reported."""
 
@@ -289,7 +294,8 @@ def prepare(doc: dict[str, Any], source: str) -> JobSetup:
     fb = FieldbusConfig.from_dict(doc["fieldbus"], source=source)
     mode_settings = {mode: {"controller_mode": JOB_MODES[mode].controller_mode,
                             "drive_speed_feedforward": drive_speed_feedforward(ctrl_t, mode),
-                            "torque_feedforward": JOB_MODES[mode].controller_mode == "model_based",
+                            "torque_feedforward": JOB_MODES[mode].controller_mode in ("model_based",
+                                                                                      "model_based_elastic"),
                             "description": JOB_MODES[mode].description} for mode in ctrl_t["modes"]}
     return JobSetup(doc, true_robot, path, reference, kin, dyn, kin_label, dyn_label, tracker, fb,
                     int(doc["simulation"]["stop_time"] / period) + 16, mode_settings)
@@ -313,8 +319,8 @@ def mode_controller(setup: JobSetup, mode: str) -> tuple[dict[str, Any], Control
     config = ControllerConfig(mode=settings["controller_mode"], period_s=period,
                               lead_cycles=1 + setup.fieldbus.dead_time_cycles,
                               compute_budget_s=ctrl_t["compute_budget"], settle_time_s=ctrl_t["settle_time"])
-    controller = Controller(setup.reference, config, kinematic_model=setup.kinematics, dynamics=setup.dynamics,
-                            q_hint=np.array(ISO_Q_HINT), drive_model=drive_model, capacity=setup.capacity)
+    controller = make_controller(setup.reference, config, kinematic_model=setup.kinematics, dynamics=setup.dynamics,
+                                 q_hint=np.array(ISO_Q_HINT), drive_model=drive_model, capacity=setup.capacity)
     return mode_doc, controller
 
 
@@ -368,6 +374,11 @@ def run(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
     if "standard_speed_ff" in modes and "model_based" in modes:
         fields["improvement_factor_vs_standard_speed_ff"] = _ratio(modes["standard_speed_ff"]["tcp_error_max_mm"],
                                                                    modes["model_based"]["tcp_error_max_mm"])
+    if "model_based_elastic" in modes:
+        for base in ("standard", "model_based"):
+            if base in modes:
+                fields[f"improvement_factor_elastic_vs_{base}"] = _ratio(
+                    modes[base]["tcp_error_max_mm"], modes["model_based_elastic"]["tcp_error_max_mm"])
     if setup.doc["results"]["figures"]:
         from cosim.jobs.iso9283_figures import write_figures
 
