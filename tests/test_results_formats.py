@@ -25,25 +25,33 @@ def _rows(n: int) -> np.ndarray:
     return data
 
 
-def test_parquet_sink_streams_row_groups_with_a_bounded_buffer(tmp_path):
-    sink = ParquetSink(tmp_path / "s.parquet", units={"x": "rad"}, buffer_rows=100, flush_interval_s=3600.0)
+def test_parquet_sink_streams_with_a_bounded_buffer_readable_while_running(tmp_path):
+    path = tmp_path / "s.parquet"
+    path.write_bytes(b"an old run's file")
+    sink = ParquetSink(path, units={"x": "rad"}, buffer_rows=100, flush_interval_s=3600.0)
     sink.open(["time", "x", "n"], ["Real", "Real", "Integer"])
+    assert not path.exists()  # an old run's file is not mistaken for this run's
     data = _rows(1050)
     for start in range(0, 1050, 64):
         sink.write(data[start:start + 64])
         assert sink._buffer.shape == (100, 3)  # memory does not grow with the run
-    assert sink.rows_written == 1000  # ten full row groups already on disk before close
+    assert sink.rows_written == 1000  # ten full batches already on disk before close
+    columns, so_far = read_series(path)  # while the run goes: the stream <file>.partial
+    assert columns == ["time", "x", "n"] and np.array_equal(so_far, data[:1000], equal_nan=True)
+    with open(sink.partial, "ab") as f:  # a crash in the middle of a batch: complete ones stay readable
+        f.write(b"\x00garbage")
+    assert read_series(path)[1].shape == (1000, 3)
+    sink.partial.write_bytes(sink.partial.read_bytes()[:-len(b"\x00garbage")])
     sink.close()
-    meta = pq.ParquetFile(tmp_path / "s.parquet").metadata
-    assert meta.num_row_groups == 11 and meta.num_rows == 1050
-    columns, back = read_series(tmp_path / "s.parquet")
+    assert not sink.partial.exists() and pq.ParquetFile(path).metadata.num_rows == 1050
+    columns, back = read_series(path)
     assert columns == ["time", "x", "n"]
     assert np.array_equal(back, data, equal_nan=True) and np.array_equal(np.signbit(back), np.signbit(data))
-    assert str(pq.read_schema(tmp_path / "s.parquet").field("n").type) == "int64"
-    assert read_units(tmp_path / "s.parquet") == {"time": "s", "x": "rad", "n": ""}
+    assert str(pq.read_schema(path).field("n").type) == "int64"
+    assert read_units(path) == {"time": "s", "x": "rad", "n": ""}
 
 
-def test_flush_writes_a_row_group_after_the_interval(tmp_path):
+def test_flush_streams_buffered_rows_after_the_interval(tmp_path):
     sink = ParquetSink(tmp_path / "s.parquet", buffer_rows=1000, flush_interval_s=0.0)
     sink.open(["time", "x"], ["Real", "Real"])
     sink.write(_rows(10)[:, :2])

@@ -8,10 +8,10 @@ Two sinks implement ``cosim.master.recorder.Sink`` (``open(columns, kinds)``,
   split encoding for floats (lossless: every float64 comes back bit for bit), the unit
   of each column in its field metadata (``b"unit"``). Rows are buffered in one
   preallocated block of at most ``buffer_rows`` rows (bounded memory, whatever the run's
-  length) and written as a row group when the block is full or, on ``flush()``, when
-  ``flush_interval_s`` of wall time passed since the last row group. The Parquet footer
-  is written by ``close()`` (every run end, error and signal included, closes its sinks);
-  a process killed with SIGKILL leaves a file without footer;
+  length) and streamed as an Arrow batch to ``<file>.partial`` when the block is full or,
+  on ``flush()``, when ``flush_interval_s`` of wall time passed: readable while the run
+  goes and after a crash (every complete batch). ``close()`` (every run end, error and
+  signal included, closes its sinks) turns the stream into the Parquet file;
 * :class:`CsvSink`: header ``time,<signal>,...``, Reals with ``repr`` (shortest
   round-trip decimal), Integer/Boolean columns as integers, flushed on every ``flush()``.
 
@@ -36,8 +36,8 @@ SUFFIXES = {"parquet": ".parquet", "csv": ".csv"}
 ENV_FORMAT = "COSIM_TIMESERIES"
 DEFAULT_BUFFER_ROWS = 8192
 """Rows buffered per Parquet sink before a row group is written (8192 x 40 columns = 2.6 MB)."""
-DEFAULT_FLUSH_INTERVAL_S = 5.0
-"""Longest wall time between two Parquet row groups while rows arrive."""
+DEFAULT_FLUSH_INTERVAL_S = 1.0
+"""Longest wall time rows wait in a Parquet sink's buffer before they are streamed to disk."""
 COMPRESSION = "zstd"
 
 
@@ -109,18 +109,30 @@ def _writer(path: Path, schema):
                             use_byte_stream_split=floats or False, write_statistics=False)
 
 
+PARTIAL_SUFFIX = ".partial"
+"""While a run goes, a Parquet sink streams to ``<file>.parquet.partial`` (Arrow IPC stream,
+zstd): readable at any moment up to the last complete batch, also after a crash."""
+ROW_GROUP_ROWS = 65536
+
+
 class ParquetSink:
-    """Stream recorder rows to the Parquet file ``path`` (created with its directory;
-    overwritten) with bounded memory; ``units`` maps column names to units (``time``: s)."""
+    """Stream recorder rows with bounded memory; ``units`` maps column names to units (``time``: s).
+
+    While the run goes the rows go, batch by batch, to ``<path>.partial`` (an Arrow IPC
+    stream: every complete batch is readable, by :func:`read_series` too, even after the
+    process was killed); :meth:`close` turns it into the Parquet file ``path`` (row groups
+    of up to 65536 rows, streamed, then an atomic rename) and removes the stream."""
 
     def __init__(self, path: str | Path, units: Mapping[str, str] | None = None,
                  buffer_rows: int = DEFAULT_BUFFER_ROWS, flush_interval_s: float = DEFAULT_FLUSH_INTERVAL_S) -> None:
         self.path = Path(path)
+        self.partial = self.path.with_name(self.path.name + PARTIAL_SUFFIX)
         self.units = dict(units or {})
         self.buffer_rows = int(buffer_rows)
         self.flush_interval_s = float(flush_interval_s)
         self.rows_written = 0
-        self._writer = None
+        self._file = None
+        self._stream = None
         self._schema = None
         self._buffer: np.ndarray | None = None
         self._fill = 0
@@ -128,11 +140,16 @@ class ParquetSink:
         self._last = time.perf_counter()
 
     def open(self, columns: Sequence[str], kinds: Sequence[str]) -> None:
+        import pyarrow as pa
+
         self.path.parent.mkdir(parents=True, exist_ok=True)
+        self.path.unlink(missing_ok=True)  # a reader must not mistake an old run's file for this one
         integer = [k in ("Integer", "Boolean") for k in kinds]
         self._int_columns = [i for i, flag in enumerate(integer) if flag]
         self._schema = _schema(columns, integer, self.units)
-        self._writer = _writer(self.path, self._schema)
+        self._file = pa.OSFile(str(self.partial), "wb")
+        self._stream = pa.ipc.new_stream(self._file, self._schema,
+                                         options=pa.ipc.IpcWriteOptions(compression=COMPRESSION))
         self._buffer = np.empty((self.buffer_rows, len(columns)))
         self._fill = 0
 
@@ -145,31 +162,79 @@ class ParquetSink:
             self._fill += take
             start += take
             if self._fill == self.buffer_rows:
-                self._write_group()
+                self._write_batch()
 
-    def _write_group(self) -> None:
+    def _write_batch(self) -> None:
         import pyarrow as pa
 
-        if not self._fill or self._writer is None:
+        if not self._fill or self._stream is None:
             return
         data = self._buffer[:self._fill]
         arrays = [pa.array(data[:, i].astype(np.int64) if i in self._int_columns else np.ascontiguousarray(data[:, i]))
                   for i in range(data.shape[1])]
-        self._writer.write_table(pa.Table.from_arrays(arrays, schema=self._schema))
+        self._stream.write_batch(pa.RecordBatch.from_arrays(arrays, schema=self._schema))
+        self._file.flush()
         self.rows_written += self._fill
         self._fill = 0
         self._last = time.perf_counter()
 
     def flush(self) -> None:
         if self._fill and time.perf_counter() - self._last >= self.flush_interval_s:
-            self._write_group()
+            self._write_batch()
 
     def close(self) -> None:
-        if self._writer is not None:
-            self._write_group()
-            self._writer.close()
-            self._writer = None
+        if self._stream is None:
+            return
+        try:
+            self._write_batch()
+        finally:
+            self._stream.close()
+            self._file.close()
+            self._stream = self._file = None
             self._buffer = None
+        _partial_to_parquet(self.partial, self.path, self._schema)
+
+
+def _partial_to_parquet(partial: Path, path: Path, schema) -> None:
+    """Rewrite the Arrow stream ``partial`` as the Parquet file ``path`` (bounded memory)."""
+    import pyarrow as pa
+
+    tmp = path.with_name(path.name + ".tmp")
+    writer = _writer(tmp, schema)
+    try:
+        with pa.OSFile(str(partial), "rb") as source:
+            reader = pa.ipc.open_stream(source)
+            pending, rows = [], 0
+            for batch in reader:
+                pending.append(batch)
+                rows += batch.num_rows
+                if rows >= ROW_GROUP_ROWS:
+                    writer.write_table(pa.Table.from_batches(pending, schema=schema))
+                    pending, rows = [], 0
+            if pending:
+                writer.write_table(pa.Table.from_batches(pending, schema=schema))
+    finally:
+        writer.close()
+    os.replace(tmp, path)
+    partial.unlink(missing_ok=True)
+
+
+def _read_partial(partial: Path) -> tuple[list[str], np.ndarray]:
+    """The complete batches of an Arrow stream a sink is writing (or left after a crash)."""
+    import pyarrow as pa
+
+    batches, names = [], []
+    with pa.OSFile(str(partial), "rb") as source:
+        try:
+            reader = pa.ipc.open_stream(source)
+            names = list(reader.schema.names)
+            while True:
+                batches.append(reader.read_next_batch())
+        except (StopIteration, pa.ArrowInvalid, OSError):
+            pass
+    rows = [np.column_stack([b.column(i).to_numpy().astype(float) for i in range(len(names))])
+            for b in batches if b.num_rows]
+    return names, (np.concatenate(rows) if rows else np.zeros((0, len(names))))
 
 
 def sink_for(path: str | Path, units: Mapping[str, str] | None = None):
@@ -216,12 +281,13 @@ def write_columns(path: str | Path, columns: Mapping[str, np.ndarray], units: Ma
 
 def resolve_series(path: str | Path) -> Path:
     """``path`` if it exists; else the same stem with the other format's suffix (a test or
-    script written for ``x.csv`` finds ``x.parquet``), else ``path``."""
+    script written for ``x.csv`` finds ``x.parquet``), or the stream ``x.parquet.partial`` of
+    a run still going (or killed); else ``path``."""
     path = Path(path)
     if path.exists():
         return path
-    for suffix in (".parquet", ".csv"):
-        other = path.with_suffix(suffix) if path.suffix in (".csv", ".parquet") else Path(f"{path}{suffix}")
+    for suffix in (".parquet", ".csv", ".parquet" + PARTIAL_SUFFIX):
+        other = Path(f"{path.with_suffix('') if path.suffix in ('.csv', '.parquet') else path}{suffix}")
         if other.exists():
             return other
     return path
@@ -231,6 +297,8 @@ def read_series(path: str | Path) -> tuple[list[str], np.ndarray]:
     """Read a time-series file of either format (see :func:`resolve_series`): (column
     names, float64 array of shape (rows, columns))."""
     path = resolve_series(path)
+    if path.name.endswith(PARTIAL_SUFFIX):
+        return _read_partial(path)
     if path.suffix == ".parquet":
         import pyarrow.parquet as pq
 
@@ -289,5 +357,5 @@ def read_units(path: str | Path) -> dict[str, str]:
     return {f.name: (f.metadata or {}).get(b"unit", b"").decode() for f in schema}
 
 
-__all__ = ["CsvSink", "DEFAULT_BUFFER_ROWS", "ENV_FORMAT", "FORMATS", "FileSink", "ParquetSink", "SUFFIXES", "SeriesFile",
+__all__ = ["CsvSink", "DEFAULT_BUFFER_ROWS", "ENV_FORMAT", "FORMATS", "FileSink", "PARTIAL_SUFFIX", "ParquetSink", "SUFFIXES", "SeriesFile",
            "default_format", "read_csv", "read_series", "read_units", "resolve_series", "sink_for", "write_columns"]
