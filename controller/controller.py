@@ -1,10 +1,15 @@
 """The 400 µs controller of the paper's section 2.3: set-points and eq. 7 feed-forward.
 
-Every cycle ``k`` (time ``t_k = k T``, ``T`` = ``period_s``) :meth:`Controller.step`
-gets what the fieldbus delivered in that cycle (:class:`fieldbus.ObservedActuals`:
+:class:`Controller` is the built-in cell controller: it satisfies the controller
+contract (:class:`controller.contract.CellController`: ``setup``, ``step``, ``close``)
+and the cell drives it through that contract like any user controller. Every cycle ``k``
+(time ``t_k = k T``, ``T`` = ``period_s``) :meth:`Controller.step` gets what the
+fieldbus delivered in that cycle (:class:`controller.contract.ControllerInput`:
 statusword, position, velocity, torque per drive, latched at ``t_k``) and returns the
-:class:`fieldbus.Setpoints` for the next cycle (SI: target joint angle in rad, torque
-offset in N m, CiA 402 controlword). The fieldbus scales them to telegram units, sends
+:class:`controller.contract.ControllerOutput` for the next cycle in mode 8 (CSP: target
+joint angle in rad, torque offset in N m, CiA 402 controlword); :meth:`Controller.run_cycle`
+does the same with a ``fieldbus.ObservedActuals`` and returns the ``fieldbus.Setpoints``
+(the same arrays). The fieldbus scales them to telegram units, sends
 them in cycle ``k + 1`` and the drives apply them ``dead_time_cycles`` later, so a
 set-point computed in cycle ``k`` acts from ``t_k + lead_cycles T`` with
 ``lead_cycles = 1 + dead_time_cycles``. The controller therefore evaluates the
@@ -33,6 +38,12 @@ node fault (threshold counter), the controller stops commanding motion - quick s
 (0x0002) to every drive, target = the last observed position, no torque offset - and
 keeps the reason. It never restarts motion by itself.
 
+Compiled paths: with ``compiled`` the cycle's numerics run in a generated C kernel
+(:mod:`controller.compiled_cycle`), with ``fast_cycle`` the whole cycle around it
+(``fast_cycle.c``). They are an implementation detail of this class: a subclass that
+replaces one of the cycle's methods (:func:`overridden_hooks`) gets the Python path,
+so its code is never bypassed.
+
 Each cycle that computes a reference is timed with ``time.perf_counter_ns`` (and its
 thread CPU time with ``time.thread_time_ns``; the controller's own work: interpolation, IK, derivatives, feed-forward, controlwords);
 :meth:`Controller.timing` gives p50/p99/max and the deadline misses (compute time
@@ -55,6 +66,7 @@ import native
 from controller.cycle_timer import CycleTimer, TimingSummary
 from controller.drive_compensation import DriveLoopModel, SetpointShaper
 from controller.feedforward import FeedForward
+from controller.contract import MODE_CSP, ControllerInfo, ControllerInput, ControllerOutput
 from controller.compiled_cycle import FAST_REJECTED, FAST_STOP_CHECK, CompiledCycle, CompiledCycleError
 from controller.joint_reference import SINGULARITY_TOLERANCE, CartesianToJoint, SingularConfigurationError
 from controller.reference import JointTrajectory, TcpTrajectory
@@ -63,7 +75,7 @@ from robot.dynamics import RobotDynamics
 from robot.inverse_kinematics import LIMIT_TOLERANCE, NumericIK
 
 N_JOINTS = 6
-MODES: tuple[str, ...] = ("standard", "model_based")
+MODES: tuple[str, ...] = ("standard", "model_based", "model_based_elastic")
 _STOP_STATES = {DriveState.FAULT: "Fault", DriveState.FAULT_REACTION_ACTIVE: "Fault reaction active",
                 DriveState.QUICK_STOP_ACTIVE: "Quick stop active"}
 
@@ -86,7 +98,9 @@ class Phase(IntEnum):
 class ControllerConfig:
     """Controller settings (SI units).
 
-    mode: ``"standard"`` (set-points only) or ``"model_based"`` (plus eq. 7 feed-forward).
+    mode: ``"standard"`` (set-points only), ``"model_based"`` (plus eq. 7 feed-forward) or
+        ``"model_based_elastic"`` (flatness-based feed-forward for elastic gears: use
+        :class:`controller.elastic.ElasticController`, or :func:`controller.elastic.make_controller`).
     period_s: cycle time T, s (paper: 400 µs).
     lead_cycles: cycles from computing a set-point to the drive applying it
         (1 + the fieldbus ``dead_time_cycles``).
@@ -217,6 +231,15 @@ class ControllerLog:
         return out
 
 
+_HOOKS = ("run_cycle", "_compute", "_set_outputs", "_stop_condition", "_enable", "_stop", "_fast_step")
+
+
+def overridden_hooks(cls: type) -> list[str]:
+    """The cycle methods of :class:`Controller` that ``cls`` (a subclass) replaces: the
+    compiled paths, which do those steps in C, are then switched off for it."""
+    return [name for name in _HOOKS if getattr(cls, name) is not getattr(Controller, name)]
+
+
 def start_configuration(reference: TcpTrajectory | JointTrajectory, model: pin.Model,
                         q_hint: np.ndarray | None = None) -> np.ndarray:
     """Joint angles (6,) rad of the reference's first sample: the IK solution of
@@ -257,6 +280,9 @@ class Controller:
         from robot.description import load_model
 
         self.config = config or ControllerConfig()
+        if self.config.mode == "model_based_elastic" and not hasattr(type(self), "_elastic_mode"):
+            raise ControllerConfigError("controller mode 'model_based_elastic': build it with "
+                                        "controller.elastic.ElasticController (or controller.elastic.make_controller)")
         if not isinstance(reference, (TcpTrajectory, JointTrajectory)):
             raise ControllerConfigError(
                 f"reference: expected a controller.reference.TcpTrajectory or JointTrajectory, "
@@ -304,6 +330,12 @@ class Controller:
         self.setpoints = Setpoints.zeros(N_JOINTS)
         self.setpoints.position[:] = self.q_start
         self.setpoints.controlword[:] = int(Command.DISABLE_VOLTAGE)
+        # the contract's view of the same arrays (CSP; the bus carries position and torque offset)
+        self.output = ControllerOutput(controlword=self.setpoints.controlword,
+                                       modes_of_operation=np.full(N_JOINTS, MODE_CSP, np.int64),
+                                       target_position=self.setpoints.position, target_velocity=np.zeros(N_JOINTS),
+                                       velocity_offset=np.zeros(N_JOINTS), target_torque=np.zeros(N_JOINTS),
+                                       torque_offset=self.setpoints.torque_offset)
         self._sequencers = [EnableSequencer() for _ in range(N_JOINTS)]
         self._zeros = np.zeros(N_JOINTS)
         self._tau_rest = np.zeros(N_JOINTS)
@@ -323,6 +355,11 @@ class Controller:
         self._qdd_d = np.zeros(N_JOINTS)
         # the compiled path's whole cycle (controller/fast_cycle.c) in one foreign call
         self._fast = self.kernel if (self.kernel is not None and self.config.fast_cycle) else None
+        overridden = overridden_hooks(type(self))
+        if overridden and self._fast is not None:
+            # the whole-cycle C path would skip a subclass's own code: never bypass it
+            self._fast = None
+            self.kernel_note += f" (whole-cycle path off: {type(self).__name__} overrides {', '.join(overridden)})"
         self._observed_bound: tuple | None = None
         if self._fast is not None:
             self._fast.bind_fast_cycle(
@@ -374,8 +411,30 @@ class Controller:
                 "compiled_kernel": self.kernel_note, "kernel_cycles": self.kernel_cycles,
                 "fallback_cycles": self.fallback_cycles}
 
+    # ------------------------------------------------------------------ the contract
+    def setup(self, info: ControllerInfo) -> None:
+        """The cell's information (:class:`controller.contract.ControllerInfo`): checked
+        against this controller's own configuration (cycle time, lead)."""
+        if abs(info.period_s - self.config.period_s) > 1e-12:
+            raise ControllerConfigError(f"controller period {self.config.period_s} s differs from the cell's bus "
+                                        f"cycle {info.period_s} s")
+        if info.lead_cycles != self.config.lead_cycles:
+            raise ControllerConfigError(f"controller lead_cycles = {self.config.lead_cycles}: expected the cell's "
+                                        f"1 + dead_time_cycles = {info.lead_cycles}")
+
+    def step(self, inputs: ControllerInput) -> ControllerOutput:
+        """One cycle through the contract (:class:`controller.contract.CellController`):
+        :meth:`run_cycle` with the input's cycle, time and actual values; the returned
+        :attr:`output` (mode 8, CSP: target position and torque offset) aliases
+        :attr:`setpoints`."""
+        self.run_cycle(inputs.cycle, inputs.time_s, inputs)
+        return self.output
+
+    def close(self) -> None:
+        """Nothing to release (the log stays readable)."""
+
     # ------------------------------------------------------------------ the cycle
-    def step(self, cycle: int, t: float, observed: ObservedActuals) -> Setpoints:
+    def run_cycle(self, cycle: int, t: float, observed: ObservedActuals | ControllerInput) -> Setpoints:
         """One controller cycle at time ``t`` (s) of cycle number ``cycle``: read the actual
         values, return the set-points for the next cycle (a reused object)."""
         started = time.perf_counter_ns()

@@ -132,6 +132,11 @@ class _Endpoint(Closeable):
         self.frames_sent = 0
         self.frames_dropped = 0
         self.frames_missing = 0  # sent, but an asynchronous interface did not deliver it in time
+        self.frames_late = 0  # paced cell side: frames that missed their cycle's window
+        self._follow_cycle = -1  # controller side following a paced cell: the cell's cycle as counted
+        self._follow_lost = 0
+        self._align: int | None = None  # paced cell side: controller SoC counter - 1 - cycle (mod overflow)
+        self._last_taken = -1  # paced cell side: last cycle whose group was taken
 
     # ------------------------------------------------------------------ cycle bookkeeping
     def _begin(self, cycle: int) -> None:
@@ -234,6 +239,17 @@ class _Endpoint(Closeable):
             self._record(received)
         return received
 
+    def _read_now(self) -> list:
+        """Every frame that has arrived, without waiting."""
+        if self._drain is not None:
+            return self._drain()
+        bus, batch = self.bus, []
+        msg = bus.recv(0)
+        while msg is not None:
+            batch.append(msg)
+            msg = bus.recv(0)
+        return batch
+
     def _flush_own_recording(self, cycle: int) -> None:
         if self._owns_recorder:
             self.recorder.end_cycle(cycle, self._t0 + cycle * self._cycle_time)
@@ -300,6 +316,65 @@ class ManagingNodeEndpoint(_Endpoint):
         self._flush_own_recording(cycle)
         return observed
 
+    # ------------------------------------------------------------------ following a paced cell
+    def follow(self, timeout_s: float) -> tuple[int, ObservedActuals] | None:
+        """The controller side of a hardware-in-the-loop run (the cell keeps the time,
+        :meth:`DriveEndpoint.run_cycle_paced`): wait up to ``timeout_s`` (wall) for the
+        cell's next PRes frames, digest everything that has arrived, and return
+        ``(cycle, observed)``: the cell's cycle as counted here (+1 per batch of PRes
+        frames, and per datagram the transport reports lost) and the newest actual
+        values. None when nothing arrived in time. Then call :meth:`send_following`
+        with the set-points for the next cycle."""
+        bus = self.bus
+        first = bus.recv(timeout_s)
+        if first is None:
+            return None
+        batch = [first] + self._read_now()
+        n = self.config.nodes
+        head = TPDO1_BASE + 1
+        batches = sum(1 for m in batch if m.arbitration_id == head) or 1
+        stats = getattr(bus, "stats", None)
+        lost = getattr(stats, "lost", 0)
+        batches += lost - self._follow_lost
+        self._follow_lost = lost
+        cycle = self._follow_cycle + batches
+        self._follow_cycle = cycle
+        self._cycle = cycle - 1
+        self._begin(cycle)
+        times = self._times
+        for msg in batch:
+            base, node = msg.arbitration_id & ~0x7F, msg.arbitration_id & 0x7F
+            if base in (TPDO1_BASE, TPDO2_BASE) and 1 <= node <= n and times[n + node] is not None:
+                msg.timestamp = times[n + node]  # the cell judged their timing; keep them in time here
+            else:
+                msg.timestamp = times[0]
+        node = self.node
+        node.start_cycle(cycle)
+        if self._record is not None:
+            self._record(batch)
+        node.receive_all(batch)
+        observed = node.end_cycle(cycle)
+        self._flush_own_recording(cycle)
+        return cycle, observed
+
+    def send_following(self, setpoints: Setpoints) -> None:
+        """SoC and PReqs for the cell's next cycle (after :meth:`follow`), in one batch."""
+        cycle = self._follow_cycle + 1
+        times = self.schedule.timestamps(cycle)
+        node = self.node
+        frames = node.encode(cycle, times, setpoints)
+        if frames is None:
+            frames = node.frames(cycle, times, setpoints.controlword.tolist(), setpoints.position.tolist(),
+                                 setpoints.torque_offset.tolist())
+        if self._send_many is not None:
+            self._send_many(frames)
+        else:
+            for msg in frames:
+                self.bus.send(msg)
+        self.frames_sent += len(frames)
+        if self._record is not None:
+            self._record(frames)
+
     def run_cycle(self, cycle: int, setpoints: Setpoints) -> ObservedActuals:
         """send_setpoints + collect_actuals (for a controller in its own process)."""
         self.send_setpoints(cycle, setpoints)
@@ -312,12 +387,102 @@ class DriveEndpoint(_Endpoint):
     ``log_path`` records the frames this side sends and receives."""
 
     side = "cn"
+    #: paced cell side: cycles without the controller's group after which its next SoC re-synchronises
+    REALIGN_AFTER = 2
 
     def __init__(self, config: FieldbusConfig | dict | None, scaling: JointScaling, **kwargs: Any) -> None:
         super().__init__(config, scaling, **kwargs)
         self.nodes = ControlledNodes(self.config, scaling, self.layout, self.events)
         self._emcy_offset = (self.layout.nominal_end_of_isochronous + self.layout.mn_turnaround
                              + self.layout.wire_soa + self.layout.cn_response)
+
+    def run_cycle_paced(self, cycle: int, actuals: DriveActuals, deadline: float,
+                        clock=time.monotonic) -> AppliedSetpoints:
+        """The cell side of a hardware-in-the-loop run: like :meth:`run_cycle`, but the
+        drives keep their own time and never wait for the controller beyond ``deadline``
+        (a ``clock()`` value, wall seconds).
+
+        The window of cycle k collects what the controller (the managing node, any
+        program on the bus) sent: a *group* is a SoC followed by PReqs. The first group
+        taken fixes how the controller's SoC counter maps onto the cell's cycles; from
+        then on cycle k takes only the group carrying cycle k's counter (its frames get
+        this cycle's scheduled timestamps). Anything else in the window - a group that
+        missed its own cycle's window, frames without a SoC - is late and dropped
+        (counted in :attr:`frames_late`, logged). A cycle whose window ends without its
+        group has lost its SoC and PReqs: the nodes' threshold counters count it (+8,
+        -1 per good cycle) exactly as for frames lost on the wire, and the drives hold
+        or extrapolate the set-point. After more than ``REALIGN_AFTER`` cycles without
+        a group (a controller that restarted), the newest group is taken and fixes the
+        mapping anew. The PRes frames go out every cycle, polled or
+        not, so a controller can pace itself on them."""
+        self._begin(cycle)
+        cn = self.nodes
+        applied = cn.start_cycle(cycle, actuals)
+        group = self._newest_group(cycle, deadline, clock)
+        if group:
+            cn.receive_all(group)
+        self._transmit(cn.responses(self._times, answer_all=True))
+        cn.end_cycle(cycle)
+        emcy = cn.emergency_messages(self._t0 + cycle * self._cycle_time + self._emcy_offset)
+        if emcy:
+            saved, self._kinds = self._kinds, _NO_FAULTS
+            self._transmit(emcy)
+            self._kinds = saved
+        self._flush_own_recording(cycle)
+        return applied
+
+    def _newest_group(self, cycle: int, deadline: float, clock) -> list:
+        """This cycle's SoC + PReqs (restamped), see :meth:`run_cycle_paced`."""
+        n = self.config.nodes
+        overflow = self.nodes._sync_overflow
+        groups: list[list] = []
+        stale = 0
+        preqs = {RPDO1_BASE + i + 1 for i in range(n)}
+        expected = None if self._align is None else bytes([(cycle + self._align) % overflow + 1])
+        pending: list = []
+        while True:
+            for msg in pending + self._read_now():
+                if msg.arbitration_id == SYNC_ID and not msg.is_error_frame:
+                    groups.append([msg])
+                elif groups:
+                    groups[-1].append(msg)
+                else:
+                    stale += 1
+            if groups and bytes(groups[-1][0].data[:1]) == expected and \
+                    preqs <= {m.arbitration_id for m in groups[-1]}:
+                break
+            remaining = deadline - clock()
+            if remaining <= 0.0:
+                break
+            msg = self.bus.recv(min(remaining, 0.002))
+            pending = [] if msg is None else [msg]
+        chosen = None
+        for index in range(len(groups) - 1, -1, -1):
+            if bytes(groups[index][0].data[:1]) == expected:
+                chosen = index
+                break
+        if chosen is None and groups and (self._align is None or cycle - self._last_taken > self.REALIGN_AFTER):
+            chosen = len(groups) - 1  # (re)synchronise on the controller's newest SoC
+            self._align = (groups[chosen][0].data[0] - 1 - cycle) % overflow if groups[chosen][0].data else 0
+        late = stale + sum(len(g) for i, g in enumerate(groups) if i != chosen)
+        if late:
+            self.frames_late += late
+            self.events.add(FieldbusEvent(self._t0 + cycle * self._cycle_time, cycle, "cn", 0, "late_frames",
+                                          "dropped", late, self.frames_late, -1,
+                                          f"{late} frame(s) from the controller missed their cycle's window"))
+        if chosen is None:
+            return []
+        self._last_taken = cycle
+        times = self._times
+        out = [FastMessage(times[0], SYNC_ID, bytearray([cycle % overflow + 1]))]
+        for msg in groups[chosen][1:]:
+            base, node = msg.arbitration_id & ~0x7F, msg.arbitration_id & 0x7F
+            on_time = base == RPDO1_BASE and 1 <= node <= n and times[node] is not None
+            msg.timestamp = times[node] if on_time else times[0]
+            out.append(msg)
+        if self._record is not None and (self._record_received or self._owns_recorder):
+            self._record(out)  # what the cell took, with the cycle's timestamps
+        return out
 
     def run_cycle(self, cycle: int, actuals: DriveActuals) -> AppliedSetpoints:
         """SoC of ``cycle``: latch ``actuals``, apply the due set-points, receive the

@@ -705,18 +705,22 @@ class ControlledNodes:
                 self._c_crc[i].error(self.cycle, msg.timestamp, reason)
 
     # ------------------------------------------------------------------ sending
-    def responses(self, times: list) -> list[FastMessage]:
+    def responses(self, times: list, answer_all: bool = False) -> list[FastMessage]:
         """PRes frames (TPDO1, TPDO2 per node) with the values latched at the SoC, for
         every node whose PReq arrived (a PReq too late to apply is answered too, as a
         POWERLINK CN answers every PReq) and whose entry in ``times`` (= [soc,
         preq_1..N, pres_1..N] send times) is not None. The messages are reused next
-        cycle (receivers that keep a frame beyond the cycle must copy it)."""
+        cycle (receivers that keep a frame beyond the cycle must copy it). ``answer_all``:
+        every node answers, polled or not (the paced cell side of a hardware-in-the-loop
+        run, whose PRes frames pace the controller)."""
+        ok, late = self._preq_ok, self._preq_late
+        if answer_all:
+            ok = [True] * self.nodes
         if self._prepacked:  # payloads packed at the SoC by the codec
-            return self._codec.pres_frames(self._tpdo1_msgs, self._tpdo2_msgs, times, self._preq_ok, self._preq_late)
+            return self._codec.pres_frames(self._tpdo1_msgs, self._tpdo2_msgs, times, ok, late)
         n = self.nodes
         out: list[FastMessage] = []
         append = out.append
-        ok, late = self._preq_ok, self._preq_late
         a_sw, a_pos, a_tq, a_vel, a_err, a_mode = (self._a_sw, self._a_pos, self._a_tq, self._a_vel, self._a_err,
                                                    self._a_mode)
         msgs1, msgs2 = self._tpdo1_msgs, self._tpdo2_msgs

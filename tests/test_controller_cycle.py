@@ -46,7 +46,7 @@ class Cell:
         self.node_fault = False
 
     def cycle(self):
-        sp = self.controller.step(self.k, self.k * PERIOD, self.obs)
+        sp = self.controller.run_cycle(self.k, self.k * PERIOD, self.obs)
         for i, d in enumerate(self.drives):
             d.step(int(sp.controlword[i]), fault=(self.fault == i))
         self.obs.statusword[:] = [d.statusword for d in self.drives]
@@ -132,7 +132,7 @@ def test_stop_on_node_fault_and_enable_timeout(tcp_ref):
     obs.fresh[:] = True
     obs.statusword[:] = 0x0040  # drives stay in Switch on disabled
     for k in range(10):
-        ctrl.step(k, k * PERIOD, obs)
+        ctrl.run_cycle(k, k * PERIOD, obs)
     assert ctrl.stopped and "Operation enabled" in ctrl.stop_reason
 
 

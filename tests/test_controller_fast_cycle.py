@@ -41,7 +41,7 @@ def run(ref, mode: str, fast: bool, cycles: int, fault_at: int | None = None, re
     obs.position[:] = ctrl.q_start
     obs.statusword[:] = [d.statusword for d in drives]
     for k in range(cycles):
-        sp = ctrl.step(k, k * PERIOD, obs)
+        sp = ctrl.run_cycle(k, k * PERIOD, obs)
         for i, d in enumerate(drives):
             d.step(int(sp.controlword[i]), fault=(fault_at is not None and k >= fault_at and i == 2))
         obs.statusword[:] = [d.statusword for d in drives]
@@ -84,7 +84,7 @@ def test_fast_cycle_refuses_unusual_observed_arrays(tcp_ref):
     obs.position[:] = ctrl.q_start
     obs.statusword[:] = [d.statusword for d in drives]
     for k in range(30):
-        sp = ctrl.step(k, k * PERIOD, obs)
+        sp = ctrl.run_cycle(k, k * PERIOD, obs)
         for d, cw in zip(drives, sp.controlword.tolist()):
             d.step(cw)
         obs.statusword[:] = [d.statusword for d in drives]

@@ -121,22 +121,21 @@ def test_snapped_omega_and_recorder():
     assert n == 19635 and abs(omega - 0.8) < 1e-5
     assert 2 * math.pi / omega == pytest.approx(n * 400e-6, rel=1e-12)
 
-    class Observed:
-        position = np.arange(6.0)
-        torque = np.ones(6)
-        fresh = np.ones(6, dtype=bool)
+    from controller import ControllerInput
 
     class Inner:
         stopped = False
 
-        def step(self, cycle, t, observed):
-            return ("setpoints", cycle)
+        def step(self, inputs):
+            return ("setpoints", inputs.cycle)
 
     rec = FieldbusRecorder(Inner(), capacity=10, torque_noise_sigma=np.zeros(6), seed=0)
     for k in range(4):
-        observed = Observed()
-        observed.position = np.full(6, float(k))
-        assert rec.step(k, k * 4e-4, observed) == ("setpoints", k)
+        inputs = ControllerInput.zeros(6)
+        inputs.cycle, inputs.time_s = k, k * 4e-4
+        inputs.position = np.full(6, float(k))
+        inputs.torque = np.ones(6)
+        assert rec.step(inputs) == ("setpoints", k)
     assert rec.stopped is False  # delegated
     t, q, tau = rec.window(4e-4, 2 * 4e-4, 4e-4)
     assert np.allclose(t, [4e-4, 8e-4]) and np.allclose(q[:, 0], [1.0, 2.0]) and np.allclose(tau, 1.0)

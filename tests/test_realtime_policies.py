@@ -22,10 +22,10 @@ def _slow_down(controller, delays: dict[int, float], advance) -> None:
     """Make ``controller.step`` take ``delays[cycle]`` ns of wall time in those cycles."""
     step = controller.step
 
-    def slowed(cycle, t, observed):
-        out = step(cycle, t, observed)
-        if cycle in delays:
-            advance(delays[cycle])
+    def slowed(inputs):
+        out = step(inputs)
+        if inputs.cycle in delays:
+            advance(delays[inputs.cycle])
         return out
 
     controller.step = slowed

@@ -49,9 +49,9 @@ def test_paced_split_lost_frames_trip_the_drive_side_counters(tmp_path):
     clock = VirtualClock()
     step = controller.step
 
-    def slowed(cycle, t, observed):
-        out = step(cycle, t, observed)
-        if cycle in (100, 101):
+    def slowed(inputs):
+        out = step(inputs)
+        if inputs.cycle in (100, 101):
             clock.advance_ns(700_000)   # the next cycle starts >= 300 us late
         return out
 

@@ -180,15 +180,16 @@ class FieldbusRecorder:
     def __getattr__(self, name: str) -> Any:
         return getattr(self._controller, name)
 
-    def step(self, cycle: int, t: float, observed: Any) -> Any:
+    def step(self, inputs: Any) -> Any:
+        """Keep this cycle's :class:`controller.ControllerInput` values, then the controller's step."""
         k = self.rows
         if k < self.t.size:
-            self.t[k] = t
-            self.position[k] = observed.position
-            self.torque[k] = observed.torque + self._sigma * self._rng.standard_normal(6)
-            self.fresh[k] = observed.fresh
+            self.t[k] = inputs.time_s
+            self.position[k] = inputs.position
+            self.torque[k] = inputs.torque + self._sigma * self._rng.standard_normal(6)
+            self.fresh[k] = inputs.fresh
             self.rows = k + 1
-        return self._controller.step(cycle, t, observed)
+        return self._controller.step(inputs)
 
     def window(self, start_s: float, duration_s: float, period_s: float,
                position_lag_cycles: int = 0) -> tuple[np.ndarray, ...]:

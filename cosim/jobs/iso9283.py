@@ -39,6 +39,7 @@ from typing import Any
 import numpy as np
 
 from controller import Controller, ControllerConfig, Phase, TcpTrajectory
+from controller.elastic import make_controller
 from cosim.jobs import robot_cell
 from cosim.jobs.cell_checks import check_cell, fill_defaults
 from cosim.jobs.columns_csv import write_columns_csv
@@ -78,6 +79,10 @@ JOB_MODES: dict[str, JobMode] = {
     "model_based": JobMode("model_based", True, "eq. 7: velocity reference through the drives' speed feed-forward, "
                                                 "torque feed-forward M(q_d) qdd_d + g(q_d, qd_d) as torque offset, "
                                                 "drive set-point shaping"),
+    "model_based_elastic": JobMode("model_based_elastic", True,
+                                   "flatness-based feed-forward for elastic gears: motor reference q_d + K^-1 tau_g "
+                                   "(from q_d and its derivatives up to the 4th) as target, motor torque as torque "
+                                   "offset, drive set-point shaping (controller/elastic.py)"),
 }
 """The job's modes (``[controller] modes``), in the order they are reported."""
 
@@ -95,11 +100,16 @@ def _mode_table(mode: str) -> Table:
                 f"{str(default).lower()}"),
     }, doc=f"the [controller.{mode}] table")
 
+#: Largest accepted |x|, |y|, |z| of the payload's centre of mass in tool0, m: load diagrams of 10 kg-class
+#: arms end at a few hundred mm of offset; 1 m leaves room for long tools and refuses unit slips (mm for m).
+MAX_PAYLOAD_COM_M = 1.0
+
 TRUE_ROBOT_TABLE = Table({
     "seed": Field(Integer(min=0), default=1, doc="the seed of the true robot's deviations: an integer >= 0"),
     "payload_mass": Field(Number(unit="kg", min=0, max=10), default=0.0,
                           doc="the payload on tool0: a number in kg in [0, 10] (rated load 10 kg)"),
-    "payload_com": Field(List(Number(unit="m"), length=3), default=[0.0, 0.0, 0.0],
+    "payload_com": Field(List(Number(unit="m", min=-MAX_PAYLOAD_COM_M, max=MAX_PAYLOAD_COM_M), length=3),
+                         default=[0.0, 0.0, 0.0],
                          doc="the payload's centre of mass in tool0: 3 numbers in m"),
     "dynamic_deviations": Field(Boolean(), default=True),
     "geometric_errors": Field(Boolean(), default=True),
@@ -165,7 +175,8 @@ def check(doc: dict[str, Any], where: Where) -> None:
     fill_table_defaults(doc)
     check_cell(doc, where, job_set_drive_parameters={
         SPEED_FEEDFORWARD_PARAMETER: "no speed_feedforward_gain here: the job sets it per mode "
-                                     "([controller.<mode>] drive_speed_feedforward = true/false)"})
+                                     "([controller.<mode>] drive_speed_feedforward = true/false)"},
+        run_length_s=doc["simulation"]["stop_time"])
 
 
 # ---------------------------------------------------------------------------------------- set-up
@@ -283,7 +294,8 @@ def prepare(doc: dict[str, Any], source: str) -> JobSetup:
     fb = FieldbusConfig.from_dict(doc["fieldbus"], source=source)
     mode_settings = {mode: {"controller_mode": JOB_MODES[mode].controller_mode,
                             "drive_speed_feedforward": drive_speed_feedforward(ctrl_t, mode),
-                            "torque_feedforward": JOB_MODES[mode].controller_mode == "model_based",
+                            "torque_feedforward": JOB_MODES[mode].controller_mode in ("model_based",
+                                                                                      "model_based_elastic"),
                             "description": JOB_MODES[mode].description} for mode in ctrl_t["modes"]}
     return JobSetup(doc, true_robot, path, reference, kin, dyn, kin_label, dyn_label, tracker, fb,
                     int(doc["simulation"]["stop_time"] / period) + 16, mode_settings)
@@ -307,8 +319,8 @@ def mode_controller(setup: JobSetup, mode: str) -> tuple[dict[str, Any], Control
     config = ControllerConfig(mode=settings["controller_mode"], period_s=period,
                               lead_cycles=1 + setup.fieldbus.dead_time_cycles,
                               compute_budget_s=ctrl_t["compute_budget"], settle_time_s=ctrl_t["settle_time"])
-    controller = Controller(setup.reference, config, kinematic_model=setup.kinematics, dynamics=setup.dynamics,
-                            q_hint=np.array(ISO_Q_HINT), drive_model=drive_model, capacity=setup.capacity)
+    controller = make_controller(setup.reference, config, kinematic_model=setup.kinematics, dynamics=setup.dynamics,
+                                 q_hint=np.array(ISO_Q_HINT), drive_model=drive_model, capacity=setup.capacity)
     return mode_doc, controller
 
 
@@ -362,6 +374,11 @@ def run(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
     if "standard_speed_ff" in modes and "model_based" in modes:
         fields["improvement_factor_vs_standard_speed_ff"] = _ratio(modes["standard_speed_ff"]["tcp_error_max_mm"],
                                                                    modes["model_based"]["tcp_error_max_mm"])
+    if "model_based_elastic" in modes:
+        for base in ("standard", "model_based"):
+            if base in modes:
+                fields[f"improvement_factor_elastic_vs_{base}"] = _ratio(
+                    modes[base]["tcp_error_max_mm"], modes["model_based_elastic"]["tcp_error_max_mm"])
     if setup.doc["results"]["figures"]:
         from cosim.jobs.iso9283_figures import write_figures
 

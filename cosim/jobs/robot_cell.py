@@ -35,7 +35,8 @@ from typing import Any
 
 import numpy as np
 
-from controller import Controller, DriveLoopModel, speed_comparison_lead
+from controller import CellController, Controller, ControllerInfo, DriveLoopModel, speed_comparison_lead
+from controller.port import ControllerFailure, ControllerPort
 from cosim.jobs.laser_tracker import TRACKER_VARIABLES, LaserTracker, TrackerConfig
 from cosim.master import Master, MemorySink, Recorder, SimulationError
 from cosim.realtime.pacer import no_cyclic_gc
@@ -83,8 +84,8 @@ def cell_connections() -> list[str]:
     """The connections a cell needs (the scenario must list each of them)."""
     out = []
     for i, drive in enumerate(DRIVES, start=1):
-        out += [f"{drive}.tau_out -> {PLANT}.tau[{i}]", f"{PLANT}.q[{i}] -> {drive}.q_meas",
-                f"{PLANT}.qd[{i}] -> {drive}.qd_meas"]
+        out += [f"{drive}.tau_out -> {PLANT}.tau[{i}]", f"{PLANT}.q_motor[{i}] -> {drive}.q_meas",
+                f"{PLANT}.qd_motor[{i}] -> {drive}.qd_meas"]
         out += [f"bus.{name}[{i}] -> {drive}.{name}" for name in BUS_REAL + BUS_INTEGER]
     return out
 
@@ -171,22 +172,32 @@ class FieldbusLink:
     ends the run with a SimulationError naming the reason.
     """
 
-    def __init__(self, network: PowerlinkNetwork, controller: Controller, period_s: float,
-                 stop_grace_s: float = 0.5) -> None:
+    def __init__(self, network: PowerlinkNetwork, controller: CellController | ControllerPort, period_s: float,
+                 stop_grace_s: float = 0.5, info: ControllerInfo | None = None) -> None:
         self.network = network
-        self.controller = controller
+        self.info = info
+        self.port = controller if isinstance(controller, ControllerPort) else ControllerPort(
+            controller, N_JOINTS, q_start=getattr(controller, "q_start", None))
+        self.controller = self.port.controller
         self.period_s = period_s
         self.stop_grace_s = stop_grace_s
         self.cycle = 0
         self.actuals = DriveActuals.zeros(N_JOINTS)
-        self.setpoints = controller.setpoints
+        self.setpoints = self.port.setpoints
         self._real = self._integer = None
         self._real_out = self._integer_out = None
         self._copy_applied = True
+        self._paced = hasattr(network, "last_late")
 
     def setup(self, master: Master) -> None:
         """Bind one reader per bus type for the drives' actual values and one writable
-        view per bus type for the ``bus.*`` variables (end of master.initialize)."""
+        view per bus type for the ``bus.*`` variables (end of master.initialize); then the
+        controller's ``setup(info)`` (a failure there ends the run as a SimulationError)."""
+        if self.info is not None:
+            try:
+                self.port.setup(self.info)
+            except ControllerFailure as exc:
+                raise SimulationError("controller", 0.0, exc.reason) from exc
         self._real = master.reader([f"{d}.{name}" for name in ("position_actual", "velocity_actual", "torque_actual")
                                     for d in DRIVES])
         self._integer = master.reader([f"{d}.{name}" for name in ("statusword", "error_code") for d in DRIVES])
@@ -218,11 +229,18 @@ class FieldbusLink:
             self._real_out[n:] = applied.torque_offset
             self._integer_out[:n] = applied.controlword
             self._integer_out[n:] = applied.fault_code
-        self.setpoints = self.controller.step(self.cycle, t, result.observed)
+        try:
+            if self._paced:  # a wall-clock network (cosim.realtime.network.PacedNetwork) says whether it was late
+                network = self.network
+                self.setpoints = self.port.step(self.cycle, t, result.observed, network.last_late, network.last_lost)
+            else:
+                self.setpoints = self.port.step(self.cycle, t, result.observed)
+        except ControllerFailure as exc:
+            raise SimulationError("controller", exc.time_s, exc.reason) from exc
         self.cycle += 1
-        ctrl = self.controller
-        if ctrl.stopped and t - ctrl.stopped_at_s >= self.stop_grace_s - 1e-12:
-            raise SimulationError("controller", ctrl.stopped_at_s, f"motion stopped: {ctrl.stop_reason}")
+        stopped_at = self.port.stopped_at_s
+        if stopped_at is not None and t - stopped_at >= self.stop_grace_s - 1e-12:
+            raise SimulationError("controller", stopped_at, f"motion stopped: {self.port.stop_reason}")
 
 
 @dataclass
@@ -253,12 +271,12 @@ def write_recording(memory: MemorySink, sink: Any) -> None:
     sink.close()
 
 
-def cell_fieldbus_config(fieldbus: FieldbusConfig | dict[str, Any] | None, controller: Controller) -> FieldbusConfig:
+def cell_fieldbus_config(fieldbus: FieldbusConfig | dict[str, Any] | None, controller: Any) -> FieldbusConfig:
     """The cell's fieldbus configuration (a FieldbusConfig, a [fieldbus] table, or None for the
-    defaults); ValueError when its cycle time differs from the controller period (s)."""
+    defaults); ValueError when its cycle time differs from the built-in controller's period (s)."""
     config = fieldbus if isinstance(fieldbus, FieldbusConfig) else FieldbusConfig.from_dict(fieldbus or {})
     period = config.cycle_time_s
-    if abs(period - controller.config.period_s) > 1e-12:
+    if isinstance(controller, Controller) and abs(period - controller.config.period_s) > 1e-12:
         raise ValueError(f"controller period {controller.config.period_s} s differs from the fieldbus cycle "
                          f"time {period} s")
     return config
@@ -280,22 +298,46 @@ def cell_signals(doc: dict[str, Any], laser: LaserTracker) -> tuple[list[str], f
     return signals, record["period"]
 
 
-def add_cell_tasks(master: Master, network: Any, controller: Controller, period_s: float, laser: LaserTracker,
-                   signals: Sequence[str], record_period_s: float, sink: Any) -> Recorder:
+def add_cell_tasks(master: Master, network: Any, controller: CellController, period_s: float, laser: LaserTracker,
+                   signals: Sequence[str], record_period_s: float, sink: Any,
+                   info: ControllerInfo | None = None) -> tuple[Recorder, FieldbusLink]:
     """Add the cell's tasks to ``master`` (before initialize): the :class:`FieldbusLink` of
-    ``network`` and ``controller`` every ``period_s`` (priority 0), the laser tracker at its
-    period (priority 1) and the recorder of ``signals`` every ``record_period_s`` into ``sink``;
-    returns the recorder."""
-    link = FieldbusLink(network, controller, period_s)
+    ``network`` and ``controller`` every ``period_s`` (priority 0; the controller's
+    ``setup(info)`` at master initialisation), the laser tracker at its period (priority 1)
+    and the recorder of ``signals`` every ``record_period_s`` into ``sink``; returns the
+    recorder and the link (``link.port.close()`` when the run ends)."""
+    link = FieldbusLink(network, controller, period_s, info=info)
     master.add_task(link, period_s, priority=0, name="fieldbus+controller", setup=link.setup)
     master.add_task(laser, laser.config.period_s, priority=1, name="laser_tracker", setup=laser.setup)
-    return master.add_recorder(signals, record_period_s, sink, name="cell")
+    return master.add_recorder(signals, record_period_s, sink, name="cell"), link
 
 
-def run_cell(doc: dict[str, Any], controller: Controller, true_robot: TrueRobot, ctx: RunContext, *,
+def controller_info(controller: Any, fb_config: FieldbusConfig, *, label: str = "",
+                    parameters: dict[str, Any] | None = None, source: str = "", reference: Any = None,
+                    q_start: Any = None, kinematic_model: Any = None, dynamics: Any = None,
+                    compute_budget_s: float | None = None) -> ControllerInfo:
+    """The :class:`controller.ControllerInfo` of a cell run: the bus cycle and dead time of
+    ``fb_config``, the arm's limits (robot/rx130l_params.toml), and the reference, start pose,
+    models and budget given (else the built-in controller's own, where ``controller`` has them)."""
+    p = load_parameters()
+    config = getattr(controller, "config", None)
+    budget = compute_budget_s if compute_budget_s is not None else getattr(config, "compute_budget_s", 100e-6)
+    pick = (lambda given, name: given if given is not None else getattr(controller, name, None))
+    return ControllerInfo(period_s=fb_config.cycle_time_s, n_joints=N_JOINTS,
+                          dead_time_cycles=fb_config.dead_time_cycles, compute_budget_s=budget,
+                          position_min=p.position_lower.copy(), position_max=p.position_upper.copy(),
+                          velocity_max=p.velocity_limit.copy(), torque_max=p.effort_limit.copy(),
+                          rated_torque=p.rated_torque.copy(), q_start=pick(q_start, "q_start"),
+                          reference=pick(reference, "reference"),
+                          kinematic_model=pick(kinematic_model, "kinematic_model"),
+                          dynamics=pick(dynamics, "dynamics"), parameters=dict(parameters or {}), label=label,
+                          source=source)
+
+
+def run_cell(doc: dict[str, Any], controller: CellController, true_robot: TrueRobot, ctx: RunContext, *,
              label: str, stop_time: float, fieldbus: FieldbusConfig | dict[str, Any] | None = None,
              tracker: TrackerConfig | None = None, record_file: str = "timeseries.csv",
-             can_log: Path | None = None) -> CellRun:
+             can_log: Path | None = None, info: ControllerInfo | None = None) -> CellRun:
     """Co-simulate one cell run from 0 to ``stop_time`` s and return what it produced.
 
     ``doc`` is the validated scenario (its [simulation], [[fmus]], connections, [record]);
@@ -314,20 +356,25 @@ def run_cell(doc: dict[str, Any], controller: Controller, true_robot: TrueRobot,
     execution = getattr(ctx, "execution", None)
     if execution is not None and execution.active:
         return execution.run_cell(doc, controller, true_robot, ctx, label=label, stop_time=stop_time,
-                                  fieldbus=fieldbus, tracker=tracker, record_file=record_file, can_log=can_log)
+                                  fieldbus=fieldbus, tracker=tracker, record_file=record_file, can_log=can_log,
+                                  info=info)
     fb_config = cell_fieldbus_config(fieldbus, controller)
+    if info is None:
+        info = controller_info(controller, fb_config, label=label)
     period = fb_config.cycle_time_s
     laser = LaserTracker(true_robot.kinematic_model(), tracker)
     signals, record_period = cell_signals(doc, laser)
-    master = build_master(cell_document(doc, true_robot, controller.q_start), master_variables=cell_variables())
+    master = build_master(cell_document(doc, true_robot, info.q_start), master_variables=cell_variables())
     memory = MemorySink()
     engine = ""
     failure: SimulationError | None = None
     wall0 = time.perf_counter()
     cpu0 = time.process_time()
     network = PowerlinkNetwork(fb_config, joint_scaling(), log_path=can_log)
+    link = None
     try:
-        recorder = add_cell_tasks(master, network, controller, period, laser, signals, record_period, memory)
+        recorder, link = add_cell_tasks(master, network, controller, period, laser, signals, record_period, memory,
+                                        info)
         ctx.attach(master, stop_time, label=label)
         with master:
             try:
@@ -338,6 +385,8 @@ def run_cell(doc: dict[str, Any], controller: Controller, true_robot: TrueRobot,
             except SimulationError as exc:
                 failure = exc
     finally:
+        if link is not None:
+            link.port.close()
         network.close()
         wall = time.perf_counter() - wall0
         cpu = time.process_time() - cpu0

@@ -43,7 +43,7 @@ def deferred_recording(config: FieldbusConfig) -> FieldbusConfig:
 def run_paced_cell(doc: dict[str, Any], controller, true_robot, ctx: RunContext, *, label: str, stop_time: float,
                    fieldbus: FieldbusConfig | dict[str, Any] | None, tracker: TrackerConfig | None,
                    record_file: str, can_log: Path | None, settings: RealtimeSettings,
-                   pacer: Pacer | None = None) -> tuple[robot_cell.CellRun, Pacer, str]:
+                   pacer: Pacer | None = None, info=None) -> tuple[robot_cell.CellRun, Pacer, str]:
     """Run the cell from 0 to ``stop_time`` s paced at the controller cycle.
 
     Returns the CellRun (as run_cell), the :class:`Pacer` (its ``log``: lateness per cycle)
@@ -51,9 +51,11 @@ def run_paced_cell(doc: dict[str, Any], controller, true_robot, ctx: RunContext,
     a Pacer on a :class:`~cosim.realtime.pacer.VirtualClock`)."""
     fb_config = deferred_recording(robot_cell.cell_fieldbus_config(fieldbus, controller))
     period = fb_config.cycle_time_s
+    if info is None:
+        info = robot_cell.controller_info(controller, fb_config, label=label)
     laser = LaserTracker(true_robot.kinematic_model(), tracker)
     signals, record_period = robot_cell.cell_signals(doc, laser)
-    master = build_master(robot_cell.cell_document(doc, true_robot, controller.q_start),
+    master = build_master(robot_cell.cell_document(doc, true_robot, info.q_start),
                           master_variables=robot_cell.cell_variables())
     memory = MemorySink()
     engine = ""
@@ -62,13 +64,15 @@ def run_paced_cell(doc: dict[str, Any], controller, true_robot, ctx: RunContext,
     wall0 = time.perf_counter()
     cpu0 = time.process_time()
     network = PowerlinkNetwork(fb_config, robot_cell.joint_scaling(), log_path=can_log)
+    link = None
     try:
         tolerance = settings.tolerance_s if settings.tolerance_s is not None else auto_tolerance_s(network.layout)
         if pacer is None:
             pacer = Pacer(period, settings.spin_s, tolerance, capacity=int(stop_time / period) + 16)
         pacer.thresholds = lateness_thresholds(network.layout)
         paced = PacedNetwork(network, pacer, settings.overrun_policy, cycles=int(round(stop_time / period)) + 1)
-        recorder = robot_cell.add_cell_tasks(master, paced, controller, period, laser, signals, record_period, memory)
+        recorder, link = robot_cell.add_cell_tasks(master, paced, controller, period, laser, signals, record_period,
+                                                   memory, info)
         with master:
             try:
                 master.initialize(stop_time)
@@ -80,6 +84,8 @@ def run_paced_cell(doc: dict[str, Any], controller, true_robot, ctx: RunContext,
             except SimulationError as exc:
                 failure = exc
     finally:
+        if link is not None:
+            link.port.close()
         network.close()
     wall = time.perf_counter() - wall0
     cpu = time.process_time() - cpu0

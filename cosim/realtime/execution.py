@@ -40,7 +40,8 @@ class CellExecution:
         return self.options.active
 
     def run_cell(self, doc: dict[str, Any], controller, true_robot, ctx, *, label: str, stop_time: float,
-                 fieldbus=None, tracker=None, record_file: str = "timeseries.csv", can_log: Path | None = None):
+                 fieldbus=None, tracker=None, record_file: str = "timeseries.csv", can_log: Path | None = None,
+                 info=None):
         """Run one cell as configured; returns a :class:`cosim.jobs.robot_cell.CellRun`."""
         opts = self.options
         load_before = load_average()
@@ -49,14 +50,14 @@ class CellExecution:
 
             cell, pacer, granted, split_info = run_split_cell(
                 doc, controller, true_robot, ctx, label=label, stop_time=stop_time, fieldbus=fieldbus,
-                tracker=tracker, record_file=record_file, can_log=can_log, options=opts)
+                tracker=tracker, record_file=record_file, can_log=can_log, options=opts, info=info)
             self.split_runs[label] = split_info
         else:
             from cosim.realtime.cell import run_paced_cell
 
             cell, pacer, granted = run_paced_cell(
                 doc, controller, true_robot, ctx, label=label, stop_time=stop_time, fieldbus=fieldbus,
-                tracker=tracker, record_file=record_file, can_log=can_log, settings=opts.settings)
+                tracker=tracker, record_file=record_file, can_log=can_log, settings=opts.settings, info=info)
         fields: dict[str, Any] = {"execution": {**opts.as_dict(), **({"split": self.split_runs} if opts.split else {})}}
         if pacer is not None:
             fields["realtime"] = self._report(ctx, label, pacer, granted, load_before)

@@ -49,14 +49,20 @@ class PacedNetwork:
         self.gate = SetpointGate(policy, network.config.nodes)
         self.plan = install_overrun_plan(network.mn_side, network.drive_side)
         self.config = network.config
+        self.last_late = False
+        self.last_lost = False
         if cycles is not None:  # frame timestamps of the whole run now, not in the loop
             precompute_schedules((network.mn_side, network.drive_side), cycles, policy == "lost_frame")
 
     def run_cycle(self, cycle: int, setpoints: Setpoints, actuals: DriveActuals) -> CycleResult:
         """Wait for the wall deadline of ``cycle``, apply the policy if it is late, run the cycle."""
         late = self.pacer.wait(cycle)
-        if late and self.policy == "lost_frame":
+        lost = late and self.policy == "lost_frame"
+        if lost:
             self.plan.mark_lost(cycle)
+        # what the controller is told in this cycle (controller.contract.ControllerInput)
+        self.last_late = late and not lost
+        self.last_lost = lost
         return self.network.run_cycle(cycle, self.gate.send(setpoints, late), actuals)
 
     def summary(self) -> dict[str, Any]:

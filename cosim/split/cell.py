@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
+from controller.port import ControllerFailure, ControllerPort
 from cosim.jobs import robot_cell
 from cosim.jobs.laser_tracker import LaserTracker, TrackerConfig
 from cosim.master import MemorySink, SimulationError
@@ -82,7 +83,7 @@ def run_split_cell(doc: dict[str, Any], controller, true_robot, ctx, *, label: s
                    fieldbus: FieldbusConfig | dict[str, Any] | None, tracker: TrackerConfig | None,
                    record_file: str, can_log: Path | None, options: ExecutionOptions,
                    stop_grace_s: float = 0.5, pacer: Pacer | None = None,
-                   on_cycle: Callable[[int, SplitSession], None] | None = None):
+                   on_cycle: Callable[[int, SplitSession], None] | None = None, info=None):
     """Run one cell split over two processes; returns ``(CellRun, Pacer or None, scheduling granted,
     info)`` with ``info`` = {"port", "drive_process_exit_code", "controller_stop_cycle",
     "drive_side_wall_s", "loop_wall_s" (cycles only, after the drive process is ready),
@@ -92,13 +93,15 @@ def run_split_cell(doc: dict[str, Any], controller, true_robot, ctx, *, label: s
     if paced:
         fb_config = deferred_recording(fb_config)
     period = fb_config.cycle_time_s
+    cinfo = info if info is not None else robot_cell.controller_info(controller, fb_config, label=label)
+    controller_port = ControllerPort(controller, robot_cell.N_JOINTS, q_start=cinfo.q_start)
     port, up_port = free_udp_port(), free_udp_port()
     while up_port == port:
         up_port = free_udp_port()
     bus_config = side_configs(fb_config, port, options.receive_timeout_s)
     laser = LaserTracker(true_robot.kinematic_model(), tracker)
     signals, record_period = robot_cell.cell_signals(doc, laser)
-    cell_doc = robot_cell.cell_document(doc, true_robot, controller.q_start)
+    cell_doc = robot_cell.cell_document(doc, true_robot, cinfo.q_start)
     raw = Path(tempfile.mkdtemp(prefix="cosim-split-")) / "rows.f64"
     settings = options.settings
     spec = DriveSideSpec(cell_doc=cell_doc, signals=signals, record_period_s=record_period,
@@ -125,7 +128,12 @@ def run_split_cell(doc: dict[str, Any], controller, true_robot, ctx, *, label: s
     memory = MemorySink()
     child: dict[str, Any] | None = None
     ready: dict[str, Any] = {}
+    interrupted: BaseException | None = None
     try:
+        try:
+            controller_port.setup(cinfo)
+        except ControllerFailure as exc:
+            raise SimulationError("controller", 0.0, exc.reason) from exc
         process.start()
         child_conn.close()
         ready = _receive(conn, process, START_TIMEOUT_S, "ready")
@@ -154,7 +162,7 @@ def run_split_cell(doc: dict[str, Any], controller, true_robot, ctx, *, label: s
                 except (BrokenPipeError, OSError):  # the drive process is gone: the bus counters will tell
                     pipe_open[0] = False
         t0 = fb_config.start_time_s
-        setpoints = controller.setpoints
+        setpoints = controller_port.setpoints
         missing_seen = 0
         # both sides ask for SCHED_FIFO ([realtime] scheduling) even unpaced: each cycle hands
         # over twice between the processes and on a loaded machine every wake-up otherwise
@@ -174,9 +182,17 @@ def run_split_cell(doc: dict[str, Any], controller, true_robot, ctx, *, label: s
                 observed = endpoint.collect_actuals(k)
                 if not pres_expected(plan.for_cycle(k), nodes) and not _acknowledged(conn, k, options.receive_timeout_s):
                     session.drive_exit_code = process.exitcode if not process.is_alive() else None
-                setpoints = controller.step(k, t, observed)
+                try:
+                    setpoints = controller_port.step(k, t, observed, late and not lost_policy, late and lost_policy)
+                except ControllerFailure as exc:
+                    session.cycle = k
+                    failure = SimulationError("controller", exc.time_s, exc.reason)
+                    if k + 1 < n_cycles:
+                        send(pack_marker(k + 1, END))
+                    break
                 session.cycle = k
-                if controller.stopped and session.controller_stop_cycle is None:
+                stopped_at = controller_port.stopped_at_s
+                if stopped_at is not None and session.controller_stop_cycle is None:
                     session.controller_stop_cycle = k
                 if endpoint.frames_missing != missing_seen:
                     missing_seen = endpoint.frames_missing
@@ -184,15 +200,15 @@ def run_split_cell(doc: dict[str, Any], controller, true_robot, ctx, *, label: s
                         session.drive_exit_code = process.exitcode
                 if on_cycle is not None:
                     on_cycle(k, session)
-                if controller.stopped:
+                if stopped_at is not None:
+                    reason = controller_port.stop_reason
                     if session.drive_exit_code is not None:
                         failure = SimulationError(
                             "split drive side", t, f"drive process ended (exit code {session.drive_exit_code}); "
-                            f"the controller stopped at t = {controller.stopped_at_s:.6g} s: {controller.stop_reason}")
+                            f"the controller stopped at t = {stopped_at:.6g} s: {reason}")
                         break
-                    if t - controller.stopped_at_s >= stop_grace_s - 1e-12:
-                        failure = SimulationError("controller", controller.stopped_at_s,
-                                                  f"motion stopped: {controller.stop_reason}")
+                    if t - stopped_at >= stop_grace_s - 1e-12:
+                        failure = SimulationError("controller", stopped_at, f"motion stopped: {reason}")
                         if k + 1 < n_cycles:
                             send(pack_marker(k + 1, END))
                         break
@@ -206,7 +222,18 @@ def run_split_cell(doc: dict[str, Any], controller, true_robot, ctx, *, label: s
                 child = _receive(conn, process, 120.0, "done")
             except RuntimeError as error:
                 info["drive_side_error"] = str(error)
+    except KeyboardInterrupt as exc:  # SIGINT/SIGTERM: end the drive side, keep its rows, then re-raise
+        interrupted = exc
+        if hasattr(ctx, "note_position"):
+            ctx.note_position(label, fb_config.start_time_s + max(session.cycle, 0) * period)
+        if process.is_alive():
+            try:
+                conn.send_bytes(pack_marker(session.cycle + 1, END))
+                child = _receive(conn, process, 5.0, "done")
+            except (OSError, RuntimeError, EOFError):
+                pass
     finally:
+        controller_port.close()
         endpoint.close()
         if process.is_alive():
             process.join(timeout=10)
@@ -224,6 +251,8 @@ def run_split_cell(doc: dict[str, Any], controller, true_robot, ctx, *, label: s
     raw.unlink(missing_ok=True)
     raw.parent.rmdir()
     robot_cell.write_recording(memory, ctx.csv_sink(record_file))
+    if interrupted is not None:
+        raise interrupted
     cycles = session.cycle + 1
     mn_summary = network_summary(endpoint.config, endpoint.events, endpoint, None, endpoint.recorder, cycles)
     fieldbus_summary = _merge_fieldbus(mn_summary, child["fieldbus"] if child else None)

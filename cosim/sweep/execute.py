@@ -23,6 +23,7 @@ finished run (``ok`` or ``failed``) of the same variant hash.
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import json
 import logging
 import os
@@ -30,22 +31,26 @@ import sys
 import time
 import uuid
 from collections.abc import Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
 from tqdm import tqdm
 
+from cosim.sweep.keypath import referenced_files
 from cosim.sweep.loader import Sweep
 from cosim.sweep.table import write_table
-from cosim.sweep.task import VariantTask, make_row, reuse_finished, run_variant, worker_name
+from cosim.sweep.task import (ShippedResult, VariantTask, make_row, receive_shipped, reuse_finished,
+                              run_shipped_variant, run_variant, worker_name)
 
 TABLE_FILE = "sweep.csv"
 SWEEP_FILE = "sweep.json"
 VARIANTS_DIR = "variants"
 #: Wall-time interval between rewrites of the table while the sweep runs, s.
 TABLE_INTERVAL_S = 2.0
+#: How variants get their inputs and return their results (run_sweep's ``transfer``).
+TRANSFERS = ("auto", "ship", "shared")
 
 
 @dataclass
@@ -86,6 +91,21 @@ class SweepResult:
         """Rows with status failed."""
         return sum(r["status"] != "ok" for r in self.rows)
 
+    parameters: list[str] = field(default_factory=list)
+    transfer: str = "shared"
+
+    def records(self) -> list[dict[str, Any]]:
+        """The table as flat dicts, one per variant in order (the columns of sweep.csv, values typed)."""
+        from cosim.sweep.table import table_records
+
+        return table_records(self.rows, self.parameters)[1]
+
+    def variant(self, index: int):
+        """A :class:`cosim.api.RunResult` of variant ``index``'s folder (summary, time series, figures)."""
+        from cosim.api import RunResult
+
+        return RunResult(self.rows[index]["folder"])
+
 
 def default_out_dir(sweep: Sweep) -> Path:
     """``results/<sweep name>/`` (relative to the working directory)."""
@@ -96,8 +116,96 @@ def variant_tasks(sweep: Sweep, out_dir: Path) -> list[VariantTask]:
     """The tasks of every variant, with their folders under ``out_dir/variants/``."""
     variants_dir = (out_dir / VARIANTS_DIR).resolve()
     metrics = tuple(sweep.metrics) if sweep.metrics else None
+    anchor = str(sweep.base.where.base_dir)
     return [VariantTask(v.index, v.id, v.hash, str(variants_dir / f"{v.id}-{v.hash[:8]}"), v.document, v.values,
-                        metrics) for v in sweep.variants]
+                        metrics, f"{VARIANTS_DIR}/{v.id}-{v.hash[:8]}", (), tuple(sweep.collect), sweep.store,
+                        anchor) for v in sweep.variants]
+
+
+def with_inputs(sweep: Sweep, tasks: list[VariantTask]) -> list[VariantTask]:
+    """``tasks`` listing the files their documents refer to (``task.inputs``: key path, SHA-256,
+    file name), so that the files travel with the tasks (each file is read once)."""
+    digests: dict[str, str] = {}
+    out = []
+    for task in tasks:
+        inputs = []
+        for path, text in referenced_files(sweep.base.job.schema, task.document):
+            file = _client_file(task, text)
+            inputs.append((tuple(path), digests.setdefault(file, _sha256(file)), Path(file).name,
+                           "" if Path(text).expanduser().is_absolute() else text))
+        out.append(replace(task, inputs=tuple(inputs)))
+    return out
+
+
+def _client_file(task: VariantTask, text: str) -> str:
+    """The client's path of a file reference (relative ones are relative to the task's anchor)."""
+    path = Path(text).expanduser()
+    return str(path if path.is_absolute() else Path(task.anchor) / path)
+
+
+def _sha256(path: str) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            digest.update(chunk)
+    return digest.hexdigest()
+
+
+def input_files(sweep: Sweep, tasks: list[VariantTask]) -> dict[str, str]:
+    """SHA-256 -> client path of every file the ``tasks`` ship."""
+    out: dict[str, str] = {}
+    for task in tasks:
+        refs = dict(referenced_files(sweep.base.job.schema, task.document))
+        for path, digest, _, _ in task.inputs:
+            out.setdefault(digest, _client_file(task, refs[tuple(path)]))
+    return out
+
+
+def _identity(data: bytes) -> bytes:
+    """A shipped input file's content, held on a worker as the result of a task."""
+    return data
+
+
+def resolve_transfer(transfer: str, scheduler: str | None, client: Any) -> str:
+    """``"ship"`` or ``"shared"`` for ``transfer`` = ship/shared/auto (auto: shared only on a LocalCluster)."""
+    if transfer not in TRANSFERS:
+        raise ValueError(f"transfer: expected one of {', '.join(TRANSFERS)}, got {transfer!r}")
+    if transfer != "auto":
+        return transfer
+    if scheduler:
+        return "ship"
+    if client is None:
+        return "shared"
+    from dask.distributed import LocalCluster
+
+    return "shared" if isinstance(getattr(client, "cluster", None), LocalCluster) else "ship"
+
+
+#: How long to wait for an existing Dask scheduler (--scheduler) to answer, s.
+SCHEDULER_CONNECT_TIMEOUT_S = 5.0
+
+
+class SchedulerUnreachable(ConnectionError):
+    """The --scheduler address did not answer (message names it and the timeout)."""
+
+
+@contextlib.contextmanager
+def _children_ignore_interrupts() -> Iterator[None]:
+    """Processes started inside ignore SIGINT/SIGTERM (they inherit the disposition across exec):
+    Ctrl-C reaches the whole process group, and the workers must stay up until this process
+    has cancelled the sweep and closes the cluster in order. Restored afterwards."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = {s: signal.signal(s, signal.SIG_IGN) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler if handler is not None else signal.SIG_DFL)
 
 
 @contextlib.contextmanager
@@ -108,10 +216,17 @@ def dask_client(workers: int | None = None, scheduler: str | None = None, retrie
     from dask.distributed import Client, LocalCluster
 
     if scheduler:
-        with Client(scheduler) as client:
+        try:
+            client = Client(scheduler, timeout=SCHEDULER_CONNECT_TIMEOUT_S)
+        except (OSError, TimeoutError, ValueError, TypeError) as exc:
+            raise SchedulerUnreachable(f"--scheduler {scheduler!r}: no Dask scheduler answered within "
+                                       f"{SCHEDULER_CONNECT_TIMEOUT_S:g} s ({type(exc).__name__}: "
+                                       f"{str(exc).splitlines()[0] if str(exc) else ''}); expected the address "
+                                       f"of a running scheduler such as tcp://host:8786") from None
+        with client:
             yield client
         return
-    with dask.config.set({"distributed.scheduler.allowed-failures": retries}):
+    with dask.config.set({"distributed.scheduler.allowed-failures": retries}), _children_ignore_interrupts():
         cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1, processes=True,
                                dashboard_address=":0", silence_logs=logging.ERROR)
     with cluster, Client(cluster) as client:
@@ -146,7 +261,7 @@ def _write_definition(sweep: Sweep, out_dir: Path, state: dict[str, Any]) -> Non
 
 def run_sweep(sweep: Sweep, out_dir: str | Path | None = None, *, workers: int | None = None,
               scheduler: str | None = None, client: Any = None, progress: bool = True,
-              resume: bool = True) -> SweepResult:
+              resume: bool = True, transfer: str = "auto") -> SweepResult:
     """Run every variant of ``sweep`` not already finished on Dask; write the table, figure and sweep.json.
 
     Args:
@@ -157,8 +272,15 @@ def run_sweep(sweep: Sweep, out_dir: str | Path | None = None, *, workers: int |
         client: an existing ``dask.distributed.Client`` to use (then workers/scheduler are ignored).
         progress: show a tqdm bar over the variants on stderr.
         resume: reuse finished variant folders of the same hash (False: run everything again).
+        transfer: ``"shared"``: workers read the scenario's files and write the variant folders at the
+            client's paths (a shared file system); ``"ship"``: each task carries its document and
+            the files it refers to, runs in the worker's temporary folder and brings back its row,
+            summary.json, run.log and the ``[sweep] collect`` files (or writes them to ``[sweep]
+            store``); ``"auto"``: shared on the embedded cluster (or a ``client`` of a LocalCluster),
+            ship on an external ``scheduler``.
     """
     start = time.perf_counter()
+    mode = resolve_transfer(transfer, scheduler, client)
     out_dir = Path(out_dir) if out_dir is not None else default_out_dir(sweep)
     (out_dir / VARIANTS_DIR).mkdir(parents=True, exist_ok=True)
     tasks = variant_tasks(sweep, out_dir)
@@ -169,6 +291,8 @@ def run_sweep(sweep: Sweep, out_dir: str | Path | None = None, *, workers: int |
             if row is not None:
                 rows[task.index] = row
     todo = [t for t in tasks if t.index not in rows]
+    if mode == "ship":   # only the variants that run read their input files
+        todo = with_inputs(sweep, todo)
     reused = len(rows)
     started_at = datetime.now(timezone.utc).isoformat(timespec="seconds")
     _write_definition(sweep, out_dir, {"status": "running", "started_at": started_at, "reused": reused})
@@ -181,7 +305,8 @@ def run_sweep(sweep: Sweep, out_dir: str | Path | None = None, *, workers: int |
         with context as dask_client_:
             workers_seen = len(dask_client_.scheduler_info().get("workers", {}))
             where = scheduler or getattr(dask_client_.scheduler, "address", "")
-            _run_tasks(dask_client_, sweep, todo, rows, table_path, len(tasks), reused, progress)
+            _run_tasks(dask_client_, sweep, todo, rows, table_path, len(tasks), reused, progress, mode == "ship")
+            workers_seen = max(workers_seen, len(dask_client_.scheduler_info().get("workers", {})))
     ordered = [rows[t.index] for t in tasks]
     write_table(table_path, ordered, sweep.parameters)
     figure = None
@@ -193,23 +318,36 @@ def run_sweep(sweep: Sweep, out_dir: str | Path | None = None, *, workers: int |
         if note:
             notes.append(note)
     result = SweepResult(out_dir, table_path, figure, ordered, len(todo), reused, workers_seen,
-                         time.perf_counter() - start, where, notes)
+                         time.perf_counter() - start, where, notes, list(sweep.parameters), mode)
     _write_definition(sweep, out_dir, {
         "status": "finished", "started_at": started_at, "wall_time_s": result.wall_time_s, "ran": result.ran,
         "reused": reused, "ok": result.ok, "failed": result.failed, "workers": workers_seen,
-        "scheduler": where, "client": worker_name(), "table": TABLE_FILE,
+        "scheduler": where, "client": worker_name(), "table": TABLE_FILE, "transfer": mode, "store": sweep.store,
         "figure": None if figure is None else figure.name})
     return result
 
 
 def _run_tasks(client: Any, sweep: Sweep, todo: list[VariantTask], rows: dict[int, dict[str, Any]],
-               table_path: Path, total: int, reused: int, progress: bool) -> None:
-    """Submit ``todo``, collect rows as they complete (progress bar, table rewritten every few seconds)."""
+               table_path: Path, total: int, reused: int, progress: bool, ship: bool = False) -> None:
+    """Submit ``todo``, collect rows as they complete (progress bar, table rewritten every few seconds).
+
+    ``ship``: each input file is submitted once (a task returning its content, held on a worker
+    and fetched by the variants that need it), read here at submission and never again.
+    """
     from dask.distributed import as_completed
 
     token = uuid.uuid4().hex[:8]
-    futures = {client.submit(run_variant, task, key=f"{sweep.name}-{task.id}-{token}", retries=sweep.retries,
-                             pure=False): task for task in todo}
+    if ship:
+        blobs = {digest: client.submit(_identity, Path(path).read_bytes(), key=f"cosim-input-{digest[:32]}-{token}",
+                                       pure=False)
+                 for digest, path in input_files(sweep, todo).items()}
+        futures = {client.submit(run_shipped_variant, task, *(blobs[d] for _, d, _, _ in task.inputs),
+                                 key=f"{sweep.name}-{task.id}-{token}", retries=sweep.retries, pure=False): task
+                   for task in todo}
+    else:
+        blobs = {}
+        futures = {client.submit(run_variant, task, key=f"{sweep.name}-{task.id}-{token}", retries=sweep.retries,
+                                 pure=False): task for task in todo}
     bar = tqdm(total=total, initial=reused, desc=f"sweep {sweep.name}", unit="variant", file=sys.stderr,
                disable=not progress, dynamic_ncols=True)
     last_write = time.perf_counter()
@@ -218,6 +356,8 @@ def _run_tasks(client: Any, sweep: Sweep, todo: list[VariantTask], rows: dict[in
             task = futures.pop(future)
             try:
                 row = future.result()
+                if isinstance(row, ShippedResult):
+                    row = receive_shipped(task, row)
             except Exception as exc:  # KilledWorker, or the task raised after its retries
                 row = make_row(task, None, None, float("nan"), "", reason=_failure_reason(exc, sweep.retries))
             # release the result at once: a worker dying later must not make the scheduler recompute it
@@ -235,7 +375,10 @@ def _run_tasks(client: Any, sweep: Sweep, todo: list[VariantTask], rows: dict[in
         raise
     finally:
         bar.close()
+        for blob in blobs.values():
+            blob.release()
 
 
-__all__ = ["SWEEP_FILE", "SweepResult", "TABLE_FILE", "VARIANTS_DIR", "dask_client", "default_out_dir", "run_sweep",
-           "variant_tasks"]
+__all__ = ["SCHEDULER_CONNECT_TIMEOUT_S", "SWEEP_FILE", "SchedulerUnreachable", "SweepResult", "TABLE_FILE",
+           "TRANSFERS", "VARIANTS_DIR", "dask_client", "default_out_dir", "input_files", "resolve_transfer",
+           "run_sweep", "variant_tasks", "with_inputs"]

@@ -116,7 +116,11 @@ def with_value(document: dict, path: KeyPath, value: Any) -> dict:
 
 def absolute_paths(spec: Spec, value: Any, base_dir: Path) -> Any:
     """``value`` with every relative ``FilePath`` string the schema ``spec`` declares made absolute
-    against ``base_dir`` (so a document keeps its meaning when written to another folder)."""
+    against ``base_dir`` (so a document keeps its meaning when written to another folder).
+
+    Other file references (``"file.py:Class"``, ``referenced_files``) keep their text: they may be
+    keys elsewhere in the document (``[planners.parameters."file.py:Class"]``); a document is run
+    anchored at its scenario's folder instead (``VariantTask.anchor``)."""
     if isinstance(spec, FilePath):
         if isinstance(value, str) and value.strip() and not Path(value).expanduser().is_absolute():
             return str((base_dir / Path(value).expanduser()).resolve())
@@ -132,6 +136,44 @@ def absolute_paths(spec: Spec, value: Any, base_dir: Path) -> Any:
     return value
 
 
+def _file_of(spec: Spec, value: Any) -> str | None:
+    """The file a value of ``spec`` refers to: a ``FilePath`` string, or what a spec with a
+    ``referenced_file(value)`` method returns (e.g. ``"my_ctrl.py:MyController"`` -> ``"my_ctrl.py"``)."""
+    if isinstance(spec, FilePath):
+        return value if isinstance(value, str) and value.strip() else None
+    finder = getattr(spec, "referenced_file", None)
+    return finder(value) if callable(finder) else None
+
+
+def referenced_files(spec: Spec, value: Any, prefix: KeyPath = ()) -> list[tuple[KeyPath, str]]:
+    """Every file the document ``value`` refers to, by the schema ``spec``: ``[(key path, path text)]``.
+
+    File paths are the values of ``FilePath`` specs (FMUs, URDFs, trajectory files, ...) and of any
+    spec offering the two methods ``referenced_file(value) -> str | None`` and
+    ``relocated(value, path) -> value`` (a reference that holds a file inside a larger value,
+    such as ``"file.py:Class"``). A sweep ships these files to workers that cannot read them.
+    """
+    found = _file_of(spec, value)
+    if found is not None:
+        return [(tuple(prefix), found)]
+    out: list[tuple[KeyPath, str]] = []
+    if isinstance(spec, Table) and isinstance(value, dict):
+        for key, item in value.items():
+            sub = spec.fields[key].spec if key in spec.fields else spec.extra
+            if sub is not None:
+                out.extend(referenced_files(sub, item, tuple(prefix) + (key,)))
+    elif isinstance(spec, List) and isinstance(value, list):
+        for i, item in enumerate(value):
+            out.extend(referenced_files(spec.item, item, tuple(prefix) + (i,)))
+    return out
+
+
+def relocate_file(spec: Spec, value: Any, path: str) -> Any:
+    """``value`` (which refers to a file, see :func:`referenced_files`) made to refer to ``path`` instead."""
+    mover = getattr(spec, "relocated", None)
+    return mover(value, path) if callable(mover) and not isinstance(spec, FilePath) else path
+
+
 def overlapping(a: KeyPath, b: KeyPath) -> bool:
     """True when one path is a prefix of the other (two axes would set the same value)."""
     n = min(len(a), len(b))
@@ -139,4 +181,4 @@ def overlapping(a: KeyPath, b: KeyPath) -> bool:
 
 
 __all__ = ["KeyPath", "KeyPathSyntaxError", "absolute_paths", "format_key_path", "get_path", "overlapping",
-           "parse_key_path", "spec_at", "with_value"]
+           "parse_key_path", "referenced_files", "relocate_file", "spec_at", "with_value"]

@@ -40,7 +40,7 @@ from pathlib import Path
 from typing import Any
 
 from cosim.scenario import ScenarioError, load_document, load_scenario
-from cosim.scenario.loader import NAME_PATTERN, Scenario, read_toml_file
+from cosim.scenario.loader import NAME_PATTERN, Scenario, read_toml_file, resolve_path
 from cosim.scenario.schema import AnyValue, Field, FilePath, Integer, List, String, Table, Where, validate
 from cosim.sweep.axes import DISTRIBUTION, DISTRIBUTIONS, GRID, SEEDS, Axis, distribution_draws, seed_values
 from cosim.sweep.keypath import (KeyPath, KeyPathSyntaxError, absolute_paths, format_key_path, get_path,
@@ -61,7 +61,23 @@ SWEEP_TABLE = Table({
                      doc="summary.json leaves to tabulate, as key paths with * globs (default: every numeric leaf)"),
     "retries": Field(Integer(min=0, max=20), default=2,
                      doc="re-runs of a variant whose worker died or whose task raised"),
+    "max_variants": Field(Integer(min=1), default=None,
+                          doc="the most variants the sweep may have (default MAX_VARIANTS)"),
+    "collect": Field(List(String()), default=[],
+                     doc="what a variant run elsewhere brings back besides its summary row: 'timeseries', "
+                         "'figures', 'can_log', 'all', or globs relative to the variant's folder"),
+    "store": Field(String(), doc="an fsspec URL (a local path, s3://bucket/prefix, ...) the workers write the "
+                                 "collected files to, under <store>/variants/<id>-<hash8>/"),
 }, doc="the [sweep] table")
+
+#: The [sweep] table of a sweep built in Python around an already loaded base scenario (no ``base`` key).
+SWEEP_TABLE_GIVEN_BASE = Table({k: f for k, f in SWEEP_TABLE.fields.items() if k != "base"},
+                               doc="the [sweep] table")
+
+#: Default largest number of variants of a sweep ([sweep] max_variants raises it): every variant is
+#: validated (tens of ms each) before anything runs, and 10,000 variants of the main job are ~2 days
+#: on one 2-core machine; a bigger count is usually a typo in seeds/samples or a too fine grid.
+MAX_VARIANTS = 10_000
 
 DISTRIBUTION_TABLE = Table({
     "kind": Field(String(choices=tuple(DISTRIBUTIONS)), required=True),
@@ -129,6 +145,42 @@ SWEEP_SCHEMA = Table({
     "axes": Field(List(AXIS_TABLE, min_len=1), required=True, doc="at least one [[axes]] table"),
     "report": Field(REPORT_TABLE),
 }, doc="a sweep document")
+SWEEP_SCHEMA_GIVEN_BASE = Table({**SWEEP_SCHEMA.fields, "sweep": Field(SWEEP_TABLE_GIVEN_BASE, required=True,
+                                                                       doc="a [sweep] table with name")},
+                                doc="a sweep document")
+
+#: Named groups of ``[sweep] collect`` -> the globs they stand for.
+COLLECT_GROUPS: dict[str, tuple[str, ...]] = {
+    "timeseries": ("*.csv", "*.parquet"),
+    "figures": ("*.png", "*.svg", "*.pdf"),
+    "can_log": ("*.blf", "*.asc", "*.trc", "*.mf4"),
+    "all": ("**/*",),
+}
+
+
+def collect_globs(items) -> tuple[str, ...]:
+    """The globs of a ``collect`` list (named groups expanded, order kept, duplicates dropped)."""
+    out: dict[str, None] = {}
+    for item in items or ():
+        for glob in COLLECT_GROUPS.get(item, (item,)):
+            out.setdefault(glob, None)
+    return tuple(out)
+
+
+def check_store_url(url: str, where: Where, base_dir: Path) -> str:
+    """``url`` as the workers will use it: a local path made absolute against ``base_dir``; an fsspec
+    protocol must be known to fsspec (ScenarioError at ``where`` otherwise)."""
+    import fsspec
+
+    protocol, _, rest = url.partition("://")
+    if not rest:
+        return str((base_dir / Path(url).expanduser()).resolve())
+    try:
+        fsspec.get_filesystem_class(protocol)
+    except (ValueError, ImportError) as exc:
+        raise where.error("a local path or an fsspec URL whose protocol fsspec knows (file://, s3://, gcs://, "
+                          "memory://, ...) with its package installed", url, problem=str(exc)) from None
+    return url
 
 
 @dataclass(frozen=True)
@@ -168,7 +220,12 @@ class Variant:
 
 @dataclass
 class Sweep:
-    """A validated sweep file and its variants (all validated by the base job)."""
+    """A validated sweep file and its variants (all validated by the base job).
+
+    ``path`` is the sweep file, or a label such as ``"<python>"`` for a sweep built in Python
+    (cosim.api.build_sweep); ``collect`` holds the globs of ``[sweep] collect``, ``store``
+    the URL of ``[sweep] store``.
+    """
 
     path: Path
     name: str
@@ -180,6 +237,8 @@ class Sweep:
     retries: int
     report: Report | None
     variants: list[Variant]
+    collect: tuple[str, ...] = ()
+    store: str | None = None
 
     @property
     def job(self) -> str:
@@ -198,18 +257,22 @@ def variant_hash(job: str, document: dict[str, Any]) -> str:
     return hashlib.sha256(text.encode("utf-8")).hexdigest()[:16]
 
 
-def _parse_path(text: str, where: Where, base: Scenario) -> KeyPath:
-    """Parse and check a key path against the base job's schema; ScenarioError at ``where`` otherwise."""
+def scenario_key_path(text: str, where: Where, base: Scenario, what: str = "axis") -> KeyPath:
+    """Parse and check a key path against the base job's schema; ScenarioError at ``where`` otherwise.
+
+    ``what`` names the key path in the error (``"axis"``, ``"override"``).
+    """
     try:
         path = parse_key_path(text)
         spec_at(base.job.schema, path, base.raw)
     except KeyPathSyntaxError as exc:
         raise where.error(f"a key path of the {base.job.name!r} job's scenario (e.g. 'section.key', "
-                          f"'list[0].key', quoted keys '\"q0[2]\"')", text, problem=f"unknown axis: {exc}") from None
+                          f"'list[0].key', quoted keys '\"q0[2]\"')", text, problem=f"unknown {what}: {exc}") from None
     for fixed in FIXED_KEYS:
         if overlapping(path, fixed):
-            raise where.error(f"a key other than {format_key_path(fixed)} (a sweep names its variants itself)", text,
-                              problem="not a sweep axis")
+            raise where.error(f"a key other than {format_key_path(fixed)} (a sweep names its variants itself; a run "
+                              f"is named by its scenario and placed by its out folder)", text,
+                              problem="not a sweep axis" if what == "axis" else f"not a valid {what}")
     return path
 
 
@@ -218,7 +281,7 @@ def _file_value(base: Scenario, path: KeyPath, value: Any, sweep_dir: Path) -> A
     return absolute_paths(spec_at(base.job.schema, path, base.raw), value, sweep_dir)
 
 
-def _flatten_overrides(table: dict[str, Any], where: Where, prefix: KeyPath = ()) -> list[tuple[KeyPath, Any, Where]]:
+def flatten_overrides(table: dict[str, Any], where: Where, prefix: KeyPath = ()) -> list[tuple[KeyPath, Any, Where]]:
     """``{"a.b": 1, "c": {"d": 2}}`` -> [(("a","b"), 1, ...), (("c","d"), 2, ...)]."""
     out = []
     for key, value in table.items():
@@ -228,14 +291,14 @@ def _flatten_overrides(table: dict[str, Any], where: Where, prefix: KeyPath = ()
         except KeyPathSyntaxError as exc:
             raise w.error("a key path such as 'section.key'", key, problem=str(exc)) from None
         if isinstance(value, dict):
-            out.extend(_flatten_overrides(value, w, path))
+            out.extend(flatten_overrides(value, w, path))
         else:
             out.append((path, value, w))
     return out
 
 
 def _axis(table: dict, where: Where, base: Scenario, sweep_dir: Path) -> Axis:
-    path = _parse_path(table["key"], where / "key", base)
+    path = scenario_key_path(table["key"], where / "key", base)
     key = format_key_path(path)
     if "values" in table:
         values = [_file_value(base, path, v, sweep_dir) for v in table["values"]]
@@ -255,7 +318,7 @@ def _problem_of(exc: ScenarioError) -> str:
     return rest.split("; expected ", 1)[0] if "; expected " in rest else ""
 
 
-def _blame(exc: ScenarioError, sweep_path: Path, variant_id: str, choices: list[tuple[Axis, int]],
+def blame_variant_error(exc: ScenarioError, sweep_path: Path, variant_id: str, choices: list[tuple[Axis, int]],
            overrides: list[tuple[KeyPath, Any, Where]], base: Scenario) -> ScenarioError:
     """Turn a variant's validation error into one naming the sweep file and the axis value responsible."""
     try:
@@ -288,6 +351,16 @@ def _variant_id(index: int, count: int) -> str:
     return f"v{index:0{max(4, len(str(count - 1)))}d}"
 
 
+def variant_count(axes: list[Axis]) -> int:
+    """How many variants ``axes`` give: the grid product times the Monte Carlo draws."""
+    grid = [a for a in axes if not a.monte_carlo]
+    monte_carlo = [a for a in axes if a.monte_carlo]
+    total = len(monte_carlo[0].values) if monte_carlo else 1
+    for a in grid:
+        total *= len(a.values)
+    return total
+
+
 def _expand(sweep_path: Path, base: Scenario, axes: list[Axis],
             overrides: list[tuple[KeyPath, Any, Where]]) -> list[Variant]:
     grid = [a for a in axes if not a.monte_carlo]
@@ -312,33 +385,44 @@ def _expand(sweep_path: Path, base: Scenario, axes: list[Axis],
             try:
                 scenario = load_document(doc, base.path)
             except ScenarioError as exc:
-                raise _blame(exc, sweep_path, vid, choices, overrides, base) from None
+                raise blame_variant_error(exc, sweep_path, vid, choices, overrides, base) from None
             params = {axis.key: axis.values[i] for axis, i in choices}
             values = {axis.key: get_path(scenario.data, axis.path, axis.values[i]) for axis, i in choices}
             variants.append(Variant(index, vid, params, values, doc, variant_hash(base.job.name, doc)))
     return variants
 
 
-def load_sweep(path: str | Path) -> Sweep:
+def load_sweep(path: str | Path, on_count=None) -> Sweep:
     """Read and validate the sweep file ``path`` and every variant; ScenarioError on any problem.
 
     Nothing runs here (the base job's checks may build the project's FMUs once).
+    ``on_count(n)`` is called with the number of variants before they are validated.
     """
-    path = Path(path)
-    return load_sweep_document(read_toml_file(path, "sweep"), path)
+    path = resolve_path(path)
+    return load_sweep_document(read_toml_file(path, "sweep"), path, on_count=on_count)
 
 
-def load_sweep_document(raw: dict[str, Any], path: str | Path) -> Sweep:
-    """Validate an already parsed sweep document (``path`` names it and anchors relative paths)."""
-    where = Where(Path(path).resolve())
-    doc = validate(SWEEP_SCHEMA, raw, where)
+def load_sweep_document(raw: dict[str, Any], path: str | Path, base: Scenario | None = None,
+                        on_count=None) -> Sweep:
+    """Validate an already parsed sweep document (``path`` names it and anchors relative paths).
+
+    ``path`` may be a label in angle brackets (``"<python>"``) for a document built in a script:
+    relative paths are then relative to the working directory. ``base``: an already validated
+    base scenario (then the document has no ``[sweep] base``). ``on_count(n)`` is called with the
+    number of variants before they are validated.
+    """
+    label = isinstance(path, str) and path.startswith("<") and path.endswith(">")
+    where = Where(path if label else Path(path).resolve())
+    doc = validate(SWEEP_SCHEMA if base is None else SWEEP_SCHEMA_GIVEN_BASE, raw, where)
     head = doc["sweep"]
-    try:
-        base = load_scenario(head["base"])
-    except ScenarioError as exc:
-        raise (where / "sweep" / "base").error("a valid scenario file", raw["sweep"]["base"],
-                                               problem=f"the base scenario is invalid: {exc}") from None
+    if base is None:
+        try:
+            base = load_scenario(head["base"])
+        except ScenarioError as exc:
+            raise (where / "sweep" / "base").error("a valid scenario file", raw["sweep"]["base"],
+                                                   problem=f"the base scenario is invalid: {exc}") from None
     sweep_dir = where.base_dir
+    store = check_store_url(head["store"], where / "sweep" / "store", sweep_dir) if "store" in head else None
     axes: list[Axis] = []
     for i, table in enumerate(doc["axes"]):
         axis = _axis(table, (where / "axes")[i], base, sweep_dir)
@@ -356,8 +440,8 @@ def load_sweep_document(raw: dict[str, Any], path: str | Path) -> Sweep:
                 f"the same number of draws as {monte_carlo[0].where.key} ({len(monte_carlo[0].values)}): Monte Carlo "
                 f"axes are drawn together", len(axis.values))
     overrides = []
-    for opath, value, w in _flatten_overrides(doc["overrides"], where / "overrides"):
-        checked = _parse_path(format_key_path(opath), w, base)
+    for opath, value, w in flatten_overrides(doc["overrides"], where / "overrides"):
+        checked = scenario_key_path(format_key_path(opath), w, base)
         for axis in axes:
             if overlapping(checked, axis.path):
                 raise w.error(f"a key no axis varies ({axis.where.key} varies {axis.key})", value,
@@ -366,10 +450,18 @@ def load_sweep_document(raw: dict[str, Any], path: str | Path) -> Sweep:
     report = None
     if "report" in doc:
         report = _report(doc["report"], where / "report", axes)
+    count = variant_count(axes)
+    limit = head.get("max_variants") or MAX_VARIANTS
+    if count > limit:
+        raise (where / "sweep" / "max_variants").error(
+            f"at most {limit} variants (set [sweep] max_variants to allow more)", count,
+            problem=f"the axes give {count} variants")
+    if on_count is not None:
+        on_count(count)
     variants = _expand(where.file, base, axes, overrides)
     return Sweep(where.file, head["name"], head["description"], base, axes,
                  {format_key_path(p): v for p, v, _ in overrides}, head.get("metrics"), head["retries"], report,
-                 variants)
+                 variants, collect_globs(head["collect"]), store)
 
 
 def _report(table: dict, where: Where, axes: list[Axis]) -> Report:
@@ -392,5 +484,6 @@ def _report(table: dict, where: Where, axes: list[Axis]) -> Report:
                   table["x_scale"], table["y_scale"])
 
 
-__all__ = ["FIXED_KEYS", "REPORT_KINDS", "Report", "SWEEP_SCHEMA", "Sweep", "Variant", "load_sweep",
-           "load_sweep_document", "variant_hash"]
+__all__ = ["COLLECT_GROUPS", "FIXED_KEYS", "REPORT_KINDS", "Report", "SWEEP_SCHEMA", "Sweep", "Variant",
+           "blame_variant_error", "check_store_url", "collect_globs", "flatten_overrides", "load_sweep",
+           "load_sweep_document", "scenario_key_path", "variant_hash"]

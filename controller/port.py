@@ -1,0 +1,188 @@
+"""The cell's side of the controller contract: fieldbus process data in, ``CellController`` called, set-points out.
+
+:class:`ControllerPort` is the one place that turns what the managing node observed
+(``fieldbus.ObservedActuals``) into a :class:`controller.contract.ControllerInput`,
+calls the controller's ``step`` and turns its :class:`~controller.contract.ControllerOutput`
+into the ``fieldbus.Setpoints`` of the next PReqs. The one-process cell
+(:class:`cosim.cell.link.FieldbusLink`) and the split cell's controller side use it, so
+every controller - built-in, user class, FMU - is driven the same way.
+
+Costs per cycle: the input is bound to the observed arrays (no copy); an output that is
+the controller's own ``fieldbus.Setpoints`` alias (the built-in controller) goes out as is;
+any other output is checked (finite, modes of operation known and carried by the bus)
+and copied: a few µs.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import fields
+
+import numpy as np
+
+from controller.contract import (MODE_CSP, MODES_OF_OPERATION, OUTPUT_INTEGER, OUTPUT_REAL, CellController,
+                                 ControllerInfo, ControllerInput, ControllerOutput)
+from fieldbus import ObservedActuals, Setpoints
+
+# fieldbus.Setpoints field that carries each output field (first name present wins)
+_CARRIER_NAMES = {
+    "controlword": ("controlword",),
+    "modes_of_operation": ("modes_of_operation", "mode_of_operation"),
+    "target_position": ("target_position", "position"),
+    "target_velocity": ("target_velocity", "velocity"),
+    "velocity_offset": ("velocity_offset",),
+    "target_torque": ("target_torque", "torque"),
+    "torque_offset": ("torque_offset",),
+}
+# fieldbus.ObservedActuals field that carries each input field
+_OBSERVED_NAMES = {
+    "statusword": ("statusword",), "position": ("position",), "velocity": ("velocity",), "torque": ("torque",),
+    "error_code": ("error_code",), "fresh": ("fresh",), "node_fault": ("node_fault",),
+    "modes_of_operation_display": ("modes_of_operation_display", "mode_of_operation_display", "mode_display"),
+}
+
+
+def bus_carriers() -> dict[str, str | None]:
+    """Output field -> the ``fieldbus.Setpoints`` field carrying it (None: the bus carries none yet)."""
+    have = {f.name for f in fields(Setpoints)}
+    return {name: next((c for c in options if c in have), None) for name, options in _CARRIER_NAMES.items()}
+
+
+class ControllerFailure(RuntimeError):
+    """The controller raised or returned an unusable output in a cycle (ends the run).
+
+    Attributes: time_s (the cycle's time, s), cycle, reason (one line)."""
+
+    def __init__(self, time_s: float, cycle: int, reason: str) -> None:
+        super().__init__(reason)
+        self.time_s = time_s
+        self.cycle = cycle
+        self.reason = reason
+
+
+class ControllerPort:
+    """Drive ``controller`` (a :class:`~controller.contract.CellController`) from the fieldbus.
+
+    ``setpoints`` is what goes into the next PReqs (before the first cycle: controlword 0,
+    the start pose, no offsets). :meth:`step` runs one controller cycle. Attributes
+    ``stop_reason``, ``stopped_at_s`` mirror the controller's (None when it has none).
+    """
+
+    def __init__(self, controller: CellController, n_joints: int = 6, q_start: np.ndarray | None = None) -> None:
+        self.controller = controller
+        self.n = n_joints
+        self.name = type(controller).__name__
+        self.inputs = ControllerInput.zeros(n_joints)
+        self._display = self.inputs.modes_of_operation_display
+        self._bound: ObservedActuals | None = None
+        self._observed_fields: dict[str, str | None] = {}
+        own_out = getattr(controller, "output", None)
+        own_sp = getattr(controller, "setpoints", None)
+        # the built-in controller's output aliases its own Setpoints: hand those to the bus directly
+        self._alias_out = own_out if isinstance(own_out, ControllerOutput) and isinstance(own_sp, Setpoints) else None
+        self._alias_sp = own_sp if self._alias_out is not None else None
+        if self._alias_sp is not None:
+            self.setpoints = self._alias_sp
+        else:
+            self.setpoints = Setpoints.zeros(n_joints)
+            if q_start is not None:
+                self.setpoints.position[:] = q_start
+        self._carriers = bus_carriers()
+        self._sp_fields = [(name, getattr(self.setpoints, c)) for name, c in self._carriers.items() if c is not None]
+        self._uncarried = [name for name, c in self._carriers.items() if c is None]
+        self._closed = False
+        self.close_error: str | None = None
+
+    # ------------------------------------------------------------------ lifecycle
+    def setup(self, info: ControllerInfo) -> None:
+        """``controller.setup(info)``; a failure is a :class:`ControllerFailure` at t = 0."""
+        try:
+            self.controller.setup(info)
+        except Exception as exc:  # noqa: BLE001 - a user's code: report, do not crash
+            raise ControllerFailure(0.0, -1, f"{self.name}.setup() raised {type(exc).__name__}: {exc}") from exc
+
+    def close(self) -> None:
+        """``controller.close()`` once (errors are reported in the returned text, never raised)."""
+        if self._closed:
+            return
+        self._closed = True
+        try:
+            self.controller.close()
+        except Exception as exc:  # noqa: BLE001
+            self.close_error = f"{self.name}.close() raised {type(exc).__name__}: {exc}"
+
+    @property
+    def stop_reason(self) -> str | None:
+        return getattr(self.controller, "stop_reason", None)
+
+    @property
+    def stopped_at_s(self) -> float | None:
+        return getattr(self.controller, "stopped_at_s", None)
+
+    # ------------------------------------------------------------------ the cycle
+    def _bind(self, observed: ObservedActuals) -> None:
+        inp = self.inputs
+        have = {f.name for f in fields(observed)} if hasattr(observed, "__dataclass_fields__") else set(dir(observed))
+        for name, options in _OBSERVED_NAMES.items():
+            source = next((c for c in options if c in have), None)
+            if source is not None:
+                setattr(inp, name, getattr(observed, source))
+            elif name == "modes_of_operation_display":
+                inp.modes_of_operation_display = self._display  # drives without 0x6061: the mode they run, CSP
+        self._bound = observed
+
+    def step(self, cycle: int, t: float, observed: ObservedActuals, late: bool = False,
+             lost: bool = False) -> Setpoints:
+        """One controller cycle with what the managing node ``observed`` at ``t`` (s): the
+        set-points of the next PReqs. Raises :class:`ControllerFailure` when the controller
+        raises or returns an unusable output."""
+        if observed is not self._bound:
+            self._bind(observed)
+        inp = self.inputs
+        inp.cycle = cycle
+        inp.time_s = t
+        inp.previous_output_late = late
+        inp.previous_output_lost = lost
+        try:
+            out = self.controller.step(inp)
+        except Exception as exc:  # noqa: BLE001 - a user's code: stop the run cleanly
+            raise ControllerFailure(t, cycle, f"{self.name}.step() raised {type(exc).__name__}: {exc}") from exc
+        if out is self._alias_out and out is not None:
+            return self._alias_sp
+        return self._convert(out, cycle, t)
+
+    def _convert(self, out: ControllerOutput, cycle: int, t: float) -> Setpoints:
+        """Check ``out`` and copy it into :attr:`setpoints`."""
+        n = self.n
+        for name in OUTPUT_REAL + OUTPUT_INTEGER:
+            try:
+                value = getattr(out, name)
+            except AttributeError:
+                raise ControllerFailure(t, cycle, f"{self.name}.step() returned {type(out).__name__} without "
+                                                  f"{name!r}: expected a controller.ControllerOutput") from None
+            values = value.tolist() if isinstance(value, np.ndarray) else list(np.ravel(value))
+            if len(values) != n:
+                raise ControllerFailure(t, cycle, f"{self.name}.step(): {name} has {len(values)} values, "
+                                                  f"expected {n} (one per joint)")
+            try:
+                total = math.fsum(values)
+            except (TypeError, ValueError, OverflowError):
+                total = math.nan
+            if not math.isfinite(total):
+                raise ControllerFailure(t, cycle, f"{self.name}.step(): {name} = {values} at t = {t:.6g} s "
+                                                  f"(cycle {cycle}): expected finite numbers")
+        modes = np.asarray(out.modes_of_operation).tolist()
+        for joint, mode in enumerate(modes, start=1):
+            if mode not in MODES_OF_OPERATION:
+                raise ControllerFailure(t, cycle, f"{self.name}.step(): modes_of_operation of joint {joint} = "
+                                                  f"{mode!r}: expected one of {MODES_OF_OPERATION} (8 CSP, 9 CSV, "
+                                                  f"10 CST)")
+        for name in self._uncarried:
+            values = np.asarray(getattr(out, name))
+            unused = (values == MODE_CSP) if name == "modes_of_operation" else (values == 0)
+            if not unused.all():
+                raise ControllerFailure(t, cycle, f"{self.name}.step(): {name} = {values.tolist()}, but this "
+                                                  f"fieldbus/drive build carries no {name} yet: expected "
+                                                  f"{'8 (CSP)' if name == 'modes_of_operation' else 0}")
+        for name, target in self._sp_fields:
+            target[:] = getattr(out, name)
+        return self.setpoints
