@@ -223,6 +223,23 @@ class FmuComponent:
             else:
                 self.call(f"setting start value {name}", time, self.slave.setString, vr, [str(value)])
 
+    def ended_itself(self, t: float, h: float) -> float | None:
+        """After fmi2DoStep(t, h) returned fmi2Discard: the FMU's fmi2LastSuccessfulTime (s) when it
+        reports fmi2Terminated (it ended the simulation, as fmpy.simulate_fmu accepts) and that time
+        lies within the step, after its start: (t, t + h]; else None (an ordinary discard: the run
+        fails). An FMU that did not get past the step's start is taken as failing: pythonfmu, for one,
+        reports fmi2Terminated after any step its model refused."""
+        if self.fmi3 or self.slave is None:
+            return None
+        try:
+            if not self.slave.getBooleanStatus(3):  # fmi2Terminated
+                return None
+            last = float(self.slave.getRealStatus(2))  # fmi2LastSuccessfulTime
+        except Exception:  # noqa: BLE001 - status not provided: an ordinary discard
+            return None
+        tolerance = 1e-9 * max(1.0, abs(t) + abs(h))
+        return last if t + tolerance < last <= t + h + tolerance else None
+
     def error(self, time: float, reason: str) -> SimulationError:
         """SimulationError for this instance at ``time`` (s) quoting its log messages (and, for FMI 3.0,
         what the adapter found: a value out of range, an early return, the variable concerned)."""
