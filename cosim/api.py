@@ -117,7 +117,7 @@ class Scenario:
 
     @property
     def path(self) -> Path | None:
-        return self._validated.path
+        return None if _is_label(self.source) else self._validated.path
 
     @property
     def document(self) -> dict[str, Any]:
@@ -185,18 +185,24 @@ def _show(value: Any) -> str:
     return repr(value)
 
 
+def _is_label(text: str) -> bool:
+    return text.startswith("<") and text.endswith(">")
+
+
 def _is_toml_text(text: str) -> bool:
     return "\n" in text or ("=" in text and "[" in text)
 
 
 def load_scenario(scenario: "str | Path | Mapping[str, Any] | Scenario",
-                  overrides: Mapping[str, Any] | None = None) -> Scenario:
+                  overrides: Mapping[str, Any] | None = None, *, base_dir: str | Path | None = None) -> Scenario:
     """Read and validate a scenario (nothing runs, nothing is written).
 
     Args:
         scenario: a path to a TOML file, a TOML text (a string with a newline), a dict (the parsed
             document; file paths in it relative to the working directory) or a :class:`Scenario`.
         overrides: ``{"key.path": value}`` set in the document before validation (sweep-axis syntax).
+        base_dir: the folder relative file paths of a dict or TOML text are relative to (default:
+            the working directory).
 
     Raises:
         ScenarioError: the file is missing or not TOML, the document is invalid for its job, an
@@ -209,7 +215,7 @@ def load_scenario(scenario: "str | Path | Mapping[str, Any] | Scenario",
     if isinstance(scenario, Scenario):
         return scenario.with_overrides(overrides) if overrides else scenario
     if isinstance(scenario, Mapping):
-        validated = _validate_labelled(dict(scenario), DICT_LABEL)
+        validated = _validate_labelled(dict(scenario), DICT_LABEL, base_dir)
         source = DICT_LABEL
     elif isinstance(scenario, str) and _is_toml_text(scenario):
         import tomllib
@@ -218,7 +224,7 @@ def load_scenario(scenario: "str | Path | Mapping[str, Any] | Scenario",
             document = tomllib.loads(scenario)
         except tomllib.TOMLDecodeError as exc:
             raise ScenarioError(STRING_LABEL, "", "valid TOML", problem=str(exc)) from None
-        validated = _validate_labelled(document, STRING_LABEL)
+        validated = _validate_labelled(document, STRING_LABEL, base_dir)
         source = STRING_LABEL
     elif isinstance(scenario, (str, Path)):
         path = Path(scenario)
@@ -235,18 +241,22 @@ def _relabel(exc: ScenarioError, label: str) -> ScenarioError:
                          problem=exc.problem)
 
 
-def _validate_labelled(document: dict[str, Any], label: str) -> "ValidatedScenario":
-    """Validate a document that is no file; errors name ``label`` as their file."""
+def _validate_labelled(document: dict[str, Any], label: str, base_dir: str | Path | None = None
+                       ) -> "ValidatedScenario":
+    """Validate a document that is no file; errors name ``label`` as their file; relative paths are
+    relative to ``base_dir`` (default: the working directory)."""
     from cosim.scenario.loader import load_document
 
     if not isinstance(document.get("scenario"), dict) or "job" not in document["scenario"]:
         raise ScenarioError(label, "scenario.job" if isinstance(document.get("scenario"), dict) else "scenario",
                             "a [scenario] table with name and job (one of the registered job types: "
                             f"{', '.join(_job_names())})", problem="missing required key")
+    # a path that is no file anchors relative paths in base_dir; errors name the label
+    anchor = None if base_dir is None else Path(base_dir).resolve() / label
     try:
-        return load_document(document, None)
+        return load_document(document, anchor)
     except ScenarioError as exc:
-        raise (_relabel(exc, label) if exc.file is None else exc) from None
+        raise (_relabel(exc, label) if exc.file in (anchor, None) else exc) from None
 
 
 def _job_names() -> list[str]:
@@ -266,7 +276,7 @@ def _apply_overrides(base: "ValidatedScenario", source: str, overrides: Mapping[
                                      parse_key_path, spec_at, with_value)
     from cosim.sweep.loader import flatten_overrides, scenario_key_path
 
-    file: Any = base.path if base.path is not None else source
+    file: Any = source if _is_label(source) else base.path
     if not isinstance(overrides, Mapping):
         raise TypeError(f"overrides: expected a dict {{'key.path': value}}, got {type(overrides).__name__}")
     applied: list[tuple[tuple, Any, Where]] = []
@@ -294,7 +304,7 @@ def _apply_overrides(base: "ValidatedScenario", source: str, overrides: Mapping[
             at = f" (at {exc.key})" if tuple(err_path) != tuple(path) else ""
             raise ScenarioError(where.file, where.key, exc.expected + at, value,
                                 problem=f"override: {exc.problem}" if exc.problem else "override") from None
-        raise (_relabel(exc, source) if exc.file is None else exc) from None
+        raise (_relabel(exc, source) if _is_label(source) else exc) from None
     merged = {**earlier, **{format_key_path(p): v for p, v, _ in applied}}
     return Scenario(validated, source, merged)
 
@@ -622,7 +632,7 @@ def _execution_options(sc: Scenario, realtime: bool, split: bool):
     if not options.active:
         return None
     if sc.job not in CELL_JOBS:
-        raise ScenarioError(sc.path if sc.path is not None else sc.source, "execution",
+        raise ScenarioError(sc.source if _is_label(sc.source) else sc.path, "execution",
                             f"a job that runs a robot cell ({', '.join(sorted(CELL_JOBS))}) for realtime, split and "
                             f"[execution] realtime/mode = 'split'", sc.job, problem="not a robot-cell job")
     return options

@@ -130,6 +130,8 @@ class _Endpoint(Closeable):
         self.frames_dropped = 0
         self.frames_missing = 0  # sent, but an asynchronous interface did not deliver it in time
         self.frames_late = 0  # paced cell side: frames that missed their cycle's window
+        self._follow_cycle = -1  # controller side following a paced cell: the cell's cycle as counted
+        self._follow_lost = 0
         self._align: int | None = None  # paced cell side: controller SoC counter - 1 - cycle (mod overflow)
         self._last_taken = -1  # paced cell side: last cycle whose group was taken
 
@@ -234,6 +236,17 @@ class _Endpoint(Closeable):
             self._record(received)
         return received
 
+    def _read_now(self) -> list:
+        """Every frame that has arrived, without waiting."""
+        if self._drain is not None:
+            return self._drain()
+        bus, batch = self.bus, []
+        msg = bus.recv(0)
+        while msg is not None:
+            batch.append(msg)
+            msg = bus.recv(0)
+        return batch
+
     def _flush_own_recording(self, cycle: int) -> None:
         if self._owns_recorder:
             self.recorder.end_cycle(cycle, self._t0 + cycle * self._cycle_time)
@@ -299,6 +312,65 @@ class ManagingNodeEndpoint(_Endpoint):
         self._flush_own_recording(cycle)
         return observed
 
+    # ------------------------------------------------------------------ following a paced cell
+    def follow(self, timeout_s: float) -> tuple[int, ObservedActuals] | None:
+        """The controller side of a hardware-in-the-loop run (the cell keeps the time,
+        :meth:`DriveEndpoint.run_cycle_paced`): wait up to ``timeout_s`` (wall) for the
+        cell's next PRes frames, digest everything that has arrived, and return
+        ``(cycle, observed)``: the cell's cycle as counted here (+1 per batch of PRes
+        frames, and per datagram the transport reports lost) and the newest actual
+        values. None when nothing arrived in time. Then call :meth:`send_following`
+        with the set-points for the next cycle."""
+        bus = self.bus
+        first = bus.recv(timeout_s)
+        if first is None:
+            return None
+        batch = [first] + self._read_now()
+        n = self.config.nodes
+        head = TPDO1_BASE + 1
+        batches = sum(1 for m in batch if m.arbitration_id == head) or 1
+        stats = getattr(bus, "stats", None)
+        lost = getattr(stats, "lost", 0)
+        batches += lost - self._follow_lost
+        self._follow_lost = lost
+        cycle = self._follow_cycle + batches
+        self._follow_cycle = cycle
+        self._cycle = cycle - 1
+        self._begin(cycle)
+        times = self._times
+        for msg in batch:
+            base, node = msg.arbitration_id & ~0x7F, msg.arbitration_id & 0x7F
+            if base in (TPDO1_BASE, TPDO2_BASE) and 1 <= node <= n and times[n + node] is not None:
+                msg.timestamp = times[n + node]  # the cell judged their timing; keep them in time here
+            else:
+                msg.timestamp = times[0]
+        node = self.node
+        node.start_cycle(cycle)
+        if self._record is not None:
+            self._record(batch)
+        node.receive_all(batch)
+        observed = node.end_cycle(cycle)
+        self._flush_own_recording(cycle)
+        return cycle, observed
+
+    def send_following(self, setpoints: Setpoints) -> None:
+        """SoC and PReqs for the cell's next cycle (after :meth:`follow`), in one batch."""
+        cycle = self._follow_cycle + 1
+        times = self.schedule.timestamps(cycle)
+        node = self.node
+        frames = node.encode(cycle, times, setpoints)
+        if frames is None:
+            frames = node.frames(cycle, times, setpoints.controlword.tolist(), setpoints.position.tolist(),
+                                 setpoints.torque_offset.tolist())
+        if self._send_many is not None:
+            self._send_many(frames)
+        else:
+            for msg in frames:
+                self.bus.send(msg)
+        self.frames_sent += len(frames)
+        if self._record is not None:
+            self._record(frames)
+
     def run_cycle(self, cycle: int, setpoints: Setpoints) -> ObservedActuals:
         """send_setpoints + collect_actuals (for a controller in its own process)."""
         self.send_setpoints(cycle, setpoints)
@@ -354,17 +426,6 @@ class DriveEndpoint(_Endpoint):
             self._kinds = saved
         self._flush_own_recording(cycle)
         return applied
-
-    def _read_now(self) -> list:
-        """Every frame that has arrived, without waiting."""
-        if self._drain is not None:
-            return self._drain()
-        bus, batch = self.bus, []
-        msg = bus.recv(0)
-        while msg is not None:
-            batch.append(msg)
-            msg = bus.recv(0)
-        return batch
 
     def _newest_group(self, cycle: int, deadline: float, clock) -> list:
         """This cycle's SoC + PReqs (restamped), see :meth:`run_cycle_paced`."""

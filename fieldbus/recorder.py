@@ -60,17 +60,31 @@ class _LogSink:
 
 
 def _writer_process(path: str, connection: Any) -> None:
-    """Child process: feed (records, watermark) batches to a sink until None arrives."""
+    """Child process: feed (records, watermark) batches to a sink until None arrives.
+
+    It ignores SIGINT and SIGTERM: Ctrl-C in a terminal reaches the whole process group, and
+    the writer must outlive the simulation loop to write what it was sent; the parent shuts it
+    down (None), and a parent that dies closes the pipe (EOFError ends the loop)."""
+    import signal
+
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(signum, signal.SIG_IGN)
     sink = _LogSink(path)
     try:
         while True:
-            batch = connection.recv()
+            try:
+                batch = connection.recv()
+            except EOFError:  # the parent is gone: keep what was written
+                break
             if batch is None:
                 break
             sink.feed(*batch)
     finally:
         sink.close()
-        connection.send(sink.written)
+        try:
+            connection.send(sink.written)
+        except OSError:
+            pass
         connection.close()
 
 

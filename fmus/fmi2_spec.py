@@ -11,6 +11,7 @@ and ``N_Q`` (length).
 """
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import math
 import re
@@ -40,6 +41,7 @@ UNITS: dict[str, dict[str, int]] = {
     "kg.m2": {"kg": 1, "m": 2},
     "N.m.s/rad": {"kg": 1, "m": 2, "s": -1, "rad": -1},
     "N.m/rad": {"kg": 1, "m": 2, "s": -2, "rad": -1},
+    "N.m/rad3": {"kg": 1, "m": 2, "s": -2, "rad": -3},
 }
 
 INPUT, OUTPUT, PARAMETER, LOCAL = "input", "output", "parameter", "local"
@@ -119,6 +121,14 @@ class FmuSpec:
             text = descriptions[k] if descriptions else f"{description} (element {k + 1})"
             self._append(Variable(f"{base}[{k + 1}]", c_name, "Real", causality, text,
                                   units[k] if units else unit, start, min, max, index=k, array_length=n))
+
+    def set_depends_on(self, name: str, knowns: tuple[str, ...]) -> None:
+        """Set ``depends_on`` of the output ``name`` after it was added (e.g. an array element)."""
+        for k, v in enumerate(self.variables):
+            if v.name == name:
+                self.variables[k] = dataclasses.replace(v, depends_on=tuple(knowns))
+                return
+        raise SpecError(f"{self.model_identifier}: no variable named {name!r}")
 
     def _append(self, v: Variable) -> None:
         if v.type not in ("Real", "Integer"):

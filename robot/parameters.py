@@ -58,13 +58,26 @@ _SPECS: tuple[_Spec, ...] = (
     _Spec("payload", "mass", "payload_mass", None, "nonnegative"),
     _Spec("payload", "center_of_mass", "payload_com", 3, "finite"),
     _Spec("payload", "rated_mass", "payload_rated_mass", None, "positive"),
+    _Spec("elastic", "stiffness", "stiffness", N_JOINTS, "positive"),
+    _Spec("elastic", "stiffness_cubic", "stiffness_cubic", N_JOINTS, "nonnegative"),
+    _Spec("elastic", "damping", "gear_damping", N_JOINTS, "nonnegative"),
+    _Spec("elastic", "backlash", "backlash", N_JOINTS, "backlash"),
+    _Spec("elastic", "motor_friction_share", "motor_friction_share", N_JOINTS, "fraction"),
+    _Spec("elastic", "stribeck_torque", "stribeck_torque", N_JOINTS, "nonnegative"),
+    _Spec("elastic", "stribeck_velocity", "stribeck_velocity", N_JOINTS, "positive"),
 )
+
+MAX_BACKLASH = 1e-3
+"""rad: the widest lost-motion band a precision robot reducer plausibly has (3.4 arcmin;
+preloaded RV and Harmonic Drive reducers specify <= 1 arcmin)."""
 
 _RULE_TEXT = {
     "positive": "finite numbers > 0",
     "nonnegative": "finite numbers >= 0",
     "finite": "finite numbers",
     "positive_int": "an integer > 0",
+    "fraction": "numbers in [0, 1]",
+    "backlash": "numbers in [0, 1e-3] rad (wider lost motion is implausible for a robot reducer)",
 }
 
 
@@ -94,6 +107,13 @@ class RobotParameters:
     payload_mass: float  # kg, nominal payload rigidly attached to the flange
     payload_com: np.ndarray  # m, payload centre of mass in the flange (tool0) frame
     payload_rated_mass: float  # kg
+    stiffness: np.ndarray  # N m / rad, gear stiffness (joint side, elastic plant)
+    stiffness_cubic: np.ndarray  # N m / rad^3, stiffening term of the gear
+    gear_damping: np.ndarray  # N m s / rad, damping across the gear
+    backlash: np.ndarray  # rad, total lost-motion band width of the gear
+    motor_friction_share: np.ndarray  # 1, fraction of viscous/Coulomb friction on the motor side
+    stribeck_torque: np.ndarray  # N m, static minus Coulomb friction (motor side, joint units)
+    stribeck_velocity: np.ndarray  # rad/s, Stribeck velocity (joint side)
     position_lower: np.ndarray  # rad, from the URDF
     position_upper: np.ndarray  # rad, from the URDF
     velocity_limit: np.ndarray  # rad/s, from the URDF
@@ -221,6 +241,8 @@ def _check_value(where: str, raw: Any, spec: _Spec) -> Any:
         if isinstance(item, bool) or not isinstance(item, (int, float)) or not math.isfinite(item):
             raise bad
         if spec.rule == "positive" and item <= 0 or spec.rule == "nonnegative" and item < 0:
+            raise bad
+        if spec.rule == "fraction" and not 0 <= item <= 1 or spec.rule == "backlash" and not 0 <= item <= MAX_BACKLASH:
             raise bad
     if spec.length is None:
         return float(raw)

@@ -100,3 +100,48 @@ def test_a_constant_phase_from_the_start_is_aligned_not_lost():
     assert {c for c, _, _ in _errors(cn, "loss_of_preq")} == {0}
     assert cn.frames_late == 0
     np.testing.assert_allclose(applied[10][0], np.full(6, 1e-3 * 8), atol=1e-6)
+
+
+def _follow_run(cycles, late=(), silent=()):
+    """Cell side paced (virtual clock), controller side following it (ManagingNodeEndpoint.follow)."""
+    channel = unique_channel("hil")
+    mn = ManagingNodeEndpoint(CONFIG, SCALING, channel=channel)
+    cn = DriveEndpoint(CONFIG, SCALING, channel=channel)
+    clock = Clock()
+    sp, act = Setpoints.zeros(6), DriveActuals.zeros(6)
+    seen, applied = [], []
+    for k in range(cycles):
+        act.statusword[:] = 0x27
+        act.position[:] = 1e-3 * k
+        clock.t = k * 4e-4 + 2e-4
+        a = cn.run_cycle_paced(k, act, deadline=clock.t, clock=clock)
+        applied.append(a.position.copy())
+        if k in late or k in silent:
+            continue  # the controller misses this cycle's PRes (slow) or is gone
+        got = mn.follow(0.0)
+        assert got is not None
+        cycle, observed = got
+        seen.append((k, cycle, observed.position[0]))
+        sp.controlword[:] = 0x0F
+        sp.position[:] = observed.position + 0.5
+        mn.send_following(sp)
+    cn.close()
+    mn.close()
+    return cn, seen, applied
+
+
+def test_a_following_controller_stays_in_step_with_the_paced_cell():
+    cn, seen, applied = _follow_run(50)
+    assert all(k == cycle for k, cycle, _ in seen)  # its count of the cell's cycles is right
+    np.testing.assert_allclose([p for _, _, p in seen[:3]], [0.0, 0.001, 0.002], atol=1e-5)  # quantised
+    assert {c for c, _, _ in _errors(cn, "loss_of_preq")} == {0}  # nothing before its first answer
+    # the set-point computed from the values of cycle k is applied from cycle k + 2 (dead time 1)
+    np.testing.assert_allclose(applied[20], np.full(6, 1e-3 * 18 + 0.5), atol=1e-5)
+
+
+def test_a_controller_that_misses_a_cycle_catches_up_with_one_loss():
+    cn, seen, applied = _follow_run(50, late={20})
+    # after the miss, it sees two PRes batches at once and counts both
+    assert [(k, c) for k, c, _ in seen if k in (19, 21, 22)] == [(19, 19), (21, 21), (22, 22)]
+    assert {c for c, _, _ in _errors(cn, "loss_of_preq")} == {0, 21}
+    assert not any(e.event == "threshold_reached" for e in cn.events.events)

@@ -251,3 +251,35 @@ def test_second_run_skips_finished_variants(tmp_path, client):
     assert [float(r['fmus[0].parameters."q0[3]"']) for r in rows] == [1.0, 1.1, 1.2, 1.4]
     moved = next(r for r in third.rows if r["variant"] == "v0002")
     assert (Path(moved["folder"]) / "summary.json").stat().st_mtime_ns == stamps["v0001"]
+
+
+def test_local_cluster_ship_equals_shared(tmp_path, client):
+    """transfer = "ship" on the embedded cluster gives the rows and files of the shared file system
+    (tests/test_sweep_ship.py runs it on separate worker programs without the client's files)."""
+    import cosim
+    from test_sweep_ship import _client_files
+
+    sweep = cosim.load_sweep(_client_files(tmp_path / "client"))
+    shipped = cosim.run_sweep(sweep, tmp_path / "ship", client=client, transfer="ship")
+    shared = cosim.run_sweep(sweep, tmp_path / "shared", client=client)
+    assert (shipped.transfer, shared.transfer) == ("ship", "shared")
+    for a, b in zip(shipped.records(), shared.records()):
+        for column in ("variant", "status", "reason", "hash", "rows_recorded", "sim_time_s"):
+            assert a.get(column) == b.get(column)
+        assert (Path(a["folder"]) / "timeseries.csv").read_bytes() == (Path(b["folder"]) / "timeseries.csv").read_bytes()
+
+
+def test_user_planner_file_relative_to_the_base_scenario(tmp_path, client):
+    """A sweep over the planners job with a user's planner class named relative to the base
+    scenario ('plans/quintic.py:QuinticPtP', parameters keyed by that text): each variant runs
+    anchored at the base scenario's folder (shared) or at a worker-side copy of it (ship)."""
+    import cosim
+    from test_sweep_ship import _planner_files
+
+    sweep = cosim.load_sweep(_planner_files(tmp_path / "client"))
+    shared = cosim.run_sweep(sweep, tmp_path / "shared", client=client)
+    shipped = cosim.run_sweep(sweep, tmp_path / "ship", client=client, transfer="ship")
+    assert shared.ok == shipped.ok == 2, [r["reason"] for r in shared.rows + shipped.rows]
+    assert [r["metrics"] for r in shared.rows] == [r["metrics"] for r in shipped.rows]
+    slow, fast = (r["metrics"]["planners.quintic_ptp.duration_s"] for r in shared.rows)
+    assert slow > fast

@@ -9,6 +9,8 @@ Every problem is a ``ScenarioError`` (a ValueError) at the key that holds it.
 """
 from __future__ import annotations
 
+import math
+
 from collections.abc import Iterable, Mapping
 from typing import Any
 
@@ -35,10 +37,13 @@ def fill_defaults(doc: dict[str, Any], schema: Table, keys: Iterable[str]) -> No
 def is_integer_multiple(value: float, base: float) -> bool:
     """Whether ``value`` is a positive whole multiple of ``base`` (same unit), to 1e-9 relative."""
     ratio = value / base
+    if not math.isfinite(ratio):  # e.g. macro_step = 5e-324: no whole number of steps
+        return False
     return round(ratio) >= 1 and abs(ratio - round(ratio)) <= 1e-9 * max(1.0, ratio)
 
 
-def check_cell(doc: dict[str, Any], where: Where, job_set_drive_parameters: Mapping[str, str] | None = None) -> None:
+def check_cell(doc: dict[str, Any], where: Where, job_set_drive_parameters: Mapping[str, str] | None = None,
+               run_length_s: float | None = None) -> None:
     """Check what a robot cell needs of a scenario document (tables filled with their defaults).
 
     In order: the ``[[fmus]]`` ``plant`` and ``drive1`` .. ``drive6`` exist; the standard
@@ -52,9 +57,14 @@ def check_cell(doc: dict[str, Any], where: Where, job_set_drive_parameters: Mapp
     ``[tracker]`` periods are whole multiples of ``[simulation] macro_step`` and of the cell's
     FMU steps; the ``[record]`` period is a whole multiple of ``macro_step``.
 
+    The fieldbus table is also checked against the cell (:func:`check_cell_fieldbus`: one node
+    per drive, a python-can interface that exists, options it takes, cycle 0 at t = 0, fault
+    plans inside ``run_length_s`` when given).
+
     Raises ScenarioError (a ValueError) at the first key that is wrong.
     """
     from cosim.master import load_model_description
+    from cosim.master.component import variables_of
     from fieldbus import FieldbusConfig, FieldbusConfigError
 
     by_name = {fmu["name"]: (i, fmu) for i, fmu in enumerate(doc["fmus"])}
@@ -69,7 +79,7 @@ def check_cell(doc: dict[str, Any], where: Where, job_set_drive_parameters: Mapp
                        master_variables=variables)
     for name, builtin in needed.items():
         i, fmu = by_name[name]
-        have = {v.name for v in load_model_description(fmu["path"]).modelVariables}
+        have = set(variables_of(load_model_description(fmu["path"])))  # FMI 3.0: array elements q[1]..
         want = PLANT_VARIABLES if name == wiring.PLANT else DRIVE_VARIABLES
         if not want <= have:
             raise (where / "fmus")[i].error(f"a {builtin} FMU (variables {sorted(want)})", str(fmu["path"]),
@@ -90,6 +100,7 @@ def check_cell(doc: dict[str, Any], where: Where, job_set_drive_parameters: Mapp
         fb = FieldbusConfig.from_dict(doc["fieldbus"], source=str(where.file) if where.file else "<scenario>")
     except FieldbusConfigError as exc:
         raise (where / "fieldbus" / exc.key).error(exc.expected, exc.given) from None
+    check_cell_fieldbus(fb, doc["fieldbus"], where / "fieldbus", len(wiring.DRIVES), run_length_s)
     ctrl, base = doc["controller"], doc["simulation"]["macro_step"]
     if abs(fb.cycle_time_s - ctrl["period"]) > 1e-12:
         raise (where / "controller" / "period").error(
@@ -106,3 +117,70 @@ def check_cell(doc: dict[str, Any], where: Where, job_set_drive_parameters: Mapp
     if doc.get("record") is not None and not is_integer_multiple(doc["record"]["period"], base):
         raise (where / "record" / "period").error(f"a positive integer multiple of macro_step = {base!r} s",
                                                   doc["record"]["period"])
+
+
+def _interface_parameters(interface: str) -> set[str] | None:
+    """Keyword arguments the python-can interface's bus class takes by name (None: cannot tell)."""
+    import inspect
+
+    import can
+
+    try:
+        from can.interface import _get_class_for_interface
+
+        cls = _get_class_for_interface(interface)
+    except Exception:  # noqa: BLE001 - an interface whose driver is missing: no check of its options
+        return None
+    names: set[str] = set()
+    for klass in (cls, can.BusABC):
+        for name, par in inspect.signature(klass.__init__).parameters.items():
+            if name != "self" and par.kind not in (par.VAR_KEYWORD, par.VAR_POSITIONAL):
+                names.add(name)
+    return names
+
+
+def check_cell_fieldbus(fb, table: Mapping[str, Any], where: Where, joints: int,
+                        run_length_s: float | None = None) -> None:
+    """What the cell needs of its validated fieldbus configuration ``fb`` (``table`` = the [fieldbus] table
+    as given, ``where`` its position): ``nodes`` equal to the ``joints`` drives, a python-can
+    interface that is installed, ``bus.options`` the interface takes (python-can passes unknown
+    keyword arguments through silently), ``start_time_s`` = 0 (the cell's master starts at 0 s,
+    cycle k is at k * cycle time) and, with ``run_length_s``, fault bursts and silent nodes that
+    start within the run."""
+    import can
+
+    if fb.nodes != joints:
+        raise (where / "nodes").error(f"{joints} (one controlled node per servo drive of the cell)", fb.nodes)
+    interface = fb.bus.interface
+    known = set(getattr(can.interfaces, "VALID_INTERFACES", ())) | {"simbus"}
+    if interface not in known:
+        raise (where / "bus" / "interface").error(f"a python-can interface installed here: {', '.join(sorted(known))}",
+                                                  interface, problem="unknown interface")
+    if fb.bus.options:
+        accepted = _interface_parameters(interface)
+        if accepted is not None:
+            used = {"channel", "can_filters"}
+            for key in fb.bus.options:
+                if key not in accepted or key in used:
+                    raise (where / "bus" / "options" / key).error(
+                        f"a keyword argument the {interface!r} bus takes and the cell does not set itself "
+                        f"({', '.join(sorted(accepted - used)) or 'none'})", fb.bus.options[key],
+                        problem="option the interface would ignore")
+    if fb.start_time_s != 0.0:
+        raise (where / "start_time_s").error("0 (the cell's simulation starts at t = 0 s with fieldbus cycle 0)",
+                                             table.get("start_time_s"), problem="not supported in a robot cell")
+    if run_length_s is None:
+        return
+    cycles = int(run_length_s / fb.cycle_time_s + 1e-9)
+    faults = table.get("faults") or {}
+    for i, burst in enumerate(fb.faults.bursts):
+        if burst.start_cycle >= cycles:
+            raise (where / "faults" / "bursts")[i].error(
+                f"start_cycle < {cycles} (the run has {cycles} cycles of {fb.cycle_time_s * 1e6:g} us in "
+                f"stop_time = {run_length_s:g} s)", (faults.get("bursts") or [{}])[i].get("start_cycle"),
+                problem="burst after the end of the run")
+    for i, node in enumerate(fb.faults.silent_nodes):
+        if node.from_cycle >= cycles:
+            raise (where / "faults" / "silent_nodes")[i].error(
+                f"from_cycle < {cycles} (the run has {cycles} cycles of {fb.cycle_time_s * 1e6:g} us in "
+                f"stop_time = {run_length_s:g} s)", node.from_cycle, problem="silent node after the end of the run")

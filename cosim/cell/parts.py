@@ -69,11 +69,16 @@ def _mode_table(mode: str) -> Table:
                 f"{str(default).lower()}"),
     }, doc=f"the [controller.{mode}] table")
 
+#: Largest accepted |x|, |y|, |z| of the payload's centre of mass in tool0, m: load diagrams of 10 kg-class
+#: arms end at a few hundred mm of offset; 1 m leaves room for long tools and refuses unit slips (mm for m).
+MAX_PAYLOAD_COM_M = 1.0
+
 TRUE_ROBOT_TABLE = Table({
     "seed": Field(Integer(min=0), default=1, doc="the seed of the true robot's deviations: an integer >= 0"),
     "payload_mass": Field(Number(unit="kg", min=0, max=10), default=0.0,
                           doc="the payload on tool0: a number in kg in [0, 10] (rated load 10 kg)"),
-    "payload_com": Field(List(Number(unit="m"), length=3), default=[0.0, 0.0, 0.0],
+    "payload_com": Field(List(Number(unit="m", min=-MAX_PAYLOAD_COM_M, max=MAX_PAYLOAD_COM_M), length=3),
+                         default=[0.0, 0.0, 0.0],
                          doc="the payload's centre of mass in tool0: 3 numbers in m"),
     "dynamic_deviations": Field(Boolean(), default=True),
     "geometric_errors": Field(Boolean(), default=True),
@@ -155,7 +160,8 @@ def check_cell_scenario(doc: dict[str, Any], where: Where) -> None:
     fill_cell_defaults(doc)
     check_cell(doc, where, job_set_drive_parameters={
         SPEED_FEEDFORWARD_PARAMETER: "no speed_feedforward_gain here: the job sets it per mode "
-                                     "([controller.<mode>] drive_speed_feedforward = true/false)"})
+                                     "([controller.<mode>] drive_speed_feedforward = true/false)"},
+        run_length_s=doc["simulation"]["stop_time"])
     check_user_controller(doc["controller"], where / "controller")
     ctrl = doc["controller"]
     if not ctrl["modes"] and not (ctrl.get("class") or ctrl.get("fmu")):

@@ -42,7 +42,8 @@ from cosim.scenario.context import RunContext
 from cosim.scenario.loader import Scenario
 from cosim.scenario.registry import register_job
 from cosim.scenario.schema import AnyValue, Boolean, Field, Integer, List, Number, Spec, String, Table, Where
-from cosim.scenario.user_class import SPEC_FORM, instantiate, is_class_spec, load_user_class
+from cosim.scenario.user_class import (SPEC_FORM, class_spec_file, instantiate, is_class_spec, load_user_class,
+                                      with_class_file)
 
 JOB_NAME = "planners"
 
@@ -69,6 +70,13 @@ class PlannerEntry(Spec):
         if isinstance(value, str) and (value in PLANNERS or is_class_spec(value)):
             return value
         raise where.error(self.expected, value)
+
+    # the file of a 'file.py:Class' entry travels with a sweep's tasks (cosim.sweep.keypath.referenced_files)
+    def referenced_file(self, value: Any) -> str | None:
+        return class_spec_file(value)
+
+    def relocated(self, value: str, path: str) -> str:
+        return with_class_file(value, path)
 
 
 PLANNERS_TABLE = Table({

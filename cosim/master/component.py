@@ -1,9 +1,11 @@
-"""One FMI 2.0 co-simulation FMU instance as the master sees it.
+"""One FMI 2.0 or FMI 3.0 co-simulation FMU instance as the master sees it.
 
 Loading, instantiation and the lifecycle calls (setup, initialization, terminate,
 free) go through fmpy. The per-step calls (fmi2Set*/fmi2Get*/fmi2DoStep) are bound
 once as raw C function pointers so that the engines can call them with prepared
-value-reference arrays and bus addresses, without per-step allocation.
+value-reference arrays and bus addresses, without per-step allocation. An FMI 3.0
+instance is bound through the C adapter of ``fmi3.py`` (fmi3_adapter.c), which offers
+the same call shapes over the FMU's flattened variables.
 The FMU's log messages go to a bounded per-instance buffer (``messages``) that a
 ``SimulationError`` quotes when the FMU fails.
 """
@@ -20,9 +22,11 @@ from pathlib import Path
 from fmpy import calloc, extract, free, read_model_description
 from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
                        fmi2CallbackFunctions, fmi2CallbackLoggerTYPE)
+from fmpy.fmi3 import FMU3Slave
 from fmpy.model_description import ModelDescription, ScalarVariable
 
 from cosim.master.errors import MasterConfigError, SimulationError
+from cosim.master.fmi3 import Fmi3Binding, flatten
 
 _STATUS = ("OK", "Warning", "Discard", "Error", "Fatal", "Pending")
 SET_T = CFUNCTYPE(c_int, c_void_p, c_void_p, c_size_t, c_void_p)
@@ -31,9 +35,9 @@ STEP_T = CFUNCTYPE(c_int, c_void_p, c_double, c_double, c_int)
 _extracted: dict[tuple[str, float], str] = {}
 
 
-def status_name(status: int) -> str:
-    """``3 -> "fmi2Error"``."""
-    return "fmi2" + _STATUS[status] if 0 <= status < len(_STATUS) else f"status {status}"
+def status_name(status: int, api: str = "fmi2") -> str:
+    """``3 -> "fmi2Error"`` (``api="fmi3"``: ``"fmi3Error"``)."""
+    return api + _STATUS[status] if 0 <= status < len(_STATUS) else f"status {status}"
 
 
 @lru_cache(maxsize=64)
@@ -41,8 +45,28 @@ def _read_description(path: str, mtime: float) -> ModelDescription:
     return read_model_description(path, validate=False)
 
 
+#: What the master runs, in words (for error messages).
+SUPPORTED_FMUS = "an FMI 2.0 or FMI 3.0 co-simulation FMU"
+
+
+def fmu_kind_problem(md: ModelDescription) -> str | None:
+    """None when the master can run ``md``; otherwise what it is, in one sentence (no "expected")."""
+    version = str(md.fmiVersion)
+    if version not in ("2.0",) and not version.startswith("3."):
+        return f"its modelDescription.xml declares fmiVersion {version!r}, which the master does not run"
+    if md.coSimulation is not None:
+        return None
+    interfaces = [name for name, attr in (("model exchange", "modelExchange"),
+                                          ("scheduled execution", "scheduledExecution"))
+                  if getattr(md, attr, None) is not None]
+    kind = " and ".join(interfaces) or "no"
+    return (f"it is an FMI {version} FMU with {kind} interface{'s' if len(interfaces) > 1 else ''} only "
+            f"(no <CoSimulation> element); the master steps FMUs through their co-simulation interface")
+
+
 def load_model_description(path: str | Path) -> ModelDescription:
-    """Read (and cache) the modelDescription of an FMU file; MasterConfigError if not FMI 2.0 CS."""
+    """Read (and cache) the modelDescription of an FMU file; MasterConfigError naming the file
+    when it is missing, unreadable, or not an FMI 2.0/3.0 co-simulation FMU."""
     path = Path(path)
     if not path.is_file():
         raise MasterConfigError(f"FMU file {str(path)!r} does not exist (expected a path to a .fmu file)")
@@ -50,11 +74,19 @@ def load_model_description(path: str | Path) -> ModelDescription:
         md = _read_description(str(path.resolve()), path.stat().st_mtime)
     except Exception as exc:  # fmpy raises plain Exceptions for broken archives
         raise MasterConfigError(f"FMU file {str(path)!r} cannot be read: {exc}") from exc
-    if md.fmiVersion != "2.0" or md.coSimulation is None:
-        raise MasterConfigError(f"FMU file {str(path)!r}: expected an FMI 2.0 co-simulation FMU, "
-                                f"got fmiVersion {md.fmiVersion} with"
-                                f"{'' if md.coSimulation else 'out'} a CoSimulation interface")
+    problem = fmu_kind_problem(md)
+    if problem:
+        error = MasterConfigError(f"FMU file {str(path)!r}: {problem}; expected {SUPPORTED_FMUS}")
+        error.problem = problem
+        raise error
     return md
+
+
+def variables_of(md: ModelDescription) -> dict:
+    """Variable name -> variable as the master sees it (FMI 3.0: flattened bus elements, ``fmi3.flatten``)."""
+    if str(md.fmiVersion).startswith("3."):
+        return {e.name: e for e in flatten(md)}
+    return {v.name: v for v in md.modelVariables}
 
 
 def _unzip_dir(path: Path) -> str:
@@ -87,12 +119,15 @@ class FmuComponent:
         self.name = name
         self.path = Path(path)
         self.model_description = load_model_description(self.path)
-        self.variables = {v.name: v for v in self.model_description.modelVariables}
+        self.fmi3 = str(self.model_description.fmiVersion).startswith("3.")
+        self.api = "fmi3" if self.fmi3 else "fmi2"
+        self.variables = variables_of(self.model_description)
+        self.binding: Fmi3Binding | None = None
         self.step_ticks = int(step_ticks)
         self.start_values = dict(start_values)
         self.debug_logging = debug_logging
         self.messages: deque[str] = deque(maxlen=log_capacity)
-        self.slave: FMU2Slave | None = None
+        self.slave: FMU2Slave | FMU3Slave | None = None
         self.failed_fatally = False
         self._callbacks: fmi2CallbackFunctions | None = None
 
@@ -102,8 +137,42 @@ class FmuComponent:
         cat = category.decode("utf-8", "replace") if category else ""
         self.messages.append(f"[{status_name(status)}] {cat + ': ' if cat else ''}{text}")
 
-    def instantiate(self) -> None:
-        """Load the binary and call fmi2Instantiate; bind the raw step functions."""
+    def _logger3(self, env, status, category, message) -> None:
+        text = message.decode("utf-8", "replace") if message else ""
+        cat = category.decode("utf-8", "replace") if category else ""
+        self.messages.append(f"[{status_name(status, 'fmi3')}] {cat + ': ' if cat else ''}{text}")
+
+    @property
+    def bus_variables(self) -> list:
+        """The variables in modelDescription order (FMI 3.0: flattened elements)."""
+        return list(self.variables.values())
+
+    def _instantiate3(self, stop_at_address: int | None) -> None:
+        md = self.model_description
+        self.slave = FMU3Slave(guid=md.guid, unzipDirectory=_unzip_dir(self.path),
+                               modelIdentifier=md.coSimulation.modelIdentifier, instanceName=self.name)
+        event_mode = bool(getattr(md.coSimulation, "hasEventMode", False))
+        try:
+            self.slave.instantiate(loggingOn=self.debug_logging, eventModeUsed=event_mode, earlyReturnAllowed=False,
+                                   logMessage=self._logger3)
+        except Exception as exc:
+            raise self.error(0.0, f"fmi3InstantiateCoSimulation failed: {exc}") from exc
+        self.binding = Fmi3Binding(list(self.variables.values()), self.slave.dll, self.slave.component, event_mode,
+                                   stop_at_address)
+        self.event_mode_used = event_mode
+        self.component = self.binding.address
+        self.fn_address = dict(self.binding.fn_address)
+        self.do_step_fn = STEP_T(self.fn_address["DoStep"])
+        self.set_fn = {t: SET_T(self.fn_address["Set" + t]) for t in ("Real", "Integer", "Boolean")}
+        self.get_fn = {t: SET_T(self.fn_address["Get" + t]) for t in ("Real", "Integer", "Boolean")}
+
+    def instantiate(self, stop_at_address: int | None = None) -> None:
+        """Load the binary and instantiate it (fmi2Instantiate / fmi3InstantiateCoSimulation); bind the raw
+        step functions. ``stop_at_address``: the engines' end-of-run time an FMI 3.0 FMU that ends the
+        simulation itself writes (a float64)."""
+        if self.fmi3:
+            self._instantiate3(stop_at_address)
+            return
         md = self.model_description
         self.slave = FMU2Slave(guid=md.guid, unzipDirectory=_unzip_dir(self.path),
                                modelIdentifier=md.coSimulation.modelIdentifier, instanceName=self.name)
@@ -140,8 +209,43 @@ class FmuComponent:
                 self.failed_fatally = True
             raise self.error(time, f"{what} failed: {exc}") from exc
 
+    def enter_initialization(self, start_time: float, stop_time: float | None) -> None:
+        """FMI 2.0: fmi2SetupExperiment, start values, fmi2EnterInitializationMode.
+        FMI 3.0: start values, fmi3EnterInitializationMode(start_time, stop_time)."""
+        if self.fmi3:
+            self.apply_start_values(start_time)
+            self.call("fmi3EnterInitializationMode", start_time, self.slave.enterInitializationMode, None,
+                      start_time, stop_time)
+            return
+        self.call("fmi2SetupExperiment", start_time, self.slave.setupExperiment, None, start_time, stop_time)
+        self.apply_start_values(start_time)
+        self.call("fmi2EnterInitializationMode", start_time, self.slave.enterInitializationMode)
+
+    def exit_initialization(self, start_time: float) -> None:
+        """fmi2ExitInitializationMode / fmi3ExitInitializationMode (FMI 3.0 with event mode: the event
+        iteration that follows it, then step mode)."""
+        self.call(f"{self.api}ExitInitializationMode", start_time, self.slave.exitInitializationMode)
+        if self.fmi3 and self.event_mode_used:
+            self.check("the event iteration after initialization", start_time,
+                       self.binding.event_iteration(start_time, enter=False))
+            if self.binding.terminated:
+                raise self.error(start_time, "the FMU asked to terminate the simulation during initialization")
+
+    def get_binary(self, name: str) -> bytes:
+        """The current value of FMI 3.0 Binary output ``name`` (one element)."""
+        element = self.variable(name)
+        if not self.fmi3 or element.type != "Binary":
+            raise MasterConfigError(f"FMU '{self.name}': '{name}' is not an FMI 3.0 Binary variable")
+        values = self.call(f"fmi3GetBinary({name})", 0.0, self.slave.getBinary, [element.fmi_value_reference],
+                           element.count)
+        return bytes(values[element.element])
+
     def apply_start_values(self, time: float) -> None:
-        """Set every start value with the fmpy setter of its type."""
+        """Set every start value with the fmpy setter of its type (FMI 3.0: through the adapter)."""
+        if self.fmi3:
+            values = {self.variables[name]: value for name, value in self.start_values.items()}
+            self.check("setting start values", time, self.binding.set_start_values(values))
+            return
         for name, value in self.start_values.items():
             var = self.variables[name]
             vr = [var.valueReference]
@@ -155,8 +259,12 @@ class FmuComponent:
                 self.call(f"setting start value {name}", time, self.slave.setString, vr, [str(value)])
 
     def error(self, time: float, reason: str) -> SimulationError:
-        """SimulationError for this instance at ``time`` (s) quoting its log messages."""
+        """SimulationError for this instance at ``time`` (s) quoting its log messages (and, for FMI 3.0,
+        what the adapter found: a value out of range, an early return, the variable concerned)."""
         hint = "" if self.debug_logging else "the FMU logged nothing; debug_logging=True turns its logging on"
+        if self.binding is not None and self.binding.message:
+            reason = f"{reason} ({self.binding.message})"
+            self.binding.clear_message()
         return SimulationError(self.name, time, reason, self.messages, hint)
 
     def check(self, what: str, time: float, status: int) -> None:
@@ -164,24 +272,24 @@ class FmuComponent:
         if status > 1:
             if status == 4:
                 self.failed_fatally = True
-            raise self.error(time, f"{what} returned {status_name(status)}")
+            raise self.error(time, f"{what} returned {status_name(status, self.api)}")
 
     def close(self, terminate: bool) -> None:
         """fmi2Terminate (when the instance is healthy) and fmi2FreeInstance; never raises."""
         if self.slave is None:
             return
-        if self.failed_fatally:  # FMI 2.0: after fmi2Fatal no function may be called
+        if self.failed_fatally:  # after fmi2Fatal/fmi3Fatal no function may be called
             self.slave = None
             return
         try:
             if terminate:
                 self.slave.terminate()
         except Exception as exc:
-            self.messages.append(f"[master] fmi2Terminate failed: {exc}")
+            self.messages.append(f"[master] {self.api}Terminate failed: {exc}")
         try:
             self.slave.freeInstance()
         except Exception as exc:  # pragma: no cover
-            self.messages.append(f"[master] fmi2FreeInstance failed: {exc}")
+            self.messages.append(f"[master] {self.api}FreeInstance failed: {exc}")
         self.slave = None
 
     def variable(self, name: str) -> ScalarVariable:

@@ -20,8 +20,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from cosim.master.component import FmuComponent, status_name
-from cosim.master.errors import SimulationError
-from cosim.master.kernel import (FAIL_GET, FAIL_NONFINITE, FAIL_SET, FAIL_STEP, CFailure, CPlan, CSlave,
+from cosim.master.errors import FmuEnded, SimulationError
+from cosim.master.kernel import (FAIL_ENDED, FAIL_GET, FAIL_NONFINITE, FAIL_SET, FAIL_STEP, CFailure, CPlan, CSlave,
                                  load_kernel)
 
 BUS_ORDER = ("Real", "Integer", "Boolean")
@@ -63,6 +63,12 @@ class Plan:
     start_time: float
     base_step: float
     gauss_seidel: bool
+    #: End time (s) of the run written by an FMI 3.0 FMU that ended the simulation itself (+inf: none).
+    stop_at: np.ndarray = field(default_factory=lambda: np.array([np.inf]))
+
+    def ends_after(self, tick: int) -> bool:
+        """True when an FMU ended the simulation and the run stops after base tick ``tick`` (same test as the kernel)."""
+        return self.start_time + (float(tick) + 1.5) * self.base_step > self.stop_at[0]
 
     def time(self, tick: int) -> float:
         """Simulated time in s of base tick ``tick`` (same formula as the kernel)."""
@@ -94,7 +100,7 @@ def set_inputs(plan: Plan, slave: SlavePlan, tick: int) -> None:
     for bus_type, ex in slave.inputs.items():
         address = plan.buses[bus_type].ctypes.data + ex.offset * plan.buses[bus_type].itemsize
         status = comp.set_fn[bus_type](comp.component, ex.value_references.ctypes.data, ex.size, address)
-        comp.check(f"fmi2Set{bus_type}", plan.time(tick), status)
+        comp.check(f"{comp.api}Set{bus_type}", plan.time(tick), status)
 
 
 def publish(plan: Plan, slave: SlavePlan, tick: int, check: bool = True) -> None:
@@ -106,7 +112,7 @@ def publish(plan: Plan, slave: SlavePlan, tick: int, check: bool = True) -> None
         status = comp.get_fn[bus_type](comp.component, ex.value_references.ctypes.data, ex.size,
                                        bus.ctypes.data + ex.offset * bus.itemsize)
         if status > 1:
-            comp.check(f"fmi2Get{bus_type}", plan.time(tick), status)
+            comp.check(f"{comp.api}Get{bus_type}", plan.time(tick), status)
     if check and slave.n_check:
         ex = slave.published["Real"]
         values = plan.buses["Real"][ex.offset:ex.offset + slave.n_check]
@@ -150,7 +156,7 @@ class PythonEngine:
         for fn, vrs, count, address, bus_type in gets:
             status = fn(handle, vrs, count, address)
             if status > 1:
-                comp.check(f"fmi2Get{bus_type}", self.plan.time(tick), status)
+                comp.check(f"{comp.api}Get{bus_type}", self.plan.time(tick), status)
         if checked is not None and not math.isfinite(checked.dot(checked)):
             bad = np.flatnonzero(~np.isfinite(checked))
             if len(bad):
@@ -175,7 +181,7 @@ class PythonEngine:
                 for fn, vrs, count, address, bus_type in sets:
                     status = fn(handle, vrs, count, address)
                     if status > 1:
-                        comp.check(f"fmi2Set{bus_type}", t, status)
+                        comp.check(f"{comp.api}Set{bus_type}", t, status)
                 h = (t0 + float(n + m) * h0) - t
                 if profile is not None:
                     w0 = time.perf_counter()
@@ -184,13 +190,15 @@ class PythonEngine:
                 else:
                     status = comp.do_step_fn(handle, t, h, 1)
                 if status > 1:
-                    comp.check(f"fmi2DoStep(t={t:.9g} s, h={h:.9g} s)", t, status)
+                    comp.check(f"{comp.api}DoStep(t={t:.9g} s, h={h:.9g} s)", t, status)
                 if gauss_seidel:
                     self._publish(prepared, n + m)
             if not gauss_seidel:
                 for prepared in self._prepared:
                     if (n + 1) % prepared[0].step_ticks == 0:
                         self._publish(prepared, n + 1)
+            if plan.ends_after(n):
+                raise FmuEnded(n + 1)
 
 
 class NativeEngine:
@@ -210,7 +218,8 @@ class NativeEngine:
                            real_bus=plan.buses["Real"].ctypes.data, int_bus=plan.buses["Integer"].ctypes.data,
                            bool_bus=plan.buses["Boolean"].ctypes.data, start_time=plan.start_time,
                            base_step=plan.base_step, gauss_seidel=int(plan.gauss_seidel),
-                           step_seconds=None if self.step_seconds is None else self.step_seconds.ctypes.data)
+                           step_seconds=None if self.step_seconds is None else self.step_seconds.ctypes.data,
+                           stop_at=plan.stop_at.ctypes.data)
         self._plan_ref = ctypes.byref(self._plan)
         self._failure = CFailure()
         self._failure_ref = ctypes.byref(self._failure)
@@ -238,8 +247,12 @@ class NativeEngine:
         c.n_check = slave.n_check
 
     def advance(self, n_from: int, n_to: int) -> None:
-        """Step all due slaves for ticks n_from .. n_to-1 in C; raise SimulationError on failure."""
-        if self._advance(self._plan_ref, n_from, n_to, self._failure_ref):
+        """Step all due slaves for ticks n_from .. n_to-1 in C; raise SimulationError on failure
+        (FmuEnded when an FMU ended the simulation itself)."""
+        rc = self._advance(self._plan_ref, n_from, n_to, self._failure_ref)
+        if rc:
+            if self._failure.what == FAIL_ENDED:
+                raise FmuEnded(int(self._failure.tick))
             raise self._error()
 
     def _error(self) -> SimulationError:
@@ -253,14 +266,14 @@ class NativeEngine:
             return nonfinite_error(plan, slave, f.tick, f.variable)
         t = plan.time(f.tick)
         if f.what == FAIL_STEP:
-            what = f"fmi2DoStep(t={t:.9g} s, h={plan.step_size(f.tick, slave):.9g} s)"
+            what = f"{comp.api}DoStep(t={t:.9g} s, h={plan.step_size(f.tick, slave):.9g} s)"
         elif f.what == FAIL_SET:
-            what = "fmi2Set* of its inputs"
+            what = f"{comp.api}Set* of its inputs"
         elif f.what == FAIL_GET:
-            what = "fmi2Get* of its outputs"
+            what = f"{comp.api}Get* of its outputs"
         else:  # pragma: no cover
             what = "an FMI call"
-        return comp.error(t, f"{what} returned {status_name(f.status)}")
+        return comp.error(t, f"{what} returned {status_name(f.status, comp.api)}")
 
 
 def make_engine(plan: Plan, engine: str, profile: bool = False) -> PythonEngine | NativeEngine:

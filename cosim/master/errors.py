@@ -41,3 +41,12 @@ class SimulationError(RuntimeError):
 
 class EndSimulation(Exception):
     """Raised by a periodic task to end the run early and successfully (e.g. a job is done)."""
+
+
+class FmuEnded(Exception):
+    """Raised by an engine when an FMU ended the simulation itself (FMI 3.0 terminateSimulation):
+    the run ends normally at base tick ``tick`` (the master records who ended it)."""
+
+    def __init__(self, tick: int) -> None:
+        super().__init__(f"an FMU ended the simulation (run ends at tick {tick})")
+        self.tick = tick

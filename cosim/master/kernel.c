@@ -23,7 +23,7 @@ typedef int (*get_int_t)(void *, const unsigned int *, size_t, int *);
 typedef int (*do_step_t)(void *, double, double, int);
 
 enum { REAL = 0, INTEGER = 1, BOOLEAN = 2 };
-enum { FAIL_NONE = 0, FAIL_SET = 1, FAIL_STEP = 2, FAIL_GET = 3, FAIL_NONFINITE = 4 };
+enum { FAIL_NONE = 0, FAIL_SET = 1, FAIL_STEP = 2, FAIL_GET = 3, FAIL_NONFINITE = 4, FAIL_ENDED = 5 };
 
 typedef struct {
     void *component;
@@ -57,6 +57,8 @@ typedef struct {
     double base_step;
     int gauss_seidel;
     double *step_seconds; /* when not NULL: wall seconds spent inside fmi2DoStep, per slave (profiling) */
+    const double *stop_at; /* when not NULL: an FMU that ended the simulation itself wrote the time the run
+                              ends (s) here (+inf otherwise); the run stops after the tick that reaches it */
 } cosim_plan;
 
 typedef struct {
@@ -124,7 +126,8 @@ static int step(const cosim_plan *p, const cosim_slave *s, long long k, long lon
     return 0;
 }
 
-/* Advance all slaves over ticks [n_from, n_to). Returns 0, or 1 with *fail filled in. */
+/* Advance all slaves over ticks [n_from, n_to). Returns 0, 1 with *fail filled in, or 2 when an FMU
+ * ended the simulation itself (fail->tick: the tick the run ends at, fail->what = FAIL_ENDED). */
 int cosim_advance(const cosim_plan *p, long long n_from, long long n_to, cosim_failure *fail)
 {
     for (long long n = n_from; n < n_to; ++n) {
@@ -140,6 +143,10 @@ int cosim_advance(const cosim_plan *p, long long n_from, long long n_to, cosim_f
                 if ((n + 1) % s->step_ticks) continue;
                 if (publish(p, s, k, n + 1, fail)) return 1;
             }
+        }
+        if (p->stop_at && p->start_time + ((double)n + 1.5) * p->base_step > *p->stop_at) {
+            fail->slave = -1; fail->tick = n + 1; fail->what = FAIL_ENDED; fail->status = 0; fail->variable = -1;
+            return 2;
         }
     }
     return 0;

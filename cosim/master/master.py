@@ -41,17 +41,19 @@ from pathlib import Path
 
 import numpy as np
 
-from cosim.master.component import FmuComponent, load_model_description
+from cosim.master.component import FmuComponent, load_model_description, status_name
 from cosim.master.engines import (BUS_DTYPE, BUS_ORDER, Exchange, NativeEngine, Plan, PythonEngine, SlavePlan,
                                   gather, make_engine, publish, set_inputs)
-from cosim.master.errors import EndSimulation, MasterConfigError, SimulationError
+from cosim.master.errors import EndSimulation, FmuEnded, MasterConfigError, SimulationError
 from cosim.master.recorder import Recorder, Sink
-from cosim.master.variables import (MasterTypeUnsupported, bus_type, check_connection_ends, check_start_value,
+from cosim.master.variables import (MasterTypeUnsupported, bus_type, check_connection_ends, check_declared_range,
+                                    check_start_value,
                                     is_pattern, matches_pattern, parse_connection, split_signal)
 
 COUPLINGS = ("jacobi", "gauss_seidel")
 ENGINES = ("auto", "native", "python")
-_BUS_FMI_TYPES = ("Real", "Integer", "Enumeration", "Boolean")
+_BUS_FMI_TYPES = ("Real", "Integer", "Enumeration", "Boolean", "Float32", "Float64", "Int8", "UInt8", "Int16",
+                  "UInt16", "Int32", "UInt32", "Int64", "UInt64", "Clock", "Binary")
 _RECORDABLE_CAUSALITIES = ("output", "local", "parameter", "calculatedParameter", "input", "independent")
 
 
@@ -63,6 +65,9 @@ def ticks_of(value: float, base_step: float, what: str, allow_zero: bool = False
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
         raise MasterConfigError(f"{what}: expected a number of seconds, got {value!r}")
     ratio = value / base_step
+    if not math.isfinite(ratio):
+        raise MasterConfigError(f"{what}: expected a whole number of base steps of {base_step!r} s, got {value!r} s "
+                                f"(the ratio overflows)")
     n = round(ratio)
     if (n < 1 and not allow_zero) or n < 0 or abs(ratio - n) > 1e-9 * max(1.0, abs(ratio)):
         smallest = "a non-negative" if allow_zero else "a positive"
@@ -160,6 +165,7 @@ class Master:
         self.engine: NativeEngine | PythonEngine | None = None
         self._locations: dict[str, tuple[str, int]] = {}
         self._master_var_range: dict[str, tuple[int, int]] = {}
+        self.ended_by: dict[str, object] | None = None
 
     # ------------------------------------------------------------------ building
     def _check_building(self) -> None:
@@ -189,7 +195,8 @@ class Master:
         step_ticks = 1 if step is None else ticks_of(step, self.base_step, f"step of FMU '{name}'")
         component = FmuComponent(name, path, step_ticks, start_values or {}, debug_logging)
         for var_name, value in component.start_values.items():
-            problem = check_start_value(component.variable(var_name), value)
+            problem = check_start_value(component.variable(var_name), value) \
+                or check_declared_range(component.variable(var_name), value)
             if problem:
                 raise MasterConfigError(f"start value of '{name}.{var_name}': expected {problem}, got {value!r}")
         self._fmus[name] = component
@@ -319,7 +326,7 @@ class Master:
         out: list[str] = []
         for s in signals:
             if is_pattern(s):
-                matches = [f"{n}.{v.name}" for n, c in self._fmus.items() for v in c.model_description.modelVariables
+                matches = [f"{n}.{v.name}" for n, c in self._fmus.items() for v in c.bus_variables
                            if v.causality == "output" and v.type in _BUS_FMI_TYPES
                            and matches_pattern(f"{n}.{v.name}", s)]
                 matches += [v for v in self._variables if matches_pattern(v, s)]
@@ -371,8 +378,8 @@ class Master:
             extra = [s.split(".", 1)[1] for s in self._exposed + [x for r in self._recorders for x in r.signals]
                      if s.split(".", 1)[0] == inst and s not in connected and s not in self._variables]
             for t in BUS_ORDER:
-                outputs = [v for v in comp.model_description.modelVariables
-                           if v.causality == "output" and v.type in (t, "Enumeration" if t == "Integer" else t)]
+                outputs = [v for v in comp.bus_variables
+                           if v.causality == "output" and v.type in _BUS_FMI_TYPES and bus_type(v.type) == t]
                 probes = []
                 for var_name in extra:
                     v = comp.variables[var_name]
@@ -430,10 +437,8 @@ class Master:
         try:
             for slave in self.plan.slaves:
                 comp = slave.component
-                comp.instantiate()
-                comp.call("fmi2SetupExperiment", t0, comp.slave.setupExperiment, None, t0, stop_time)
-                comp.apply_start_values(t0)
-                comp.call("fmi2EnterInitializationMode", t0, comp.slave.enterInitializationMode)
+                comp.instantiate(self.plan.stop_at.ctypes.data)
+                comp.enter_initialization(t0, stop_time)
             if self._connections:
                 for _ in range(len(self.plan.slaves)):  # propagate algebraic chains of initial values
                     for slave in self.plan.slaves:
@@ -442,8 +447,7 @@ class Master:
                         gather(self.plan, slave)
                         set_inputs(self.plan, slave, 0)
             for slave in self.plan.slaves:
-                comp = slave.component
-                comp.call("fmi2ExitInitializationMode", t0, comp.slave.exitInitializationMode)
+                slave.component.exit_initialization(t0)
             for slave in self.plan.slaves:
                 publish(self.plan, slave, 0)
         except BaseException:
@@ -493,6 +497,8 @@ class Master:
                 raise MasterConfigError("run(): give 'until' or a stop_time to initialize()")
             until = self.stop_time
         n_end = ticks_of(until - self.start_time, self.base_step, "run(until)", allow_zero=True)
+        if self.ended_by is not None:  # an FMU ended the simulation: nothing more to run
+            return self.time
         if n_end < self._tick:
             raise MasterConfigError(f"run(until={until!r}): expected a time not before the current time {self.time!r}")
         events = self._schedule()
@@ -513,7 +519,15 @@ class Master:
                 for e in events:  # the next event tick (a loop: cheaper than min() over a generator)
                     if e.next_tick < target:
                         target = e.next_tick
-                advance(n, target)
+                try:
+                    advance(n, target)
+                except FmuEnded as ended:
+                    n = self._tick = ended.tick
+                    self._record_end(n)
+                    self._events_done_tick = n
+                    self._run_events(n, events)
+                    self._final_samples(n, events)
+                    break
                 n = target
                 self._tick = n
         except EndSimulation:
@@ -524,6 +538,28 @@ class Master:
             for recorder in self._recorders:
                 recorder.flush()
         return self.time
+
+    def _final_samples(self, n: int, events: list[_Event]) -> None:
+        """Recorders that did not sample at the end tick ``n`` (not a multiple of their period) sample now."""
+        late = [e.item for e in events if isinstance(e.item, Recorder) and e.next_tick - e.period != n]
+        if late:
+            for slave in self.plan.slaves:
+                if n % slave.step_ticks == 0:
+                    gather(self.plan, slave)
+            for recorder in late:
+                recorder.sample(self.start_time + n * self.base_step)
+
+    def _record_end(self, tick: int) -> None:
+        t = self.start_time + tick * self.base_step
+        for comp in self._fmus.values():
+            if comp.binding is not None and comp.binding.terminated:
+                status = comp.binding.ctx.end_status
+                self.ended_by = {"instance": comp.name, "time": t, "status": status_name(status, "fmi3"),
+                                 "last_successful_time": comp.binding.ctx.last_successful_time}
+                comp.messages.append(f"[master] {comp.name} ended the simulation (terminateSimulation, "
+                                     f"{status_name(status, 'fmi3')}) at t = {t:.9g} s")
+                return
+        self.ended_by = {"instance": None, "time": t, "status": None, "last_successful_time": t}
 
     def _run_events(self, n: int, events: list[_Event]) -> None:
         t = self.start_time + n * self.base_step

@@ -16,6 +16,8 @@ from fnmatch import fnmatchcase
 
 from fmpy.model_description import ModelDescription, ScalarVariable
 
+from cosim.master.fmi3 import FMI3_BUS, READ_ONLY_TYPES, Fmi3Element, check_fmi3_start
+
 #: FMI 2.0 scalar types a start value may have.
 VALUE_TYPES: tuple[str, ...] = ("Real", "Integer", "Enumeration", "Boolean", "String")
 #: Types that can travel on the master's signal buses (connections, tasks, recorders).
@@ -31,12 +33,15 @@ _EXPECTED_PYTHON = {
 
 
 def bus_type(fmi_type: str) -> str:
-    """Return the bus a variable of FMI type ``fmi_type`` travels on (Enumeration uses Integer)."""
+    """Return the bus a variable of FMI type ``fmi_type`` travels on (Enumeration uses Integer;
+    FMI 3.0 types: see cosim/master/fmi3.py)."""
     if fmi_type == "Enumeration":
         return "Integer"
-    if fmi_type not in BUS_TYPES:
-        raise MasterTypeUnsupported(fmi_type)
-    return fmi_type
+    if fmi_type in BUS_TYPES:
+        return fmi_type
+    if fmi_type in FMI3_BUS:
+        return FMI3_BUS[fmi_type]
+    raise MasterTypeUnsupported(fmi_type)
 
 
 class MasterTypeUnsupported(ValueError):
@@ -44,7 +49,8 @@ class MasterTypeUnsupported(ValueError):
 
     def __init__(self, fmi_type: str) -> None:
         super().__init__(f"variables of type {fmi_type} cannot be connected, read by tasks or recorded "
-                         f"(supported: {', '.join(BUS_TYPES)}, Enumeration)")
+                         f"(supported: {', '.join(BUS_TYPES)}, Enumeration; FMI 3.0: Float32/64, Int8..Int64, "
+                         f"UInt8..UInt64, Boolean, and output Clock/Binary read and recorded)")
 
 
 def split_signal(name: str) -> tuple[str, str]:
@@ -109,7 +115,10 @@ def check_start_value(variable: ScalarVariable, value: object) -> str | None:
     Real takes int or float (not bool, not NaN/Inf); Integer/Enumeration take int (not
     bool); Boolean takes bool; String takes str. The variable must be settable before
     initialization (an input, or a non-constant variable with initial exact/approx).
+    FMI 3.0 elements: the value must fit the element's type (``fmi3.check_fmi3_start``).
     """
+    if isinstance(variable, Fmi3Element):
+        return check_fmi3_start(variable, value)
     if not settable_start(variable):
         return (f"a variable whose start value can be set (causality {variable.causality}, "
                 f"variability {variable.variability}, initial {variable.initial} cannot be set)")
@@ -127,6 +136,42 @@ def check_start_value(variable: ScalarVariable, value: object) -> str | None:
     return None if ok else f"{expected} for {variable.type} variable '{variable.name}'"
 
 
+def declared_range(variable: ScalarVariable, model_description=None) -> tuple[float | None, float | None]:
+    """The ``min``/``max`` the modelDescription declares for ``variable`` (on the variable, else on its
+    declared type), as numbers; None where nothing is declared."""
+    def number(text):
+        if text is None:
+            return None
+        try:
+            return float(text)
+        except (TypeError, ValueError):
+            return None
+
+    low, high = number(getattr(variable, "min", None)), number(getattr(variable, "max", None))
+    declared = getattr(variable, "declaredType", None)
+    if declared is not None:
+        if low is None:
+            low = number(getattr(declared, "min", None))
+        if high is None:
+            high = number(getattr(declared, "max", None))
+    return low, high
+
+
+def check_declared_range(variable: ScalarVariable, value: object, model_description=None) -> str | None:
+    """None when the numeric ``value`` lies in the variable's declared [min, max], else what was expected."""
+    if variable.type not in ("Real", "Integer", "Enumeration") or isinstance(value, bool) \
+            or not isinstance(value, (int, float)):
+        return None
+    low, high = declared_range(variable, model_description)
+    if (low is not None and value < low) or (high is not None and value > high):
+        bounds = " and ".join(p for p in (f">= {low:g}" if low is not None else "",
+                                          f"<= {high:g}" if high is not None else "") if p)
+        unit = getattr(variable, "unit", None) or getattr(getattr(variable, "declaredType", None), "unit", None)
+        return (f"a value {bounds}{' ' + unit if unit else ''} (the range its modelDescription declares for "
+                f"'{variable.name}')")
+    return None
+
+
 def check_connection_ends(source: ScalarVariable | None, destination: ScalarVariable,
                           source_type: str | None = None) -> str | None:
     """Return None when ``source`` may feed ``destination``, else what was expected.
@@ -140,6 +185,10 @@ def check_connection_ends(source: ScalarVariable | None, destination: ScalarVari
     if source is not None and source.causality != "output":
         return f"an output as source ('{source.name}' has causality {source.causality})"
     src_type = source.type if source is not None else source_type
+    for end, what in ((source, "source"), (destination, "destination")):
+        if end is not None and end.type in READ_ONLY_TYPES:
+            return (f"a Float, Int, UInt, Boolean or Enumeration variable as {what} ('{end.name}' is an FMI 3.0 "
+                    f"{end.type}: clocks and binaries are read and recorded, not connected)")
     try:
         if bus_type(src_type) != bus_type(destination.type):
             return (f"matching types (source is {src_type}, destination '{destination.name}' "

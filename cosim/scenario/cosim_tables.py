@@ -3,7 +3,8 @@
 Tables (all quantities SI numbers or unit strings, see units.py)::
 
     [simulation]  stop_time, macro_step, coupling = "jacobi"|"gauss_seidel", order = [...], engine
-    [[fmus]]      name, path = "x.fmu" | builtin = "rx130l_plant"|"servo_drive", step, debug_logging
+    [[fmus]]      name, path = "x.fmu" | builtin = "rx130l_plant"|"servo_drive" | source = "folder", step,
+                  debug_logging
     [fmus.parameters]  <variable> = <start value>
     connections = ["a.x -> b.y", ...]
     [record]      period, signals = ["plant.q[1]", "drive1.*", ...], file = "timeseries.csv"
@@ -15,16 +16,19 @@ call ``check_cosim_tables(doc, where, master_variables)`` in its check, and
 """
 from __future__ import annotations
 
+import math
+
 from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from cosim.master import Master, MasterConfigError, Recorder, load_model_description
+from cosim.master.component import SUPPORTED_FMUS, variables_of
 from cosim.master.master import COUPLINGS, ENGINES
-from cosim.master.variables import (MasterTypeUnsupported, bus_type, check_connection_ends, check_start_value,
-                                    is_pattern, matches_pattern, parse_connection, split_signal)
+from cosim.master.variables import (MasterTypeUnsupported, bus_type, check_connection_ends, check_declared_range,
+                                    check_start_value, is_pattern, matches_pattern, parse_connection, split_signal)
 from cosim.realtime.config import execution_fields
-from cosim.scenario.schema import (AnyValue, Boolean, Field, FilePath, List, Number, String, Table, Where)
+from cosim.scenario.schema import (AnyValue, Boolean, Field, FilePath, Integer, List, Number, String, Table, Where)
 
 if TYPE_CHECKING:
     from cosim.scenario.context import RunContext
@@ -48,10 +52,33 @@ def resolve_builtin(name: str) -> Path:
     return Path(ensure_fmus()[name])
 
 
+def resolve_source(folder: str, where: Where) -> Path:
+    """The FMU built from the C source folder ``folder`` (``fmus.source_fmu``; relative to the
+    scenario file's folder); ScenarioError at ``where`` when it is not a source folder or does not build."""
+    from fmus.source_fmu import SourceFmuError, build_source_fmu
+
+    path = Path(folder).expanduser()
+    if not path.is_absolute():
+        path = where.base_dir / path
+    try:
+        return build_source_fmu(path)
+    except SourceFmuError as exc:
+        raise where.error("a folder with modelDescription.xml and the FMU's C files that compiles to a valid "
+                          "FMI 2.0 co-simulation FMU", folder, problem=str(exc)) from None
+
+
 def _multiple_check(value: float, base: float) -> bool:
     ratio = value / base
+    if not math.isfinite(ratio):  # e.g. macro_step = 5e-324: no whole number of steps
+        return False
     return round(ratio) >= 1 and abs(ratio - round(ratio)) <= 1e-9 * max(1.0, ratio)
 
+
+#: Default upper bound on the base steps of one run (stop_time / macro_step). At the ~1-2 us per base
+#: step of the fastest loops (one small FMU, compiled kernel; docs/timing.md) 1e9 steps are already
+#: 20-30 min of wall time, and hours with the robot cell; a larger count is a typo (stop_time = 1e300,
+#: macro_step = 5e-324) more often than a plan. Raise it per scenario with [simulation] max_base_steps.
+MAX_BASE_STEPS = 1_000_000_000
 
 SIMULATION_TABLE = Table({
     "stop_time": Field(Number(unit="s", gt=0), required=True, doc="the simulated duration: a number in s > 0"),
@@ -59,6 +86,8 @@ SIMULATION_TABLE = Table({
     "coupling": Field(String(choices=COUPLINGS), default="jacobi"),
     "order": Field(List(String(pattern=INSTANCE_PATTERN, pattern_doc="naming an FMU instance"), unique=True)),
     "engine": Field(String(choices=ENGINES), default="auto"),
+    "max_base_steps": Field(Integer(min=1), default=MAX_BASE_STEPS,
+                            doc="the largest stop_time / macro_step accepted (a guard against typos)"),
 }, doc="the [simulation] table")
 
 FMU_TABLE = Table({
@@ -66,10 +95,12 @@ FMU_TABLE = Table({
                   required=True),
     "path": Field(FilePath(must_exist=True, suffix=".fmu")),
     "builtin": Field(String(), doc="the name of one of the project's FMUs"),
+    "source": Field(String(), doc="a folder with modelDescription.xml and C files (relative to the scenario "
+                                  "file's folder): the FMU is built from it with the system C compiler"),
     "step": Field(Number(unit="s", gt=0)),
     "parameters": Field(Table({}, extra=AnyValue(), doc="a table of <variable> = <start value>"), default={}),
     "debug_logging": Field(Boolean(), default=False),
-}, one_of=[("path", "builtin")], doc="an [[fmus]] table")
+}, one_of=[("path", "builtin", "source")], doc="an [[fmus]] table")
 
 RECORD_TABLE = Table({
     "period": Field(Number(unit="s", gt=0), required=True, doc="the sampling period: a number in s > 0"),
@@ -97,8 +128,8 @@ COSIM_FIELDS: dict[str, Field] = {
 def check_cosim_tables(doc: dict, where: Where, master_variables: Mapping[str, str] | None = None) -> None:
     """Check the co-simulation tables of a validated document against the FMUs themselves.
 
-    Resolves ``builtin`` FMUs to files (``doc["fmus"][i]["path"]``), then checks: FMI 2.0
-    co-simulation FMU, unique instance names, steps and periods multiples of macro_step,
+    Resolves ``builtin`` FMUs to files (``doc["fmus"][i]["path"]``), then checks: FMI 2.0 or
+    3.0 co-simulation FMU, unique instance names, steps and periods multiples of macro_step,
     stop_time a multiple of macro_step, every parameter exists and has the right type,
     every connection joins an existing output (or master variable) to an existing input
     of the same type once, every recorded signal exists. ``master_variables`` (name ->
@@ -108,6 +139,17 @@ def check_cosim_tables(doc: dict, where: Where, master_variables: Mapping[str, s
     master_variables = dict(master_variables or {})
     sim = doc["simulation"]
     base = sim["macro_step"]
+    steps = sim["stop_time"] / base
+    limit = sim.get("max_base_steps", MAX_BASE_STEPS)
+    if not math.isfinite(steps):
+        raise (where / "simulation" / "macro_step").error(
+            f"a step giving a finite number of base steps in stop_time = {sim['stop_time']:g} s", sim["macro_step"],
+            problem="stop_time / macro_step overflows")
+    if steps > limit * (1 + 1e-9):
+        raise (where / "simulation" / "stop_time").error(
+            f"at most [simulation] max_base_steps = {limit:g} base steps, i.e. stop_time <= {limit * base:.6g} s "
+            f"with macro_step = {base:g} s (raise max_base_steps to run longer)", sim["stop_time"],
+            problem=f"{steps:.3g} base steps")
     if not _multiple_check(sim["stop_time"], base):
         raise (where / "simulation" / "stop_time").error(
             f"a positive integer multiple of macro_step = {base!r} s", sim["stop_time"])
@@ -121,22 +163,24 @@ def check_cosim_tables(doc: dict, where: Where, master_variables: Mapping[str, s
             if fmu["builtin"] not in names:
                 raise (w[i] / "builtin").error(f"one of the project's FMUs {list(names)}", fmu["builtin"])
             fmu["path"] = resolve_builtin(fmu["builtin"])
+        if "source" in fmu:
+            fmu["path"] = resolve_source(fmu["source"], w[i] / "source")
         try:
             md = load_model_description(fmu["path"])
         except MasterConfigError as exc:
-            raise (w[i] / ("builtin" if "builtin" in fmu else "path")).error(
-                "an FMI 2.0 co-simulation FMU", str(fmu["path"]), problem=str(exc)) from None
-        descriptions[fmu["name"]] = {v.name: v for v in md.modelVariables}
+            raise (w[i] / next(k for k in ("builtin", "source", "path") if k in fmu)).error(
+                SUPPORTED_FMUS, str(fmu["path"]), problem=getattr(exc, "problem", str(exc))) from None
+        descriptions[fmu["name"]] = variables_of(md)
         if "step" in fmu and not _multiple_check(fmu["step"], base):
             raise (w[i] / "step").error(f"a positive integer multiple of macro_step = {base!r} s", fmu["step"])
         variables = descriptions[fmu["name"]]
         for key, value in fmu["parameters"].items():
             kw = w[i] / "parameters" / key
             if key not in variables:
-                settable = [v.name for v in md.modelVariables if v.causality == "parameter"]
+                settable = [v.name for v in variables.values() if v.causality == "parameter"]
                 raise kw.error(f"a variable of {Path(fmu['path']).name} (parameters: {_short(settable)})",
                                problem="unknown key")
-            problem = check_start_value(variables[key], value)
+            problem = check_start_value(variables[key], value) or check_declared_range(variables[key], value, md)
             if problem:
                 raise kw.error(problem, value)
     if sim.get("order") is not None:
@@ -241,4 +285,4 @@ def add_record(master: Master, doc: dict, ctx: "RunContext", file: str | None = 
 
 
 __all__ = ["COSIM_FIELDS", "FMU_TABLE", "OUTPUT_TABLE", "RECORD_TABLE", "SIMULATION_TABLE", "add_record",
-           "build_master", "builtin_fmu_names", "check_cosim_tables", "resolve_builtin"]
+           "build_master", "builtin_fmu_names", "check_cosim_tables", "resolve_builtin", "resolve_source"]

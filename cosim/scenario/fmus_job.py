@@ -1,6 +1,8 @@
 """Job ``fmus``: run the scenario's FMUs and connections on the master, record, nothing else.
 
-The generic job: any FMI 2.0 co-simulation FMUs, no controller. Its document is the
+The generic job: any FMI 2.0 or FMI 3.0 co-simulation FMUs, no controller. An FMU that
+ends the simulation itself ends the run normally; ``summary.json`` then says who and when
+(``ended_by``). Its document is the
 ``[scenario]`` table plus the standard co-simulation tables (cosim_tables.py).
 """
 from __future__ import annotations
@@ -28,8 +30,11 @@ def run_fmus_job(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
         ctx.summary.update(engine=master.engine.name, fmus={f["name"]: str(f["path"]) for f in doc["fmus"]},
                            timeseries=None if recorder is None else doc["record"]["file"])
         ctx.execute(master)
-    return {"rows_recorded": 0 if recorder is None else recorder.rows_written}
+    fields: dict[str, Any] = {"rows_recorded": 0 if recorder is None else recorder.rows_written}
+    if master.ended_by is not None:
+        fields["ended_by"] = master.ended_by
+    return fields
 
 
 register_job("fmus", run_fmus_job, SCHEMA, check_cosim_tables,
-             "co-simulate the listed FMUs and connections and record signals (no controller)")
+             "co-simulate the listed FMUs (FMI 2.0/3.0) and connections and record signals (no controller)")

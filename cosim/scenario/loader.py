@@ -7,6 +7,8 @@ a ``ScenarioError`` naming the file, the key path, the value and what was expect
 """
 from __future__ import annotations
 
+import site
+import sys
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -59,10 +61,14 @@ def load_document(document: dict[str, Any], path: str | Path | None = None) -> S
     where = Where(None if path is None else Path(path).resolve())
     if "scenario" not in document:
         raise (where / "scenario").error(SCENARIO_FIELD.doc, problem="missing required table")
+    if not isinstance(document["scenario"], dict):
+        raise (where / "scenario").error("a [scenario] table with keys name, job (and description)",
+                                         document["scenario"], problem="not a table")
     try:
         head = validate(SCENARIO_TABLE, document["scenario"], where / "scenario")
     except ScenarioError as exc:
-        raise _with_toml_hint(exc, get_job(document["scenario"].get("job", "")), document) from None
+        job_name = document["scenario"].get("job", "")
+        raise _with_toml_hint(exc, get_job(job_name) if isinstance(job_name, str) else None, document) from None
     job = get_job(head["job"])
     if job is None:
         raise (where / "scenario" / "job").error(f"one of the registered job types {job_names()}", head["job"])
@@ -95,16 +101,57 @@ def read_toml_file(path: Path, kind: str) -> dict[str, Any]:
         raise ScenarioError(path, "", f"an existing {kind} .toml file", problem="file not found")
     try:
         with open(path, "rb") as f:
-            return tomllib.load(f)
+            raw = f.read()
+    except OSError as exc:
+        raise ScenarioError(path, "", f"a readable {kind} .toml file", problem=exc.strerror or str(exc)) from None
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ScenarioError(path, "", f"a UTF-8 encoded {kind} .toml file",
+                            problem=f"not UTF-8 text (byte 0x{raw[exc.start]:02x} at offset {exc.start})") from None
+    try:
+        return tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ScenarioError(path, "", "valid TOML", problem=str(exc)) from None
 
 
-def load_scenario(path: str | Path) -> Scenario:
-    """Read and validate the scenario file ``path``; ScenarioError on any problem."""
+PACKAGED_SCENARIOS = Path("share") / "rx130l-cosim" / "scenarios"
+"""Where an installed package (``pip install .`` or the wheel) puts the project's
+``scenarios/*.toml``, below the installation prefix (pyproject ``data-files``)."""
+
+
+def packaged_scenarios_dir() -> Path | None:
+    """The installed copy of ``scenarios/`` (venv or system prefix, then the user base), or None."""
+    for prefix in (sys.prefix, site.getuserbase(), sys.base_prefix):
+        folder = Path(prefix) / PACKAGED_SCENARIOS
+        if folder.is_dir():
+            return folder
+    return None
+
+
+def resolve_path(path: str | Path) -> Path:
+    """``path`` if it exists; else the installed copy of a project scenario given as
+    ``scenarios/NAME.toml``, ``NAME.toml`` or ``NAME`` (so the README's commands work from
+    any folder after a non-editable install); else ``path`` unchanged (the caller reports
+    it as not found)."""
     path = Path(path)
+    if path.is_file() or path.is_absolute() or len(path.parts) > 2 or \
+            (len(path.parts) == 2 and path.parts[0] != "scenarios"):
+        return path
+    folder = packaged_scenarios_dir()
+    if folder is None:
+        return path
+    name = path.name if path.suffix == ".toml" else f"{path.name}.toml"
+    return folder / name if (folder / name).is_file() else path
+
+
+def load_scenario(path: str | Path) -> Scenario:
+    """Read and validate the scenario file ``path`` (see :func:`resolve_path`); ScenarioError
+    on any problem."""
+    path = resolve_path(path)
     return load_document(read_toml_file(path, "scenario"), path)
 
 
-__all__ = ["SCENARIO_FIELD", "SCENARIO_TABLE", "Scenario", "load_document", "load_scenario", "read_toml_file",
+__all__ = ["PACKAGED_SCENARIOS", "SCENARIO_FIELD", "SCENARIO_TABLE", "Scenario", "load_document", "load_scenario",
+           "packaged_scenarios_dir", "read_toml_file", "resolve_path",
            "Table"]

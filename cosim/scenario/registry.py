@@ -23,6 +23,7 @@ JOB_MODULES: tuple[str, ...] = (
     "cosim.jobs.identification",
     "cosim.jobs.fieldbus_fault",
     "cosim.jobs.planners",
+    "cosim.jobs.compare",
 )
 
 #: runner(scenario, context) -> extra summary.json fields (or None)

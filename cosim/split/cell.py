@@ -126,6 +126,7 @@ def run_split_cell(cell: CellDescription, controller, ctx, *, options: Execution
     memory = MemorySink()
     child: dict[str, Any] | None = None
     ready: dict[str, Any] = {}
+    interrupted: BaseException | None = None
     try:
         try:
             controller_port.setup(cinfo)
@@ -219,6 +220,16 @@ def run_split_cell(cell: CellDescription, controller, ctx, *, options: Execution
                 child = _receive(conn, process, 120.0, "done")
             except RuntimeError as error:
                 info["drive_side_error"] = str(error)
+    except KeyboardInterrupt as exc:  # SIGINT/SIGTERM: end the drive side, keep its rows, then re-raise
+        interrupted = exc
+        if hasattr(ctx, "note_position"):
+            ctx.note_position(label, fb_config.start_time_s + max(session.cycle, 0) * period)
+        if process.is_alive():
+            try:
+                conn.send_bytes(pack_marker(session.cycle + 1, END))
+                child = _receive(conn, process, 5.0, "done")
+            except (OSError, RuntimeError, EOFError):
+                pass
     finally:
         controller_port.close()
         endpoint.close()
@@ -238,6 +249,8 @@ def run_split_cell(cell: CellDescription, controller, ctx, *, options: Execution
     raw.unlink(missing_ok=True)
     raw.parent.rmdir()
     write_recording(memory, ctx.csv_sink(record_file))
+    if interrupted is not None:
+        raise interrupted
     cycles = session.cycle + 1
     mn_summary = network_summary(endpoint.config, endpoint.events, endpoint, None, endpoint.recorder, cycles)
     fieldbus_summary = _merge_fieldbus(mn_summary, child["fieldbus"] if child else None)

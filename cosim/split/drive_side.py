@@ -153,9 +153,15 @@ class DriveLink:
 def drive_side_main(spec: DriveSideSpec, conn) -> None:
     """Process target: build, report ``("ready", {...})``, run (cycle markers in, acks out),
     report ``("done", {...})`` (or ``("error", text)``) on the duplex pipe ``conn``."""
+    import signal
+
     from cosim.scenario.cosim_tables import build_master
     from fieldbus.network import network_summary
 
+    # Ctrl-C reaches the whole process group: the parent ends this side (END marker, or kill after
+    # a grace period) once it has what it needs, so this process must not die first
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(signum, signal.SIG_IGN)
     endpoint = None
     try:
         master = build_master(spec.cell_doc, master_variables=wiring.cell_variables())

@@ -31,7 +31,7 @@ import sys
 import time
 import uuid
 from collections.abc import Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
@@ -112,25 +112,35 @@ def default_out_dir(sweep: Sweep) -> Path:
     return Path("results") / sweep.name
 
 
-def variant_tasks(sweep: Sweep, out_dir: Path, ship: bool = False) -> list[VariantTask]:
-    """The tasks of every variant, with their folders under ``out_dir/variants/``.
-
-    ``ship``: list the files each document refers to (``task.inputs``: key path, SHA-256, name)
-    so that they travel with the task (:func:`input_blobs` reads them).
-    """
+def variant_tasks(sweep: Sweep, out_dir: Path) -> list[VariantTask]:
+    """The tasks of every variant, with their folders under ``out_dir/variants/``."""
     variants_dir = (out_dir / VARIANTS_DIR).resolve()
     metrics = tuple(sweep.metrics) if sweep.metrics else None
+    anchor = str(sweep.base.where.base_dir)
+    return [VariantTask(v.index, v.id, v.hash, str(variants_dir / f"{v.id}-{v.hash[:8]}"), v.document, v.values,
+                        metrics, f"{VARIANTS_DIR}/{v.id}-{v.hash[:8]}", (), tuple(sweep.collect), sweep.store,
+                        anchor) for v in sweep.variants]
+
+
+def with_inputs(sweep: Sweep, tasks: list[VariantTask]) -> list[VariantTask]:
+    """``tasks`` listing the files their documents refer to (``task.inputs``: key path, SHA-256,
+    file name), so that the files travel with the tasks (each file is read once)."""
     digests: dict[str, str] = {}
-    tasks = []
-    for v in sweep.variants:
-        inputs: tuple = ()
-        if ship:
-            inputs = tuple((path, digests.setdefault(text, _sha256(text)), Path(text).name)
-                           for path, text in referenced_files(sweep.base.job.schema, v.document))
-        rel = f"{VARIANTS_DIR}/{v.id}-{v.hash[:8]}"
-        tasks.append(VariantTask(v.index, v.id, v.hash, str(variants_dir / f"{v.id}-{v.hash[:8]}"), v.document,
-                                 v.values, metrics, rel, inputs, tuple(sweep.collect), sweep.store))
-    return tasks
+    out = []
+    for task in tasks:
+        inputs = []
+        for path, text in referenced_files(sweep.base.job.schema, task.document):
+            file = _client_file(task, text)
+            inputs.append((tuple(path), digests.setdefault(file, _sha256(file)), Path(file).name,
+                           "" if Path(text).expanduser().is_absolute() else text))
+        out.append(replace(task, inputs=tuple(inputs)))
+    return out
+
+
+def _client_file(task: VariantTask, text: str) -> str:
+    """The client's path of a file reference (relative ones are relative to the task's anchor)."""
+    path = Path(text).expanduser()
+    return str(path if path.is_absolute() else Path(task.anchor) / path)
 
 
 def _sha256(path: str) -> str:
@@ -146,8 +156,8 @@ def input_files(sweep: Sweep, tasks: list[VariantTask]) -> dict[str, str]:
     out: dict[str, str] = {}
     for task in tasks:
         refs = dict(referenced_files(sweep.base.job.schema, task.document))
-        for path, digest, _ in task.inputs:
-            out.setdefault(digest, refs[tuple(path)])
+        for path, digest, _, _ in task.inputs:
+            out.setdefault(digest, _client_file(task, refs[tuple(path)]))
     return out
 
 
@@ -171,6 +181,33 @@ def resolve_transfer(transfer: str, scheduler: str | None, client: Any) -> str:
     return "shared" if isinstance(getattr(client, "cluster", None), LocalCluster) else "ship"
 
 
+#: How long to wait for an existing Dask scheduler (--scheduler) to answer, s.
+SCHEDULER_CONNECT_TIMEOUT_S = 5.0
+
+
+class SchedulerUnreachable(ConnectionError):
+    """The --scheduler address did not answer (message names it and the timeout)."""
+
+
+@contextlib.contextmanager
+def _children_ignore_interrupts() -> Iterator[None]:
+    """Processes started inside ignore SIGINT/SIGTERM (they inherit the disposition across exec):
+    Ctrl-C reaches the whole process group, and the workers must stay up until this process
+    has cancelled the sweep and closes the cluster in order. Restored afterwards."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = {s: signal.signal(s, signal.SIG_IGN) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler if handler is not None else signal.SIG_DFL)
+
+
 @contextlib.contextmanager
 def dask_client(workers: int | None = None, scheduler: str | None = None, retries: int = 2) -> Iterator[Any]:
     """A ``dask.distributed.Client``: on ``scheduler`` if given, else on a new embedded LocalCluster of
@@ -179,10 +216,17 @@ def dask_client(workers: int | None = None, scheduler: str | None = None, retrie
     from dask.distributed import Client, LocalCluster
 
     if scheduler:
-        with Client(scheduler) as client:
+        try:
+            client = Client(scheduler, timeout=SCHEDULER_CONNECT_TIMEOUT_S)
+        except (OSError, TimeoutError, ValueError, TypeError) as exc:
+            raise SchedulerUnreachable(f"--scheduler {scheduler!r}: no Dask scheduler answered within "
+                                       f"{SCHEDULER_CONNECT_TIMEOUT_S:g} s ({type(exc).__name__}: "
+                                       f"{str(exc).splitlines()[0] if str(exc) else ''}); expected the address "
+                                       f"of a running scheduler such as tcp://host:8786") from None
+        with client:
             yield client
         return
-    with dask.config.set({"distributed.scheduler.allowed-failures": retries}):
+    with dask.config.set({"distributed.scheduler.allowed-failures": retries}), _children_ignore_interrupts():
         cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1, processes=True,
                                dashboard_address=":0", silence_logs=logging.ERROR)
     with cluster, Client(cluster) as client:
@@ -239,7 +283,7 @@ def run_sweep(sweep: Sweep, out_dir: str | Path | None = None, *, workers: int |
     mode = resolve_transfer(transfer, scheduler, client)
     out_dir = Path(out_dir) if out_dir is not None else default_out_dir(sweep)
     (out_dir / VARIANTS_DIR).mkdir(parents=True, exist_ok=True)
-    tasks = variant_tasks(sweep, out_dir, ship=mode == "ship")
+    tasks = variant_tasks(sweep, out_dir)
     rows: dict[int, dict[str, Any]] = {}
     if resume:
         for task in tasks:
@@ -247,6 +291,8 @@ def run_sweep(sweep: Sweep, out_dir: str | Path | None = None, *, workers: int |
             if row is not None:
                 rows[task.index] = row
     todo = [t for t in tasks if t.index not in rows]
+    if mode == "ship":   # only the variants that run read their input files
+        todo = with_inputs(sweep, todo)
     reused = len(rows)
     started_at = datetime.now(timezone.utc).isoformat(timespec="seconds")
     _write_definition(sweep, out_dir, {"status": "running", "started_at": started_at, "reused": reused})
@@ -295,7 +341,7 @@ def _run_tasks(client: Any, sweep: Sweep, todo: list[VariantTask], rows: dict[in
         blobs = {digest: client.submit(_identity, Path(path).read_bytes(), key=f"cosim-input-{digest[:32]}-{token}",
                                        pure=False)
                  for digest, path in input_files(sweep, todo).items()}
-        futures = {client.submit(run_shipped_variant, task, *(blobs[d] for _, d, _ in task.inputs),
+        futures = {client.submit(run_shipped_variant, task, *(blobs[d] for _, d, _, _ in task.inputs),
                                  key=f"{sweep.name}-{task.id}-{token}", retries=sweep.retries, pure=False): task
                    for task in todo}
     else:
@@ -333,5 +379,5 @@ def _run_tasks(client: Any, sweep: Sweep, todo: list[VariantTask], rows: dict[in
             blob.release()
 
 
-__all__ = ["SWEEP_FILE", "SweepResult", "TABLE_FILE", "TRANSFERS", "VARIANTS_DIR", "dask_client", "default_out_dir",
-           "input_files", "resolve_transfer", "run_sweep", "variant_tasks"]
+__all__ = ["SCHEDULER_CONNECT_TIMEOUT_S", "SWEEP_FILE", "SchedulerUnreachable", "SweepResult", "TABLE_FILE", "TRANSFERS", "VARIANTS_DIR", "dask_client", "default_out_dir",
+           "input_files", "resolve_transfer", "run_sweep", "variant_tasks", "with_inputs"]

@@ -116,16 +116,14 @@ def with_value(document: dict, path: KeyPath, value: Any) -> dict:
 
 def absolute_paths(spec: Spec, value: Any, base_dir: Path) -> Any:
     """``value`` with every relative ``FilePath`` string the schema ``spec`` declares made absolute
-    against ``base_dir`` (so a document keeps its meaning when written to another folder)."""
+    against ``base_dir`` (so a document keeps its meaning when written to another folder).
+
+    Other file references (``"file.py:Class"``, ``referenced_files``) keep their text: they may be
+    keys elsewhere in the document (``[planners.parameters."file.py:Class"]``); a document is run
+    anchored at its scenario's folder instead (``VariantTask.anchor``)."""
     if isinstance(spec, FilePath):
         if isinstance(value, str) and value.strip() and not Path(value).expanduser().is_absolute():
             return str((base_dir / Path(value).expanduser()).resolve())
-        return value
-    finder = getattr(spec, "referenced_file", None)
-    if callable(finder):
-        found = finder(value)
-        if found and not Path(found).expanduser().is_absolute():
-            return relocate_file(spec, value, str((base_dir / Path(found).expanduser()).resolve()))
         return value
     if isinstance(spec, Table) and isinstance(value, dict):
         out = {}

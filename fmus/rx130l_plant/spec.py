@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from fmus.fmi2_spec import INPUT, OUTPUT, PARAMETER, FmuSpec
 from robot.dynamics import PARAMETER_NAMES, PARAMETER_UNITS, nominal_parameter_vector
-from robot.parameters import load_parameters
+from robot.parameters import MAX_BACKLASH, load_parameters
 
 MODEL_IDENTIFIER = "rx130l_plant"
 SOURCE_FILES = ("fmi2_wrapper.c", "rx130l_plant.c", "rx130l_plant_fd.c")
@@ -23,8 +23,10 @@ def plant_spec() -> FmuSpec:
     p = nominal_parameter_vector(parameters=robot)
     spec = FmuSpec(
         model_identifier=MODEL_IDENTIFIER,
-        description="RX130L-class arm: rigid-body dynamics (CasADi ABA) with rotor inertia, viscous and "
-                    "smoothed Coulomb friction and a point-mass payload; fixed-step RK4 inside fmi2DoStep",
+        description="RX130L-class arm: rigid-body dynamics (CasADi ABA) with a point-mass payload; rigid joints "
+                    "(rotor inertia, viscous and smoothed Coulomb friction) or elastic joints (motor inertia, gear "
+                    "spring/damper/backlash, motor- and link-side friction with Stribeck); fixed-step RK4 inside "
+                    "fmi2DoStep",
         source_files=SOURCE_FILES,
         default_step=1e-3,
         default_stop=1.0,
@@ -52,4 +54,63 @@ def plant_spec() -> FmuSpec:
     spec.add("integration_step", "Real", PARAMETER,
              "largest RK4 sub-step inside fmi2DoStep (each step is split into equal sub-steps)",
              unit="s", start=DEFAULT_INTEGRATION_STEP, min=1e-7, max=1e-2)
+    _add_elastic_variables(spec, robot)
+    _declare_initial_dependencies(spec)
     return spec
+
+
+def _joint_texts(text: str) -> list[str]:
+    return [text.format(k=k) for k in range(1, 7)]
+
+
+def _add_elastic_variables(spec: FmuSpec, robot) -> None:
+    """The external torque input, the motor-side outputs and the elastic-joint parameters
+    (appended after the rigid plant's variables, whose value references stay unchanged)."""
+    zeros = [0.0] * 6
+    spec.add_array("tau_ext", zeros, INPUT, "", unit="N.m", descriptions=_joint_texts(
+        "joint {k} external torque acting on the link (joint side; payload, spring or contact FMU), default 0"))
+    spec.add_array("q_motor", zeros, OUTPUT, "", unit="rad", descriptions=_joint_texts(
+        "motor {k} angle divided by the gear ratio (joint units; = q[{k}] in the rigid model)"))
+    spec.add_array("qd_motor", zeros, OUTPUT, "", unit="rad/s", descriptions=_joint_texts(
+        "motor {k} speed divided by the gear ratio (joint units; = qd[{k}] in the rigid model)"))
+    spec.add_array("tau_gear", zeros, OUTPUT, "", unit="N.m", descriptions=_joint_texts(
+        "joint {k} torque the gear passes to the link (elastic: spring + damper; rigid: tau minus rotor "
+        "inertia and friction torque)"))
+    spec.add("elastic_joints", "Integer", PARAMETER,
+             "0 = rigid joints (rotor inertia and friction on the joint), 1 = elastic joints (two-mass model per "
+             "axis: motor inertia, gear spring/damper/backlash, link; motor- and link-side friction)",
+             start=0, min=0, max=1)
+    spec.add_array("stiffness", [float(x) for x in robot.stiffness], PARAMETER, "", unit="N.m/rad", min=0.0,
+                   descriptions=_joint_texts("gear {k} stiffness, joint side (linear term; > 0 when elastic)"))
+    spec.add_array("stiffness_cubic", [float(x) for x in robot.stiffness_cubic], PARAMETER, "",
+                   unit="N.m/rad3", min=0.0,
+                   descriptions=_joint_texts("gear {k} stiffening term k3 (torque k d + k3 d^3)"))
+    spec.add_array("damping", [float(x) for x in robot.gear_damping], PARAMETER, "", unit="N.m.s/rad", min=0.0,
+                   descriptions=_joint_texts("gear {k} damping across the gear, joint side"))
+    spec.add_array("backlash", [float(x) for x in robot.backlash], PARAMETER, "", unit="rad", min=0.0,
+                   max=MAX_BACKLASH, descriptions=_joint_texts(
+                       "gear {k} total lost-motion band width (smoothed dead zone), joint side"))
+    spec.add_array("motor_friction_share", [float(x) for x in robot.motor_friction_share], PARAMETER, "",
+                   unit="1", min=0.0, max=1.0, descriptions=_joint_texts(
+                       "fraction of axis {k} viscous and Coulomb friction (p) acting on the motor side"))
+    spec.add_array("stribeck_torque", [float(x) for x in robot.stribeck_torque], PARAMETER, "", unit="N.m",
+                   min=0.0, descriptions=_joint_texts("axis {k} static minus Coulomb friction (motor side)"))
+    spec.add_array("stribeck_velocity", [float(x) for x in robot.stribeck_velocity], PARAMETER, "",
+                   unit="rad/s", min=1e-9, descriptions=_joint_texts("axis {k} Stribeck velocity (joint units)"))
+    spec.add("coulomb_smoothing_velocity", "Real", PARAMETER,
+             "tanh width of the Coulomb and Stribeck terms of the elastic model (the rigid model's is compiled in)",
+             unit="rad/s", start=float(robot.coulomb_smoothing_velocity), min=1e-9)
+
+
+def _declare_initial_dependencies(spec: FmuSpec) -> None:
+    """Honest InitialUnknowns: which parameters and inputs each output depends on before
+    the first step (the plant computes its outputs in Initialization Mode)."""
+    knowns = tuple(v.name for v in spec.variables if v.causality in (INPUT, PARAMETER))
+    for k in range(1, 7):
+        spec.set_depends_on(f"q[{k}]", (f"q0[{k}]",))
+        spec.set_depends_on(f"qd[{k}]", (f"qd0[{k}]",))
+        spec.set_depends_on(f"qd_motor[{k}]", (f"qd0[{k}]",))
+        # qdd and the gear torque depend on the whole arm and the inputs; so does the
+        # motor's start angle (where the gear holds the links at rest)
+        for name in ("qdd", "q_motor", "tau_gear"):
+            spec.set_depends_on(f"{name}[{k}]", knowns)

@@ -1,0 +1,552 @@
+"""Job ``compare``: N controllers x M trajectories on the same seeded true robot, one ranked table.
+
+A scenario lists the controllers and the trajectories (``[compare]``, docs/bring_your_own.md):
+
+* controllers: the built-in modes of the main job (``standard``, ``standard_speed_ff``,
+  ``model_based``, :data:`cosim.cell.parts.BUILTIN_MODES`) and users' controllers;
+* trajectories: ``iso9283`` (the EN ISO 9283 test path of ``[path]``, a Cartesian
+  reference the controller follows by IK, exactly as the main job), a built-in planner
+  (``own_cp``, ``toppra``, ``own_ptp``, ``ruckig``, ``ruckig_feasible``) or a user planner
+  class (``file.py:Class``) planning the ``[problem]`` of the planners job (the paper line),
+  or a user trajectory file (joint or Cartesian CSV, :mod:`planners.trajectory_file`),
+  checked against the robot's limits before anything runs.
+
+Every pair runs through the same robot cell (:mod:`cosim.cell`: the
+``[true_robot]`` drawn once from its seed, POWERLINK-timed fieldbus, drive FMUs, plant
+FMU, laser tracker) and is evaluated the same way (:mod:`cosim.jobs.tracking_metrics`:
+TCP error measured vs commanded with the TRUE kinematics, ISO 9283 AT, joint lag);
+a ``model_based`` x ``iso9283`` entry is the main job's ``model_based`` run, to the last
+digit. Added per entry: the peak ratio of the drives' current set-point to its clamp,
+the mechanical energy at the joints (integral of sum |tau_j qd_j| dt over the motion, J),
+the paper's torque measure (integral of tau^T tau dt), the motion's duration, the
+controller's deadline misses.
+
+Results: ``compare.csv`` and ``compare.json`` (the table, one row per entry, ranked per
+trajectory by ``[compare] rank_by``), ``summary.json`` (the table plus every entry's full
+record, updated after each entry), per entry ``timeseries_<label>.csv``,
+``tcp_<label>.csv``, ``controller_<label>.csv`` (label ``<controller>__<trajectory>``),
+per planned or file trajectory ``trajectory_<name>.csv``; figures
+``compare_metrics.png`` (every metric for every entry, log axes where values span
+decades) and ``compare_tcp_error.png`` (TCP error over the motion per trajectory).
+"""
+from __future__ import annotations
+
+import csv
+import json
+import math
+import re
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from cosim.cell import wiring
+from cosim.cell.description import describe_cell
+from cosim.cell.evaluation import evaluate_run
+from cosim.cell.mode_runs import CellSetup, mode_cell, prepare
+from cosim.cell.parts import (BUILTIN_MODES, CELL_FIELDS, check_cell_scenario, drive_speed_feedforward,
+                              fill_cell_defaults, mode_fmus)
+from cosim.cell.runner import CellRun, controller_info, run_cell
+from cosim.jobs import planners as planners_job
+from cosim.jobs.tracking_metrics import desired_joints, evaluate
+from cosim.scenario.context import RunContext
+from cosim.scenario.cosim_tables import COSIM_FIELDS
+from cosim.scenario.loader import SCENARIO_FIELD, Scenario
+from cosim.scenario.registry import register_job
+from cosim.scenario.schema import (AnyValue, Boolean, Field, List, Number, Spec, String, Table, Where)
+from cosim.scenario.user_class import (SPEC_FORM, class_spec_file, instantiate, is_class_spec, load_user_class,
+                                      with_class_file)
+
+JOB_NAME = "compare"
+ISO_TRAJECTORY = "iso9283"
+NAME_PATTERN = r"[A-Za-z0-9_.-]+"
+"""What an entry's name may contain (it names result files)."""
+ENABLE_MARGIN_S = 0.02
+"""Time [s] allowed for enabling the drives before the settle time starts (joint trajectories)."""
+TAIL_S = 0.2
+"""Standstill [s] recorded after the end of a joint trajectory."""
+SATURATION_FRACTION = planners_job.SATURATION_FRACTION
+
+METRICS: dict[str, str] = {
+    "tcp_error_max_mm": "max TCP error [mm]",
+    "tcp_error_rms_mm": "RMS TCP error [mm]",
+    "path_accuracy_AT_mm": "ISO 9283 AT [mm]",
+    "joint_lag_max_mrad": "max joint lag [mrad]",
+    "current_peak_ratio": "peak current / clamp [-]",
+    "energy_J": "mechanical energy [J]",
+    "tau_squared_integral": "integral tau^T tau dt [N^2 m^2 s]",
+    "duration_s": "motion duration [s]",
+    "deadline_misses": "deadline misses [-]",
+}
+"""The table's metrics (column -> label with unit); all: smaller is better except none."""
+TABLE_COLUMNS: tuple[str, ...] = ("trajectory", "controller", "rank", "status", *METRICS)
+
+# ------------------------------------------------------------------------------------- schema
+
+
+class ControllerEntry(Spec):
+    """A controller of the comparison: a built-in mode name, or a table."""
+
+    expected = (f"a built-in mode ({', '.join(repr(m) for m in BUILTIN_MODES)}) or a table "
+                "{name = ..., mode = ...}")
+    TABLE = Table({
+        "name": Field(String(pattern=NAME_PATTERN, pattern_doc="of letters, digits, _ - ."),
+                      doc="the entry's name in the table and file names"),
+        "mode": Field(String(choices=tuple(BUILTIN_MODES)), doc="a built-in mode of the main job"),
+        "drive_speed_feedforward": Field(Boolean(), doc="built-in modes: override the mode's drive speed "
+                                                        "feed-forward (default: the mode's)"),
+    }, one_of=[("mode",)], doc="a controller table")
+
+    def check(self, value: Any, where: Where) -> dict[str, Any]:
+        if isinstance(value, str):
+            if value in BUILTIN_MODES:
+                return {"name": value, "kind": "mode", "mode": value}
+            raise where.error(self.expected, value)
+        if not isinstance(value, dict):
+            raise where.error(self.expected, value)
+        table = self.TABLE.check(value, where)
+        out = {"kind": "mode", **table}
+        out.setdefault("name", table["mode"])
+        return out
+
+
+class TrajectoryEntry(Spec):
+    """A trajectory of the comparison: ``iso9283``, a planner, a user planner class, a CSV file, or a table."""
+
+    expected = (f"'iso9283', a planner name ({', '.join(repr(p) for p in planners_job.PLANNERS)}), a planner "
+                f"class as {SPEC_FORM}, a trajectory file 'path.csv', or a table with one of the keys path, "
+                "planner, file")
+    TABLE = Table({
+        "name": Field(String(pattern=NAME_PATTERN, pattern_doc="of letters, digits, _ - ."),
+                      doc="the entry's name in the table and file names"),
+        "path": Field(String(choices=(ISO_TRAJECTORY,)), doc="'iso9283': the EN ISO 9283 test path of [path]"),
+        "planner": Field(String(), doc=f"a built-in planner name or a planner class as {SPEC_FORM}"),
+        "parameters": Field(Table({}, extra=AnyValue(), doc="the planner class's keyword arguments"), default={}),
+        "file": Field(String(), doc="a trajectory CSV file (relative to the scenario file's folder)"),
+        "kind": Field(String(choices=("auto", "joint", "cartesian")), default="auto",
+                      doc="the file's kind: 'auto' (Cartesian when it has x, y, z), 'joint' or 'cartesian'"),
+        "smoothing": Field(Number(unit="rad", min=0), default=0.0,
+                           doc="0: interpolating quintic spline through q; sigma > 0: smoothing spline, RMS "
+                               "deviation <= sigma (rad)"),
+        "boundary": Field(String(choices=("rest", "free")), default="rest",
+                          doc="'rest': qd = qdd = 0 at both ends of the derived spline; 'free': not-a-knot"),
+        "q_seed": Field(List(Number(unit="rad"), length=6),
+                        doc="Cartesian files: the IK branch of the first sample is the one nearest to these 6 "
+                            "angles (default: planners.iso9283.ISO_Q_HINT)"),
+    }, one_of=[("path", "planner", "file")], doc="a trajectory table")
+
+    # the trajectory file or planner file of an entry travels with a sweep's tasks
+    # (cosim.sweep.keypath.referenced_files)
+    def referenced_file(self, value: Any) -> str | None:
+        if isinstance(value, dict):
+            if isinstance(value.get("file"), str):
+                return value["file"]
+            return class_spec_file(value.get("planner"))
+        if isinstance(value, str) and value.lower().endswith(".csv"):
+            return value
+        return class_spec_file(value)
+
+    def relocated(self, value: Any, path: str) -> Any:
+        if isinstance(value, dict):
+            key = "file" if isinstance(value.get("file"), str) else "planner"
+            return {**value, key: path if key == "file" else with_class_file(value[key], path)}
+        return path if value.lower().endswith(".csv") else with_class_file(value, path)
+
+    def check(self, value: Any, where: Where) -> dict[str, Any]:
+        if isinstance(value, str):
+            if value == ISO_TRAJECTORY:
+                value = {"path": value}
+            elif value in planners_job.PLANNERS or is_class_spec(value) and not value.endswith(".csv"):
+                value = {"planner": value}
+            elif value.lower().endswith(".csv"):
+                value = {"file": value}
+            else:
+                raise where.error(self.expected, value)
+        if not isinstance(value, dict):
+            raise where.error(self.expected, value)
+        table = self.TABLE.check(value, where)
+        if "path" in table:
+            table.update(kind_of="iso9283", name=table.get("name", ISO_TRAJECTORY))
+        elif "planner" in table:
+            spec = table["planner"]
+            if not (spec in planners_job.PLANNERS or is_class_spec(spec)):
+                raise (where / "planner").error(f"a planner name among {list(planners_job.PLANNERS)} or a planner "
+                                                f"class as {SPEC_FORM}", spec)
+            table["kind_of"] = "planner"
+            if "name" not in table and spec in planners_job.PLANNERS:
+                table["name"] = spec
+        else:
+            path = Path(table["file"]).expanduser()
+            table["file"] = path if path.is_absolute() else where.base_dir / path
+            table["kind_of"] = "file"
+            table.setdefault("name", table["file"].stem)
+        return table
+
+
+COMPARE_TABLE = Table({
+    "controllers": Field(List(ControllerEntry(), min_len=1), required=True,
+                         doc="the controllers to compare: built-in mode names or controller tables"),
+    "trajectories": Field(List(TrajectoryEntry(), min_len=1), default=[ISO_TRAJECTORY],
+                          doc="the trajectories: 'iso9283', planner names or classes, trajectory CSV files"),
+    "rank_by": Field(String(choices=tuple(k for k in METRICS if k != "duration_s")), default="tcp_error_max_mm",
+                     doc="the metric the table ranks by (per trajectory, smaller first)"),
+    "figures": Field(Boolean(), default=True, doc="write compare_metrics.png and compare_tcp_error.png"),
+}, doc="the [compare] table")
+
+SCHEMA = Table({"scenario": SCENARIO_FIELD, **COSIM_FIELDS, **CELL_FIELDS,
+                "compare": Field(COMPARE_TABLE, required=True),
+                "problem": Field(planners_job.PROBLEM_TABLE, default={})},
+               doc="a compare scenario document")
+
+
+# ------------------------------------------------------------------------------------- checks
+def check(doc: dict[str, Any], where: Where) -> None:
+    """The cell's checks (as the main job), unique entry names, every user planner loaded and every
+    trajectory file read and checked against the robot's limits - before anything runs."""
+    check_cell_scenario(doc, where)
+    planners_job._fill(doc)
+    cmp_t = doc["compare"]
+    _unique_names(cmp_t["controllers"], where / "compare" / "controllers")
+    for k, entry in enumerate(cmp_t["trajectories"]):
+        at = (where / "compare" / "trajectories")[k]
+        if entry["kind_of"] == "planner" and entry["planner"] not in planners_job.PLANNERS:
+            planner = _load_planner(entry, at)
+            entry.setdefault("name", planner.name)
+        elif entry["kind_of"] == "file":
+            _load_file(doc, entry, at, check_only=True)
+    _unique_names(cmp_t["trajectories"], where / "compare" / "trajectories")
+
+
+def _unique_names(entries: list[dict[str, Any]], where: Where) -> None:
+    seen: dict[str, int] = {}
+    for k, entry in enumerate(entries):
+        name = entry["name"]
+        if not re.fullmatch(NAME_PATTERN, name):
+            raise where[k].error(f"a name matching {NAME_PATTERN} (set name = ...)", name)
+        if name in seen:
+            raise where[k].error(f"a name not used by entry [{seen[name]}] (set name = ...)", name,
+                                 problem=f"name {name!r} twice")
+        seen[name] = k
+
+
+def _load_planner(entry: dict[str, Any], at: Where):
+    """A user planner instance, checked against the contract (errors at ``at.planner``)."""
+    from planners.base import Planner
+
+    cls = load_user_class(entry["planner"], at / "planner", "planner class")
+    planner = instantiate(cls, dict(entry.get("parameters") or {}), at / "parameters", "planner class")
+    if not isinstance(planner, Planner) or not callable(getattr(planner, "plan", None)):
+        raise (at / "planner").error("a class satisfying planners.base.Planner (name, kind, plan(problem))",
+                                     entry["planner"])
+    if planner.kind not in ("cp", "ptp"):
+        raise (at / "planner").error("a planner whose kind is 'cp' or 'ptp'", entry["planner"],
+                                     problem=f"kind = {planner.kind!r}")
+    if not (isinstance(planner.name, str) and re.fullmatch(NAME_PATTERN, planner.name)):
+        raise (at / "planner").error(f"a planner whose name matches {NAME_PATTERN}", entry["planner"],
+                                     problem=f"name = {planner.name!r}")
+    return planner
+
+
+def _controller_dynamics(doc: dict[str, Any]):
+    """The nominal dynamics the controller knows (with the declared payload when payload_known)."""
+    from robot.dynamics import RobotDynamics
+
+    ctrl_t, tr = doc["controller"], doc["true_robot"]
+    payload = [tr["payload_mass"], *tr["payload_com"]] if ctrl_t["payload_known"] else [0.0, 0.0, 0.0, 0.0]
+    return RobotDynamics(payload=payload)
+
+
+def _load_file(doc: dict[str, Any], entry: dict[str, Any], at: Where, check_only: bool = False,
+               kinematic_model: Any = None):
+    """The entry's trajectory file, loaded and checked (TrajectoryFileError -> ScenarioError at ``at.file``)."""
+    from planners.iso9283 import ISO_Q_HINT
+    from planners.trajectory_file import TrajectoryFileError, load_trajectory_file
+
+    try:
+        return load_trajectory_file(entry["file"], kind=entry["kind"], smoothing=entry["smoothing"],
+                                    boundary=entry["boundary"], dynamics=_controller_dynamics(doc),
+                                    kinematic_model=kinematic_model,
+                                    q_seed=entry.get("q_seed") or list(ISO_Q_HINT))
+    except TrajectoryFileError as exc:
+        raise (at / "file").error("a trajectory file within the robot's limits (docs/bring_your_own.md)",
+                                  str(entry["file"]), problem=str(exc)) from None
+
+
+# ------------------------------------------------------------------------------------- trajectories
+class _Motion:
+    """One trajectory entry, ready to run: either the ISO path (Cartesian) or a planned/file joint trajectory."""
+
+    def __init__(self, name: str, kind_of: str, trajectory: Any = None, status: str = "ok", message: str = "",
+                 info: dict[str, Any] | None = None) -> None:
+        self.name, self.kind_of, self.trajectory = name, kind_of, trajectory
+        self.status, self.message, self.info = status, message, info or {}
+
+
+def _motions(ctx: RunContext, doc: dict[str, Any], setup: CellSetup, source: Path | None) -> list[_Motion]:
+    """Every trajectory entry planned or loaded (planner failures are entries with a status, not errors)."""
+    from planners.report import planner_summary
+    from robot.dynamics import RobotDynamics
+
+    out: list[_Motion] = []
+    problems: dict[str, Any] = {}
+    dynamics = RobotDynamics()
+    where = Where(source) / "compare" / "trajectories"
+    for k, entry in enumerate(doc["compare"]["trajectories"]):
+        name = entry["name"]
+        if entry["kind_of"] == "iso9283":
+            out.append(_Motion(name, "iso9283", info={"duration_s": setup.path.duration}))
+            continue
+        if entry["kind_of"] == "file":
+            traj = _load_file(doc, entry, where[k], kinematic_model=setup.kinematics)
+            traj.write_csv(ctx.path(f"trajectory_{name}.csv"))
+            info = {"file": str(entry["file"]), "duration_s": traj.duration,
+                    **{key: traj.metadata[key] for key in ("kind", "derivation", "torque", "limit_ratios")}}
+            out.append(_Motion(name, "file", traj, info=info))
+            continue
+        spec = entry["planner"]
+        planner = planners_job._planner(spec) if spec in planners_job.PLANNERS else _load_planner(entry, where[k])
+        if planner.kind not in problems:
+            problems[planner.kind] = (planners_job._cp_problem if planner.kind == "cp" else
+                                      planners_job._ptp_problem)(doc["problem"], dynamics)
+        problem = problems[planner.kind]
+        result = planners_job.plan_checked(planner, problem, spec)
+        summary = planner_summary(result, problem.limits, dynamics)
+        info = {"planner": spec, "kind": planner.kind,
+                **{key: summary[key] for key in ("status", "duration_s", "solve_time_s", "max_constraint_ratio")}}
+        if result.ok:
+            result.trajectory.write_csv(ctx.path(f"trajectory_{name}.csv"))
+            out.append(_Motion(name, "planner", result.trajectory, info=info))
+        else:
+            out.append(_Motion(name, "planner", None, status=f"planner_{result.status.value}",
+                               message=result.message, info=info))
+    return out
+
+
+# ------------------------------------------------------------------------------------- running
+def _controller_for(setup: CellSetup, ctrl: dict[str, Any], motion: _Motion, stop_time: float):
+    """(document for the run, Controller) of a built-in mode on ``motion``."""
+    from controller import Controller, ControllerConfig, JointTrajectory
+
+    mode = ctrl["mode"]
+    ctrl_t = setup.doc["controller"]
+    speed_ff = ctrl.get("drive_speed_feedforward")
+    if speed_ff is None:
+        speed_ff = drive_speed_feedforward(ctrl_t, mode)
+    settings = {"controller_mode": BUILTIN_MODES[mode].controller_mode, "drive_speed_feedforward": speed_ff,
+                "torque_feedforward": BUILTIN_MODES[mode].controller_mode == "model_based",
+                "description": BUILTIN_MODES[mode].description}
+    run_doc = {**setup.doc, "fmus": mode_fmus(setup.doc["fmus"], speed_ff)}
+    if motion.kind_of == "iso9283":
+        setup.mode_settings[mode] = settings
+        return run_doc, mode_cell(setup, mode)[1]
+    period = ctrl_t["period"]
+    drive_model = (wiring.drive_loop_model(run_doc["fmus"], period)
+                   if ctrl_t["drive_compensation"] and settings["torque_feedforward"] else None)
+    reference = JointTrajectory.from_planner_trajectory(motion.trajectory, period)
+    config = ControllerConfig(mode=settings["controller_mode"], period_s=period,
+                              lead_cycles=1 + setup.fieldbus.dead_time_cycles,
+                              compute_budget_s=ctrl_t["compute_budget"], settle_time_s=ctrl_t["settle_time"])
+    controller = Controller(reference, config, kinematic_model=setup.kinematics, dynamics=setup.dynamics,
+                            drive_model=drive_model, capacity=int(stop_time / period) + 16)
+    return run_doc, controller
+
+
+def _stop_time(doc: dict[str, Any], motion: _Motion) -> float:
+    if motion.kind_of == "iso9283":
+        return doc["simulation"]["stop_time"]
+    macro = doc["simulation"]["macro_step"]
+    raw = ENABLE_MARGIN_S + doc["controller"]["settle_time"] + motion.trajectory.duration + TAIL_S
+    return math.ceil(raw / macro - 1e-9) * macro
+
+
+def _evaluate_joint(ctx: RunContext, label: str, cell: CellRun, controller: Any, motion: _Motion,
+                    setup: CellSetup):
+    """Metrics of a joint-trajectory run (the main job's definitions; programmed = the planned flange
+    by the controller's kinematic model; one segment); writes tcp_<label>.csv and controller_<label>.csv."""
+    from cosim.jobs.columns_csv import write_columns_csv
+    from robot.kinematics import FlangeKinematics
+
+    log = controller.log.columns()
+    write_columns_csv(ctx.path(f"controller_{label}.csv"), log)
+    rec = cell.recording
+    cols, data = rec.columns, rec.data
+    t = data[:, 0]
+    q = data[:, [cols.index(f"{wiring.PLANT}.q[{i}]") for i in range(1, 7)]]
+    measured = data[:, [cols.index(s) for s in ("tracker.x", "tracker.y", "tracker.z")]]
+    stack = [np.column_stack([log[f"{g}{j}"] for j in range(1, 7)]) for g in ("q_d", "qd_d", "qdd_d")]
+    ok = np.isfinite(stack[0]).all(axis=1)
+    q_d = desired_joints(t, log["t_apply"][ok], stack[0][ok], stack[1][ok], stack[2][ok]) if ok.any() else q.copy()
+    true_kin = FlangeKinematics(setup.true_robot.kinematic_model())
+    commanded = true_kin.transforms(q_d)[:, :3, 3] if t.size else measured
+    actual = true_kin.transforms(q)[:, :3, 3] if t.size else measured
+    start = controller.motion_start_s
+    traj = motion.trajectory
+    tau = np.clip(t - (start if start is not None else np.inf), 0.0, traj.duration)
+    planned_q = traj.sample(traj.t[0] + tau).q
+    programmed = FlangeKinematics(setup.kinematics).transforms(planned_q)[:, :3, 3] if t.size else measured
+    t_end = start + traj.duration if start is not None else -1.0
+    window = (start if start is not None else np.inf, min(t_end, float(t[-1]) if t.size else -1.0))
+    result = evaluate(t, q, measured, q_d, commanded, programmed, np.zeros(t.size, dtype=int), window, tau, actual)
+    series = {"t": t, "tau": tau, "tcp_error_mm": np.linalg.norm(measured - commanded, axis=1) * 1e3}
+    for name, arr in (("programmed", programmed), ("commanded", commanded), ("measured", measured)):
+        for k, axis in enumerate("xyz"):
+            series[f"{axis}_{name}"] = arr[:, k]
+    for j in range(6):
+        series[f"lag{j + 1}"] = q_d[:, j] - q[:, j]
+    write_columns_csv(ctx.path(f"tcp_{label}.csv"), series)
+    timing = controller.timing()
+    entry = {"status": "ok" if cell.failure is None else "failed", **result.metrics([motion.name]),
+             "deadline_misses": timing.deadline_misses, "compute_budget_us": timing.budget_us,
+             "cycle_compute_us": {"p50": timing.p50_us, "p99": timing.p99_us, "max": timing.max_us},
+             "motion_start_s": start, "sim_time_s": cell.reached_s, "loop_wall_time_s": cell.loop_wall_time_s,
+             "path_completed": bool(start is not None and t.size and t[-1] >= t_end - 1e-9),
+             "stop_reason": controller.stop_reason,
+             "files": {"timeseries": f"timeseries_{label}.csv", "controller": f"controller_{label}.csv",
+                       "tcp": f"tcp_{label}.csv"}}
+    if cell.failure is not None:
+        entry["failure"] = str(cell.failure)
+    return entry, result
+
+
+def _drive_metrics(cell: CellRun, doc_fmus: list[dict[str, Any]], window: tuple[float, float]
+                   ) -> dict[str, Any]:
+    """Over the motion window: the peak of |current set-point| / its clamp min(current_limit, torque_limit /
+    (gear_ratio torque_constant)) (also over the whole run, which includes the enable transient),
+    the mechanical energy and the tau^T tau integral; ``drive_saturated``: the clamp reached anywhere."""
+    rec = cell.recording
+    cols, data = rec.columns, rec.data
+    t = data[:, 0]
+    params = wiring.drive_parameters(doc_fmus)
+    clamp = np.array([min(p["current_limit"], p["torque_limit"] / (p["gear_ratio"] * p["torque_constant"]))
+                      for p in params])
+    current = np.abs(data[:, [cols.index(f"{d}.current_demand") for d in wiring.DRIVES]])
+    torque = data[:, [cols.index(f"{d}.tau_out") for d in wiring.DRIVES]]
+    qd = data[:, [cols.index(f"{wiring.PLANT}.qd[{i}]") for i in range(1, 7)]]
+    mask = (t >= window[0] - 1e-9) & (t <= window[1] + 1e-9)
+    whole = current.max(axis=0) / clamp if t.size else np.full(6, np.nan)
+    ratio = current[mask].max(axis=0) / clamp if mask.any() else np.full(6, np.nan)
+    if mask.sum() >= 2:
+        tm = t[mask]
+        power = np.abs(torque[mask] * qd[mask]).sum(axis=1)
+        tau2 = (torque[mask] ** 2).sum(axis=1)
+        energy = float(np.sum(0.5 * (power[1:] + power[:-1]) * np.diff(tm)))
+        tau_sq = float(np.sum(0.5 * (tau2[1:] + tau2[:-1]) * np.diff(tm)))
+    else:
+        energy = tau_sq = float("nan")
+    return {"current_peak_ratio": float(np.max(ratio)), "current_peak_ratio_per_axis": ratio.tolist(),
+            "current_peak_ratio_whole_run": float(np.max(whole)),
+            "drive_saturated": bool(np.any(current >= SATURATION_FRACTION * clamp)),
+            "energy_J": energy, "tau_squared_integral": tau_sq}
+
+
+def run_entry(ctx: RunContext, setup: CellSetup, ctrl: dict[str, Any], motion: _Motion
+              ) -> tuple[dict[str, Any], Any]:
+    """Run one controller on one motion through the cell and evaluate it: (record, TrackingResult or None)."""
+    doc = setup.doc
+    label = f"{ctrl['name']}__{motion.name}"
+    stop_time = _stop_time(doc, motion)
+    run_doc, controller = _controller_for(setup, ctrl, motion, stop_time)
+    can_log = ctx.path(f"can_{label}.blf") if doc["results"]["can_log"] else None
+    demand = [f"{d}.current_demand" for d in wiring.DRIVES]
+    description = describe_cell(run_doc, setup.true_robot, controller_info(controller, setup.fieldbus, label=label),
+                                label=label, stop_time=stop_time, fieldbus=setup.fieldbus, tracker=setup.tracker,
+                                record_file=f"timeseries_{label}.csv", can_log=can_log, extra_signals=demand)
+    cell = run_cell(description, controller, ctx)
+    if motion.kind_of == "iso9283":
+        entry, result = evaluate_run(ctx, label, cell, controller, setup.reference, setup.path, setup.true_robot)
+        duration = setup.path.duration
+    else:
+        entry, result = _evaluate_joint(ctx, label, cell, controller, motion, setup)
+        duration = motion.trajectory.duration
+    start = controller.motion_start_s
+    window = (start, start + duration) if start is not None else (math.inf, -math.inf)
+    entry.update(_drive_metrics(cell, run_doc["fmus"], window))
+    entry.update(controller={"kind": ctrl["kind"], "mode": ctrl.get("mode")}, trajectory=motion.name,
+                 duration_s=duration, joint_lag_max_mrad=float(np.nanmax(entry["joint_lag_max_rad"]) * 1e3)
+                 if entry.get("joint_lag_max_rad") is not None else float("nan"), stop_time_s=stop_time)
+    return entry, result
+
+
+# ------------------------------------------------------------------------------------- table
+def _row(ctrl: str, motion: _Motion, entry: dict[str, Any] | None) -> dict[str, Any]:
+    row: dict[str, Any] = {"trajectory": motion.name, "controller": ctrl, "rank": None,
+                           "status": entry["status"] if entry else motion.status}
+    for key in METRICS:
+        value = entry.get(key) if entry else None
+        if key == "duration_s" and value is None:
+            value = motion.info.get("duration_s")
+        row[key] = None if value is None or (isinstance(value, float) and not math.isfinite(value)) else value
+    return row
+
+
+def rank_rows(rows: list[dict[str, Any]], rank_by: str) -> list[dict[str, Any]]:
+    """Rank the rows per trajectory by ``rank_by`` (smaller first; failed or missing values last, unranked);
+    returns them ordered by trajectory (as listed) then rank."""
+    order = list(dict.fromkeys(r["trajectory"] for r in rows))
+    out: list[dict[str, Any]] = []
+    for traj in order:
+        group = [r for r in rows if r["trajectory"] == traj]
+        good = sorted((r for r in group if r["status"] == "ok" and r[rank_by] is not None), key=lambda r: r[rank_by])
+        for k, r in enumerate(good, start=1):
+            r["rank"] = k
+        out += good + [r for r in group if r not in good]
+    return out
+
+
+def write_table(out_dir: Path, rows: list[dict[str, Any]], rank_by: str) -> tuple[Path, Path]:
+    """compare.csv (one row per entry, :data:`TABLE_COLUMNS`) and compare.json (rows, units, ranking key)."""
+    csv_path, json_path = out_dir / "compare.csv", out_dir / "compare.json"
+    with open(csv_path, "w", newline="", encoding="utf-8") as handle:
+        writer = csv.writer(handle)
+        writer.writerow(TABLE_COLUMNS)
+        for r in rows:
+            writer.writerow(["" if r[c] is None else (repr(float(r[c])) if isinstance(r[c], float) else r[c])
+                             for c in TABLE_COLUMNS])
+    json_path.write_text(json.dumps({"rank_by": rank_by, "columns": {k: METRICS.get(k, k) for k in TABLE_COLUMNS},
+                                     "rows": rows}, indent=2), encoding="utf-8")
+    return csv_path, json_path
+
+
+# ------------------------------------------------------------------------------------- run
+def run(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
+    """Every controller on every trajectory, same true robot; the ranked table, files and figures."""
+    doc = scenario.data
+    fill_cell_defaults(doc)
+    planners_job._fill(doc)
+    cmp_t = doc["compare"]
+    doc["controller"]["modes"] = [c["mode"] for c in cmp_t["controllers"] if c["kind"] == "mode"] or ["model_based"]
+    doc["controller"]["modes"] = list(dict.fromkeys(doc["controller"]["modes"]))
+    setup = prepare(doc, str(scenario.path))
+    ctx.summary.update(**setup.summary_fields(), entries={}, table=[])
+    motions = _motions(ctx, doc, setup, scenario.path)
+    ctx.summary.update(trajectories={m.name: {"status": m.status, "message": m.message, **m.info} for m in motions})
+    entries: dict[str, dict[str, Any]] = {}
+    results: dict[tuple[str, str], Any] = {}
+    rows: list[dict[str, Any]] = []
+    for motion in motions:
+        for ctrl in cmp_t["controllers"]:
+            label = f"{ctrl['name']}__{motion.name}"
+            entry = None
+            if motion.trajectory is not None or motion.kind_of == "iso9283":
+                entry, result = run_entry(ctx, setup, ctrl, motion)
+                entries[label] = entry
+                results[(motion.name, ctrl["name"])] = result
+            rows.append(_row(ctrl["name"], motion, entry))
+            ctx.summary.update(entries=entries, table=rank_rows([dict(r) for r in rows], cmp_t["rank_by"]))
+    rows = rank_rows(rows, cmp_t["rank_by"])
+    write_table(ctx.out_dir, rows, cmp_t["rank_by"])
+    fields: dict[str, Any] = {"entries": entries, "table": rows, "rank_by": cmp_t["rank_by"],
+                              "files": {"table_csv": "compare.csv", "table_json": "compare.json"}}
+    if cmp_t["figures"]:
+        from cosim.jobs.compare_figures import write_figures
+
+        fields["figures"] = [p.name for p in write_figures(ctx.out_dir, rows, results, cmp_t["rank_by"])]
+    failed = [label for label, e in entries.items() if e["status"] != "ok"]
+    if failed:
+        fields["failed_entries"] = failed
+    return fields
+
+
+register_job(JOB_NAME, run, SCHEMA, check,
+             "N controllers x M trajectories (built-in modes, planners, trajectory files) on one seeded robot: "
+             "one ranked table")
