@@ -80,3 +80,29 @@ def test_bad_source_folders_fail_clearly(tmp_path):
                                                                                   "r[VR_LOAD] = mass"))
     with pytest.raises(SourceFmuError, match=r"(?s)compiling failed.*payload.c:\d+:\d+: error: expected"):
         build_source_fmu(broken)
+
+
+def test_feedforward_controller_fmu_computes_its_documented_law():
+    path = build_source_fmu(ROOT / "examples" / "fmus" / "feedforward_controller")
+    assert validate_fmu(str(path)) == []
+    md = read_model_description(str(path))
+    vr = {v.name: v.valueReference for v in md.modelVariables}
+    slave = FMU2Slave(guid=md.guid, unzipDirectory=extract(str(path)), modelIdentifier="feedforward_controller",
+                      instanceName="c")
+    slave.instantiate()
+    slave.setupExperiment(startTime=0.0)
+    slave.enterInitializationMode()
+    slave.exitInitializationMode()
+    rng = np.random.default_rng(2)
+    q, qd, qdd = rng.uniform(-2, 2, 6), rng.uniform(-1, 1, 6), rng.uniform(-5, 5, 6)
+    for name, values in (("q_ref", q), ("qd_ref", qd), ("qdd_ref", qdd)):
+        slave.setReal([vr[f"{name}[{j}]"] for j in range(1, 7)], list(values))
+    slave.doStep(0.0, 4e-4)
+    inertia = np.array([27.0, 35.8, 19.9, 0.390, 0.469, 0.0508])
+    viscous, coulomb = np.array([24.0, 17.0, 6.0, 1.7, 2.8, 1.0]), np.array([21.0, 25.0, 19.0, 3.7, 4.5, 0.4])
+    expected = inertia * qdd + viscous * qd + coulomb * np.tanh(qd / 0.01)
+    assert np.allclose(slave.getReal([vr[f"torque_offset[{j}]"] for j in range(1, 7)]), expected, rtol=1e-14,
+                       atol=1e-12)
+    assert slave.getReal([vr[f"target_position[{j}]"] for j in range(1, 7)]) == list(q)
+    slave.terminate()
+    slave.freeInstance()

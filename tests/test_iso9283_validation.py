@@ -93,5 +93,5 @@ def test_connections_are_generated_and_a_scenario_lists_only_what_differs(tmp_pa
     path = variant(tmp_path, "[scenario]", 'connections = ["plant.qd[2] -> drive1.qd_meas"]\n[scenario]')
     doc = load_scenario(path).data
     merged = merged_connections(doc["connections"])
-    assert merged[0] == "plant.qd[2] -> drive1.qd_meas" and "plant.qd[1] -> drive1.qd_meas" not in merged
+    assert merged[0] == "plant.qd[2] -> drive1.qd_meas" and "plant.qd_motor[1] -> drive1.qd_meas" not in merged
     assert len(merged) == 42

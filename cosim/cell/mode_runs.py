@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from controller import Controller, ControllerConfig, TcpTrajectory
+from controller.elastic import make_controller
 from cosim.cell import wiring
 from cosim.cell.description import CellDescription, describe_cell
 from cosim.cell.evaluation import DEFINITIONS, evaluate_run
@@ -85,7 +86,8 @@ def prepare(doc: dict[str, Any], source: str) -> CellSetup:
     fb = FieldbusConfig.from_dict(doc["fieldbus"], source=source)
     mode_settings = {mode: {"controller_mode": BUILTIN_MODES[mode].controller_mode,
                             "drive_speed_feedforward": drive_speed_feedforward(ctrl_t, mode),
-                            "torque_feedforward": BUILTIN_MODES[mode].controller_mode == "model_based",
+                            "torque_feedforward": BUILTIN_MODES[mode].controller_mode in ("model_based",
+                                                                                          "model_based_elastic"),
                             "description": BUILTIN_MODES[mode].description} for mode in ctrl_t["modes"]}
     return CellSetup(doc, true_robot, path, reference, kin, dyn, kin_label, dyn_label, tracker, fb,
                      int(doc["simulation"]["stop_time"] / period) + 16, mode_settings, source)
@@ -111,8 +113,8 @@ def mode_cell(setup: CellSetup, mode: str, ctx: RunContext | None = None,
     config = ControllerConfig(mode=settings["controller_mode"], period_s=period,
                               lead_cycles=1 + setup.fieldbus.dead_time_cycles,
                               compute_budget_s=ctrl_t["compute_budget"], settle_time_s=ctrl_t["settle_time"])
-    controller = Controller(setup.reference, config, kinematic_model=setup.kinematics, dynamics=setup.dynamics,
-                            q_hint=np.array(ISO_Q_HINT), drive_model=drive_model, capacity=setup.capacity)
+    controller = make_controller(setup.reference, config, kinematic_model=setup.kinematics, dynamics=setup.dynamics,
+                                 q_hint=np.array(ISO_Q_HINT), drive_model=drive_model, capacity=setup.capacity)
     can_log = ctx.path(f"can_{mode}.blf") if (ctx is not None and doc["results"]["can_log"]) else None
     info = controller_info(controller, setup.fieldbus, label=mode, source=setup.source)
     cell = describe_cell(mode_doc, setup.true_robot, info, label=mode, fieldbus=setup.fieldbus,

@@ -52,6 +52,10 @@ BUILTIN_MODES: dict[str, BuiltinMode] = {
     "model_based": BuiltinMode("model_based", True, "eq. 7: velocity reference through the drives' speed feed-forward, "
                                                 "torque feed-forward M(q_d) qdd_d + g(q_d, qd_d) as torque offset, "
                                                 "drive set-point shaping"),
+    "model_based_elastic": BuiltinMode("model_based_elastic", True,
+                                       "flatness-based feed-forward for elastic gears: motor reference q_d + K^-1 "
+                                       "tau_g (from q_d and its derivatives up to the 4th) as target, motor torque "
+                                       "as torque offset, drive set-point shaping (controller/elastic.py)"),
 }
 """The built-in modes (``[controller] modes``), in the order they are reported."""
 

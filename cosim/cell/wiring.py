@@ -70,8 +70,8 @@ def cell_connections() -> list[str]:
     """The connections the cell generates (42: seven per axis), in the order the master makes them."""
     out = []
     for i, drive in enumerate(DRIVES, start=1):
-        out += [f"{drive}.tau_out -> {PLANT}.tau[{i}]", f"{PLANT}.q[{i}] -> {drive}.q_meas",
-                f"{PLANT}.qd[{i}] -> {drive}.qd_meas"]
+        out += [f"{drive}.tau_out -> {PLANT}.tau[{i}]", f"{PLANT}.q_motor[{i}] -> {drive}.q_meas",
+                f"{PLANT}.qd_motor[{i}] -> {drive}.qd_meas"]
         out += [f"bus.{name}[{i}] -> {drive}.{name}" for name in BUS_REAL + BUS_INTEGER]
     return out
 

@@ -29,27 +29,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Load and validate (nothing runs on an invalid file), lock the results folder, run the job,
-    finish summary.json (``ok``, ``failed`` or ``interrupted``)."""
-    from cosim.commands.exits import InvalidInput, describe_os_error
-    from cosim.results.outdir import OutputFolderError, open_results_folder
-    from cosim.scenario import RunContext, ScenarioError, load_scenario
+    """Load and validate (nothing runs on an invalid file), then run through the public API
+    (:func:`cosim.api.execute`: results-folder lock, final status ``ok``, ``failed`` or
+    ``interrupted``) and turn the outcome into messages and the exit code."""
+    from cosim.api import OutputFolderError, ScenarioError, execute, load_scenario
+    from cosim.commands.exits import InvalidInput
+    from cosim.master import SimulationError
 
     try:
         scenario = load_scenario(args.scenario)
     except ScenarioError as exc:
         raise InvalidInput(str(exc)) from None
-    from cosim.realtime.execution import CELL_JOBS, CellExecution
-    from cosim.realtime.config import execution_options
-
-    try:
-        options = execution_options(scenario.data, realtime=getattr(args, "realtime", False) or None,
-                                    split=getattr(args, "split", False) or None)
-    except ScenarioError as exc:
-        raise InvalidInput(str(exc)) from None
-    if options.active and scenario.job.name not in CELL_JOBS:
-        raise InvalidInput(f"{args.scenario}: job {scenario.job.name!r} runs no robot cell; --realtime, --split and "
-                           f"[execution] realtime/mode = 'split' apply to the jobs {sorted(CELL_JOBS)}")
     if args.out is not None:
         out_dir, origin = args.out, "--out"
     elif scenario.data.get("output", {}).get("dir"):
@@ -57,80 +47,48 @@ def run(args: argparse.Namespace) -> int:
     else:
         out_dir, origin = Path("results") / scenario.name, "results folder"
     try:
-        lock = open_results_folder(out_dir, origin)
-    except OutputFolderError as exc:
+        result = execute(scenario, out_dir, quiet=args.quiet, realtime=getattr(args, "realtime", False),
+                         split=getattr(args, "split", False), origin=origin)
+    except (ScenarioError, OutputFolderError) as exc:
         raise InvalidInput(str(exc)) from None
-    with lock:
-        try:
-            ctx = RunContext(scenario, out_dir, quiet=args.quiet,
-                             execution=CellExecution(options) if options.active else None)
-        except OSError as exc:
-            raise InvalidInput(describe_os_error(exc, f"{origin} {str(out_dir)!r}: cannot write summary.json")) from None
-        return _run_job(scenario, ctx, out_dir, args)
-
-
-def _run_job(scenario, ctx, out_dir: Path, args: argparse.Namespace) -> int:
-    """Run the job and write the final status; returns the exit code."""
-    from cosim.cli import defer_signals
-    from cosim.commands.exits import describe_os_error, is_disk_full, signal_name_of
-    from cosim.master import SimulationError
-
-    debug = getattr(args, "debug", False)
-    try:
-        fields = scenario.job.runner(scenario, ctx) or {}
-        ctx.summary.finish_ok(ctx.sim_time_s, **fields)
     except KeyboardInterrupt as exc:  # SIGINT, or SIGTERM through the CLI's handler
-        with defer_signals():
-            name = signal_name_of(exc)
-            ctx.summary.finish_interrupted(name, ctx.stopped_at_s, ctx.sim_time_s, mode=ctx.label or None,
-                                           interrupted_in=ctx.label or None)
-        print(f"{scenario.name}: interrupted by {name}"
-              f"{_where(ctx)}; results so far in {out_dir}/", file=sys.stderr)
+        from cosim.api import RunResult
+        from cosim.commands.exits import signal_name_of
+
+        summary = RunResult(out_dir).summary
+        print(f"{scenario.name}: interrupted by {signal_name_of(exc)}{_where(summary)}; results so far in "
+              f"{out_dir}/", file=sys.stderr)
         return EXIT_INTERRUPTED
-    except BaseException as exc:
-        if not isinstance(exc, Exception):
-            raise
-        with defer_signals():
-            if isinstance(exc, SimulationError):
-                reason, stopped, extra = str(exc), exc.time, {"failed_component": exc.component,
-                                                               "fmu_messages": exc.messages}
-                if is_disk_full(exc):
-                    reason = "disk full: " + _first_line(str(exc))
-            elif isinstance(exc, OSError):
-                reason = (("disk full: " if is_disk_full(exc) else "")
-                          + describe_os_error(exc, "" if exc.filename else f"writing the results in {out_dir}"))
-                stopped, extra = ctx.stopped_at_s, {}
-            elif isinstance(exc, ValueError):
-                reason, stopped, extra = _first_line(str(exc)), ctx.stopped_at_s, {}
-            else:
-                reason, stopped, extra = f"internal error: {type(exc).__name__}: {exc}", ctx.stopped_at_s, {}
-            ctx.summary.finish_failed(reason, stopped, ctx.sim_time_s, failed_in=ctx.label or None,
-                                      mode=ctx.label or None, **extra)
-        if debug:
-            traceback.print_exc()
-        first = _first_line(reason)
-        print(f"error: {scenario.name}: run failed{_where(ctx)}: {first}", file=sys.stderr)
-        if isinstance(exc, SimulationError) and exc.messages:
-            print("\n".join(f"  FMU log: {m}" for m in exc.messages[-5:]), file=sys.stderr)
-        print(f"results so far in {out_dir}/ (summary.json: failed)"
-              + ("" if debug or isinstance(exc, (SimulationError, OSError, ValueError))
-                 else "; run with --debug for the traceback"), file=sys.stderr)
-        return EXIT_FAILED
-    data = ctx.summary.data
-    if not args.quiet:
-        print(f"{scenario.name}: ok, {data['sim_time_s']:.6g} s simulated in {data['wall_time_s']:.3g} s "
-              f"({data['realtime_factor']:.3g}x real time); results in {out_dir}/", file=sys.stderr)
-    return EXIT_OK
+    summary = result.summary
+    if result.ok:
+        data = summary.raw
+        if not args.quiet:
+            print(f"{scenario.name}: ok, {data['sim_time_s']:.6g} s simulated in {data['wall_time_s']:.3g} s "
+                  f"({data['realtime_factor']:.3g}x real time); results in {out_dir}/", file=sys.stderr)
+        return EXIT_OK
+    exc = result.error
+    debug = getattr(args, "debug", False)
+    if debug and exc is not None:
+        traceback.print_exception(exc)
+    print(f"error: {scenario.name}: run failed{_where(summary)}: {_first_line(summary.reason or '')}",
+          file=sys.stderr)
+    if isinstance(exc, SimulationError) and exc.messages:
+        print("\n".join(f"  FMU log: {m}" for m in exc.messages[-5:]), file=sys.stderr)
+    print(f"results so far in {out_dir}/ (summary.json: failed)"
+          + ("" if debug or isinstance(exc, (SimulationError, OSError, ValueError))
+             else "; run with --debug for the traceback"), file=sys.stderr)
+    return EXIT_FAILED
 
 
 def _first_line(text: str) -> str:
     return text.strip().splitlines()[0] if text.strip() else text
 
 
-def _where(ctx) -> str:
+def _where(summary) -> str:
+    """`` (mode x, t = 1.2 s)`` from a summary's ``mode`` and ``stopped_at_s``."""
     parts = []
-    if ctx.label:
-        parts.append(f"mode {ctx.label}")
-    if ctx.stopped_at_s is not None:
-        parts.append(f"t = {ctx.stopped_at_s:.6g} s")
+    if summary.raw.get("mode"):
+        parts.append(f"mode {summary.raw['mode']}")
+    if summary.stopped_at_s is not None:
+        parts.append(f"t = {summary.stopped_at_s:.6g} s")
     return f" ({', '.join(parts)})" if parts else ""

@@ -62,8 +62,7 @@ def run(args: argparse.Namespace) -> int:
     import os
 
     from cosim.commands.exits import InvalidInput
-    from cosim.scenario import ScenarioError
-    from cosim.sweep import load_sweep, run_sweep
+    from cosim.api import ScenarioError, load_sweep, run_sweep   # the public API; this command only talks
     from cosim.sweep.execute import SchedulerUnreachable
 
     if args.scheduler and args.workers:

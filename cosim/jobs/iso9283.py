@@ -88,6 +88,11 @@ def run(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
     if "standard_speed_ff" in modes and "model_based" in modes:
         fields["improvement_factor_vs_standard_speed_ff"] = _ratio(modes["standard_speed_ff"]["tcp_error_max_mm"],
                                                                    modes["model_based"]["tcp_error_max_mm"])
+    if "model_based_elastic" in modes:
+        for base in ("standard", "model_based"):
+            if base in modes:
+                fields[f"improvement_factor_elastic_vs_{base}"] = _ratio(
+                    modes[base]["tcp_error_max_mm"], modes["model_based_elastic"]["tcp_error_max_mm"])
     if setup.doc["results"]["figures"]:
         from cosim.jobs.iso9283_figures import write_figures
 

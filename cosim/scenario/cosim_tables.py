@@ -7,6 +7,7 @@ Tables (all quantities SI numbers or unit strings, see units.py)::
                   debug_logging
     [fmus.parameters]  <variable> = <start value>
     connections = ["a.x -> b.y", ...]
+    system = "cell.ssp"   (instead of [[fmus]]: the FMUs, connections and parameters of an SSP 1.0 archive)
     [record]      period, signals = ["plant.q[1]", "drive1.*", ...], file = "timeseries.csv"
     [output]      dir
 
@@ -117,7 +118,9 @@ OUTPUT_TABLE = Table({
 #: Fields of the standard co-simulation tables, to merge into a job's document schema.
 COSIM_FIELDS: dict[str, Field] = {
     "simulation": Field(SIMULATION_TABLE, required=True, doc="a [simulation] table with stop_time and macro_step"),
-    "fmus": Field(List(FMU_TABLE, min_len=1), required=True, doc="at least one [[fmus]] table"),
+    "fmus": Field(List(FMU_TABLE, min_len=1), default=[], doc="at least one [[fmus]] table"),
+    "system": Field(FilePath(must_exist=True, suffix=".ssp"),
+                    doc="an .ssp file (SSP 1.0) whose FMUs, connections and parameter values replace [[fmus]]"),
     "connections": Field(List(String()), default=[]),
     "record": Field(RECORD_TABLE),
     "output": Field(OUTPUT_TABLE, default={}),
@@ -137,6 +140,7 @@ def check_cosim_tables(doc: dict, where: Where, master_variables: Mapping[str, s
     Raises ScenarioError at the offending key.
     """
     master_variables = dict(master_variables or {})
+    expand_system(doc, where, master_variables)
     sim = doc["simulation"]
     base = sim["macro_step"]
     steps = sim["stop_time"] / base
@@ -246,6 +250,36 @@ def check_cosim_tables(doc: dict, where: Where, master_variables: Mapping[str, s
                 raise w.error("a Real, Integer, Boolean or Enumeration variable", signal, problem=str(exc)) from None
 
 
+def expand_system(doc: dict, where: Where, master_variables: Mapping[str, str] | None = None) -> None:
+    """Replace ``system = "x.ssp"`` by its ``[[fmus]]`` tables and connections (idempotent).
+
+    The archive's connections between components come first, then its system inputs'
+    connections whose source is one of ``master_variables`` (a job that drives them), then
+    the scenario's own ``connections``. System inputs no job variable drives stay
+    unconnected: those FMU inputs keep their start values. Raises ScenarioError at
+    ``system`` (naming the archive member and element) for a bad archive.
+    """
+    if doc.get("_system_expanded") or "system" not in doc:
+        if not doc.get("fmus") and "system" not in doc:
+            raise (where / "fmus").error("at least one [[fmus]] table, or system = 'file.ssp'",
+                                         problem="no FMU given")
+        return
+    if doc.get("fmus"):
+        raise (where / "system").error("either system = 'file.ssp' or [[fmus]] tables, not both", str(doc["system"]),
+                                       problem="both given")
+    from cosim.ssp import SspError, load_ssp
+
+    try:
+        system = load_ssp(doc["system"])
+    except SspError as exc:
+        raise (where / "system").error(exc.expected, str(doc["system"]),
+                                       problem=f"{exc.element}: {exc.problem}" if exc.problem else exc.element) from None
+    driven = [c for c in system.inputs_connections if parse_connection(c).source in (master_variables or {})]
+    doc["fmus"] = system.fmus
+    doc["connections"] = system.connections + driven + list(doc.get("connections", []))
+    doc["_system_expanded"] = True
+
+
 def _short(names: list[str], limit: int = 12) -> str:
     return ", ".join(names[:limit]) + (f", ... ({len(names)} in all)" if len(names) > limit else "") or "none"
 
@@ -285,4 +319,5 @@ def add_record(master: Master, doc: dict, ctx: "RunContext", file: str | None = 
 
 
 __all__ = ["COSIM_FIELDS", "FMU_TABLE", "OUTPUT_TABLE", "RECORD_TABLE", "SIMULATION_TABLE", "add_record",
-           "build_master", "builtin_fmu_names", "check_cosim_tables", "resolve_builtin", "resolve_source"]
+           "build_master", "builtin_fmu_names", "check_cosim_tables", "expand_system", "resolve_builtin",
+           "resolve_source"]

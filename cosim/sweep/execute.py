@@ -379,5 +379,6 @@ def _run_tasks(client: Any, sweep: Sweep, todo: list[VariantTask], rows: dict[in
             blob.release()
 
 
-__all__ = ["SCHEDULER_CONNECT_TIMEOUT_S", "SWEEP_FILE", "SchedulerUnreachable", "SweepResult", "TABLE_FILE", "TRANSFERS", "VARIANTS_DIR", "dask_client", "default_out_dir",
-           "input_files", "resolve_transfer", "run_sweep", "variant_tasks", "with_inputs"]
+__all__ = ["SCHEDULER_CONNECT_TIMEOUT_S", "SWEEP_FILE", "SchedulerUnreachable", "SweepResult", "TABLE_FILE",
+           "TRANSFERS", "VARIANTS_DIR", "dask_client", "default_out_dir", "input_files", "resolve_transfer",
+           "run_sweep", "variant_tasks", "with_inputs"]

@@ -39,7 +39,7 @@ FINISHED = ("ok", "failed")
 #: of a run are never shared between threads.
 _ONE_AT_A_TIME = threading.Lock()
 #: Exit codes of ``cosim run`` (cosim/commands/run.py) -> words for the reason column.
-EXIT_WORDS = {1: "simulation failed", 2: "invalid scenario", 3: "internal error"}
+EXIT_WORDS = {2: "invalid scenario", 3: "run failed", 130: "interrupted"}
 
 
 @dataclass(frozen=True)
@@ -153,32 +153,26 @@ def _run_variant(task: VariantTask) -> dict[str, Any]:
 def run_document(document: dict[str, Any], folder: Path, anchor: str | None) -> int:
     """Run a scenario document into ``folder`` with the public API (relative file references
     resolved against ``anchor``); messages to stdout/stderr; return ``cosim run``'s exit code
-    (0 ok, 1 the run failed, 2 invalid scenario, 3 internal error)."""
+    (0 ok, 2 invalid scenario or results folder, 3 the run failed)."""
     import sys
     import traceback
 
-    from cosim.api import ScenarioError, load_scenario, run
+    from cosim.api import OutputFolderError, ScenarioError, execute, load_scenario
     from cosim.master import SimulationError
 
     try:
-        scenario = load_scenario(document, base_dir=anchor)
-    except ScenarioError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    try:
-        result = run(scenario, out=folder, check=False)
-    except ScenarioError as exc:
+        result = execute(load_scenario(document, base_dir=anchor), folder)
+    except (ScenarioError, OutputFolderError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     except SystemExit as exc:  # a job calling sys.exit
         return exc.code if isinstance(exc.code, int) else 3
     if result.ok:
         return 0
-    print(f"simulation failed: {result.summary.reason}", file=sys.stderr)
+    print(f"error: run failed: {result.summary.reason}", file=sys.stderr)
     if result.error is not None and not isinstance(result.error, SimulationError):
         traceback.print_exception(result.error, file=sys.stderr)
-        return 3
-    return 1
+    return 3
 
 
 #: Files a shipped variant always brings back (besides its row); scenario.toml is written by the client.
