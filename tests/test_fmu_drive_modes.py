@@ -311,3 +311,38 @@ def test_value_references_of_the_original_variables_are_unchanged():
     assert vr[("Real", "target_velocity")] == 39 and vr[("Real", "velocity_offset")] == 40
     assert vr[("Real", "target_torque")] == 41
     assert vr[("Integer", "modes_of_operation")] == 6 and vr[("Integer", "modes_of_operation_display")] == 7
+
+
+def _quick_stop_from(mode):
+    axis = Axis(load=-2.0)
+    axis.mode = mode
+    axis.enable()
+    if mode == CST:  # accelerate to ~0.95 rad/s, then hold the speed against the load
+        axis.torque = 2.0 + 0.21 * 5.0
+        axis.run(0.19)
+        axis.torque = 2.0
+        axis.run(0.01)
+    elif mode == CSV:
+        axis.velocity = 0.95
+        axis.run(0.2)
+    else:
+        axis.target_speed = 0.95
+        axis.run(0.2)
+    speed = axis.qd
+    index = len(axis.tau_history)
+    axis.controlword = QUICK_STOP_CMD
+    axis.run(0.1)
+    return speed, _jump(axis.tau_history, index), max(axis.tau_history[index:]), axis
+
+
+def test_quick_stop_from_cst_and_csv_is_the_same_ramp_as_from_csp():
+    """The stop ramp (position loop) takes over from the torque the motor makes: leaving CST
+    the speed integrator is pre-loaded, so the transient equals the one from CSP."""
+    speed, jump, peak, axis = _quick_stop_from(CSP)
+    assert speed == pytest.approx(0.95, rel=0.01)
+    for mode in (CSV, CST):
+        s, j, p, other = _quick_stop_from(mode)
+        assert s == pytest.approx(speed, rel=0.03)
+        assert j == pytest.approx(jump, rel=0.05) and p == pytest.approx(peak, rel=0.05)
+        assert other.statusword & 0x6F == 0x07 and abs(other.qd) < 1e-3  # stopped, holding in quick stop
+        assert other.display == mode
