@@ -600,7 +600,7 @@ class RunResult:
 # ------------------------------------------------------------------------------------------ running
 def run(scenario: "str | Path | Mapping[str, Any] | Scenario", out: str | Path | None = None,
         overrides: Mapping[str, Any] | None = None, *, quiet: bool = True, realtime: bool = False,
-        split: bool = False, check: bool = True) -> RunResult:
+        split: bool = False, check: bool = True, timeseries: str | None = None) -> RunResult:
     """Validate and run a scenario; return its :class:`RunResult`.
 
     Args:
@@ -612,6 +612,8 @@ def run(scenario: "str | Path | Mapping[str, Any] | Scenario", out: str | Path |
         realtime, split: pace the robot cell at the wall clock / run controller and drives in two
             processes (as ``cosim run --realtime/--split``; docs/timing.md).
         check: raise :class:`RunFailed` when the run ends ``failed`` (False: return the result).
+        timeseries: the time-series file format, ``"parquet"`` or ``"csv"`` (None: the project's
+            default, see docs/ARCHITECTURE.md); :meth:`RunResult.timeseries` reads either.
 
     Raises:
         ScenarioError: invalid scenario or override (nothing is written, no folder is made).
@@ -626,20 +628,21 @@ def run(scenario: "str | Path | Mapping[str, Any] | Scenario", out: str | Path |
         out_dir, temporary = Path(tempfile.mkdtemp(prefix=f"cosim-{sc.name}-")), True
     else:
         out_dir, temporary = Path(out), False
-    result = _execute_into(sc, out_dir, options, quiet=quiet, origin="out", temporary=temporary)
+    result = _execute_into(sc, out_dir, options, quiet=quiet, origin="out", temporary=temporary,
+                           timeseries=timeseries)
     if check and result.status != "ok":
         raise RunFailed(result) from result.error
     return result
 
 
 def execute(scenario: Scenario, out: str | Path, *, quiet: bool = True, realtime: bool = False,
-            split: bool = False, origin: str = "out") -> RunResult:
+            split: bool = False, origin: str = "out", timeseries: str | None = None) -> RunResult:
     """Run an already loaded scenario into ``out`` and return the result whatever its status
     (the layer under :func:`run` and ``cosim run``; ``origin`` names where ``out`` came from in
     an OutputFolderError, e.g. ``"--out"``). Raises ScenarioError, OutputFolderError,
     KeyboardInterrupt as :func:`run` does; never RunFailed."""
     return _execute_into(scenario, Path(out), _execution_options(scenario, realtime, split), quiet=quiet,
-                         origin=origin, temporary=False)
+                         origin=origin, temporary=False, timeseries=timeseries)
 
 
 def _execution_options(sc: Scenario, realtime: bool, split: bool):
@@ -658,7 +661,8 @@ def _execution_options(sc: Scenario, realtime: bool, split: bool):
     return options
 
 
-def _execute_into(sc: Scenario, out_dir: Path, options, *, quiet: bool, origin: str, temporary: bool) -> RunResult:
+def _execute_into(sc: Scenario, out_dir: Path, options, *, quiet: bool, origin: str, temporary: bool,
+                  timeseries: str | None = None) -> RunResult:
     """Lock ``out_dir``, run the job, finish summary.json; the result (``error``: what failed the run)."""
     from cosim.commands.exits import describe_os_error
     from cosim.results.outdir import OutputFolderError, open_results_folder
@@ -671,7 +675,8 @@ def _execute_into(sc: Scenario, out_dir: Path, options, *, quiet: bool, origin: 
         execution = CellExecution(options)
     with open_results_folder(out_dir, origin):
         try:
-            ctx = RunContext(sc.validated, out_dir, quiet=quiet, execution=execution)
+            extra = {} if timeseries is None else {"timeseries_format": timeseries}
+            ctx = RunContext(sc.validated, out_dir, quiet=quiet, execution=execution, **extra)
         except OSError as exc:
             raise OutputFolderError(describe_os_error(exc, f"{origin} {str(out_dir)!r}: cannot write summary.json"))\
                 from None

@@ -156,3 +156,22 @@ def test_real_wall_clock_slowed_controller_overruns_after_each_slow_cycle(tmp_pa
     assert wall >= 150 * PERIOD
     targets = column_block(cell.recording, BUS_TARGETS)
     np.testing.assert_array_equal(targets[52], targets[51])   # hold
+
+
+def test_a_substituted_setpoint_keeps_the_mode_and_its_setpoints():
+    """hold/skip repeat the last cycle's mode of operation and velocity/torque set-points:
+    a late controller never switches a drive out of the mode it commanded."""
+    from fieldbus import Setpoints
+    from cosim.realtime.policy import SetpointGate
+
+    for policy in ("hold", "skip"):
+        gate = SetpointGate(policy, 6)
+        sp = Setpoints.zeros(6)
+        sp.modes_of_operation[:] = 10
+        sp.target_torque[:] = 12.5
+        sp.target_velocity[:] = 0.3
+        sp.velocity_offset[:] = 0.1
+        gate.send(sp, late=False)
+        out = gate.send(Setpoints.zeros(6), late=True)
+        assert (out.modes_of_operation == 10).all() and (out.target_torque == 12.5).all()
+        assert (out.target_velocity == 0.3).all() and (out.velocity_offset == 0.1).all()

@@ -81,6 +81,9 @@ def _multiple_check(value: float, base: float) -> bool:
 #: macro_step = 5e-324) more often than a plan. Raise it per scenario with [simulation] max_base_steps.
 MAX_BASE_STEPS = 1_000_000_000
 
+#: [simulation] isolation: which FMUs run in a child process by default (docs/robustness.md).
+ISOLATIONS = ("none", "third_party", "all")
+
 SIMULATION_TABLE = Table({
     "stop_time": Field(Number(unit="s", gt=0), required=True, doc="the simulated duration: a number in s > 0"),
     "macro_step": Field(Number(unit="s", gt=0), required=True, doc="the base macro step: a number in s > 0"),
@@ -89,6 +92,8 @@ SIMULATION_TABLE = Table({
     "engine": Field(String(choices=ENGINES), default="auto"),
     "max_base_steps": Field(Integer(min=1), default=MAX_BASE_STEPS,
                             doc="the largest stop_time / macro_step accepted (a guard against typos)"),
+    "isolation": Field(String(choices=ISOLATIONS), default="none",
+                       doc="which FMUs run out of process: 'none', 'third_party' (every FMU given by path or source, not builtin), 'all'"),
 }, doc="the [simulation] table")
 
 FMU_TABLE = Table({
@@ -101,6 +106,9 @@ FMU_TABLE = Table({
     "step": Field(Number(unit="s", gt=0)),
     "parameters": Field(Table({}, extra=AnyValue(), doc="a table of <variable> = <start value>"), default={}),
     "debug_logging": Field(Boolean(), default=False),
+    "out_of_process": Field(Boolean(), doc="run this FMU in a child process (default from [simulation] isolation)"),
+    "step_timeout": Field(Number(unit="s", gt=0),
+                          doc="longest wall time of one step of an out-of-process FMU before it counts as hung"),
 }, one_of=[("path", "builtin", "source")], doc="an [[fmus]] table")
 
 RECORD_TABLE = Table({
@@ -175,6 +183,13 @@ def check_cosim_tables(doc: dict, where: Where, master_variables: Mapping[str, s
             raise (w[i] / next(k for k in ("builtin", "source", "path") if k in fmu)).error(
                 SUPPORTED_FMUS, str(fmu["path"]), problem=getattr(exc, "problem", str(exc))) from None
         descriptions[fmu["name"]] = variables_of(md)
+        isolated = out_of_process(fmu, sim)
+        if "step_timeout" in fmu and not isolated:
+            raise (w[i] / "step_timeout").error("out_of_process = true (or [simulation] isolation covering this FMU): "
+                                                "only an FMU in its own process can be timed out", fmu["step_timeout"])
+        if isolated and str(md.fmiVersion) != "2.0":
+            raise (w[i] / "out_of_process").error("false for an FMI 3.0 FMU (out-of-process execution supports "
+                                                  "FMI 2.0 FMUs)", True, problem=f"FMI {md.fmiVersion} FMU")
         if "step" in fmu and not _multiple_check(fmu["step"], base):
             raise (w[i] / "step").error(f"a positive integer multiple of macro_step = {base!r} s", fmu["step"])
         variables = descriptions[fmu["name"]]
@@ -284,6 +299,15 @@ def _short(names: list[str], limit: int = 12) -> str:
     return ", ".join(names[:limit]) + (f", ... ({len(names)} in all)" if len(names) > limit else "") or "none"
 
 
+def out_of_process(fmu: dict, sim: dict) -> bool:
+    """Whether the [[fmus]] table ``fmu`` runs in a child process: its own ``out_of_process``, else
+    ``[simulation] isolation`` ('all'; 'third_party': FMUs given by ``path`` or ``source``, not ``builtin``)."""
+    if fmu.get("out_of_process") is not None:
+        return bool(fmu["out_of_process"])
+    isolation = sim.get("isolation", "none")
+    return isolation == "all" or (isolation == "third_party" and "builtin" not in fmu)
+
+
 def build_master(doc: dict, master_variables: Mapping[str, tuple[str, object]] | None = None) -> Master:
     """A Master with the document's FMUs and connections (not initialized).
 
@@ -293,7 +317,9 @@ def build_master(doc: dict, master_variables: Mapping[str, tuple[str, object]] |
     sim = doc["simulation"]
     master = Master(sim["macro_step"], coupling=sim["coupling"], engine=sim["engine"])
     for fmu in doc["fmus"]:
+        isolated = out_of_process(fmu, sim)
         master.add_fmu(fmu["name"], fmu["path"], step=fmu.get("step"), start_values=fmu["parameters"],
+                       out_of_process=isolated, step_timeout=fmu.get("step_timeout") if isolated else None,
                        debug_logging=fmu["debug_logging"])
     for name, (type_, start) in (master_variables or {}).items():
         master.add_variable(name, type_, start)

@@ -223,7 +223,8 @@ def run_split_cell(cell: CellDescription, controller, ctx, *, options: Execution
     except KeyboardInterrupt as exc:  # SIGINT/SIGTERM: end the drive side, keep its rows, then re-raise
         interrupted = exc
         if hasattr(ctx, "note_position"):
-            ctx.note_position(label, fb_config.start_time_s + max(session.cycle, 0) * period)
+            ctx.note_position(label, fb_config.start_time_s + max(session.cycle, 0) * period,
+                              max(session.cycle, 0) * period)
         if process.is_alive():
             try:
                 conn.send_bytes(pack_marker(session.cycle + 1, END))
