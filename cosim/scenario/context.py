@@ -62,11 +62,12 @@ class RunContext:
         self._running: Master | None = None
         self._last_time_s: float | None = None
 
-    def note_position(self, label: str, time_s: float) -> None:
+    def note_position(self, label: str, time_s: float, covered_s: float = 0.0) -> None:
         """Record where a run that does not go through :meth:`execute` (the split cell) stopped:
-        its ``label`` and simulated time (s), for the final status."""
+        its ``label``, simulated time (s) and the simulated seconds it covered, for the final status."""
         self.label = label
         self._last_time_s = float(time_s)
+        self.sim_time_s += float(covered_s)
 
     @property
     def stopped_at_s(self) -> float | None:
