@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from cosim.results import read_series
 from cosim.scenario import ScenarioError, load_scenario
 from scenario_files import run_scenario, write_variant
 
@@ -117,8 +118,8 @@ def test_table_ranks_every_entry_and_is_written_as_csv_and_json(runs):
                  "controller_standard__iso9283.parquet"):
         assert (out / name).stat().st_size > 0, name
     # the payload FMU (built from C) hangs 3 kg on the flange from t = 0.5 s, through the plant's tau_ext
-    with open(out / "timeseries_model_based__pick_place_joint.csv", newline="") as handle:
-        series = list(csv.DictReader(handle))
+    columns, data = read_series(out / "timeseries_model_based__pick_place_joint.parquet")
+    series = [dict(zip(columns, row)) for row in data]
     mass = {round(float(r["time"]), 4): float(r["payload.load_mass"]) for r in series}
     assert mass[0.499] == 0.0 and mass[0.502] == 3.0 and mass[1.0] == 3.0
     assert abs(float(series[600]["payload.tau[2]"])) > 5.0
