@@ -112,3 +112,11 @@ def test_the_documented_table_is_the_machine_readable_list():
     rows = re.findall(r"^\| `(\w+)` \| (\w+) (\w+) \| ([^|]*) \| ([^|]*) \|", section, flags=re.M)
     assert [(name, type_, causality, unit.strip() or None, "required" in need) for name, type_, causality, unit, need
             in rows] == [(v.name, v.type, v.causality, v.unit, v.required) for v in DRIVE_INTERFACE]
+
+
+def test_the_fmi3_build_of_the_servo_drive_passes_too():
+    from fmus.build import build_fmu
+
+    path, _ = build_fmu("servo_drive", fmi=3)
+    report = check_drive_fmu(path, modes=(8, 9, 10), torque_feedforward=True, velocity_feedforward=True)
+    assert report.present == OPTIONAL and report.modes == (8, 9, 10)

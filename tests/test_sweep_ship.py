@@ -263,3 +263,27 @@ def test_collect_and_store_are_validated(tmp_path):
     local = cosim.load_sweep(sweep_path.read_text().replace('collect = "timeseries"', 'store = "artifacts"')
                              .replace('base = "base.toml"', f'base = "{tmp_path / "client" / "base.toml"}"'))
     assert local.store == str(Path.cwd() / "artifacts")
+
+
+def test_referenced_files_from_the_schema():
+    """What a task ships: FilePath values, files of 'file.py:Class' in string fields, and what
+    specs with referenced_file() name - found by walking the job's schema, nothing else."""
+    from cosim.scenario.schema import AnyValue, Field, FilePath, List, String, Table
+    from cosim.sweep.keypath import referenced_files, relocate_file
+
+    schema = Table({
+        "controller": Field(Table({"class": Field(String()), "fmu": Field(FilePath()),
+                                   "label": Field(String())})),
+        "fmus": Field(List(Table({"path": Field(FilePath()), "name": Field(String())}))),
+        "free": Field(Table({}, extra=AnyValue())),
+    })
+    doc = {"controller": {"class": "ctrl/my.py:MyController", "fmu": "/abs/c.fmu", "label": "my_run"},
+           "fmus": [{"path": "a.fmu", "name": "a"}, {"name": "builtin"}],
+           "free": {"anything": "other.py:Class"}}   # AnyValue: the schema does not say it is a file
+    found = referenced_files(schema, doc)
+    assert found == [(("controller", "class"), "ctrl/my.py"), (("controller", "fmu"), "/abs/c.fmu"),
+                     (("fmus", 0, "path"), "a.fmu")]
+    assert relocate_file(String(), "ctrl/my.py:MyController", "/w/my.py") == "/w/my.py:MyController"
+    assert referenced_files(schema, {"controller": {"class": "package.module:MyController"}}) == []
+    from cosim.jobs.planners import PlannerEntry
+    assert referenced_files(List(PlannerEntry()), ["ruckig", "p/q.py:P", "mod:P"]) == [((1,), "p/q.py")]
