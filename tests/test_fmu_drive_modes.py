@@ -346,3 +346,43 @@ def test_quick_stop_from_cst_and_csv_is_the_same_ramp_as_from_csp():
         assert j == pytest.approx(jump, rel=0.05) and p == pytest.approx(peak, rel=0.05)
         assert other.statusword & 0x6F == 0x07 and abs(other.qd) < 1e-3  # stopped, holding in quick stop
         assert other.display == mode
+
+
+@pytest.mark.parametrize("axis_number", [2, 4])
+def test_modes_and_switches_are_bit_identical_to_the_python_oracle(axis_number):
+    """CSP with a velocity offset, then CSV, CST and back to CSP, with changing set-points:
+    the FMU's torque equals the oracle's (fmus/servo_drive/reference.py, written from
+    docs/fmus.md) to the last bits."""
+    from fmus.servo_drive.reference import DriveReference
+
+    values = drive_start_values(axis_number)
+    inertia = [20.0, 20.0, 10.0, 0.2, 0.2, 0.05][axis_number - 1]
+    drive = FastFmu2Slave(ensure_fmus()["servo_drive"], "oracle_modes", values, real_inputs=REAL_IN,
+                          real_outputs=REAL_OUT, integer_inputs=("controlword", "modes_of_operation"),
+                          integer_outputs=INT_OUT)
+    oracle = DriveReference(dict(values))
+    oracle.initialize(0.0, 0.0, 0.0)
+    q = qd = current = 0.0
+    worst, displays = 0.0, set()
+    limit = values["torque_limit"]
+    for k in range(8000):  # 0.4 s
+        t = k * H
+        cw = SHUTDOWN if t < 4e-4 else ENABLE
+        mode = CSP if t < 0.1 else CSV if t < 0.2 else CST if t < 0.3 else CSP
+        target = 0.1 * math.sin(2 * math.pi * t) if mode == CSP and t < 0.1 else q + 0.02 * (t - 0.3)
+        offset = 0.02 * limit * math.sin(6 * math.pi * t)
+        velocity, velocity_offset = 0.3 * math.cos(5 * t), 0.05 * math.sin(9 * t)
+        torque = 0.1 * limit * math.sin(20 * t)
+        drive.set_integer_inputs((cw, mode))
+        drive.set_inputs((target, offset, q, qd, velocity, velocity_offset, torque))
+        drive.do_step(t, H)
+        tau = float(drive.get_outputs()[0])
+        displays.add(int(drive.get_integer_outputs()[1]))
+        u, powered = oracle.tick_voltage(q, qd, current, target, offset, cw, mode, velocity, velocity_offset, torque)
+        current = oracle.advance_current(current, u, qd) if powered else 0.0
+        worst = max(worst, abs(tau - oracle.torque(current)))
+        acc = (tau - 0.05 * limit) / inertia
+        q, qd = q + qd * H + 0.5 * acc * H * H, qd + acc * H
+    drive.close()
+    assert displays == {CSP, CSV, CST}
+    assert worst == 0.0, worst  # same operations in the same order

@@ -29,6 +29,11 @@ from fmus.instance import SET_T, STEP_T, FmuInstance, FmuInstantiateError, extra
 _STATUS = ("OK", "Warning", "Discard", "Error", "Fatal", "Pending")
 
 
+def _unzip_dir(path: Path) -> str:
+    """The FMU archive extracted once per process (``fmus.instance.extracted_dir``; used by proxy.py)."""
+    return extracted_dir(Path(path))
+
+
 def status_name(status: int, api: str = "fmi2") -> str:
     """``3 -> "fmi2Error"`` (``api="fmi3"``: ``"fmi3Error"``)."""
     return api + _STATUS[status] if 0 <= status < len(_STATUS) else f"status {status}"
