@@ -13,7 +13,7 @@ import pytest
 from fmpy.ssp.ssd import read_ssd
 
 from cosim.cli import main
-from cosim.jobs import robot_cell
+from cosim.cell import wiring as robot_cell
 from cosim.results import read_csv
 from cosim.ssp import SspError, load_ssp
 

@@ -41,7 +41,8 @@ def write_figures(out_dir: Path, results: dict[str, Any], path: Any) -> list[Pat
     """Write the figures for the modes in ``results`` (mode -> TrackingResult); return the files."""
     plt = _pyplot()
     written: list[Path] = []
-    modes = [m for m in COLOURS if m in results and results[m].t.size]
+    # the built-in modes in their order, then any other run (a user's controller)
+    modes = [m for m in [*COLOURS, *(r for r in results if r not in COLOURS)] if m in results and results[m].t.size]
     if not modes:
         return written
 
@@ -49,7 +50,8 @@ def write_figures(out_dir: Path, results: dict[str, Any], path: Any) -> list[Pat
     for j, ax in enumerate(axes):
         for mode in modes:
             r = results[mode]
-            ax.plot(r.t - r.t[0], r.lag[:, j] * 1e3, color=COLOURS[mode], lw=0.8, label=LABELS[mode])
+            ax.plot(r.t - r.t[0], r.lag[:, j] * 1e3, color=COLOURS.get(mode, "tab:green"), lw=0.8,
+                    label=LABELS.get(mode, mode))
         ax.set_ylabel(f"axis {j + 1} lag [mrad]")
         ax.grid(True, alpha=0.3)
     axes[0].legend(loc="upper right", fontsize=8)
@@ -61,8 +63,8 @@ def write_figures(out_dir: Path, results: dict[str, Any], path: Any) -> list[Pat
     fig, ax = plt.subplots(figsize=(9, 4.5))
     for mode in modes:
         r = results[mode]
-        ax.plot(r.arc_length, r.tcp_error * 1e3, color=COLOURS[mode], lw=0.8,
-                label=f"{LABELS[mode]}: max {r.tcp_error.max() * 1e3:.3f} mm")
+        ax.plot(r.arc_length, r.tcp_error * 1e3, color=COLOURS.get(mode, "tab:green"), lw=0.8,
+                label=f"{LABELS.get(mode, mode)}: max {r.tcp_error.max() * 1e3:.3f} mm")
     _segment_marks(ax, path)
     ax.set_yscale("log")  # the modes differ by orders of magnitude (docs/main_job.md)
     ax.set_xlabel("path length [m]")
@@ -76,8 +78,8 @@ def write_figures(out_dir: Path, results: dict[str, Any], path: Any) -> list[Pat
     fig, ax = plt.subplots(figsize=(9, 4.5))
     for mode in modes:
         r = results[mode]
-        ax.plot(r.arc_length, r.path_error * 1e3, color=COLOURS[mode], lw=0.8,
-                label=f"{LABELS[mode]}: max {r.path_error.max() * 1e3:.3f} mm")
+        ax.plot(r.arc_length, r.path_error * 1e3, color=COLOURS.get(mode, "tab:green"), lw=0.8,
+                label=f"{LABELS.get(mode, mode)}: max {r.path_error.max() * 1e3:.3f} mm")
     _segment_marks(ax, path)
     ax.set_xlabel("path length [m]")
     ax.set_ylabel("error to the programmed path [mm]")

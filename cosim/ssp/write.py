@@ -28,7 +28,7 @@ def driven_by(signal: str) -> str:
     owner = signal.split(".", 1)[0]
     if owner == "bus":
         return ("the Python controller (controller/, every controller period), through the emulated "
-                "POWERLINK bus carrying CiA 402 telegrams (fieldbus/, cosim.jobs.robot_cell.FieldbusLink); "
+                "POWERLINK bus carrying CiA 402 telegrams (fieldbus/, cosim.cell.link.FieldbusLink); "
                 "not an FMU")
     if owner == "tracker":
         return "the Python laser tracker model (cosim.jobs.laser_tracker); not an FMU"
@@ -183,8 +183,8 @@ def _cell_parameters(doc: dict[str, Any]) -> list[dict[str, Any]] | None:
     pose left at the scenario's/FMU's values (the cell computes it from the path at run time)."""
     if "true_robot" not in doc:
         return None
-    from cosim.jobs import robot_cell
-    from cosim.jobs.iso9283 import make_true_robot
+    from cosim.cell import wiring as robot_cell
+    from cosim.cell.parts import make_true_robot
 
     names = {f["name"] for f in doc["fmus"]}
     if robot_cell.PLANT not in names or not set(robot_cell.DRIVES) <= names:
@@ -212,17 +212,23 @@ def export_ssp(scenario: str | Path, out: str | Path) -> Path:
 
     loaded = load_scenario(scenario)
     doc = loaded.data
-    fmus = _cell_parameters(doc) or [dict(f) for f in doc["fmus"]]
+    cell_fmus = _cell_parameters(doc)
+    fmus = cell_fmus or [dict(f) for f in doc["fmus"]]
+    connections = list(doc.get("connections", []))
+    if cell_fmus is not None:  # a robot cell: its generated wiring plus the scenario's own connections
+        from cosim.cell.wiring import merged_connections
+
+        connections = merged_connections(connections)
     master_variables: dict[str, str] = {}
     descriptions = {f["name"]: variables_of(load_model_description(f["path"])) for f in fmus}
-    for text in doc.get("connections", []):
+    for text in connections:
         spec = parse_connection(text)
         owner = spec.source.split(".", 1)[0]
         if owner not in descriptions:
             dst_inst, dst_var = spec.destination.split(".", 1)
             master_variables[spec.source] = bus_type(descriptions[dst_inst][dst_var].type)
     sim = doc["simulation"]
-    return export_document(fmus, list(doc.get("connections", [])), out, name=loaded.name,
+    return export_document(fmus, connections, out, name=loaded.name,
                            stop_time=sim["stop_time"], macro_step=sim["macro_step"], coupling=sim["coupling"],
                            master_variables=master_variables,
                            description=doc["scenario"].get("description", ""))

@@ -1,9 +1,10 @@
 """Checks of a robot-cell scenario document, shared by the jobs that run the cell.
 
-A job that runs :func:`cosim.jobs.robot_cell.run_cell` (``iso9283`` and the jobs built on
-its schema, ``identification``) calls :func:`check_cell` from its own ``check``: the
-cell's FMUs, their variables and parameters, its connections, the ``[fieldbus]`` table
-and the periods (s) of controller, tracker and recorder against the master's steps.
+A job that runs the cell (:func:`cosim.cell.runner.run_cell`: ``iso9283``,
+``fieldbus_fault``, ``identification``, ``planners``) calls :func:`check_cell` from its
+own ``check``: the cell's FMUs, their variables and parameters, its connections (the
+generated ones plus the scenario's own), the ``[fieldbus]`` table and the periods (s) of
+controller, tracker and recorder against the master's steps.
 Every problem is a ``ScenarioError`` (a ValueError) at the key that holds it.
 """
 from __future__ import annotations
@@ -13,7 +14,7 @@ import math
 from collections.abc import Iterable, Mapping
 from typing import Any
 
-from cosim.jobs import robot_cell
+from cosim.cell import wiring
 from cosim.scenario.cosim_tables import check_cosim_tables
 from cosim.scenario.schema import Table, Where
 
@@ -47,11 +48,11 @@ def check_cell(doc: dict[str, Any], where: Where, job_set_drive_parameters: Mapp
 
     In order: the ``[[fmus]]`` ``plant`` and ``drive1`` .. ``drive6`` exist; the standard
     co-simulation tables (:func:`~cosim.scenario.cosim_tables.check_cosim_tables`, with the
-    cell's master variables); the FMUs have :data:`PLANT_VARIABLES` / :data:`DRIVE_VARIABLES`;
+    cell's master variables and its connections: :func:`~cosim.cell.wiring.merged_connections`);
+    the FMUs have :data:`PLANT_VARIABLES` / :data:`DRIVE_VARIABLES`;
     no drive sets a parameter of ``job_set_drive_parameters`` (parameter name -> what is
     expected instead, for the message) and the plant none of
-    :data:`~cosim.jobs.robot_cell.JOB_SET_PLANT_PARAMETERS`; every connection of
-    :func:`~cosim.jobs.robot_cell.cell_connections` is listed; the ``[fieldbus]`` table is
+    :data:`~cosim.cell.wiring.JOB_SET_PLANT_PARAMETERS`; the ``[fieldbus]`` table is
     valid and its cycle time equals ``[controller] period`` (s); the controller and
     ``[tracker]`` periods are whole multiples of ``[simulation] macro_step`` and of the cell's
     FMU steps; the ``[record]`` period is a whole multiple of ``macro_step``.
@@ -67,43 +68,39 @@ def check_cell(doc: dict[str, Any], where: Where, job_set_drive_parameters: Mapp
     from fieldbus import FieldbusConfig, FieldbusConfigError
 
     by_name = {fmu["name"]: (i, fmu) for i, fmu in enumerate(doc["fmus"])}
-    needed = {robot_cell.PLANT: robot_cell.PLANT_FMU, **{d: robot_cell.DRIVE_FMU for d in robot_cell.DRIVES}}
+    needed = {wiring.PLANT: wiring.PLANT_FMU, **{d: wiring.DRIVE_FMU for d in wiring.DRIVES}}
     for name, builtin in needed.items():
         if name not in by_name:
             raise (where / "fmus").error(f"an [[fmus]] table with name = {name!r} (builtin = {builtin!r}): "
                                          f"the cell needs {sorted(needed)}", problem=f"FMU {name!r} missing")
-    variables = {name: type_ for name, (type_, _) in robot_cell.cell_variables().items()}
-    check_cosim_tables(doc, where, master_variables=variables)
+    variables = {name: type_ for name, (type_, _) in wiring.cell_variables().items()}
+    # the scenario's own connections first (their indices are the file's), then the generated ones
+    check_cosim_tables({**doc, "connections": wiring.merged_connections(doc["connections"])}, where,
+                       master_variables=variables)
     for name, builtin in needed.items():
         i, fmu = by_name[name]
         have = set(variables_of(load_model_description(fmu["path"])))  # FMI 3.0: array elements q[1]..
-        want = PLANT_VARIABLES if name == robot_cell.PLANT else DRIVE_VARIABLES
+        want = PLANT_VARIABLES if name == wiring.PLANT else DRIVE_VARIABLES
         if not want <= have:
             raise (where / "fmus")[i].error(f"a {builtin} FMU (variables {sorted(want)})", str(fmu["path"]),
                                             problem=f"instance {name!r} lacks {sorted(want - have)}")
-    for name in robot_cell.DRIVES:
+    for name in wiring.DRIVES:
         i, fmu = by_name[name]
         for key, expected in (job_set_drive_parameters or {}).items():
             if key in fmu["parameters"]:
                 raise ((where / "fmus")[i] / "parameters" / key).error(expected, fmu["parameters"][key],
                                                                        problem="parameter set by the job")
-    plant_i, plant = by_name[robot_cell.PLANT]
+    plant_i, plant = by_name[wiring.PLANT]
     for key in plant["parameters"]:
-        if key.startswith(robot_cell.JOB_SET_PLANT_PARAMETERS):
+        if key.startswith(wiring.JOB_SET_PLANT_PARAMETERS):
             raise (where / "fmus")[plant_i].error(
                 "no q0/qd0/p/payload parameters: the job sets them from [true_robot] and the path start",
                 problem=f"parameter {key!r} is set by the job")
-    given = set(doc["connections"])
-    for text in robot_cell.cell_connections():
-        if text not in given:
-            raise (where / "connections").error(f"the connection {text!r} among the cell's connections "
-                                                f"(cosim.jobs.robot_cell.cell_connections())",
-                                                problem="connection missing")
     try:
         fb = FieldbusConfig.from_dict(doc["fieldbus"], source=str(where.file) if where.file else "<scenario>")
     except FieldbusConfigError as exc:
         raise (where / "fieldbus" / exc.key).error(exc.expected, exc.given) from None
-    check_cell_fieldbus(fb, doc["fieldbus"], where / "fieldbus", len(robot_cell.DRIVES), run_length_s)
+    check_cell_fieldbus(fb, doc["fieldbus"], where / "fieldbus", len(wiring.DRIVES), run_length_s)
     ctrl, base = doc["controller"], doc["simulation"]["macro_step"]
     if abs(fb.cycle_time_s - ctrl["period"]) > 1e-12:
         raise (where / "controller" / "period").error(
@@ -117,6 +114,10 @@ def check_cell(doc: dict[str, Any], where: Where, job_set_drive_parameters: Mapp
                 raise (where / "fmus")[by_name[fmu["name"]][0]].error(
                     f"a step that divides the {table} period {value!r} s (it reads FMU outputs then)", step,
                     problem="FMU step does not divide the period")
+    if doc.get("record") is not None and doc["record"].get("file", "timeseries.csv") != "timeseries.csv":
+        raise (where / "record" / "file").error(
+            "no file name here: a robot-cell job writes one time series per mode (timeseries_<mode>.csv)",
+            doc["record"]["file"], problem="key the job does not use")
     if doc.get("record") is not None and not is_integer_multiple(doc["record"]["period"], base):
         raise (where / "record" / "period").error(f"a positive integer multiple of macro_step = {base!r} s",
                                                   doc["record"]["period"])
