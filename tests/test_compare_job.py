@@ -195,6 +195,6 @@ def test_a_failing_user_controller_is_a_failed_entry_and_the_others_run(tmp_path
     assert rows["Flaky"]["status"] == "failed" and rows["Flaky"]["rank"] is None
     entry = summary["entries"]["Flaky__wave"]
     assert "sensor model diverged" in entry["failure"] and summary["failed_entries"] == ["Flaky__wave"]
-    with open(tmp_path / "out" / "timeseries_Flaky__wave.csv", newline="") as handle:
-        times = [float(r["time"]) for r in csv.DictReader(handle)]
+    columns, data = read_series(tmp_path / "out" / "timeseries_Flaky__wave.parquet")
+    times = data[:, columns.index("time")].tolist()
     assert 0.14 < times[-1] < 0.2

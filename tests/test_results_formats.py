@@ -31,6 +31,7 @@ def test_parquet_sink_streams_with_a_bounded_buffer_readable_while_running(tmp_p
     sink = ParquetSink(path, units={"x": "rad"}, buffer_rows=100, flush_interval_s=3600.0)
     sink.open(["time", "x", "n"], ["Real", "Real", "Integer"])
     assert not path.exists()  # an old run's file is not mistaken for this run's
+    assert read_series(path) == (["time", "x", "n"], pytest.approx(np.zeros((0, 3))))  # columns at once
     data = _rows(1050)
     for start in range(0, 1050, 64):
         sink.write(data[start:start + 64])

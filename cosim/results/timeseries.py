@@ -150,6 +150,10 @@ class ParquetSink:
         self._file = pa.OSFile(str(self.partial), "wb")
         self._stream = pa.ipc.new_stream(self._file, self._schema,
                                          options=pa.ipc.IpcWriteOptions(compression=COMPRESSION))
+        # the schema (column names, units) on disk at once: readable even if the run dies now
+        self._stream.write_batch(pa.RecordBatch.from_arrays([pa.array([], type=f.type) for f in self._schema],
+                                                            schema=self._schema))
+        self._file.flush()
         self._buffer = np.empty((self.buffer_rows, len(columns)))
         self._fill = 0
 
