@@ -419,7 +419,8 @@ class ProxyFmuComponent(FmuComponent):
             except Exception:  # noqa: BLE001
                 pass
         self.slave = None
-        self.process.join(timeout=SHUTDOWN_TIMEOUT_S)
+        if not self._busy:  # a child still inside an interrupted call is killed at once
+            self.process.join(timeout=SHUTDOWN_TIMEOUT_S)
         self._kill()
         try:
             self._conn.close()
