@@ -23,9 +23,13 @@ bus type; docs/robustness.md has the measured figures. FMI 3.0 FMUs run in proce
 from __future__ import annotations
 
 import ctypes
-import multiprocessing
+import multiprocessing.connection
+import os
 import pickle
 import signal
+import socket
+import subprocess
+import sys
 import time
 from ctypes import c_double, c_int, c_void_p
 
@@ -55,6 +59,22 @@ class ChildGone(RuntimeError):
 
 
 # ----------------------------------------------------------------------------------------- child side
+def _ignore_interrupts() -> None:
+    """In the child before it execs Python: SIGINT/SIGTERM ignored (Python keeps an inherited SIG_IGN)."""
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(signum, signal.SIG_IGN)
+
+
+def _child_main() -> None:
+    """Entry point of the child process: ``-c ... FD FMU_PATH NAME LOGGING``."""
+    fd, fmu_path, name, logging_on = sys.argv[1:5]
+    conn = multiprocessing.connection.Connection(int(fd))
+    try:
+        _serve(conn, fmu_path, name, logging_on == "1")
+    finally:
+        conn.close()
+
+
 def _serve(conn, fmu_path: str, name: str, debug_logging: bool) -> None:
     """Child process: instantiate the FMU and answer requests until ``exit`` or the pipe closes."""
     for signum in (signal.SIGINT, signal.SIGTERM):
@@ -201,13 +221,19 @@ class ProxyFmuComponent(FmuComponent):
 
     # ------------------------------------------------------------------ process
     def instantiate(self, stop_at_address: int | None = None) -> None:
-        context = multiprocessing.get_context("spawn")
-        parent, child = context.Pipe(duplex=True)
-        self.process = context.Process(target=_serve, name=f"cosim-fmu-{self.name}", daemon=True,
-                                       args=(child, str(self.path), self.name, self.debug_logging))
-        self.process.start()
-        child.close()
-        self._conn = parent
+        # a plain subprocess over a socket pair, not multiprocessing: a Dask worker (a daemonic
+        # process) may not start multiprocessing children, and the FMU needs none of its machinery
+        parent_socket, child_socket = socket.socketpair()
+        env = dict(os.environ)
+        env["PYTHONPATH"] = os.pathsep.join([p for p in sys.path if p] + [env.get("PYTHONPATH", "")]).rstrip(os.pathsep)
+        try:
+            self.process = subprocess.Popen(
+                [sys.executable, "-c", "from cosim.master.proxy import _child_main; _child_main()",
+                 str(child_socket.fileno()), str(self.path), self.name, "1" if self.debug_logging else "0"],
+                pass_fds=(child_socket.fileno(),), env=env, preexec_fn=_ignore_interrupts, close_fds=True)
+        finally:
+            child_socket.close()
+        self._conn = multiprocessing.connection.Connection(parent_socket.detach())
         reply = self._receive(LIFECYCLE_TIMEOUT_S, "loading and instantiating the FMU", 0.0)
         if reply[0] == "error":
             raise self.error(0.0, reply[1])
@@ -225,8 +251,10 @@ class ProxyFmuComponent(FmuComponent):
 
     def _describe_death(self) -> str:
         process = self.process
-        process.join(timeout=2.0)
-        code = process.exitcode
+        try:
+            code = process.wait(timeout=2.0)
+        except subprocess.TimeoutExpired:
+            code = None
         if code is None:
             return "its process stopped answering"
         if code < 0:
@@ -238,9 +266,12 @@ class ProxyFmuComponent(FmuComponent):
         return f"its process exited with code {code}"
 
     def _kill(self) -> None:
-        if self.process is not None and self.process.is_alive():
+        if self.process is not None and self.process.poll() is None:
             self.process.kill()
-            self.process.join(timeout=5.0)
+            try:
+                self.process.wait(timeout=5.0)
+            except subprocess.TimeoutExpired:  # pragma: no cover - a process that survives SIGKILL
+                pass
 
     def _receive(self, timeout_s: float, what: str, t: float):
         """The next reply (forwarding log messages); ChildGone when the child died or timed out."""
@@ -420,7 +451,10 @@ class ProxyFmuComponent(FmuComponent):
                 pass
         self.slave = None
         if not self._busy:  # a child still inside an interrupted call is killed at once
-            self.process.join(timeout=SHUTDOWN_TIMEOUT_S)
+            try:
+                self.process.wait(timeout=SHUTDOWN_TIMEOUT_S)
+            except subprocess.TimeoutExpired:
+                pass
         self._kill()
         try:
             self._conn.close()
