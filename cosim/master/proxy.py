@@ -3,11 +3,11 @@
 An FMU's native code runs in the master's process by default, so a crash in it (a NULL
 dereference, ``abort()``, ``_exit()``) kills the whole run and a hang in ``fmi2DoStep`` hangs
 it. ``ProxyFmuComponent`` loads the FMU in a child process instead and talks to it over a
-pipe; the master and both engines see the same :class:`~cosim.master.component.FmuComponent`
+socket pair; the master and both engines see the same :class:`~cosim.master.component.FmuComponent`
 interface (its per-step "function pointers" are ctypes callbacks that forward the call):
 
-* fmi2Set* calls are buffered and sent with the next fmi2DoStep (one round trip per step),
-  fmi2Get* is one round trip per bus type;
+* fmi2Set* calls are buffered and sent with the next fmi2DoStep, whose reply carries the
+  outputs the master read after the previous step (one round trip per step);
 * a child that dies (any signal, any exit) or does not answer a step within
   ``step_timeout_s`` (then it is killed) makes the call return fmi2Fatal, and the
   ``SimulationError`` names the component, the simulated time and the signal or timeout;
@@ -17,8 +17,8 @@ interface (its per-step "function pointers" are ctypes callbacks that forward th
 * the FMU's log messages are forwarded as they are logged, so the last ones before a crash
   are kept.
 
-Cost: one pipe round trip (about 20-40 µs on these machines) per step plus one per fmi2Get*
-bus type; docs/robustness.md has the measured figures. FMI 3.0 FMUs run in process only.
+Cost: one socket round trip per step (the outputs come back with the step's reply);
+docs/robustness.md has the measured figures. FMI 3.0 FMUs run in process only.
 """
 from __future__ import annotations
 
