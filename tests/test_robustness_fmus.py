@@ -166,3 +166,21 @@ def test_step_timeout_needs_out_of_process(fmu_dir, tmp_path, capsys):
     code = main(["run", str(path), "--out", str(tmp_path / "o"), "--quiet"])
     err = capsys.readouterr().err
     assert code == 2 and "fmus[1].step_timeout" in err and "out_of_process = true" in err
+
+
+def test_in_process_crash_still_leaves_a_final_status(fmu_dir, tmp_path):
+    """Without isolation a segfault ends the process; the crash guard (cosim/results/crashguard.c)
+    still replaces the running summary with a failed one naming the signal."""
+    path = scenario(fmu_dir, tmp_path, 2, "", stop=2.0)
+    path.write_text(path.read_text().replace("fail_time = 0.5", "fail_time = 1.5"))
+    out = tmp_path / "out"
+    done = subprocess.run([sys.executable, "-m", "cosim", "run", str(path), "--out", str(out), "--quiet"],
+                          env=ENV, capture_output=True, text=True, timeout=120)
+    assert done.returncode == -signal.SIGSEGV
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["status"] == "failed" and summary["signal"] == "SIGSEGV"
+    assert "died from SIGSEGV" in summary["reason"] and "out of process" in summary["reason"]
+    assert 0.0 <= summary["stopped_at_s"] <= 1.5
+    header, _ = read_csv(out / "timeseries.csv")  # readable: rows up to the last flush
+    assert header == ["time", "clock.y", "bad.y", "bad.echo"]
+    assert not (out / "summary.json.tmp").exists()

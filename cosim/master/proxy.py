@@ -29,8 +29,9 @@ import signal
 import time
 from ctypes import c_double, c_int, c_void_p
 
-from cosim.master.component import SET_T, STEP_T, FmuComponent, _unzip_dir
+from cosim.master.component import FmuComponent
 from cosim.master.errors import MasterConfigError, SimulationError
+from fmus.instance import SET_T, STEP_T
 
 #: Default longest wall time one fmi2DoStep (and one Set/Get round trip) may take out of process, s.
 #: A real-time-capable model steps in microseconds to milliseconds; 60 s only catches hangs.
@@ -54,41 +55,32 @@ class ChildGone(RuntimeError):
 
 
 # ----------------------------------------------------------------------------------------- child side
-def _serve(conn, unzip_dir: str, guid: str, model_identifier: str, name: str, debug_logging: bool) -> None:
+def _serve(conn, fmu_path: str, name: str, debug_logging: bool) -> None:
     """Child process: instantiate the FMU and answer requests until ``exit`` or the pipe closes."""
     for signum in (signal.SIGINT, signal.SIGTERM):
         signal.signal(signum, signal.SIG_IGN)
-    from fmpy import calloc, free
-    from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
-                           fmi2CallbackFunctions, fmi2CallbackLoggerTYPE)
-
     from cosim.master.component import status_name
+    from fmus.instance import FmuInstance, FmuInstantiateError
 
-    def logger(env, instance_name, status, category, message) -> None:
-        text = message.decode("utf-8", "replace") if message else ""
-        cat = category.decode("utf-8", "replace") if category else ""
+    def logger(status: int, category: str, text: str) -> None:
         try:
-            conn.send_bytes(b"L" + f"[{status_name(status)}] {cat + ': ' if cat else ''}{text}".encode())
+            conn.send_bytes(b"L" + f"[{status_name(status)}] {category + ': ' if category else ''}{text}".encode())
         except OSError:
             pass
 
     def reply(obj) -> None:
         conn.send_bytes(b"P" + pickle.dumps(obj))
 
-    slave = FMU2Slave(guid=guid, unzipDirectory=unzip_dir, modelIdentifier=model_identifier, instanceName=name)
-    callbacks = fmi2CallbackFunctions()
-    callbacks.logger = fmi2CallbackLoggerTYPE(logger)
-    callbacks.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
-    callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
     try:
-        slave.instantiate(callbacks=callbacks, loggingOn=debug_logging)
-    except Exception as exc:  # noqa: BLE001 - reported to the parent
-        reply(("error", f"fmi2Instantiate failed: {exc}", getattr(exc, "status", _ERROR)))
+        instance = FmuInstance(fmu_path, name, logger, logging_on=debug_logging)
+    except (FmuInstantiateError, OSError, ValueError) as exc:
+        reply(("error", str(exc), getattr(exc, "status", _ERROR)))
         return
-    dll, handle = slave.dll, slave.component
-    set_fn = [getattr(dll, f"fmi2Set{t}") for t in _TYPE_NAME]
-    get_fn = [getattr(dll, f"fmi2Get{t}") for t in _TYPE_NAME]
-    do_step = dll.fmi2DoStep
+    slave = instance.slave
+    handle = instance.component
+    set_fn = [instance.raw(f"Set{t}") for t in _TYPE_NAME]
+    get_fn = [instance.raw(f"Get{t}") for t in _TYPE_NAME]
+    do_step = instance.raw("DoStep")
     reply(("ready",))
     while True:
         try:
@@ -209,12 +201,10 @@ class ProxyFmuComponent(FmuComponent):
 
     # ------------------------------------------------------------------ process
     def instantiate(self, stop_at_address: int | None = None) -> None:
-        md = self.model_description
         context = multiprocessing.get_context("spawn")
         parent, child = context.Pipe(duplex=True)
         self.process = context.Process(target=_serve, name=f"cosim-fmu-{self.name}", daemon=True,
-                                       args=(child, _unzip_dir(self.path), md.guid,
-                                             md.coSimulation.modelIdentifier, self.name, self.debug_logging))
+                                       args=(child, str(self.path), self.name, self.debug_logging))
         self.process.start()
         child.close()
         self._conn = parent

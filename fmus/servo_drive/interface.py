@@ -50,8 +50,11 @@ class DriveVariable:
 
 DRIVE_INTERFACE: tuple[DriveVariable, ...] = (
     # required
-    DriveVariable("q_meas", REAL, INPUT, "rad", True, "measured joint angle, from the plant"),
-    DriveVariable("qd_meas", REAL, INPUT, "rad/s", True, "measured joint speed, from the plant"),
+    DriveVariable("q_meas", REAL, INPUT, "rad", True,
+                  "measured angle: the motor angle over the gear ratio, from the plant (q_motor; the joint angle "
+                  "of a rigid arm)"),
+    DriveVariable("qd_meas", REAL, INPUT, "rad/s", True,
+                  "measured speed: the motor speed over the gear ratio, from the plant (qd_motor)"),
     DriveVariable("controlword", INTEGER, INPUT, None, True, "CiA 402 0x6040 controlword, from the fieldbus"),
     DriveVariable("target_position", REAL, INPUT, "rad", True,
                   "CiA 402 0x607A target position (cyclic synchronous position, mode 8)"),
