@@ -197,3 +197,20 @@ def test_a_failing_user_controller_is_a_failed_entry_and_the_others_run(tmp_path
     with open(tmp_path / "out" / "timeseries_Flaky__wave.csv", newline="") as handle:
         times = [float(r["time"]) for r in csv.DictReader(handle)]
     assert 0.14 < times[-1] < 0.2
+
+
+def test_split_execution_gives_the_in_process_numbers(tmp_path):
+    """cosim run --split: controller and drives in two processes over UDP; same table as in process."""
+    import json
+
+    from cosim.cli import main
+
+    _joint_csv(tmp_path / "wave.csv")
+    path = _compare_toml(tmp_path, '["model_based"]', '["wave.csv"]', [("figures = true", "figures = false")])
+    tables = []
+    for extra in ([], ["--split"]):
+        out = tmp_path / ("split" if extra else "in_process")
+        assert main(["run", str(path), "--out", str(out), "--quiet", *extra]) == 0
+        tables.append(json.loads((out / "summary.json").read_text())["table"])
+    assert tables[0][0]["status"] == tables[1][0]["status"] == "ok"
+    assert tables[1][0]["tcp_error_max_mm"] == tables[0][0]["tcp_error_max_mm"]
