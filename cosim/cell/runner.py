@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import contextlib
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
@@ -126,10 +126,11 @@ def add_cell_tasks(master: Master, network: Any, controller: CellController, per
     return master.add_recorder(signals, record_period_s, sink, name="cell"), link
 
 
-def build_cell_master(cell: CellDescription) -> Master:
-    """The master of ``cell``: its FMUs with their start values, the cell's master variables
-    (``bus.*``, ``tracker.*``) and its connections (not initialized, no tasks yet)."""
-    return build_master(cell.master_document(), master_variables=cell_variables())
+def build_cell_master(document: Mapping[str, Any]) -> Master:
+    """The master of a cell (``CellDescription.master_document()``, also in the split run's drive
+    process): its FMUs with their start values, the cell's master variables (``bus.*``,
+    ``tracker.*``) and its connections (not initialized, no tasks yet)."""
+    return build_master(dict(document), master_variables=cell_variables())
 
 
 def run_cell(cell: CellDescription, controller: CellController, ctx: RunContext, *, mode: str | None = None,
@@ -175,7 +176,7 @@ def _run_on_master(cell: CellDescription, controller: CellController, ctx: RunCo
         fb_config = deferred_recording(fb_config)
     period, stop_time = cell.period_s, cell.stop_time_s
     laser = LaserTracker(cell.true_robot.kinematic_model(), cell.tracker)
-    master = build_cell_master(cell)
+    master = build_cell_master(cell.master_document())
     memory = MemorySink()
     engine = ""
     granted = "normal"
