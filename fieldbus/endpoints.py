@@ -341,11 +341,15 @@ class ManagingNodeEndpoint(_Endpoint):
         for msg in batch:
             base, node = msg.arbitration_id & ~0x7F, msg.arbitration_id & 0x7F
             if base in (TPDO1_BASE, TPDO2_BASE) and 1 <= node <= n and times[n + node] is not None:
-                msg.timestamp = times[n + node]  # the cell judged their timing; keep them in time here
+                msg.timestamp = times[n + node]  # the cell judged their timing
             else:
                 msg.timestamp = times[0]
         node = self.node
         node.start_cycle(cycle)
+        latest = node._latest
+        for i in range(n):  # every PRes that came is in time here: the cell keeps the time
+            if times[n + 1 + i] is not None:
+                latest[i] = times[n + 1 + i]
         if self._record is not None:
             self._record(batch)
         node.receive_all(batch)
