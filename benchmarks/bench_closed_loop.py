@@ -7,8 +7,8 @@ Target (issue 5): at least 3x faster than real time on one core (median of 5 run
 
 Each run builds the cell of ``scenarios/iso9283.toml`` (true robot, macro step, plant
 parameters, drive gains and the mode's drive speed feed-forward, fieldbus defaults)
-exactly as ``python -m cosim run`` does (``cosim.jobs.iso9283.prepare``, ``mode_controller``
-as ``run_mode`` uses it, ``cosim.jobs.robot_cell.run_cell``), with ``stop_time`` = 2 s, into a
+exactly as ``python -m cosim run`` does (``cosim.cell.mode_runs.prepare`` and ``mode_cell``
+as ``run_mode`` uses them, ``cosim.cell.run_cell``), with ``stop_time`` = 2 s, into a
 temporary results folder; the CAN log is off unless ``--can-log`` (its BLF encoding is
 file output, not loop work), and the time-series CSV is written after the loop.
 
@@ -49,32 +49,32 @@ TARGET_REALTIME = 3.0
 TARGET_P99_US = 100.0
 
 
-def build(sim_time: float, mode: str):
-    """Scenario, cell document, controller, true robot, fieldbus and tracker config of one
-    run: ``cosim.jobs.iso9283.prepare`` and ``mode_controller`` (as ``run_mode``)."""
-    from cosim.jobs import iso9283
+def build(sim_time: float, mode: str, can_log: Path | None = None):
+    """Scenario, cell description and built-in controller of one run:
+    ``cosim.cell.mode_runs.prepare`` and ``mode_cell`` (as ``run_mode``)."""
+    import dataclasses
+
+    from cosim.cell.mode_runs import mode_cell, prepare
     from cosim.scenario import load_scenario
 
     scenario = load_scenario(ROOT / "scenarios" / "iso9283.toml")
     doc = scenario.data
     doc["simulation"]["stop_time"] = sim_time
     doc["controller"]["modes"] = [mode]
-    setup = iso9283.prepare(doc, str(scenario.path))
-    mode_doc, controller = iso9283.mode_controller(setup, mode)
-    return scenario, mode_doc, controller, setup.true_robot, setup.fieldbus, setup.tracker
+    setup = prepare(doc, str(scenario.path))
+    cell, controller = mode_cell(setup, mode)
+    return scenario, dataclasses.replace(cell, can_log=can_log), controller
 
 
 def one_run(sim_time: float, mode: str, can_log: bool, out_dir: Path) -> dict[str, float]:
     """One closed-loop run; real-time factors, controller timing, load average."""
-    from cosim.jobs import robot_cell
+    from cosim.cell import run_cell
     from cosim.scenario import RunContext
 
-    scenario, doc, controller, true_robot, fb, tracker = build(sim_time, mode)
+    scenario, cell, controller = build(sim_time, mode, out_dir / "can.blf" if can_log else None)
     ctx = RunContext(scenario, out_dir, quiet=True)
     load_before = os.getloadavg()[0]
-    cell = robot_cell.run_cell(doc, controller, true_robot, ctx, label=mode, stop_time=sim_time, fieldbus=fb,
-                               tracker=tracker, record_file="timeseries.csv",
-                               can_log=out_dir / "can.blf" if can_log else None)
+    cell = run_cell(cell, controller, ctx, mode="in_process")
     load_after = os.getloadavg()[0]
     if cell.failure is not None:
         raise cell.failure

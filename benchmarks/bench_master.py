@@ -11,6 +11,8 @@ Ways to step the same thing (same FMUs, same connections, same task):
   fast_fmu     hand-written loop over fmus.fast_fmu.FastFmu2Slave (prepared ctypes arrays)
   master_py    cosim.master.Master, Python engine (ctypes call per FMI function)
   master_c     cosim.master.Master, compiled kernel (one ctypes call per stretch of steps)
+  master_c3    the same with the FMI 3.0 builds of the plant and drives (build/fmus/fmi3/),
+               stepped by the kernel through the master's FMI 3.0 adapter (fmi3_adapter.c)
 "FMU compute" is the wall time spent inside the FMUs' fmi2DoStep, timed by the kernel
 (clock_gettime around each call) during the master_c runs; "overhead" = a way's wall
 time minus that compute, per FMU and macro step: what the loop around the FMUs (I/O
@@ -198,11 +200,13 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=5, help="runs per case (median reported)")
     args = parser.parse_args()
     paths = ensure_fmus()
+    paths3 = ensure_fmus(fmi=3)
     cases = {
         "fmpy_api": lambda p, h, s: (run_fmpy_api(p, h, s), None),
         "fast_fmu": lambda p, h, s: (run_fast_fmu(p, h, s), None),
         "master_py": lambda p, h, s: run_master(p, h, s, "python"),
         "master_c": lambda p, h, s: run_master(p, h, s, "native"),
+        "master_c3": lambda p, h, s: run_master(paths3, h, s, "native"),
     }
     print(f"plant + 6 drives, 18 FMU-FMU connections + 18 task->drive, 400 us task; "
           f"{args.sim_time} s simulated, median of {args.repeats} (ways interleaved)")

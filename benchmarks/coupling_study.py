@@ -3,8 +3,8 @@
     MPLBACKEND=Agg python benchmarks/coupling_study.py [--duration 0.6] [--figures docs/figures]
 
 Prints (1) the coupling-error table: plant + six drive FMUs co-simulated (Jacobi and
-Gauss-Seidel, drives first) at macro steps of 400/200/100/50 us against the monolithic
-reference (fmus.coupling), (2) tracking
+Gauss-Seidel, drives first) on the master the jobs use (cosim.coupling_study) at macro
+steps of 400/200/100/50 us against the monolithic reference (fmus.coupling), (2) tracking
 errors of the full arm with and without the model-based torque feed-forward and
 without the drives' speed feed-forward, and writes the step/ramp figures.
 """
@@ -16,8 +16,8 @@ from pathlib import Path
 import numpy as np
 
 from fmus.build import ensure_fmus
-from fmus.coupling import controller_commands, cosimulate, coupling_errors, desired_motion, \
-    monolithic_reference
+from cosim.coupling_study import cosimulate
+from fmus.coupling import controller_commands, coupling_errors, desired_motion, monolithic_reference
 from fmus.servo_drive.axis_bench import simulate_axis, step_metrics
 from fmus.servo_drive.params import drive_start_values, load_drive_parameters
 

@@ -135,16 +135,14 @@ def closed_loop_split(sizes: Sizes, work: Path) -> dict[str, Any]:
 
     from cosim.realtime.config import ExecutionOptions
     from cosim.scenario import RunContext
-    from cosim.split.cell import run_split_cell
+    from cosim.cell import run_cell
 
     rtf, startup = [], []
     for k in range(sizes.repeats):
-        scenario, doc, controller, true_robot, fb, tracker = bench_closed_loop.build(sizes.split_sim_s, "model_based")
+        scenario, cell, controller = bench_closed_loop.build(sizes.split_sim_s, "model_based")
         ctx = RunContext(scenario, work / f"split{k}", quiet=True)
-        cell, _, _, info = run_split_cell(doc, controller, true_robot, ctx, label="split",
-                                          stop_time=sizes.split_sim_s, fieldbus=fb, tracker=tracker,
-                                          record_file="timeseries.csv", can_log=None,
-                                          options=ExecutionOptions(mode="split"))
+        cell = run_cell(cell, controller, ctx, mode="split", options=ExecutionOptions(mode="split"))
+        info = cell.split
         if cell.failure is not None:
             raise cell.failure
         rtf.append(info["loop_realtime_factor"])
@@ -158,20 +156,19 @@ def paced(sizes: Sizes, work: Path) -> dict[str, Any]:
     medians over runs of the overrun fraction and the lateness p99, and every run's figures."""
     import bench_closed_loop
 
-    from cosim.realtime.cell import run_paced_cell
-    from cosim.realtime.config import RealtimeSettings
+    from cosim.cell import run_cell
+    from cosim.realtime.config import ExecutionOptions, RealtimeSettings
     from cosim.realtime.stats import lateness_summary, load_average
     from cosim.scenario import RunContext
 
     runs = []
     for k in range(sizes.repeats):
-        scenario, doc, controller, true_robot, fb, tracker = bench_closed_loop.build(sizes.paced_sim_s, "model_based")
+        scenario, cell, controller = bench_closed_loop.build(sizes.paced_sim_s, "model_based")
         ctx = RunContext(scenario, work / f"paced{k}", quiet=True)
         load = load_average()
-        cell, pacer, granted = run_paced_cell(doc, controller, true_robot, ctx, label="paced",
-                                              stop_time=sizes.paced_sim_s, fieldbus=fb, tracker=tracker,
-                                              record_file="timeseries.csv", can_log=None,
-                                              settings=RealtimeSettings())
+        cell = run_cell(cell, controller, ctx, mode="paced",
+                        options=ExecutionOptions(realtime=True, settings=RealtimeSettings()))
+        pacer, granted = cell.pacer, cell.scheduling
         s = lateness_summary(pacer.log, pacer.thresholds)
         runs.append({"cycles": s["cycles"], "overruns": s["overruns"], "overrun_fraction": s["overrun_fraction"],
                      "late_fraction": s["late_fraction"], "thresholds_us": s["thresholds_us"],

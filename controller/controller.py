@@ -75,7 +75,7 @@ from robot.dynamics import RobotDynamics
 from robot.inverse_kinematics import LIMIT_TOLERANCE, NumericIK
 
 N_JOINTS = 6
-MODES: tuple[str, ...] = ("standard", "model_based")
+MODES: tuple[str, ...] = ("standard", "model_based", "model_based_elastic")
 _STOP_STATES = {DriveState.FAULT: "Fault", DriveState.FAULT_REACTION_ACTIVE: "Fault reaction active",
                 DriveState.QUICK_STOP_ACTIVE: "Quick stop active"}
 
@@ -98,7 +98,9 @@ class Phase(IntEnum):
 class ControllerConfig:
     """Controller settings (SI units).
 
-    mode: ``"standard"`` (set-points only) or ``"model_based"`` (plus eq. 7 feed-forward).
+    mode: ``"standard"`` (set-points only), ``"model_based"`` (plus eq. 7 feed-forward) or
+        ``"model_based_elastic"`` (flatness-based feed-forward for elastic gears: use
+        :class:`controller.elastic.ElasticController`, or :func:`controller.elastic.make_controller`).
     period_s: cycle time T, s (paper: 400 µs).
     lead_cycles: cycles from computing a set-point to the drive applying it
         (1 + the fieldbus ``dead_time_cycles``).
@@ -278,6 +280,9 @@ class Controller:
         from robot.description import load_model
 
         self.config = config or ControllerConfig()
+        if self.config.mode == "model_based_elastic" and not hasattr(type(self), "_elastic_mode"):
+            raise ControllerConfigError("controller mode 'model_based_elastic': build it with "
+                                        "controller.elastic.ElasticController (or controller.elastic.make_controller)")
         if not isinstance(reference, (TcpTrajectory, JointTrajectory)):
             raise ControllerConfigError(
                 f"reference: expected a controller.reference.TcpTrajectory or JointTrajectory, "

@@ -13,11 +13,16 @@ pinocchio Data, friction coefficients as plain floats, a reused output array.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
+import casadi as ca
 import numpy as np
 import pinocchio as pin
+from numpy.typing import ArrayLike
 
-from robot.dynamics import COULOMB_SLICE, VISCOUS_SLICE, RobotDynamics
+from robot.dynamics import COULOMB_SLICE, ROTOR_INERTIA_SLICE, VISCOUS_SLICE, RobotDynamics
+from robot.parameters import RobotParameters, load_parameters
+from robot.symbolic import ChainStructure, chain_structure, inverse_dynamics_expression
 
 N_JOINTS = 6
 
@@ -45,3 +50,157 @@ class FeedForward:
             friction[i] = fv[i] * v + fc[i] * math.tanh(v * inv_vs)
         np.add(rigid, friction, out=self.tau)
         return self.tau
+
+
+# ----------------------------------------------------------------------------------
+# Elastic joints: flatness-based feed-forward (mode model_based_elastic)
+# ----------------------------------------------------------------------------------
+#
+# The plant's flexible-joint model (fmus/rx130l_plant, docs/fmus.md), per axis, joint side:
+#     link:   tau_g = M(q) qdd + c(q, qd) + g(q) + f_l(qd)          (link side, no rotor)
+#     gear:   tau_g = k d + k3 d^3 + c_g dd/dt,   d = q_m - q
+#     motor:  tau_m = Ia qdd_m + f_m(qd_m) + tau_g
+# The link angle q is a flat output: from q and its derivatives up to the 4th follow
+# tau_g, its first two time derivatives, the deflection d and its derivatives, the motor
+# reference q_m = q + d (with qd_m, qdd_m) and the motor torque tau_m
+# (De Luca, "Feedforward/feedback laws for the control of flexible robots", IEEE ICRA
+# 2000; Thuemmel, Otter, Franke, "Nonlinear inverse models for control", Modelica 2005).
+
+
+@dataclass(frozen=True)
+class GearModel:
+    """The controller's model of the gears (arrays (6,), joint side, SI): stiffness k
+    (N m/rad), stiffening k3 (N m/rad^3), damping c_g (N m s/rad), the fraction of the
+    viscous/Coulomb friction on the motor side, Stribeck torque (N m) and velocity
+    (rad/s), Coulomb smoothing velocity (rad/s). Backlash is not inverted."""
+
+    stiffness: np.ndarray
+    stiffness_cubic: np.ndarray
+    damping: np.ndarray
+    motor_friction_share: np.ndarray
+    stribeck_torque: np.ndarray
+    stribeck_velocity: np.ndarray
+    coulomb_smoothing_velocity: float
+
+    @classmethod
+    def from_parameters(cls, parameters: RobotParameters | None = None) -> "GearModel":
+        """The ``[elastic]`` table of the parameter file (default: the nominal one)."""
+        p = parameters or load_parameters()
+        return cls(np.array(p.stiffness), np.array(p.stiffness_cubic), np.array(p.gear_damping),
+                   np.array(p.motor_friction_share), np.array(p.stribeck_torque), np.array(p.stribeck_velocity),
+                   float(p.coulomb_smoothing_velocity))
+
+
+@dataclass(frozen=True)
+class ElasticReference:
+    """Motor-side reference of an elastic arm (arrays (n, 6) or (6,)): angle q_m, speed
+    qd_m, acceleration qdd_m (rad, rad/s, rad/s^2; motor angle / gear ratio), motor torque
+    tau_m (N m, joint side: what the drive must deliver), gear torque tau_g (N m) and
+    deflection d = q_m - q (rad)."""
+
+    q: np.ndarray
+    qd: np.ndarray
+    qdd: np.ndarray
+    torque: np.ndarray
+    gear_torque: np.ndarray
+    deflection: np.ndarray
+
+
+_LINK_TORQUE_FUNCTIONS: dict[bytes, ca.Function] = {}
+
+
+def _link_torque_function(structure: ChainStructure) -> ca.Function:
+    """The cached :func:`_build_link_torque_function` of a kinematic structure."""
+    key = np.concatenate([np.ravel(a) for a in (*structure.rotations, *structure.translations, *structure.axes,
+                                               structure.parents, structure.gravity,
+                                               [structure.coulomb_smoothing_velocity])]).tobytes()
+    if key not in _LINK_TORQUE_FUNCTIONS:
+        _LINK_TORQUE_FUNCTIONS[key] = _build_link_torque_function(structure)
+    return _LINK_TORQUE_FUNCTIONS[key]
+
+
+def _build_link_torque_function(structure: ChainStructure) -> ca.Function:
+    """CasADi function (q, qd, qdd, qddd, qdddd, p[78], payload[4], fv_l[6], fc_l[6]) ->
+    (tau_g, dtau_g/dt, d2tau_g/dt2): the link-side torque along the motion whose Taylor
+    coefficients at t are the given derivatives, differentiated exactly (forward AD in t)."""
+    q, qd, qdd, q3, q4, fv, fc = (ca.SX.sym(n, N_JOINTS) for n in ("q", "qd", "qdd", "qddd", "qdddd", "fv_l", "fc_l"))
+    p = ca.SX.sym("p", 78)
+    payload = ca.SX.sym("payload", 4)
+    t = ca.SX.sym("t")
+    q_t = q + qd * t + qdd * t ** 2 / 2 + q3 * t ** 3 / 6 + q4 * t ** 4 / 24
+    qd_t = qd + qdd * t + q3 * t ** 2 / 2 + q4 * t ** 3 / 6
+    qdd_t = qdd + q3 * t + q4 * t ** 2 / 2
+    rigid = inverse_dynamics_expression(structure, [q_t[i] for i in range(N_JOINTS)],
+                                        [qd_t[i] for i in range(N_JOINTS)], [qdd_t[i] for i in range(N_JOINTS)],
+                                        [p[i] for i in range(78)], [payload[i] for i in range(4)],
+                                        include_friction=False, include_rotor=False)
+    vs = structure.coulomb_smoothing_velocity
+    tau = ca.vertcat(*rigid) + fv * qd_t + fc * ca.tanh(qd_t / vs)
+    tau_d = ca.jacobian(tau, t)
+    tau_dd = ca.jacobian(tau_d, t)
+    outputs = [ca.substitute(e, t, 0.0) for e in (tau, tau_d, tau_dd)]
+    return ca.Function("elastic_link_torque", [q, qd, qdd, q3, q4, p, payload, fv, fc], outputs,
+                       ["q", "qd", "qdd", "qddd", "qdddd", "p", "payload", "fv_l", "fc_l"],
+                       ["tau_g", "tau_g_d", "tau_g_dd"], {"cse": True})
+
+
+def link_torque_derivatives(dynamics: RobotDynamics, gear: GearModel, q: ArrayLike, qd: ArrayLike,
+                            qdd: ArrayLike, qddd: ArrayLike, qdddd: ArrayLike
+                            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Gear torque the links need and its first two time derivatives (each (n, 6), N m,
+    N m/s, N m/s^2) along a joint motion given by its derivatives up to the 4th (each
+    (n, 6) or (6,)): the rigid links of ``dynamics`` (no rotor inertia) plus the link-side
+    share of its friction."""
+    structure = chain_structure(dynamics.model)
+    function = _link_torque_function(structure)
+    p = dynamics.parameter_vector()
+    share = gear.motor_friction_share
+    fv_l, fc_l = (1.0 - share) * p[VISCOUS_SLICE], (1.0 - share) * p[COULOMB_SLICE]
+    args = [np.atleast_2d(np.asarray(a, dtype=float)) for a in (q, qd, qdd, qddd, qdddd)]
+    n = args[0].shape[0]
+    mapped = function.map(n)
+    out = mapped(*(a.T for a in args), p, np.asarray(dynamics.payload, dtype=float), fv_l, fc_l)
+    return tuple(np.array(o).T for o in out)
+
+
+def gear_deflection(gear: GearModel, tau_g: np.ndarray, tau_g_d: np.ndarray, tau_g_dd: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Deflection d (rad) and its first two derivatives with k d + k3 d^3 + c_g dd/dt = tau_g:
+    the spring part solved by Newton (exact for k3 = 0), the damper to first order in
+    c_g / k (the gear's time constant, ~1 ms)."""
+    k, k3, c = gear.stiffness, gear.stiffness_cubic, gear.damping
+    d0 = tau_g / k
+    for _ in range(50):
+        step = (k * d0 + k3 * d0 ** 3 - tau_g) / (k + 3 * k3 * d0 ** 2)
+        d0 = d0 - step
+        if np.all(np.abs(step) <= 1e-15 * (1.0 + np.abs(d0))):
+            break
+    k_eff = k + 3 * k3 * d0 ** 2
+    d0_d = tau_g_d / k_eff
+    d0_dd = (tau_g_dd - 6 * k3 * d0 * d0_d ** 2) / k_eff
+    return d0 - c * d0_d / k_eff, d0_d - c * d0_dd / k_eff, d0_dd
+
+
+def motor_friction(dynamics: RobotDynamics, gear: GearModel, v: np.ndarray) -> np.ndarray:
+    """Motor-side friction (N m, joint side) at motor speed v (rad/s, joint units): the
+    motor share of viscous + Coulomb plus the Stribeck term."""
+    p = dynamics.parameter_vector()
+    smooth = np.tanh(v / gear.coulomb_smoothing_velocity)
+    return (gear.motor_friction_share * (p[VISCOUS_SLICE] * v + p[COULOMB_SLICE] * smooth)
+            + gear.stribeck_torque * np.exp(-(v / gear.stribeck_velocity) ** 2) * smooth)
+
+
+def elastic_feedforward(dynamics: RobotDynamics, gear: GearModel, q: ArrayLike, qd: ArrayLike, qdd: ArrayLike,
+                        qddd: ArrayLike, qdddd: ArrayLike) -> ElasticReference:
+    """The motor reference and motor torque that make the links of an elastic arm follow
+    ``q`` (derivatives up to the 4th, each (n, 6) or (6,)): flatness-based inversion of the
+    flexible-joint model with the link dynamics of ``dynamics`` (rotor inertia
+    ``Ia = p[60:66]`` on the motor side) and the gears of ``gear``."""
+    tau_g, tau_g_d, tau_g_dd = link_torque_derivatives(dynamics, gear, q, qd, qdd, qddd, qdddd)
+    d, d_d, d_dd = gear_deflection(gear, tau_g, tau_g_d, tau_g_dd)
+    q_m = np.atleast_2d(q) + d
+    qd_m = np.atleast_2d(qd) + d_d
+    qdd_m = np.atleast_2d(qdd) + d_dd
+    ia = dynamics.parameter_vector()[ROTOR_INERTIA_SLICE]
+    torque = ia * qdd_m + motor_friction(dynamics, gear, qd_m) + tau_g
+    return ElasticReference(q_m, qd_m, qdd_m, torque, tau_g, d)

@@ -15,12 +15,14 @@ and copied: a few µs.
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import fields
 
 import numpy as np
 
 from controller.contract import (MODE_CSP, MODES_OF_OPERATION, OUTPUT_INTEGER, OUTPUT_REAL, CellController,
                                  ControllerInfo, ControllerInput, ControllerOutput)
+from controller.cycle_timer import CycleTimer, TimingSummary
 from fieldbus import ObservedActuals, Setpoints
 
 # fieldbus.Setpoints field that carries each output field (first name present wins)
@@ -91,10 +93,14 @@ class ControllerPort:
         self._uncarried = [name for name, c in self._carriers.items() if c is None]
         self._closed = False
         self.close_error: str | None = None
+        # a user's controller is timed here (the built-in one times its own work)
+        self.timer: CycleTimer | None = None if self._alias_out is not None else CycleTimer(100e-6)
 
     # ------------------------------------------------------------------ lifecycle
     def setup(self, info: ControllerInfo) -> None:
         """``controller.setup(info)``; a failure is a :class:`ControllerFailure` at t = 0."""
+        if self.timer is not None:
+            self.timer = CycleTimer(info.compute_budget_s)
         try:
             self.controller.setup(info)
         except Exception as exc:  # noqa: BLE001 - a user's code: report, do not crash
@@ -142,13 +148,27 @@ class ControllerPort:
         inp.time_s = t
         inp.previous_output_late = late
         inp.previous_output_lost = lost
+        timer = self.timer
+        if timer is None:
+            try:
+                out = self.controller.step(inp)
+            except Exception as exc:  # noqa: BLE001 - stop the run cleanly
+                raise ControllerFailure(t, cycle, f"{self.name}.step() raised {type(exc).__name__}: {exc}") from exc
+            if out is self._alias_out:
+                return self._alias_sp
+            return self._convert(out, cycle, t)
+        started, cpu_started = time.perf_counter_ns(), time.thread_time_ns()
         try:
             out = self.controller.step(inp)
         except Exception as exc:  # noqa: BLE001 - a user's code: stop the run cleanly
             raise ControllerFailure(t, cycle, f"{self.name}.step() raised {type(exc).__name__}: {exc}") from exc
-        if out is self._alias_out and out is not None:
-            return self._alias_sp
+        timer.record(time.perf_counter_ns() - started, time.thread_time_ns() - cpu_started)
         return self._convert(out, cycle, t)
+
+    def timing(self) -> TimingSummary | None:
+        """Compute time of a user controller's ``step`` per cycle (None for the built-in controller,
+        which times its own work: ``Controller.timing()``)."""
+        return self.timer.summary() if self.timer is not None else None
 
     def _convert(self, out: ControllerOutput, cycle: int, t: float) -> Setpoints:
         """Check ``out`` and copy it into :attr:`setpoints`."""

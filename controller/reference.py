@@ -299,3 +299,21 @@ class JointTrajectory:
         q, qd, qdd = quintic_hermite(self.q[k], self.qd[k], self.qdd[k], self.q[k + 1], self.qd[k + 1], self.qdd[k + 1],
                                h, tau / h)
         return JointSample(q, qd, qdd)
+
+
+def higher_derivatives(qdd: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """Jerk and snap (each (n, 6); rad/s^3, rad/s^4) of a joint motion from its exact
+    accelerations ``qdd`` (n, 6) on a uniform grid of step ``dt`` (s): second-order central
+    differences inside, one-sided at the ends (where rest-to-rest references are at rest).
+    Error O(dt^2) times the 5th / 6th derivative; where the acceleration has a kink (e.g.
+    the start of a sin^2 ramp) the snap is spread over one grid step."""
+    qdd = np.asarray(qdd, dtype=float)
+    if qdd.ndim != 2 or qdd.shape[0] < 3:
+        raise ReferenceError(f"higher_derivatives: qdd has shape {qdd.shape}, expected (n >= 3, joints)")
+    if not (math.isfinite(dt) and dt > 0):
+        raise ReferenceError(f"higher_derivatives: dt = {dt!r}, expected a grid step > 0 s")
+    jerk = np.gradient(qdd, dt, axis=0, edge_order=2)
+    snap = np.empty_like(qdd)
+    snap[1:-1] = (qdd[2:] - 2.0 * qdd[1:-1] + qdd[:-2]) / (dt * dt)
+    snap[0], snap[-1] = snap[1], snap[-2]
+    return jerk, snap

@@ -13,8 +13,8 @@ from __future__ import annotations
 from typing import Any
 
 #: Names re-exported from cosim.api.
-_API_NAMES = ("RunFailed", "RunResult", "Scenario", "ScenarioError", "Summary", "TimeSeries", "build_sweep",
-              "load_scenario", "load_sweep", "read_timeseries", "run", "run_sweep")
+_API_NAMES = ("OutputFolderError", "RunFailed", "RunResult", "Scenario", "ScenarioError", "Summary", "TimeSeries",
+              "build_sweep", "execute", "load_scenario", "load_sweep", "read_timeseries", "run", "run_sweep")
 
 __all__ = list(_API_NAMES)
 

@@ -60,6 +60,14 @@ FIGURE_SUFFIXES = (".png", ".svg", ".pdf")
 CAN_LOG_SUFFIXES = (".blf", ".asc", ".trc", ".mf4")
 
 
+def __getattr__(name: str) -> Any:
+    if name == "OutputFolderError":   # cosim.results.outdir (imported on use)
+        from cosim.results.outdir import OutputFolderError
+
+        return OutputFolderError
+    raise AttributeError(f"module 'cosim.api' has no attribute {name!r}")
+
+
 class RunFailed(RuntimeError):
     """A run started and ended with status ``failed``.
 
@@ -117,7 +125,7 @@ class Scenario:
 
     @property
     def path(self) -> Path | None:
-        return self._validated.path
+        return None if _is_label(self.source) else self._validated.path
 
     @property
     def document(self) -> dict[str, Any]:
@@ -185,18 +193,24 @@ def _show(value: Any) -> str:
     return repr(value)
 
 
+def _is_label(text: str) -> bool:
+    return text.startswith("<") and text.endswith(">")
+
+
 def _is_toml_text(text: str) -> bool:
     return "\n" in text or ("=" in text and "[" in text)
 
 
 def load_scenario(scenario: "str | Path | Mapping[str, Any] | Scenario",
-                  overrides: Mapping[str, Any] | None = None) -> Scenario:
+                  overrides: Mapping[str, Any] | None = None, *, base_dir: str | Path | None = None) -> Scenario:
     """Read and validate a scenario (nothing runs, nothing is written).
 
     Args:
         scenario: a path to a TOML file, a TOML text (a string with a newline), a dict (the parsed
             document; file paths in it relative to the working directory) or a :class:`Scenario`.
         overrides: ``{"key.path": value}`` set in the document before validation (sweep-axis syntax).
+        base_dir: the folder relative file paths of a dict or TOML text are relative to (default:
+            the working directory).
 
     Raises:
         ScenarioError: the file is missing or not TOML, the document is invalid for its job, an
@@ -209,7 +223,7 @@ def load_scenario(scenario: "str | Path | Mapping[str, Any] | Scenario",
     if isinstance(scenario, Scenario):
         return scenario.with_overrides(overrides) if overrides else scenario
     if isinstance(scenario, Mapping):
-        validated = _validate_labelled(dict(scenario), DICT_LABEL)
+        validated = _validate_labelled(dict(scenario), DICT_LABEL, base_dir)
         source = DICT_LABEL
     elif isinstance(scenario, str) and _is_toml_text(scenario):
         import tomllib
@@ -218,7 +232,7 @@ def load_scenario(scenario: "str | Path | Mapping[str, Any] | Scenario",
             document = tomllib.loads(scenario)
         except tomllib.TOMLDecodeError as exc:
             raise ScenarioError(STRING_LABEL, "", "valid TOML", problem=str(exc)) from None
-        validated = _validate_labelled(document, STRING_LABEL)
+        validated = _validate_labelled(document, STRING_LABEL, base_dir)
         source = STRING_LABEL
     elif isinstance(scenario, (str, Path)):
         path = Path(scenario)
@@ -235,18 +249,22 @@ def _relabel(exc: ScenarioError, label: str) -> ScenarioError:
                          problem=exc.problem)
 
 
-def _validate_labelled(document: dict[str, Any], label: str) -> "ValidatedScenario":
-    """Validate a document that is no file; errors name ``label`` as their file."""
+def _validate_labelled(document: dict[str, Any], label: str, base_dir: str | Path | None = None
+                       ) -> "ValidatedScenario":
+    """Validate a document that is no file; errors name ``label`` as their file; relative paths are
+    relative to ``base_dir`` (default: the working directory)."""
     from cosim.scenario.loader import load_document
 
     if not isinstance(document.get("scenario"), dict) or "job" not in document["scenario"]:
         raise ScenarioError(label, "scenario.job" if isinstance(document.get("scenario"), dict) else "scenario",
                             "a [scenario] table with name and job (one of the registered job types: "
                             f"{', '.join(_job_names())})", problem="missing required key")
+    # a path that is no file anchors relative paths in base_dir; errors name the label
+    anchor = None if base_dir is None else Path(base_dir).resolve() / label
     try:
-        return load_document(document, None)
+        return load_document(document, anchor)
     except ScenarioError as exc:
-        raise (_relabel(exc, label) if exc.file is None else exc) from None
+        raise (_relabel(exc, label) if exc.file in (anchor, None) else exc) from None
 
 
 def _job_names() -> list[str]:
@@ -266,7 +284,7 @@ def _apply_overrides(base: "ValidatedScenario", source: str, overrides: Mapping[
                                      parse_key_path, spec_at, with_value)
     from cosim.sweep.loader import flatten_overrides, scenario_key_path
 
-    file: Any = base.path if base.path is not None else source
+    file: Any = source if _is_label(source) else base.path
     if not isinstance(overrides, Mapping):
         raise TypeError(f"overrides: expected a dict {{'key.path': value}}, got {type(overrides).__name__}")
     applied: list[tuple[tuple, Any, Where]] = []
@@ -294,7 +312,7 @@ def _apply_overrides(base: "ValidatedScenario", source: str, overrides: Mapping[
             at = f" (at {exc.key})" if tuple(err_path) != tuple(path) else ""
             raise ScenarioError(where.file, where.key, exc.expected + at, value,
                                 problem=f"override: {exc.problem}" if exc.problem else "override") from None
-        raise (_relabel(exc, source) if exc.file is None else exc) from None
+        raise (_relabel(exc, source) if _is_label(source) else exc) from None
     merged = {**earlier, **{format_key_path(p): v for p, v, _ in applied}}
     return Scenario(validated, source, merged)
 
@@ -312,7 +330,7 @@ class Summary:
 
     @property
     def status(self) -> str:
-        """``"ok"``, ``"failed"`` or ``"running"`` (a run that died without finishing)."""
+        """``"ok"``, ``"failed"``, ``"interrupted"`` or ``"running"`` (a run that died without finishing)."""
         return str(self.raw.get("status", "running"))
 
     @property
@@ -582,23 +600,27 @@ class RunResult:
 # ------------------------------------------------------------------------------------------ running
 def run(scenario: "str | Path | Mapping[str, Any] | Scenario", out: str | Path | None = None,
         overrides: Mapping[str, Any] | None = None, *, quiet: bool = True, realtime: bool = False,
-        split: bool = False, check: bool = True) -> RunResult:
+        split: bool = False, check: bool = True, timeseries: str | None = None) -> RunResult:
     """Validate and run a scenario; return its :class:`RunResult`.
 
     Args:
         scenario: as for :func:`load_scenario`.
-        out: the results folder (created; files in it are replaced). None: a new temporary
-            folder (``RunResult.temporary``; kept until :meth:`RunResult.cleanup`).
+        out: the results folder (created; files in it are replaced; locked while the run goes).
+            None: a new temporary folder (``RunResult.temporary``; kept until :meth:`RunResult.cleanup`).
         overrides: ``{"key.path": value}`` applied before validation.
         quiet: no progress bar on stderr.
         realtime, split: pace the robot cell at the wall clock / run controller and drives in two
             processes (as ``cosim run --realtime/--split``; docs/timing.md).
         check: raise :class:`RunFailed` when the run ends ``failed`` (False: return the result).
+        timeseries: the time-series file format, ``"parquet"`` or ``"csv"`` (None: the project's
+            default, see docs/ARCHITECTURE.md); :meth:`RunResult.timeseries` reads either.
 
     Raises:
         ScenarioError: invalid scenario or override (nothing is written, no folder is made).
+        OutputFolderError: ``out`` cannot be used (a file, not writable, locked by another run).
         RunFailed: the run failed (``check=True``); summary.json in the folder says why and where.
-        KeyboardInterrupt: passed on after summary.json is finished as failed ("interrupted by the user").
+        KeyboardInterrupt: Ctrl-C (or SIGTERM under the CLI), passed on after summary.json is
+            finished as ``interrupted`` (with the signal and where it stopped).
     """
     sc = load_scenario(scenario, overrides)
     options = _execution_options(sc, realtime, split)
@@ -606,11 +628,21 @@ def run(scenario: "str | Path | Mapping[str, Any] | Scenario", out: str | Path |
         out_dir, temporary = Path(tempfile.mkdtemp(prefix=f"cosim-{sc.name}-")), True
     else:
         out_dir, temporary = Path(out), False
-    error = _execute(sc, out_dir, quiet, options)
-    result = RunResult(out_dir, sc, temporary, error)
+    result = _execute_into(sc, out_dir, options, quiet=quiet, origin="out", temporary=temporary,
+                           timeseries=timeseries)
     if check and result.status != "ok":
-        raise RunFailed(result) from error
+        raise RunFailed(result) from result.error
     return result
+
+
+def execute(scenario: Scenario, out: str | Path, *, quiet: bool = True, realtime: bool = False,
+            split: bool = False, origin: str = "out", timeseries: str | None = None) -> RunResult:
+    """Run an already loaded scenario into ``out`` and return the result whatever its status
+    (the layer under :func:`run` and ``cosim run``; ``origin`` names where ``out`` came from in
+    an OutputFolderError, e.g. ``"--out"``). Raises ScenarioError, OutputFolderError,
+    KeyboardInterrupt as :func:`run` does; never RunFailed."""
+    return _execute_into(scenario, Path(out), _execution_options(scenario, realtime, split), quiet=quiet,
+                         origin=origin, temporary=False, timeseries=timeseries)
 
 
 def _execution_options(sc: Scenario, realtime: bool, split: bool):
@@ -622,15 +654,18 @@ def _execution_options(sc: Scenario, realtime: bool, split: bool):
     if not options.active:
         return None
     if sc.job not in CELL_JOBS:
-        raise ScenarioError(sc.path if sc.path is not None else sc.source, "execution",
+        raise ScenarioError(sc.source if _is_label(sc.source) else sc.path, "execution",
                             f"a job that runs a robot cell ({', '.join(sorted(CELL_JOBS))}) for realtime, split and "
-                            f"[execution] realtime/mode = 'split'", sc.job, problem="not a robot-cell job")
+                            f"[execution] realtime/mode = 'split'", sc.job,
+                            problem=f"job {sc.job!r} runs no robot cell")
     return options
 
 
-def _execute(sc: Scenario, out_dir: Path, quiet: bool, options) -> BaseException | None:
-    """Run the job into ``out_dir`` and finish summary.json; return the exception that failed it (or None)."""
-    from cosim.master import SimulationError
+def _execute_into(sc: Scenario, out_dir: Path, options, *, quiet: bool, origin: str, temporary: bool,
+                  timeseries: str | None = None) -> RunResult:
+    """Lock ``out_dir``, run the job, finish summary.json; the result (``error``: what failed the run)."""
+    from cosim.commands.exits import describe_os_error
+    from cosim.results.outdir import OutputFolderError, open_results_folder
     from cosim.scenario import RunContext
 
     execution = None
@@ -638,34 +673,70 @@ def _execute(sc: Scenario, out_dir: Path, quiet: bool, options) -> BaseException
         from cosim.realtime.execution import CellExecution
 
         execution = CellExecution(options)
-    ctx = RunContext(sc.validated, out_dir, quiet=quiet, execution=execution)
+    with open_results_folder(out_dir, origin):
+        try:
+            extra = {} if timeseries is None else {"timeseries_format": timeseries}
+            ctx = RunContext(sc.validated, out_dir, quiet=quiet, execution=execution, **extra)
+        except OSError as exc:
+            raise OutputFolderError(describe_os_error(exc, f"{origin} {str(out_dir)!r}: cannot write summary.json"))\
+                from None
+        error = _run_job(sc, ctx)
+    return RunResult(out_dir, sc, temporary, error)
+
+
+def _run_job(sc: Scenario, ctx) -> BaseException | None:
+    """Run the job in ``ctx`` and write the final status (ok, failed with the reason and where,
+    interrupted); return the exception that failed the run, or None."""
+    from cosim.cli import defer_signals
+    from cosim.commands.exits import describe_os_error, is_disk_full, signal_name_of
+    from cosim.master import SimulationError
+
     try:
         fields = sc.validated.job.runner(sc.validated, ctx) or {}
-    except SimulationError as exc:
-        ctx.summary.finish_failed(str(exc), exc.time, ctx.sim_time_s, failed_component=exc.component,
-                                  fmu_messages=exc.messages, failed_in=ctx.label or None)
-        return exc
-    except KeyboardInterrupt:
-        ctx.summary.finish_failed("interrupted by the user", None, ctx.sim_time_s)
+        ctx.summary.finish_ok(ctx.sim_time_s, **fields)
+        return None
+    except KeyboardInterrupt as exc:  # SIGINT, or SIGTERM through the CLI's handler
+        with defer_signals():
+            ctx.summary.finish_interrupted(signal_name_of(exc), ctx.stopped_at_s, ctx.sim_time_s,
+                                           mode=ctx.label or None, interrupted_in=ctx.label or None)
         raise
     except Exception as exc:
-        ctx.summary.finish_failed(f"internal error: {type(exc).__name__}: {exc}", None, ctx.sim_time_s)
+        with defer_signals():
+            extra: dict[str, Any] = {}
+            if isinstance(exc, SimulationError):
+                reason, stopped = str(exc), exc.time
+                extra = {"failed_component": exc.component, "fmu_messages": exc.messages}
+                if is_disk_full(exc):
+                    reason = "disk full: " + _first_line(str(exc))
+            elif isinstance(exc, OSError):
+                reason = (("disk full: " if is_disk_full(exc) else "")
+                          + describe_os_error(exc, "" if exc.filename else f"writing the results in {ctx.out_dir}"))
+                stopped = ctx.stopped_at_s
+            elif isinstance(exc, ValueError):
+                reason, stopped = _first_line(str(exc)), ctx.stopped_at_s
+            else:
+                reason, stopped = f"internal error: {type(exc).__name__}: {exc}", ctx.stopped_at_s
+            ctx.summary.finish_failed(reason, stopped, ctx.sim_time_s, failed_in=ctx.label or None,
+                                      mode=ctx.label or None, **extra)
         return exc
-    ctx.summary.finish_ok(ctx.sim_time_s, **fields)
-    return None
+
+
+def _first_line(text: str) -> str:
+    return text.strip().splitlines()[0] if text.strip() else text
 
 
 # ------------------------------------------------------------------------------------------ sweeps
-def load_sweep(sweep: "str | Path | Mapping[str, Any]") -> "Sweep":
+def load_sweep(sweep: "str | Path | Mapping[str, Any]", on_count=None) -> "Sweep":
     """Read and validate a sweep (a sweep TOML file, its text, or its parsed dict; docs/sweeps.md).
 
     Every variant is validated by the base job; ScenarioError on any problem, nothing runs.
-    A dict or text names its base scenario relative to the working directory.
+    A dict or text names its base scenario relative to the working directory. ``on_count(n)`` is
+    called with the number of variants before they are validated.
     """
     from cosim.sweep.loader import load_sweep as load_file, load_sweep_document
 
     if isinstance(sweep, Mapping):
-        return _relabelled_sweep(dict(sweep), DICT_LABEL)
+        return load_sweep_document(dict(sweep), DICT_LABEL, on_count=on_count)
     if isinstance(sweep, str) and _is_toml_text(sweep):
         import tomllib
 
@@ -673,8 +744,8 @@ def load_sweep(sweep: "str | Path | Mapping[str, Any]") -> "Sweep":
             document = tomllib.loads(sweep)
         except tomllib.TOMLDecodeError as exc:
             raise ScenarioError(STRING_LABEL, "", "valid TOML", problem=str(exc)) from None
-        return load_sweep_document(document, STRING_LABEL)
-    return load_file(sweep)
+        return load_sweep_document(document, STRING_LABEL, on_count=on_count)
+    return load_file(sweep, on_count=on_count)
 
 
 def _relabelled_sweep(document: dict[str, Any], label: str, base: "ValidatedScenario | None" = None) -> "Sweep":
@@ -754,6 +825,6 @@ def run_sweep(sweep: "Sweep | str | Path | Mapping[str, Any]", out: str | Path |
                    resume=resume, transfer=transfer)
 
 
-__all__ = ["CAN_LOG_SUFFIXES", "DICT_LABEL", "FIGURE_SUFFIXES", "PYTHON_LABEL", "RunFailed", "RunResult",
-           "STRING_LABEL", "Scenario", "ScenarioError", "Summary", "TIMESERIES_SUFFIXES", "TimeSeries",
-           "build_sweep", "load_scenario", "load_sweep", "read_timeseries", "run", "run_sweep"]
+__all__ = ["CAN_LOG_SUFFIXES", "DICT_LABEL", "FIGURE_SUFFIXES", "OutputFolderError", "PYTHON_LABEL", "RunFailed",
+           "RunResult", "STRING_LABEL", "Scenario", "ScenarioError", "Summary", "TIMESERIES_SUFFIXES", "TimeSeries",
+           "build_sweep", "execute", "load_scenario", "load_sweep", "read_timeseries", "run", "run_sweep"]

@@ -3,16 +3,31 @@
 Each command lives in its own module under ``cosim/commands/`` exposing
 ``NAME``, ``HELP``, ``add_arguments(parser)`` and ``run(args) -> int``.
 Register a new command by adding its module name to ``COMMAND_MODULES``.
+
+Errors and exit codes (cosim/commands/exits.py, docs/robustness.md): whatever a command
+raises becomes one ``error: ...`` line on stderr and a documented exit code (2 bad input
+or unusable output folder, 3 failed run, 130 interrupted); the traceback is printed only
+with ``--debug``. SIGTERM is handled like Ctrl-C (SIGINT): the command stops, flushes
+what it has, writes its final status and exits with 130.
 """
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
-from collections.abc import Sequence
+import os
+import signal
+import sys
+import traceback
+from collections.abc import Iterator, Sequence
+
+from cosim.commands.exits import (EXIT_FAILED, EXIT_INTERRUPTED, EXIT_INVALID, CommandError, Interrupted,
+                                  describe_decode_error, describe_os_error, signal_name_of)
 
 COMMAND_MODULES: tuple[str, ...] = (
     "cosim.commands.robot_info",
     "cosim.commands.build_fmus",
+    "cosim.commands.export_ssp",
     "cosim.commands.run",
     "cosim.commands.calibrate",
     "cosim.commands.sweep",
@@ -28,18 +43,115 @@ def build_parser() -> argparse.ArgumentParser:
         description="RX130L-class robot co-simulation testbed (FMUs, POWERLINK fieldbus, "
         "model-based control, optimal trajectories, calibration, identification).",
     )
+    parser.add_argument("--debug", action="store_true", help="print the Python traceback of an error")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
     for module_name in COMMAND_MODULES:
         module = importlib.import_module(module_name)
-        cmd = sub.add_parser(module.NAME, help=module.HELP, description=module.HELP)
+        cmd = sub.add_parser(module.NAME, help=module.HELP, description=module.HELP,
+                             epilog="exit codes: 0 ok, 1 partly failed (sweep, bench), 2 bad input or unusable "
+                                    "output folder, 3 failed run, 130 interrupted (docs/robustness.md)")
         module.add_arguments(cmd)
+        cmd.add_argument("--debug", action="store_true", default=argparse.SUPPRESS,
+                         help="print the Python traceback of an error")
         cmd.set_defaults(_run=module.run)
     return parser
 
 
+class _SignalState:
+    """How SIGINT/SIGTERM are handled: ``armed`` raises Interrupted once; while a command
+    writes its final status (``defer_signals``) they are only counted."""
+
+    armed = True
+    deferred: list[int] = []
+
+
+def _on_signal(signum: int, frame) -> None:
+    if _SignalState.armed:
+        _SignalState.armed = False
+        raise Interrupted(signum)
+    _SignalState.deferred.append(signum)
+    if len(_SignalState.deferred) >= 3:  # the user insists: give up the clean shutdown
+        signal.signal(signum, signal.SIG_DFL)
+        os.kill(os.getpid(), signum)
+
+
+@contextlib.contextmanager
+def defer_signals() -> Iterator[None]:
+    """Within the block, SIGINT/SIGTERM do not raise (the final status is being written)."""
+    armed = _SignalState.armed
+    _SignalState.armed = False
+    try:
+        yield
+    finally:
+        _SignalState.armed = armed
+
+
+def install_signal_handlers() -> dict[int, object]:
+    """SIGINT and SIGTERM raise :class:`~cosim.commands.exits.Interrupted` (a KeyboardInterrupt) once;
+    returns the previous handlers (for :func:`restore_signal_handlers`)."""
+    _SignalState.armed = True
+    _SignalState.deferred = []
+    previous: dict[int, object] = {}
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        try:
+            previous[signum] = signal.signal(signum, _on_signal)
+        except (ValueError, OSError):  # not the main thread: leave the defaults
+            pass
+    return previous
+
+
+def restore_signal_handlers(previous: dict[int, object]) -> None:
+    """Put back the handlers :func:`install_signal_handlers` replaced."""
+    for signum, handler in previous.items():
+        try:
+            signal.signal(signum, handler if handler is not None else signal.SIG_DFL)
+        except (ValueError, OSError, TypeError):
+            pass
+
+
+def _error(text: str, code: int) -> int:
+    print(f"error: {text}", file=sys.stderr)
+    return code
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    """Parse ``argv`` and run the chosen command; return the process exit code."""
+    """Parse ``argv`` and run the chosen command; return the process exit code.
+
+    Exceptions escaping a command become one line on stderr and an exit code; with
+    ``--debug`` the traceback is printed too.
+    """
     parser = build_parser()
     args = parser.parse_args(argv)
-    return int(args._run(args) or 0)
+    debug = bool(getattr(args, "debug", False))
+    previous = install_signal_handlers()
+    try:
+        return int(args._run(args) or 0)
+    except CommandError as exc:
+        if debug:
+            traceback.print_exc()
+        return _error(str(exc), exc.code)
+    except KeyboardInterrupt as exc:
+        if debug:
+            traceback.print_exc()
+        print(f"interrupted by {signal_name_of(exc)}", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except UnicodeDecodeError as exc:
+        if debug:
+            traceback.print_exc()
+        return _error(describe_decode_error(exc, None), EXIT_INVALID)
+    except OSError as exc:
+        if debug:
+            traceback.print_exc()
+        return _error(describe_os_error(exc), EXIT_INVALID)
+    except (ValueError, OverflowError) as exc:
+        if debug:
+            traceback.print_exc()
+        return _error(str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__, EXIT_INVALID)
+    except Exception as exc:  # noqa: BLE001 - the last line of defence: no traceback without --debug
+        if debug:
+            traceback.print_exc()
+        return _error(f"internal error in '{args.command}': {type(exc).__name__}: {exc}"
+                      + ("" if debug else " (run with --debug for the traceback)"), EXIT_FAILED)
+    finally:
+        restore_signal_handlers(previous)

@@ -38,7 +38,10 @@ SW_TARGET_REACHED = 1 << 10
 SW_INTERNAL_LIMIT = 1 << 11
 SW_DRIVE_FOLLOWS_COMMAND = 1 << 12  # cyclic synchronous modes: target value ignored = 0
 
-MODE_CYCLIC_SYNCHRONOUS_POSITION = 8  # 0x6060
+# modes of operation (0x6060 / display 0x6061) whose set-points the telegrams carry
+MODE_CYCLIC_SYNCHRONOUS_POSITION = 8   # target position, velocity offset, torque offset
+MODE_CYCLIC_SYNCHRONOUS_VELOCITY = 9   # target velocity, velocity offset, torque offset
+MODE_CYCLIC_SYNCHRONOUS_TORQUE = 10    # target torque, torque offset
 
 
 class Command(IntEnum):

@@ -9,13 +9,13 @@
  * nonzero status; the caller then runs the Python code, which handles (saturates,
  * counts, reports) it.
  *
- *   pack_preq      quantise the set-points, pack the RPDO1 payloads, stamp the PReqs
+ *   pack_preq      quantise the set-points, pack the RPDO1 payloads (20 bytes), stamp the PReqs
  *   latch_pres     quantise the actual values, pack the TPDO1/TPDO2 payloads
  *   apply_due      apply the set-points due at the SoC (no comm fault latched)
  *   scale_into     telegram integers (list) times scale factors -> float64 array
  *   pres_frames    stamp and list the PRes frames of the nodes that answer
  *   receive_pres   digest TPDO1/TPDO2 frames at the MN, up to the first other frame
- *   receive_preq   digest RPDO1 frames at the CNs, up to the first other frame
+ *   receive_preq   digest RPDO1 frames (20 or classic 8 bytes) at the CNs, up to the first other frame
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
@@ -28,6 +28,12 @@
 #define TPDO1_BASE 0x180
 #define TPDO2_BASE 0x280
 #define SYNC_ID 0x080
+#define RPDO1_LEN 20         /* controlword, target position, torque offset, mode, reserved, target torque,
+                                target velocity, velocity offset */
+#define RPDO1_CLASSIC_LEN 8  /* controlword, target position, torque offset (mode 8, the rest 0) */
+#define TPDO2_LEN 7          /* velocity actual, error code, modes of operation display */
+#define RECORD_SIZE 32       /* recorder record: timestamp, id, is_error_frame, dlc, 20 data bytes */
+#define RECORD_DATA 20
 
 enum { OK = 0, OUT_OF_RANGE = 1, UNSUPPORTED = 2, NOT_FINITE = -1 };
 
@@ -217,6 +223,7 @@ static inline void put_i32(unsigned char *p, long long v)
     p[2] = (unsigned char)((u >> 16) & 0xFF); p[3] = (unsigned char)((u >> 24) & 0xFF);
 }
 static inline long get_u16(const unsigned char *p) { return (long)p[0] | ((long)p[1] << 8); }
+static inline long get_i8(const unsigned char *p) { return (long)(signed char)p[0]; }
 static inline long get_i16(const unsigned char *p) { return (long)(short)(unsigned short)((unsigned)p[0] | ((unsigned)p[1] << 8)); }
 static inline long get_i32(const unsigned char *p)
 {
@@ -263,14 +270,17 @@ static int list_replace_bool(PyObject *list, Py_ssize_t i, int v)
     }
 
 /* ------------------------------------------------------------------ pack_preq
- * pack_preq(msgs, times, controlword, position, torque, cpr, upn, wait, latest, last_cw) -> int
+ * pack_preq(msgs, times, controlword, position, torque, mode, target_torque, target_velocity,
+ *           velocity_offset, cpr, upn, wait, latest, last_cw) -> int
  * ManagingNode.frames for the PReqs: msgs[i] (RPDO1 of node i+1) gets timestamp times[i+1]
- * and the payload (controlword, floor(position*cpr+0.5), floor(torque*upn+0.5));
- * latest[i] = times[i+1] + wait[i]; last_cw[i] = controlword[i]. */
+ * and the payload (controlword, floor(position*cpr+0.5), floor(torque*upn+0.5), mode, 0,
+ * floor(target_torque*upn+0.5), floor(target_velocity*cpr+0.5), floor(velocity_offset*cpr+0.5));
+ * latest[i] = times[i+1] + wait[i]; last_cw[i] = controlword[i]. A mode other than 8, 9,
+ * 10 is OUT_OF_RANGE (the Python code raises the error naming it). */
 static PyObject *pack_preq(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
 {
-    CHECK_ARGS(10);
-    PyObject *msgs = args[0], *times = args[1], *latest = args[8], *last_cw = args[9];
+    CHECK_ARGS(14);
+    PyObject *msgs = args[0], *times = args[1], *latest = args[12], *last_cw = args[13];
     if (!PyList_CheckExact(msgs) || !PyList_CheckExact(times) || !PyList_CheckExact(latest) ||
         !PyList_CheckExact(last_cw))
         return PyLong_FromLong(UNSUPPORTED);
@@ -278,26 +288,45 @@ static PyObject *pack_preq(PyObject *self, PyObject *const *args, Py_ssize_t nar
     if (n < 1 || n > MAX_NODES || PyList_GET_SIZE(times) < n + 1 || PyList_GET_SIZE(latest) != n ||
         PyList_GET_SIZE(last_cw) != n)
         return PyLong_FromLong(UNSUPPORTED);
-    const double *cpr = doubles_of(args[5], n), *upn = doubles_of(args[6], n), *wait = doubles_of(args[7], n);
+    const double *cpr = doubles_of(args[9], n), *upn = doubles_of(args[10], n), *wait = doubles_of(args[11], n);
     if (!cpr || !upn || !wait) return PyLong_FromLong(UNSUPPORTED);
     int status = OK;
     const Array *cwa = array_get(args[2], n, 0), *posa = array_get(args[3], n, 1), *tqa = array_get(args[4], n, 1);
     if (cwa == NULL || posa == NULL || tqa == NULL) return PyLong_FromLong(UNSUPPORTED);
     const Array cw = *cwa, pos = *posa, tq = *tqa;
-    long long cwv[MAX_NODES], counts[MAX_NODES], units[MAX_NODES];
+    const Array *modea = array_get(args[5], n, 0), *tta = array_get(args[6], n, 1), *tva = array_get(args[7], n, 1),
+                *voa = array_get(args[8], n, 1);
+    if (modea == NULL || tta == NULL || tva == NULL || voa == NULL) return PyLong_FromLong(UNSUPPORTED);
+    const Array mode = *modea, tt = *tta, tv = *tva, vo = *voa;
+    long long cwv[MAX_NODES], counts[MAX_NODES], units[MAX_NODES], modev[MAX_NODES], ttu[MAX_NODES],
+        tvc[MAX_NODES], voc[MAX_NODES];
     unsigned char *payload[MAX_NODES];
     for (Py_ssize_t i = 0; i < n; ++i) {
         double x = array_double(&pos, i) * cpr[i] + 0.5;
         double y = array_double(&tq, i) * upn[i] + 0.5;
-        if (!isfinite(x) || !isfinite(y)) { status = NOT_FINITE; goto done; }
-        double fx = floor(x), fy = floor(y);
+        double a = array_double(&tt, i) * upn[i] + 0.5;
+        double b = array_double(&tv, i) * cpr[i] + 0.5;
+        double c = array_double(&vo, i) * cpr[i] + 0.5;
+        if (!isfinite(x) || !isfinite(y) || !isfinite(a) || !isfinite(b) || !isfinite(c)) {
+            status = NOT_FINITE;
+            goto done;
+        }
+        double fx = floor(x), fy = floor(y), fa = floor(a), fb = floor(b), fc = floor(c);
         cwv[i] = array_int(&cw, i);
+        modev[i] = array_int(&mode, i);
         if (cwv[i] < 0 || cwv[i] > 0xFFFF || fx < -2147483648.0 || fx > 2147483647.0 || fy < -32768.0 ||
-            fy > 32767.0) { status = OUT_OF_RANGE; goto done; }
+            fy > 32767.0 || fa < -32768.0 || fa > 32767.0 || fb < -2147483648.0 || fb > 2147483647.0 ||
+            fc < -2147483648.0 || fc > 2147483647.0 || modev[i] < 8 || modev[i] > 10) {
+            status = OUT_OF_RANGE;
+            goto done;
+        }
         counts[i] = (long long)fx;
         units[i] = (long long)fy;
+        ttu[i] = (long long)fa;
+        tvc[i] = (long long)fb;
+        voc[i] = (long long)fc;
         if (!PyFloat_CheckExact(PyList_GET_ITEM(times, i + 1))) { status = UNSUPPORTED; goto done; }
-        payload[i] = payload_of(PyList_GET_ITEM(msgs, i), 8);
+        payload[i] = payload_of(PyList_GET_ITEM(msgs, i), RPDO1_LEN);
         if (payload[i] == NULL) { status = UNSUPPORTED; goto done; }
     }
     for (Py_ssize_t i = 0; i < n; ++i) {
@@ -307,6 +336,11 @@ static PyObject *pack_preq(PyObject *self, PyObject *const *args, Py_ssize_t nar
         put_u16(p, cwv[i]);
         put_i32(p + 2, counts[i]);
         put_u16(p + 6, units[i]);
+        p[8] = (unsigned char)modev[i];
+        p[9] = 0;
+        put_u16(p + 10, ttu[i]);
+        put_i32(p + 12, tvc[i]);
+        put_i32(p + 16, voc[i]);
         if (list_replace_double(latest, i, PyFloat_AS_DOUBLE(ts) + wait[i]) || list_replace_long(last_cw, i, cwv[i])) {
             status = -3;
             goto done;
@@ -318,27 +352,29 @@ done:
 }
 
 /* ------------------------------------------------------------------ latch_pres
- * latch_pres(statusword, position, velocity, torque, error_code, cpr, upn, msgs1, msgs2, a_pos) -> int
+ * latch_pres(statusword, position, velocity, torque, error_code, mode_display, cpr, upn, msgs1, msgs2,
+ *            a_pos) -> int
  * ControlledNodes.start_cycle's quantisation and ControlledNodes.responses' packing:
  * msgs1[i] (TPDO1) <- (statusword, floor(position*cpr+0.5), floor(torque*upn+0.5)),
- * msgs2[i] (TPDO2) <- (floor(velocity*cpr+0.5), error_code); a_pos[i] = the position count. */
+ * msgs2[i] (TPDO2) <- (floor(velocity*cpr+0.5), error_code, mode_display); a_pos[i] = the position count. */
 static PyObject *latch_pres(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
 {
-    CHECK_ARGS(10);
-    PyObject *msgs1 = args[7], *msgs2 = args[8], *a_pos = args[9];
+    CHECK_ARGS(11);
+    PyObject *msgs1 = args[8], *msgs2 = args[9], *a_pos = args[10];
     if (!PyList_CheckExact(msgs1) || !PyList_CheckExact(msgs2) || !PyList_CheckExact(a_pos))
         return PyLong_FromLong(UNSUPPORTED);
     Py_ssize_t n = PyList_GET_SIZE(msgs1);
     if (n < 1 || n > MAX_NODES || PyList_GET_SIZE(msgs2) != n || PyList_GET_SIZE(a_pos) != n)
         return PyLong_FromLong(UNSUPPORTED);
-    const double *cpr = doubles_of(args[5], n), *upn = doubles_of(args[6], n);
+    const double *cpr = doubles_of(args[6], n), *upn = doubles_of(args[7], n);
     if (!cpr || !upn) return PyLong_FromLong(UNSUPPORTED);
     int status = OK;
     const Array *swa = array_get(args[0], n, 0), *posa = array_get(args[1], n, 1), *vela = array_get(args[2], n, 1),
-                *tqa = array_get(args[3], n, 1), *erra = array_get(args[4], n, 0);
-    if (swa == NULL || posa == NULL || vela == NULL || tqa == NULL || erra == NULL) return PyLong_FromLong(UNSUPPORTED);
-    const Array sw = *swa, pos = *posa, vel = *vela, tq = *tqa, err = *erra;
-    long long swv[MAX_NODES], errv[MAX_NODES], pc[MAX_NODES], vc[MAX_NODES], tc[MAX_NODES];
+                *tqa = array_get(args[3], n, 1), *erra = array_get(args[4], n, 0), *modea = array_get(args[5], n, 0);
+    if (swa == NULL || posa == NULL || vela == NULL || tqa == NULL || erra == NULL || modea == NULL)
+        return PyLong_FromLong(UNSUPPORTED);
+    const Array sw = *swa, pos = *posa, vel = *vela, tq = *tqa, err = *erra, mode = *modea;
+    long long swv[MAX_NODES], errv[MAX_NODES], pc[MAX_NODES], vc[MAX_NODES], tc[MAX_NODES], mv[MAX_NODES];
     unsigned char *p1[MAX_NODES], *p2[MAX_NODES];
     for (Py_ssize_t i = 0; i < n; ++i) {
         double x = array_double(&pos, i) * cpr[i] + 0.5;
@@ -348,7 +384,9 @@ static PyObject *latch_pres(PyObject *self, PyObject *const *args, Py_ssize_t na
         double fx = floor(x), fv = floor(v), ft = floor(t);
         swv[i] = array_int(&sw, i);
         errv[i] = array_int(&err, i);
-        if (swv[i] < 0 || swv[i] > 0xFFFF || errv[i] < 0 || errv[i] > 0xFFFF || fx < -2147483648.0 ||
+        mv[i] = array_int(&mode, i);
+        if (swv[i] < 0 || swv[i] > 0xFFFF || errv[i] < 0 || errv[i] > 0xFFFF || mv[i] < -128 || mv[i] > 127 ||
+            fx < -2147483648.0 ||
             fx > 2147483647.0 || fv < -2147483648.0 || fv > 2147483647.0 || ft < -32768.0 || ft > 32767.0) {
             status = OUT_OF_RANGE;
             goto done;
@@ -357,7 +395,7 @@ static PyObject *latch_pres(PyObject *self, PyObject *const *args, Py_ssize_t na
         vc[i] = (long long)fv;
         tc[i] = (long long)ft;
         p1[i] = payload_of(PyList_GET_ITEM(msgs1, i), 8);
-        p2[i] = payload_of(PyList_GET_ITEM(msgs2, i), 6);
+        p2[i] = payload_of(PyList_GET_ITEM(msgs2, i), TPDO2_LEN);
         if (p1[i] == NULL || p2[i] == NULL) { status = UNSUPPORTED; goto done; }
     }
     for (Py_ssize_t i = 0; i < n; ++i) {
@@ -366,6 +404,7 @@ static PyObject *latch_pres(PyObject *self, PyObject *const *args, Py_ssize_t na
         put_u16(p1[i] + 6, tc[i]);
         put_i32(p2[i], vc[i]);
         put_u16(p2[i] + 4, errv[i]);
+        p2[i][6] = (unsigned char)(mv[i] & 0xFF);
         if (list_replace_long(a_pos, i, pc[i])) { status = -3; goto done; }
     }
 done:
@@ -374,16 +413,18 @@ done:
 }
 
 /* ------------------------------------------------------------------ apply_due
- * apply_due(pipe, slot, cws, poss, prev, tqs, fresh, a_pos, hold) -> int (1: all fresh)
+ * apply_due(pipe, slot, cws, poss, prev, tqs, modes, tts, tvs, vos, fresh, a_pos, hold) -> int (1: all fresh)
  * ControlledNodes.start_cycle's application of the set-points due at this SoC when no
- * comm fault is latched: pipe[i][slot] = (cw, pos, tq) or None. */
+ * comm fault is latched: pipe[i][slot] = (cw, pos, tq, mode, reserved, tt, tv, vo) or None. */
 static PyObject *apply_due(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
 {
-    CHECK_ARGS(9);
-    PyObject *pipe = args[0], *cws = args[2], *poss = args[3], *prev = args[4], *tqs = args[5], *fresh = args[6],
-             *a_pos = args[7];
+    CHECK_ARGS(13);
+    PyObject *pipe = args[0], *cws = args[2], *poss = args[3], *prev = args[4], *tqs = args[5], *fresh = args[10],
+             *a_pos = args[11];
+    PyObject *extra[4] = {args[6], args[7], args[8], args[9]}; /* modes, tts, tvs, vos */
+    static const int extra_item[4] = {3, 5, 6, 7};
     Py_ssize_t slot = PyLong_AsSsize_t(args[1]);
-    int hold = PyObject_IsTrue(args[8]);
+    int hold = PyObject_IsTrue(args[12]);
     if ((slot == -1 && PyErr_Occurred()) || hold < 0) return NULL;
     Py_ssize_t n = PyList_Check(pipe) ? PyList_GET_SIZE(pipe) : -1;
     if (n < 1 || !PyList_CheckExact(cws) || !PyList_CheckExact(poss) || !PyList_CheckExact(prev) ||
@@ -391,11 +432,13 @@ static PyObject *apply_due(PyObject *self, PyObject *const *args, Py_ssize_t nar
         PyList_GET_SIZE(cws) != n || PyList_GET_SIZE(poss) != n || PyList_GET_SIZE(prev) != n ||
         PyList_GET_SIZE(tqs) != n || PyList_GET_SIZE(fresh) != n || PyList_GET_SIZE(a_pos) != n)
         return PyLong_FromLong(-UNSUPPORTED);
+    for (int e = 0; e < 4; ++e)
+        if (!PyList_CheckExact(extra[e]) || PyList_GET_SIZE(extra[e]) != n) return PyLong_FromLong(-UNSUPPORTED);
     for (Py_ssize_t i = 0; i < n; ++i) {
         PyObject *slots = PyList_GET_ITEM(pipe, i);
         if (!PyList_CheckExact(slots) || slot < 0 || slot >= PyList_GET_SIZE(slots)) return PyLong_FromLong(-UNSUPPORTED);
         PyObject *due = PyList_GET_ITEM(slots, slot);
-        if (due != Py_None && !(PyTuple_CheckExact(due) && PyTuple_GET_SIZE(due) == 3)) return PyLong_FromLong(-UNSUPPORTED);
+        if (due != Py_None && !(PyTuple_CheckExact(due) && PyTuple_GET_SIZE(due) == 8)) return PyLong_FromLong(-UNSUPPORTED);
     }
     int all_fresh = 1;
     for (Py_ssize_t i = 0; i < n; ++i) {
@@ -415,6 +458,11 @@ static PyObject *apply_due(PyObject *self, PyObject *const *args, Py_ssize_t nar
             list_replace(poss, i, p);
             Py_INCREF(t);
             list_replace(tqs, i, t);
+            for (int e = 0; e < 4; ++e) {
+                PyObject *v = PyTuple_GET_ITEM(due, extra_item[e]);
+                Py_INCREF(v);
+                list_replace(extra[e], i, v);
+            }
             list_replace_bool(fresh, i, 1);
             Py_DECREF(due);
         } else {
@@ -586,16 +634,16 @@ static inline int frame_at(PyObject *msgs, Py_ssize_t k, Frame *f)
 }
 
 /* ------------------------------------------------------------------ receive_pres
- * receive_pres(msgs, start, latest, sw, pos, tq, vel, err, got1, got2, late) -> int
+ * receive_pres(msgs, start, latest, sw, pos, tq, vel, err, mode, got1, got2, late) -> int
  * ManagingNode.receive_all's loop from msgs[start] on, for the frames it decodes itself
- * (plain TPDO1 of 8 bytes / TPDO2 of 6 bytes of nodes 1..n); returns the index of the
+ * (plain TPDO1 of 8 bytes / TPDO2 of 7 bytes of nodes 1..n); returns the index of the
  * first other frame (for ManagingNode._other_frame), or len(msgs). */
 static PyObject *receive_pres(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
 {
-    CHECK_ARGS(11);
+    CHECK_ARGS(12);
     PyObject *msgs = args[0], *latest = args[2];
-    PyObject *sw = args[3], *pos = args[4], *tq = args[5], *vel = args[6], *err = args[7], *got1 = args[8],
-             *got2 = args[9], *late = args[10];
+    PyObject *sw = args[3], *pos = args[4], *tq = args[5], *vel = args[6], *err = args[7], *mode = args[8],
+             *got1 = args[9], *got2 = args[10], *late = args[11];
     Py_ssize_t start = PyLong_AsSsize_t(args[1]);
     if (start == -1 && PyErr_Occurred()) return NULL;
     if (!(PyList_CheckExact(msgs) || PyTuple_CheckExact(msgs)) || !PyList_CheckExact(latest)) {
@@ -603,8 +651,8 @@ static PyObject *receive_pres(PyObject *self, PyObject *const *args, Py_ssize_t 
         return NULL;
     }
     Py_ssize_t n = PyList_GET_SIZE(latest);
-    PyObject *lists[8] = {sw, pos, tq, vel, err, got1, got2, late};
-    for (int k = 0; k < 8; ++k)
+    PyObject *lists[9] = {sw, pos, tq, vel, err, mode, got1, got2, late};
+    for (int k = 0; k < 9; ++k)
         if (!PyList_CheckExact(lists[k]) || PyList_GET_SIZE(lists[k]) != n) {
             PyErr_SetString(PyExc_TypeError, "receive_pres: inconsistent node lists");
             return NULL;
@@ -616,7 +664,7 @@ static PyObject *receive_pres(PyObject *self, PyObject *const *args, Py_ssize_t 
         int kind = 0;
         if (node >= 1 && node <= n && f.id <= 0x7FF) {
             if (base == TPDO1_BASE && f.size == 8) kind = 1;
-            else if (base == TPDO2_BASE && f.size == 6) kind = 2;
+            else if (base == TPDO2_BASE && f.size == TPDO2_LEN) kind = 2;
         }
         if (kind == 0) { Py_DECREF(f.hold); break; }
         Py_ssize_t i = node - 1;
@@ -631,7 +679,8 @@ static PyObject *receive_pres(PyObject *self, PyObject *const *args, Py_ssize_t 
                      list_replace_long(tq, i, get_i16(f.data + 6));
             list_replace_bool(got1, i, 1);
         } else {
-            failed = list_replace_long(vel, i, get_i32(f.data)) || list_replace_long(err, i, get_u16(f.data + 4));
+            failed = list_replace_long(vel, i, get_i32(f.data)) || list_replace_long(err, i, get_u16(f.data + 4)) ||
+                     list_replace_long(mode, i, get_i8(f.data + 6));
             list_replace_bool(got2, i, 1);
         }
         Py_DECREF(f.hold);
@@ -642,9 +691,11 @@ static PyObject *receive_pres(PyObject *self, PyObject *const *args, Py_ssize_t 
 
 /* ------------------------------------------------------------------ receive_preq
  * receive_preq(msgs, start, pipe, slot, arrival, next_soc, ok, late, node, sync_counter) -> int
- * ControlledNodes.receive_all's loop from msgs[start] on for plain RPDO1 frames of 8
- * bytes of nodes 1..n (late when timestamp + arrival[i] > next_soc, else pipe[i][slot] =
- * (controlword, target, torque) and ok[i]) and for a plain SYNC of at most one byte
+ * ControlledNodes.receive_all's loop from msgs[start] on for plain RPDO1 frames of 20
+ * (or classic 8) bytes of nodes 1..n (late when timestamp + arrival[i] > next_soc, else
+ * pipe[i][slot] = (controlword, target, torque, mode, reserved, target torque, target
+ * velocity, velocity offset), a classic frame with (8, 0, 0, 0, 0) for the last five,
+ * and ok[i]) and for a plain SYNC of at most one byte
  * carrying no counter or ``sync_counter`` (node._sync_seen = True, node._sync_ts = its
  * timestamp); returns the index of the first other frame (for
  * ControlledNodes._other_frame: a wrong counter, other traffic, bad frames) or len(msgs). */
@@ -684,7 +735,11 @@ static PyObject *receive_preq(PyObject *self, PyObject *const *args, Py_ssize_t 
             continue;
         }
         long node = f.id & 0x7FL;
-        if (!((f.id & ~0x7FL) == RPDO1_BASE && node >= 1 && node <= n && f.size == 8)) { Py_DECREF(f.hold); break; }
+        if (!((f.id & ~0x7FL) == RPDO1_BASE && node >= 1 && node <= n &&
+              (f.size == RPDO1_LEN || f.size == RPDO1_CLASSIC_LEN))) {
+            Py_DECREF(f.hold);
+            break;
+        }
         Py_ssize_t i = node - 1;
         PyObject *slots = PyList_GET_ITEM(pipe, i);
         if (!PyList_CheckExact(slots) || slot < 0 || slot >= PyList_GET_SIZE(slots)) {
@@ -695,17 +750,17 @@ static PyObject *receive_preq(PyObject *self, PyObject *const *args, Py_ssize_t 
         if (f.timestamp + arrival[i] > next_soc) {
             list_replace_bool(late, i, 1);
         } else {
-            PyObject *due = PyTuple_New(3);
+            PyObject *due = PyTuple_New(8);
             if (due == NULL) { Py_DECREF(f.hold); return NULL; }
-            PyObject *a = PyLong_FromLong(get_u16(f.data)), *b = PyLong_FromLong(get_i32(f.data + 2)),
-                     *c = PyLong_FromLong(get_i16(f.data + 6));
-            if (a == NULL || b == NULL || c == NULL) {
-                Py_XDECREF(a); Py_XDECREF(b); Py_XDECREF(c); Py_DECREF(due); Py_DECREF(f.hold);
-                return NULL;
+            int fd = f.size == RPDO1_LEN;
+            long v[8] = {get_u16(f.data), get_i32(f.data + 2), get_i16(f.data + 6), fd ? get_i8(f.data + 8) : 8,
+                         fd ? (long)f.data[9] : 0, fd ? get_i16(f.data + 10) : 0, fd ? get_i32(f.data + 12) : 0,
+                         fd ? get_i32(f.data + 16) : 0};
+            for (int e = 0; e < 8; ++e) {
+                PyObject *o = PyLong_FromLong(v[e]);
+                if (o == NULL) { Py_DECREF(due); Py_DECREF(f.hold); return NULL; }
+                PyTuple_SET_ITEM(due, e, o);
             }
-            PyTuple_SET_ITEM(due, 0, a);
-            PyTuple_SET_ITEM(due, 1, b);
-            PyTuple_SET_ITEM(due, 2, c);
             list_replace(slots, slot, due);
             list_replace_bool(ok, i, 1);
         }
@@ -717,7 +772,7 @@ static PyObject *receive_preq(PyObject *self, PyObject *const *args, Py_ssize_t 
 /* ------------------------------------------------------------------ pack_records
  * pack_records(frames) -> bytes | None: the FrameRecorder's records of `frames`, as
  * b"".join(RECORD.pack(m.timestamp, m.arbitration_id, m.is_error_frame, len(m.data), m.data))
- * with RECORD = struct.Struct("<dHBB8s") would make them; None (the caller packs in Python,
+ * with RECORD = struct.Struct("<dHBB20s") would make them; None (the caller packs in Python,
  * which raises struct.error) when a value does not fit that layout. */
 static PyObject *pack_records(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
 {
@@ -725,10 +780,10 @@ static PyObject *pack_records(PyObject *self, PyObject *const *args, Py_ssize_t 
     PyObject *frames = args[0];
     if (!(PyList_CheckExact(frames) || PyTuple_CheckExact(frames))) Py_RETURN_NONE;
     Py_ssize_t count = PySequence_Fast_GET_SIZE(frames);
-    PyObject *out = PyBytes_FromStringAndSize(NULL, count * 20);
+    PyObject *out = PyBytes_FromStringAndSize(NULL, count * RECORD_SIZE);
     if (out == NULL) return NULL;
     unsigned char *p = (unsigned char *)PyBytes_AS_STRING(out);
-    for (Py_ssize_t k = 0; k < count; ++k, p += 20) {
+    for (Py_ssize_t k = 0; k < count; ++k, p += RECORD_SIZE) {
         PyObject *msg = PySequence_Fast_GET_ITEM(frames, k);
         PyObject *ts = get_attr(msg, s_timestamp, off_timestamp);
         PyObject *id = get_attr(msg, s_arbitration_id, off_arbitration_id);
@@ -755,8 +810,8 @@ static PyObject *pack_records(PyObject *self, PyObject *const *args, Py_ssize_t 
             p[9] = (unsigned char)((idv >> 8) & 0xFF);
             p[10] = (unsigned char)errv;
             p[11] = (unsigned char)size;
-            memset(p + 12, 0, 8);
-            memcpy(p + 12, bytes, (size_t)(size < 8 ? size : 8));
+            memset(p + 12, 0, RECORD_DATA);
+            memcpy(p + 12, bytes, (size_t)(size < RECORD_DATA ? size : RECORD_DATA));
         }
         Py_XDECREF(ts);
         Py_XDECREF(id);

@@ -41,6 +41,9 @@ from fieldbus.udpcycle import register as register_udpcycle
 from fieldbus.telegrams import EMCY_BASE, RPDO1_BASE, SYNC_ID, TPDO1_BASE, TPDO2_BASE, FastMessage
 from fieldbus.timing import CycleLayout, CycleSchedule, check_cycle_budget
 
+# Setpoints fields in the order of ManagingNode.frames' arguments
+_SETPOINT_FIELDS = ("controlword", "position", "torque_offset", "modes_of_operation", "target_torque",
+                    "target_velocity", "velocity_offset")
 SYNCHRONOUS_INTERFACES = ("simbus", "virtual")  # deliver inside send(), keep timestamps
 _NO_FAULTS: dict[int, str] = {}  # the medium's faults of a fault-free cycle (never modified)
 
@@ -279,19 +282,20 @@ class ManagingNodeEndpoint(_Endpoint):
         """SoC and PReqs of ``cycle`` carrying ``setpoints`` (SI units)."""
         if setpoints.controlword.dtype.kind not in "iu":
             raise ValueError(f"setpoints.controlword has dtype {setpoints.controlword.dtype}: expected integers")
+        if setpoints.modes_of_operation.dtype.kind not in "iu":
+            raise ValueError(f"setpoints.modes_of_operation has dtype {setpoints.modes_of_operation.dtype}: "
+                             "expected integers (8, 9 or 10)")
         self._begin(cycle)
         node = self.node
         node.start_cycle(cycle)
         frames = node.encode(cycle, self._times, setpoints)  # compiled codec, None: Python
         if frames is None:
-            cws = setpoints.controlword.tolist()
-            poss = setpoints.position.tolist()
-            tqs = setpoints.torque_offset.tolist()
+            values = [getattr(setpoints, name).tolist() for name in _SETPOINT_FIELDS]
             n = self.config.nodes
-            if len(cws) != n or len(poss) != n or len(tqs) != n:
-                raise ValueError(f"setpoints: expected {n} entries per field, got {len(cws)}, {len(poss)}, "
-                                 f"{len(tqs)}")
-            frames = node.frames(cycle, self._times, cws, poss, tqs)
+            if any(len(v) != n for v in values):
+                raise ValueError(f"setpoints: expected {n} entries per field, got "
+                                 + ", ".join(f"{name} {len(v)}" for name, v in zip(_SETPOINT_FIELDS, values)))
+            frames = node.frames(cycle, self._times, *values)
         self._transmit(frames)
 
     def collect_actuals(self, cycle: int) -> ObservedActuals:

@@ -44,9 +44,9 @@ from fieldbus.codec import load_codec
 from fieldbus.events import CounterBank, EventLog, FieldbusEvent, ThresholdCounter
 from fieldbus.process_data import AppliedSetpoints, DriveActuals, ObservedActuals
 from fieldbus.telegrams import (
-    EMCY, EMCY_BASE, EMCY_COMMUNICATION, EMCY_ERROR_REGISTER_COMMUNICATION, RPDO1_BASE,
-    RPDO1_SIGNED, SYNC_ID, TPDO1, TPDO1_BASE, TPDO2, TPDO2_BASE, FastMessage, check_frame,
-    classify,
+    CLASSIC_RPDO1_DEFAULTS, EMCY, EMCY_BASE, EMCY_COMMUNICATION, EMCY_ERROR_REGISTER_COMMUNICATION,
+    MODES_OF_OPERATION, RPDO1_BASE, RPDO1_CLASSIC, RPDO1_SIGNED, SYNC_ID, TPDO1, TPDO1_BASE, TPDO2,
+    TPDO2_BASE, FastMessage, check_frame, check_mode_of_operation, classify,
 )
 
 if TYPE_CHECKING:
@@ -58,6 +58,8 @@ if TYPE_CHECKING:
 _TPDO1_LEN = TPDO1.size
 _TPDO2_LEN = TPDO2.size
 _RPDO1_LEN = RPDO1_SIGNED.size
+_RPDO1_CLASSIC_LEN = RPDO1_CLASSIC.size
+_UNPACK_RPDO1_CLASSIC = RPDO1_CLASSIC.unpack
 _PACK_RPDO1_INTO = RPDO1_SIGNED.pack_into
 _PACK_TPDO1_INTO = TPDO1.pack_into
 _PACK_TPDO2_INTO = TPDO2.pack_into
@@ -159,8 +161,14 @@ class ManagingNode:
         self._tq = [0] * n
         self._vel = [0] * n
         self._err = [0] * n
+        self._mode = [8] * n  # modes of operation display (0x6061)
+        self._csp = [8] * n  # defaults of frames() for the optional set-points
+        self._zeros = [0.0] * n
+        self._extra_si: tuple = ()  # (target torque, target velocity, velocity offset) last quantised, SI
+        self._extra_counts: tuple = ()
         self._last_sw: list[int] = [0] * n
         self._last_err: list[int] = [0] * n
+        self._last_mode: list[int] = [8] * n
         self._got1 = [False] * n
         self._got2 = [False] * n
         self._late = [False] * n
@@ -200,19 +208,23 @@ class ManagingNode:
             return None
         packed = self._packed
         if codec.pack_preq(self._preq_msgs, times, setpoints.controlword, setpoints.position,
-                           setpoints.torque_offset, packed["cpr"], packed["upn"], packed["wait"], self._latest,
-                           self._last_cw):
+                           setpoints.torque_offset, setpoints.modes_of_operation, setpoints.target_torque,
+                           setpoints.target_velocity, setpoints.velocity_offset, packed["cpr"], packed["upn"],
+                           packed["wait"], self._latest, self._last_cw):
             return None
         sync = self._sync_msg
         sync.timestamp = times[0]
         sync.data[0] = (cycle % self._sync_overflow) + 1
         return self._frames
 
-    def frames(self, cycle: int, times: list, controlword: list, position: list,
-               torque_offset: list) -> list[FastMessage]:
+    def frames(self, cycle: int, times: list, controlword: list, position: list, torque_offset: list,
+               modes: list | None = None, target_torque: list | None = None, target_velocity: list | None = None,
+               velocity_offset: list | None = None) -> list[FastMessage]:
         """SYNC and one RPDO1 per node for ``cycle``: ``times`` = [soc, preq_1..N, ...]
         send times (s); set-points per node as plain lists in SI units (quantised
-        here). Arms the PRes timeouts and notes fault-reset edges.
+        here; modes of operation 8, 9 or 10, default 8, others raise ValueError; the
+        velocity and torque set-points default to 0). Arms the PRes timeouts and notes
+        fault-reset edges.
 
         The returned list and its messages are reused next cycle (receivers that keep
         a frame beyond the cycle must copy it)."""
@@ -220,34 +232,56 @@ class ManagingNode:
         sync.timestamp = times[0]
         sync.data[0] = (cycle % self._sync_overflow) + 1
         n = self.nodes
+        zeros = self._zeros
+        modes = modes if modes is not None else self._csp
+        target_torque = target_torque if target_torque is not None else zeros
+        target_velocity = target_velocity if target_velocity is not None else zeros
+        velocity_offset = velocity_offset if velocity_offset is not None else zeros
+        cpr, upn = self._cpr, self._upn
         try:
-            counts = [floor(q * c + 0.5) for q, c in zip(position, self._cpr)]
-            units = [floor(t * u + 0.5) for t, u in zip(torque_offset, self._upn)]
+            counts = [floor(q * c + 0.5) for q, c in zip(position, cpr)]
+            units = [floor(t * u + 0.5) for t, u in zip(torque_offset, upn)]
+            extra = (target_torque, target_velocity, velocity_offset)
+            if extra != self._extra_si:  # mostly constant (0 in CSP): quantised again only when changed
+                self._extra_counts = ([floor(t * u + 0.5) for t, u in zip(target_torque, upn)],
+                                      [floor(v * c + 0.5) for v, c in zip(target_velocity, cpr)],
+                                      [floor(v * c + 0.5) for v, c in zip(velocity_offset, cpr)])
+                self._extra_si = tuple(list(x) for x in extra)
+            tt_units, tv_counts, vo_counts = self._extra_counts
         except (ValueError, OverflowError) as error:
-            raise ValueError(f"setpoints: position = {position}, torque_offset = {torque_offset}: "
-                             f"expected finite numbers ({error})") from error
+            raise ValueError(f"setpoints: position = {position}, torque_offset = {torque_offset}, target_torque = "
+                             f"{target_torque}, target_velocity = {target_velocity}, velocity_offset = "
+                             f"{velocity_offset}: expected finite numbers ({error})") from error
         msgs, latest, last_cw, wait = self._preq_msgs, self._latest, self._last_cw, self._pres_wait
         node_fault = self.node_fault
         for i in range(n):
             ts = times[i + 1]
             latest[i] = ts + wait[i]
             cw = controlword[i]
+            mode = modes[i]
+            if mode not in MODES_OF_OPERATION:
+                check_mode_of_operation(mode, f"setpoints.modes_of_operation[{i}]")
             if cw & CW_FAULT_RESET and not last_cw[i] & CW_FAULT_RESET and node_fault[i]:
                 self._clear_fault(i, ts)
             msg = msgs[i]
             msg.timestamp = ts
             try:
-                _PACK_RPDO1_INTO(msg.data, 0, cw, counts[i], units[i])
+                _PACK_RPDO1_INTO(msg.data, 0, cw, counts[i], units[i], mode, 0, tt_units[i], tv_counts[i],
+                                 vo_counts[i])
             except struct.error:  # out of the telegram range: saturate, or name the bad controlword
-                self._pack_saturated(msg, i, cw, position[i], torque_offset[i])
+                self._pack_saturated(msg, i, cw, position[i], torque_offset[i], mode, target_torque[i],
+                                     target_velocity[i], velocity_offset[i])
         self._last_cw = controlword
         return self._frames
 
-    def _pack_saturated(self, msg: FastMessage, i: int, cw: int, position: float, torque: float) -> None:
+    def _pack_saturated(self, msg: FastMessage, i: int, cw: int, position: float, torque: float, mode: int,
+                        target_torque: float, target_velocity: float, velocity_offset: float) -> None:
         if not isinstance(cw, int) or not 0 <= cw <= 0xFFFF:
             raise ValueError(f"setpoints.controlword[{i}] = {cw!r}: expected an integer in [0, 0xFFFF]")
-        _PACK_RPDO1_INTO(msg.data, 0, cw, self.scaling.position_count(i, position),
-                         self.scaling.torque_unit(i, torque))
+        s = self.scaling
+        _PACK_RPDO1_INTO(msg.data, 0, cw, s.position_count(i, position), s.torque_unit(i, torque), mode, 0,
+                         s.torque_unit(i, target_torque), s.velocity_count(i, target_velocity),
+                         s.velocity_count(i, velocity_offset))
 
     # ------------------------------------------------------------------ receiving
     def receive(self, msg: can.Message) -> None:
@@ -264,14 +298,14 @@ class ManagingNode:
         count, k = len(msgs), 0
         while k < count:  # the codec digests the PDOs; any other frame goes through Python, in order
             k = codec.receive_pres(msgs, k, self._latest, self._sw, self._pos, self._tq, self._vel, self._err,
-                                   self._got1, self._got2, self._late)
+                                   self._mode, self._got1, self._got2, self._late)
             if k < count:
                 self._receive_frames(msgs[k:k + 1])
                 k += 1
 
     def _receive_frames(self, msgs: list | tuple) -> None:
         tpdo1, tpdo2, latest = self._tpdo1_index, self._tpdo2_index, self._latest
-        sw, pos, tq, vel, err = self._sw, self._pos, self._tq, self._vel, self._err
+        sw, pos, tq, vel, err, mode = self._sw, self._pos, self._tq, self._vel, self._err, self._mode
         got1, got2, late = self._got1, self._got2, self._late
         for msg in msgs:
             if not (msg.is_error_frame or msg.is_remote_frame or msg.is_extended_id):
@@ -294,7 +328,7 @@ class ManagingNode:
                             if msg.timestamp > latest[i]:
                                 late[i] = True
                             else:
-                                vel[i], err[i] = _UNPACK_TPDO2(data)
+                                vel[i], err[i], mode[i] = _UNPACK_TPDO2(data)
                                 got2[i] = True
                             continue
             self._other_frame(msg)
@@ -351,6 +385,9 @@ class ManagingNode:
         if self._err != self._last_err:
             obs.error_code[:] = self._err
             self._last_err = list(self._err)
+        if self._mode != self._last_mode:
+            obs.modes_of_operation_display[:] = self._mode
+            self._last_mode = list(self._mode)
         codec = self._codec
         if codec is not None:
             packed = self._packed
@@ -399,15 +436,15 @@ class ControlledNodes:
         _init_common(self, config, scaling, layout, log)
         n = self.nodes
         self.applied = AppliedSetpoints.zeros(n)
-        self._write_position = _array_writer(self.applied.position)
-        self._write_torque = _array_writer(self.applied.torque_offset)
+        self._bind_writers(self.applied)
         self._d = config.dead_time_cycles
         self._hold = config.reaction.missing_setpoint == "hold"
         self._quick_stop = config.reaction.abort_connection_option == "quick_stop"
         self._jitter_range = config.timing.cn_soc_jitter_range_s
         self._arrival = [layout.wire_preq + layout.propagation[i + 1] for i in range(n)]
         self._packed["arrival"] = _doubles(self._arrival)
-        self._pipe: list[list[tuple[int, int, int] | None]] = [[None] * self._d for _ in range(n)]
+        # per node, per dead-time slot: the received RPDO1 (cw, pos, tq, mode, reserved, tt, tv, vo) or None
+        self._pipe: list[list[tuple[int, ...] | None]] = [[None] * self._d for _ in range(n)]
         self._preq_ok = [False] * n
         self._preq_late = [False] * n
         self._crc = [False] * n
@@ -421,11 +458,20 @@ class ControlledNodes:
         self._a_tq = [0] * n
         self._a_vel = [0] * n
         self._a_err = [0] * n
+        self._a_mode = [8] * n
         # applied set-points (telegram units), index = node - 1
         self._cw = [0] * n
         self._pos: list[int | None] = [None] * n
         self._prev_pos: list[int | None] = [None] * n
         self._tq = [0] * n
+        self._mode = [8] * n
+        self._tt = [0] * n
+        self._tv = [0] * n
+        self._vo = [0] * n
+        self._last_app_mode: list[int] | None = None  # last written to the applied arrays (None: write)
+        self._last_app_tv: list[int] | None = None
+        self._last_app_vo: list[int] | None = None
+        self._last_app_tt: list[int] | None = None
         self._fresh = [False] * n
         self._last_app_cw: list[int] | None = None
         self._all_fresh = False
@@ -454,7 +500,8 @@ class ControlledNodes:
         are set to the current ones; ValueError naming the array otherwise."""
         n = self.nodes
         kinds = {"position": "f", "torque_offset": "f", "controlword": "iu", "fault_code": "iu", "fresh": "b",
-                 "comm_fault": "b"}
+                 "comm_fault": "b", "modes_of_operation": "iu", "target_velocity": "f", "velocity_offset": "f",
+                 "target_torque": "f"}
         for name, kind in kinds.items():
             array = getattr(applied, name)
             if not (isinstance(array, np.ndarray) and array.shape == (n,) and array.dtype.kind in kind
@@ -468,8 +515,15 @@ class ControlledNodes:
         for name in kinds:
             getattr(applied, name)[:] = getattr(old, name)
         self.applied = applied
+        self._bind_writers(applied)
+        self._last_app_mode = self._last_app_tv = self._last_app_vo = self._last_app_tt = None
+
+    def _bind_writers(self, applied: AppliedSetpoints) -> None:
         self._write_position = _array_writer(applied.position)
         self._write_torque = _array_writer(applied.torque_offset)
+        self._write_tv = _array_writer(applied.target_velocity)
+        self._write_vo = _array_writer(applied.velocity_offset)
+        self._write_tt = _array_writer(applied.target_torque)
 
     # ------------------------------------------------------------------ SoC
     def start_cycle(self, cycle: int, actuals: DriveActuals) -> AppliedSetpoints:
@@ -485,12 +539,14 @@ class ControlledNodes:
         # latch actual values (quantised as they enter the PRes; range-checked when packed)
         self._prepacked = codec is not None and codec.latch_pres(
             actuals.statusword, actuals.position, actuals.velocity, actuals.torque, actuals.error_code,
-            packed["cpr"], packed["upn"], self._tpdo1_msgs, self._tpdo2_msgs, self._a_pos) == 0
+            actuals.modes_of_operation_display, packed["cpr"], packed["upn"], self._tpdo1_msgs, self._tpdo2_msgs,
+            self._a_pos) == 0
         if self._prepacked:
             a_pos = self._a_pos
         else:
             self._a_sw = actuals.statusword.tolist()
             self._a_err = actuals.error_code.tolist()
+            self._a_mode = actuals.modes_of_operation_display.tolist()
             pos, vel, tq = actuals.position.tolist(), actuals.velocity.tolist(), actuals.torque.tolist()
             cpr = self._cpr
             try:
@@ -504,9 +560,11 @@ class ControlledNodes:
         # apply the set-points due at this SoC
         slot = cycle % self._d
         cws, poss, prev, tqs, fresh = self._cw, self._pos, self._prev_pos, self._tq, self._fresh
+        modes, tts, tvs, vos = self._mode, self._tt, self._tv, self._vo
         done = -1
         if codec is not None and not self._any_fault:
-            done = codec.apply_due(self._pipe, slot, cws, poss, prev, tqs, fresh, a_pos, self._hold)
+            done = codec.apply_due(self._pipe, slot, cws, poss, prev, tqs, modes, tts, tvs, vos, fresh, a_pos,
+                                   self._hold)
         all_fresh = bool(done) if done >= 0 else True
         for i in range(n if done < 0 else 0):  # (nothing left when the codec applied them)
             pipe = self._pipe[i]
@@ -520,6 +578,10 @@ class ControlledNodes:
                 prev[i] = poss[i]
                 poss[i] = due[1]
                 tqs[i] = due[2]
+                modes[i] = due[3]
+                tts[i] = due[5]
+                tvs[i] = due[6]
+                vos[i] = due[7]
                 fresh[i] = True
             else:
                 all_fresh = False
@@ -548,10 +610,22 @@ class ControlledNodes:
         elif cws != self._last_app_cw:
             app.controlword[:] = cws
             self._last_app_cw = list(cws)
+        if modes != self._last_app_mode:
+            app.modes_of_operation[:] = modes
+            self._last_app_mode = list(modes)
         if codec is None or codec.scale_into(poss, packed["rpc"], app.position) \
                 or codec.scale_into(tqs, packed["npu"], app.torque_offset):
             self._write_position(*map(mul, poss, self._rpc))
             self._write_torque(*map(mul, tqs, self._npu))
+        if tvs != self._last_app_tv or vos != self._last_app_vo or tts != self._last_app_tt:
+            # the velocity and torque set-points of modes 9/10 and the velocity offset: often constant (0 in CSP)
+            if codec is None or codec.scale_into(tvs, packed["rpc"], app.target_velocity) \
+                    or codec.scale_into(vos, packed["rpc"], app.velocity_offset) \
+                    or codec.scale_into(tts, packed["npu"], app.target_torque):
+                self._write_tv(*map(mul, tvs, self._rpc))
+                self._write_vo(*map(mul, vos, self._rpc))
+                self._write_tt(*map(mul, tts, self._npu))
+            self._last_app_tv, self._last_app_vo, self._last_app_tt = list(tvs), list(vos), list(tts)
         if not (all_fresh and self._all_fresh):
             app.fresh[:] = fresh
         self._all_fresh = all_fresh
@@ -584,13 +658,15 @@ class ControlledNodes:
         slot = self.cycle % self._d
         for msg in msgs:
             i = ids.get(msg.arbitration_id)
+            size = len(msg.data)
             if i is None or msg.is_error_frame or msg.is_remote_frame or msg.is_extended_id \
-                    or len(msg.data) != _RPDO1_LEN:
+                    or (size != _RPDO1_LEN and size != _RPDO1_CLASSIC_LEN):
                 self._other_frame(msg)
             elif msg.timestamp + arrival[i] > next_soc:
                 late[i] = True
             else:
-                pipe[i][slot] = _UNPACK_RPDO1(msg.data)
+                pipe[i][slot] = (_UNPACK_RPDO1(msg.data) if size == _RPDO1_LEN
+                                 else _UNPACK_RPDO1_CLASSIC(msg.data) + CLASSIC_RPDO1_DEFAULTS)
                 ok[i] = True
 
     def _other_frame(self, msg: can.Message) -> None:
@@ -645,7 +721,8 @@ class ControlledNodes:
         n = self.nodes
         out: list[FastMessage] = []
         append = out.append
-        a_sw, a_pos, a_tq, a_vel, a_err = self._a_sw, self._a_pos, self._a_tq, self._a_vel, self._a_err
+        a_sw, a_pos, a_tq, a_vel, a_err, a_mode = (self._a_sw, self._a_pos, self._a_tq, self._a_vel, self._a_err,
+                                                   self._a_mode)
         msgs1, msgs2 = self._tpdo1_msgs, self._tpdo2_msgs
         for i in range(n):
             ts = times[n + 1 + i]
@@ -656,7 +733,7 @@ class ControlledNodes:
                 m2.timestamp = ts
                 try:
                     _PACK_TPDO1_INTO(m1.data, 0, a_sw[i], a_pos[i], a_tq[i])
-                    _PACK_TPDO2_INTO(m2.data, 0, a_vel[i], a_err[i])
+                    _PACK_TPDO2_INTO(m2.data, 0, a_vel[i], a_err[i], a_mode[i])
                 except struct.error:  # out of the telegram range: saturate, or name the bad word
                     self._pack_saturated(m1, m2, i)
                 append(m1)
@@ -667,13 +744,17 @@ class ControlledNodes:
         for name, word in (("statusword", self._a_sw[i]), ("error_code", self._a_err[i])):
             if not isinstance(word, int) or not 0 <= word <= 0xFFFF:
                 raise ValueError(f"actuals.{name}[{i}] = {word!r}: expected an integer in [0, 0xFFFF]")
+        mode = self._a_mode[i]
+        if not isinstance(mode, int) or not -128 <= mode <= 127:
+            raise ValueError(f"actuals.modes_of_operation_display[{i}] = {mode!r}: expected an integer in "
+                             "[-128, 127] (CiA 402 0x6061, INT8)")
         s = self.scaling
         pos, vel, tq = self._a_si
         self._a_pos[i] = s.position_count(i, pos[i])
         self._a_vel[i] = s.velocity_count(i, vel[i])
         self._a_tq[i] = s.torque_unit(i, tq[i])
         _PACK_TPDO1_INTO(m1.data, 0, self._a_sw[i], self._a_pos[i], self._a_tq[i])
-        _PACK_TPDO2_INTO(m2.data, 0, self._a_vel[i], self._a_err[i])
+        _PACK_TPDO2_INTO(m2.data, 0, self._a_vel[i], self._a_err[i], mode)
 
     def preq_received(self, node: int) -> bool:
         """True when a valid, timely PReq for ``node`` (1-based) arrived in this cycle."""

@@ -6,7 +6,7 @@ Joint side: rad, rad/s, N·m. Controlwords and statuswords are CiA 402 integers.
 from __future__ import annotations
 
 from dataclasses import dataclass, fields
-from typing import Self
+from typing import Any, Self
 
 import numpy as np
 
@@ -14,18 +14,35 @@ from fieldbus.cia402 import motion_enabled
 
 # element type of each per-node array by field name; any other field is float64 (SI units)
 _DTYPES = {"controlword": np.int64, "statusword": np.int64, "error_code": np.int64, "fault_code": np.int64,
-           "fresh": np.bool_, "comm_fault": np.bool_, "node_fault": np.bool_}
+           "fresh": np.bool_, "comm_fault": np.bool_, "node_fault": np.bool_,
+           "modes_of_operation": np.int64, "modes_of_operation_display": np.int64}
+# initial value of a field where it is not zero: cyclic synchronous position (CiA 402 0x6060 = 8)
+_INITIAL = {"modes_of_operation": 8, "modes_of_operation_display": 8}
+
+
+def _initial(name: str, nodes: int) -> np.ndarray:
+    return np.full(nodes, _INITIAL.get(name, 0), dtype=_DTYPES.get(name, np.float64))
 
 
 class _PerNode:
-    """Base of the records below: every field an array of shape (N,), one entry per node."""
+    """Base of the records below: every field an array of shape (N,), one entry per node.
+
+    The fields for the modes of operation come last with default None: left out (as by
+    code written before they existed), they get arrays of their own, mode 8 and zeros."""
 
     __slots__ = ()
 
     @classmethod
     def zeros(cls, nodes: int) -> Self:
-        """Zeros (False for flags) for ``nodes`` nodes."""
-        return cls(*(np.zeros(nodes, dtype=_DTYPES.get(f.name, np.float64)) for f in fields(cls)))
+        """Zeros (False for flags, 8 = cyclic synchronous position for modes) for ``nodes`` nodes."""
+        return cls(*(_initial(f.name, nodes) for f in fields(cls)))
+
+    def __post_init__(self) -> None:
+        missing = [f.name for f in fields(self) if getattr(self, f.name) is None]
+        if missing:
+            nodes = len(getattr(self, fields(self)[0].name))
+            for name in missing:
+                setattr(self, name, _initial(name, nodes))
 
     def copy(self) -> Self:
         """A copy with arrays of its own."""
@@ -39,11 +56,20 @@ class Setpoints(_PerNode):
     controlword: CiA 402 controlword per node (0x6040).
     position: target joint angle in rad (0x607A after scaling).
     torque_offset: feed-forward joint torque in N·m (0x60B2 after scaling).
+    modes_of_operation: 0x6060 per node, 8 (cyclic synchronous position, default), 9
+        (velocity) or 10 (torque); any other value is refused with a ValueError.
+    target_velocity: joint speed in rad/s (0x60FF, used in mode 9).
+    velocity_offset: joint speed feed-forward in rad/s (0x60B1, modes 8 and 9).
+    target_torque: joint torque in N·m (0x6071, used in mode 10).
     """
 
     controlword: np.ndarray
     position: np.ndarray
     torque_offset: np.ndarray
+    modes_of_operation: Any = None
+    target_velocity: Any = None
+    velocity_offset: Any = None
+    target_torque: Any = None
 
 
 @dataclass(slots=True)
@@ -53,6 +79,7 @@ class DriveActuals(_PerNode):
     statusword: CiA 402 statusword per node (0x6041).
     position: joint angle in rad (0x6064), velocity in rad/s (0x606C),
     torque: joint torque in N·m (0x6077), error_code: 0x603F.
+    modes_of_operation_display: 0x6061, the mode the drive runs in (default 8).
     """
 
     statusword: np.ndarray
@@ -60,6 +87,7 @@ class DriveActuals(_PerNode):
     velocity: np.ndarray
     torque: np.ndarray
     error_code: np.ndarray
+    modes_of_operation_display: Any = None
 
 
 @dataclass(slots=True)
@@ -76,6 +104,8 @@ class AppliedSetpoints(_PerNode):
         is 'fault' (default) - the drive then runs its CiA 402 fault reaction. With
         option 'quick_stop' fault_code stays 0 and the controlword is forced to quick
         stop (0x0002) instead.
+    modes_of_operation, target_velocity, velocity_offset, target_torque: as received
+        (held when the set-point due now did not arrive), rad/s and N·m after quantisation.
     """
 
     controlword: np.ndarray
@@ -84,6 +114,10 @@ class AppliedSetpoints(_PerNode):
     fresh: np.ndarray
     comm_fault: np.ndarray
     fault_code: np.ndarray
+    modes_of_operation: Any = None
+    target_velocity: Any = None
+    velocity_offset: Any = None
+    target_torque: Any = None
 
 
 @dataclass(slots=True)
@@ -93,7 +127,8 @@ class ObservedActuals(_PerNode):
     Values of a node whose PRes did not arrive valid are held from before, with
     fresh False. node_fault is True where the managing node's threshold counter for
     that node tripped (cleared by a fault reset once the counter is below threshold):
-    the controller must stop commanding motion.
+    the controller must stop commanding motion. modes_of_operation_display: 0x6061 of
+    each drive.
     """
 
     statusword: np.ndarray
@@ -103,6 +138,7 @@ class ObservedActuals(_PerNode):
     error_code: np.ndarray
     fresh: np.ndarray
     node_fault: np.ndarray
+    modes_of_operation_display: Any = None
 
     @property
     def motion_allowed(self) -> bool:

@@ -1,7 +1,7 @@
 """Recording of every frame with python-can's own ``Logger`` in simulated time.
 
-The hot loop packs each sent frame into a 20-byte record (timestamp, id, flags, dlc,
-data) - the network reuses its message objects, so they are copied here. Every
+The hot loop packs each sent frame into a 32-byte record (timestamp, id, flags, dlc,
+up to 20 data bytes: the CAN FD RPDO1 is the longest telegram) - the network reuses its message objects, so they are copied here. Every
 ``flush_every_cycles`` cycles the records are handed to a sink that sorts them by
 timestamp (late frames may have been sent out of time order) and writes those older
 than a watermark with ``can.Logger`` (``.blf``, ``.asc`` or any other format python-can
@@ -26,7 +26,7 @@ from fieldbus.errors import FieldbusConfigError
 from fieldbus.lifecycle import Closeable
 from fieldbus.telegrams import FastMessage
 
-RECORD = struct.Struct("<dHBB8s")  # timestamp, id, is_error_frame, dlc, data (padded)
+RECORD = struct.Struct("<dHBB20s")  # timestamp, id, is_error_frame, dlc, data (padded; at most 20 bytes)
 LOG_SUFFIXES = (".blf", ".asc", ".log", ".csv", ".trc", ".txt", ".mf4")
 
 
@@ -49,7 +49,8 @@ class _LogSink:
         write = self.logger.on_message_received
         for timestamp, arbitration_id, is_error, data in pending[:count]:
             # a standard data frame as can.Message(timestamp=..., arbitration_id=..., is_extended_id=False,
-            # data=..., is_error_frame=...) makes it, through the lean constructor (half the cost)
+            # data=..., is_error_frame=..., is_fd=len(data) > 8) makes it, through the lean constructor
+            # (half the cost)
             write(FastMessage(timestamp, arbitration_id, bytearray(data), is_error))
         del pending[:count]
         self.written += count
@@ -60,17 +61,31 @@ class _LogSink:
 
 
 def _writer_process(path: str, connection: Any) -> None:
-    """Child process: feed (records, watermark) batches to a sink until None arrives."""
+    """Child process: feed (records, watermark) batches to a sink until None arrives.
+
+    It ignores SIGINT and SIGTERM: Ctrl-C in a terminal reaches the whole process group, and
+    the writer must outlive the simulation loop to write what it was sent; the parent shuts it
+    down (None), and a parent that dies closes the pipe (EOFError ends the loop)."""
+    import signal
+
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(signum, signal.SIG_IGN)
     sink = _LogSink(path)
     try:
         while True:
-            batch = connection.recv()
+            try:
+                batch = connection.recv()
+            except EOFError:  # the parent is gone: keep what was written
+                break
             if batch is None:
                 break
             sink.feed(*batch)
     finally:
         sink.close()
-        connection.send(sink.written)
+        try:
+            connection.send(sink.written)
+        except OSError:
+            pass
         connection.close()
 
 

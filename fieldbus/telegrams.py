@@ -7,13 +7,16 @@ ordinary CAN tools:
 frame      COB-ID         payload (little endian)                                bytes
 =========  =============  =====================================================  =====
 SYNC       0x080          SYNC counter UINT8 1..overflow (CiA 301 0x1019)          1
-RPDO1      0x200 + node   controlword 0x6040 UINT16, target position 0x607A       8
-                          INT32 [counts], torque offset 0x60B2 INT16 [0.1 % of
-                          rated torque]
+RPDO1      0x200 + node   controlword 0x6040 UINT16, target position 0x607A      20
+           (CAN FD)       INT32 [counts], torque offset 0x60B2 INT16 [0.1 % of    (8)
+                          rated torque], modes of operation 0x6060 INT8,
+                          reserved UINT8 (0), target torque 0x6071 INT16
+                          [0.1 %], target velocity 0x60FF INT32 [counts/s],
+                          velocity offset 0x60B1 INT32 [counts/s]
 TPDO1      0x180 + node   statusword 0x6041 UINT16, position actual 0x6064        8
                           INT32 [counts], torque actual 0x6077 INT16 [0.1 %]
-TPDO2      0x280 + node   velocity actual 0x606C INT32 [counts/s], error code     6
-                          0x603F UINT16
+TPDO2      0x280 + node   velocity actual 0x606C INT32 [counts/s], error code     7
+                          0x603F UINT16, modes of operation display 0x6061 INT8
 EMCY       0x080 + node   error code UINT16, error register 0x1001 UINT8,         8
                           5 bytes manufacturer specific (here: the counter that
                           tripped, its value, its threshold)
@@ -22,6 +25,14 @@ EMCY       0x080 + node   error code UINT16, error register 0x1001 UINT8,       
 POWERLINK mapping: SYNC = SoC, RPDO1 = the PDO payload of the PReq to the node,
 TPDO1 + TPDO2 = the PDO payload of the node's PRes (one Ethernet frame, two CAN
 telegrams), EMCY = an asynchronous frame after the SoA.
+
+The RPDO1 carries every set-point of the three cyclic synchronous modes (position 8,
+velocity 9, torque 10) in one 20-byte CAN FD frame: a PReq is one POWERLINK frame
+whatever its mapping, and 10 + 20 bytes still fit the padded minimum Ethernet frame,
+so the cycle timing is that of the 8-byte telegram. Its first 8 bytes are exactly the
+classic CSP telegram (controlword, target position, torque offset); the drive side also
+accepts that classic 8-byte RPDO1 from a controller on classic CAN, read as mode 8 with
+no velocity offset (target velocity and target torque 0).
 """
 from __future__ import annotations
 
@@ -39,10 +50,12 @@ RPDO1_BASE = 0x200
 TPDO2_BASE = 0x280
 MAX_NODE_ID = 127
 
-RPDO1 = struct.Struct("<HiH")  # controlword, target position, torque offset (raw UINT16, see below)
-RPDO1_SIGNED = struct.Struct("<Hih")
+# controlword, target position, torque offset, modes of operation, reserved, target torque,
+# target velocity, velocity offset
+RPDO1_SIGNED = struct.Struct("<HihbBhii")
+RPDO1_CLASSIC = struct.Struct("<Hih")  # controlword, target position, torque offset (classic CAN, CSP only)
 TPDO1 = struct.Struct("<Hih")  # statusword, position actual, torque actual
-TPDO2 = struct.Struct("<iH")  # velocity actual, error code
+TPDO2 = struct.Struct("<iHb")  # velocity actual, error code, modes of operation display
 EMCY = struct.Struct("<HBBHH")  # error code, error register, counter id, counter value, threshold
 
 PREQ_PAYLOAD_BYTES = RPDO1_SIGNED.size
@@ -56,13 +69,25 @@ INT16_MIN, INT16_MAX = -(1 << 15), (1 << 15) - 1
 INT32_MIN, INT32_MAX = -(1 << 31), (1 << 31) - 1
 
 
+#: modes of operation (0x6060) the telegrams carry set-points for: cyclic synchronous
+#: position, velocity, torque
+MODES_OF_OPERATION = (8, 9, 10)
+#: what the 8-byte classic RPDO1 stands for in the fields it lacks
+CLASSIC_RPDO1_DEFAULTS = (8, 0, 0, 0, 0)  # mode, reserved, target torque, target velocity, velocity offset
+
+
 class RxPdo1(NamedTuple):
-    """Decoded RPDO1 (MN -> drive) in telegram units."""
+    """Decoded RPDO1 (MN -> drive) in telegram units (a classic 8-byte RPDO1 decodes with
+    mode 8 and zero target torque, target velocity and velocity offset)."""
 
     node: int
     controlword: int
     target_position: int
     torque_offset: int
+    modes_of_operation: int = 8
+    target_torque: int = 0
+    target_velocity: int = 0
+    velocity_offset: int = 0
 
 
 class TxPdo1(NamedTuple):
@@ -80,6 +105,7 @@ class TxPdo2(NamedTuple):
     node: int
     velocity_actual: int
     error_code: int
+    modes_of_operation_display: int = 8
 
 
 class Sync(NamedTuple):
@@ -114,7 +140,7 @@ def classify(arbitration_id: int) -> tuple[str, int]:
     return (kind, node) if kind else ("unknown", 0)
 
 
-_LENGTHS = {"sync": (0, 1), "emcy": (EMCY.size,), "rpdo1": (RPDO1_SIGNED.size,),
+_LENGTHS = {"sync": (0, 1), "emcy": (EMCY.size,), "rpdo1": (RPDO1_SIGNED.size, RPDO1_CLASSIC.size),
             "tpdo1": (TPDO1.size,), "tpdo2": (TPDO2.size,)}
 
 
@@ -146,7 +172,10 @@ def decode(msg: can.Message) -> Telegram:
     check_frame(msg, kind, node)
     data = msg.data
     if kind == "rpdo1":
-        return RxPdo1(node, *RPDO1_SIGNED.unpack(data))
+        if len(data) == RPDO1_CLASSIC.size:
+            return RxPdo1(node, *RPDO1_CLASSIC.unpack(data))
+        cw, pos, tq, mode, _, target_torque, target_velocity, velocity_offset = RPDO1_SIGNED.unpack(data)
+        return RxPdo1(node, cw, pos, tq, mode, target_torque, target_velocity, velocity_offset)
     if kind == "tpdo1":
         return TxPdo1(node, *TPDO1.unpack(data))
     if kind == "tpdo2":
@@ -162,11 +191,24 @@ def _checked(value: int, low: int, high: int, name: str) -> int:
     return value
 
 
-def encode_rpdo1(controlword: int, target_position: int, torque_offset: int) -> bytes:
-    """RPDO1 payload; raises ValueError naming the field if a value is out of range."""
+def check_mode_of_operation(mode: int, name: str = "modes_of_operation") -> int:
+    """``mode`` if the telegrams carry set-points for it (8, 9, 10); ValueError naming ``name`` otherwise."""
+    if isinstance(mode, bool) or mode not in MODES_OF_OPERATION:
+        raise ValueError(f"{name} = {mode!r}: expected 8 (cyclic synchronous position), 9 (cyclic synchronous "
+                         "velocity) or 10 (cyclic synchronous torque)")
+    return int(mode)
+
+
+def encode_rpdo1(controlword: int, target_position: int, torque_offset: int, modes_of_operation: int = 8,
+                 target_torque: int = 0, target_velocity: int = 0, velocity_offset: int = 0) -> bytes:
+    """RPDO1 payload (20 bytes); raises ValueError naming the field if a value is out of range."""
     return RPDO1_SIGNED.pack(_checked(controlword, 0, 0xFFFF, "controlword"),
                              _checked(target_position, INT32_MIN, INT32_MAX, "target_position"),
-                             _checked(torque_offset, INT16_MIN, INT16_MAX, "torque_offset"))
+                             _checked(torque_offset, INT16_MIN, INT16_MAX, "torque_offset"),
+                             check_mode_of_operation(modes_of_operation), 0,
+                             _checked(target_torque, INT16_MIN, INT16_MAX, "target_torque"),
+                             _checked(target_velocity, INT32_MIN, INT32_MAX, "target_velocity"),
+                             _checked(velocity_offset, INT32_MIN, INT32_MAX, "velocity_offset"))
 
 
 def encode_tpdo1(statusword: int, position_actual: int, torque_actual: int) -> bytes:
@@ -176,15 +218,17 @@ def encode_tpdo1(statusword: int, position_actual: int, torque_actual: int) -> b
                       _checked(torque_actual, INT16_MIN, INT16_MAX, "torque_actual"))
 
 
-def encode_tpdo2(velocity_actual: int, error_code: int) -> bytes:
+def encode_tpdo2(velocity_actual: int, error_code: int, modes_of_operation_display: int = 8) -> bytes:
     """TPDO2 payload; raises ValueError naming the field if a value is out of range."""
     return TPDO2.pack(_checked(velocity_actual, INT32_MIN, INT32_MAX, "velocity_actual"),
-                      _checked(error_code, 0, 0xFFFF, "error_code"))
+                      _checked(error_code, 0, 0xFFFF, "error_code"),
+                      _checked(modes_of_operation_display, -128, 127, "modes_of_operation_display"))
 
 
 class FastMessage(can.Message):
     """A :class:`can.Message` with a lean positional constructor for the hot loop:
-    standard 11-bit id, data frame, received (``is_rx``), no channel."""
+    standard 11-bit id, data frame, received (``is_rx``), no channel; a CAN FD frame
+    (``is_fd``) when it carries more than 8 bytes."""
 
     __slots__ = ()
 
@@ -196,7 +240,7 @@ class FastMessage(can.Message):
         self.is_remote_frame = False
         self.is_error_frame = is_error_frame
         self.channel = None
-        self.is_fd = False
+        self.is_fd = len(data) > 8
         self.is_rx = True
         self.bitrate_switch = False
         self.error_state_indicator = False

@@ -6,10 +6,11 @@ joint move sampled and held every 400 us (CSP target) and, optionally, the model
 torque feed-forward ``M(q_d) qdd_d + C qd_d + g + friction`` of the nominal arm
 (0x60B2), plus the CiA 402 enable sequence (shutdown in the first 400 us, then enable).
 
-- Co-simulation: a plain fixed-step Jacobi loop over :class:`FastFmu2Slave` instances.
-  At each macro step all outputs at ``t`` are read, all inputs set, all FMUs stepped by
-  ``H``; the plant holds the drives' torque and the drives hold the measured ``q, qd``
-  over the macro step.
+- Co-simulation: ``cosim.coupling_study.cosimulate``, on the master the jobs use
+  (``cosim.master.Master``, Jacobi or Gauss-Seidel): the plant holds the drives' torque
+  and the drives hold the measured ``q, qd`` over the macro step. It lives in ``cosim/``
+  because the master does; this module keeps what needs no master (commands, the
+  monolithic reference, the error measure).
 - Monolithic reference: the drives' discrete controllers as Python oracles
   (:class:`fmus.servo_drive.reference.DriveReference`) sampled every 50 us with the exact
   state, zero-order-hold voltages between samples; the six winding currents and the
@@ -22,13 +23,11 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 from scipy.integrate import solve_ivp
 
-from fmus.fast_fmu import FastFmu2Slave
 from fmus.servo_drive.params import drive_start_values
 from fmus.servo_drive.reference import DriveReference
 from robot.dynamics import RobotDynamics
@@ -87,55 +86,6 @@ def controller_commands(duration: float, torque_feedforward: bool = True,
         offset = np.array([dynamics.inverse_dynamics(*row) for row in zip(q, qd, qdd)])
     controlword = np.where(grid < CONTROLLER_PERIOD - 1e-12, 0x06, 0x0F)
     return Commands(q, offset, controlword)
-
-
-def cosimulate(fmu_paths: dict[str, Path], commands: Commands, macro_step: float, duration: float,
-               drive_overrides: dict[str, float] | None = None, coupling: str = "jacobi") -> Trajectory:
-    """Fixed-step co-simulation of the plant and six drive FMUs; q on the 400 us grid.
-
-    ``coupling="jacobi"``: all FMUs stepped with the outputs at ``t``; ``"gauss_seidel"``:
-    drives first, then the plant with the drives' torque at ``t + H``.
-    ``drive_overrides`` replace drive start values on all axes (e.g. ``speed_feedforward_gain``).
-    """
-    if coupling not in ("jacobi", "gauss_seidel"):
-        raise ValueError(f"coupling = {coupling!r}, expected 'jacobi' or 'gauss_seidel'")
-    plant = FastFmu2Slave(fmu_paths["rx130l_plant"], "plant", {f"q0[{j + 1}]": float(Q0[j]) for j in range(6)},
-                          real_inputs=[f"tau[{j}]" for j in range(1, 7)],
-                          real_outputs=[f"q[{j}]" for j in range(1, 7)] + [f"qd[{j}]" for j in range(1, 7)])
-    drives = [FastFmu2Slave(fmu_paths["servo_drive"], f"drive{a}", {**drive_start_values(a), **(drive_overrides or {})},
-                            real_inputs=DRIVE_INPUTS,
-                            real_outputs=("tau_out",), integer_inputs=("controlword",)) for a in range(1, 7)]
-    steps = int(round(duration / macro_step))
-    record_every = int(round(CONTROLLER_PERIOD / macro_step))
-    tau = np.zeros(6)
-    inputs = np.zeros(4)
-    times, positions = [], []
-    start = time.perf_counter()
-    try:
-        for k in range(steps):
-            t = k * macro_step
-            state = plant.get_outputs()
-            if k % record_every == 0:
-                times.append(t)
-                positions.append(state[:6].copy())
-            target, offset, controlword = commands.at(t)
-            for j, drive in enumerate(drives):
-                inputs[:] = (target[j], offset[j], state[j], state[6 + j])
-                drive.set_integer_inputs((controlword,))
-                drive.set_inputs(inputs)
-            if coupling == "jacobi":
-                plant.set_inputs(tau)
-            for j, drive in enumerate(drives):
-                drive.do_step(t, macro_step)
-                tau[j] = drive.get_outputs()[0]
-            if coupling == "gauss_seidel":
-                plant.set_inputs(tau)
-            plant.do_step(t, macro_step)
-    finally:
-        wall = time.perf_counter() - start
-        for fmu in (plant, *drives):
-            fmu.close()
-    return Trajectory(np.array(times), np.array(positions), wall)
 
 
 def monolithic_reference(commands: Commands, duration: float, dynamics: RobotDynamics | None = None,

@@ -1,8 +1,9 @@
-"""A fast path to FMI 2.0 co-simulation FMUs for fixed-step master loops.
+"""A fast path to FMI 2.0 co-simulation FMUs for hand-written fixed-step loops.
 
 fmpy's ``FMU2Slave.setReal/getReal`` build ctypes arrays on every call and route each
-call through a logging wrapper. :class:`FastFmu2Slave` uses fmpy only to load and
-instantiate the FMU; afterwards it calls ``fmi2SetReal``/``fmi2GetReal``/``fmi2DoStep``
+call through a logging wrapper. :class:`FastFmu2Slave` loads and instantiates the FMU
+through the project's one FMI 2.0 instance layer (:mod:`fmus.instance`, which the
+co-simulation master's FmuComponent uses too); afterwards it calls ``fmi2SetReal``/``fmi2GetReal``/``fmi2DoStep``
 of the loaded library directly, with value-reference arrays and numpy value buffers
 prepared once. Every call still checks the returned status and raises
 :class:`FmuCallError` with the FMU's own logged message.
@@ -21,69 +22,29 @@ Typical use (six drives and a plant in a loop)::
 """
 from __future__ import annotations
 
-import atexit
 import ctypes
-import shutil
-import tempfile
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
-from fmpy import extract, read_model_description
-from fmpy.fmi2 import FMU2Slave, fmi2CallbackFunctions, fmi2CallbackLoggerTYPE, fmi2CallbackAllocateMemoryTYPE, \
-    fmi2CallbackFreeMemoryTYPE
-from fmpy.logging import addLoggerProxy
 
-_STATUS = ("OK", "Warning", "Discard", "Error", "Fatal", "Pending")
-_EXTRACTED: dict[tuple[str, int], str] = {}
-_MESSAGES: dict[int, list[tuple[str, str]]] = {}  # componentEnvironment -> messages of that instance
-_next_environment = 1
-_libc = ctypes.CDLL(None)
-_libc.calloc.restype = ctypes.c_void_p
-_libc.calloc.argtypes = [ctypes.c_size_t, ctypes.c_size_t]
-_libc.free.argtypes = [ctypes.c_void_p]
+from fmus.instance import FmuInstance, FmuInstantiateError, status_label
 
 
 class FmuCallError(ValueError):
     """An FMU call returned fmi2Error/fmi2Fatal (or a name/value given to it was wrong)."""
 
 
-def _route_log(environment, instance_name, status, category, message) -> None:
-    """The one Python logger behind fmpy's native formatting proxy (which keeps a single,
-    process-wide Python callback): messages go to their instance by componentEnvironment;
-    others are printed the way fmpy prints them."""
-    label = _STATUS[status] if 0 <= status < len(_STATUS) else str(status)
-    text = message.decode("utf-8", "replace") if message else ""
-    target = _MESSAGES.get(environment or 0)
-    if target is None:
-        print(f"[{label.upper()}] {text}")
-    else:
-        target.append((label, text))
-
-
-_LOGGER = fmi2CallbackLoggerTYPE(_route_log)
-
-
-def _extracted_dir(fmu_path: Path) -> str:
-    """Extract each FMU file once per process (all instances share one library copy)."""
-    key = (str(fmu_path.resolve()), fmu_path.stat().st_mtime_ns)
-    if key not in _EXTRACTED:
-        directory = tempfile.mkdtemp(prefix=f"{fmu_path.stem}-")
-        extract(str(fmu_path), directory)
-        atexit.register(shutil.rmtree, directory, True)
-        _EXTRACTED[key] = directory
-    return _EXTRACTED[key]
-
-
 class FastFmu2Slave:
     """One instance of an FMI 2.0 co-simulation FMU with prepared I/O arrays.
 
-    ``start_values`` maps variable names to values set in initialization mode (Real or
-    Integer by the model description). ``real_inputs``/``real_outputs``/
-    ``integer_inputs``/``integer_outputs`` fix the order of the arrays exchanged by
-    :meth:`set_inputs`, :meth:`get_outputs`, :meth:`set_integer_inputs` and
-    :meth:`get_integer_outputs`. The instance is initialised (ready for :meth:`do_step`
-    at ``start_time``) when the constructor returns.
+    Built on :class:`fmus.instance.FmuInstance`, the project's one FMI 2.0 instance layer
+    (also under the co-simulation master's ``FmuComponent``). ``start_values`` maps
+    variable names to values set in initialization mode (Real or Integer by the model
+    description). ``real_inputs``/``real_outputs``/``integer_inputs``/``integer_outputs``
+    fix the order of the arrays exchanged by :meth:`set_inputs`, :meth:`get_outputs`,
+    :meth:`set_integer_inputs` and :meth:`get_integer_outputs`. The instance is
+    initialised (ready for :meth:`do_step` at ``start_time``) when the constructor returns.
     """
 
     def __init__(self, fmu_path: str | Path, instance_name: str,
@@ -95,30 +56,16 @@ class FastFmu2Slave:
         if not path.is_file():
             raise FmuCallError(f"fmu_path = {str(path)!r} does not exist, expected an .fmu file")
         self.path = path
-        self.model_description = read_model_description(str(path))
-        self.variables = {v.name: v for v in self.model_description.modelVariables}
-        global _next_environment
         self.messages: list[tuple[str, str]] = []  # (status, message) logged by the FMU
-        self._environment = _next_environment
-        _next_environment += 1
-        _MESSAGES[self._environment] = self.messages
-        self._callbacks = fmi2CallbackFunctions()
-        self._callbacks.logger = _LOGGER
-        self._callbacks.componentEnvironment = self._environment
-        self._callbacks.allocateMemory = fmi2CallbackAllocateMemoryTYPE(_libc.calloc)
-        self._callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE(_libc.free)
-        addLoggerProxy(ctypes.byref(self._callbacks))
-
-        self._fmu = FMU2Slave(guid=self.model_description.guid, unzipDirectory=_extracted_dir(path),
-                              modelIdentifier=self.model_description.coSimulation.modelIdentifier,
-                              instanceName=instance_name)
+        self._instance_name = instance_name
         self._component = None
         try:
-            self._fmu.instantiate(callbacks=self._callbacks, loggingOn=logging_on)
-        except Exception as exc:
-            self._fmu.freeLibrary()
+            self._fmu = FmuInstance(path, instance_name, self._log, logging_on=logging_on)
+        except FmuInstantiateError as exc:
             last = self.messages[-1][1] if self.messages else str(exc)
             raise FmuCallError(f"{path.name} ({instance_name}): fmi2Instantiate failed: {last}") from None
+        self.model_description = self._fmu.model_description
+        self.variables = self._fmu.variables
         self._component = self._fmu.component
         dll = self._fmu.dll
         self._do_step_fn = dll.fmi2DoStep
@@ -143,6 +90,9 @@ class FastFmu2Slave:
             raise
         self.time = start_time
 
+    def _log(self, status: int, category: str, text: str) -> None:
+        self.messages.append((status_label(status), text))
+
     # -- helpers ------------------------------------------------------------------
     def _variable(self, name: str, type_: str):
         variable = self.variables.get(name)
@@ -161,8 +111,8 @@ class FastFmu2Slave:
     def _check(self, status: int, function: str) -> None:
         if status > 1:  # worse than fmi2Warning
             last = self.messages[-1][1] if self.messages else "no message logged"
-            raise FmuCallError(f"{self.path.name} ({self._fmu.instanceName}): {function} returned "
-                               f"{_STATUS[status] if status < len(_STATUS) else status}: {last}")
+            raise FmuCallError(f"{self.path.name} ({self._instance_name}): {function} returned "
+                               f"{status_label(status)}: {last}")
 
     # -- the fast path ---------------------------------------------------------------
     @property
@@ -238,10 +188,8 @@ class FastFmu2Slave:
     def close(self) -> None:
         """Terminate and free the instance (idempotent)."""
         if self._component is not None:
-            self._fmu.dll.fmi2Terminate(self._component)  # status ignored: the instance is freed anyway
-            self._fmu.freeInstance()
+            self._fmu.free(terminate=True)  # a failed fmi2Terminate is ignored: the instance is freed anyway
             self._component = None
-            _MESSAGES.pop(self._environment, None)
 
     def __enter__(self) -> "FastFmu2Slave":
         return self

@@ -1,5 +1,5 @@
 """Shared set-up of the realtime/split tests: a short ISO 9283 cell (motion starts after a
-10 ms settle), built exactly as the iso9283 job builds it, and a short scenario file."""
+10 ms settle), built by the cell builder the iso9283 job uses, and a short scenario file."""
 from __future__ import annotations
 
 import re
@@ -41,32 +41,15 @@ def write_scenario(tmp_path: Path, stop_time: str, dead_time: int = 1, extra: st
 
 
 def build_cell(scenario_path: Path, out_dir: Path):
-    """(doc, controller, true_robot, ctx, fieldbus config, tracker config) as the iso9283 job builds them."""
-    from controller import Controller, ControllerConfig, TcpTrajectory
-    from cosim.jobs import iso9283, robot_cell
-    from cosim.jobs.laser_tracker import TrackerConfig
+    """(cell description, built-in controller, ctx) of the scenario's model_based mode, built
+    by the one cell builder the jobs use (:func:`cosim.cell.mode_runs.mode_cell`)."""
+    from cosim.cell.mode_runs import mode_cell, prepare
     from cosim.scenario import RunContext, load_scenario
-    from fieldbus import FieldbusConfig
-    from planners.iso9283 import ISO_Q_HINT, iso9283_test_path
 
     scenario = load_scenario(scenario_path)
-    doc = scenario.data
-    iso9283.fill_table_defaults(doc)
-    ctrl_t = doc["controller"]
-    stop_time = doc["simulation"]["stop_time"]
-    true_robot = iso9283.make_true_robot(doc["true_robot"])
-    path = iso9283_test_path(speed=doc["path"]["speed"], acceleration=doc["path"]["acceleration"])
-    reference = TcpTrajectory.from_reference(path.reference, path.duration, PERIOD)
-    kin, dyn, _, _ = iso9283.controller_models(ctrl_t, true_robot)
-    fb = FieldbusConfig.from_dict(doc["fieldbus"])
-    config = ControllerConfig(mode="model_based", period_s=PERIOD, lead_cycles=1 + fb.dead_time_cycles,
-                              compute_budget_s=ctrl_t["compute_budget"], settle_time_s=ctrl_t["settle_time"])
-    controller = Controller(reference, config, kinematic_model=kin, dynamics=dyn, q_hint=np.array(ISO_Q_HINT),
-                            drive_model=robot_cell.drive_loop_model(doc["fmus"], PERIOD),
-                            capacity=int(stop_time / PERIOD) + 16)
-    tracker = TrackerConfig(doc["tracker"]["period"], doc["tracker"]["noise_sigma"], doc["tracker"]["seed"])
-    ctx = RunContext(scenario, out_dir, quiet=True)
-    return doc, controller, true_robot, ctx, fb, tracker
+    setup = prepare(scenario.data, str(scenario.path))
+    cell, controller = mode_cell(setup, "model_based")
+    return cell, controller, RunContext(scenario, out_dir, quiet=True)
 
 
 def column_block(recording, names: list[str]) -> np.ndarray:

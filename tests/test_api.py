@@ -183,3 +183,40 @@ def test_failed_run_raises_run_failed_with_summary(tmp_path):
     assert err.result.timeseries("timeseries", kind="numpy")["f.y"][-1] == pytest.approx(0.04)
     result = cosim.run(doc, out=tmp_path / "again", check=False)
     assert result.status == "failed" and result.summary.reason == err.reason
+
+
+def test_build_sweep_validates_every_variant_before_running(tmp_path):
+    path = tmp_path / "drop.toml"
+    path.write_text(PLANT, encoding="utf-8")
+    base = cosim.load_scenario(path, overrides={"simulation.stop_time": "20 ms"})
+    with pytest.raises(cosim.ScenarioError) as info:
+        cosim.build_sweep(base, {"simulation.stop_tim": [0.1]}, name="s")
+    assert (info.value.file, info.value.key) == ("<python>", "axes[0].key")
+    assert "unknown axis" in str(info.value)
+    with pytest.raises(cosim.ScenarioError) as info:
+        cosim.build_sweep(base, {"simulation.stop_time": ["10 ms", "2 kg"]}, name="s")
+    assert (info.value.file, info.value.key, info.value.given) == ("<python>", "axes[0].values[1]", "2 kg")
+    with pytest.raises(cosim.ScenarioError) as info:
+        cosim.build_sweep(base, [{"key": "simulation.stop_time", "values": []}], name="s")
+    assert info.value.key == "axes[0].values" and info.value.problem == "empty axis"
+    sweep = cosim.build_sweep(base, {'fmus[0].parameters."q0[3]"': [1.0, 1.2],
+                                     "simulation.stop_time": ["10 ms", "30 ms"]},
+                              name="s", overrides={"record.period": "2 ms"}, metrics=["rows_recorded"])
+    assert [v.id for v in sweep.variants] == ["v0000", "v0001", "v0002", "v0003"]
+    assert sweep.variants[3].values == {'fmus[0].parameters."q0[3]"': 1.2, "simulation.stop_time": 0.03}
+    assert all(v.document["record"]["period"] == "2 ms" for v in sweep.variants)
+    assert sweep.base.raw["simulation"]["stop_time"] == "20 ms"     # the base keeps its own overrides
+    assert list(tmp_path.iterdir()) == [path]                        # nothing written
+
+
+def test_cli_help_stays_fast():
+    import time
+
+    start = time.perf_counter()
+    out = subprocess.run([sys.executable, "-m", "cosim", "--help"], capture_output=True, text=True, cwd=ROOT)
+    assert out.returncode == 0 and "run" in out.stdout
+    code = ("import sys, cosim.cli; cosim.cli.build_parser(); "
+            "print(sorted(m for m in ('cosim.api', 'cosim.sweep', 'dask', 'fmpy', 'pandas') if m in sys.modules))")
+    loaded = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, check=True)
+    assert loaded.stdout.strip() == "[]", loaded.stdout        # the parser imports no API, sweep or Dask code
+    assert time.perf_counter() - start < 20                    # generous: a loaded 2-core machine

@@ -41,21 +41,33 @@ def _compare_toml(tmp_path: Path, controllers: str, trajectories: str, extra: li
         *extra])
 
 
+EXAMPLE = ROOT / "examples" / "compare.toml"
+EXAMPLE_SHORT = [('stop_time = "12.6 s"', 'stop_time = "0.6 s"'), ('settle_time = "0.2 s"', 'settle_time = "0.1 s"')]
+"""The example as a user runs it, with the ISO 9283 path cut at 0.6 s (the other trajectories run whole)."""
+
+
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory):
+    """examples/compare.toml (shortened ISO path) and the main job on the same settings (model_based only)."""
     tmp = tmp_path_factory.mktemp("compare")
-    _joint_csv(tmp / "wave.csv")
-    planner = ROOT / "examples" / "quintic_planner.py"
-    path = _compare_toml(tmp, '["standard", "model_based"]',
-                         f'["iso9283", "wave.csv", {{planner = "{planner}:QuinticPtP", parameters = '
-                         '{speed_factor = 1.0}}]',
-                         [("[fieldbus]", '[problem]\nptp_intervals = 20\n\n[fieldbus]')])
-    code, summary = run_scenario(path, tmp / "out")
+    path = write_variant(EXAMPLE.read_text(encoding="utf-8"), EXAMPLE.parent / f"_test_{tmp.name}.toml",
+                         EXAMPLE_SHORT)
+    try:
+        code, summary = run_scenario(path, tmp / "out")
+    finally:
+        path.unlink()
     assert code == 0 and summary["status"] == "ok", summary.get("reason")
-    main = write_variant(ISO_TEXT, tmp / "main.toml", [
-        *SHORT, ('modes = ["standard", "standard_speed_ff", "model_based"]', 'modes = ["model_based"]'),
+    # the main job on the same scenario settings: the example with job = "iso9283", model_based only
+    text = EXAMPLE.read_text(encoding="utf-8")
+    text = text[:text.index("\n[compare]\n")] + text[text.index("\n[results]\n"):]
+    main = write_variant(text, EXAMPLE.parent / f"_test_{tmp.name}_main.toml", [
+        *EXAMPLE_SHORT, ('job = "compare"', 'job = "iso9283"'),
+        ('period = "400 us"            # paper section 2.3.2', 'modes = ["model_based"]\nperiod = "400 us"'),
         ("figures = true", "figures = false")])
-    code, main_summary = run_scenario(main, tmp / "main_out")
+    try:
+        code, main_summary = run_scenario(main, tmp / "main_out")
+    finally:
+        main.unlink()
     assert code == 0, main_summary.get("reason")
     return summary, tmp / "out", main_summary
 
@@ -70,35 +82,49 @@ def test_model_based_entry_equals_the_main_job(runs):
     assert summary["true_robot"] == main["true_robot"]
 
 
+TRAJECTORIES = ("iso9283", "pick_place_joint", "line", "ruckig_feasible", "quintic_ptp")
+CONTROLLERS = ("standard", "standard_speed_ff", "model_based")
+
+
 def test_table_ranks_every_entry_and_is_written_as_csv_and_json(runs):
     summary, out, _ = runs
     rows = summary["table"]
-    assert [(r["trajectory"], r["controller"]) for r in rows] == [
-        ("iso9283", "model_based"), ("iso9283", "standard"), ("wave", "model_based"), ("wave", "standard"),
-        ("quintic_ptp", "model_based"), ("quintic_ptp", "standard")]
+    assert [r["trajectory"] for r in rows] == [t for t in TRAJECTORIES for _ in CONTROLLERS]
     for r in rows:
-        assert r["status"] == "ok" and r["rank"] in (1, 2)
+        assert r["status"] == "ok" and r["rank"] in (1, 2, 3)
         for key in ("tcp_error_max_mm", "tcp_error_rms_mm", "path_accuracy_AT_mm", "joint_lag_max_mrad",
                     "current_peak_ratio", "energy_J", "tau_squared_integral", "duration_s"):
             assert r[key] is not None and r[key] > 0.0, (r["trajectory"], r["controller"], key)
         assert r["deadline_misses"] >= 0
         assert r["path_accuracy_AT_mm"] <= r["tcp_error_max_mm"] + 1e-9
-    # model-based feed-forward beats the drive cascade on every trajectory, by far
-    for traj in ("iso9283", "wave", "quintic_ptp"):
-        mb, st = (next(r for r in rows if r["trajectory"] == traj and r["controller"] == c)
-                  for c in ("model_based", "standard"))
-        assert mb["rank"] == 1 and st["tcp_error_max_mm"] > 5 * mb["tcp_error_max_mm"], traj
-    assert rows[2]["duration_s"] == pytest.approx(0.4)
+    for traj in TRAJECTORIES:
+        group = [r for r in rows if r["trajectory"] == traj]
+        assert [r["rank"] for r in group] == [1, 2, 3]
+        errors = [r["tcp_error_max_mm"] for r in group]
+        assert errors == sorted(errors)
+        # the drive cascade alone lags by far the most on every trajectory
+        assert group[-1]["controller"] == "standard" and errors[-1] > 5 * errors[0], traj
+    by = {(r["trajectory"], r["controller"]): r for r in rows}
+    assert by[("pick_place_joint", "model_based")]["duration_s"] == pytest.approx(1.8)
+    assert by[("line", "model_based")]["duration_s"] == pytest.approx(0.8)
     with open(out / "compare.csv", newline="") as handle:
         table = list(csv.DictReader(handle))
-    assert len(table) == 6 and float(table[0]["tcp_error_max_mm"]) == rows[0]["tcp_error_max_mm"]
+    assert len(table) == len(rows) and float(table[0]["tcp_error_max_mm"]) == rows[0]["tcp_error_max_mm"]
     data = json.loads((out / "compare.json").read_text())
     assert data["rank_by"] == "tcp_error_max_mm" and data["rows"] == rows
-    for name in ("trajectory_wave.csv", "trajectory_quintic_ptp.csv", "timeseries_standard__wave.csv",
-                 "tcp_model_based__quintic_ptp.csv", "controller_standard__iso9283.csv"):
+    for name in ("trajectory_pick_place_joint.csv", "trajectory_line.csv", "trajectory_quintic_ptp.csv",
+                 "timeseries_standard__line.csv", "tcp_model_based__quintic_ptp.csv",
+                 "controller_standard__iso9283.csv"):
         assert (out / name).stat().st_size > 0, name
-    assert summary["trajectories"]["wave"]["kind"] == "joint"
-    assert summary["trajectories"]["quintic_ptp"]["planner"].endswith("quintic_planner.py:QuinticPtP")
+    # the payload FMU (built from C) hangs 3 kg on the flange from t = 0.5 s, through the plant's tau_ext
+    with open(out / "timeseries_model_based__pick_place_joint.csv", newline="") as handle:
+        series = list(csv.DictReader(handle))
+    mass = {round(float(r["time"]), 4): float(r["payload.load_mass"]) for r in series}
+    assert mass[0.499] == 0.0 and mass[0.502] == 3.0 and mass[1.0] == 3.0
+    assert abs(float(series[600]["payload.tau[2]"])) > 5.0
+    trajs = summary["trajectories"]
+    assert trajs["pick_place_joint"]["kind"] == "joint" and trajs["line"]["kind"] == "cartesian"
+    assert trajs["quintic_ptp"]["planner"] == "quintic_planner.py:QuinticPtP"
 
 
 def test_figures_show_every_entry(runs):

@@ -36,11 +36,18 @@ def trace(config: dict, cycles: int, seed: int) -> tuple[list, dict]:
             setpoints.controlword[:] = 0x8F if k % 97 == 50 else 0x0F
             setpoints.position[:] = rng.normal(0.0, 1.0, 6)
             setpoints.torque_offset[:] = rng.normal(0.0, 100.0, 6)
+            setpoints.modes_of_operation[:] = rng.integers(8, 11, 6)
+            setpoints.target_velocity[:] = rng.normal(0.0, 2.0, 6)
+            setpoints.velocity_offset[:] = rng.normal(0.0, 0.5, 6)
+            setpoints.target_torque[:] = rng.normal(0.0, 100.0, 6)
             actuals.position[:] = rng.normal(0.0, 1.0, 6)
             actuals.velocity[:] = rng.normal(0.0, 2.0, 6)
             actuals.torque[:] = rng.normal(0.0, 100.0, 6)
+            actuals.modes_of_operation_display[:] = rng.integers(8, 11, 6)
             if k % 53 == 7:  # beyond the telegram ranges: saturated on both sides
                 setpoints.torque_offset[2] = 1e6
+                setpoints.target_torque[1] = -1e6
+                setpoints.target_velocity[3] = 1e9
                 actuals.velocity[4] = -1e9
             result = network.run_cycle(k, setpoints, actuals)
             out.append((result.applied.copy(), result.observed.copy()))
@@ -97,10 +104,17 @@ def test_compiled_codec_equals_the_python_nodes(monkeypatch, name):
     if name != "clean":
         assert fast_summary["faults"], "the faulty configurations must produce faults"
     assert fast_summary["scaling_saturations"]["torque"] > 0 and fast_summary["scaling_saturations"]["velocity"] > 0
+    # the new set-points and the display really travel (not all defaults)
+    assert {int(m) for fa, _ in fast for m in fa.modes_of_operation} == {8, 9, 10}
+    assert {int(m) for _, fo in fast for m in fo.modes_of_operation_display} == {8, 9, 10}
+    assert any(np.any(fa.target_velocity != 0) and np.any(fa.velocity_offset != 0) and np.any(fa.target_torque != 0)
+               for fa, _ in fast)
     for k, ((fa, fo), (sa, so)) in enumerate(zip(fast, slow)):
-        for field in ("controlword", "position", "torque_offset", "fresh", "comm_fault", "fault_code"):
+        for field in ("controlword", "position", "torque_offset", "fresh", "comm_fault", "fault_code",
+                      "modes_of_operation", "target_velocity", "velocity_offset", "target_torque"):
             np.testing.assert_array_equal(getattr(fa, field), getattr(sa, field), err_msg=f"cycle {k} applied.{field}")
-        for field in ("statusword", "position", "velocity", "torque", "error_code", "fresh", "node_fault"):
+        for field in ("statusword", "position", "velocity", "torque", "error_code", "fresh", "node_fault",
+                      "modes_of_operation_display"):
             np.testing.assert_array_equal(getattr(fo, field), getattr(so, field), err_msg=f"cycle {k} observed.{field}")
 
 
@@ -138,4 +152,49 @@ def test_recorder_records_packed_by_the_codec_equal_struct_pack():
     expected = b"".join(RECORD.pack(m.timestamp, m.arbitration_id, m.is_error_frame, len(m.data), m.data)
                         for m in frames)
     assert load_codec().pack_records(frames) == expected
+
     assert load_codec().pack_records([FastMessage(0.0, 0x1_0000, bytearray(8))]) is None  # struct.error in Python
+
+
+@pytest.mark.parametrize("codec", ["compiled", "python"])
+def test_drive_side_accepts_a_classic_8_byte_rpdo1(monkeypatch, codec):
+    """A controller on classic CAN sends the 8-byte CSP telegram: applied as mode 8 without
+    velocity offset, target velocity and target torque, through both code paths."""
+    import struct
+
+    from fieldbus.telegrams import FastMessage
+
+    if codec == "python":
+        monkeypatch.setattr(nodes, "load_codec", lambda: None)
+    elif load_codec() is None:
+        pytest.skip("no compiled codec")
+    network = PowerlinkNetwork({}, scaling())
+    cn, actuals = network.cn, DriveActuals.zeros(6)
+    cn.start_cycle(0, actuals)
+    counts = 1000
+    frames = [FastMessage(1e-5, 0x080, bytearray(b"\x01"))]
+    frames += [FastMessage(2e-5 * (i + 1), 0x201 + i, bytearray(struct.pack("<Hih", 0x0F, counts * (i + 1), 5)))
+               for i in range(6)]
+    cn.receive_all(frames)
+    cn.end_cycle(0)
+    applied = cn.start_cycle(1, actuals)
+    assert applied.fresh.all() and (applied.controlword == 0x0F).all()
+    np.testing.assert_array_equal(applied.position, counts * np.arange(1, 7) * scaling().rad_per_count)
+    assert (applied.modes_of_operation == 8).all()
+    assert not applied.target_velocity.any() and not applied.velocity_offset.any() and not applied.target_torque.any()
+    network.close()
+
+
+def test_unknown_mode_of_operation_from_the_controller_is_a_clear_error(monkeypatch):
+    for codec in (load_codec(), None):
+        monkeypatch.setattr(nodes, "load_codec", lambda: codec)
+        with PowerlinkNetwork({}, scaling()) as network:
+            setpoints, actuals = Setpoints.zeros(6), DriveActuals.zeros(6)
+            network.run_cycle(0, setpoints, actuals)
+            setpoints.modes_of_operation[4] = 7
+            with pytest.raises(ValueError, match=r"setpoints.modes_of_operation\[4\] = 7: expected 8 \(cyclic "
+                                                 r"synchronous position\), 9 \(cyclic synchronous velocity\) or 10"):
+                network.run_cycle(1, setpoints, actuals)
+            setpoints.modes_of_operation = setpoints.modes_of_operation.astype(float)
+            with pytest.raises(ValueError, match="setpoints.modes_of_operation has dtype float64: expected integers"):
+                network.run_cycle(1, setpoints, actuals)

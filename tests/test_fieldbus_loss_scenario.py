@@ -91,7 +91,7 @@ def test_controller_stops_and_drives_react(loss_run):
 
 
 def test_robot_comes_to_rest_held_by_drives_and_brake(loss_run):
-    from cosim.jobs.iso9283 import make_true_robot
+    from cosim.cell.parts import make_true_robot
 
     _, out, summary = loss_run
     assert summary["rest"]["at_rest"] is True

@@ -1,6 +1,7 @@
 """Telegram layouts, SI scaling and CiA 402 words: property-based round trips and a
 decoder that only ever answers with a telegram or a FrameDecodeError."""
 import math
+import struct
 import tomllib
 from pathlib import Path
 
@@ -49,11 +50,40 @@ def test_encoders_name_the_field_out_of_range():
         encode_tpdo1(0, 0, INT16_MIN - 1)
 
 
-def test_telegram_sizes_fit_classic_can():
-    assert len(encode_rpdo1(0x0F, 1, 2)) == 8
+def test_telegram_sizes():
+    """The RPDO1 with all cyclic synchronous set-points is a 20-byte CAN FD frame whose first
+    8 bytes are the classic CSP telegram; the PRes telegrams fit classic CAN."""
+    full = encode_rpdo1(0x0F, 1, 2)
+    assert len(full) == 20 and full[:8] == struct.pack("<Hih", 0x0F, 1, 2)
     assert len(encode_tpdo1(0x27, 1, 2)) == 8
-    assert len(encode_tpdo2(1, 0)) == 6
+    assert len(encode_tpdo2(1, 0)) == 7
     assert decode(message(0x080, b"\x05")) == Sync(5)
+
+
+def test_rpdo1_carries_the_modes_of_operation_and_their_set_points():
+    data = encode_rpdo1(0x0F, -5, 7, 10, -300, 123456, -42)
+    assert decode(message(0x203, data)) == RxPdo1(3, 0x0F, -5, 7, 10, -300, 123456, -42)
+    # layout: controlword, position, torque offset, mode, reserved, target torque, target velocity, offset
+    assert struct.unpack("<HihbBhii", data) == (0x0F, -5, 7, 10, 0, -300, 123456, -42)
+    # a classic 8-byte RPDO1 (controller on classic CAN) reads as CSP without offsets
+    classic = struct.pack("<Hih", 0x0F, -5, 7)
+    assert decode(message(0x203, classic)) == RxPdo1(3, 0x0F, -5, 7, 8, 0, 0, 0)
+    assert decode(message(0x283, encode_tpdo2(9, 0x8611, 9))) == TxPdo2(3, 9, 0x8611, 9)
+
+
+@pytest.mark.parametrize("mode", [0, 1, 7, 11, -1, True])
+def test_unknown_mode_of_operation_is_refused_by_the_encoder(mode):
+    with pytest.raises(ValueError, match=r"modes_of_operation = .*expected 8 \(cyclic synchronous position\), 9"):
+        encode_rpdo1(0x0F, 0, 0, mode)
+
+
+def test_rpdo1_field_ranges_are_named():
+    with pytest.raises(ValueError, match="target_velocity"):
+        encode_rpdo1(0, 0, 0, 9, 0, INT32_MAX + 1, 0)
+    with pytest.raises(ValueError, match="target_torque"):
+        encode_rpdo1(0, 0, 0, 10, INT16_MAX + 1, 0, 0)
+    with pytest.raises(ValueError, match="modes_of_operation_display"):
+        encode_tpdo2(0, 0, 200)
 
 
 def test_counts_per_radian_follow_gear_and_encoder():

@@ -311,3 +311,78 @@ def test_value_references_of_the_original_variables_are_unchanged():
     assert vr[("Real", "target_velocity")] == 39 and vr[("Real", "velocity_offset")] == 40
     assert vr[("Real", "target_torque")] == 41
     assert vr[("Integer", "modes_of_operation")] == 6 and vr[("Integer", "modes_of_operation_display")] == 7
+
+
+def _quick_stop_from(mode):
+    axis = Axis(load=-2.0)
+    axis.mode = mode
+    axis.enable()
+    if mode == CST:  # accelerate to ~0.95 rad/s, then hold the speed against the load
+        axis.torque = 2.0 + 0.21 * 5.0
+        axis.run(0.19)
+        axis.torque = 2.0
+        axis.run(0.01)
+    elif mode == CSV:
+        axis.velocity = 0.95
+        axis.run(0.2)
+    else:
+        axis.target_speed = 0.95
+        axis.run(0.2)
+    speed = axis.qd
+    index = len(axis.tau_history)
+    axis.controlword = QUICK_STOP_CMD
+    axis.run(0.1)
+    return speed, _jump(axis.tau_history, index), max(axis.tau_history[index:]), axis
+
+
+def test_quick_stop_from_cst_and_csv_is_the_same_ramp_as_from_csp():
+    """The stop ramp (position loop) takes over from the torque the motor makes: leaving CST
+    the speed integrator is pre-loaded, so the transient equals the one from CSP."""
+    speed, jump, peak, axis = _quick_stop_from(CSP)
+    assert speed == pytest.approx(0.95, rel=0.01)
+    for mode in (CSV, CST):
+        s, j, p, other = _quick_stop_from(mode)
+        assert s == pytest.approx(speed, rel=0.03)
+        assert j == pytest.approx(jump, rel=0.05) and p == pytest.approx(peak, rel=0.05)
+        assert other.statusword & 0x6F == 0x07 and abs(other.qd) < 1e-3  # stopped, holding in quick stop
+        assert other.display == mode
+
+
+@pytest.mark.parametrize("axis_number", [2, 4])
+def test_modes_and_switches_are_bit_identical_to_the_python_oracle(axis_number):
+    """CSP with a velocity offset, then CSV, CST and back to CSP, with changing set-points:
+    the FMU's torque equals the oracle's (fmus/servo_drive/reference.py, written from
+    docs/fmus.md) to the last bits."""
+    from fmus.servo_drive.reference import DriveReference
+
+    values = drive_start_values(axis_number)
+    inertia = [20.0, 20.0, 10.0, 0.2, 0.2, 0.05][axis_number - 1]
+    drive = FastFmu2Slave(ensure_fmus()["servo_drive"], "oracle_modes", values, real_inputs=REAL_IN,
+                          real_outputs=REAL_OUT, integer_inputs=("controlword", "modes_of_operation"),
+                          integer_outputs=INT_OUT)
+    oracle = DriveReference(dict(values))
+    oracle.initialize(0.0, 0.0, 0.0)
+    q = qd = current = 0.0
+    worst, displays = 0.0, set()
+    limit = values["torque_limit"]
+    for k in range(8000):  # 0.4 s
+        t = k * H
+        cw = SHUTDOWN if t < 4e-4 else ENABLE
+        mode = CSP if t < 0.1 else CSV if t < 0.2 else CST if t < 0.3 else CSP
+        target = 0.1 * math.sin(2 * math.pi * t) if mode == CSP and t < 0.1 else q + 0.02 * (t - 0.3)
+        offset = 0.02 * limit * math.sin(6 * math.pi * t)
+        velocity, velocity_offset = 0.3 * math.cos(5 * t), 0.05 * math.sin(9 * t)
+        torque = 0.1 * limit * math.sin(20 * t)
+        drive.set_integer_inputs((cw, mode))
+        drive.set_inputs((target, offset, q, qd, velocity, velocity_offset, torque))
+        drive.do_step(t, H)
+        tau = float(drive.get_outputs()[0])
+        displays.add(int(drive.get_integer_outputs()[1]))
+        u, powered = oracle.tick_voltage(q, qd, current, target, offset, cw, mode, velocity, velocity_offset, torque)
+        current = oracle.advance_current(current, u, qd) if powered else 0.0
+        worst = max(worst, abs(tau - oracle.torque(current)))
+        acc = (tau - 0.05 * limit) / inertia
+        q, qd = q + qd * H + 0.5 * acc * H * H, qd + acc * H
+    drive.close()
+    assert displays == {CSP, CSV, CST}
+    assert worst == 0.0, worst  # same operations in the same order

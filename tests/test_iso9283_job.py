@@ -121,7 +121,7 @@ def test_failing_fmu_stops_cleanly_with_partial_results(tmp_path):
     ])
     out = tmp_path / "out"
     code, summary = run_scenario(path, out)
-    assert code == 1
+    assert code == 3  # failed run (cosim/commands/exits.py)
     assert summary["status"] == "failed"
     assert "fmi2Error" in summary["reason"] or "nan" in summary["reason"] or "inf" in summary["reason"]
     assert summary["failed_component"] in ("plant", "drive2")
@@ -144,7 +144,7 @@ def test_drive_fault_stops_the_controller_and_fails_the_run(tmp_path):
     ])
     out = tmp_path / "out"
     code, summary = run_scenario(path, out)
-    assert code == 1
+    assert code == 3  # failed run (cosim/commands/exits.py)
     assert summary["status"] == "failed" and summary["failed_component"] == "controller"
     assert "motion stopped" in summary["reason"] and "drive 1" in summary["reason"]
     assert "0x8611" in summary["reason"]  # CiA 402 following error

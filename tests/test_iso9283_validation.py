@@ -39,10 +39,10 @@ CASES = [
     ("wrong unit", 'period = "400 us"', 'period = "400 mm"', ["controller.period", "a number in s", "'400 mm'"]),
     ("out of range", 'payload_mass = "8 kg"', 'payload_mass = "12 kg"', ["true_robot.payload_mass", "10"]),
     ("missing FMU", DRIVE3_BLOCK, "", ["fmus", "drive3", "missing"]),
-    ("bad connection", '"plant.q[1] -> drive1.q_meas"', '"plant.q[7] -> drive1.q_meas"',
-     ["connections[1]", "unknown variable 'q[7]'"]),
-    ("missing connection", '    "bus.torque_offset[5] -> drive5.torque_offset",\n', "",
-     ["connections", "bus.torque_offset[5] -> drive5.torque_offset", "missing"]),
+    ("bad connection", "[scenario]", 'connections = ["plant.qd[1] -> drive1.qd_meas", "plant.q[7] -> drive1.q_meas"]'
+     "\n[scenario]", ["connections[1]", "unknown variable 'q[7]'"]),
+    ("connection from an unknown FMU", "[scenario]", 'connections = ["payload.tau -> plant.tau[1]"]\n[scenario]',
+     ["connections[0]", "unknown instance 'payload'"]),
     ("missing FMU file", 'name = "drive6"\nbuiltin = "servo_drive"', 'name = "drive6"\npath = "nowhere/drive.fmu"',
      ["fmus[6].path", "does not exist"]),
     ("fieldbus key", "cycle_time_us = 400", "cycle_time_us = 400\ncycle_time = 400", ["fieldbus.cycle_time"]),
@@ -78,3 +78,20 @@ def test_cli_rejects_invalid_scenario_before_running(tmp_path, capsys):
     assert main(["run", str(path), "--out", str(out), "--quiet"]) == 2
     assert "controller.period" in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_connections_are_generated_and_a_scenario_lists_only_what_differs(tmp_path):
+    """The 42 connections are generated; a scenario connection into an input the cell drives
+    replaces the generated one (here drive 1's speed measurement from the plant's joint 2)."""
+    from cosim.cell.wiring import cell_connections, merged_connections
+
+    assert "connections" not in load_scenario(ROOT / "scenarios" / "iso9283.toml").data or \
+        not load_scenario(ROOT / "scenarios" / "iso9283.toml").data["connections"]
+    generated = cell_connections()
+    assert len(generated) == 42 and merged_connections([]) == generated
+    assert merged_connections(generated) == generated  # an old file listing all 42 gives the same wiring
+    path = variant(tmp_path, "[scenario]", 'connections = ["plant.qd[2] -> drive1.qd_meas"]\n[scenario]')
+    doc = load_scenario(path).data
+    merged = merged_connections(doc["connections"])
+    assert merged[0] == "plant.qd[2] -> drive1.qd_meas" and "plant.qd_motor[1] -> drive1.qd_meas" not in merged
+    assert len(merged) == 42

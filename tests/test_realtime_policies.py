@@ -9,7 +9,7 @@ import time
 import numpy as np
 import pytest
 
-from cosim.realtime.config import RealtimeSettings
+from cosim.realtime.config import ExecutionOptions, RealtimeSettings
 from cosim.realtime.network import auto_tolerance_s
 from cosim.realtime.pacer import Pacer, VirtualClock
 from realtime_support import BUS_TARGETS, PERIOD, build_cell, column_block, write_scenario
@@ -32,22 +32,21 @@ def _slow_down(controller, delays: dict[int, float], advance) -> None:
 
 
 def _run(tmp_path, policy: str, delays: dict[int, int], stop_time: str = "100 ms"):
-    from cosim.realtime.cell import run_paced_cell
+    from cosim.cell import run_cell
     from fieldbus.timing import check_cycle_budget
 
-    doc, controller, true_robot, ctx, fb, tracker = build_cell(write_scenario(tmp_path, stop_time), tmp_path / "out")
+    cell, controller, ctx = build_cell(write_scenario(tmp_path, stop_time), tmp_path / "out")
     clock = VirtualClock()
     _slow_down(controller, delays, clock.advance_ns)
-    tolerance = auto_tolerance_s(check_cycle_budget(fb))
+    tolerance = auto_tolerance_s(check_cycle_budget(cell.fieldbus))
     pacer = Pacer(PERIOD, 0.0, tolerance, clock_ns=clock.now_ns, sleep=clock.sleep)
-    cell, pacer, _ = run_paced_cell(doc, controller, true_robot, ctx, label=policy, stop_time=doc["simulation"]["stop_time"],
-                                    fieldbus=fb, tracker=tracker, record_file="ts.csv", can_log=None,
-                                    settings=RealtimeSettings(overrun_policy=policy, scheduling="normal", cpu=None),
-                                    pacer=pacer)
-    rec = cell.recording
+    options = ExecutionOptions(realtime=True, settings=RealtimeSettings(overrun_policy=policy, scheduling="normal",
+                                                                       cpu=None))
+    run = run_cell(cell, controller, ctx, mode="paced", options=options, pacer=pacer)
+    rec = run.recording
     t = rec.column("time")
     np.testing.assert_allclose(t, np.arange(t.size) * PERIOD, atol=1e-12)  # row k = cycle k
-    return cell, pacer, controller, column_block(rec, BUS_TARGETS)
+    return run, run.pacer, controller, column_block(rec, BUS_TARGETS)
 
 
 def _loss_events(cell, side: str, kind: str, event: str) -> set[tuple[int, int]]:
@@ -80,7 +79,7 @@ def test_exact_overruns_and_hold_keeps_the_last_setpoint(tmp_path):
 
 
 def test_skip_extrapolates_the_dropped_setpoint(tmp_path):
-    from cosim.jobs.robot_cell import joint_scaling
+    from cosim.cell.wiring import joint_scaling
 
     cell, pacer, _, targets = _run(tmp_path, "skip", {k: SLOW_NS for k in SLOW_AT})
     assert cell.failure is None
@@ -134,9 +133,9 @@ def test_real_wall_clock_slowed_controller_overruns_after_each_slow_cycle(tmp_pa
     """On the real clock (machine-independent assertions only): busy-waiting 1.5 ms in two
     controller cycles makes each following cycle late by at least 1.1 ms, and a paced run
     never runs faster than the wall clock."""
-    from cosim.realtime.cell import run_paced_cell
+    from cosim.cell import run_cell
 
-    doc, controller, true_robot, ctx, fb, tracker = build_cell(write_scenario(tmp_path, "60 ms"), tmp_path / "out")
+    cell, controller, ctx = build_cell(write_scenario(tmp_path, "60 ms"), tmp_path / "out")
 
     def busy(ns):
         end = time.perf_counter_ns() + ns
@@ -145,9 +144,9 @@ def test_real_wall_clock_slowed_controller_overruns_after_each_slow_cycle(tmp_pa
 
     _slow_down(controller, {50: 1_500_000, 100: 1_500_000}, busy)
     wall0 = time.perf_counter()
-    cell, pacer, _ = run_paced_cell(doc, controller, true_robot, ctx, label="real", stop_time=0.06, fieldbus=fb,
-                                    tracker=tracker, record_file="ts.csv", can_log=None,
-                                    settings=RealtimeSettings(scheduling="normal", cpu=None))
+    options = ExecutionOptions(realtime=True, settings=RealtimeSettings(scheduling="normal", cpu=None))
+    cell = run_cell(cell, controller, ctx, mode="paced", options=options)
+    pacer = cell.pacer
     wall = time.perf_counter() - wall0
     log = pacer.log
     lat = log.lateness_us
@@ -157,3 +156,22 @@ def test_real_wall_clock_slowed_controller_overruns_after_each_slow_cycle(tmp_pa
     assert wall >= 150 * PERIOD
     targets = column_block(cell.recording, BUS_TARGETS)
     np.testing.assert_array_equal(targets[52], targets[51])   # hold
+
+
+def test_a_substituted_setpoint_keeps_the_mode_and_its_setpoints():
+    """hold/skip repeat the last cycle's mode of operation and velocity/torque set-points:
+    a late controller never switches a drive out of the mode it commanded."""
+    from fieldbus import Setpoints
+    from cosim.realtime.policy import SetpointGate
+
+    for policy in ("hold", "skip"):
+        gate = SetpointGate(policy, 6)
+        sp = Setpoints.zeros(6)
+        sp.modes_of_operation[:] = 10
+        sp.target_torque[:] = 12.5
+        sp.target_velocity[:] = 0.3
+        sp.velocity_offset[:] = 0.1
+        gate.send(sp, late=False)
+        out = gate.send(Setpoints.zeros(6), late=True)
+        assert (out.modes_of_operation == 10).all() and (out.target_torque == 12.5).all()
+        assert (out.target_velocity == 0.3).all() and (out.velocity_offset == 0.1).all()

@@ -3,6 +3,7 @@ through the POWERLINK threshold counters; a paced split run's lost_frame overrun
 the drive process through the cycle marker and trip its counters."""
 from __future__ import annotations
 
+import dataclasses
 import os
 import signal
 
@@ -11,14 +12,15 @@ import pytest
 from cosim.realtime.config import ExecutionOptions, RealtimeSettings
 from cosim.realtime.network import auto_tolerance_s
 from cosim.realtime.pacer import Pacer, VirtualClock
-from cosim.split.cell import run_split_cell
+from cosim.cell import run_cell
 from realtime_support import PERIOD, build_cell, write_scenario
 
 KILL_AT = 60
 
 
 def test_killed_drive_process_is_detected_within_the_threshold(tmp_path):
-    doc, controller, true_robot, ctx, fb, tracker = build_cell(write_scenario(tmp_path, "80 ms"), tmp_path / "out")
+    cell, controller, ctx = build_cell(write_scenario(tmp_path, "80 ms"), tmp_path / "out")
+    cell = dataclasses.replace(cell, can_log=tmp_path / "mn.blf")
     killed = {}
 
     def kill(cycle, session):
@@ -28,9 +30,8 @@ def test_killed_drive_process_is_detected_within_the_threshold(tmp_path):
             killed["cycle"] = cycle
 
     options = ExecutionOptions(mode="split", receive_timeout_s=0.3)
-    cell, pacer, _, info = run_split_cell(doc, controller, true_robot, ctx, label="kill", stop_time=0.08, fieldbus=fb,
-                                          tracker=tracker, record_file="ts.csv", can_log=tmp_path / "mn.blf",
-                                          options=options, on_cycle=kill)
+    cell = run_cell(cell, controller, ctx, mode="split", options=options, on_cycle=kill)
+    pacer, info = cell.pacer, cell.split
     assert pacer is None and killed["cycle"] == KILL_AT
     # increment 8 per lost PRes, threshold 15: the second lost cycle trips the node fault
     assert info["controller_stop_cycle"] == KILL_AT + 2
@@ -45,7 +46,8 @@ def test_killed_drive_process_is_detected_within_the_threshold(tmp_path):
 
 
 def test_paced_split_lost_frames_trip_the_drive_side_counters(tmp_path):
-    doc, controller, true_robot, ctx, fb, tracker = build_cell(write_scenario(tmp_path, "80 ms"), tmp_path / "out")
+    cell, controller, ctx = build_cell(write_scenario(tmp_path, "80 ms"), tmp_path / "out")
+    fb = cell.fieldbus
     clock = VirtualClock()
     step = controller.step
 
@@ -61,9 +63,8 @@ def test_paced_split_lost_frames_trip_the_drive_side_counters(tmp_path):
     pacer = Pacer(PERIOD, 0.0, auto_tolerance_s(check_cycle_budget(fb)), clock_ns=clock.now_ns, sleep=clock.sleep)
     options = ExecutionOptions(mode="split", realtime=True, receive_timeout_s=2.0,
                                settings=RealtimeSettings(overrun_policy="lost_frame", scheduling="normal", cpu=None))
-    cell, pacer, _, info = run_split_cell(doc, controller, true_robot, ctx, label="lost", stop_time=0.08, fieldbus=fb,
-                                          tracker=tracker, record_file="ts.csv", can_log=None, options=options,
-                                          pacer=pacer)
+    cell = run_cell(cell, controller, ctx, mode="split", options=options, pacer=pacer)
+    pacer, info = cell.pacer, cell.split
     assert pacer.log.overrun_cycles == [101, 102]
     assert info["lost_cycles_drive_side"] == 2 and info["drive_process_exit_code"] == 0
     tripped = {(e["side"], e["node"], e["kind"], e["cycle"]) for e in cell.fieldbus["faults"]

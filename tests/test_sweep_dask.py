@@ -267,3 +267,19 @@ def test_local_cluster_ship_equals_shared(tmp_path, client):
         for column in ("variant", "status", "reason", "hash", "rows_recorded", "sim_time_s"):
             assert a.get(column) == b.get(column)
         assert (Path(a["folder"]) / "timeseries.csv").read_bytes() == (Path(b["folder"]) / "timeseries.csv").read_bytes()
+
+
+def test_user_planner_file_relative_to_the_base_scenario(tmp_path, client):
+    """A sweep over the planners job with a user's planner class named relative to the base
+    scenario ('plans/quintic.py:QuinticPtP', parameters keyed by that text): each variant runs
+    anchored at the base scenario's folder (shared) or at a worker-side copy of it (ship)."""
+    import cosim
+    from test_sweep_ship import _planner_files
+
+    sweep = cosim.load_sweep(_planner_files(tmp_path / "client"))
+    shared = cosim.run_sweep(sweep, tmp_path / "shared", client=client)
+    shipped = cosim.run_sweep(sweep, tmp_path / "ship", client=client, transfer="ship")
+    assert shared.ok == shipped.ok == 2, [r["reason"] for r in shared.rows + shipped.rows]
+    assert [r["metrics"] for r in shared.rows] == [r["metrics"] for r in shipped.rows]
+    slow, fast = (r["metrics"]["planners.quintic_ptp.duration_s"] for r in shared.rows)
+    assert slow > fast

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -117,6 +118,19 @@ def scheduler(tmp_path):
                 proc.kill()
 
 
+PLANNER_ENTRY = "plans/quintic.py:QuinticPtP"
+PLANNER_SWEEP = f"""
+[sweep]
+name = "planner_sweep"
+base = "ptp.toml"
+metrics = ["planners.*.duration_s"]
+
+[[axes]]
+key = 'planners.parameters."{PLANNER_ENTRY}".speed_factor'
+values = [0.5, 0.8]
+"""
+
+
 def _client_files(folder: Path) -> Path:
     (folder / "fmus").mkdir(parents=True)
     build_test_fmu("integrator", folder / "fmus")
@@ -124,6 +138,22 @@ def _client_files(folder: Path) -> Path:
     (folder / "base.toml").write_text(BASE, encoding="utf-8")
     (folder / "sweep.toml").write_text(SWEEP, encoding="utf-8")
     return folder / "sweep.toml"
+
+
+def _planner_files(folder: Path) -> Path:
+    """The PtP planners job with a user's planner class in a file next to the scenario (relative
+    'plans/quintic.py:QuinticPtP', its parameters keyed by that text), no execution."""
+    (folder / "plans").mkdir(parents=True, exist_ok=True)
+    shutil.copy(ROOT / "examples" / "quintic_planner.py", folder / "plans" / "quintic.py")
+    text = (ROOT / "scenarios" / "ptp_line.toml").read_text(encoding="utf-8")
+    text = re.sub(r"^run = .*$", f'run = ["ruckig", "{PLANNER_ENTRY}"]', text, count=1, flags=re.M)
+    text = re.sub(r"^execute = true$", "execute = false", text, count=1, flags=re.M)
+    text = re.sub(r"^execute_only = .*$", "", text, count=1, flags=re.M)
+    text = text.replace("figures = true", f'figures = false\n[planners.parameters."{PLANNER_ENTRY}"]\n'
+                                          f"speed_factor = 0.8", 1)
+    (folder / "ptp.toml").write_text(text, encoding="utf-8")
+    (folder / "planner_sweep.toml").write_text(PLANNER_SWEEP, encoding="utf-8")
+    return folder / "planner_sweep.toml"
 
 
 def _tasks_on_scheduler(address: str) -> int:
@@ -137,19 +167,25 @@ def test_sweep_on_workers_without_the_clients_files(tmp_path, scheduler):
     address, start_worker = scheduler
     client_dir = tmp_path / "client"
     sweep = cosim.load_sweep(_client_files(client_dir))
+    planner_sweep = cosim.load_sweep(_planner_files(client_dir))
     out = tmp_path / "out"
     done: dict = {}
-    runner = threading.Thread(target=lambda: done.setdefault("result", cosim.run_sweep(
-        sweep, out, scheduler=address)), daemon=True)
-    runner.start()
+    runners = [threading.Thread(target=lambda: done.setdefault("result", cosim.run_sweep(
+                   sweep, out, scheduler=address)), daemon=True),
+               threading.Thread(target=lambda: done.setdefault("planners", cosim.run_sweep(
+                   planner_sweep, tmp_path / "planners_out", scheduler=address)), daemon=True)]
+    for runner in runners:
+        runner.start()
     deadline = time.monotonic() + 60
-    while _tasks_on_scheduler(address) < 4 + 2 and time.monotonic() < deadline:   # 4 variants + 2 input files
+    # 4 + 2 variants, 2 FMUs + the planner file: all submitted before any worker exists
+    while _tasks_on_scheduler(address) < 4 + 2 + 2 + 1 and time.monotonic() < deadline:
         time.sleep(0.2)
-    assert _tasks_on_scheduler(address) >= 6
+    assert _tasks_on_scheduler(address) >= 9
     client_dir.rename(tmp_path / "client_gone")       # nothing at the client's paths any more
     workers = [start_worker("worker1"), start_worker("worker2")]
-    runner.join(timeout=180)
-    assert not runner.is_alive(), "the sweep did not finish"
+    for runner in runners:
+        runner.join(timeout=240)
+        assert not runner.is_alive(), "a sweep did not finish"
     result = done["result"]
     assert (result.transfer, result.ran, result.reused) == ("ship", 4, 0)
 
@@ -163,10 +199,19 @@ def test_sweep_on_workers_without_the_clients_files(tmp_path, scheduler):
     assert used, "no worker cached the shipped inputs"
     for w in used:
         cached = sorted(p.name for p in (w / "tmp" / "cosim-inputs").rglob("*.fmu"))
-        assert cached == ["Faulty.fmu", "Integrator.fmu"]
+        assert set(cached) <= {"Faulty.fmu", "Integrator.fmu"}
         assert not list((w / "tmp").glob("cosim-v*")) and not list((w / "cwd").iterdir())
 
+    # the user's planner file was recreated next to a worker-side scenario folder (relative reference kept)
+    assert any(list((w / "tmp" / "cosim-inputs" / "anchors").glob("*/scenario/plans/quintic.py")) for w in used)
+    planners = done["planners"]
+    assert planners.ok == 2, [r["reason"] for r in planners.rows]
+    slow, fast = (r["metrics"]["planners.quintic_ptp.duration_s"] for r in planners.rows)
+    assert slow > fast > planners.rows[0]["metrics"]["planners.ruckig.duration_s"]
+
     shutil.move(tmp_path / "client_gone", client_dir)   # back, to run the variants here for comparison
+    local = cosim.run(client_dir / "ptp.toml", out=tmp_path / "local_planner")
+    assert local.summary["planners.quintic_ptp.duration_s"] == fast     # speed_factor 0.8 in the file
     for (y0, fail_time), row in rows.items():
         folder = Path(row["folder"])
         assert folder.parent == out / "variants"
@@ -218,3 +263,27 @@ def test_collect_and_store_are_validated(tmp_path):
     local = cosim.load_sweep(sweep_path.read_text().replace('collect = "timeseries"', 'store = "artifacts"')
                              .replace('base = "base.toml"', f'base = "{tmp_path / "client" / "base.toml"}"'))
     assert local.store == str(Path.cwd() / "artifacts")
+
+
+def test_referenced_files_from_the_schema():
+    """What a task ships: FilePath values, files of 'file.py:Class' in string fields, and what
+    specs with referenced_file() name - found by walking the job's schema, nothing else."""
+    from cosim.scenario.schema import AnyValue, Field, FilePath, List, String, Table
+    from cosim.sweep.keypath import referenced_files, relocate_file
+
+    schema = Table({
+        "controller": Field(Table({"class": Field(String()), "fmu": Field(FilePath()),
+                                   "label": Field(String())})),
+        "fmus": Field(List(Table({"path": Field(FilePath()), "name": Field(String())}))),
+        "free": Field(Table({}, extra=AnyValue())),
+    })
+    doc = {"controller": {"class": "ctrl/my.py:MyController", "fmu": "/abs/c.fmu", "label": "my_run"},
+           "fmus": [{"path": "a.fmu", "name": "a"}, {"name": "builtin"}],
+           "free": {"anything": "other.py:Class"}}   # AnyValue: the schema does not say it is a file
+    found = referenced_files(schema, doc)
+    assert found == [(("controller", "class"), "ctrl/my.py"), (("controller", "fmu"), "/abs/c.fmu"),
+                     (("fmus", 0, "path"), "a.fmu")]
+    assert relocate_file(String(), "ctrl/my.py:MyController", "/w/my.py") == "/w/my.py:MyController"
+    assert referenced_files(schema, {"controller": {"class": "package.module:MyController"}}) == []
+    from cosim.jobs.planners import PlannerEntry
+    assert referenced_files(List(PlannerEntry()), ["ruckig", "p/q.py:P", "mod:P"]) == [((1,), "p/q.py")]

@@ -11,8 +11,21 @@ HELP = ("Identify the 39-parameter geometric error model (its identifiable subse
         "measurements (CSV: q1..q6 rad, x,y,z m, optional alpha,beta,gamma rad) and write "
         "DIR/calibrated.urdf, DIR/parameters.json and DIR/summary.json.")
 
-#: Exit codes: 0 ok, 2 invalid input (file, columns, units, too few or rank-deficient poses).
-EXIT_OK, EXIT_INVALID = 0, 2
+#: Exit codes (cosim/commands/exits.py): 0 ok, 2 invalid input (file, columns, units, too few or
+#: rank-deficient poses, option values), 3 the fit failed or is implausible (nothing written).
+EXIT_OK, EXIT_INVALID, EXIT_FAILED = 0, 2, 3
+
+
+def _positive_float(option: str):
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            value = math.nan
+        if not (math.isfinite(value) and value > 0):
+            raise argparse.ArgumentTypeError(f"expected a finite number > 0, got {text!r}")
+        return value
+    return parse
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -22,16 +35,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="output folder (default: results/calibrate-<csv name>/)")
     parser.add_argument("--urdf", type=Path, default=None,
                         help="nominal robot description to calibrate (default: robot/rx130l.urdf)")
-    parser.add_argument("--position-sigma-mm", type=float, default=None,
+    parser.add_argument("--position-sigma-mm", type=_positive_float("--position-sigma-mm"), default=None,
                         help="tracker position noise per axis in mm, used to weight rows (default 0.1)")
-    parser.add_argument("--orientation-sigma-deg", type=float, default=None,
+    parser.add_argument("--orientation-sigma-deg", type=_positive_float("--orientation-sigma-deg"), default=None,
                         help="tracker orientation noise in deg, used to weight rows (default 0.04)")
 
 
 def run(args: argparse.Namespace) -> int:
-    """Read, calibrate, write; invalid input prints ``error: ...`` and returns 2."""
+    """Read, calibrate, check plausibility, write; invalid input -> exit 2, implausible fit -> exit 3
+    (no URDF written)."""
+    from cosim.commands.exits import InvalidInput, RunFailed, describe_decode_error, describe_os_error
     from identification.calibration_measurements import read_measurements_csv
     from identification.calibration_outputs import write_calibration_outputs
+    from identification.calibration_plausibility import assess_calibration
     from identification.calibration_solver import calibrate
     from identification.calibration_tracker import TrackerNoise
     from robot.geometric_errors import GeometricErrorModel, default_error_model
@@ -46,12 +62,24 @@ def run(args: argparse.Namespace) -> int:
         )
         model = default_error_model() if args.urdf is None else GeometricErrorModel(args.urdf)
         measurements = read_measurements_csv(args.measurements)
-        result = calibrate(measurements, model=model, noise=noise)
+    except UnicodeDecodeError as exc:
+        raise InvalidInput(describe_decode_error(exc, args.measurements)) from None
+    except OSError as exc:
+        raise InvalidInput(describe_os_error(exc, f"measurement file {str(args.measurements)!r}")) from None
     except ValueError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return EXIT_INVALID
-    paths = write_calibration_outputs(result, out_dir, model=model, noise=noise,
-                                      source=str(args.measurements))
+        raise InvalidInput(str(exc)) from None
+    try:
+        result = calibrate(measurements, model=model, noise=noise)
+    except ValueError as exc:  # too few poses, rank-deficient data: the input cannot determine the errors
+        raise InvalidInput(str(exc)) from None
+    assessment = assess_calibration(measurements, result, model)
+    if not assessment.ok:
+        raise RunFailed(f"calibration of {args.measurements} refused, no URDF written: {assessment.message()}")
+    try:
+        paths = write_calibration_outputs(result, out_dir, model=model, noise=noise,
+                                          source=str(args.measurements))
+    except OSError as exc:
+        raise InvalidInput(describe_os_error(exc, f"--out {str(out_dir)!r}")) from None
     stats = result.residual_statistics()
     print(
         f"calibrated {len(result.identified)} of {len(result.parameter_names)} parameters from "

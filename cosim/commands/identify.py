@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 from pathlib import Path
 
@@ -11,8 +12,21 @@ HELP = ("Identify the base dynamic parameters from a measured record (CSV: t s, 
         "joint side, optional qd1..qd6, qdd1..qdd6) and write DIR/parameters.json; with --validate, predict the "
         "torques of a second record and write DIR/prediction.csv and DIR/summary.json.")
 
-#: Exit codes: 0 ok, 2 invalid input (file, columns, NaN, sampling, too short, not exciting).
-EXIT_OK, EXIT_INVALID = 0, 2
+#: Exit codes (cosim/commands/exits.py): 0 ok, 2 invalid input (file, columns, NaN, sampling, too short,
+#: not exciting, angles/torques in the wrong unit, option values), 3 the fit is implausible (nothing written).
+EXIT_OK, EXIT_INVALID, EXIT_FAILED = 0, 2, 3
+
+
+def _finite_above(option: str, low: float):
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            value = math.nan
+        if not (math.isfinite(value) and value > low):
+            raise argparse.ArgumentTypeError(f"expected a finite number > {low:g}, got {text!r}")
+        return value
+    return parse
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -27,36 +41,54 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="output folder (default: results/identify-<data name>/)")
     parser.add_argument("--method", choices=("wls", "ols"), default="wls",
                         help="weighted (per-joint noise, default) or ordinary least squares")
-    parser.add_argument("--cutoff-hz", type=float, default=DEFAULT_CUTOFF_HZ,
+    parser.add_argument("--cutoff-hz", type=_finite_above("--cutoff-hz", 0.0), default=DEFAULT_CUTOFF_HZ,
                         help=f"zero-phase low-pass cut-off for differentiating q, Hz (default {DEFAULT_CUTOFF_HZ:g})")
     parser.add_argument("--consistent", action="store_true",
                         help="also fit a physically consistent parameter vector (positive-definite pseudo-inertias) "
                              "and report its validation error")
-    parser.add_argument("--max-condition", type=float, default=MAX_CONDITION_NUMBER,
+    parser.add_argument("--max-condition", type=_finite_above("--max-condition", 1.0), default=MAX_CONDITION_NUMBER,
                         help="largest accepted condition number of the column-normalised base regressor "
                              f"(default {MAX_CONDITION_NUMBER:g})")
 
 
 def run(args: argparse.Namespace) -> int:
-    """Read, identify, validate, write; invalid input prints ``error: ...`` and returns 2."""
+    """Read, check units, identify, check the fit, validate, write; invalid input -> exit 2,
+    implausible fit -> exit 3 (no parameter file written)."""
+    from cosim.commands.exits import InvalidInput, RunFailed, describe_os_error
     from identification.dynamic_data import read_motion_csv
     from identification.dynamic_identify import identify, validate, write_identification_outputs
+    from identification.dynamic_plausibility import check_fit, check_record_units
 
     out_dir = args.out or Path("results") / f"identify-{args.data.stem}"
     try:
         record = read_motion_csv(args.data)
+        check_record_units(record, str(args.data))
         validation_record = read_motion_csv(args.validate) if args.validate is not None else None
+        if validation_record is not None:
+            check_record_units(validation_record, str(args.validate))
+        nyquist = 0.5 / record.sample_time
+        if args.cutoff_hz >= nyquist:
+            raise InvalidInput(f"--cutoff-hz {args.cutoff_hz:g}: expected a cut-off below the Nyquist frequency "
+                               f"{nyquist:g} Hz of {args.data} (sampled every {record.sample_time:g} s)")
         result = identify(record, method=args.method, cutoff_hz=args.cutoff_hz, max_condition=args.max_condition,
                           consistent=args.consistent)
+    except ValueError as exc:
+        raise InvalidInput(str(exc)) from None
+    problem = check_fit(result, record, str(args.data))
+    if problem is not None:
+        raise RunFailed(f"identification refused, no parameter file written: {problem}")
+    try:
         validation = validate(result, validation_record, args.cutoff_hz) if validation_record is not None else None
         extra = {}
         if validation is not None and args.consistent:
             check = validate(result.consistent_model(), validation_record, args.cutoff_hz)
             extra["relative_rms_error_consistent_model"] = check.relative_rms_error.tolist()
     except ValueError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return EXIT_INVALID
-    paths = write_identification_outputs(out_dir, result, validation, extra)
+        raise InvalidInput(str(exc)) from None
+    try:
+        paths = write_identification_outputs(out_dir, result, validation, extra)
+    except OSError as exc:
+        raise InvalidInput(describe_os_error(exc, f"--out {str(out_dir)!r}")) from None
     text = (f"identified {result.base.count} base parameters ({result.estimate.method}) from {record.samples} "
             f"samples ({record.duration:.3g} s); condition number {result.estimate.condition_number:.3g}; ")
     if validation is not None:

@@ -10,8 +10,10 @@ NAME = "run"
 HELP = ("Validate a scenario TOML file, then run its job ([scenario] job, e.g. 'fmus') and write "
         "summary.json and time series to results/<scenario name>/ (or --out DIR).")
 
-#: Exit codes: 0 ok, 1 simulation failed, 2 invalid scenario, 3 internal error.
-EXIT_OK, EXIT_FAILED, EXIT_INVALID, EXIT_INTERNAL = 0, 1, 2, 3
+#: Exit codes (cosim/commands/exits.py, docs/robustness.md): 0 ok, 2 invalid scenario or unusable results
+#: folder, 3 the run failed (summary.json "failed"), 130 interrupted (summary.json "interrupted").
+EXIT_OK, EXIT_INVALID, EXIT_FAILED, EXIT_INTERRUPTED = 0, 2, 3, 130
+EXIT_INTERNAL = EXIT_FAILED  # an unexpected error is a failed run too
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -27,44 +29,66 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Load and validate (nothing runs on an invalid file), run the job, finish summary.json."""
+    """Load and validate (nothing runs on an invalid file), then run through the public API
+    (:func:`cosim.api.execute`: results-folder lock, final status ``ok``, ``failed`` or
+    ``interrupted``) and turn the outcome into messages and the exit code."""
+    from cosim.api import OutputFolderError, ScenarioError, execute, load_scenario
+    from cosim.commands.exits import InvalidInput
     from cosim.master import SimulationError
-    from cosim.scenario import RunContext, ScenarioError, load_scenario
 
     try:
         scenario = load_scenario(args.scenario)
     except ScenarioError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return EXIT_INVALID
-    from cosim.realtime.execution import CELL_JOBS, CellExecution
-    from cosim.realtime.config import execution_options
-
-    options = execution_options(scenario.data, realtime=getattr(args, "realtime", False) or None,
-                                split=getattr(args, "split", False) or None)
-    if options.active and scenario.job.name not in CELL_JOBS:
-        print(f"error: {args.scenario}: job {scenario.job.name!r} runs no robot cell; --realtime, --split and "
-              f"[execution] realtime/mode = 'split' apply to the jobs {sorted(CELL_JOBS)}", file=sys.stderr)
-        return EXIT_INVALID
-    out_dir = args.out or Path(scenario.data.get("output", {}).get("dir") or Path("results") / scenario.name)
-    ctx = RunContext(scenario, out_dir, quiet=args.quiet, execution=CellExecution(options) if options.active else None)
+        raise InvalidInput(str(exc)) from None
+    if args.out is not None:
+        out_dir, origin = args.out, "--out"
+    elif scenario.data.get("output", {}).get("dir"):
+        out_dir, origin = Path(scenario.data["output"]["dir"]), f"{args.scenario}: output.dir"
+    else:
+        out_dir, origin = Path("results") / scenario.name, "results folder"
     try:
-        fields = scenario.job.runner(scenario, ctx) or {}
-    except SimulationError as exc:
-        ctx.summary.finish_failed(str(exc), exc.time, ctx.sim_time_s, failed_component=exc.component,
-                                  fmu_messages=exc.messages, failed_in=ctx.label or None)
-        print(f"simulation failed: {exc}\nresults so far in {out_dir}/", file=sys.stderr)
-        return EXIT_FAILED
-    except KeyboardInterrupt:
-        ctx.summary.finish_failed("interrupted by the user", None, ctx.sim_time_s)
-        print(f"interrupted; results so far in {out_dir}/", file=sys.stderr)
-        return EXIT_FAILED
-    except Exception as exc:
-        ctx.summary.finish_failed(f"internal error: {type(exc).__name__}: {exc}", None, ctx.sim_time_s)
-        traceback.print_exc()
-        return EXIT_INTERNAL
-    ctx.summary.finish_ok(ctx.sim_time_s, **fields)
-    data = ctx.summary.data
-    if not args.quiet:
-        print(f"{scenario.name}: ok, {data['sim_time_s']:.6g} s simulated in {data['wall_time_s']:.3g} s "
-              f"({data['realtime_factor']:.3g}x real time); results in {out_dir}/", file=sys.stderr)
-    return EXIT_OK
+        result = execute(scenario, out_dir, quiet=args.quiet, realtime=getattr(args, "realtime", False),
+                         split=getattr(args, "split", False), origin=origin)
+    except (ScenarioError, OutputFolderError) as exc:
+        raise InvalidInput(str(exc)) from None
+    except KeyboardInterrupt as exc:  # SIGINT, or SIGTERM through the CLI's handler
+        from cosim.api import RunResult
+        from cosim.commands.exits import signal_name_of
+
+        summary = RunResult(out_dir).summary
+        print(f"{scenario.name}: interrupted by {signal_name_of(exc)}{_where(summary)}; results so far in "
+              f"{out_dir}/", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    summary = result.summary
+    if result.ok:
+        data = summary.raw
+        if not args.quiet:
+            print(f"{scenario.name}: ok, {data['sim_time_s']:.6g} s simulated in {data['wall_time_s']:.3g} s "
+                  f"({data['realtime_factor']:.3g}x real time); results in {out_dir}/", file=sys.stderr)
+        return EXIT_OK
+    exc = result.error
+    debug = getattr(args, "debug", False)
+    if debug and exc is not None:
+        traceback.print_exception(exc)
+    print(f"error: {scenario.name}: run failed{_where(summary)}: {_first_line(summary.reason or '')}",
+          file=sys.stderr)
+    if isinstance(exc, SimulationError) and exc.messages:
+        print("\n".join(f"  FMU log: {m}" for m in exc.messages[-5:]), file=sys.stderr)
+    print(f"results so far in {out_dir}/ (summary.json: failed)"
+          + ("" if debug or isinstance(exc, (SimulationError, OSError, ValueError))
+             else "; run with --debug for the traceback"), file=sys.stderr)
+    return EXIT_FAILED
+
+
+def _first_line(text: str) -> str:
+    return text.strip().splitlines()[0] if text.strip() else text
+
+
+def _where(summary) -> str:
+    """`` (mode x, t = 1.2 s)`` from a summary's ``mode`` and ``stopped_at_s``."""
+    parts = []
+    if summary.raw.get("mode"):
+        parts.append(f"mode {summary.raw['mode']}")
+    if summary.stopped_at_s is not None:
+        parts.append(f"t = {summary.stopped_at_s:.6g} s")
+    return f" ({', '.join(parts)})" if parts else ""

@@ -3,7 +3,7 @@
 A scenario lists the controllers and the trajectories (``[compare]``, docs/bring_your_own.md):
 
 * controllers: the built-in modes of the main job (``standard``, ``standard_speed_ff``,
-  ``model_based``, :data:`cosim.jobs.iso9283.JOB_MODES`) and users' controllers;
+  ``model_based``, :data:`cosim.cell.parts.BUILTIN_MODES`) and users' controllers;
 * trajectories: ``iso9283`` (the EN ISO 9283 test path of ``[path]``, a Cartesian
   reference the controller follows by IK, exactly as the main job), a built-in planner
   (``own_cp``, ``toppra``, ``own_ptp``, ``ruckig``, ``ruckig_feasible``) or a user planner
@@ -11,7 +11,7 @@ A scenario lists the controllers and the trajectories (``[compare]``, docs/bring
   or a user trajectory file (joint or Cartesian CSV, :mod:`planners.trajectory_file`),
   checked against the robot's limits before anything runs.
 
-Every pair runs through the same robot cell (:mod:`cosim.jobs.robot_cell`: the
+Every pair runs through the same robot cell (:mod:`cosim.cell`: the
 ``[true_robot]`` drawn once from its seed, POWERLINK-timed fieldbus, drive FMUs, plant
 FMU, laser tracker) and is evaluated the same way (:mod:`cosim.jobs.tracking_metrics`:
 TCP error measured vs commanded with the TRUE kinematics, ISO 9283 AT, joint lag);
@@ -40,14 +40,22 @@ from typing import Any
 
 import numpy as np
 
-from cosim.jobs import iso9283, robot_cell
+from cosim.cell import wiring
+from cosim.cell.description import describe_cell
+from cosim.cell.evaluation import evaluate_run
+from cosim.cell.mode_runs import CellSetup, mode_cell, prepare
+from cosim.cell.parts import (BUILTIN_MODES, CELL_FIELDS, check_cell_scenario, drive_speed_feedforward,
+                              fill_cell_defaults, mode_fmus)
+from cosim.cell.runner import CellRun, controller_info, run_cell
 from cosim.jobs import planners as planners_job
 from cosim.jobs.tracking_metrics import desired_joints, evaluate
 from cosim.scenario.context import RunContext
-from cosim.scenario.loader import Scenario
+from cosim.scenario.cosim_tables import COSIM_FIELDS
+from cosim.scenario.loader import SCENARIO_FIELD, Scenario
 from cosim.scenario.registry import register_job
 from cosim.scenario.schema import (AnyValue, Boolean, Field, List, Number, Spec, String, Table, Where)
-from cosim.scenario.user_class import SPEC_FORM, instantiate, is_class_spec, load_user_class
+from cosim.scenario.user_class import (SPEC_FORM, class_spec_file, instantiate, is_class_spec, load_user_class,
+                                      with_class_file)
 
 JOB_NAME = "compare"
 ISO_TRAJECTORY = "iso9283"
@@ -79,19 +87,19 @@ TABLE_COLUMNS: tuple[str, ...] = ("trajectory", "controller", "rank", "status", 
 class ControllerEntry(Spec):
     """A controller of the comparison: a built-in mode name, or a table."""
 
-    expected = (f"a built-in mode ({', '.join(repr(m) for m in iso9283.JOB_MODES)}) or a table "
+    expected = (f"a built-in mode ({', '.join(repr(m) for m in BUILTIN_MODES)}) or a table "
                 "{name = ..., mode = ...}")
     TABLE = Table({
         "name": Field(String(pattern=NAME_PATTERN, pattern_doc="of letters, digits, _ - ."),
                       doc="the entry's name in the table and file names"),
-        "mode": Field(String(choices=tuple(iso9283.JOB_MODES)), doc="a built-in mode of the main job"),
+        "mode": Field(String(choices=tuple(BUILTIN_MODES)), doc="a built-in mode of the main job"),
         "drive_speed_feedforward": Field(Boolean(), doc="built-in modes: override the mode's drive speed "
                                                         "feed-forward (default: the mode's)"),
     }, one_of=[("mode",)], doc="a controller table")
 
     def check(self, value: Any, where: Where) -> dict[str, Any]:
         if isinstance(value, str):
-            if value in iso9283.JOB_MODES:
+            if value in BUILTIN_MODES:
                 return {"name": value, "kind": "mode", "mode": value}
             raise where.error(self.expected, value)
         if not isinstance(value, dict):
@@ -126,6 +134,23 @@ class TrajectoryEntry(Spec):
                         doc="Cartesian files: the IK branch of the first sample is the one nearest to these 6 "
                             "angles (default: planners.iso9283.ISO_Q_HINT)"),
     }, one_of=[("path", "planner", "file")], doc="a trajectory table")
+
+    # the trajectory file or planner file of an entry travels with a sweep's tasks
+    # (cosim.sweep.keypath.referenced_files)
+    def referenced_file(self, value: Any) -> str | None:
+        if isinstance(value, dict):
+            if isinstance(value.get("file"), str):
+                return value["file"]
+            return class_spec_file(value.get("planner"))
+        if isinstance(value, str) and value.lower().endswith(".csv"):
+            return value
+        return class_spec_file(value)
+
+    def relocated(self, value: Any, path: str) -> Any:
+        if isinstance(value, dict):
+            key = "file" if isinstance(value.get("file"), str) else "planner"
+            return {**value, key: path if key == "file" else with_class_file(value[key], path)}
+        return path if value.lower().endswith(".csv") else with_class_file(value, path)
 
     def check(self, value: Any, where: Where) -> dict[str, Any]:
         if isinstance(value, str):
@@ -168,7 +193,7 @@ COMPARE_TABLE = Table({
     "figures": Field(Boolean(), default=True, doc="write compare_metrics.png and compare_tcp_error.png"),
 }, doc="the [compare] table")
 
-SCHEMA = Table({**iso9283.SCHEMA.fields,
+SCHEMA = Table({"scenario": SCENARIO_FIELD, **COSIM_FIELDS, **CELL_FIELDS,
                 "compare": Field(COMPARE_TABLE, required=True),
                 "problem": Field(planners_job.PROBLEM_TABLE, default={})},
                doc="a compare scenario document")
@@ -178,7 +203,7 @@ SCHEMA = Table({**iso9283.SCHEMA.fields,
 def check(doc: dict[str, Any], where: Where) -> None:
     """The cell's checks (as the main job), unique entry names, every user planner loaded and every
     trajectory file read and checked against the robot's limits - before anything runs."""
-    iso9283.check(doc, where)
+    check_cell_scenario(doc, where)
     planners_job._fill(doc)
     cmp_t = doc["compare"]
     _unique_names(cmp_t["controllers"], where / "compare" / "controllers")
@@ -257,7 +282,7 @@ class _Motion:
         self.status, self.message, self.info = status, message, info or {}
 
 
-def _motions(ctx: RunContext, doc: dict[str, Any], setup: iso9283.JobSetup, source: Path | None) -> list[_Motion]:
+def _motions(ctx: RunContext, doc: dict[str, Any], setup: CellSetup, source: Path | None) -> list[_Motion]:
     """Every trajectory entry planned or loaded (planner failures are entries with a status, not errors)."""
     from planners.report import planner_summary
     from robot.dynamics import RobotDynamics
@@ -298,7 +323,7 @@ def _motions(ctx: RunContext, doc: dict[str, Any], setup: iso9283.JobSetup, sour
 
 
 # ------------------------------------------------------------------------------------- running
-def _controller_for(setup: iso9283.JobSetup, ctrl: dict[str, Any], motion: _Motion, stop_time: float):
+def _controller_for(setup: CellSetup, ctrl: dict[str, Any], motion: _Motion, stop_time: float):
     """(document for the run, Controller) of a built-in mode on ``motion``."""
     from controller import Controller, ControllerConfig, JointTrajectory
 
@@ -306,16 +331,16 @@ def _controller_for(setup: iso9283.JobSetup, ctrl: dict[str, Any], motion: _Moti
     ctrl_t = setup.doc["controller"]
     speed_ff = ctrl.get("drive_speed_feedforward")
     if speed_ff is None:
-        speed_ff = iso9283.drive_speed_feedforward(ctrl_t, mode)
-    settings = {"controller_mode": iso9283.JOB_MODES[mode].controller_mode, "drive_speed_feedforward": speed_ff,
-                "torque_feedforward": iso9283.JOB_MODES[mode].controller_mode == "model_based",
-                "description": iso9283.JOB_MODES[mode].description}
+        speed_ff = drive_speed_feedforward(ctrl_t, mode)
+    settings = {"controller_mode": BUILTIN_MODES[mode].controller_mode, "drive_speed_feedforward": speed_ff,
+                "torque_feedforward": BUILTIN_MODES[mode].controller_mode == "model_based",
+                "description": BUILTIN_MODES[mode].description}
+    run_doc = {**setup.doc, "fmus": mode_fmus(setup.doc["fmus"], speed_ff)}
     if motion.kind_of == "iso9283":
         setup.mode_settings[mode] = settings
-        return iso9283.mode_controller(setup, mode)
+        return run_doc, mode_cell(setup, mode)[1]
     period = ctrl_t["period"]
-    run_doc = {**setup.doc, "fmus": iso9283.mode_fmus(setup.doc["fmus"], speed_ff)}
-    drive_model = (robot_cell.drive_loop_model(run_doc["fmus"], period)
+    drive_model = (wiring.drive_loop_model(run_doc["fmus"], period)
                    if ctrl_t["drive_compensation"] and settings["torque_feedforward"] else None)
     reference = JointTrajectory.from_planner_trajectory(motion.trajectory, period)
     config = ControllerConfig(mode=settings["controller_mode"], period_s=period,
@@ -334,15 +359,8 @@ def _stop_time(doc: dict[str, Any], motion: _Motion) -> float:
     return math.ceil(raw / macro - 1e-9) * macro
 
 
-def _with_current_demand(doc: dict[str, Any], tracker_period: float) -> dict[str, Any]:
-    record = dict(doc.get("record") or {"period": tracker_period, "signals": []})
-    demand = [f"{d}.current_demand" for d in robot_cell.DRIVES]
-    record["signals"] = list(record["signals"]) + [s for s in demand if s not in record["signals"]]
-    return {**doc, "record": record}
-
-
-def _evaluate_joint(ctx: RunContext, label: str, cell: robot_cell.CellRun, controller: Any, motion: _Motion,
-                    setup: iso9283.JobSetup):
+def _evaluate_joint(ctx: RunContext, label: str, cell: CellRun, controller: Any, motion: _Motion,
+                    setup: CellSetup):
     """Metrics of a joint-trajectory run (the main job's definitions; programmed = the planned flange
     by the controller's kinematic model; one segment); writes tcp_<label>.csv and controller_<label>.csv."""
     from cosim.jobs.columns_csv import write_columns_csv
@@ -353,7 +371,7 @@ def _evaluate_joint(ctx: RunContext, label: str, cell: robot_cell.CellRun, contr
     rec = cell.recording
     cols, data = rec.columns, rec.data
     t = data[:, 0]
-    q = data[:, [cols.index(f"{robot_cell.PLANT}.q[{i}]") for i in range(1, 7)]]
+    q = data[:, [cols.index(f"{wiring.PLANT}.q[{i}]") for i in range(1, 7)]]
     measured = data[:, [cols.index(s) for s in ("tracker.x", "tracker.y", "tracker.z")]]
     stack = [np.column_stack([log[f"{g}{j}"] for j in range(1, 7)]) for g in ("q_d", "qd_d", "qdd_d")]
     ok = np.isfinite(stack[0]).all(axis=1)
@@ -390,7 +408,7 @@ def _evaluate_joint(ctx: RunContext, label: str, cell: robot_cell.CellRun, contr
     return entry, result
 
 
-def _drive_metrics(cell: robot_cell.CellRun, doc_fmus: list[dict[str, Any]], window: tuple[float, float]
+def _drive_metrics(cell: CellRun, doc_fmus: list[dict[str, Any]], window: tuple[float, float]
                    ) -> dict[str, Any]:
     """Over the motion window: the peak of |current set-point| / its clamp min(current_limit, torque_limit /
     (gear_ratio torque_constant)) (also over the whole run, which includes the enable transient),
@@ -398,12 +416,12 @@ def _drive_metrics(cell: robot_cell.CellRun, doc_fmus: list[dict[str, Any]], win
     rec = cell.recording
     cols, data = rec.columns, rec.data
     t = data[:, 0]
-    params = robot_cell.drive_parameters(doc_fmus)
+    params = wiring.drive_parameters(doc_fmus)
     clamp = np.array([min(p["current_limit"], p["torque_limit"] / (p["gear_ratio"] * p["torque_constant"]))
                       for p in params])
-    current = np.abs(data[:, [cols.index(f"{d}.current_demand") for d in robot_cell.DRIVES]])
-    torque = data[:, [cols.index(f"{d}.tau_out") for d in robot_cell.DRIVES]]
-    qd = data[:, [cols.index(f"{robot_cell.PLANT}.qd[{i}]") for i in range(1, 7)]]
+    current = np.abs(data[:, [cols.index(f"{d}.current_demand") for d in wiring.DRIVES]])
+    torque = data[:, [cols.index(f"{d}.tau_out") for d in wiring.DRIVES]]
+    qd = data[:, [cols.index(f"{wiring.PLANT}.qd[{i}]") for i in range(1, 7)]]
     mask = (t >= window[0] - 1e-9) & (t <= window[1] + 1e-9)
     whole = current.max(axis=0) / clamp if t.size else np.full(6, np.nan)
     ratio = current[mask].max(axis=0) / clamp if mask.any() else np.full(6, np.nan)
@@ -421,21 +439,21 @@ def _drive_metrics(cell: robot_cell.CellRun, doc_fmus: list[dict[str, Any]], win
             "energy_J": energy, "tau_squared_integral": tau_sq}
 
 
-def run_entry(ctx: RunContext, setup: iso9283.JobSetup, ctrl: dict[str, Any], motion: _Motion
+def run_entry(ctx: RunContext, setup: CellSetup, ctrl: dict[str, Any], motion: _Motion
               ) -> tuple[dict[str, Any], Any]:
     """Run one controller on one motion through the cell and evaluate it: (record, TrackingResult or None)."""
     doc = setup.doc
     label = f"{ctrl['name']}__{motion.name}"
     stop_time = _stop_time(doc, motion)
     run_doc, controller = _controller_for(setup, ctrl, motion, stop_time)
-    run_doc = _with_current_demand(run_doc, setup.tracker.period_s)
     can_log = ctx.path(f"can_{label}.blf") if doc["results"]["can_log"] else None
-    cell = robot_cell.run_cell(run_doc, controller, setup.true_robot, ctx, label=label, stop_time=stop_time,
-                               fieldbus=setup.fieldbus, tracker=setup.tracker, record_file=f"timeseries_{label}.csv",
-                               can_log=can_log)
+    demand = [f"{d}.current_demand" for d in wiring.DRIVES]
+    description = describe_cell(run_doc, setup.true_robot, controller_info(controller, setup.fieldbus, label=label),
+                                label=label, stop_time=stop_time, fieldbus=setup.fieldbus, tracker=setup.tracker,
+                                record_file=f"timeseries_{label}.csv", can_log=can_log, extra_signals=demand)
+    cell = run_cell(description, controller, ctx)
     if motion.kind_of == "iso9283":
-        entry, result = iso9283.evaluate_run(ctx, label, cell, controller, setup.reference, setup.path,
-                                             setup.true_robot)
+        entry, result = evaluate_run(ctx, label, cell, controller, setup.reference, setup.path, setup.true_robot)
         duration = setup.path.duration
     else:
         entry, result = _evaluate_joint(ctx, label, cell, controller, motion, setup)
@@ -493,12 +511,12 @@ def write_table(out_dir: Path, rows: list[dict[str, Any]], rank_by: str) -> tupl
 def run(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
     """Every controller on every trajectory, same true robot; the ranked table, files and figures."""
     doc = scenario.data
-    iso9283.fill_table_defaults(doc)
+    fill_cell_defaults(doc)
     planners_job._fill(doc)
     cmp_t = doc["compare"]
     doc["controller"]["modes"] = [c["mode"] for c in cmp_t["controllers"] if c["kind"] == "mode"] or ["model_based"]
     doc["controller"]["modes"] = list(dict.fromkeys(doc["controller"]["modes"]))
-    setup = iso9283.prepare(doc, str(scenario.path))
+    setup = prepare(doc, str(scenario.path))
     ctx.summary.update(**setup.summary_fields(), entries={}, table=[])
     motions = _motions(ctx, doc, setup, scenario.path)
     ctx.summary.update(trajectories={m.name: {"status": m.status, "message": m.message, **m.info} for m in motions})

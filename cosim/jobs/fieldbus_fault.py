@@ -1,6 +1,6 @@
 """Job ``fieldbus_fault``: a fieldbus fault during the ISO 9283 motion, and the cell's reaction.
 
-The cell of the main job (:mod:`cosim.jobs.iso9283`: true robot, controller, POWERLINK
+The cell of the main job (:mod:`cosim.cell.mode_runs`: true robot, controller, POWERLINK
 fieldbus, six servo-drive FMUs, plant FMU, tracker) runs ONE mode of ``[controller] modes``
 on the ISO 9283 path while ``[fieldbus.faults]`` injects faults (e.g. a burst of lost
 PReq frames to one node). What must happen, and what the job checks and reports:
@@ -16,7 +16,7 @@ PReq frames to one node). What must happen, and what the job checks and reports:
    position, option code 6);
 3. the robot comes to rest: every joint speed below ``[rest] speed_tolerance`` over the
    last ``[rest] window`` of the run (which ends 0.5 s after the controller stopped,
-   :class:`cosim.jobs.robot_cell.FieldbusLink`);
+   :class:`cosim.cell.link.FieldbusLink`);
 4. nothing is lost: the time series (1 ms, with each drive's statusword, error code and
    brake torque) and the controller log up to the end, the CAN log (every frame that was
    on the wire; lost frames are absent) and, in summary.json, the fieldbus summary
@@ -33,7 +33,12 @@ from typing import Any
 
 import numpy as np
 
-from cosim.jobs import iso9283, robot_cell
+from cosim.cell import wiring
+from cosim.cell.mode_runs import prepare, run_mode
+from cosim.cell.parts import CELL_FIELDS, check_cell_scenario
+from cosim.cell.runner import CellRun
+from cosim.scenario.cosim_tables import COSIM_FIELDS
+from cosim.scenario.loader import SCENARIO_FIELD
 from cosim.master import SimulationError
 from cosim.scenario.context import RunContext
 from cosim.scenario.loader import Scenario
@@ -50,12 +55,12 @@ REST_TABLE = Table({
                     doc="over the last ... of the run: a number in s > 0"),
 }, doc="the [rest] table")
 
-SCHEMA = Table({**iso9283.SCHEMA.fields, "rest": Field(REST_TABLE, default={})},
+SCHEMA = Table({"scenario": SCENARIO_FIELD, **COSIM_FIELDS, **CELL_FIELDS, "rest": Field(REST_TABLE, default={})},
                doc="a fieldbus_fault scenario document")
 
 #: Drive signals recorded besides the cell's own (state, fault code, brake), i = 1..6.
 DRIVE_SIGNALS: tuple[str, ...] = tuple(f"{d}.{name}" for name in ("statusword", "error_code", "brake_torque")
-                                       for d in robot_cell.DRIVES)
+                                       for d in wiring.DRIVES)
 
 #: Which threshold counters a loss burst on these frames hits first (side, counter kind,
 #: key of fieldbus.ThresholdConfig). A lost PReq also silences the node's PRes.
@@ -73,7 +78,7 @@ def _fill_rest(doc: dict[str, Any]) -> None:
 
 def check(doc: dict[str, Any], where: Where) -> None:
     """The cell's checks (as the iso9283 job), one mode, and at least one fault to inject."""
-    iso9283.check(doc, where)
+    check_cell_scenario(doc, where)
     _fill_rest(doc)
     modes = doc["controller"]["modes"]
     if len(modes) != 1:
@@ -110,11 +115,11 @@ def expected_trips(fieldbus) -> list[dict[str, Any]]:
     return out
 
 
-def _drive_states(cell: robot_cell.CellRun) -> list[dict[str, Any]]:
+def _drive_states(cell: CellRun) -> list[dict[str, Any]]:
     """State, statusword, error code and brake torque of every drive in the last recorded row."""
     cols, last = cell.recording.columns, cell.recording.data[-1]
     states = []
-    for d in robot_cell.DRIVES:
+    for d in wiring.DRIVES:
         sw = int(last[cols.index(f"{d}.statusword")])
         states.append({"drive": d, "state": decode_statusword(sw).value, "statusword": f"0x{sw:04X}",
                        "error_code": f"0x{int(last[cols.index(f'{d}.error_code')]):04X}",
@@ -122,7 +127,7 @@ def _drive_states(cell: robot_cell.CellRun) -> list[dict[str, Any]]:
     return states
 
 
-def _rest(cell: robot_cell.CellRun, window: float, tolerance: float) -> dict[str, Any]:
+def _rest(cell: CellRun, window: float, tolerance: float) -> dict[str, Any]:
     data, cols = cell.recording.data, cell.recording.columns
     t = data[:, 0]
     last = t >= t[-1] - window + 1e-12
@@ -135,10 +140,10 @@ def run(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
     """Run the scenario's mode with the injected faults; check and report the reaction."""
     doc = scenario.data
     _fill_rest(doc)
-    setup = iso9283.prepare(doc, str(scenario.path))
+    setup = prepare(doc, str(scenario.path))
     mode = doc["controller"]["modes"][0]
     ctx.summary.update(**setup.summary_fields(), mode=mode)
-    entry, result, cell, controller = iso9283.run_mode(ctx, setup, mode, extra_signals=DRIVE_SIGNALS)
+    entry, result, cell, controller = run_mode(ctx, setup, mode, extra_signals=DRIVE_SIGNALS)
     failure = cell.failure
     if failure is not None and not (failure.component == "controller" and controller.stopped):
         ctx.summary.update(modes={mode: entry}, fieldbus=cell.fieldbus)

@@ -25,7 +25,7 @@ def _state_level(statusword: np.ndarray) -> np.ndarray:
 
 def write_figure(file: Path, cell: Any, trips: list[dict[str, Any]], controller: Any,
                  before_s: float = 0.05) -> Path:
-    """Write the figure for ``cell`` (a robot_cell.CellRun with drive statuswords recorded); return the file."""
+    """Write the figure for ``cell`` (a cosim.cell.CellRun with drive statuswords recorded); return the file."""
     os.environ.setdefault("MPLBACKEND", "Agg")
     import matplotlib
 

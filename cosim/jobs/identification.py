@@ -5,7 +5,7 @@
    of the same order; ``omega_f`` is snapped so that one period is a whole number of
    controller cycles (periodic averaging needs it).
 2. **Excite**: the trajectory, repeated ``[excitation] periods`` times, runs closed loop
-   on the robot cell (:mod:`cosim.jobs.robot_cell`: controller -> POWERLINK-timed
+   on the robot cell (:mod:`cosim.cell`: controller -> POWERLINK-timed
    CiA 402 fieldbus -> servo-drive FMUs <-> plant FMU set to the seeded TRUE robot,
    whose inertias, friction, rotor inertias and payload the controller does not know).
    The data are what a user gets: the drives' ``position_actual`` (0x6064, encoder
@@ -41,10 +41,12 @@ from typing import Any
 import numpy as np
 
 from controller import Controller, ControllerConfig, JointTrajectory, TcpTrajectory
-from cosim.jobs import robot_cell
-from cosim.jobs.cell_checks import check_cell, fill_defaults
-from cosim.jobs.iso9283 import TRACKER_TABLE, TRUE_ROBOT_TABLE, evaluate_run, make_true_robot
-from cosim.jobs.laser_tracker import TrackerConfig
+from cosim.cell import wiring
+from cosim.cell.checks import check_cell, fill_defaults
+from cosim.cell.description import describe_cell
+from cosim.cell.evaluation import evaluate_run
+from cosim.cell.parts import TRACKER_TABLE, TRUE_ROBOT_TABLE, make_true_robot, tracker_config
+from cosim.cell.runner import controller_info, run_cell
 from cosim.scenario.context import RunContext
 from cosim.scenario.cosim_tables import COSIM_FIELDS
 from cosim.scenario.loader import SCENARIO_FIELD, Scenario
@@ -134,7 +136,7 @@ def _fill_table_defaults(doc: dict[str, Any]) -> None:
 
 
 def check(doc: dict[str, Any], where: Where) -> None:
-    """The cell (:func:`cosim.jobs.cell_checks.check_cell`), the excitation and measurement settings."""
+    """The cell (:func:`cosim.cell.checks.check_cell`), the excitation and measurement settings."""
     _fill_table_defaults(doc)
     check_cell(doc, where)
     ctrl = doc["controller"]
@@ -163,7 +165,7 @@ class FieldbusRecorder:
     optional Gaussian current-measurement noise on the torque (sigma in N m per joint).
 
     Everything else is delegated to the wrapped controller, so the robot cell's
-    :class:`~cosim.jobs.robot_cell.FieldbusLink` drives it like the controller itself.
+    :class:`~cosim.cell.link.FieldbusLink` drives it like the controller itself.
     """
 
     def __init__(self, controller: Controller, capacity: int, torque_noise_sigma: np.ndarray,
@@ -263,8 +265,16 @@ def run(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
     known_payload = true_robot.payload.copy() if ctrl["payload_known"] else np.zeros(4)
     kin = load_model()
     nominal = RobotDynamics(payload=known_payload, model=kin)
-    drive_model = robot_cell.drive_loop_model(doc["fmus"], period) if ctrl["drive_compensation"] else None
-    tracker = TrackerConfig(doc["tracker"]["period"], doc["tracker"]["noise_sigma"], doc["tracker"]["seed"])
+    drive_model = wiring.drive_loop_model(doc["fmus"], period) if ctrl["drive_compensation"] else None
+    tracker = tracker_config(doc["tracker"])
+
+    def run_on_cell(ctl: Any, label: str, stop: float, name: str):
+        """Run the cell with ``ctl`` (a controller or its FieldbusRecorder) for ``stop`` s."""
+        cell = describe_cell(doc, true_robot, controller_info(ctl, fb, label=label, source=str(scenario.path)),
+                             label=label, stop_time=stop, fieldbus=fb, tracker=tracker,
+                             record_file=f"timeseries_{name}.csv",
+                             can_log=ctx.path(f"can_{name}.blf") if doc["results"]["can_log"] else None)
+        return run_cell(cell, ctl, ctx)
     sigma = _noise_sigma(doc)
     ctx.summary.update(
         phase="designing the exciting trajectory",
@@ -291,9 +301,7 @@ def run(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
     controller = Controller(reference, _config(doc, ctrl["excitation_mode"], lead), kinematic_model=kin,
                             dynamics=nominal, drive_model=drive_model, capacity=capacity)
     recorder = FieldbusRecorder(controller, capacity, sigma, meas["noise_seed"])
-    cell = robot_cell.run_cell(doc, recorder, true_robot, ctx, label="excitation", stop_time=stop_time,
-                               fieldbus=fb, tracker=tracker, record_file="timeseries_excitation.csv",
-                               can_log=ctx.path("can_excitation.blf") if doc["results"]["can_log"] else None)
+    cell = run_on_cell(recorder, "excitation", stop_time, "excitation")
     if cell.failure is not None:
         raise cell.failure
     if controller.motion_start_s is None:
@@ -353,9 +361,7 @@ def run(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
         ctl = Controller(tcp_ref, _config(doc, "model_based", lead), kinematic_model=kin, dynamics=models[label],
                          q_hint=np.array(ISO_Q_HINT), drive_model=drive_model, capacity=iso_capacity)
         rec = FieldbusRecorder(ctl, iso_capacity, sigma, meas["noise_seed"] + 1)
-        iso_cell = robot_cell.run_cell(doc, rec, true_robot, ctx, label=f"iso9283_{label}", stop_time=iso_stop,
-                                       fieldbus=fb, tracker=tracker, record_file=f"timeseries_{label}.csv",
-                                       can_log=ctx.path(f"can_{label}.blf") if doc["results"]["can_log"] else None)
+        iso_cell = run_on_cell(rec, f"iso9283_{label}", iso_stop, label)
         entry, _ = evaluate_run(ctx, label, iso_cell, ctl, tcp_ref, path, true_robot)
         runs[label] = {k: entry[k] for k in ("status", "tcp_error_max_mm", "tcp_error_rms_mm",
                                              "tcp_error_max_noise_free_mm", "tcp_error_rms_noise_free_mm",

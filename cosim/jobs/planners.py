@@ -10,7 +10,7 @@ solve_time_s, max_constraint_ratio at 1 ms with the torque recomputed by the nom
 inverse dynamics, energy = integral tau^T tau dt) and written as ``trajectory_<name>.csv``.
 
 With ``[planners] execute = true`` each trajectory is driven through the co-simulated
-cell (the iso9283 job's wiring and tables: controller in ``model_based`` mode with the
+cell (:mod:`cosim.cell`: the same wiring and tables as the iso9283 job, controller in ``model_based`` mode with the
 joint trajectory as reference, POWERLINK-timed fieldbus, servo-drive FMUs, plant =
 the seeded true robot or, with ``[planners] plant = "nominal"``, the nominal robot):
 ``tcp_error_max_mm`` (tracker reading vs TRUE kinematics at the applied set-points, as
@@ -29,13 +29,21 @@ from typing import Any
 
 import numpy as np
 
-from cosim.jobs import iso9283, robot_cell
+from cosim.cell import wiring
+from cosim.cell.description import describe_cell
+from cosim.cell.parts import (BUILTIN_MODES, CELL_FIELDS, check_cell_scenario, controller_models,
+                              drive_speed_feedforward, fill_cell_defaults, make_true_robot, mode_fmus,
+                              tracker_config)
+from cosim.cell.runner import controller_info, run_cell
+from cosim.scenario.cosim_tables import COSIM_FIELDS
+from cosim.scenario.loader import SCENARIO_FIELD
 from cosim.jobs.tracking_metrics import desired_joints
 from cosim.scenario.context import RunContext
 from cosim.scenario.loader import Scenario
 from cosim.scenario.registry import register_job
 from cosim.scenario.schema import AnyValue, Boolean, Field, Integer, List, Number, Spec, String, Table, Where
-from cosim.scenario.user_class import SPEC_FORM, instantiate, is_class_spec, load_user_class
+from cosim.scenario.user_class import (SPEC_FORM, class_spec_file, instantiate, is_class_spec, load_user_class,
+                                      with_class_file)
 
 JOB_NAME = "planners"
 
@@ -62,6 +70,13 @@ class PlannerEntry(Spec):
         if isinstance(value, str) and (value in PLANNERS or is_class_spec(value)):
             return value
         raise where.error(self.expected, value)
+
+    # the file of a 'file.py:Class' entry travels with a sweep's tasks (cosim.sweep.keypath.referenced_files)
+    def referenced_file(self, value: Any) -> str | None:
+        return class_spec_file(value)
+
+    def relocated(self, value: str, path: str) -> str:
+        return with_class_file(value, path)
 
 
 PLANNERS_TABLE = Table({
@@ -99,7 +114,7 @@ PROBLEM_TABLE = Table({
     "limit_scale": Field(SCALE_TABLE, default={}),
 }, doc="the [problem] table")
 
-SCHEMA = Table({**iso9283.SCHEMA.fields,
+SCHEMA = Table({"scenario": SCENARIO_FIELD, **COSIM_FIELDS, **CELL_FIELDS,
                 "planners": Field(PLANNERS_TABLE, required=True),
                 "problem": Field(PROBLEM_TABLE, default={})},
                doc="a planners scenario document")
@@ -114,8 +129,8 @@ def _fill(doc: dict[str, Any]) -> None:
 
 
 def check(doc: dict[str, Any], where: Where) -> None:
-    """The cell's checks (as the iso9283 job) plus the planners' and problem's consistency."""
-    iso9283.check(doc, where)
+    """The cell's checks (:func:`cosim.cell.parts.check_cell_scenario`) plus the planners' and problem's consistency."""
+    check_cell_scenario(doc, where)
     _fill(doc)
     problem, planners = doc["problem"], doc["planners"]
     if problem["k1"] + problem["k2"] <= 0.0:
@@ -236,34 +251,31 @@ def _execute(ctx: RunContext, doc: dict[str, Any], name: str, traj: Any, true_ro
              fieldbus: Any) -> dict[str, Any]:
     """Drive ``traj`` (a planners Trajectory) through the cell; the summary fields of the run."""
     from controller import Controller, ControllerConfig, JointTrajectory
-    from cosim.jobs.laser_tracker import TrackerConfig
     from robot.kinematics import FlangeKinematics
 
     ctrl_t = doc["controller"]
     period = ctrl_t["period"]
-    settings = iso9283.JOB_MODES["model_based"]
-    speed_ff = iso9283.drive_speed_feedforward(ctrl_t, "model_based")
-    run_doc = {**doc, "fmus": iso9283.mode_fmus(doc["fmus"], speed_ff)}
-    record = dict(doc.get("record") or {"period": doc["tracker"]["period"], "signals": []})
-    demand = [f"{d}.current_demand" for d in robot_cell.DRIVES]
-    record["signals"] = list(record["signals"]) + [s for s in demand if s not in record["signals"]]
-    run_doc["record"] = record
-    kin, dyn, kin_label, dyn_label = iso9283.controller_models(ctrl_t, true_robot)
-    drive_model = robot_cell.drive_loop_model(run_doc["fmus"], period) if ctrl_t["drive_compensation"] else None
+    settings = BUILTIN_MODES["model_based"]
+    speed_ff = drive_speed_feedforward(ctrl_t, "model_based")
+    run_doc = {**doc, "fmus": mode_fmus(doc["fmus"], speed_ff)}
+    demand = [f"{d}.current_demand" for d in wiring.DRIVES]
+    kin, dyn, kin_label, dyn_label = controller_models(ctrl_t, true_robot)
+    drive_model = wiring.drive_loop_model(run_doc["fmus"], period) if ctrl_t["drive_compensation"] else None
     reference = JointTrajectory.from_planner_trajectory(traj, period)
     stop_time = 0.02 + ctrl_t["settle_time"] + reference.duration + 0.2
     config = ControllerConfig(mode=settings.controller_mode, period_s=period, lead_cycles=1 + fieldbus.dead_time_cycles,
                               compute_budget_s=ctrl_t["compute_budget"], settle_time_s=ctrl_t["settle_time"])
     controller = Controller(reference, config, kinematic_model=kin, dynamics=dyn, drive_model=drive_model,
                             capacity=int(stop_time / period) + 16)
-    tracker = TrackerConfig(doc["tracker"]["period"], doc["tracker"]["noise_sigma"], doc["tracker"]["seed"])
-    cell = robot_cell.run_cell(run_doc, controller, true_robot, ctx, label=name, stop_time=stop_time,
-                               fieldbus=fieldbus, tracker=tracker, record_file=f"timeseries_{name}.csv",
-                               can_log=ctx.path(f"can_{name}.blf") if doc["results"]["can_log"] else None)
+    description = describe_cell(run_doc, true_robot, controller_info(controller, fieldbus, label=name), label=name,
+                                stop_time=stop_time, fieldbus=fieldbus, tracker=tracker_config(doc["tracker"]),
+                                record_file=f"timeseries_{name}.csv", extra_signals=demand,
+                                can_log=ctx.path(f"can_{name}.blf") if doc["results"]["can_log"] else None)
+    cell = run_cell(description, controller, ctx)
     rec = cell.recording
     cols, data = rec.columns, rec.data
     t = data[:, 0]
-    q = data[:, [cols.index(f"{robot_cell.PLANT}.q[{i}]") for i in range(1, 7)]]
+    q = data[:, [cols.index(f"{wiring.PLANT}.q[{i}]") for i in range(1, 7)]]
     measured = data[:, [cols.index(s) for s in ("tracker.x", "tracker.y", "tracker.z")]]
     log = controller.log.columns()
     stack = [np.column_stack([log[f"{g}{j}"] for j in range(1, 7)]) for g in ("q_d", "qd_d", "qdd_d")]
@@ -276,7 +288,7 @@ def _execute(ctx: RunContext, doc: dict[str, Any], name: str, traj: Any, true_ro
     window = (t >= start) & (t <= start + reference.duration) if start is not None else np.zeros(t.size, bool)
     err = np.linalg.norm(measured - commanded, axis=1) * 1e3
     err_free = np.linalg.norm(actual - commanded, axis=1) * 1e3
-    params = robot_cell.drive_parameters(run_doc["fmus"])
+    params = wiring.drive_parameters(run_doc["fmus"])
     clamp = np.array([min(p["current_limit"], p["torque_limit"] / (p["gear_ratio"] * p["torque_constant"]))
                       for p in params])
     current = np.abs(data[:, [cols.index(s) for s in demand]])
@@ -338,7 +350,7 @@ def run(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
     from robot.dynamics import RobotDynamics
 
     doc = scenario.data
-    iso9283.fill_table_defaults(doc)
+    fill_cell_defaults(doc)
     _fill(doc)
     problem_t, planners_t = doc["problem"], doc["planners"]
     dynamics = RobotDynamics()
@@ -353,7 +365,7 @@ def run(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
         table = dict(doc["true_robot"])
         if planners_t["plant"] == "nominal":
             table.update(dynamic_deviations=False, geometric_errors=False)
-        true_robot = iso9283.make_true_robot(table)
+        true_robot = make_true_robot(table)
         fieldbus = FieldbusConfig.from_dict(doc["fieldbus"], source=str(scenario.path))
     ctx.summary.update(problem={**problem_t, "cp_limits_note": "eq38: velocity, acceleration, torque",
                                 "ptp_limits_note": "eq40: torque, torque rate, velocity, position"},

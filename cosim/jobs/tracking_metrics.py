@@ -20,6 +20,16 @@ Definitions (all positions of the flange origin in base_link):
 * **path error** ``|m(t) - p_d(t)|``, ``p_d`` the programmed (desired) path: TCP error
   plus the geometric error of an uncalibrated controller model (mm level); reported
   separately.
+* **residual vibration** (after the motion ends at ``t_end``, the commanded TCP at
+  rest), from the noise-free TCP error: ``static offset`` = distance of the attained
+  final pose (mean of the last 20 ms) from the commanded one; ``peak`` = largest distance
+  from the final pose over ``t >= t_end``; ``settling time`` = time from ``t_end`` until
+  that distance stays inside ``band`` (ISO 9283's position stabilisation time with the
+  band given; NaN if it does not within the recording).
+* **TCP error spectrum**: one-sided amplitude spectrum (Hann window, mean removed) of
+  the noise-free TCP error vector over the path, combined over x, y, z
+  (``sqrt(|X_x|^2 + |X_y|^2 + |X_z|^2)``); its largest peak above ``SPECTRUM_MIN_HZ``
+  is reported (frequency, amplitude).
 * **AT** (EN ISO 9283 path accuracy): per path segment, the largest distance from a
   measured point to the commanded path in the plane normal to the path through that
   point, i.e. the distance to the commanded polyline (1 ms samples, chord error below
@@ -29,7 +39,7 @@ Definitions (all positions of the flange origin in base_link):
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -39,6 +49,70 @@ N_JOINTS = 6
 AT_WINDOW_SAMPLES = 150
 """Half-width (samples) of the window of commanded points searched for the foot of the
 normal plane of a measured point: 150 ms at 1 ms, far above any lag."""
+
+
+VIBRATION_BAND_M = 20e-6
+"""Settling band of the residual vibration (m): 20 um, well inside the +-0.03..0.05 mm
+pose repeatability of arms of this class, above the tracker's 2 um noise."""
+
+SPECTRUM_MIN_HZ = 2.0
+"""Lowest frequency (Hz) searched for the dominant peak of the TCP error spectrum: below
+it the error follows the path's own motion (quasi-static lag), not a vibration."""
+
+
+FINAL_POSE_WINDOW_S = 0.02
+"""Length (s) of the last stretch of the recording averaged as the attained final pose."""
+
+
+def residual_vibration(t: np.ndarray, error: np.ndarray, t_end: float,
+                       band: float = VIBRATION_BAND_M) -> dict[str, float]:
+    """Residual vibration after the motion ends at ``t_end`` (s) from the TCP error vectors
+    ``error`` (m, 3) in m at ``t`` (m,) s. The attained final pose is the mean error over the
+    last ``FINAL_POSE_WINDOW_S`` of the samples; its distance from the commanded pose is
+    ``static_offset_mm`` (e.g. gear sag under gravity). ``peak_mm``: largest distance from the
+    final pose after ``t_end``; ``settling_time_s``: time from ``t_end`` until the distance
+    stays inside ``band`` (ISO 9283 position stabilisation time; NaN if it does not within
+    the samples); ``band_mm``; ``window_s``: length of the observed stretch."""
+    nan = float("nan")
+    after = t >= t_end - 1e-9
+    if after.sum() < 2:
+        return {"peak_mm": nan, "settling_time_s": nan, "static_offset_mm": nan, "band_mm": band * 1e3,
+                "window_s": 0.0}
+    ta, ea = t[after], error[after]
+    final = ea[ta >= ta[-1] - FINAL_POSE_WINDOW_S].mean(axis=0)
+    distance = np.linalg.norm(ea - final, axis=1)
+    outside = np.flatnonzero(distance > band)
+    if outside.size == 0:
+        settling = 0.0
+    elif ta[outside[-1]] >= ta[-1] - FINAL_POSE_WINDOW_S:
+        settling = nan
+    else:
+        settling = float(ta[outside[-1] + 1] - t_end)
+    return {"peak_mm": float(distance.max() * 1e3), "settling_time_s": settling,
+            "static_offset_mm": float(np.linalg.norm(final) * 1e3), "band_mm": band * 1e3,
+            "window_s": float(ta[-1] - t_end)}
+
+
+def error_spectrum(t: np.ndarray, error: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(frequencies Hz, amplitude m) of the TCP error vectors ``error`` (m, 3) sampled
+    uniformly at ``t`` (m,) s: one-sided amplitude spectrum, Hann window, mean removed,
+    combined over the three axes."""
+    if t.size < 16:
+        return np.zeros(0), np.zeros(0)
+    dt = float(np.median(np.diff(t)))
+    window = np.hanning(t.size)
+    spectra = np.fft.rfft((error - error.mean(axis=0)) * window[:, None], axis=0)
+    amplitude = np.sqrt((np.abs(spectra) ** 2).sum(axis=1)) * 2.0 / window.sum()
+    return np.fft.rfftfreq(t.size, dt), amplitude
+
+
+def dominant_peak(freq: np.ndarray, amplitude: np.ndarray, min_hz: float = SPECTRUM_MIN_HZ) -> tuple[float, float]:
+    """(frequency Hz, amplitude m) of the largest spectral line above ``min_hz``."""
+    mask = freq >= min_hz
+    if not mask.any():
+        return float("nan"), float("nan")
+    k = int(np.argmax(np.where(mask, amplitude, -1.0)))
+    return float(freq[k]), float(amplitude[k])
 
 
 def desired_joints(t: np.ndarray, t_apply: np.ndarray, q_d: np.ndarray, qd_d: np.ndarray,
@@ -109,6 +183,11 @@ class TrackingResult:
     at_per_segment: dict[int, float]
     at_vs_programmed_per_segment: dict[int, float]
     tcp_error_noise_free: np.ndarray
+    residual: dict[str, float] = field(default_factory=dict)
+    spectrum_hz: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    spectrum_m: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    residual_t: np.ndarray = field(default_factory=lambda: np.zeros(0))  # s after the motion's end
+    residual_error: np.ndarray = field(default_factory=lambda: np.zeros(0))  # m, noise-free TCP error
 
     def metrics(self, segment_names: list[str] | None = None) -> dict[str, object]:
         """summary.json fields (mm, rad)."""
@@ -132,6 +211,9 @@ class TrackingResult:
             "tcp_path_error_rms_mm": nan if empty else float(np.sqrt(np.mean(self.path_error ** 2)) * 1e3),
             "path_accuracy_AT_vs_programmed_mm": (nan if empty else
                                                   float(max(self.at_vs_programmed_per_segment.values()) * 1e3)),
+            "residual_vibration": {k: v for k, v in self.residual.items()},
+            "tcp_error_spectrum_peak_hz": dominant_peak(self.spectrum_hz, self.spectrum_m)[0],
+            "tcp_error_spectrum_peak_mm": dominant_peak(self.spectrum_hz, self.spectrum_m)[1] * 1e3,
             "evaluated_samples": int(self.t.size),
             "evaluated_from_s": nan if empty else float(self.t[0]),
             "evaluated_to_s": nan if empty else float(self.t[-1]),
@@ -140,8 +222,10 @@ class TrackingResult:
 
 def evaluate(t: np.ndarray, q: np.ndarray, measured: np.ndarray, q_d: np.ndarray, commanded: np.ndarray,
              programmed: np.ndarray, segment: np.ndarray, window: tuple[float, float],
-             arc_length: np.ndarray | None = None, actual: np.ndarray | None = None) -> TrackingResult:
-    """Metrics over the samples with ``window[0] <= t <= window[1]`` (s).
+             arc_length: np.ndarray | None = None, actual: np.ndarray | None = None,
+             band: float = VIBRATION_BAND_M) -> TrackingResult:
+    """Metrics over the samples with ``window[0] <= t <= window[1]`` (s); the residual
+    vibration over ``t >= window[1]`` (the motion's end) with settling ``band`` (m).
 
     ``t`` (m,) s; ``q``, ``q_d`` (m, 6) rad; ``measured``, ``commanded``, ``programmed``
     (m, 3) m; ``segment`` (m,) path segment ids; ``arc_length`` (m,) m along the path
@@ -152,6 +236,12 @@ def evaluate(t: np.ndarray, q: np.ndarray, measured: np.ndarray, q_d: np.ndarray
         actual = measured
     if arc_length is None:
         arc_length = np.zeros(t.shape)
+    residual = residual_vibration(t, actual - commanded, window[1], band)
+    after = t >= window[1] - 1e-9
+    residual_t = t[after] - window[1]
+    final = (actual - commanded)[after][residual_t >= residual_t[-1] - FINAL_POSE_WINDOW_S].mean(axis=0) \
+        if residual_t.size else np.zeros(3)
+    residual_error = np.linalg.norm(actual[after] - commanded[after] - final, axis=1)
     mask = (t >= window[0] - 1e-9) & (t <= window[1] + 1e-9)
     t, q, measured, q_d = t[mask], q[mask], measured[mask], q_d[mask]
     commanded, programmed, segment, arc_length = commanded[mask], programmed[mask], segment[mask], arc_length[mask]
@@ -161,5 +251,7 @@ def evaluate(t: np.ndarray, q: np.ndarray, measured: np.ndarray, q_d: np.ndarray
     path_error = np.linalg.norm(measured - programmed, axis=1)
     at = path_accuracy(measured, commanded, segment) if t.size else {}
     at_prog = path_accuracy(measured, programmed, segment) if t.size else {}
+    freq, amplitude = error_spectrum(t, actual - commanded)
     return TrackingResult(t, q, q_d, lag, commanded, measured, programmed, tcp_error, path_error, segment,
-                          arc_length, at, at_prog, np.linalg.norm(actual - commanded, axis=1))
+                          arc_length, at, at_prog, np.linalg.norm(actual - commanded, axis=1), residual,
+                          freq, amplitude, residual_t, residual_error)

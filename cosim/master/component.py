@@ -1,9 +1,11 @@
 """One FMI 2.0 or FMI 3.0 co-simulation FMU instance as the master sees it.
 
-Loading, instantiation and the lifecycle calls (setup, initialization, terminate,
-free) go through fmpy. The per-step calls (fmi2Set*/fmi2Get*/fmi2DoStep) are bound
-once as raw C function pointers so that the engines can call them with prepared
-value-reference arrays and bus addresses, without per-step allocation. An FMI 3.0
+An FMI 2.0 instance is a :class:`fmus.instance.FmuInstance`, the project's one FMI 2.0
+instance layer (also under ``fmus.fast_fmu.FastFmu2Slave``): extraction, instantiation
+with the FMU's messages routed to this instance, and the per-step calls
+(fmi2Set*/fmi2Get*/fmi2DoStep) bound once as raw C function pointers so that the
+engines call them with prepared value-reference arrays and bus addresses, without
+per-step allocation; the lifecycle calls go through fmpy. An FMI 3.0
 instance is bound through the C adapter of ``fmi3.py`` (fmi3_adapter.c), which offers
 the same call shapes over the FMU's flattened variables.
 The FMU's log messages go to a bounded per-instance buffer (``messages``) that a
@@ -11,28 +13,25 @@ The FMU's log messages go to a bounded per-instance buffer (``messages``) that a
 """
 from __future__ import annotations
 
-import atexit
-import ctypes
-import shutil
 from collections import deque
-from ctypes import CFUNCTYPE, c_double, c_int, c_size_t, c_void_p
 from functools import lru_cache
 from pathlib import Path
 
-from fmpy import calloc, extract, free, read_model_description
-from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
-                       fmi2CallbackFunctions, fmi2CallbackLoggerTYPE)
+from fmpy import read_model_description
+from fmpy.fmi2 import FMU2Slave
 from fmpy.fmi3 import FMU3Slave
 from fmpy.model_description import ModelDescription, ScalarVariable
 
 from cosim.master.errors import MasterConfigError, SimulationError
 from cosim.master.fmi3 import Fmi3Binding, flatten
+from fmus.instance import SET_T, STEP_T, FmuInstance, FmuInstantiateError, extracted_dir
 
 _STATUS = ("OK", "Warning", "Discard", "Error", "Fatal", "Pending")
-SET_T = CFUNCTYPE(c_int, c_void_p, c_void_p, c_size_t, c_void_p)
-STEP_T = CFUNCTYPE(c_int, c_void_p, c_double, c_double, c_int)
 
-_extracted: dict[tuple[str, float], str] = {}
+
+def _unzip_dir(path: Path) -> str:
+    """The FMU archive extracted once per process (``fmus.instance.extracted_dir``; used by proxy.py)."""
+    return extracted_dir(Path(path))
 
 
 def status_name(status: int, api: str = "fmi2") -> str:
@@ -89,19 +88,6 @@ def variables_of(md: ModelDescription) -> dict:
     return {v.name: v for v in md.modelVariables}
 
 
-def _unzip_dir(path: Path) -> str:
-    key = (str(path.resolve()), path.stat().st_mtime)
-    if key not in _extracted:
-        _extracted[key] = extract(str(path))
-    return _extracted[key]
-
-
-@atexit.register
-def _remove_extracted() -> None:
-    for directory in _extracted.values():
-        shutil.rmtree(directory, ignore_errors=True)
-
-
 class FmuComponent:
     """An FMU instance: model description, fmpy slave, raw FMI function pointers, log buffer.
 
@@ -128,14 +114,12 @@ class FmuComponent:
         self.debug_logging = debug_logging
         self.messages: deque[str] = deque(maxlen=log_capacity)
         self.slave: FMU2Slave | FMU3Slave | None = None
+        self.instance: FmuInstance | None = None  # FMI 2.0: the instance layer under this component
         self.failed_fatally = False
-        self._callbacks: fmi2CallbackFunctions | None = None
 
     # ----------------------------------------------------------------- lifecycle
-    def _logger(self, env, instance_name, status, category, message) -> None:
-        text = message.decode("utf-8", "replace") if message else ""
-        cat = category.decode("utf-8", "replace") if category else ""
-        self.messages.append(f"[{status_name(status)}] {cat + ': ' if cat else ''}{text}")
+    def _logger(self, status: int, category: str, text: str) -> None:
+        self.messages.append(f"[{status_name(status)}] {category + ': ' if category else ''}{text}")
 
     def _logger3(self, env, status, category, message) -> None:
         text = message.decode("utf-8", "replace") if message else ""
@@ -149,7 +133,7 @@ class FmuComponent:
 
     def _instantiate3(self, stop_at_address: int | None) -> None:
         md = self.model_description
-        self.slave = FMU3Slave(guid=md.guid, unzipDirectory=_unzip_dir(self.path),
+        self.slave = FMU3Slave(guid=md.guid, unzipDirectory=extracted_dir(self.path),
                                modelIdentifier=md.coSimulation.modelIdentifier, instanceName=self.name)
         event_mode = bool(getattr(md.coSimulation, "hasEventMode", False))
         try:
@@ -173,31 +157,17 @@ class FmuComponent:
         if self.fmi3:
             self._instantiate3(stop_at_address)
             return
-        md = self.model_description
-        self.slave = FMU2Slave(guid=md.guid, unzipDirectory=_unzip_dir(self.path),
-                               modelIdentifier=md.coSimulation.modelIdentifier, instanceName=self.name)
-        cb = fmi2CallbackFunctions()
-        cb.logger = fmi2CallbackLoggerTYPE(self._logger)
-        cb.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
-        cb.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
         try:
-            from fmpy.logging import addLoggerProxy
-            addLoggerProxy(ctypes.byref(cb))
-        except Exception:  # pragma: no cover - platform without fmpy's logging proxy
-            pass
-        self._callbacks = cb
-        try:
-            self.slave.instantiate(callbacks=cb, loggingOn=self.debug_logging)
-        except Exception as exc:
-            raise self.error(0.0, f"fmi2Instantiate failed: {exc}") from exc
-        dll = self.slave.dll
-        self.component = self.slave.component
-        self.fn_address = {name: ctypes.cast(getattr(dll, "fmi2" + name), c_void_p).value
-                           for name in ("DoStep", "SetReal", "SetInteger", "SetBoolean",
-                                        "GetReal", "GetInteger", "GetBoolean")}
-        self.do_step_fn = STEP_T(self.fn_address["DoStep"])
-        self.set_fn = {t: SET_T(self.fn_address["Set" + t]) for t in ("Real", "Integer", "Boolean")}
-        self.get_fn = {t: SET_T(self.fn_address["Get" + t]) for t in ("Real", "Integer", "Boolean")}
+            self.instance = FmuInstance(self.path, self.name, self._logger, logging_on=self.debug_logging,
+                                        model_description=self.model_description)
+        except FmuInstantiateError as exc:
+            raise self.error(0.0, str(exc)) from exc
+        self.slave = self.instance.slave
+        self.component = self.instance.component
+        self.fn_address = dict(self.instance.fn_address)
+        self.do_step_fn = self.instance.do_step_fn
+        self.set_fn = self.instance.set_fn
+        self.get_fn = self.instance.get_fn
 
     def call(self, what: str, time: float, function, *args):
         """Run an fmpy lifecycle call; turn its failure into SimulationError with the log."""
@@ -258,6 +228,23 @@ class FmuComponent:
             else:
                 self.call(f"setting start value {name}", time, self.slave.setString, vr, [str(value)])
 
+    def ended_itself(self, t: float, h: float) -> float | None:
+        """After fmi2DoStep(t, h) returned fmi2Discard: the FMU's fmi2LastSuccessfulTime (s) when it
+        reports fmi2Terminated (it ended the simulation, as fmpy.simulate_fmu accepts) and that time
+        lies within the step, after its start: (t, t + h]; else None (an ordinary discard: the run
+        fails). An FMU that did not get past the step's start is taken as failing: pythonfmu, for one,
+        reports fmi2Terminated after any step its model refused."""
+        if self.fmi3 or self.slave is None:
+            return None
+        try:
+            if not self.slave.getBooleanStatus(3):  # fmi2Terminated
+                return None
+            last = float(self.slave.getRealStatus(2))  # fmi2LastSuccessfulTime
+        except Exception:  # noqa: BLE001 - status not provided: an ordinary discard
+            return None
+        tolerance = 1e-9 * max(1.0, abs(t) + abs(h))
+        return last if t + tolerance < last <= t + h + tolerance else None
+
     def error(self, time: float, reason: str) -> SimulationError:
         """SimulationError for this instance at ``time`` (s) quoting its log messages (and, for FMI 3.0,
         what the adapter found: a value out of range, an early return, the variable concerned)."""
@@ -279,6 +266,13 @@ class FmuComponent:
         if self.slave is None:
             return
         if self.failed_fatally:  # after fmi2Fatal/fmi3Fatal no function may be called
+            if self.instance is not None:
+                self.instance.forget()
+            self.slave = None
+            return
+        if self.instance is not None:  # FMI 2.0
+            for problem in self.instance.free(terminate):
+                self.messages.append(f"[master] {problem}")
             self.slave = None
             return
         try:

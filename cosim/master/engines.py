@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from cosim.master.component import FmuComponent, status_name
-from cosim.master.errors import FmuEnded, SimulationError
+from cosim.master.errors import FmuEnded, FmuTerminated, SimulationError
 from cosim.master.kernel import (FAIL_ENDED, FAIL_GET, FAIL_NONFINITE, FAIL_SET, FAIL_STEP, CFailure, CPlan, CSlave,
                                  load_kernel)
 
@@ -190,6 +190,8 @@ class PythonEngine:
                 else:
                     status = comp.do_step_fn(handle, t, h, 1)
                 if status > 1:
+                    if status == 2 and (last := comp.ended_itself(t, h)) is not None:
+                        raise FmuTerminated(n, comp.name, last)
                     comp.check(f"{comp.api}DoStep(t={t:.9g} s, h={h:.9g} s)", t, status)
                 if gauss_seidel:
                     self._publish(prepared, n + m)
@@ -251,8 +253,15 @@ class NativeEngine:
         (FmuEnded when an FMU ended the simulation itself)."""
         rc = self._advance(self._plan_ref, n_from, n_to, self._failure_ref)
         if rc:
-            if self._failure.what == FAIL_ENDED:
-                raise FmuEnded(int(self._failure.tick))
+            f = self._failure
+            if f.what == FAIL_ENDED:
+                raise FmuEnded(int(f.tick))
+            if f.what == FAIL_STEP and f.status == 2:
+                slave = self.plan.slaves[f.slave]
+                comp = slave.component
+                last = comp.ended_itself(self.plan.time(f.tick), self.plan.step_size(f.tick, slave))
+                if last is not None:
+                    raise FmuTerminated(int(f.tick), comp.name, last)
             raise self._error()
 
     def _error(self) -> SimulationError:

@@ -50,3 +50,15 @@ class FmuEnded(Exception):
     def __init__(self, tick: int) -> None:
         super().__init__(f"an FMU ended the simulation (run ends at tick {tick})")
         self.tick = tick
+
+
+class FmuTerminated(FmuEnded):
+    """Raised by an engine when an FMI 2.0 FMU ended the simulation itself: fmi2DoStep returned
+    fmi2Discard and fmi2GetBooleanStatus(fmi2Terminated) is true. The run ends normally at base tick
+    ``tick`` (the communication point the step started from); ``instance`` reached
+    ``last_successful_time`` (s, fmi2LastSuccessfulTime), where its last values are recorded."""
+
+    def __init__(self, tick: int, instance: str, last_successful_time: float) -> None:
+        super().__init__(tick)
+        self.instance = instance
+        self.last_successful_time = float(last_successful_time)

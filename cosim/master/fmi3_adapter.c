@@ -92,14 +92,48 @@ static int refuse(a3_ctx *c, long long entry, const char *fmt, double value)
 
 static int same_variable(const a3_entry *a, const a3_entry *b) { return a->vr == b->vr && a->type == b->type; }
 
-/* Call the FMI 3.0 setter of every distinct variable among refs (after the shadows are filled). */
+#define BATCH 64 /* scalars of one type set or got with one FMI call */
+
+/* Length of the run of scalars of one type starting at refs[k] (at most BATCH). */
+static size_t scalar_run(const a3_ctx *c, const unsigned *refs, size_t n, size_t k)
+{
+    const a3_entry *e = c->entries + refs[k];
+    size_t j = k;
+    if (e->count != 1 || e->type == BINARY || e->type == CLOCK) return 0;
+    while (j < n && j - k < BATCH) {
+        const a3_entry *f = c->entries + refs[j];
+        if (f->count != 1 || f->type != e->type) break;
+        ++j;
+    }
+    return j - k;
+}
+
+/* Call the FMI 3.0 setters for the variables among refs (after the shadows are filled): one call per
+ * run of scalars of one type, one per array (set whole, with its other elements as last set). */
 static int flush_sets(a3_ctx *c, const unsigned *refs, size_t n)
 {
-    for (size_t k = 0; k < n; ++k) {
+    unsigned vrs[BATCH];
+    unsigned char values[BATCH * 8];
+    size_t k = 0;
+    while (k < n) {
         const a3_entry *e = c->entries + refs[k];
-        if (k + 1 < n && same_variable(e, c->entries + refs[k + 1])) continue;
-        int st = ((set_fn)c->set[e->type])(c->instance, &e->vr, 1, c->shadow + e->shadow, (size_t)e->count);
+        size_t m = scalar_run(c, refs, n, k), size = SIZE_OF[e->type];
+        int st;
+        if (m > 0) {
+            for (size_t i = 0; i < m; ++i) {
+                const a3_entry *f = c->entries + refs[k + i];
+                vrs[i] = f->vr;
+                memcpy(values + i * size, c->shadow + f->shadow, size);
+            }
+            st = ((set_fn)c->set[e->type])(c->instance, vrs, m, values, m);
+            if (st > 1) { c->failed_entry = refs[k]; c->message[0] = 0; return st; }
+            k += m;
+            continue;
+        }
+        while (k + 1 < n && same_variable(e, c->entries + refs[k + 1])) ++k;
+        st = ((set_fn)c->set[e->type])(c->instance, &e->vr, 1, c->shadow + e->shadow, (size_t)e->count);
         if (st > 1) { c->failed_entry = refs[k]; c->message[0] = 0; return st; }
+        ++k;
     }
     return 0;
 }
@@ -153,23 +187,36 @@ int a3_set_boolean(a3_ctx *c, const unsigned *refs, size_t n, const int *values)
     return flush_sets(c, refs, n);
 }
 
-/* Read every distinct variable among refs into its shadow. */
+/* Read the variables among refs into their shadows: one call per run of scalars of one type, one per
+ * array or Binary; clocks are read in event mode only (a3_event_iteration). */
 static int fetch(a3_ctx *c, const unsigned *refs, size_t n)
 {
-    for (size_t k = 0; k < n; ++k) {
+    unsigned vrs[BATCH];
+    unsigned char values[BATCH * 8];
+    size_t k = 0;
+    while (k < n) {
         const a3_entry *e = c->entries + refs[k];
+        size_t m = scalar_run(c, refs, n, k), size = SIZE_OF[e->type];
         int st = 0;
-        if (k > 0 && same_variable(e, c->entries + refs[k - 1])) continue;
-        if (e->type == CLOCK) continue; /* read in event mode only */
+        if (m > 0) {
+            for (size_t i = 0; i < m; ++i) vrs[i] = c->entries[refs[k + i]].vr;
+            st = ((get_fn)c->get[e->type])(c->instance, vrs, m, values, m);
+            if (st > 1) { c->failed_entry = refs[k]; c->message[0] = 0; return st; }
+            for (size_t i = 0; i < m; ++i) memcpy(c->shadow + c->entries[refs[k + i]].shadow, values + i * size, size);
+            k += m;
+            continue;
+        }
+        while (k + 1 < n && same_variable(e, c->entries + refs[k + 1])) ++k;
         if (e->type == BINARY) {
             const uint8_t *data[64]; /* the bytes stay the FMU's; the bus carries each value's size */
             size_t count = (size_t)e->count;
             if (count > 64) { c->failed_entry = refs[k]; snprintf(c->message, sizeof c->message, "Binary arrays of more than 64 elements are not supported"); return 3; }
             st = ((get_binary_fn)c->get_binary)(c->instance, &e->vr, 1, (size_t *)(c->shadow + e->shadow), data, count);
-        } else {
+        } else if (e->type != CLOCK) {
             st = ((get_fn)c->get[e->type])(c->instance, &e->vr, 1, c->shadow + e->shadow, (size_t)e->count);
         }
         if (st > 1) { c->failed_entry = refs[k]; c->message[0] = 0; return st; }
+        ++k;
     }
     return 0;
 }

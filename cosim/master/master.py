@@ -44,9 +44,10 @@ import numpy as np
 from cosim.master.component import FmuComponent, load_model_description, status_name
 from cosim.master.engines import (BUS_DTYPE, BUS_ORDER, Exchange, NativeEngine, Plan, PythonEngine, SlavePlan,
                                   gather, make_engine, publish, set_inputs)
-from cosim.master.errors import EndSimulation, FmuEnded, MasterConfigError, SimulationError
+from cosim.master.errors import EndSimulation, FmuEnded, FmuTerminated, MasterConfigError, SimulationError
 from cosim.master.recorder import Recorder, Sink
-from cosim.master.variables import (MasterTypeUnsupported, bus_type, check_connection_ends, check_start_value,
+from cosim.master.variables import (MasterTypeUnsupported, bus_type, check_connection_ends, check_declared_range,
+                                    check_start_value,
                                     is_pattern, matches_pattern, parse_connection, split_signal)
 
 COUPLINGS = ("jacobi", "gauss_seidel")
@@ -64,6 +65,9 @@ def ticks_of(value: float, base_step: float, what: str, allow_zero: bool = False
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
         raise MasterConfigError(f"{what}: expected a number of seconds, got {value!r}")
     ratio = value / base_step
+    if not math.isfinite(ratio):
+        raise MasterConfigError(f"{what}: expected a whole number of base steps of {base_step!r} s, got {value!r} s "
+                                f"(the ratio overflows)")
     n = round(ratio)
     if (n < 1 and not allow_zero) or n < 0 or abs(ratio - n) > 1e-9 * max(1.0, abs(ratio)):
         smallest = "a non-negative" if allow_zero else "a positive"
@@ -174,7 +178,8 @@ class Master:
             raise MasterConfigError(f"instance name {name!r}: expected a non-empty name without dots or spaces")
 
     def add_fmu(self, name: str, path: str | Path, step: float | None = None,
-                start_values: dict[str, object] | None = None, debug_logging: bool = False) -> FmuComponent:
+                start_values: dict[str, object] | None = None, debug_logging: bool = False,
+                out_of_process: bool = False, step_timeout: float | None = None) -> FmuComponent:
         """Add an FMI 2.0 co-simulation FMU instance.
 
         Args:
@@ -183,15 +188,29 @@ class Master:
             step: its communication step in s (a multiple of the base step; default the base step).
             start_values: variable name -> value, type-checked against the modelDescription.
             debug_logging: ``loggingOn`` for fmi2Instantiate.
+            out_of_process: run the FMU in a child process (cosim/master/proxy.py): a crash or a hang
+                becomes a SimulationError naming it; costs a pipe round trip per step.
+            step_timeout: with ``out_of_process``, the longest wall time (s) of one step before the FMU
+                counts as hung (default proxy.DEFAULT_STEP_TIMEOUT_S).
         """
         self._check_building()
         self._check_instance_name(name)
         if name in self._fmus or any(v.split(".", 1)[0] == name for v in self._variables):
             raise MasterConfigError(f"instance name {name!r} is already used")
         step_ticks = 1 if step is None else ticks_of(step, self.base_step, f"step of FMU '{name}'")
-        component = FmuComponent(name, path, step_ticks, start_values or {}, debug_logging)
+        if out_of_process:
+            from cosim.master.proxy import ProxyFmuComponent
+
+            component = ProxyFmuComponent(name, path, step_ticks, start_values or {}, debug_logging,
+                                          step_timeout_s=step_timeout)
+        elif step_timeout is not None:
+            raise MasterConfigError(f"step_timeout of FMU '{name}': only an out-of-process FMU can be timed out "
+                                    f"(out_of_process=True)")
+        else:
+            component = FmuComponent(name, path, step_ticks, start_values or {}, debug_logging)
         for var_name, value in component.start_values.items():
-            problem = check_start_value(component.variable(var_name), value)
+            problem = check_start_value(component.variable(var_name), value) \
+                or check_declared_range(component.variable(var_name), value)
             if problem:
                 raise MasterConfigError(f"start value of '{name}.{var_name}': expected {problem}, got {value!r}")
         self._fmus[name] = component
@@ -516,6 +535,9 @@ class Master:
                         target = e.next_tick
                 try:
                     advance(n, target)
+                except FmuTerminated as ended:
+                    self._end_by_fmi2(ended)
+                    break
                 except FmuEnded as ended:
                     n = self._tick = ended.tick
                     self._record_end(n)
@@ -543,6 +565,25 @@ class Master:
                     gather(self.plan, slave)
             for recorder in late:
                 recorder.sample(self.start_time + n * self.base_step)
+
+    def _end_by_fmi2(self, ended: FmuTerminated) -> None:
+        """An FMI 2.0 FMU ended the simulation in the step from tick ``ended.tick``: the run ends at that
+        communication point; the FMU's outputs at its last successful time are published and every
+        recorder samples them once more at that time (the other FMUs hold their values there)."""
+        n = self._tick = ended.tick
+        self._events_done_tick = n
+        t_n = self.start_time + n * self.base_step
+        slave = next(s for s in self.plan.slaves if s.component.name == ended.instance)
+        publish(self.plan, slave, n, check=False)
+        self.ended_by = {"instance": ended.instance, "time": ended.last_successful_time, "status": "fmi2Discard",
+                         "last_successful_time": ended.last_successful_time}
+        slave.component.messages.append(f"[master] {ended.instance} ended the simulation (fmi2Discard, "
+                                        f"fmi2Terminated) at t = {ended.last_successful_time:.9g} s")
+        if ended.last_successful_time > t_n + 1e-12 * max(1.0, abs(t_n)):
+            for other in self.plan.slaves:
+                gather(self.plan, other)
+            for recorder in self._recorders:
+                recorder.sample(ended.last_successful_time)
 
     def _record_end(self, tick: int) -> None:
         t = self.start_time + tick * self.base_step

@@ -136,6 +136,42 @@ def check_start_value(variable: ScalarVariable, value: object) -> str | None:
     return None if ok else f"{expected} for {variable.type} variable '{variable.name}'"
 
 
+def declared_range(variable: ScalarVariable, model_description=None) -> tuple[float | None, float | None]:
+    """The ``min``/``max`` the modelDescription declares for ``variable`` (on the variable, else on its
+    declared type), as numbers; None where nothing is declared."""
+    def number(text):
+        if text is None:
+            return None
+        try:
+            return float(text)
+        except (TypeError, ValueError):
+            return None
+
+    low, high = number(getattr(variable, "min", None)), number(getattr(variable, "max", None))
+    declared = getattr(variable, "declaredType", None)
+    if declared is not None:
+        if low is None:
+            low = number(getattr(declared, "min", None))
+        if high is None:
+            high = number(getattr(declared, "max", None))
+    return low, high
+
+
+def check_declared_range(variable: ScalarVariable, value: object, model_description=None) -> str | None:
+    """None when the numeric ``value`` lies in the variable's declared [min, max], else what was expected."""
+    if variable.type not in ("Real", "Integer", "Enumeration") or isinstance(value, bool) \
+            or not isinstance(value, (int, float)):
+        return None
+    low, high = declared_range(variable, model_description)
+    if (low is not None and value < low) or (high is not None and value > high):
+        bounds = " and ".join(p for p in (f">= {low:g}" if low is not None else "",
+                                          f"<= {high:g}" if high is not None else "") if p)
+        unit = getattr(variable, "unit", None) or getattr(getattr(variable, "declaredType", None), "unit", None)
+        return (f"a value {bounds}{' ' + unit if unit else ''} (the range its modelDescription declares for "
+                f"'{variable.name}')")
+    return None
+
+
 def check_connection_ends(source: ScalarVariable | None, destination: ScalarVariable,
                           source_type: str | None = None) -> str | None:
     """Return None when ``source`` may feed ``destination``, else what was expected.

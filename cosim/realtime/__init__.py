@@ -4,7 +4,7 @@ Modules: :mod:`~cosim.realtime.config` (the ``[execution]``/``[realtime]`` table
 :mod:`~cosim.realtime.pacer` (:class:`Pacer`, :class:`VirtualClock`, SCHED_FIFO),
 :mod:`~cosim.realtime.policy` (hold / skip / lost_frame), :mod:`~cosim.realtime.network`
 (:class:`PacedNetwork`), :mod:`~cosim.realtime.stats` (percentiles, jitter histogram),
-:mod:`~cosim.realtime.cell` (the paced one-process robot cell),
+(the paced robot cell itself is a mode of :func:`cosim.cell.runner.run_cell`),
 :mod:`~cosim.realtime.execution` (:class:`CellExecution`: what ``cosim run`` hands the
 jobs), :mod:`~cosim.realtime.deadtime` (dead time measured from a CAN log).
 

@@ -140,7 +140,7 @@ class ExecutionOptions:
 
     Built by ``python -m cosim run`` from the scenario's tables and its flags and handed
     to the job through ``RunContext.execution``; jobs that run a robot cell
-    (:func:`cosim.jobs.robot_cell.run_cell`) honour it.
+    (:func:`cosim.cell.runner.run_cell`) honour it.
     """
 
     mode: str = "in_process"

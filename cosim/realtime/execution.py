@@ -1,7 +1,7 @@
 """Running a robot cell as the options say: one process or split, paced or not.
 
 ``python -m cosim run`` puts a :class:`CellExecution` on ``RunContext.execution``;
-:func:`cosim.jobs.robot_cell.run_cell` hands every cell run to
+:func:`cosim.cell.runner.run_cell` hands every cell run to
 :meth:`CellExecution.run_cell` when it is active. The execution writes two summary
 fields: ``execution`` (the options) and, for paced runs, ``realtime``::
 
@@ -13,15 +13,14 @@ fields: ``execution`` (the options) and, for paced runs, ``realtime``::
 """
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Any
 
 from cosim.realtime.config import ExecutionOptions
 from cosim.realtime.pacer import LatenessLog
 from cosim.realtime.stats import combine, lateness_summary, load_average, write_histogram
 
-#: Jobs whose runs go through cosim.jobs.robot_cell.run_cell (and so honour --realtime/--split).
-CELL_JOBS = frozenset({"iso9283"})
+#: Jobs whose runs go through cosim.cell.runner.run_cell (and so honour --realtime/--split).
+CELL_JOBS = frozenset({"iso9283", "fieldbus_fault", "identification", "planners"})
 
 
 class CellExecution:
@@ -39,30 +38,22 @@ class CellExecution:
     def active(self) -> bool:
         return self.options.active
 
-    def run_cell(self, doc: dict[str, Any], controller, true_robot, ctx, *, label: str, stop_time: float,
-                 fieldbus=None, tracker=None, record_file: str = "timeseries.csv", can_log: Path | None = None,
-                 info=None):
-        """Run one cell as configured; returns a :class:`cosim.jobs.robot_cell.CellRun`."""
+    def run_cell(self, cell, controller, ctx):
+        """Run one :class:`cosim.cell.description.CellDescription` as configured (paced and/or
+        split, :func:`cosim.cell.runner.run_cell`); returns its ``CellRun`` and reports lateness."""
+        from cosim.cell.runner import run_cell
+
         opts = self.options
         load_before = load_average()
+        mode = "split" if opts.split else "paced"
+        run = run_cell(cell, controller, ctx, mode=mode, options=opts)
         if opts.split:
-            from cosim.split.cell import run_split_cell
-
-            cell, pacer, granted, split_info = run_split_cell(
-                doc, controller, true_robot, ctx, label=label, stop_time=stop_time, fieldbus=fieldbus,
-                tracker=tracker, record_file=record_file, can_log=can_log, options=opts, info=info)
-            self.split_runs[label] = split_info
-        else:
-            from cosim.realtime.cell import run_paced_cell
-
-            cell, pacer, granted = run_paced_cell(
-                doc, controller, true_robot, ctx, label=label, stop_time=stop_time, fieldbus=fieldbus,
-                tracker=tracker, record_file=record_file, can_log=can_log, settings=opts.settings, info=info)
+            self.split_runs[cell.label] = run.split
         fields: dict[str, Any] = {"execution": {**opts.as_dict(), **({"split": self.split_runs} if opts.split else {})}}
-        if pacer is not None:
-            fields["realtime"] = self._report(ctx, label, pacer, granted, load_before)
+        if run.pacer is not None:
+            fields["realtime"] = self._report(ctx, cell.label, run.pacer, run.scheduling, load_before)
         ctx.summary.update(**fields)
-        return cell
+        return run
 
     def _report(self, ctx, label: str, pacer, granted: str, load_before) -> dict[str, Any]:
         s = self.options.settings

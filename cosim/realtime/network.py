@@ -1,20 +1,31 @@
 """A POWERLINK network held to the wall clock: pacing + overrun policy around ``run_cycle``.
 
 :class:`PacedNetwork` has the ``run_cycle(cycle, setpoints, actuals)`` of
-:class:`fieldbus.PowerlinkNetwork`, so the robot cell's controller task
-(:class:`cosim.jobs.robot_cell.FieldbusLink`) drives it unchanged: before the cycle's
+:class:`fieldbus.PowerlinkNetwork`, so the robot cell's bus-cycle task
+(:class:`cosim.cell.link.FieldbusLink`) drives it unchanged: before the cycle's
 frames go out it waits for the cycle's wall deadline (:class:`Pacer`); a late cycle
 gets the scenario's overrun policy (:mod:`cosim.realtime.policy`).
 """
 from __future__ import annotations
 
+import dataclasses
 from typing import Any
 
 from cosim.realtime.pacer import Pacer
 from cosim.realtime.policy import SetpointGate, install_overrun_plan
 from cosim.realtime.schedule import precompute_schedules
-from fieldbus import DriveActuals, PowerlinkNetwork, Setpoints
+from fieldbus import DriveActuals, FieldbusConfig, PowerlinkNetwork, Setpoints
 from fieldbus.process_data import CycleResult
+
+#: The CAN log is handed to python-can's Logger only when the run ends (in-loop hand-overs
+#: encode thousands of frames at once: milliseconds of stall).
+DEFERRED_FLUSH_CYCLES = 1 << 40
+
+
+def deferred_recording(config: FieldbusConfig) -> FieldbusConfig:
+    """``config`` with the CAN log buffered for the whole run (paced runs)."""
+    return dataclasses.replace(config, recording=dataclasses.replace(config.recording,
+                                                                     flush_every_cycles=DEFERRED_FLUSH_CYCLES))
 
 
 def auto_tolerance_s(layout) -> float:

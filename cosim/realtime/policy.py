@@ -64,6 +64,10 @@ class SetpointGate:
         last.controlword[:] = sp.controlword
         last.position[:] = sp.position
         last.torque_offset[:] = sp.torque_offset
+        last.modes_of_operation[:] = sp.modes_of_operation
+        last.target_velocity[:] = sp.target_velocity
+        last.velocity_offset[:] = sp.velocity_offset
+        last.target_torque[:] = sp.target_torque
         self._sent += 1
 
     def send(self, setpoints: Setpoints, late: bool) -> Setpoints:
@@ -75,6 +79,10 @@ class SetpointGate:
         out, last = self._out, self._last
         out.controlword[:] = last.controlword
         out.torque_offset[:] = last.torque_offset
+        out.modes_of_operation[:] = last.modes_of_operation  # held: a late cycle never switches the mode
+        out.target_velocity[:] = last.target_velocity
+        out.velocity_offset[:] = last.velocity_offset
+        out.target_torque[:] = last.target_torque
         if self.policy == "skip" and self._sent >= 2:
             np.subtract(2.0 * last.position, self._before.position, out=out.position)
         else:

@@ -1,7 +1,9 @@
 """``summary.json``: written when a run starts and rewritten atomically as it goes.
 
-Fields every run has: ``scenario``, ``job``, ``status`` (``"running"``, ``"ok"`` or
-``"failed"``), ``reason`` and ``stopped_at_s`` when failed, ``sim_time_s`` (simulated
+Fields every run has: ``scenario``, ``job``, ``status`` (``"running"``, ``"ok"``,
+``"failed"`` or ``"interrupted"``), ``reason`` and ``stopped_at_s`` when failed or
+interrupted (plus ``signal`` and ``failed_in``/``interrupted_in``, the mode or part that
+was running), ``sim_time_s`` (simulated
 seconds reached), ``wall_time_s``, ``realtime_factor`` (= sim_time_s / wall_time_s, >1 is
 faster than real time), ``started_at`` (UTC, ISO 8601). Jobs add their own fields with
 ``update``. Non-finite floats are written as null (strict JSON).
@@ -61,10 +63,34 @@ class SummaryWriter:
         return time.perf_counter() - self._wall0
 
     def write(self) -> None:
-        """Rewrite the file atomically (temporary file + rename)."""
+        """Rewrite the file atomically (temporary file + rename); no ``.tmp`` is left when it fails."""
+        text = json.dumps(_json_safe(self.data), indent=2, allow_nan=False) + "\n"
         tmp = self.path.with_name(self.path.name + ".tmp")
-        tmp.write_text(json.dumps(_json_safe(self.data), indent=2, allow_nan=False) + "\n", encoding="utf-8")
-        os.replace(tmp, self.path)
+        try:
+            tmp.write_text(text, encoding="utf-8")
+            os.replace(tmp, self.path)
+        except BaseException:
+            try:
+                tmp.unlink(missing_ok=True)
+            except OSError:
+                pass
+            raise
+
+    def write_final(self) -> None:
+        """Write the final status, however full the disk: atomically if possible, else in place
+        (the old summary.json's blocks are freed first), else give up quietly (the caller has
+        already told the user). Never raises OSError."""
+        try:
+            self.write()
+            return
+        except OSError:
+            pass
+        text = json.dumps(_json_safe(self.data), indent=None, allow_nan=False) + "\n"
+        try:
+            with open(self.path, "w", encoding="utf-8") as handle:
+                handle.write(text)
+        except OSError:
+            pass
 
     def progress(self, sim_time_s: float) -> None:
         """Record how far the run got (simulated s) and the wall time so far; rewrite."""
@@ -79,17 +105,38 @@ class SummaryWriter:
         self.data.update(fields)
         self.write()
 
+    def _finish(self, sim_time_s: float) -> None:
+        wall = self.wall_time_s
+        self.data["sim_time_s"] = round(float(sim_time_s), 12)
+        self.data["wall_time_s"] = wall
+        self.data["realtime_factor"] = sim_time_s / wall if wall > 0 else None
+        self.data["ended_at"] = datetime.now(timezone.utc).isoformat(timespec="seconds")
+
     def finish_ok(self, sim_time_s: float, **fields: Any) -> None:
-        """Final status ``"ok"``."""
+        """Final status ``"ok"`` (an OSError writing it propagates: the run then fails)."""
         self.data.update(fields)
         self.data["status"] = "ok"
         self.data.pop("reason", None)
-        self.progress(sim_time_s)
+        self._finish(sim_time_s)
+        self.write()
 
     def finish_failed(self, reason: str, stopped_at_s: float | None, sim_time_s: float, **fields: Any) -> None:
-        """Final status ``"failed"`` with the reason and the simulated time it stopped at (s)."""
+        """Final status ``"failed"`` with the reason and the simulated time it stopped at (s); never raises OSError."""
         self.data.update(fields)
         self.data["status"] = "failed"
         self.data["reason"] = reason
-        self.data["stopped_at_s"] = stopped_at_s
-        self.progress(sim_time_s)
+        self.data["stopped_at_s"] = None if stopped_at_s is None else round(float(stopped_at_s), 12)
+        self._finish(sim_time_s)
+        self.write_final()
+
+    def finish_interrupted(self, signal_name: str, stopped_at_s: float | None, sim_time_s: float,
+                           **fields: Any) -> None:
+        """Final status ``"interrupted"`` by ``signal_name`` (``"SIGINT"``, ``"SIGTERM"``) at ``stopped_at_s``
+        (simulated s of the part that was running); never raises OSError."""
+        self.data.update(fields)
+        self.data["status"] = "interrupted"
+        self.data["signal"] = signal_name
+        self.data["reason"] = f"interrupted by {signal_name}"
+        self.data["stopped_at_s"] = None if stopped_at_s is None else round(float(stopped_at_s), 12)
+        self._finish(sim_time_s)
+        self.write_final()

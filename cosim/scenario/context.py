@@ -53,6 +53,22 @@ class RunContext:
         self._bar: ProgressBar | None = None
         self._base = 0.0
         self._totals: dict[int, float] = {}
+        self._running: Master | None = None
+        self._last_time_s: float | None = None
+
+    def note_position(self, label: str, time_s: float, covered_s: float = 0.0) -> None:
+        """Record where a run that does not go through :meth:`execute` (the split cell) stopped:
+        its ``label``, simulated time (s) and the simulated seconds it covered, for the final status."""
+        self.label = label
+        self._last_time_s = float(time_s)
+        self.sim_time_s += float(covered_s)
+
+    @property
+    def stopped_at_s(self) -> float | None:
+        """Simulated time (s) of the master being executed, else where the last one stopped (None before any)."""
+        if self._running is not None:
+            return self._running.time
+        return self._last_time_s
 
     def path(self, name: str) -> Path:
         """``out_dir / name``."""
@@ -91,9 +107,12 @@ class RunContext:
         self._base = self.sim_time_s
         label = f"{self.scenario.name}{' ' + self.label if self.label else ''}"
         self._bar = ProgressBar(total, label, enabled=not self.quiet)
+        self._running = master
         try:
             reached = master.run(until)
         finally:
+            self._running = None
+            self._last_time_s = master.time
             self.sim_time_s = self._base + (master.time - start)
             self._bar.update(master.time - master.start_time, force=True)
             self._bar.close()

@@ -3,9 +3,11 @@
 Tables (all quantities SI numbers or unit strings, see units.py)::
 
     [simulation]  stop_time, macro_step, coupling = "jacobi"|"gauss_seidel", order = [...], engine
-    [[fmus]]      name, path = "x.fmu" | builtin = "rx130l_plant"|"servo_drive", step, debug_logging
+    [[fmus]]      name, path = "x.fmu" | builtin = "rx130l_plant"|"servo_drive" | source = "folder", step,
+                  debug_logging
     [fmus.parameters]  <variable> = <start value>
     connections = ["a.x -> b.y", ...]
+    system = "cell.ssp"   (instead of [[fmus]]: the FMUs, connections and parameters of an SSP 1.0 archive)
     [record]      period, signals = ["plant.q[1]", "drive1.*", ...], file = "timeseries.csv"
     [output]      dir
 
@@ -15,6 +17,8 @@ call ``check_cosim_tables(doc, where, master_variables)`` in its check, and
 """
 from __future__ import annotations
 
+import math
+
 from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -22,10 +26,10 @@ from typing import TYPE_CHECKING
 from cosim.master import Master, MasterConfigError, Recorder, load_model_description
 from cosim.master.component import SUPPORTED_FMUS, variables_of
 from cosim.master.master import COUPLINGS, ENGINES
-from cosim.master.variables import (MasterTypeUnsupported, bus_type, check_connection_ends, check_start_value,
-                                    is_pattern, matches_pattern, parse_connection, split_signal)
+from cosim.master.variables import (MasterTypeUnsupported, bus_type, check_connection_ends, check_declared_range,
+                                    check_start_value, is_pattern, matches_pattern, parse_connection, split_signal)
 from cosim.realtime.config import execution_fields
-from cosim.scenario.schema import (AnyValue, Boolean, Field, FilePath, List, Number, String, Table, Where)
+from cosim.scenario.schema import (AnyValue, Boolean, Field, FilePath, Integer, List, Number, String, Table, Where)
 
 if TYPE_CHECKING:
     from cosim.scenario.context import RunContext
@@ -49,10 +53,36 @@ def resolve_builtin(name: str) -> Path:
     return Path(ensure_fmus()[name])
 
 
+def resolve_source(folder: str, where: Where) -> Path:
+    """The FMU built from the C source folder ``folder`` (``fmus.source_fmu``; relative to the
+    scenario file's folder); ScenarioError at ``where`` when it is not a source folder or does not build."""
+    from fmus.source_fmu import SourceFmuError, build_source_fmu
+
+    path = Path(folder).expanduser()
+    if not path.is_absolute():
+        path = where.base_dir / path
+    try:
+        return build_source_fmu(path)
+    except SourceFmuError as exc:
+        raise where.error("a folder with modelDescription.xml and the FMU's C files that compiles to a valid "
+                          "FMI 2.0 co-simulation FMU", folder, problem=str(exc)) from None
+
+
 def _multiple_check(value: float, base: float) -> bool:
     ratio = value / base
+    if not math.isfinite(ratio):  # e.g. macro_step = 5e-324: no whole number of steps
+        return False
     return round(ratio) >= 1 and abs(ratio - round(ratio)) <= 1e-9 * max(1.0, ratio)
 
+
+#: Default upper bound on the base steps of one run (stop_time / macro_step). At the ~1-2 us per base
+#: step of the fastest loops (one small FMU, compiled kernel; docs/timing.md) 1e9 steps are already
+#: 20-30 min of wall time, and hours with the robot cell; a larger count is a typo (stop_time = 1e300,
+#: macro_step = 5e-324) more often than a plan. Raise it per scenario with [simulation] max_base_steps.
+MAX_BASE_STEPS = 1_000_000_000
+
+#: [simulation] isolation: which FMUs run in a child process by default (docs/robustness.md).
+ISOLATIONS = ("none", "third_party", "all")
 
 SIMULATION_TABLE = Table({
     "stop_time": Field(Number(unit="s", gt=0), required=True, doc="the simulated duration: a number in s > 0"),
@@ -60,6 +90,10 @@ SIMULATION_TABLE = Table({
     "coupling": Field(String(choices=COUPLINGS), default="jacobi"),
     "order": Field(List(String(pattern=INSTANCE_PATTERN, pattern_doc="naming an FMU instance"), unique=True)),
     "engine": Field(String(choices=ENGINES), default="auto"),
+    "max_base_steps": Field(Integer(min=1), default=MAX_BASE_STEPS,
+                            doc="the largest stop_time / macro_step accepted (a guard against typos)"),
+    "isolation": Field(String(choices=ISOLATIONS), default="none",
+                       doc="which FMUs run out of process: 'none', 'third_party' (every FMU given by path or source, not builtin), 'all'"),
 }, doc="the [simulation] table")
 
 FMU_TABLE = Table({
@@ -67,10 +101,15 @@ FMU_TABLE = Table({
                   required=True),
     "path": Field(FilePath(must_exist=True, suffix=".fmu")),
     "builtin": Field(String(), doc="the name of one of the project's FMUs"),
+    "source": Field(String(), doc="a folder with modelDescription.xml and C files (relative to the scenario "
+                                  "file's folder): the FMU is built from it with the system C compiler"),
     "step": Field(Number(unit="s", gt=0)),
     "parameters": Field(Table({}, extra=AnyValue(), doc="a table of <variable> = <start value>"), default={}),
     "debug_logging": Field(Boolean(), default=False),
-}, one_of=[("path", "builtin")], doc="an [[fmus]] table")
+    "out_of_process": Field(Boolean(), doc="run this FMU in a child process (default from [simulation] isolation)"),
+    "step_timeout": Field(Number(unit="s", gt=0),
+                          doc="longest wall time of one step of an out-of-process FMU before it counts as hung"),
+}, one_of=[("path", "builtin", "source")], doc="an [[fmus]] table")
 
 RECORD_TABLE = Table({
     "period": Field(Number(unit="s", gt=0), required=True, doc="the sampling period: a number in s > 0"),
@@ -87,7 +126,9 @@ OUTPUT_TABLE = Table({
 #: Fields of the standard co-simulation tables, to merge into a job's document schema.
 COSIM_FIELDS: dict[str, Field] = {
     "simulation": Field(SIMULATION_TABLE, required=True, doc="a [simulation] table with stop_time and macro_step"),
-    "fmus": Field(List(FMU_TABLE, min_len=1), required=True, doc="at least one [[fmus]] table"),
+    "fmus": Field(List(FMU_TABLE, min_len=1), default=[], doc="at least one [[fmus]] table"),
+    "system": Field(FilePath(must_exist=True, suffix=".ssp"),
+                    doc="an .ssp file (SSP 1.0) whose FMUs, connections and parameter values replace [[fmus]]"),
     "connections": Field(List(String()), default=[]),
     "record": Field(RECORD_TABLE),
     "output": Field(OUTPUT_TABLE, default={}),
@@ -107,8 +148,20 @@ def check_cosim_tables(doc: dict, where: Where, master_variables: Mapping[str, s
     Raises ScenarioError at the offending key.
     """
     master_variables = dict(master_variables or {})
+    expand_system(doc, where, master_variables)
     sim = doc["simulation"]
     base = sim["macro_step"]
+    steps = sim["stop_time"] / base
+    limit = sim.get("max_base_steps", MAX_BASE_STEPS)
+    if not math.isfinite(steps):
+        raise (where / "simulation" / "macro_step").error(
+            f"a step giving a finite number of base steps in stop_time = {sim['stop_time']:g} s", sim["macro_step"],
+            problem="stop_time / macro_step overflows")
+    if steps > limit * (1 + 1e-9):
+        raise (where / "simulation" / "stop_time").error(
+            f"at most [simulation] max_base_steps = {limit:g} base steps, i.e. stop_time <= {limit * base:.6g} s "
+            f"with macro_step = {base:g} s (raise max_base_steps to run longer)", sim["stop_time"],
+            problem=f"{steps:.3g} base steps")
     if not _multiple_check(sim["stop_time"], base):
         raise (where / "simulation" / "stop_time").error(
             f"a positive integer multiple of macro_step = {base!r} s", sim["stop_time"])
@@ -122,12 +175,21 @@ def check_cosim_tables(doc: dict, where: Where, master_variables: Mapping[str, s
             if fmu["builtin"] not in names:
                 raise (w[i] / "builtin").error(f"one of the project's FMUs {list(names)}", fmu["builtin"])
             fmu["path"] = resolve_builtin(fmu["builtin"])
+        if "source" in fmu:
+            fmu["path"] = resolve_source(fmu["source"], w[i] / "source")
         try:
             md = load_model_description(fmu["path"])
         except MasterConfigError as exc:
-            raise (w[i] / ("builtin" if "builtin" in fmu else "path")).error(
+            raise (w[i] / next(k for k in ("builtin", "source", "path") if k in fmu)).error(
                 SUPPORTED_FMUS, str(fmu["path"]), problem=getattr(exc, "problem", str(exc))) from None
         descriptions[fmu["name"]] = variables_of(md)
+        isolated = out_of_process(fmu, sim)
+        if "step_timeout" in fmu and not isolated:
+            raise (w[i] / "step_timeout").error("out_of_process = true (or [simulation] isolation covering this FMU): "
+                                                "only an FMU in its own process can be timed out", fmu["step_timeout"])
+        if isolated and str(md.fmiVersion) != "2.0":
+            raise (w[i] / "out_of_process").error("false for an FMI 3.0 FMU (out-of-process execution supports "
+                                                  "FMI 2.0 FMUs)", True, problem=f"FMI {md.fmiVersion} FMU")
         if "step" in fmu and not _multiple_check(fmu["step"], base):
             raise (w[i] / "step").error(f"a positive integer multiple of macro_step = {base!r} s", fmu["step"])
         variables = descriptions[fmu["name"]]
@@ -137,7 +199,7 @@ def check_cosim_tables(doc: dict, where: Where, master_variables: Mapping[str, s
                 settable = [v.name for v in variables.values() if v.causality == "parameter"]
                 raise kw.error(f"a variable of {Path(fmu['path']).name} (parameters: {_short(settable)})",
                                problem="unknown key")
-            problem = check_start_value(variables[key], value)
+            problem = check_start_value(variables[key], value) or check_declared_range(variables[key], value, md)
             if problem:
                 raise kw.error(problem, value)
     if sim.get("order") is not None:
@@ -203,8 +265,47 @@ def check_cosim_tables(doc: dict, where: Where, master_variables: Mapping[str, s
                 raise w.error("a Real, Integer, Boolean or Enumeration variable", signal, problem=str(exc)) from None
 
 
+def expand_system(doc: dict, where: Where, master_variables: Mapping[str, str] | None = None) -> None:
+    """Replace ``system = "x.ssp"`` by its ``[[fmus]]`` tables and connections (idempotent).
+
+    The archive's connections between components come first, then its system inputs'
+    connections whose source is one of ``master_variables`` (a job that drives them), then
+    the scenario's own ``connections``. System inputs no job variable drives stay
+    unconnected: those FMU inputs keep their start values. Raises ScenarioError at
+    ``system`` (naming the archive member and element) for a bad archive.
+    """
+    if doc.get("_system_expanded") or "system" not in doc:
+        if not doc.get("fmus") and "system" not in doc:
+            raise (where / "fmus").error("at least one [[fmus]] table, or system = 'file.ssp'",
+                                         problem="no FMU given")
+        return
+    if doc.get("fmus"):
+        raise (where / "system").error("either system = 'file.ssp' or [[fmus]] tables, not both", str(doc["system"]),
+                                       problem="both given")
+    from cosim.ssp import SspError, load_ssp
+
+    try:
+        system = load_ssp(doc["system"])
+    except SspError as exc:
+        raise (where / "system").error(exc.expected, str(doc["system"]),
+                                       problem=f"{exc.element}: {exc.problem}" if exc.problem else exc.element) from None
+    driven = [c for c in system.inputs_connections if parse_connection(c).source in (master_variables or {})]
+    doc["fmus"] = system.fmus
+    doc["connections"] = system.connections + driven + list(doc.get("connections", []))
+    doc["_system_expanded"] = True
+
+
 def _short(names: list[str], limit: int = 12) -> str:
     return ", ".join(names[:limit]) + (f", ... ({len(names)} in all)" if len(names) > limit else "") or "none"
+
+
+def out_of_process(fmu: dict, sim: dict) -> bool:
+    """Whether the [[fmus]] table ``fmu`` runs in a child process: its own ``out_of_process``, else
+    ``[simulation] isolation`` ('all'; 'third_party': FMUs given by ``path`` or ``source``, not ``builtin``)."""
+    if fmu.get("out_of_process") is not None:
+        return bool(fmu["out_of_process"])
+    isolation = sim.get("isolation", "none")
+    return isolation == "all" or (isolation == "third_party" and "builtin" not in fmu)
 
 
 def build_master(doc: dict, master_variables: Mapping[str, tuple[str, object]] | None = None) -> Master:
@@ -216,7 +317,9 @@ def build_master(doc: dict, master_variables: Mapping[str, tuple[str, object]] |
     sim = doc["simulation"]
     master = Master(sim["macro_step"], coupling=sim["coupling"], engine=sim["engine"])
     for fmu in doc["fmus"]:
+        isolated = out_of_process(fmu, sim)
         master.add_fmu(fmu["name"], fmu["path"], step=fmu.get("step"), start_values=fmu["parameters"],
+                       out_of_process=isolated, step_timeout=fmu.get("step_timeout") if isolated else None,
                        debug_logging=fmu["debug_logging"])
     for name, (type_, start) in (master_variables or {}).items():
         master.add_variable(name, type_, start)
@@ -242,4 +345,5 @@ def add_record(master: Master, doc: dict, ctx: "RunContext", file: str | None = 
 
 
 __all__ = ["COSIM_FIELDS", "FMU_TABLE", "OUTPUT_TABLE", "RECORD_TABLE", "SIMULATION_TABLE", "add_record",
-           "build_master", "builtin_fmu_names", "check_cosim_tables", "resolve_builtin"]
+           "build_master", "builtin_fmu_names", "check_cosim_tables", "expand_system", "resolve_builtin",
+           "resolve_source"]

@@ -61,10 +61,14 @@ def load_document(document: dict[str, Any], path: str | Path | None = None) -> S
     where = Where(None if path is None else Path(path).resolve())
     if "scenario" not in document:
         raise (where / "scenario").error(SCENARIO_FIELD.doc, problem="missing required table")
+    if not isinstance(document["scenario"], dict):
+        raise (where / "scenario").error("a [scenario] table with keys name, job (and description)",
+                                         document["scenario"], problem="not a table")
     try:
         head = validate(SCENARIO_TABLE, document["scenario"], where / "scenario")
     except ScenarioError as exc:
-        raise _with_toml_hint(exc, get_job(document["scenario"].get("job", "")), document) from None
+        job_name = document["scenario"].get("job", "")
+        raise _with_toml_hint(exc, get_job(job_name) if isinstance(job_name, str) else None, document) from None
     job = get_job(head["job"])
     if job is None:
         raise (where / "scenario" / "job").error(f"one of the registered job types {job_names()}", head["job"])
@@ -97,7 +101,16 @@ def read_toml_file(path: Path, kind: str) -> dict[str, Any]:
         raise ScenarioError(path, "", f"an existing {kind} .toml file", problem="file not found")
     try:
         with open(path, "rb") as f:
-            return tomllib.load(f)
+            raw = f.read()
+    except OSError as exc:
+        raise ScenarioError(path, "", f"a readable {kind} .toml file", problem=exc.strerror or str(exc)) from None
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ScenarioError(path, "", f"a UTF-8 encoded {kind} .toml file",
+                            problem=f"not UTF-8 text (byte 0x{raw[exc.start]:02x} at offset {exc.start})") from None
+    try:
+        return tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ScenarioError(path, "", "valid TOML", problem=str(exc)) from None
 

@@ -127,9 +127,12 @@ class Number(Spec):
             try:
                 number = to_si(value, self.unit)
             except UnitError as exc:
-                raise where.error(str(exc) + self._bounds(), value) from None
+                raise where.error(str(exc) + self._bounds(), _short_repr(value)) from None
         elif isinstance(value, (int, float)) and not isinstance(value, bool):
-            number = float(value)
+            try:
+                number = float(value)
+            except OverflowError:
+                raise where.error(self.expected + " (finite, within +-1.8e308)", _short_repr(value)) from None
         else:
             raise where.error(self.expected, value)
         if not math.isfinite(number):
@@ -138,6 +141,20 @@ class Number(Spec):
                 or (self.gt is not None and number <= self.gt) or (self.lt is not None and number >= self.lt)):
             raise where.error(self.expected, value)
         return number
+
+
+def _short_repr(value: Any) -> Any:
+    """The value, or for a huge integer (hundreds of digits) a short description of it, for messages."""
+    if isinstance(value, int) and not isinstance(value, bool) and abs(value) > 10**30:
+        return _Abbreviated(f"an integer of {len(str(abs(value)))} digits")
+    if isinstance(value, str) and len(value) > 80:
+        return _Abbreviated(repr(value[:60] + "..."))
+    return value
+
+
+class _Abbreviated(str):
+    def __repr__(self) -> str:
+        return str(self)
 
 
 @dataclass

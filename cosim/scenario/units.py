@@ -47,9 +47,17 @@ def to_si(value: object, si_unit: str) -> float:
     if isinstance(value, bool):
         raise UnitError(describe(si_unit))
     if isinstance(value, (int, float)):
-        return float(value)
+        return _finite_float(value, si_unit)
     if isinstance(value, str) and si_unit in UNITS:
         m = _QUANTITY.match(value)
         if m and m.group(2) in UNITS[si_unit]:
-            return float(m.group(1)) * UNITS[si_unit][m.group(2)]
+            return _finite_float(m.group(1), si_unit) * UNITS[si_unit][m.group(2)]
     raise UnitError(describe(si_unit))
+
+
+def _finite_float(value: object, si_unit: str) -> float:
+    """``float(value)``; UnitError (not OverflowError) for an integer beyond the float range."""
+    try:
+        return float(value)  # type: ignore[arg-type]
+    except OverflowError:
+        raise UnitError(describe(si_unit) + " (finite, within +-1.8e308)") from None

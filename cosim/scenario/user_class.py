@@ -34,6 +34,23 @@ def is_class_spec(text: Any) -> bool:
     return isinstance(text, str) and ":" in text and bool(text.rpartition(":")[2].strip())
 
 
+def class_spec_file(text: Any) -> str | None:
+    """The file of a ``"file.py:ClassName"`` spec as written (None for ``"module:ClassName"`` or other values).
+
+    Used by specs that name user classes to tell a sweep which file to ship to its workers
+    (``referenced_file``, cosim.sweep.keypath.referenced_files).
+    """
+    if not is_class_spec(text):
+        return None
+    target = text.rpartition(":")[0].strip()
+    return target if target.endswith(".py") or "/" in target or "\\" in target else None
+
+
+def with_class_file(text: str, path: str) -> str:
+    """``"file.py:ClassName"`` with its file replaced by ``path``."""
+    return f"{path}:{text.rpartition(':')[2].strip()}"
+
+
 def _why(exc: BaseException) -> str:
     frames = [f for f in traceback.extract_tb(exc.__traceback__) if not f.filename.startswith("<frozen")]
     where = f" ({Path(frames[-1].filename).name}, line {frames[-1].lineno})" if frames else ""

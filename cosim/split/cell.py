@@ -21,12 +21,12 @@ from pathlib import Path
 from typing import Any, Callable
 
 from controller.port import ControllerFailure, ControllerPort
-from cosim.jobs import robot_cell
-from cosim.jobs.laser_tracker import LaserTracker, TrackerConfig
+from cosim.cell.description import CellDescription
+from cosim.cell.runner import CellRun, write_recording
+from cosim.cell.wiring import N_JOINTS, joint_scaling
 from cosim.master import MemorySink, SimulationError
-from cosim.realtime.cell import deferred_recording
 from cosim.realtime.config import ExecutionOptions
-from cosim.realtime.network import auto_tolerance_s, lateness_thresholds
+from cosim.realtime.network import auto_tolerance_s, deferred_recording, lateness_thresholds
 from cosim.realtime.pacer import Pacer, no_cyclic_gc, realtime_scheduling
 from cosim.realtime.policy import OverrunFaultPlan, SetpointGate
 from cosim.realtime.schedule import precompute_schedules
@@ -34,7 +34,7 @@ from cosim.results.progress import ProgressBar
 from cosim.split.drive_side import DriveSideSpec, drive_side_main, read_raw_rows
 from cosim.split.protocol import (END, LOST, free_udp_port, pack_marker, pres_expected, side_configs,
                                   use_directional_bus)
-from fieldbus import FieldbusConfig, ManagingNodeEndpoint
+from fieldbus import ManagingNodeEndpoint
 from fieldbus.network import network_summary
 
 #: Wall seconds to wait for the drive process to start (imports, FMU instantiation).
@@ -79,33 +79,31 @@ def _merge_fieldbus(mn: dict[str, Any], cn: dict[str, Any] | None) -> dict[str, 
     return out
 
 
-def run_split_cell(doc: dict[str, Any], controller, true_robot, ctx, *, label: str, stop_time: float,
-                   fieldbus: FieldbusConfig | dict[str, Any] | None, tracker: TrackerConfig | None,
-                   record_file: str, can_log: Path | None, options: ExecutionOptions,
-                   stop_grace_s: float = 0.5, pacer: Pacer | None = None,
-                   on_cycle: Callable[[int, SplitSession], None] | None = None, info=None):
-    """Run one cell split over two processes; returns ``(CellRun, Pacer or None, scheduling granted,
-    info)`` with ``info`` = {"port", "drive_process_exit_code", "controller_stop_cycle",
-    "drive_side_wall_s", "loop_wall_s" (cycles only, after the drive process is ready),
-    "realtime_factor" (incl. start-up), "loop_realtime_factor", "frames_missing_*", ...}."""
-    fb_config = robot_cell.cell_fieldbus_config(fieldbus, controller)
+def run_split_cell(cell: CellDescription, controller, ctx, *, options: ExecutionOptions, pacer: Pacer | None = None,
+                   on_cycle: Callable[[int, SplitSession], None] | None = None) -> CellRun:
+    """Run ``cell`` split over two processes (the ``split`` mode of :func:`cosim.cell.runner.run_cell`);
+    returns the CellRun with ``pacer`` (None unless paced), ``scheduling`` and ``split`` =
+    {"port", "drive_process_exit_code", "controller_stop_cycle", "drive_side_wall_s", "loop_wall_s"
+    (cycles only, after the drive process is ready), "realtime_factor" (incl. start-up),
+    "loop_realtime_factor", "frames_missing_*", ...}."""
+    label, stop_time, stop_grace_s = cell.label, cell.stop_time_s, cell.stop_grace_s
+    record_file, can_log, true_robot = cell.record_file, cell.can_log, cell.true_robot
+    fb_config = cell.fieldbus
     paced = options.realtime
     if paced:
         fb_config = deferred_recording(fb_config)
     period = fb_config.cycle_time_s
-    cinfo = info if info is not None else robot_cell.controller_info(controller, fb_config, label=label)
-    controller_port = ControllerPort(controller, robot_cell.N_JOINTS, q_start=cinfo.q_start)
+    cinfo = cell.controller
+    controller_port = ControllerPort(controller, N_JOINTS, q_start=cinfo.q_start)
     port, up_port = free_udp_port(), free_udp_port()
     while up_port == port:
         up_port = free_udp_port()
     bus_config = side_configs(fb_config, port, options.receive_timeout_s)
-    laser = LaserTracker(true_robot.kinematic_model(), tracker)
-    signals, record_period = robot_cell.cell_signals(doc, laser)
-    cell_doc = robot_cell.cell_document(doc, true_robot, cinfo.q_start)
+    signals = list(cell.signals)
     raw = Path(tempfile.mkdtemp(prefix="cosim-split-")) / "rows.f64"
     settings = options.settings
-    spec = DriveSideSpec(cell_doc=cell_doc, signals=signals, record_period_s=record_period,
-                         tracker=laser.config, true_model=true_robot.kinematic_model(), stop_time_s=stop_time,
+    spec = DriveSideSpec(cell_doc=cell.master_document(), signals=signals, record_period_s=cell.record_period_s,
+                         tracker=cell.tracker, true_model=true_robot.kinematic_model(), stop_time_s=stop_time,
                          config=bus_config, raw_path=str(raw),
                          marker_timeout_s=max(30.0, 5.0 * options.receive_timeout_s),
                          scheduling=settings.scheduling, fifo_priority=settings.fifo_priority,
@@ -116,7 +114,7 @@ def run_split_cell(doc: dict[str, Any], controller, true_robot, ctx, *, label: s
                               daemon=True)
     wall0 = time.perf_counter()
     cpu0 = time.process_time()
-    endpoint = ManagingNodeEndpoint(bus_config, robot_cell.joint_scaling(), log_path=can_log)
+    endpoint = ManagingNodeEndpoint(bus_config, joint_scaling(), log_path=can_log)
     use_directional_bus(endpoint, "mn", bus_config.bus.channel, port, up_port)
     n_cycles = int(round(stop_time / period)) + 1
     info: dict[str, Any] = {"interface": "udp_multicast", "channel": bus_config.bus.channel,
@@ -128,6 +126,7 @@ def run_split_cell(doc: dict[str, Any], controller, true_robot, ctx, *, label: s
     memory = MemorySink()
     child: dict[str, Any] | None = None
     ready: dict[str, Any] = {}
+    interrupted: BaseException | None = None
     try:
         try:
             controller_port.setup(cinfo)
@@ -221,6 +220,17 @@ def run_split_cell(doc: dict[str, Any], controller, true_robot, ctx, *, label: s
                 child = _receive(conn, process, 120.0, "done")
             except RuntimeError as error:
                 info["drive_side_error"] = str(error)
+    except KeyboardInterrupt as exc:  # SIGINT/SIGTERM: end the drive side, keep its rows, then re-raise
+        interrupted = exc
+        if hasattr(ctx, "note_position"):
+            ctx.note_position(label, fb_config.start_time_s + max(session.cycle, 0) * period,
+                              max(session.cycle, 0) * period)
+        if process.is_alive():
+            try:
+                conn.send_bytes(pack_marker(session.cycle + 1, END))
+                child = _receive(conn, process, 5.0, "done")
+            except (OSError, RuntimeError, EOFError):
+                pass
     finally:
         controller_port.close()
         endpoint.close()
@@ -239,7 +249,9 @@ def run_split_cell(doc: dict[str, Any], controller, true_robot, ctx, *, label: s
         memory.write(rows)
     raw.unlink(missing_ok=True)
     raw.parent.rmdir()
-    robot_cell.write_recording(memory, ctx.csv_sink(record_file))
+    write_recording(memory, ctx.csv_sink(record_file))
+    if interrupted is not None:
+        raise interrupted
     cycles = session.cycle + 1
     mn_summary = network_summary(endpoint.config, endpoint.events, endpoint, None, endpoint.recorder, cycles)
     fieldbus_summary = _merge_fieldbus(mn_summary, child["fieldbus"] if child else None)
@@ -257,9 +269,9 @@ def run_split_cell(doc: dict[str, Any], controller, true_robot, ctx, *, label: s
                 realtime_factor=(cycles * period) / wall if wall > 0 else None,
                 loop_realtime_factor=(cycles * period) / info["loop_wall_s"] if info.get("loop_wall_s") else None)
     ctx.sim_time_s += cycles * period
-    cell = robot_cell.CellRun(label, ctx.path(record_file), int(rows.shape[0]), reached, fieldbus_summary, wall,
-                              ready.get("engine", ""), memory, failure, loop_cpu_time_s=cpu)
-    return cell, pacer, granted, info
+    return CellRun(label, ctx.path(record_file), int(rows.shape[0]), reached, fieldbus_summary, wall,
+                   ready.get("engine", ""), memory, failure, loop_cpu_time_s=cpu, pacer=pacer, scheduling=granted,
+                   split=info, controller_timing=controller_port.timing())
 
 
 def _acknowledged(conn, cycle: int, timeout_s: float) -> bool:

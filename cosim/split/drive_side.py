@@ -7,7 +7,7 @@ cycle k (time t_k): read the drives' actual values at t_k, wait for the cycle ma
 k through the pipe (:mod:`cosim.split.protocol`), run the controlled nodes' cycle k
 (``fieldbus.DriveEndpoint.run_cycle``: SoC, PReqs in, PRes out) and write what the
 drives apply from t_k to the ``bus.*`` master variables - the same values the
-one-process cell's :class:`~cosim.jobs.robot_cell.FieldbusLink` writes. The master then
+one-process cell's :class:`~cosim.cell.link.FieldbusLink` writes. The master then
 steps the FMUs to t_k+1.
 
 Rows are appended to a raw float64 file as the recorder hands them over, so what was
@@ -23,7 +23,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from cosim.jobs import robot_cell
+from cosim.cell import wiring
 from cosim.jobs.laser_tracker import LaserTracker, TrackerConfig
 from cosim.master import EndSimulation, Master, SimulationError
 from cosim.realtime.pacer import no_cyclic_gc, realtime_scheduling
@@ -100,14 +100,14 @@ class DriveLink:
         self.actuals: DriveActuals | None = None
 
     def setup(self, master: Master) -> None:
-        n = robot_cell.N_JOINTS
-        drives = robot_cell.DRIVES
+        n = wiring.N_JOINTS
+        drives = wiring.DRIVES
         self._real = master.reader([f"{d}.{name}" for name in ("position_actual", "velocity_actual", "torque_actual")
                                     for d in drives])
         self._integer = master.reader([f"{d}.{name}" for name in ("statusword", "error_code") for d in drives])
-        self._real_out = master.view([f"bus.{name}[{i}]" for name in robot_cell.BUS_REAL for i in range(1, n + 1)],
+        self._real_out = master.view([f"bus.{name}[{i}]" for name in wiring.BUS_REAL for i in range(1, n + 1)],
                                      writable=True)
-        self._integer_out = master.view([f"bus.{name}[{i}]" for name in robot_cell.BUS_INTEGER
+        self._integer_out = master.view([f"bus.{name}[{i}]" for name in wiring.BUS_INTEGER
                                          for i in range(1, n + 1)], writable=True)
         real, integer = self._real.read(), self._integer.read()
         self.actuals = DriveActuals(statusword=integer[:n], position=real[:n], velocity=real[n:2 * n],
@@ -127,7 +127,7 @@ class DriveLink:
         return flags
 
     def __call__(self, t: float) -> None:
-        n = robot_cell.N_JOINTS
+        n = wiring.N_JOINTS
         self._real.read()
         self._integer.read()
         flags = self._wait_marker(t)
@@ -153,13 +153,19 @@ class DriveLink:
 def drive_side_main(spec: DriveSideSpec, conn) -> None:
     """Process target: build, report ``("ready", {...})``, run (cycle markers in, acks out),
     report ``("done", {...})`` (or ``("error", text)``) on the duplex pipe ``conn``."""
+    import signal
+
     from cosim.scenario.cosim_tables import build_master
     from fieldbus.network import network_summary
 
+    # Ctrl-C reaches the whole process group: the parent ends this side (END marker, or kill after
+    # a grace period) once it has what it needs, so this process must not die first
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(signum, signal.SIG_IGN)
     endpoint = None
     try:
-        master = build_master(spec.cell_doc, master_variables=robot_cell.cell_variables())
-        endpoint = DriveEndpoint(spec.config, robot_cell.joint_scaling(), log_path=spec.can_log)
+        master = build_master(spec.cell_doc, master_variables=wiring.cell_variables())
+        endpoint = DriveEndpoint(spec.config, wiring.joint_scaling(), log_path=spec.can_log)
         use_directional_bus(endpoint, "cn", spec.config.bus.channel, *spec.ports)
         plan = OverrunFaultPlan(endpoint.plan, spec.config.nodes)
         endpoint.plan = plan

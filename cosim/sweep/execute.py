@@ -116,9 +116,10 @@ def variant_tasks(sweep: Sweep, out_dir: Path) -> list[VariantTask]:
     """The tasks of every variant, with their folders under ``out_dir/variants/``."""
     variants_dir = (out_dir / VARIANTS_DIR).resolve()
     metrics = tuple(sweep.metrics) if sweep.metrics else None
+    anchor = str(sweep.base.where.base_dir)
     return [VariantTask(v.index, v.id, v.hash, str(variants_dir / f"{v.id}-{v.hash[:8]}"), v.document, v.values,
-                        metrics, f"{VARIANTS_DIR}/{v.id}-{v.hash[:8]}", (), tuple(sweep.collect), sweep.store)
-            for v in sweep.variants]
+                        metrics, f"{VARIANTS_DIR}/{v.id}-{v.hash[:8]}", (), tuple(sweep.collect), sweep.store,
+                        anchor) for v in sweep.variants]
 
 
 def with_inputs(sweep: Sweep, tasks: list[VariantTask]) -> list[VariantTask]:
@@ -127,10 +128,19 @@ def with_inputs(sweep: Sweep, tasks: list[VariantTask]) -> list[VariantTask]:
     digests: dict[str, str] = {}
     out = []
     for task in tasks:
-        inputs = tuple((tuple(path), digests.setdefault(text, _sha256(text)), Path(text).name)
-                       for path, text in referenced_files(sweep.base.job.schema, task.document))
-        out.append(replace(task, inputs=inputs))
+        inputs = []
+        for path, text in referenced_files(sweep.base.job.schema, task.document):
+            file = _client_file(task, text)
+            inputs.append((tuple(path), digests.setdefault(file, _sha256(file)), Path(file).name,
+                           "" if Path(text).expanduser().is_absolute() else text))
+        out.append(replace(task, inputs=tuple(inputs)))
     return out
+
+
+def _client_file(task: VariantTask, text: str) -> str:
+    """The client's path of a file reference (relative ones are relative to the task's anchor)."""
+    path = Path(text).expanduser()
+    return str(path if path.is_absolute() else Path(task.anchor) / path)
 
 
 def _sha256(path: str) -> str:
@@ -146,8 +156,8 @@ def input_files(sweep: Sweep, tasks: list[VariantTask]) -> dict[str, str]:
     out: dict[str, str] = {}
     for task in tasks:
         refs = dict(referenced_files(sweep.base.job.schema, task.document))
-        for path, digest, _ in task.inputs:
-            out.setdefault(digest, refs[tuple(path)])
+        for path, digest, _, _ in task.inputs:
+            out.setdefault(digest, _client_file(task, refs[tuple(path)]))
     return out
 
 
@@ -171,6 +181,33 @@ def resolve_transfer(transfer: str, scheduler: str | None, client: Any) -> str:
     return "shared" if isinstance(getattr(client, "cluster", None), LocalCluster) else "ship"
 
 
+#: How long to wait for an existing Dask scheduler (--scheduler) to answer, s.
+SCHEDULER_CONNECT_TIMEOUT_S = 5.0
+
+
+class SchedulerUnreachable(ConnectionError):
+    """The --scheduler address did not answer (message names it and the timeout)."""
+
+
+@contextlib.contextmanager
+def _children_ignore_interrupts() -> Iterator[None]:
+    """Processes started inside ignore SIGINT/SIGTERM (they inherit the disposition across exec):
+    Ctrl-C reaches the whole process group, and the workers must stay up until this process
+    has cancelled the sweep and closes the cluster in order. Restored afterwards."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = {s: signal.signal(s, signal.SIG_IGN) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler if handler is not None else signal.SIG_DFL)
+
+
 @contextlib.contextmanager
 def dask_client(workers: int | None = None, scheduler: str | None = None, retries: int = 2) -> Iterator[Any]:
     """A ``dask.distributed.Client``: on ``scheduler`` if given, else on a new embedded LocalCluster of
@@ -179,10 +216,17 @@ def dask_client(workers: int | None = None, scheduler: str | None = None, retrie
     from dask.distributed import Client, LocalCluster
 
     if scheduler:
-        with Client(scheduler) as client:
+        try:
+            client = Client(scheduler, timeout=SCHEDULER_CONNECT_TIMEOUT_S)
+        except (OSError, TimeoutError, ValueError, TypeError) as exc:
+            raise SchedulerUnreachable(f"--scheduler {scheduler!r}: no Dask scheduler answered within "
+                                       f"{SCHEDULER_CONNECT_TIMEOUT_S:g} s ({type(exc).__name__}: "
+                                       f"{str(exc).splitlines()[0] if str(exc) else ''}); expected the address "
+                                       f"of a running scheduler such as tcp://host:8786") from None
+        with client:
             yield client
         return
-    with dask.config.set({"distributed.scheduler.allowed-failures": retries}):
+    with dask.config.set({"distributed.scheduler.allowed-failures": retries}), _children_ignore_interrupts():
         cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1, processes=True,
                                dashboard_address=":0", silence_logs=logging.ERROR)
     with cluster, Client(cluster) as client:
@@ -297,7 +341,7 @@ def _run_tasks(client: Any, sweep: Sweep, todo: list[VariantTask], rows: dict[in
         blobs = {digest: client.submit(_identity, Path(path).read_bytes(), key=f"cosim-input-{digest[:32]}-{token}",
                                        pure=False)
                  for digest, path in input_files(sweep, todo).items()}
-        futures = {client.submit(run_shipped_variant, task, *(blobs[d] for _, d, _ in task.inputs),
+        futures = {client.submit(run_shipped_variant, task, *(blobs[d] for _, d, _, _ in task.inputs),
                                  key=f"{sweep.name}-{task.id}-{token}", retries=sweep.retries, pure=False): task
                    for task in todo}
     else:
@@ -335,5 +379,6 @@ def _run_tasks(client: Any, sweep: Sweep, todo: list[VariantTask], rows: dict[in
             blob.release()
 
 
-__all__ = ["SWEEP_FILE", "SweepResult", "TABLE_FILE", "TRANSFERS", "VARIANTS_DIR", "dask_client", "default_out_dir",
-           "input_files", "resolve_transfer", "run_sweep", "variant_tasks", "with_inputs"]
+__all__ = ["SCHEDULER_CONNECT_TIMEOUT_S", "SWEEP_FILE", "SchedulerUnreachable", "SweepResult", "TABLE_FILE",
+           "TRANSFERS", "VARIANTS_DIR", "dask_client", "default_out_dir", "input_files", "resolve_transfer",
+           "run_sweep", "variant_tasks", "with_inputs"]

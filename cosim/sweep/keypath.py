@@ -13,7 +13,7 @@ import re
 from pathlib import Path
 from typing import Any
 
-from cosim.scenario.schema import MISSING, FilePath, List, Spec, Table, Where
+from cosim.scenario.schema import MISSING, FilePath, List, Spec, String, Table, Where
 
 KeyPath = tuple[str | int, ...]
 
@@ -116,16 +116,14 @@ def with_value(document: dict, path: KeyPath, value: Any) -> dict:
 
 def absolute_paths(spec: Spec, value: Any, base_dir: Path) -> Any:
     """``value`` with every relative ``FilePath`` string the schema ``spec`` declares made absolute
-    against ``base_dir`` (so a document keeps its meaning when written to another folder)."""
+    against ``base_dir`` (so a document keeps its meaning when written to another folder).
+
+    Other file references (``"file.py:Class"``, ``referenced_files``) keep their text: they may be
+    keys elsewhere in the document (``[planners.parameters."file.py:Class"]``); a document is run
+    anchored at its scenario's folder instead (``VariantTask.anchor``)."""
     if isinstance(spec, FilePath):
         if isinstance(value, str) and value.strip() and not Path(value).expanduser().is_absolute():
             return str((base_dir / Path(value).expanduser()).resolve())
-        return value
-    finder = getattr(spec, "referenced_file", None)
-    if callable(finder):
-        found = finder(value)
-        if found and not Path(found).expanduser().is_absolute():
-            return relocate_file(spec, value, str((base_dir / Path(found).expanduser()).resolve()))
         return value
     if isinstance(spec, Table) and isinstance(value, dict):
         out = {}
@@ -144,16 +142,24 @@ def _file_of(spec: Spec, value: Any) -> str | None:
     if isinstance(spec, FilePath):
         return value if isinstance(value, str) and value.strip() else None
     finder = getattr(spec, "referenced_file", None)
-    return finder(value) if callable(finder) else None
+    if callable(finder):
+        return finder(value)
+    if isinstance(spec, String):   # a plain string field holding a user class as 'file.py:Class'
+        from cosim.scenario.user_class import class_spec_file
+
+        return class_spec_file(value)
+    return None
 
 
 def referenced_files(spec: Spec, value: Any, prefix: KeyPath = ()) -> list[tuple[KeyPath, str]]:
     """Every file the document ``value`` refers to, by the schema ``spec``: ``[(key path, path text)]``.
 
-    File paths are the values of ``FilePath`` specs (FMUs, URDFs, trajectory files, ...) and of any
+    File paths are the values of ``FilePath`` specs (FMUs, URDFs, trajectory files, ...), of any
     spec offering the two methods ``referenced_file(value) -> str | None`` and
-    ``relocated(value, path) -> value`` (a reference that holds a file inside a larger value,
-    such as ``"file.py:Class"``). A sweep ships these files to workers that cannot read them.
+    ``relocated(value, path) -> value`` (a reference that holds a file inside a larger value),
+    and the file of a user class named ``"file.py:Class"`` in a plain ``String`` field (a user
+    controller or planner; ``"module:Class"`` names no file). A sweep ships these files to
+    workers that cannot read them.
     """
     found = _file_of(spec, value)
     if found is not None:
@@ -173,7 +179,13 @@ def referenced_files(spec: Spec, value: Any, prefix: KeyPath = ()) -> list[tuple
 def relocate_file(spec: Spec, value: Any, path: str) -> Any:
     """``value`` (which refers to a file, see :func:`referenced_files`) made to refer to ``path`` instead."""
     mover = getattr(spec, "relocated", None)
-    return mover(value, path) if callable(mover) and not isinstance(spec, FilePath) else path
+    if callable(mover) and not isinstance(spec, FilePath):
+        return mover(value, path)
+    if isinstance(spec, String):
+        from cosim.scenario.user_class import with_class_file
+
+        return with_class_file(value, path)
+    return path
 
 
 def overlapping(a: KeyPath, b: KeyPath) -> bool:

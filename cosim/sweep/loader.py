@@ -61,6 +61,8 @@ SWEEP_TABLE = Table({
                      doc="summary.json leaves to tabulate, as key paths with * globs (default: every numeric leaf)"),
     "retries": Field(Integer(min=0, max=20), default=2,
                      doc="re-runs of a variant whose worker died or whose task raised"),
+    "max_variants": Field(Integer(min=1), default=None,
+                          doc="the most variants the sweep may have (default MAX_VARIANTS)"),
     "collect": Field(List(String()), default=[],
                      doc="what a variant run elsewhere brings back besides its summary row: 'timeseries', "
                          "'figures', 'can_log', 'all', or globs relative to the variant's folder"),
@@ -71,6 +73,11 @@ SWEEP_TABLE = Table({
 #: The [sweep] table of a sweep built in Python around an already loaded base scenario (no ``base`` key).
 SWEEP_TABLE_GIVEN_BASE = Table({k: f for k, f in SWEEP_TABLE.fields.items() if k != "base"},
                                doc="the [sweep] table")
+
+#: Default largest number of variants of a sweep ([sweep] max_variants raises it): every variant is
+#: validated (tens of ms each) before anything runs, and 10,000 variants of the main job are ~2 days
+#: on one 2-core machine; a bigger count is usually a typo in seeds/samples or a too fine grid.
+MAX_VARIANTS = 10_000
 
 DISTRIBUTION_TABLE = Table({
     "kind": Field(String(choices=tuple(DISTRIBUTIONS)), required=True),
@@ -344,6 +351,16 @@ def _variant_id(index: int, count: int) -> str:
     return f"v{index:0{max(4, len(str(count - 1)))}d}"
 
 
+def variant_count(axes: list[Axis]) -> int:
+    """How many variants ``axes`` give: the grid product times the Monte Carlo draws."""
+    grid = [a for a in axes if not a.monte_carlo]
+    monte_carlo = [a for a in axes if a.monte_carlo]
+    total = len(monte_carlo[0].values) if monte_carlo else 1
+    for a in grid:
+        total *= len(a.values)
+    return total
+
+
 def _expand(sweep_path: Path, base: Scenario, axes: list[Axis],
             overrides: list[tuple[KeyPath, Any, Where]]) -> list[Variant]:
     grid = [a for a in axes if not a.monte_carlo]
@@ -375,21 +392,24 @@ def _expand(sweep_path: Path, base: Scenario, axes: list[Axis],
     return variants
 
 
-def load_sweep(path: str | Path) -> Sweep:
+def load_sweep(path: str | Path, on_count=None) -> Sweep:
     """Read and validate the sweep file ``path`` and every variant; ScenarioError on any problem.
 
     Nothing runs here (the base job's checks may build the project's FMUs once).
+    ``on_count(n)`` is called with the number of variants before they are validated.
     """
     path = resolve_path(path)
-    return load_sweep_document(read_toml_file(path, "sweep"), path)
+    return load_sweep_document(read_toml_file(path, "sweep"), path, on_count=on_count)
 
 
-def load_sweep_document(raw: dict[str, Any], path: str | Path, base: Scenario | None = None) -> Sweep:
+def load_sweep_document(raw: dict[str, Any], path: str | Path, base: Scenario | None = None,
+                        on_count=None) -> Sweep:
     """Validate an already parsed sweep document (``path`` names it and anchors relative paths).
 
     ``path`` may be a label in angle brackets (``"<python>"``) for a document built in a script:
     relative paths are then relative to the working directory. ``base``: an already validated
-    base scenario (then the document has no ``[sweep] base``).
+    base scenario (then the document has no ``[sweep] base``). ``on_count(n)`` is called with the
+    number of variants before they are validated.
     """
     label = isinstance(path, str) and path.startswith("<") and path.endswith(">")
     where = Where(path if label else Path(path).resolve())
@@ -430,6 +450,14 @@ def load_sweep_document(raw: dict[str, Any], path: str | Path, base: Scenario | 
     report = None
     if "report" in doc:
         report = _report(doc["report"], where / "report", axes)
+    count = variant_count(axes)
+    limit = head.get("max_variants") or MAX_VARIANTS
+    if count > limit:
+        raise (where / "sweep" / "max_variants").error(
+            f"at most {limit} variants (set [sweep] max_variants to allow more)", count,
+            problem=f"the axes give {count} variants")
+    if on_count is not None:
+        on_count(count)
     variants = _expand(where.file, base, axes, overrides)
     return Sweep(where.file, head["name"], head["description"], base, axes,
                  {format_key_path(p): v for p, v, _ in overrides}, head.get("metrics"), head["retries"], report,

@@ -39,7 +39,7 @@ FINISHED = ("ok", "failed")
 #: of a run are never shared between threads.
 _ONE_AT_A_TIME = threading.Lock()
 #: Exit codes of ``cosim run`` (cosim/commands/run.py) -> words for the reason column.
-EXIT_WORDS = {1: "simulation failed", 2: "invalid scenario", 3: "internal error"}
+EXIT_WORDS = {2: "invalid scenario", 3: "run failed", 130: "interrupted"}
 
 
 @dataclass(frozen=True)
@@ -55,10 +55,14 @@ class VariantTask:
         relative_folder: ``variants/<id>-<hash8>`` (the folder under the sweep's results folder
             and under ``store``).
         inputs: the files the document refers to, shipped to the worker: ``(key path in the
-            document, SHA-256 of the content, file name)``; the content travels as the task's extra
-            arguments (:func:`run_shipped_variant`).
+            document, SHA-256 of the content, file name, the reference's text when relative to
+            ``anchor`` else "")``; the content travels as the task's extra arguments
+            (:func:`run_shipped_variant`).
         collect: globs of the files to bring back (shipped runs) or to copy to ``store``.
         store: an fsspec URL the worker writes the collected files to (None: none).
+        anchor: the folder relative file references of the document are relative to (the base
+            scenario's; FMU and other ``FilePath`` values are absolute already). A shipped task
+            recreates the referenced files at the same relative places under a worker folder.
     """
 
     index: int
@@ -72,6 +76,7 @@ class VariantTask:
     inputs: tuple[tuple[tuple, str, str], ...] = ()
     collect: tuple[str, ...] = ()
     store: str | None = None
+    anchor: str = ""
 
 
 def worker_name() -> str:
@@ -126,20 +131,15 @@ def run_variant(task: VariantTask) -> dict[str, Any]:
 
 
 def _run_variant(task: VariantTask) -> dict[str, Any]:
-    from cosim.cli import main as cosim_main
-
     folder = Path(task.folder)
     folder.mkdir(parents=True, exist_ok=True)
     for stale in (ROW_FILE, SUMMARY_FILE):
         (folder / stale).unlink(missing_ok=True)
-    scenario_path = write_scenario(task, folder)
+    write_scenario(task, folder)
     start, cpu_start = time.perf_counter(), time.process_time()
     with open(folder / LOG_FILE, "w", encoding="utf-8") as log, \
             contextlib.redirect_stdout(log), contextlib.redirect_stderr(log):
-        try:
-            code = cosim_main(["run", str(scenario_path), "--out", str(folder), "--quiet"])
-        except SystemExit as exc:  # argparse or a job calling sys.exit
-            code = exc.code if isinstance(exc.code, int) else 3
+        code = run_document(task.document, folder, task.anchor or None)
     wall, cpu = time.perf_counter() - start, time.process_time() - cpu_start
     row = make_row(task, read_summary(folder), code, wall, worker_name(), cpu_time_s=cpu)
     if task.store:
@@ -148,6 +148,31 @@ def _run_variant(task: VariantTask) -> dict[str, Any]:
         row["store"] = upload(folder, sorted(set(names)), task.store, task.relative_folder)
     write_row(folder, row)
     return row
+
+
+def run_document(document: dict[str, Any], folder: Path, anchor: str | None) -> int:
+    """Run a scenario document into ``folder`` with the public API (relative file references
+    resolved against ``anchor``); messages to stdout/stderr; return ``cosim run``'s exit code
+    (0 ok, 2 invalid scenario or results folder, 3 the run failed)."""
+    import sys
+    import traceback
+
+    from cosim.api import OutputFolderError, ScenarioError, execute, load_scenario
+    from cosim.master import SimulationError
+
+    try:
+        result = execute(load_scenario(document, base_dir=anchor), folder)
+    except (ScenarioError, OutputFolderError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except SystemExit as exc:  # a job calling sys.exit
+        return exc.code if isinstance(exc.code, int) else 3
+    if result.ok:
+        return 0
+    print(f"error: run failed: {result.summary.reason}", file=sys.stderr)
+    if result.error is not None and not isinstance(result.error, SimulationError):
+        traceback.print_exception(result.error, file=sys.stderr)
+    return 3
 
 
 #: Files a shipped variant always brings back (besides its row); scenario.toml is written by the client.
@@ -167,34 +192,49 @@ def _input_cache() -> Path:
     return Path(tempfile.gettempdir()) / "cosim-inputs"
 
 
-def _materialize(task: VariantTask, blobs: tuple[bytes, ...]) -> dict[str, Any]:
-    """Write the shipped input files into the worker's cache; the task's document pointing at them."""
+def _write_once(target: Path, data: bytes) -> None:
+    if not target.is_file():
+        target.parent.mkdir(parents=True, exist_ok=True)
+        tmp = target.with_name(f".{target.name}.{os.getpid()}.tmp")
+        tmp.write_bytes(data)
+        os.replace(tmp, target)
+
+
+def _materialize(task: VariantTask, blobs: tuple[bytes, ...]) -> tuple[dict[str, Any], str | None]:
+    """Write the shipped input files on the worker; return the document pointing at them and its anchor.
+
+    Absolute references (FMU paths, ...) go to a content-addressed cache and the document is
+    changed to point there; references relative to the scenario's folder are recreated at the
+    same relative places under an anchor folder (named by their contents, so a worker imports a
+    user's module file once), which the document is then run against.
+    """
     from cosim.scenario import get_job
-    from cosim.sweep.keypath import relocate_file, spec_at, with_value
+    from cosim.sweep.keypath import get_path, relocate_file, spec_at, with_value
 
     if len(blobs) != len(task.inputs):
         raise ValueError(f"variant {task.id}: {len(task.inputs)} input files expected, {len(blobs)} received")
-    job = get_job(task.document["scenario"]["job"])
-    document = task.document
-    for (path, digest, name), data in zip(task.inputs, blobs):
+    for (_, digest, name, _), data in zip(task.inputs, blobs):
         if hashlib.sha256(data).hexdigest() != digest:
             raise ValueError(f"variant {task.id}: input file {name} arrived damaged (SHA-256 differs)")
+    job = get_job(task.document["scenario"]["job"])
+    document = task.document
+    relative = sorted({(rel, digest) for _, digest, _, rel in task.inputs if rel})
+    anchor = None
+    if relative:
+        ups = max(os.path.normpath(rel).split(os.sep).count("..") for rel, _ in relative)
+        key = hashlib.sha256(repr(relative).encode()).hexdigest()[:24]
+        anchor_dir = _input_cache() / "anchors" / key / "scenario" / os.path.join(*(["up"] * ups or ["."]))
+        anchor = str(anchor_dir.resolve())
+    for (path, digest, name, rel), data in zip(task.inputs, blobs):
+        if rel:
+            _write_once(Path(os.path.normpath(Path(anchor) / rel)), data)
+            continue
         target = _input_cache() / digest[:24] / name
-        if not target.is_file():
-            target.parent.mkdir(parents=True, exist_ok=True)
-            tmp = target.with_name(f".{name}.{os.getpid()}.tmp")
-            tmp.write_bytes(data)
-            os.replace(tmp, target)
+        _write_once(target, data)
         spec = spec_at(job.schema, tuple(path), document) if job is not None else None
-        document = with_value(document, tuple(path),
-                              relocate_file(spec, get_path_or(document, path), str(target)) if spec else str(target))
-    return document
-
-
-def get_path_or(document: Any, path: tuple) -> Any:
-    from cosim.sweep.keypath import get_path
-
-    return get_path(document, tuple(path), None)
+        old = get_path(document, tuple(path), None)
+        document = with_value(document, tuple(path), relocate_file(spec, old, str(target)) if spec else str(target))
+    return document, anchor
 
 
 def collected_files(folder: Path, globs: tuple[str, ...]) -> list[str]:
@@ -232,8 +272,8 @@ def run_shipped_variant(task: VariantTask, *blobs: bytes) -> ShippedResult:
     with _ONE_AT_A_TIME:
         work = Path(tempfile.mkdtemp(prefix=f"cosim-{task.id}-"))
         try:
-            document = _materialize(task, blobs)
-            local = replace(task, folder=str(work / "run"), document=document, store=None)
+            document, anchor = _materialize(task, blobs)
+            local = replace(task, folder=str(work / "run"), document=document, store=None, anchor=anchor or "")
             row = _run_variant(local)
             run_dir = Path(local.folder)
             names = [n for n in collected_files(run_dir, task.collect) if n not in (SCENARIO_FILE, ROW_FILE)]

@@ -7,10 +7,12 @@ measurements into the voltage of the next current period) and direct comparison 
 the FMU. Covered: the enable sequence of the CiA 402 state machine (power off until
 Operation enabled), the position/speed/current loops with speed and torque
 feed-forward, limits, anti-windup, encoder quantisation, speed filter, computation
-delay and back-EMF compensation, and the holding brake while the power stage is off
-(closed from initialisation until Operation enabled: a spring-damper to where it
-closed, torque limited to the holding torque, slipping beyond). Not covered: quick
-stop, fault reaction, following-error fault (tested on the FMU directly).
+delay and back-EMF compensation, the modes of operation 8/9/10 with their set-points
+and the bumpless switch-over in Operation enabled, and the holding brake while the
+power stage is off (closed from initialisation until Operation enabled: a spring-damper
+to where it closed, torque limited to the holding torque, slipping beyond). Not covered:
+quick stop, fault reaction, following-error fault, unsupported mode requests (tested on
+the FMU directly).
 """
 from __future__ import annotations
 
@@ -36,6 +38,7 @@ class DriveReference:
     u_next: float = 0.0
     brake_anchor: float | None = None  # None: closed, anchored at the next sample
     brake_torque: float = 0.0
+    mode: int = 8  # active mode of operation: 8 CSP, 9 CSV, 10 CST
     _derived: dict[str, float] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -77,8 +80,28 @@ class DriveReference:
             self.state = "switched_on"
         self.enabled = self.state == "enabled"
 
+    def _select_mode(self, mode: int, target: float, torque_offset: float) -> bool:
+        """Take a requested mode of operation 8/9/10 (others are ignored here); in
+        Operation enabled bumplessly: the speed set-point continues from the filtered
+        speed, leaving CST the speed integrator takes over the current set-point, entering
+        CST it is cleared. True when the mode changed in Operation enabled."""
+        if mode not in (8, 9, 10) or mode == self.mode:
+            return False
+        switched = self.enabled
+        if switched:
+            if self.mode == 10:
+                p = self.params
+                self.speed_integral = self.current_demand - torque_offset / (p["gear_ratio"] * p["torque_constant"])
+            if mode == 10:
+                self.speed_integral = 0.0
+            self.speed_demand = self.speed_filtered
+            self.target_prev = target
+        self.mode = mode
+        return switched
+
     def tick_voltage(self, q: float, qd: float, current: float, target: float, torque_offset: float,
-                     controlword: int) -> tuple[float, bool]:
+                     controlword: int, mode: int = 8, target_velocity: float = 0.0, velocity_offset: float = 0.0,
+                     target_torque: float = 0.0) -> tuple[float, bool]:
         """One current sample with the measurements at the sample time.
 
         Returns ``(u, powered)``: the voltage applied over the coming current period
@@ -90,16 +113,32 @@ class DriveReference:
         if self.tick % self.n_position == 0:
             self.position_actual = self._quantise(q)
             self._device_control(controlword, target)
-            if self.enabled:
-                ff = p["speed_feedforward_gain"] * (target - self.target_prev) / p["position_sample_time"]
+            switched = self._select_mode(mode, target, torque_offset)
+            limit = p["velocity_limit"]
+            if self.enabled and self.mode == 9:  # CSV: speed set-point = target velocity + velocity offset
                 self.target_prev = target
-                v = p["position_kv"] * (target - self.position_actual) + ff
-                self.speed_demand = max(-p["velocity_limit"], min(p["velocity_limit"], v))
+                self.speed_demand = max(-limit, min(limit, target_velocity + velocity_offset))
+            elif self.enabled and self.mode == 10:  # CST: the speed loop is idle
+                self.target_prev = target
+                self.speed_demand = self.speed_filtered
+            elif self.enabled:
+                if switched:  # entering CSP: from position actual, the speed set-point continued
+                    reference, ff = self.position_actual, self.speed_demand
+                else:
+                    reference = target
+                    ff = p["speed_feedforward_gain"] * (target - self.target_prev) / p["position_sample_time"]
+                self.target_prev = target
+                v = p["position_kv"] * (reference - self.position_actual) + ff
+                v = v + velocity_offset
+                self.speed_demand = max(-limit, min(limit, v))
             else:
                 self.target_prev = target
         if self.tick % self.n_speed == 0:
             self.speed_filtered += self.alpha * (qd - self.speed_filtered)
-            if self.enabled:
+            if self.enabled and self.mode == 10:  # CST: current set-point from the torques
+                demand = (target_torque + torque_offset) / (n * p["torque_constant"])
+                self.current_demand = max(-self.current_max, min(self.current_max, demand))
+            elif self.enabled:
                 error = n * (self.speed_demand - self.speed_filtered)
                 demand = p["speed_kp"] * error + self.speed_integral + torque_offset / (n * p["torque_constant"])
                 limited = max(-self.current_max, min(self.current_max, demand))

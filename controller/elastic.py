@@ -1,0 +1,119 @@
+"""Mode ``model_based_elastic``: flatness-based feed-forward for an arm with elastic gears.
+
+:class:`ElasticController` is the built-in :class:`controller.Controller` with its
+cycle's set-points replaced: before motion it solves the controller model's inverse
+kinematics on every knot of the reference grid (the same :class:`CartesianToJoint` the
+cycle uses: q, qd, qdd of the model), takes jerk and snap from the exact accelerations
+(:func:`controller.reference.higher_derivatives`) and inverts the flexible-joint model
+(:func:`controller.feedforward.elastic_feedforward`). Each cycle then reads the knot of
+its application time: the drives get the MOTOR reference ``q_m = q + d`` (their encoders
+see the motor) as target, shaped for their speed feed-forward like mode ``model_based``,
+and the motor torque ``tau_m = Ia qdd_m + f_m(qd_m) + tau_g`` as torque offset; the log's
+desired motion stays the LINK reference (what the TCP is judged against).
+
+Model: the controller's :class:`robot.dynamics.RobotDynamics` (links, rotor inertia,
+friction) and :class:`controller.feedforward.GearModel` (stiffness, damping, friction
+split; default the nominal ``[elastic]`` table of the parameter file).
+"""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pinocchio as pin
+
+from controller.controller import Controller, ControllerConfig, ControllerConfigError
+from controller.drive_compensation import DriveLoopModel, SetpointShaper
+from controller.feedforward import ElasticReference, GearModel, elastic_feedforward
+from controller.joint_reference import CartesianToJoint
+from controller.reference import JointTrajectory, TcpTrajectory, higher_derivatives
+from fieldbus import Setpoints
+from robot.dynamics import RobotDynamics
+
+ELASTIC_MODE = "model_based_elastic"
+
+
+def joint_reference_on_grid(reference: TcpTrajectory | JointTrajectory, model: pin.Model,
+                            q_start: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """q, qd, qdd (each (n, 6)) of the reference on its own knots: the stored samples of a
+    joint reference, or the model's IK with consistent derivatives along a flange reference."""
+    if isinstance(reference, JointTrajectory):
+        return reference.q.copy(), reference.qd.copy(), reference.qdd.copy()
+    ik = CartesianToJoint(model)
+    ik.reset(q_start)
+    n, h = reference.grid.n, reference.grid.dt
+    out = np.empty((3, n, 6))
+    for k in range(n):
+        sample = reference.sample(reference.grid.times[k])
+        q, qd, qdd = ik.solve(sample.target, sample.twist, sample.acceleration, h)
+        ik.set_state(q, qd, qdd)
+        out[0, k], out[1, k], out[2, k] = q, qd, qdd
+    return out[0], out[1], out[2]
+
+
+class ElasticController(Controller):
+    """The built-in controller in mode ``model_based_elastic`` (see module docstring).
+
+    Arguments as :class:`controller.Controller`, plus ``gear`` (the controller's gear
+    model). The reference's grid step must equal the controller period (every cycle
+    reads a knot).
+    """
+
+    _elastic_mode = True
+
+    def __init__(self, reference: TcpTrajectory | JointTrajectory, config: ControllerConfig | None = None, *,
+                 kinematic_model: pin.Model | None = None, dynamics: RobotDynamics | None = None,
+                 q_hint: np.ndarray | None = None, drive_model: DriveLoopModel | None = None,
+                 capacity: int = 65536, gear: GearModel | None = None) -> None:
+        config = config or ControllerConfig(mode=ELASTIC_MODE)
+        if config.mode != ELASTIC_MODE:
+            raise ControllerConfigError(f"ElasticController: mode = {config.mode!r}, expected {ELASTIC_MODE!r}")
+        # the set-points come from the table below: no per-cycle IK kernel
+        super().__init__(reference, dataclasses.replace(config, compiled=False), kinematic_model=kinematic_model,
+                         dynamics=dynamics if dynamics is not None else RobotDynamics(), q_hint=q_hint,
+                         drive_model=None, capacity=capacity)
+        if abs(reference.grid.dt - self.config.period_s) > 1e-12 * max(1.0, self.config.period_s):
+            raise ControllerConfigError(f"{ELASTIC_MODE}: reference grid step {reference.grid.dt!r} s, expected the "
+                                        f"controller period {self.config.period_s!r} s")
+        self.gear = gear or GearModel.from_parameters()
+        q, qd, qdd = joint_reference_on_grid(reference, self.kinematic_model, self.q_start)
+        jerk, snap = higher_derivatives(qdd, reference.grid.dt)
+        self.link_reference = (q, qd, qdd, jerk, snap)
+        self.motor_reference: ElasticReference = elastic_feedforward(self.dynamics, self.gear, q, qd, qdd, jerk, snap)
+        rest = elastic_feedforward(self.dynamics, self.gear, self.q_start, *(np.zeros(6),) * 4)
+        self._motor_start = rest.q[0].copy()
+        self._tau_rest[:] = rest.torque[0]
+        self._shaper = SetpointShaper(drive_model) if drive_model is not None else None
+        if self._shaper is not None:
+            if abs(drive_model.period_s - self.config.period_s) > 1e-12:
+                raise ControllerConfigError(f"drive_model.period_s = {drive_model.period_s!r}: expected the "
+                                            f"controller period {self.config.period_s!r} s")
+            self._shaper.reset(self._motor_start)
+        self.setpoints.position[:] = self._motor_start
+
+    def _enable(self, observed, sp: Setpoints) -> None:
+        super()._enable(observed, sp)
+        sp.position[:] = self._motor_start  # the motor where the gear holds the arm at q_start
+        sp.torque_offset[:] = self._tau_rest
+
+    def _compute(self, tau: float, sp: Setpoints) -> int:
+        ref = self.reference
+        k, _ = ref.grid.locate(ref.t_start + tau)
+        q, qd, qdd = (a[k] for a in self.link_reference[:3])
+        m = self.motor_reference
+        self._q_d[:] = q
+        self._qd_d[:] = qd
+        self._qdd_d[:] = qdd
+        sp.torque_offset[:] = m.torque[k]
+        sp.position[:] = m.q[k] if self._shaper is None else self._shaper.shape(m.q[k], m.qd[k], m.qdd[k])
+        return 0
+
+
+def make_controller(reference: TcpTrajectory | JointTrajectory, config: ControllerConfig, **kwargs) -> Controller:
+    """The built-in controller of ``config.mode``: :class:`ElasticController` for
+    ``model_based_elastic``, else :class:`controller.Controller` (same keyword arguments;
+    ``gear`` only for the elastic mode)."""
+    if config.mode == ELASTIC_MODE:
+        return ElasticController(reference, config, **kwargs)
+    kwargs.pop("gear", None)
+    return Controller(reference, config, **kwargs)

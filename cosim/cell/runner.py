@@ -1,0 +1,221 @@
+"""ONE runner for the robot cell: a :class:`~cosim.cell.description.CellDescription` run in
+an execution mode given as a parameter, the way libcosim and Drake treat real time.
+
+Modes (``mode`` of :func:`run_cell`):
+
+``in_process``
+    the master steps the FMUs as fast as it can; the controller runs as the bus-cycle task
+    (:class:`cosim.cell.link.FieldbusLink`) in simulated time;
+``paced``
+    the same, held to the wall clock at the bus cycle (``cosim run --realtime``): every bus
+    cycle waits for its wall deadline (:class:`cosim.realtime.network.PacedNetwork`), late
+    cycles get the overrun policy; the CAN log is buffered until the end; the loop runs
+    without cyclic GC, pinned and, when granted, under SCHED_FIFO;
+``split``
+    controller and managing node in this process, drives and plant in a spawned process,
+    frames over UDP multicast (``cosim run --split``; paced too with ``--realtime``):
+    :func:`cosim.split.cell.run_split_cell`.
+
+Without a ``mode`` the run follows ``ctx.execution`` (the ``cosim run`` options,
+:class:`cosim.realtime.execution.CellExecution`, which also reports lateness), else
+``in_process``. Every mode builds the cell from the same description, drives the
+controller through the controller contract and returns a :class:`CellRun`; a
+SimulationError (failing FMU, NaN output, failing or stopped controller) ends a run
+with everything recorded so far written, the error in ``CellRun.failure``.
+"""
+from __future__ import annotations
+
+import contextlib
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+from controller import CellController, ControllerInfo
+from cosim.cell.description import CellDescription
+from cosim.cell.link import FieldbusLink
+from cosim.cell.wiring import N_JOINTS, cell_variables, joint_scaling
+from cosim.jobs.laser_tracker import LaserTracker
+from cosim.master import Master, MemorySink, Recorder, SimulationError
+from cosim.realtime.pacer import no_cyclic_gc
+from cosim.scenario.context import RunContext
+from cosim.scenario.cosim_tables import build_master
+from fieldbus import FieldbusConfig, PowerlinkNetwork
+from robot.parameters import load_parameters
+
+MODES = ("in_process", "paced", "split")
+"""The execution modes of :func:`run_cell`."""
+
+
+@dataclass
+class CellRun:
+    """What one cell run produced: the recorder file and its rows (also in memory), the
+    simulated time reached (s), the fieldbus summary, the wall time of the run (s), the
+    stepping engine, the SimulationError that ended it (None: ran to the end), the CPU
+    time of this process over the same span as the wall time (s, process_time); for paced
+    runs the :class:`cosim.realtime.pacer.Pacer` (lateness per cycle) and the scheduling
+    granted; for split runs what the two processes reported (``split``); for a user's
+    controller its compute time per cycle as the cell measured it (``controller_timing``,
+    a :class:`controller.TimingSummary`; None for the built-in controller, which times itself)."""
+
+    label: str
+    record_path: Any
+    rows_recorded: int
+    reached_s: float
+    fieldbus: dict[str, Any]
+    loop_wall_time_s: float
+    engine: str
+    recording: MemorySink
+    failure: SimulationError | None = None
+    loop_cpu_time_s: float = float("nan")
+    pacer: Any = None
+    scheduling: str = "normal"
+    split: dict[str, Any] | None = field(default=None)
+    controller_timing: Any = None
+
+
+def write_recording(memory: MemorySink, sink: Any) -> None:
+    """Write what a MemorySink holds to another sink (e.g. ``ctx.csv_sink(name)``) and close it."""
+    sink.open(memory.columns, memory.kinds)
+    data = memory.data
+    if len(data):
+        sink.write(data)
+    sink.close()
+
+
+def controller_info(controller: Any, fb_config: FieldbusConfig, *, label: str = "",
+                    parameters: dict[str, Any] | None = None, source: str = "", reference: Any = None,
+                    q_start: Any = None, kinematic_model: Any = None, dynamics: Any = None,
+                    compute_budget_s: float | None = None) -> ControllerInfo:
+    """The :class:`controller.ControllerInfo` of a cell run: the bus cycle and dead time of
+    ``fb_config``, the arm's limits (robot/rx130l.urdf via robot/rx130l_params.toml), and the
+    reference, start pose, models and budget given (else the built-in controller's own,
+    where ``controller`` has them)."""
+    p = load_parameters()
+    config = getattr(controller, "config", None)
+    budget = compute_budget_s if compute_budget_s is not None else getattr(config, "compute_budget_s", 100e-6)
+
+    def pick(given: Any, name: str) -> Any:
+        return given if given is not None else getattr(controller, name, None)
+
+    return ControllerInfo(period_s=fb_config.cycle_time_s, n_joints=N_JOINTS,
+                          dead_time_cycles=fb_config.dead_time_cycles, compute_budget_s=budget,
+                          position_min=p.position_lower.copy(), position_max=p.position_upper.copy(),
+                          velocity_max=p.velocity_limit.copy(), torque_max=p.effort_limit.copy(),
+                          rated_torque=p.rated_torque.copy(), q_start=pick(q_start, "q_start"),
+                          reference=pick(reference, "reference"),
+                          kinematic_model=pick(kinematic_model, "kinematic_model"),
+                          dynamics=pick(dynamics, "dynamics"), parameters=dict(parameters or {}), label=label,
+                          source=source)
+
+
+def add_cell_tasks(master: Master, network: Any, controller: CellController, period_s: float, laser: LaserTracker,
+                   signals: Sequence[str], record_period_s: float, sink: Any, info: ControllerInfo | None = None,
+                   stop_grace_s: float = 0.5) -> tuple[Recorder, FieldbusLink]:
+    """Add the cell's tasks to ``master`` (before initialize): the :class:`FieldbusLink` of
+    ``network`` and ``controller`` every ``period_s`` (priority 0; the controller's
+    ``setup(info)`` at master initialisation), the laser tracker at its period (priority 1)
+    and the recorder of ``signals`` every ``record_period_s`` into ``sink``; returns the
+    recorder and the link (``link.port.close()`` when the run ends)."""
+    link = FieldbusLink(network, controller, period_s, stop_grace_s=stop_grace_s, info=info)
+    master.add_task(link, period_s, priority=0, name="fieldbus+controller", setup=link.setup)
+    master.add_task(laser, laser.config.period_s, priority=1, name="laser_tracker", setup=laser.setup)
+    return master.add_recorder(signals, record_period_s, sink, name="cell"), link
+
+
+def build_cell_master(cell: CellDescription) -> Master:
+    """The master of ``cell``: its FMUs with their start values, the cell's master variables
+    (``bus.*``, ``tracker.*``) and its connections (not initialized, no tasks yet)."""
+    return build_master(cell.master_document(), master_variables=cell_variables())
+
+
+def run_cell(cell: CellDescription, controller: CellController, ctx: RunContext, *, mode: str | None = None,
+             options: Any = None, pacer: Any = None,
+             on_cycle: Callable[[int, Any], None] | None = None) -> CellRun:
+    """Run ``cell`` with ``controller`` (a :class:`controller.CellController`) from 0 to its
+    stop time in ``mode`` (:data:`MODES`; None: as ``ctx.execution`` says, else in process).
+
+    ``options`` is a :class:`cosim.realtime.config.ExecutionOptions` for ``paced``/``split``
+    (default: the defaults); ``pacer`` a :class:`~cosim.realtime.pacer.Pacer` to use (tests:
+    one on a virtual clock); ``on_cycle(cycle, session)`` a hook of split runs.
+
+    The recorder samples into memory (``CellRun.recording``), written to
+    ``cell.record_file`` in the results folder when the loop has ended (formatting CSV text
+    in the loop would cost as much as the bus; it is output, not loop work, and stays out of
+    ``loop_wall_time_s``).
+    """
+    if mode is None:
+        execution = getattr(ctx, "execution", None)
+        if execution is not None and execution.active:
+            return execution.run_cell(cell, controller, ctx)
+        mode = "in_process"
+    if mode not in MODES:
+        raise ValueError(f"cell execution mode {mode!r}: expected one of {MODES}")
+    if options is None:
+        from cosim.realtime.config import ExecutionOptions
+
+        options = ExecutionOptions(mode="split" if mode == "split" else "in_process", realtime=(mode == "paced"))
+    if mode == "split":
+        from cosim.split.cell import run_split_cell
+
+        return run_split_cell(cell, controller, ctx, options=options, pacer=pacer, on_cycle=on_cycle)
+    return _run_on_master(cell, controller, ctx, paced=(mode == "paced"), settings=options.settings, pacer=pacer)
+
+
+def _run_on_master(cell: CellDescription, controller: CellController, ctx: RunContext, *, paced: bool,
+                   settings: Any, pacer: Any) -> CellRun:
+    """The in-process and paced modes: the whole cell on one master in this process."""
+    fb_config = cell.fieldbus
+    if paced:
+        from cosim.realtime.network import deferred_recording
+
+        fb_config = deferred_recording(fb_config)
+    period, stop_time = cell.period_s, cell.stop_time_s
+    laser = LaserTracker(cell.true_robot.kinematic_model(), cell.tracker)
+    master = build_cell_master(cell)
+    memory = MemorySink()
+    engine = ""
+    granted = "normal"
+    failure: SimulationError | None = None
+    wall0 = time.perf_counter()
+    cpu0 = time.process_time()
+    network = PowerlinkNetwork(fb_config, joint_scaling(), log_path=cell.can_log)
+    link = None
+    try:
+        bus: Any = network
+        scheduling: Any = contextlib.nullcontext("normal")
+        if paced:
+            from cosim.realtime.network import PacedNetwork, auto_tolerance_s, lateness_thresholds
+            from cosim.realtime.pacer import Pacer, realtime_scheduling
+
+            tolerance = settings.tolerance_s if settings.tolerance_s is not None else auto_tolerance_s(network.layout)
+            if pacer is None:
+                pacer = Pacer(period, settings.spin_s, tolerance, capacity=int(stop_time / period) + 16)
+            pacer.thresholds = lateness_thresholds(network.layout)
+            bus = PacedNetwork(network, pacer, settings.overrun_policy, cycles=int(round(stop_time / period)) + 1)
+            scheduling = realtime_scheduling(settings.scheduling, settings.fifo_priority, settings.cpu)
+        recorder, link = add_cell_tasks(master, bus, controller, period, laser, cell.signals, cell.record_period_s,
+                                        memory, cell.controller, cell.stop_grace_s)
+        if paced:
+            ctx.label = cell.label  # no summary heartbeat in a paced loop
+        else:
+            ctx.attach(master, stop_time, label=cell.label)
+        with master:
+            try:
+                master.initialize(stop_time)
+                engine = master.engine.name
+                with scheduling as granted, no_cyclic_gc():
+                    ctx.execute(master, stop_time)
+            except SimulationError as exc:
+                failure = exc
+    finally:
+        if link is not None:
+            link.port.close()
+        network.close()
+        wall = time.perf_counter() - wall0
+        cpu = time.process_time() - cpu0
+        if memory.columns:
+            write_recording(memory, ctx.csv_sink(cell.record_file))
+    return CellRun(cell.label, ctx.path(cell.record_file), recorder.rows_written, master.time, network.summary(),
+                   wall, engine, memory, failure, cpu, pacer=pacer if paced else None, scheduling=granted,
+                   controller_timing=link.port.timing())

@@ -1,0 +1,17 @@
+"""SSP (System Structure and Parameterization 1.0) export and import of a co-simulation.
+
+``export_ssp(scenario, out)`` writes the scenario's FMUs, connections and parameter values
+as one ``.ssp`` archive: ``SystemStructure.ssd`` (components, connectors, connections, the
+default experiment), one ``.ssv`` parameter set per instance and the FMUs themselves in
+``resources/``. Inputs driven by the Python side (master variables: the controller's CiA
+402 telegrams over the emulated POWERLINK bus, the laser tracker) are system connectors
+of kind ``input`` whose annotation says who drives them. ``load_ssp(path)`` reads such an
+archive back (validated against the SSP 1.0 XML schemas that ship with fmpy) into
+``[[fmus]]`` tables and connections for the master. docs/cosim.md, "SSP", says what the
+export leaves out.
+"""
+from cosim.ssp.errors import SspError
+from cosim.ssp.read import SspSystem, load_ssp
+from cosim.ssp.write import export_document, export_ssp
+
+__all__ = ["SspError", "SspSystem", "export_document", "export_ssp", "load_ssp"]

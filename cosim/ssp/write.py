@@ -1,0 +1,234 @@
+"""Write a co-simulation (FMUs, connections, parameter values) as an SSP 1.0 archive."""
+from __future__ import annotations
+
+import math
+import os
+import tempfile
+import zipfile
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+from lxml import etree
+
+from cosim.master.component import load_model_description, variables_of
+from cosim.master.variables import bus_type, parse_connection
+from cosim.ssp.errors import SspError
+from cosim.ssp.schema import NS, SSD_XSD, SSV_XSD, problems
+
+SSD, SSC, SSV = NS["ssd"], NS["ssc"], NS["ssv"]
+#: Namespace of this project's annotations (master settings, who drives a system input).
+RX_NS = "urn:rx130l-cosim:ssp"
+ANNOTATION_TYPE = "org.rx130l-cosim"
+_SSC_TYPE = {"Real": "Real", "Integer": "Integer", "Boolean": "Boolean"}
+
+
+def driven_by(signal: str) -> str:
+    """Who drives the master variable ``signal`` in the jobs (for the SSD annotation)."""
+    owner = signal.split(".", 1)[0]
+    if owner == "bus":
+        return ("the Python controller (controller/, every controller period), through the emulated "
+                "POWERLINK bus carrying CiA 402 telegrams (fieldbus/, cosim.cell.link.FieldbusLink); "
+                "not an FMU")
+    if owner == "tracker":
+        return "the Python laser tracker model (cosim.jobs.laser_tracker); not an FMU"
+    return f"a Python task of the job (master variable owner '{owner}'); not an FMU"
+
+
+def _q(ns: str, tag: str) -> str:
+    return f"{{{ns}}}{tag}"
+
+
+def _annotation(parent: etree._Element, ns: str, attrs: Mapping[str, str]) -> None:
+    annotations = etree.SubElement(parent, _q(SSC, "Annotations") if ns == SSC else _q(ns, "Annotations"))
+    annotation = etree.SubElement(annotations, _q(SSC, "Annotation"), type=ANNOTATION_TYPE)
+    etree.SubElement(annotation, _q(RX_NS, "Info"), {k: str(v) for k, v in attrs.items()})
+
+
+def _type_element(parent: etree._Element, fmi_type: str, unit: str | None = None) -> None:
+    ssc_type = _SSC_TYPE[bus_type(fmi_type)]
+    attrs = {"unit": unit} if ssc_type == "Real" and unit else {}
+    etree.SubElement(parent, _q(SSC, ssc_type), attrs)
+
+
+def _value_text(value: object, fmi_type: str) -> tuple[str, str]:
+    kind = bus_type(fmi_type)
+    if kind == "Real":
+        v = float(value)
+        if not math.isfinite(v):
+            raise ValueError(f"parameter value {value!r} is not finite")
+        return "Real", repr(v)
+    if kind == "Boolean":
+        return "Boolean", "true" if value else "false"
+    return "Integer", str(int(value))
+
+
+def _parameter_set(name: str, values: Mapping[str, object], variables: Mapping[str, Any]) -> etree._Element:
+    root = etree.Element(_q(SSV, "ParameterSet"), nsmap={"ssv": SSV, "ssc": SSC}, version="1.0", name=name)
+    params = etree.SubElement(root, _q(SSV, "Parameters"))
+    for var_name, value in values.items():
+        kind, text = _value_text(value, variables[var_name].type)
+        p = etree.SubElement(params, _q(SSV, "Parameter"), name=var_name)
+        etree.SubElement(p, _q(SSV, kind), value=text)
+    return root
+
+
+def _unit(variable) -> str | None:
+    unit = getattr(variable, "unit", None)
+    if unit is None and getattr(variable, "declaredType", None) is not None:
+        unit = getattr(variable.declaredType, "unit", None)
+    return unit
+
+
+def export_document(fmus: list[dict[str, Any]], connections: list[str], out: str | Path, *, name: str,
+                    stop_time: float, macro_step: float, coupling: str = "jacobi",
+                    master_variables: Mapping[str, str] | None = None, description: str = "") -> Path:
+    """Write ``out`` (.ssp) from resolved ``[[fmus]]`` tables (name, path, parameters, step) and connections.
+
+    ``master_variables`` (name -> bus type) are the connection sources the Python side writes;
+    they become system input connectors with an annotation saying who drives them.
+    Every XML document is validated against the SSP 1.0 schema before the archive is written.
+    """
+    out = Path(out)
+    master_variables = dict(master_variables or {})
+    files: dict[str, Path] = {}
+    descriptions: dict[str, dict[str, Any]] = {}
+    for fmu in fmus:
+        path = Path(fmu["path"])
+        member = f"resources/{path.name}"
+        if member in files and files[member].resolve() != path.resolve():
+            member = f"resources/{fmu['name']}_{path.name}"
+        files.setdefault(member, path)
+        fmu["_member"] = next(m for m, p in files.items() if p.resolve() == path.resolve())
+        descriptions[fmu["name"]] = variables_of(load_model_description(path))
+    specs = [parse_connection(c) for c in connections]
+
+    root = etree.Element(_q(SSD, "SystemStructureDescription"),
+                         nsmap={"ssd": SSD, "ssc": SSC, "ssv": SSV, "rx": RX_NS}, version="1.0", name=name)
+    system = etree.SubElement(root, _q(SSD, "System"), name=name)
+    if description:
+        system.set("description", description)
+    sources = [s.source for s in specs if s.source in master_variables]
+    if sources:
+        connectors = etree.SubElement(system, _q(SSD, "Connectors"))
+        for signal in dict.fromkeys(sources):
+            c = etree.SubElement(connectors, _q(SSD, "Connector"), name=signal, kind="input")
+            _type_element(c, master_variables[signal])
+            _annotation(c, SSD, {"drivenBy": driven_by(signal)})
+    elements = etree.SubElement(system, _q(SSD, "Elements"))
+    ssv_docs: dict[str, etree._Element] = {}
+    for fmu in fmus:
+        variables = descriptions[fmu["name"]]
+        comp = etree.SubElement(elements, _q(SSD, "Component"), name=fmu["name"], source=fmu["_member"],
+                                type="application/x-fmu-sharedlibrary", implementation="CoSimulation")
+        connectors = etree.SubElement(comp, _q(SSD, "Connectors"))
+        for v in variables.values():
+            if v.causality not in ("input", "output") or v.type in ("String", "Clock", "Binary"):
+                continue
+            c = etree.SubElement(connectors, _q(SSD, "Connector"), name=v.name, kind=v.causality)
+            _type_element(c, v.type, _unit(v))
+        params = dict(fmu.get("parameters") or {})
+        if params:
+            member = f"resources/{fmu['name']}.ssv"
+            bindings = etree.SubElement(comp, _q(SSD, "ParameterBindings"))
+            etree.SubElement(bindings, _q(SSD, "ParameterBinding"), type="application/x-ssp-parameter-set",
+                             source=member)
+            ssv_docs[member] = _parameter_set(fmu["name"], params, variables)
+        info = {"fmu": Path(fmu["path"]).name}
+        if fmu.get("step") is not None:
+            info["step"] = repr(float(fmu["step"]))
+        _annotation(comp, SSD, info)
+    if specs:
+        conns = etree.SubElement(system, _q(SSD, "Connections"))
+        for s in specs:
+            dst_inst, dst_var = s.destination.split(".", 1)
+            attrs = {}
+            if s.source in master_variables:
+                attrs["startConnector"] = s.source
+            else:
+                src_inst, src_var = s.source.split(".", 1)
+                attrs["startElement"], attrs["startConnector"] = src_inst, src_var
+            attrs["endElement"], attrs["endConnector"] = dst_inst, dst_var
+            etree.SubElement(conns, _q(SSD, "Connection"), attrs)
+    experiment = etree.SubElement(root, _q(SSD, "DefaultExperiment"), startTime="0", stopTime=repr(float(stop_time)))
+    _annotation(experiment, SSD, {"macroStep": repr(float(macro_step)), "coupling": coupling})
+
+    for doc, xsd, member in [(root, SSD_XSD, "SystemStructure.ssd")] + [(d, SSV_XSD, m) for m, d in ssv_docs.items()]:
+        found = problems(doc, xsd)
+        if found:  # a bug of this writer, not of the user's input
+            raise SspError(out, member, "a document valid against the SSP 1.0 schema", "; ".join(found[:5]))
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(suffix=".ssp", dir=out.parent)
+    os.close(fd)
+    try:
+        with zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as zf:
+            zf.writestr("SystemStructure.ssd", etree.tostring(root, xml_declaration=True, encoding="UTF-8",
+                                                             pretty_print=True))
+            for member, doc in ssv_docs.items():
+                zf.writestr(member, etree.tostring(doc, xml_declaration=True, encoding="UTF-8", pretty_print=True))
+            for member, path in files.items():
+                zf.write(path, member)
+        os.replace(tmp, out)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+    for fmu in fmus:
+        fmu.pop("_member", None)
+    return out
+
+
+def _cell_parameters(doc: dict[str, Any]) -> list[dict[str, Any]] | None:
+    """For a robot-cell job: the [[fmus]] with the start values the cell gives its plant and drives
+    (the seeded true robot's parameters and payload, each axis's drive parameters), the plant's start
+    pose left at the scenario's/FMU's values (the cell computes it from the path at run time)."""
+    if "true_robot" not in doc:
+        return None
+    from cosim.cell import wiring as robot_cell
+    from cosim.cell.parts import make_true_robot
+
+    names = {f["name"] for f in doc["fmus"]}
+    if robot_cell.PLANT not in names or not set(robot_cell.DRIVES) <= names:
+        return None
+    plant = next(f for f in doc["fmus"] if f["name"] == robot_cell.PLANT)
+    md = variables_of(load_model_description(plant["path"]))
+    q0 = [plant["parameters"].get(f"q0[{i}]", float(md[f"q0[{i}]"].start)) for i in range(1, 7)]
+    fmus = robot_cell.cell_fmus(doc["fmus"], make_true_robot(doc["true_robot"]), q0)
+    for fmu in fmus:
+        if fmu["name"] == robot_cell.PLANT:  # keep only what the scenario itself says about the start pose
+            for key in [k for k in fmu["parameters"] if k.startswith(("q0[", "qd0[")) and k not in plant["parameters"]]:
+                del fmu["parameters"][key]
+    return fmus
+
+
+def export_ssp(scenario: str | Path, out: str | Path) -> Path:
+    """Export a scenario file's FMUs, connections and parameter values as ``out`` (.ssp).
+
+    Works for every job built on the ``[[fmus]]`` tables; for robot-cell jobs (a
+    ``[true_robot]`` table, FMUs ``plant`` and ``drive1..6``) the parameter values are the
+    ones the cell sets (true robot, drive parameters of each axis). Raises ScenarioError
+    for an invalid scenario.
+    """
+    from cosim.scenario import load_scenario
+
+    loaded = load_scenario(scenario)
+    doc = loaded.data
+    cell_fmus = _cell_parameters(doc)
+    fmus = cell_fmus or [dict(f) for f in doc["fmus"]]
+    connections = list(doc.get("connections", []))
+    if cell_fmus is not None:  # a robot cell: its generated wiring plus the scenario's own connections
+        from cosim.cell.wiring import merged_connections
+
+        connections = merged_connections(connections)
+    master_variables: dict[str, str] = {}
+    descriptions = {f["name"]: variables_of(load_model_description(f["path"])) for f in fmus}
+    for text in connections:
+        spec = parse_connection(text)
+        owner = spec.source.split(".", 1)[0]
+        if owner not in descriptions:
+            dst_inst, dst_var = spec.destination.split(".", 1)
+            master_variables[spec.source] = bus_type(descriptions[dst_inst][dst_var].type)
+    sim = doc["simulation"]
+    return export_document(fmus, connections, out, name=loaded.name,
+                           stop_time=sim["stop_time"], macro_step=sim["macro_step"], coupling=sim["coupling"],
+                           master_variables=master_variables,
+                           description=doc["scenario"].get("description", ""))

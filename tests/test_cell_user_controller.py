@@ -1,0 +1,174 @@
+"""A user's controller in the cell, named in a scenario: a Python class (``[controller] class``)
+and an FMI 2.0 controller FMU (``[controller] fmu`` + name mapping), each run through the
+controller contract on the short ISO 9283 cell; bad input is a clear error before anything
+runs; a controller that raises or returns NaN mid-run ends the run cleanly with the time
+series so far on disk."""
+from __future__ import annotations
+
+import csv
+import json
+import re
+from pathlib import Path
+
+import pytest
+
+from cosim.cli import main
+from cosim.scenario import ScenarioError, load_scenario
+from error_checks import assert_names_file_and_fragments
+from realtime_support import short_scenario_text
+
+FOLLOW = '''
+import numpy as np
+from controller import ControllerOutput
+from controller.tracking_clock import TrackingClock
+
+
+class Follow:
+    """Joint reference as CSP target, a proportional torque offset; optionally fails."""
+
+    def __init__(self, kp=0.0, fail_at_cycle=-1, nan_at_cycle=-1):
+        self.kp, self.fail_at, self.nan_at = kp, fail_at_cycle, nan_at_cycle
+
+    def setup(self, info):
+        self.clock = TrackingClock(info, settle_time_s=0.01)
+        self.out = ControllerOutput.zeros(info.n_joints)
+
+    def step(self, inputs):
+        if inputs.cycle == self.fail_at:
+            raise ZeroDivisionError("division by zero in my law")
+        tau = self.clock.update(inputs, self.out.controlword)
+        q_d, _, _ = self.clock.reference(tau)
+        self.out.target_position[:] = q_d
+        self.out.torque_offset[:] = self.kp * (q_d - inputs.position)
+        if inputs.cycle == self.nan_at:
+            self.out.torque_offset[4] = float("nan")
+        return self.out
+
+    def close(self):
+        pass
+
+    motion_start_s = property(lambda self: self.clock.motion_start_s)
+    stop_reason = property(lambda self: self.clock.stop_reason)
+    stopped_at_s = property(lambda self: self.clock.stopped_at_s)
+
+
+class NoStep:
+    def setup(self, info):
+        pass
+
+    def close(self):
+        pass
+'''
+
+
+def scenario(tmp_path: Path, controller_lines: str, stop_time: str = "60 ms", extra: str = "") -> Path:
+    (tmp_path / "my_ctrl.py").write_text(FOLLOW)
+    text = short_scenario_text(stop_time, name="user_ctrl", extra=extra)
+    text, n = re.subn(r'modes = \["model_based"\]', 'modes = []\n' + controller_lines, text, count=1)
+    assert n == 1
+    text = text.replace("can_log = true", "can_log = false")
+    path = tmp_path / "user_ctrl.toml"
+    path.write_text(text)
+    return path
+
+
+def run(path: Path, out: Path) -> tuple[int, dict]:
+    code = main(["run", str(path), "--out", str(out), "--quiet"])
+    return code, json.loads((out / "summary.json").read_text())
+
+
+def test_a_user_controller_class_runs_the_cell(tmp_path):
+    path = scenario(tmp_path, 'class = "my_ctrl.py:Follow"\nlabel = "follow"',
+                    extra="[controller.parameters]\nkp = 20.0\n")
+    code, summary = run(path, tmp_path / "out")
+    assert code == 0 and summary["status"] == "ok"
+    entry = summary["modes"]["follow"]
+    assert entry["user_controller"] and entry["controller"] == "Follow" and entry["status"] == "ok"
+    assert entry["motion_start_s"] == pytest.approx(0.0144, abs=2e-3)   # enabled ~3.6 ms + settle 10 + lead 0.8
+    assert 0.0 < entry["tcp_error_max_mm"] < 5.0                        # it tracks the path
+    assert entry["controller_cycles_timed"] == 151 and entry["cycle_compute_us"]["p50"] > 0
+    assert (tmp_path / "out" / "timeseries_follow.csv").is_file() and (tmp_path / "out" / "tcp_follow.csv").is_file()
+
+
+@pytest.mark.parametrize("params, reason", [
+    ("fail_at_cycle = 50", "Follow.step() raised ZeroDivisionError: division by zero in my law"),
+    ("nan_at_cycle = 50", "torque_offset = "),
+])
+def test_a_user_controller_that_raises_or_returns_nan_stops_the_run_cleanly(tmp_path, params, reason):
+    path = scenario(tmp_path, 'class = "my_ctrl.py:Follow"', extra=f"[controller.parameters]\n{params}\n")
+    code, summary = run(path, tmp_path / "out")
+    assert code != 0 and summary["status"] == "failed"
+    assert reason in summary["reason"] and summary["failed_component"] == "controller"
+    assert summary["stopped_at_s"] == pytest.approx(50 * 400e-6)
+    entry = summary["modes"]["Follow"]
+    assert entry["status"] == "failed" and entry["stopped_at_s"] == pytest.approx(0.02)
+    with open(tmp_path / "out" / "timeseries_Follow.csv") as f:
+        rows = list(csv.reader(f))
+    # the time series up to the failing cycle is on disk (400 us rows: 0 .. 19.6 ms)
+    assert len(rows) - 1 == 50 and float(rows[-1][0]) == pytest.approx(0.0196)
+
+
+@pytest.mark.parametrize("lines, extra, fragments", [
+    ('class = "my_ctrl.py:Missing"', "", ["controller.class", "no 'Missing'", "Follow"]),
+    ('class = "nowhere.py:Follow"', "", ["controller.class", "does not exist"]),
+    ('class = "my_ctrl.py:NoStep"', "", ["controller.class", "no method step()", "setup(info), step(inputs)"]),
+    ('class = "my_ctrl.py:Follow"', "[controller.parameters]\ngain = 3.0\n",
+     ["controller.parameters", "gain", "Follow"]),
+])
+def test_bad_controller_class_is_an_error_before_anything_runs(tmp_path, lines, extra, fragments):
+    path = scenario(tmp_path, lines, extra=extra)
+    with pytest.raises(ScenarioError) as info:
+        load_scenario(path)
+    assert_names_file_and_fragments(info.value, path, fragments)
+    assert main(["run", str(path), "--out", str(tmp_path / "out"), "--quiet"]) == 2
+
+
+@pytest.fixture(scope="module")
+def pd_fmu(tmp_path_factory) -> Path:
+    from cosim_fmu_models import build_test_fmu
+
+    return build_test_fmu("pd_controller", tmp_path_factory.mktemp("controller_fmu"))
+
+
+def fmu_lines(fmu: Path, inputs: str = "") -> tuple[str, str]:
+    mapping = "[controller.fmu_inputs]\n" + "".join(
+        f'q{i} = "position[{i}]"\nq_ref{i} = "reference_position[{i}]"\n' for i in range(1, 7)) + inputs
+    mapping += "[controller.fmu_outputs]\n" + "".join(f'tau{i} = "torque_offset[{i}]"\n' for i in range(1, 7))
+    return f'fmu = "{fmu}"\nlabel = "pd_fmu"', mapping
+
+
+def test_a_controller_fmu_runs_the_cell(tmp_path, pd_fmu):
+    from fmpy.validation import validate_fmu
+
+    assert validate_fmu(str(pd_fmu)) == []
+    lines, mapping = fmu_lines(pd_fmu)
+    path = scenario(tmp_path, lines, extra=mapping + "[controller.parameters]\nkp = 20.0\n")
+    code, summary = run(path, tmp_path / "out")
+    assert code == 0 and summary["status"] == "ok", summary.get("reason")
+    entry = summary["modes"]["pd_fmu"]
+    assert entry["controller"] == "FmuController" and 0.0 < entry["tcp_error_max_mm"] < 5.0
+    assert entry["controller_cycles_timed"] == 151
+
+
+def test_a_failing_controller_fmu_stops_the_run_cleanly(tmp_path, pd_fmu):
+    lines, mapping = fmu_lines(pd_fmu)
+    path = scenario(tmp_path, lines, extra=mapping + "[controller.parameters]\nfail_after = 0.02\n")
+    code, summary = run(path, tmp_path / "out")
+    assert code != 0 and summary["status"] == "failed" and "fmi2DoStep failed" in summary["reason"]
+    assert summary["stopped_at_s"] == pytest.approx(0.02, abs=1e-3)
+    assert (tmp_path / "out" / "timeseries_pd_fmu.csv").is_file()
+
+
+@pytest.mark.parametrize("inputs, extra, fragments", [
+    ('speed1 = "velocity[1]"\n', "", ["controller.fmu_inputs.speed1", "Pd_controller.fmu has no variable 'speed1'"]),
+    ('q1 = "acceleration[1]"\n', "", ["controller.fmu_inputs.q1", "unknown field 'acceleration'"]),
+    ("", "[controller.parameters]\nki = 1.0\n", ["controller.parameters.ki", "no variable 'ki'"]),
+])
+def test_a_controller_fmu_lacking_a_mapped_variable_is_an_error(tmp_path, pd_fmu, inputs, extra, fragments):
+    lines, mapping = fmu_lines(pd_fmu, inputs)
+    if 'q1 = "acceleration[1]"' in inputs:  # replace the valid q1 mapping by a bad one
+        mapping = mapping.replace('q1 = "position[1]"\n', "")
+    path = scenario(tmp_path, lines, extra=mapping + extra)
+    with pytest.raises(ScenarioError) as info:
+        load_scenario(path)
+    assert_names_file_and_fragments(info.value, path, fragments)

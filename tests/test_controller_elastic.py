@@ -1,0 +1,148 @@
+"""Mode model_based_elastic: the flatness-based feed-forward for elastic gears
+(controller/feedforward.py) against finite differences, pinocchio and the plant's own
+equations (tests/elastic_reference.py); the reference derivatives; the controller."""
+import numpy as np
+import pytest
+
+from controller import ControllerConfig, ControllerConfigError, Controller
+from controller.elastic import ELASTIC_MODE, ElasticController, make_controller
+from controller.feedforward import (GearModel, elastic_feedforward, gear_deflection, link_torque_derivatives,
+                                    motor_friction)
+from controller.reference import JointTrajectory, ReferenceError, higher_derivatives
+from elastic_reference import ElasticArm
+from robot.dynamics import COULOMB_SLICE, ROTOR_INERTIA_SLICE, VISCOUS_SLICE, RobotDynamics
+
+DYN = RobotDynamics(payload=[8.0, 0.0, 0.0, 0.08])
+GEAR = GearModel.from_parameters()
+A = np.array([0.3, -0.5, 0.4, 0.8, -0.6, 1.0])
+W = np.array([2.0, 3.0, 1.5, 4.0, 5.0, 3.5])
+Q0 = np.array([0.2, -0.6, 1.2, 0.3, 0.8, -0.2])
+
+
+def motion(t, n):
+    """n-th time derivative of a smooth test motion at t (scalar) -> (6,)."""
+    return A * W ** n * np.sin(W * t + n * np.pi / 2) + (Q0 if n == 0 else 0.0)
+
+
+def derivatives(t):
+    return [motion(t, n) for n in range(5)]
+
+
+def test_link_torque_derivatives_match_finite_differences():
+    h = 1e-4
+    for t in (0.05, 0.2, 0.35):  # every joint speed >= 0.45 rad/s: away from the steep Coulomb tanh
+        assert np.abs(motion(t, 1)).min() > 0.45
+        tau, tau_d, tau_dd = (x[0] for x in link_torque_derivatives(DYN, GEAR, *derivatives(t)))
+        plus = link_torque_derivatives(DYN, GEAR, *derivatives(t + h))[0][0]
+        minus = link_torque_derivatives(DYN, GEAR, *derivatives(t - h))[0][0]
+        assert np.abs((plus - minus) / (2 * h) - tau_d).max() < 1e-6 * np.abs(tau_d).max()
+        assert np.abs((plus - 2 * tau + minus) / h ** 2 - tau_dd).max() < 1e-5 * np.abs(tau_dd).max()
+
+
+def test_gear_torque_is_pinocchio_rnea_of_the_links_with_their_friction_share():
+    p = DYN.parameter_vector().copy()
+    p[ROTOR_INERTIA_SLICE] = 0.0
+    p[VISCOUS_SLICE] *= 1 - GEAR.motor_friction_share
+    p[COULOMB_SLICE] *= 1 - GEAR.motor_friction_share
+    links = RobotDynamics(p, DYN.payload)
+    for t in (0.0, 0.3, 0.77):
+        d = derivatives(t)
+        tau = link_torque_derivatives(DYN, GEAR, *d)[0][0]
+        np.testing.assert_allclose(tau, links.inverse_dynamics(d[0], d[1], d[2]), rtol=0, atol=1e-9)
+
+
+def test_motor_reference_is_consistent_and_inverts_the_gear():
+    stiff_only = GearModel(GEAR.stiffness, GEAR.stiffness_cubic, np.zeros(6), GEAR.motor_friction_share,
+                           GEAR.stribeck_torque, GEAR.stribeck_velocity, GEAR.coulomb_smoothing_velocity)
+    h = 1e-5
+    t = 0.25
+    ref, plus, minus = (elastic_feedforward(DYN, stiff_only, *derivatives(s)) for s in (t, t + h, t - h))
+    assert np.abs((plus.q - minus.q) / (2 * h) - ref.qd).max() < 1e-8
+    assert np.abs((plus.qd - minus.qd) / (2 * h) - ref.qdd).max() < 1e-6 * np.abs(ref.qdd).max()
+    np.testing.assert_allclose(stiff_only.stiffness * ref.deflection, ref.gear_torque, rtol=1e-12)
+    ia = DYN.parameter_vector()[ROTOR_INERTIA_SLICE]
+    np.testing.assert_allclose(ref.torque, ia * ref.qdd + motor_friction(DYN, stiff_only, ref.qd) + ref.gear_torque,
+                               rtol=1e-12)
+    # with damping and a stiffening gear: k d + k3 d^3 + c dd/dt = tau_g to second order in c/k
+    gear = GearModel(GEAR.stiffness, np.full(6, 1e11), GEAR.damping, GEAR.motor_friction_share,
+                     GEAR.stribeck_torque, GEAR.stribeck_velocity, GEAR.coulomb_smoothing_velocity)
+    tau, tau_d, tau_dd = link_torque_derivatives(DYN, gear, *derivatives(t))
+    d, d_d, _ = gear_deflection(gear, tau, tau_d, tau_dd)
+    residual = gear.stiffness * d + gear.stiffness_cubic * d ** 3 + gear.damping * d_d - tau
+    assert np.abs(residual).max() < 1e-3 * np.abs(tau).max()
+    assert np.abs(gear.damping * d_d).max() > 10 * np.abs(residual).max()  # the correction matters
+
+
+def test_feedforward_drives_the_plant_equations_along_the_reference():
+    """Open loop: the motor torque of the inversion, held over 50 us, fed to the plant's
+    equations (numpy + pinocchio, RK4 at 10 us) from the matching start state, keeps the
+    links within 2e-6 rad of the reference over 0.1 s; the rigid eq. 7 torque does not."""
+    p = DYN.parameter_vector()
+    arm = ElasticArm(p, DYN.payload)
+    gear = GearModel(arm.k, arm.k3, arm.c, arm.share, arm.fs, arm.vst, arm.vs)
+    hold, sub = 50e-6, 5
+    times = np.arange(0.0, 0.1, hold)
+    mids = [derivatives(t + hold / 2) for t in times]
+    ff = elastic_feedforward(DYN, gear, *(np.array([m[n] for m in mids]) for n in range(5)))
+    rigid = np.array([DYN.inverse_dynamics(m[0], m[1], m[2]) for m in mids])
+    start = elastic_feedforward(DYN, gear, *derivatives(0.0))
+    errors = {}
+    for name, torques in (("elastic", ff.torque), ("rigid", rigid)):
+        d0 = derivatives(0.0)
+        x = np.concatenate((d0[0], d0[1], start.q[0], start.qd[0]))
+        worst = 0.0
+        for k, tau in enumerate(torques):
+            dt = hold / sub
+            for _ in range(sub):
+                k1 = arm.rhs(x, tau, np.zeros(6))
+                k2 = arm.rhs(x + dt / 2 * k1, tau, np.zeros(6))
+                k3 = arm.rhs(x + dt / 2 * k2, tau, np.zeros(6))
+                k4 = arm.rhs(x + dt * k3, tau, np.zeros(6))
+                x = x + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+            worst = max(worst, np.abs(x[:6] - motion(times[k] + hold, 0)).max())
+        errors[name] = worst
+    print("open-loop link error over 0.1 s (rad):", errors)
+    assert errors["elastic"] < 2e-6, errors
+    assert errors["rigid"] > 50 * errors["elastic"], errors
+
+
+def test_higher_derivatives_converge_at_second_order():
+    errors = []
+    for dt in (4e-3, 2e-3, 1e-3):
+        t = np.arange(0.0, 1.0 + dt / 2, dt)
+        qdd = np.array([motion(s, 2) for s in t])
+        jerk, snap = higher_derivatives(qdd, dt)
+        exact_j = np.array([motion(s, 3) for s in t])
+        exact_s = np.array([motion(s, 4) for s in t])
+        errors.append((np.abs(jerk - exact_j).max(), np.abs(snap - exact_s)[1:-1].max()))
+    for (j1, s1), (j2, s2) in zip(errors, errors[1:]):
+        assert 3.5 < j1 / j2 < 4.5 and 3.5 < s1 / s2 < 4.5, errors
+    with pytest.raises(ReferenceError, match="expected a grid step > 0 s"):
+        higher_derivatives(np.zeros((5, 6)), 0.0)
+
+
+def _joint_reference(dt=400e-6, duration=0.4):
+    t = np.arange(0.0, duration + dt / 2, dt)
+    return JointTrajectory(t, *(np.array([motion(s, n) for s in t]) for n in range(3)), dt)
+
+
+def test_controller_sends_the_motor_reference_and_torque():
+    ref = _joint_reference()
+    ctrl = make_controller(ref, ControllerConfig(mode=ELASTIC_MODE, settle_time_s=0.0), dynamics=DYN)
+    assert isinstance(ctrl, ElasticController)
+    rest = elastic_feedforward(DYN, ctrl.gear, ref.q[0], *(np.zeros(6),) * 4)
+    np.testing.assert_array_equal(ctrl.setpoints.position, rest.q[0])
+    sp = ctrl.setpoints
+    ctrl.phase = ctrl.phase.__class__.TRACKING
+    ctrl._compute(40 * 400e-6, sp)
+    np.testing.assert_allclose(sp.position, ctrl.motor_reference.q[40], rtol=0, atol=0)
+    np.testing.assert_allclose(sp.torque_offset, ctrl.motor_reference.torque[40], rtol=0, atol=0)
+    np.testing.assert_array_equal(ctrl._q_d, ref.q[40])  # the log keeps the link reference
+    assert np.abs(ctrl.motor_reference.deflection).max() > 1e-4
+
+
+def test_the_plain_controller_refuses_the_elastic_mode():
+    with pytest.raises(ControllerConfigError, match="ElasticController"):
+        Controller(_joint_reference(), ControllerConfig(mode=ELASTIC_MODE))
+    with pytest.raises(ControllerConfigError, match="expected 'model_based_elastic'"):
+        ElasticController(_joint_reference(), ControllerConfig(mode="model_based"))
