@@ -13,7 +13,8 @@ Addressing (``channel`` = ``"host:port"``):
 * a multicast group (224.0.0.0/4): every bus on the group and port sees every datagram
   (loopback included); a bus ignores its own datagrams by their sender id;
 * a unicast address: the bus binds there and sends to ``peer="host:port"``; without
-  ``peer`` it answers the address of the last accepted datagram.
+  ``peer`` it answers the address of the last accepted datagram (before the first one,
+  what it sends goes nowhere and is counted in ``stats.no_peer``).
 
 Wire format (version 1, all integers big-endian = network order) — documented in
 ``fieldbus/README.md`` so a controller in any language can speak it::
@@ -112,6 +113,7 @@ class TransportStats:
     injected_duplicates: int = 0
     injected_delays: int = 0
     send_overflows: int = 0
+    no_peer: int = 0
 
     def as_dict(self) -> dict[str, int]:
         return asdict(self)
@@ -338,8 +340,9 @@ class UdpCycleBus(BusABC):
         if self._held:
             self._release_held()
         destination = self._dest
-        if destination is None:
-            raise can.CanOperationError("udpcycle: no peer to send to yet (give peer='host:port')")
+        if destination is None:  # nobody to send to yet (no peer given, nothing received): as on an empty wire
+            self.stats.no_peer += 1
+            return
         self._sequence = (self._sequence + 1) & 0xFFFFFFFF
         payload = encode_datagram(msgs, self.sender_id, self._sequence, time.time_ns())
         self.stats.frames_sent += len(msgs)
