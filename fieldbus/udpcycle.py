@@ -62,6 +62,8 @@ from typing import Any
 import can
 from can import BusABC, CanProtocol, Message
 
+from fieldbus.telegrams import FastMessage
+
 INTERFACE_NAME = "udpcycle"
 MAGIC = b"RXCB"
 VERSION = 1
@@ -178,12 +180,15 @@ def decode_datagram(payload: bytes) -> tuple[int, int, int, list[Message]]:
             raise ValueError(f"frame {len(frames) + 1} length {length}, expected <= {MAX_DATA}")
         if offset + length > len(payload):
             raise ValueError(f"truncated: frame {len(frames) + 1} wants {length} data bytes")
-        frames.append(Message(timestamp=stamp, arbitration_id=can_id & ID_MASK,
-                              is_extended_id=bool(can_id & ID_EXTENDED), is_remote_frame=bool(can_id & ID_REMOTE),
-                              is_error_frame=bool(can_id & ID_ERROR), dlc=length,
-                              data=payload[offset:offset + length], is_fd=bool(flags & FLAG_FD),
-                              bitrate_switch=bool(flags & FLAG_BRS), error_state_indicator=bool(flags & FLAG_ESI),
-                              check=False))
+        msg = FastMessage(stamp, can_id & ID_MASK, bytearray(payload[offset:offset + length]),
+                          bool(can_id & ID_ERROR))
+        if can_id & (ID_EXTENDED | ID_REMOTE) or flags:
+            msg.is_extended_id = bool(can_id & ID_EXTENDED)
+            msg.is_remote_frame = bool(can_id & ID_REMOTE)
+            msg.is_fd = bool(flags & FLAG_FD)
+            msg.bitrate_switch = bool(flags & FLAG_BRS)
+            msg.error_state_indicator = bool(flags & FLAG_ESI)
+        frames.append(msg)
         offset += length
     if offset != len(payload):
         raise ValueError(f"{len(payload) - offset} bytes after the last of {count} frames")
