@@ -33,6 +33,7 @@ in it (the recorder's flush inside its sample). Shown per 400 us controller cycl
 Usage::
 
     python benchmarks/bench_closed_loop.py [--runs 5] [--sim-time 2.0] [--mode model_based] [--can-log] [--breakdown]
+        [--scenario scenarios/iso9283_elastic.toml]   # the elastic plant (modes incl. model_based_elastic)
 """
 from __future__ import annotations
 
@@ -49,6 +50,9 @@ TARGET_REALTIME = 3.0
 TARGET_P99_US = 100.0
 
 
+SCENARIO = ROOT / "scenarios" / "iso9283.toml"
+
+
 def build(sim_time: float, mode: str, can_log: Path | None = None):
     """Scenario, cell description and built-in controller of one run:
     ``cosim.cell.mode_runs.prepare`` and ``mode_cell`` (as ``run_mode``)."""
@@ -57,7 +61,7 @@ def build(sim_time: float, mode: str, can_log: Path | None = None):
     from cosim.cell.mode_runs import mode_cell, prepare
     from cosim.scenario import load_scenario
 
-    scenario = load_scenario(ROOT / "scenarios" / "iso9283.toml")
+    scenario = load_scenario(SCENARIO)
     doc = scenario.data
     doc["simulation"]["stop_time"] = sim_time
     doc["controller"]["modes"] = [mode]
@@ -154,10 +158,14 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--runs", type=int, default=5)
     parser.add_argument("--sim-time", type=float, default=2.0, help="simulated seconds per run")
-    parser.add_argument("--mode", default="model_based", choices=("standard", "standard_speed_ff", "model_based"))
+    parser.add_argument("--mode", default="model_based",
+                        choices=("standard", "standard_speed_ff", "model_based", "model_based_elastic"))
+    parser.add_argument("--scenario", type=Path, default=SCENARIO,
+                        help="an iso9283-job scenario (e.g. scenarios/iso9283_elastic.toml: the elastic plant)")
     parser.add_argument("--can-log", action="store_true", help="also write the CAN log (BLF)")
     parser.add_argument("--breakdown", action="store_true", help="one more run with a CPU-time breakdown per part")
     args = parser.parse_args()
+    globals()["SCENARIO"] = args.scenario.resolve()
     rows = []
     with tempfile.TemporaryDirectory(prefix="bench_closed_loop-") as tmp:
         one_run(0.05, args.mode, False, Path(tmp) / "warm-up")  # builds kernels/FMUs if needed, warms caches
@@ -174,7 +182,7 @@ def main() -> None:
            for k in ("realtime", "cpu_realtime", "p50", "p99", "max", "cpu_p50", "cpu_p99", "cpu_max", "misses",
                      "load_before", "load_after")}
     cycles = rows[0]["cycles"]
-    print(f"\nclosed loop ({args.mode}, {args.sim_time:g} s simulated, median of {args.runs}; "
+    print(f"\nclosed loop ({args.scenario.name}, {args.mode}, {args.sim_time:g} s simulated, median of {args.runs}; "
           f"load average {med['load_before']:.1f} -> {med['load_after']:.1f} on {os.cpu_count()} cores):")
     print(f"  real-time factor        {med['realtime']:.2f}x (wall)   {med['cpu_realtime']:.2f}x (CPU time)"
           f"   target >= {TARGET_REALTIME:g}x: wall {'MET' if med['realtime'] >= TARGET_REALTIME else 'MISSED'}, "

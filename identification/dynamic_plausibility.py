@@ -13,7 +13,9 @@
 * torques beyond :data:`EFFORT_LIMIT_FACTOR` times the URDF effort limits.
 
 :func:`check_fit` runs after the fit (exit 3, no parameter file written): a joint whose
-torque the model explains with a relative residual above :data:`MAX_RELATIVE_RESIDUAL`.
+torque the model explains with a relative residual above :data:`MAX_RELATIVE_RESIDUAL`, or a
+rotor inertia, friction coefficient or last-link inertia identified negative beyond
+:data:`NEGATIVE_SIGMAS` standard deviations.
 """
 from __future__ import annotations
 
@@ -44,6 +46,16 @@ EFFORT_LIMIT_FACTOR = 3.0
 
 MAX_RELATIVE_RESIDUAL = 0.5
 """Largest accepted RMS(torque residual) / RMS(torque) of a joint after the fit."""
+
+NON_NEGATIVE_PREFIXES = ("Ia", "fv", "fc")
+"""Base parameters that are single physical quantities which cannot be negative: rotor inertias,
+viscous and Coulomb friction coefficients."""
+
+NON_NEGATIVE_NAMES = ("Izz6",)
+"""Further base parameters that are one non-negative quantity (the last link's inertia about its axis)."""
+
+NEGATIVE_SIGMAS = 3.0
+"""A non-negative parameter is refused when it is below zero by more than this many standard deviations."""
 
 SCALE_SAMPLES = 400
 """Samples (evenly spread) used for the gravity-scale check."""
@@ -110,6 +122,16 @@ def check_fit(result, record, where: str) -> str | None:
     tau = np.asarray(record.tau, dtype=float)
     spread = np.sqrt(np.mean((tau - tau.mean(axis=0)) ** 2, axis=0))
     residual = np.asarray(estimate.residual_rms, dtype=float)
+    values = np.asarray(estimate.values, dtype=float)
+    std = np.asarray(estimate.std, dtype=float)
+    for k, name in enumerate(estimate.names):
+        if name.startswith(NON_NEGATIVE_PREFIXES) or name in NON_NEGATIVE_NAMES:
+            margin = NEGATIVE_SIGMAS * (std[k] if math.isfinite(std[k]) else 0.0)
+            if values[k] < -margin:
+                return (f"{where}: the identified {name} = {values[k]:.4g} is negative beyond {NEGATIVE_SIGMAS:g} "
+                        f"standard deviations ({std[k]:.3g}): physically impossible (a rotor inertia, a friction "
+                        f"coefficient or the last link's inertia cannot be negative); angles in degrees, "
+                        f"torques in the wrong unit or swapped columns are the usual causes")
     for j in range(tau.shape[1]):
         if not math.isfinite(residual[j]):
             return f"{where}: the fit of joint {j + 1} gave a non-finite residual"

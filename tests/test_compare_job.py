@@ -83,7 +83,7 @@ def test_model_based_entry_equals_the_main_job(runs):
 
 
 TRAJECTORIES = ("iso9283", "pick_place_joint", "line", "ruckig_feasible", "quintic_ptp")
-CONTROLLERS = ("standard", "standard_speed_ff", "model_based")
+CONTROLLERS = ("standard", "standard_speed_ff", "model_based", "feedforward_fmu")
 
 
 def test_table_ranks_every_entry_and_is_written_as_csv_and_json(runs):
@@ -91,7 +91,7 @@ def test_table_ranks_every_entry_and_is_written_as_csv_and_json(runs):
     rows = summary["table"]
     assert [r["trajectory"] for r in rows] == [t for t in TRAJECTORIES for _ in CONTROLLERS]
     for r in rows:
-        assert r["status"] == "ok" and r["rank"] in (1, 2, 3)
+        assert r["status"] == "ok" and r["rank"] in (1, 2, 3, 4)
         for key in ("tcp_error_max_mm", "tcp_error_rms_mm", "path_accuracy_AT_mm", "joint_lag_max_mrad",
                     "current_peak_ratio", "energy_J", "tau_squared_integral", "duration_s"):
             assert r[key] is not None and r[key] > 0.0, (r["trajectory"], r["controller"], key)
@@ -99,11 +99,14 @@ def test_table_ranks_every_entry_and_is_written_as_csv_and_json(runs):
         assert r["path_accuracy_AT_mm"] <= r["tcp_error_max_mm"] + 1e-9
     for traj in TRAJECTORIES:
         group = [r for r in rows if r["trajectory"] == traj]
-        assert [r["rank"] for r in group] == [1, 2, 3]
+        assert [r["rank"] for r in group] == [1, 2, 3, 4]
         errors = [r["tcp_error_max_mm"] for r in group]
         assert errors == sorted(errors)
-        # the drive cascade alone lags by far the most on every trajectory
+        # the drive cascade alone lags by far the most on every trajectory; the C controller FMU's
+        # decoupled feed-forward beats the drives' own speed feed-forward and comes close to eq. 7
         assert group[-1]["controller"] == "standard" and errors[-1] > 5 * errors[0], traj
+        order = [r["controller"] for r in group]
+        assert order.index("feedforward_fmu") < order.index("standard_speed_ff"), (traj, order)
     by = {(r["trajectory"], r["controller"]): r for r in rows}
     assert by[("pick_place_joint", "model_based")]["duration_s"] == pytest.approx(1.8)
     assert by[("line", "model_based")]["duration_s"] == pytest.approx(0.8)
@@ -152,3 +155,62 @@ def test_bad_entries_are_refused_before_running(tmp_path):
         load_scenario(_compare_toml(tmp_path, '["model_based"]', '["nope.py:P"]'))
     with pytest.raises(ScenarioError, match=r"compare.trajectories\[0\].file: .*missing.csv.*no such file"):
         load_scenario(_compare_toml(tmp_path, '["model_based"]', '["missing.csv"]'))
+    (tmp_path / "ctrl.py").write_text("class NoStep:\n    def setup(self, info): pass\n    def close(self): pass\n")
+    with pytest.raises(ScenarioError, match=r"compare.controllers\[1\].class: .*NoStep: no method step\(\)"):
+        load_scenario(_compare_toml(tmp_path, '["model_based", "ctrl.py:NoStep"]', '["iso9283"]'))
+    with pytest.raises(ScenarioError, match=r"compare.controllers\[1\].fmu: .*no such file"):
+        load_scenario(_compare_toml(tmp_path, '["model_based", "nothere.fmu"]', '["iso9283"]'))
+    source = ROOT / "examples" / "fmus" / "feedforward_controller"
+    with pytest.raises(ScenarioError, match=r"compare.controllers\[0\].*q_nope\[1\]"):
+        load_scenario(_compare_toml(tmp_path, f'[{{ fmu_source = "{source}", fmu_inputs = {{ "q_nope[1]" = '
+                                               '"position[1]" } }]', '["iso9283"]'))
+
+
+def test_a_failing_user_controller_is_a_failed_entry_and_the_others_run(tmp_path):
+    """A user controller that raises mid-run stops its own run cleanly (status failed, the reason,
+    its time series so far on disk); the comparison goes on and ranks the entries that ran."""
+    _joint_csv(tmp_path / "wave.csv")
+    (tmp_path / "flaky.py").write_text(
+        "from controller import ControllerOutput\n"
+        "from controller.tracking_clock import TrackingClock\n"
+        "class Flaky:\n"
+        "    def setup(self, info):\n"
+        "        self.clock = TrackingClock(info, settle_time_s=0.05)\n"
+        "        self.out = ControllerOutput.zeros(info.n_joints)\n"
+        "    def step(self, inputs):\n"
+        "        tau = self.clock.update(inputs, self.out.controlword)\n"
+        "        if inputs.time_s > 0.15:\n"
+        "            raise RuntimeError('sensor model diverged')\n"
+        "        self.out.target_position[:] = self.clock.reference(tau)[0]\n"
+        "        return self.out\n"
+        "    def close(self):\n"
+        "        pass\n", encoding="utf-8")
+    path = _compare_toml(tmp_path, '["model_based", "flaky.py:Flaky"]', '["wave.csv"]',
+                         [("figures = true", "figures = false")])
+    code, summary = run_scenario(path, tmp_path / "out")
+    assert code == 0, summary.get("reason")
+    rows = {r["controller"]: r for r in summary["table"]}
+    assert rows["model_based"]["status"] == "ok" and rows["model_based"]["rank"] == 1
+    assert rows["Flaky"]["status"] == "failed" and rows["Flaky"]["rank"] is None
+    entry = summary["entries"]["Flaky__wave"]
+    assert "sensor model diverged" in entry["failure"] and summary["failed_entries"] == ["Flaky__wave"]
+    with open(tmp_path / "out" / "timeseries_Flaky__wave.csv", newline="") as handle:
+        times = [float(r["time"]) for r in csv.DictReader(handle)]
+    assert 0.14 < times[-1] < 0.2
+
+
+def test_split_execution_gives_the_in_process_numbers(tmp_path):
+    """cosim run --split: controller and drives in two processes over UDP; same table as in process."""
+    import json
+
+    from cosim.cli import main
+
+    _joint_csv(tmp_path / "wave.csv")
+    path = _compare_toml(tmp_path, '["model_based"]', '["wave.csv"]', [("figures = true", "figures = false")])
+    tables = []
+    for extra in ([], ["--split"]):
+        out = tmp_path / ("split" if extra else "in_process")
+        assert main(["run", str(path), "--out", str(out), "--quiet", *extra]) == 0
+        tables.append(json.loads((out / "summary.json").read_text())["table"])
+    assert tables[0][0]["status"] == tables[1][0]["status"] == "ok"
+    assert tables[1][0]["tcp_error_max_mm"] == tables[0][0]["tcp_error_max_mm"]

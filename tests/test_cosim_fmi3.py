@@ -247,5 +247,10 @@ def test_clock_and_binary_cannot_be_connected(fmi3_dir, pythonfmu_models_dir, tm
     m = Master(0.01)
     m.add_fmu("e", fmi3_dir / "Ending3.fmu")
     m.add_fmu("s", pythonfmu_models_dir / "Sampler.fmu")
+    m.add_fmu("a", fmi3_dir / "Arrays3.fmu")
     with pytest.raises(MasterConfigError, match="'tick' is an FMI 3.0 Clock"):
         m.connect("e.tick -> s.b_in")
+    with pytest.raises(MasterConfigError, match="variables of type String cannot be connected"):
+        m.connect("a.label -> s.u")
+    with pytest.raises(MasterConfigError, match="'label' is an FMI 3.0 String"):
+        Master(0.01).add_fmu("a", fmi3_dir / "Arrays3.fmu", start_values={"label": "x"})

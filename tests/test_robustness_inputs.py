@@ -121,6 +121,8 @@ def test_python_m_cosim_prints_one_line_and_no_traceback(tmp_path):
     ((("payload_com = [0.0, 0.0, 0.08]", "payload_com = [0.0, 0.0, 1e6]"),), "true_robot.payload_com[2]",
      ["<= 1"]),
     ((('stop_time = "12.6 s"', "stop_time = 1e300"),), "simulation.stop_time", ["max_base_steps"]),
+    ((('signals = ["drive*.current_demand"]', 'signals = ["drive*.current_demand"]\nfile = "mine.csv"'),),
+     "record.file", ["does not use", "timeseries_<mode>.csv"]),
 ])
 def test_robot_cell_scenarios_refused_at_validation(tmp_path, capsys, edits, key, fragments):
     path = iso(tmp_path, *edits)
@@ -360,3 +362,19 @@ def test_sweep_scheduler_that_does_not_answer(tmp_path, capsys):
     code, err = cli(capsys, "sweep", path, "--scheduler", "tcp://127.0.0.1:9", "--out", tmp_path / "o", "--quiet")
     assert code == 2 and "--scheduler 'tcp://127.0.0.1:9'" in one_error_line(err) and "no Dask scheduler" in err
     assert time.perf_counter() - t0 < SCHEDULER_CONNECT_TIMEOUT_S + 20
+
+
+def test_identify_refuses_physically_impossible_parameters():
+    from types import SimpleNamespace
+
+    from identification.dynamic_plausibility import check_fit
+
+    record = SimpleNamespace(tau=np.ones((10, 6)) + np.arange(10)[:, None])
+    estimate = SimpleNamespace(names=("Izz1R", "Ia3", "fv2"), values=np.array([1.0, -0.5, 0.1]),
+                               std=np.array([0.1, 0.01, 0.01]), residual_rms=np.zeros(6))
+    reason = check_fit(SimpleNamespace(estimate=estimate), record, "rec.csv")
+    assert reason is not None and "Ia3" in reason and "physically impossible" in reason
+    estimate.values[1] = -0.02  # within 3 standard deviations of zero: noise, accepted
+    assert check_fit(SimpleNamespace(estimate=estimate), record, "rec.csv") is None
+    estimate.residual_rms = np.full(6, 100.0)  # explains nothing
+    assert "unexplained" in check_fit(SimpleNamespace(estimate=estimate), record, "rec.csv")

@@ -75,7 +75,11 @@ def check_cell(doc: dict[str, Any], where: Where, job_set_drive_parameters: Mapp
                                          f"the cell needs {sorted(needed)}", problem=f"FMU {name!r} missing")
     variables = {name: type_ for name, (type_, _) in wiring.cell_variables().items()}
     # the scenario's own connections first (their indices are the file's), then the generated ones
-    check_cosim_tables({**doc, "connections": wiring.merged_connections(doc["connections"])}, where,
+    try:
+        drive_variables = wiring.drive_variables_of(doc["fmus"])
+    except Exception:  # noqa: BLE001 - an FMU file that cannot be read: check_cosim_tables names it
+        drive_variables = None
+    check_cosim_tables({**doc, "connections": wiring.merged_connections(doc["connections"], drive_variables)}, where,
                        master_variables=variables)
     for name, builtin in needed.items():
         i, fmu = by_name[name]
@@ -114,6 +118,10 @@ def check_cell(doc: dict[str, Any], where: Where, job_set_drive_parameters: Mapp
                 raise (where / "fmus")[by_name[fmu["name"]][0]].error(
                     f"a step that divides the {table} period {value!r} s (it reads FMU outputs then)", step,
                     problem="FMU step does not divide the period")
+    if doc.get("record") is not None and doc["record"].get("file", "timeseries.csv") != "timeseries.csv":
+        raise (where / "record" / "file").error(
+            "no file name here: a robot-cell job writes one time series per mode (timeseries_<mode>.csv)",
+            doc["record"]["file"], problem="key the job does not use")
     if doc.get("record") is not None and not is_integer_multiple(doc["record"]["period"], base):
         raise (where / "record" / "period").error(f"a positive integer multiple of macro_step = {base!r} s",
                                                   doc["record"]["period"])

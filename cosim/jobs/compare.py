@@ -40,6 +40,7 @@ from typing import Any
 
 import numpy as np
 
+from controller import ControllerLog
 from cosim.cell import wiring
 from cosim.cell.description import describe_cell
 from cosim.cell.evaluation import evaluate_run
@@ -85,29 +86,85 @@ TABLE_COLUMNS: tuple[str, ...] = ("trajectory", "controller", "rank", "status", 
 
 
 class ControllerEntry(Spec):
-    """A controller of the comparison: a built-in mode name, or a table."""
+    """A controller of the comparison: a built-in mode name, a user controller class or FMU, or a table."""
 
-    expected = (f"a built-in mode ({', '.join(repr(m) for m in BUILTIN_MODES)}) or a table "
-                "{name = ..., mode = ...}")
+    expected = (f"a built-in mode ({', '.join(repr(m) for m in BUILTIN_MODES)}), a controller class as {SPEC_FORM}, "
+                "a controller FMU 'path.fmu', or a table with one of the keys mode, class, fmu, fmu_source")
     TABLE = Table({
         "name": Field(String(pattern=NAME_PATTERN, pattern_doc="of letters, digits, _ - ."),
                       doc="the entry's name in the table and file names"),
         "mode": Field(String(choices=tuple(BUILTIN_MODES)), doc="a built-in mode of the main job"),
-        "drive_speed_feedforward": Field(Boolean(), doc="built-in modes: override the mode's drive speed "
-                                                        "feed-forward (default: the mode's)"),
-    }, one_of=[("mode",)], doc="a controller table")
+        "class": Field(String(), doc=f"a user controller class (controller.CellController) as {SPEC_FORM}"),
+        "fmu": Field(String(), doc="an FMI 2.0 co-simulation controller FMU (relative to the scenario file)"),
+        "fmu_source": Field(String(), doc="a folder with the controller FMU's modelDescription.xml and C files: "
+                                          "built with the system C compiler (fmus.source_fmu)"),
+        "parameters": Field(Table({}, extra=AnyValue(), doc="keyword arguments of the class / FMU parameters"),
+                            default={}),
+        "fmu_inputs": Field(Table({}, extra=String(), doc="FMU input = controller input field, e.g. "
+                                                          "q1 = 'position[1]'"), default={}),
+        "fmu_outputs": Field(Table({}, extra=String(), doc="FMU output = controller output field, e.g. "
+                                                           "tau1 = 'torque_offset[1]'"), default={}),
+        "drive_speed_feedforward": Field(Boolean(), doc="the drives' own speed feed-forward from target "
+                                                        "differences (default: the mode's; false for user "
+                                                        "controllers)"),
+    }, one_of=[("mode", "class", "fmu", "fmu_source")], doc="a controller table")
 
     def check(self, value: Any, where: Where) -> dict[str, Any]:
         if isinstance(value, str):
             if value in BUILTIN_MODES:
-                return {"name": value, "kind": "mode", "mode": value}
-            raise where.error(self.expected, value)
+                return {"name": value, "kind": "mode", "mode": value, "parameters": {}}
+            if value.lower().endswith(".fmu"):
+                value = {"fmu": value}
+            elif is_class_spec(value):
+                value = {"class": value}
+            else:
+                raise where.error(self.expected, value)
         if not isinstance(value, dict):
             raise where.error(self.expected, value)
         table = self.TABLE.check(value, where)
-        out = {"kind": "mode", **table}
-        out.setdefault("name", table["mode"])
-        return out
+        if "mode" in table:
+            return {"kind": "mode", "name": table["mode"], **table}
+        if "class" in table:
+            table["kind"] = "class"
+            table.setdefault("name", table["class"].rpartition(":")[2].split(".")[-1])
+            return table
+        key = "fmu" if "fmu" in table else "fmu_source"
+        path = Path(table[key]).expanduser()
+        table[key] = path if path.is_absolute() else where.base_dir / path
+        table["kind"] = "fmu"
+        table.setdefault("name", table[key].stem if key == "fmu" else table[key].name)
+        return table
+
+    # the class file, FMU or FMU source folder of an entry travels with a sweep's tasks
+    def referenced_file(self, value: Any) -> str | None:
+        if isinstance(value, dict):
+            for key in ("fmu", "fmu_source"):
+                if isinstance(value.get(key), str):
+                    return value[key]
+            return class_spec_file(value.get("class"))
+        if isinstance(value, str) and value.lower().endswith(".fmu"):
+            return value
+        return class_spec_file(value) if isinstance(value, str) and value not in BUILTIN_MODES else None
+
+    def relocated(self, value: Any, path: str) -> Any:
+        if isinstance(value, dict):
+            for key in ("fmu", "fmu_source"):
+                if isinstance(value.get(key), str):
+                    return {**value, key: path}
+            return {**value, "class": with_class_file(value["class"], path)}
+        return path if value.lower().endswith(".fmu") else with_class_file(value, path)
+
+
+def user_controller_table(entry: dict[str, Any]) -> dict[str, Any]:
+    """The entry as a ``[controller]``-like table for :mod:`cosim.cell.user_controller` (FMU built from
+    its source folder first when ``fmu_source`` is given)."""
+    ctrl = {"parameters": dict(entry.get("parameters") or {}), "fmu_inputs": dict(entry.get("fmu_inputs") or {}),
+            "fmu_outputs": dict(entry.get("fmu_outputs") or {})}
+    if entry["kind"] == "class":
+        ctrl["class"] = entry["class"]
+    else:
+        ctrl["fmu"] = entry.get("fmu") or entry["fmu_built"]
+    return ctrl
 
 
 class TrajectoryEntry(Spec):
@@ -206,6 +263,8 @@ def check(doc: dict[str, Any], where: Where) -> None:
     check_cell_scenario(doc, where)
     planners_job._fill(doc)
     cmp_t = doc["compare"]
+    for k, entry in enumerate(cmp_t["controllers"]):
+        _check_user_controller(doc, entry, (where / "compare" / "controllers")[k])
     _unique_names(cmp_t["controllers"], where / "compare" / "controllers")
     for k, entry in enumerate(cmp_t["trajectories"]):
         at = (where / "compare" / "trajectories")[k]
@@ -215,6 +274,22 @@ def check(doc: dict[str, Any], where: Where) -> None:
         elif entry["kind_of"] == "file":
             _load_file(doc, entry, at, check_only=True)
     _unique_names(cmp_t["trajectories"], where / "compare" / "trajectories")
+
+
+def _check_user_controller(doc: dict[str, Any], entry: dict[str, Any], at: Where) -> None:
+    """A user controller entry loaded and checked against the contract (FMU: built, its mapping checked)."""
+    from cosim.cell.user_controller import check_user_controller
+    from cosim.scenario.cosim_tables import resolve_source
+
+    if entry["kind"] == "mode":
+        return
+    if entry["kind"] == "fmu":
+        if "fmu_source" in entry:
+            entry["fmu_built"] = resolve_source(str(entry["fmu_source"]), at / "fmu_source")
+        elif not Path(entry["fmu"]).is_file():
+            raise (at / "fmu").error("a controller FMU file (relative to the scenario file's folder)",
+                                     str(entry["fmu"]), problem="no such file")
+    check_user_controller(user_controller_table(entry), at)
 
 
 def _unique_names(entries: list[dict[str, Any]], where: Where) -> None:
@@ -366,23 +441,28 @@ def _evaluate_joint(ctx: RunContext, label: str, cell: CellRun, controller: Any,
     from cosim.jobs.columns_csv import write_columns_csv
     from robot.kinematics import FlangeKinematics
 
-    log = controller.log.columns()
-    write_columns_csv(ctx.path(f"controller_{label}.csv"), log)
     rec = cell.recording
     cols, data = rec.columns, rec.data
     t = data[:, 0]
     q = data[:, [cols.index(f"{wiring.PLANT}.q[{i}]") for i in range(1, 7)]]
     measured = data[:, [cols.index(s) for s in ("tracker.x", "tracker.y", "tracker.z")]]
-    stack = [np.column_stack([log[f"{g}{j}"] for j in range(1, 7)]) for g in ("q_d", "qd_d", "qdd_d")]
-    ok = np.isfinite(stack[0]).all(axis=1)
-    q_d = desired_joints(t, log["t_apply"][ok], stack[0][ok], stack[1][ok], stack[2][ok]) if ok.any() else q.copy()
-    true_kin = FlangeKinematics(setup.true_robot.kinematic_model())
-    commanded = true_kin.transforms(q_d)[:, :3, 3] if t.size else measured
-    actual = true_kin.transforms(q)[:, :3, 3] if t.size else measured
-    start = controller.motion_start_s
+    start = getattr(controller, "motion_start_s", None)
     traj = motion.trajectory
     tau = np.clip(t - (start if start is not None else np.inf), 0.0, traj.duration)
     planned_q = traj.sample(traj.t[0] + tau).q
+    builtin = isinstance(getattr(controller, "log", None), ControllerLog)
+    if builtin:
+        log = controller.log.columns()
+        write_columns_csv(ctx.path(f"controller_{label}.csv"), log)
+        stack = [np.column_stack([log[f"{g}{j}"] for j in range(1, 7)]) for g in ("q_d", "qd_d", "qdd_d")]
+        ok = np.isfinite(stack[0]).all(axis=1)
+        q_d = (desired_joints(t, log["t_apply"][ok], stack[0][ok], stack[1][ok], stack[2][ok]) if ok.any()
+               else q.copy())
+    else:  # a user's controller: the reference itself, aligned at its motion start (the start pose before)
+        q_d = planned_q.copy()
+    true_kin = FlangeKinematics(setup.true_robot.kinematic_model())
+    commanded = true_kin.transforms(q_d)[:, :3, 3] if t.size else measured
+    actual = true_kin.transforms(q)[:, :3, 3] if t.size else measured
     programmed = FlangeKinematics(setup.kinematics).transforms(planned_q)[:, :3, 3] if t.size else measured
     t_end = start + traj.duration if start is not None else -1.0
     window = (start if start is not None else np.inf, min(t_end, float(t[-1]) if t.size else -1.0))
@@ -394,15 +474,16 @@ def _evaluate_joint(ctx: RunContext, label: str, cell: CellRun, controller: Any,
     for j in range(6):
         series[f"lag{j + 1}"] = q_d[:, j] - q[:, j]
     write_columns_csv(ctx.path(f"tcp_{label}.csv"), series)
-    timing = controller.timing()
+    timing = controller.timing() if builtin else cell.controller_timing
     entry = {"status": "ok" if cell.failure is None else "failed", **result.metrics([motion.name]),
-             "deadline_misses": timing.deadline_misses, "compute_budget_us": timing.budget_us,
-             "cycle_compute_us": {"p50": timing.p50_us, "p99": timing.p99_us, "max": timing.max_us},
+             "deadline_misses": getattr(timing, "deadline_misses", None),
+             "compute_budget_us": getattr(timing, "budget_us", None),
+             "cycle_compute_us": {k: getattr(timing, f"{k}_us", None) for k in ("p50", "p99", "max")},
              "motion_start_s": start, "sim_time_s": cell.reached_s, "loop_wall_time_s": cell.loop_wall_time_s,
              "path_completed": bool(start is not None and t.size and t[-1] >= t_end - 1e-9),
-             "stop_reason": controller.stop_reason,
-             "files": {"timeseries": f"timeseries_{label}.csv", "controller": f"controller_{label}.csv",
-                       "tcp": f"tcp_{label}.csv"}}
+             "stop_reason": getattr(controller, "stop_reason", None),
+             "files": {"timeseries": f"timeseries_{label}.csv", "tcp": f"tcp_{label}.csv",
+                       **({"controller": f"controller_{label}.csv"} if builtin else {})}}
     if cell.failure is not None:
         entry["failure"] = str(cell.failure)
     return entry, result
@@ -439,31 +520,89 @@ def _drive_metrics(cell: CellRun, doc_fmus: list[dict[str, Any]], window: tuple[
             "energy_J": energy, "tau_squared_integral": tau_sq}
 
 
-def run_entry(ctx: RunContext, setup: CellSetup, ctrl: dict[str, Any], motion: _Motion
+def _user_description(ctx: RunContext, setup: CellSetup, ctrl: dict[str, Any], motion: _Motion, controller: Any,
+                      label: str, stop_time: float, extra_signals: list[str]):
+    """(document, cell description) of a user controller on ``motion``: told the motion's reference (the ISO
+    path's TCP trajectory or the joint trajectory), the start pose, the controller's models and the entry's
+    parameters; the drives run their plain cascade unless the entry sets drive_speed_feedforward."""
+    from controller import JointTrajectory, start_configuration
+    from planners.iso9283 import ISO_Q_HINT
+
+    doc, ctrl_t = setup.doc, setup.doc["controller"]
+    if motion.kind_of == "iso9283":
+        reference = setup.reference
+        q_start = start_configuration(setup.reference, setup.kinematics, np.array(ISO_Q_HINT))
+    else:
+        reference = JointTrajectory.from_planner_trajectory(motion.trajectory, ctrl_t["period"])
+        q_start = np.array(motion.trajectory.q[0])
+    info = controller_info(controller, setup.fieldbus, label=label, parameters=ctrl.get("parameters"),
+                           source=setup.source, reference=reference, q_start=q_start,
+                           kinematic_model=setup.kinematics, dynamics=setup.dynamics,
+                           compute_budget_s=ctrl_t["compute_budget"])
+    run_doc = {**doc, "fmus": mode_fmus(doc["fmus"], bool(ctrl.get("drive_speed_feedforward", False)))}
+    can_log = ctx.path(f"can_{label}.blf") if doc["results"]["can_log"] else None
+    return run_doc, describe_cell(run_doc, setup.true_robot, info, label=label, stop_time=stop_time,
+                                  fieldbus=setup.fieldbus, tracker=setup.tracker,
+                                  record_file=f"timeseries_{label}.csv", can_log=can_log,
+                                  extra_signals=extra_signals)
+
+
+def _largest(values: Any) -> float:
+    """The largest finite value of ``values`` (nan when there is none)."""
+    arr = np.asarray(values if values is not None else [], dtype=float)
+    finite = arr[np.isfinite(arr)]
+    return float(finite.max()) if finite.size else float("nan")
+
+
+def run_entry(ctx: RunContext, setup: CellSetup, ctrl: dict[str, Any], motion: _Motion, where: Where
               ) -> tuple[dict[str, Any], Any]:
-    """Run one controller on one motion through the cell and evaluate it: (record, TrackingResult or None)."""
+    """Run one controller on one motion through the cell and evaluate it: (record, TrackingResult or None).
+
+    A user controller that cannot be made (its constructor raises) gives a failed entry, not an error."""
+    from cosim.scenario.errors import ScenarioError
+
     doc = setup.doc
     label = f"{ctrl['name']}__{motion.name}"
     stop_time = _stop_time(doc, motion)
-    run_doc, controller = _controller_for(setup, ctrl, motion, stop_time)
-    can_log = ctx.path(f"can_{label}.blf") if doc["results"]["can_log"] else None
     demand = [f"{d}.current_demand" for d in wiring.DRIVES]
-    description = describe_cell(run_doc, setup.true_robot, controller_info(controller, setup.fieldbus, label=label),
-                                label=label, stop_time=stop_time, fieldbus=setup.fieldbus, tracker=setup.tracker,
-                                record_file=f"timeseries_{label}.csv", can_log=can_log, extra_signals=demand)
+    if ctrl["kind"] == "mode":
+        run_doc, controller = _controller_for(setup, ctrl, motion, stop_time)
+        can_log = ctx.path(f"can_{label}.blf") if doc["results"]["can_log"] else None
+        description = describe_cell(run_doc, setup.true_robot,
+                                    controller_info(controller, setup.fieldbus, label=label), label=label,
+                                    stop_time=stop_time, fieldbus=setup.fieldbus, tracker=setup.tracker,
+                                    record_file=f"timeseries_{label}.csv", can_log=can_log, extra_signals=demand)
+    else:
+        from cosim.cell.user_controller import make_user_controller
+
+        table = {**user_controller_table(ctrl), "settle_time": doc["controller"]["settle_time"]}
+        try:
+            controller = make_user_controller(table, where)
+        except ScenarioError as exc:
+            return {"status": "failed", "failure": str(exc), "trajectory": motion.name,
+                    "controller": {"kind": ctrl["kind"]}}, None
+        run_doc, description = _user_description(ctx, setup, ctrl, motion, controller, label, stop_time, demand)
     cell = run_cell(description, controller, ctx)
     if motion.kind_of == "iso9283":
-        entry, result = evaluate_run(ctx, label, cell, controller, setup.reference, setup.path, setup.true_robot)
+        user = {} if ctrl["kind"] == "mode" else {"kinematic_model": setup.kinematics,
+                                                  "q_start": description.controller.q_start,
+                                                  "port_timing": cell.controller_timing}
+        entry, result = evaluate_run(ctx, label, cell, controller, setup.reference, setup.path, setup.true_robot,
+                                     **user)
         duration = setup.path.duration
     else:
         entry, result = _evaluate_joint(ctx, label, cell, controller, motion, setup)
         duration = motion.trajectory.duration
-    start = controller.motion_start_s
+    start = getattr(controller, "motion_start_s", None)
     window = (start, start + duration) if start is not None else (math.inf, -math.inf)
     entry.update(_drive_metrics(cell, run_doc["fmus"], window))
-    entry.update(controller={"kind": ctrl["kind"], "mode": ctrl.get("mode")}, trajectory=motion.name,
-                 duration_s=duration, joint_lag_max_mrad=float(np.nanmax(entry["joint_lag_max_rad"]) * 1e3)
-                 if entry.get("joint_lag_max_rad") is not None else float("nan"), stop_time_s=stop_time)
+    entry.update(controller={"kind": ctrl["kind"], "mode": ctrl.get("mode"), "class": ctrl.get("class"),
+                             "fmu": str(ctrl.get("fmu") or ctrl.get("fmu_source") or "") or None},
+                 trajectory=motion.name, duration_s=duration,
+                 joint_lag_max_mrad=_largest(entry.get("joint_lag_max_rad")) * 1e3, stop_time_s=stop_time)
+    if cell.failure is not None:
+        entry["status"] = "failed"
+        entry.setdefault("failure", str(cell.failure))
     return entry, result
 
 
@@ -528,7 +667,8 @@ def run(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
             label = f"{ctrl['name']}__{motion.name}"
             entry = None
             if motion.trajectory is not None or motion.kind_of == "iso9283":
-                entry, result = run_entry(ctx, setup, ctrl, motion)
+                at = (Where(scenario.path) / "compare" / "controllers")[cmp_t["controllers"].index(ctrl)]
+                entry, result = run_entry(ctx, setup, ctrl, motion, at)
                 entries[label] = entry
                 results[(motion.name, ctrl["name"])] = result
             rows.append(_row(ctrl["name"], motion, entry))

@@ -113,11 +113,24 @@ def _parse_start(text, fmi_type: str, count: int, name: str) -> list | None:
 
 
 def flatten(md: ModelDescription) -> list[Fmi3Element]:
-    """The bus elements of an FMI 3.0 model description (independent variable and Strings left out)."""
+    """The elements of an FMI 3.0 model description (the independent variable left out).
+
+    Elements the adapter exchanges come first, numbered 0, 1, ... (``valueReference``);
+    String elements follow with ``valueReference`` -1: they are known by name (so a
+    connection or recording of one is refused for its type) but never exchanged.
+    """
     by_vr = {v.valueReference: v for v in md.modelVariables}
     out: list[Fmi3Element] = []
+    strings: list[Fmi3Element] = []
     for v in md.modelVariables:
-        if v.causality == "independent" or v.type not in TYPE_CODE:
+        if v.causality == "independent":
+            continue
+        if v.type not in TYPE_CODE:
+            dims = _dimensions(v, by_vr)
+            names = ([f"{v.name}[{','.join(map(str, i))}]" for i in itertools.product(*(range(1, n + 1) for n in dims))]
+                     if dims else [v.name])
+            strings += [Fmi3Element(n, v.type, v.causality, v.variability, v.initial, -1, v.valueReference, k,
+                                    len(names), v.name, None, v.description) for k, n in enumerate(names)]
             continue
         dims = _dimensions(v, by_vr)
         count = int(np.prod(dims)) if dims else 1
@@ -130,7 +143,7 @@ def flatten(md: ModelDescription) -> list[Fmi3Element]:
         for k, name in enumerate(names):
             out.append(Fmi3Element(name, v.type, v.causality, v.variability, v.initial, len(out), v.valueReference,
                                    k, count, v.name, None if starts is None else starts[k], v.description))
-    return out
+    return out + strings
 
 
 def check_fmi3_start(variable: Fmi3Element, value: object) -> str | None:
@@ -138,8 +151,9 @@ def check_fmi3_start(variable: Fmi3Element, value: object) -> str | None:
     if variable.causality == "structuralParameter":
         return (f"a variable whose start value can be set ('{variable.name}' is a structural parameter, "
                 f"set only in configuration mode, which the master does not use)")
-    if variable.type in READ_ONLY_TYPES:
-        return f"a Float, Int, UInt or Boolean variable ('{variable.name}' is a {variable.type})"
+    if variable.type in READ_ONLY_TYPES or variable.type not in TYPE_CODE:
+        return (f"a Float, Int, UInt or Boolean variable ('{variable.name}' is an FMI 3.0 {variable.type}, "
+                f"whose start value the master does not set)")
     if not (variable.causality == "input" or (variable.variability != "constant"
                                               and variable.initial in ("exact", "approx"))):
         return (f"a variable whose start value can be set (causality {variable.causality}, variability "
@@ -188,6 +202,7 @@ class Fmi3Binding:
 
     def __init__(self, elements: list[Fmi3Element], dll: ctypes.CDLL, instance: int, event_mode_used: bool,
                  stop_at_address: int | None) -> None:
+        elements = [e for e in elements if e.valueReference >= 0]  # Strings are never exchanged
         lib = load_fmi3_adapter()
         if lib is None:
             raise MasterConfigError("FMI 3.0 FMUs need the master's compiled FMI 3.0 adapter "

@@ -180,15 +180,17 @@ def check_connection_ends(source: ScalarVariable | None, destination: ScalarVari
     type is ``source_type``. The destination must be an input; types must match
     (Enumeration and Integer both travel as Integer).
     """
+    src_type = source.type if source is not None else source_type
+    for end, what in ((source, "source"), (destination, "destination")):  # the type first: it cannot be fixed
+        if end is not None and end.type in READ_ONLY_TYPES:
+            return (f"a Float, Int, UInt, Boolean or Enumeration variable as {what} ('{end.name}' is an FMI 3.0 "
+                    f"{end.type}: clocks and binaries are read and recorded, not connected)")
+        if end is not None and isinstance(end, Fmi3Element) and end.valueReference < 0:
+            return f"{MasterTypeUnsupported(end.type)} ('{end.name}' is an FMI 3.0 {end.type}, the {what})"
     if destination.causality != "input":
         return f"an input as destination ('{destination.name}' has causality {destination.causality})"
     if source is not None and source.causality != "output":
         return f"an output as source ('{source.name}' has causality {source.causality})"
-    src_type = source.type if source is not None else source_type
-    for end, what in ((source, "source"), (destination, "destination")):
-        if end is not None and end.type in READ_ONLY_TYPES:
-            return (f"a Float, Int, UInt, Boolean or Enumeration variable as {what} ('{end.name}' is an FMI 3.0 "
-                    f"{end.type}: clocks and binaries are read and recorded, not connected)")
     try:
         if bus_type(src_type) != bus_type(destination.type):
             return (f"matching types (source is {src_type}, destination '{destination.name}' "

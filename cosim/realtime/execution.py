@@ -20,7 +20,7 @@ from cosim.realtime.pacer import LatenessLog
 from cosim.realtime.stats import combine, lateness_summary, load_average, write_histogram
 
 #: Jobs whose runs go through cosim.cell.runner.run_cell (and so honour --realtime/--split).
-CELL_JOBS = frozenset({"iso9283", "fieldbus_fault", "identification", "planners"})
+CELL_JOBS = frozenset({"iso9283", "fieldbus_fault", "identification", "planners", "compare"})
 
 
 class CellExecution:

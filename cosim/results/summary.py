@@ -19,6 +19,10 @@ from pathlib import Path
 from typing import Any
 
 
+#: Stands for the signal's name in the crash summary (crashguard.c writes the name there).
+_SIGNAL_MARK = "@@SIGNAL@@"
+
+
 def _json_safe(value: Any) -> Any:
     if isinstance(value, float):
         return value if math.isfinite(value) else None
@@ -46,6 +50,7 @@ class SummaryWriter:
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._wall0 = time.perf_counter()
+        self._guarded = False
         self.data: dict[str, Any] = {
             "scenario": scenario,
             "job": job,
@@ -62,8 +67,28 @@ class SummaryWriter:
         """Wall time since the writer was created, s."""
         return time.perf_counter() - self._wall0
 
+    def _guard(self) -> None:
+        """Prepare the summary a fatal signal leaves (crashguard.py), or drop it once the run ended."""
+        from cosim.results import crashguard
+
+        if self.data.get("status") != "running":
+            crashguard.disarm()
+            return
+        if not self._guarded:
+            self._guarded = crashguard.install(self.path)
+            if not self._guarded:
+                return
+        last = self.data.get("sim_time_s")
+        crash = dict(self.data, status="failed", signal=_SIGNAL_MARK, stopped_at_s=last,
+                     reason=f"the run's process died from {_SIGNAL_MARK} (a crash in native code: an in-process "
+                            f"FMU or a compiled helper); last progress recorded at t = {last} s. Run third-party "
+                            f"FMUs out of process to isolate them (docs/robustness.md)")
+        text = json.dumps(_json_safe(crash), indent=2, allow_nan=False) + "\n"
+        crashguard.arm(text.replace(_SIGNAL_MARK, "\x01"))
+
     def write(self) -> None:
         """Rewrite the file atomically (temporary file + rename); no ``.tmp`` is left when it fails."""
+        self._guard()
         text = json.dumps(_json_safe(self.data), indent=2, allow_nan=False) + "\n"
         tmp = self.path.with_name(self.path.name + ".tmp")
         try:
@@ -85,6 +110,7 @@ class SummaryWriter:
             return
         except OSError:
             pass
+        self._guard()
         text = json.dumps(_json_safe(self.data), indent=None, allow_nan=False) + "\n"
         try:
             with open(self.path, "w", encoding="utf-8") as handle:
@@ -99,6 +125,14 @@ class SummaryWriter:
         self.data["wall_time_s"] = wall
         self.data["realtime_factor"] = sim_time_s / wall if wall > 0 else None
         self.write()
+
+    def note_progress(self, sim_time_s: float) -> None:
+        """Record the simulated time reached for the crash summary only (no file write; cheap enough
+        for every progress-bar update)."""
+        self.data["sim_time_s"] = round(float(sim_time_s), 12)
+        self.data["wall_time_s"] = self.wall_time_s
+        if self._guarded:
+            self._guard()
 
     def update(self, **fields: Any) -> None:
         """Add or replace job-specific fields; rewrite."""

@@ -81,7 +81,7 @@ class RunContext:
     def attach(self, master: Master, total_s: float, label: str = "") -> None:
         """Add the heartbeat task (progress bar, summary.json sim_time_s) to ``master`` (before initialize)."""
         period = master.base_step * max(1, math.floor(total_s / HEARTBEATS_PER_RUN / master.base_step))
-        state = {"bar": 0.0, "summary": time.perf_counter()}
+        state = {"bar": 0.0, "summary": time.perf_counter(), "guard": 0.0}
         self.label = label
 
         def heartbeat(t: float) -> None:
@@ -92,6 +92,9 @@ class RunContext:
             if now - state["summary"] > SUMMARY_INTERVAL_S:
                 self.summary.progress(self._base + t - master.start_time)
                 state["summary"] = now
+            elif now - state["guard"] > PROGRESS_INTERVAL_S:  # what a crash would leave (crashguard)
+                self.summary.note_progress(self._base + t - master.start_time)
+                state["guard"] = now
 
         master.add_task(heartbeat, period, priority=1_000_000, name="cosim.heartbeat")
         self._totals[id(master)] = total_s

@@ -1,0 +1,93 @@
+"""A user controller: joint PD + gravity compensation in cyclic synchronous torque (CiA 402 mode 10).
+
+    tau = Kp (q_d - q) + Kd (qd_d - qd) + g(q)   [+ M(q_d) qdd_d with inertia_feedforward = true]
+
+sent to every drive as its target torque (0x6071) in modes of operation 10 (CST): the drives'
+position and speed loops are bypassed, the controller closes the loops itself over the
+fieldbus at the bus cycle. An example of the controller contract
+(``controller.CellController``: ``setup(info)``, ``step(inputs) -> ControllerOutput``,
+``close()``; docs/bring_your_own.md "Your own controller"). It imports only the contract's
+plain-data types and the building block ``controller.tracking_clock.TrackingClock``, which
+does what every tracking controller needs around its law: the CiA 402 enable sequence,
+the settle time, the trajectory time and the joint reference at the time an output acts.
+
+Timing (the contract): ``step`` at cycle k sees the actual values latched at t_k; what it
+returns acts from t_k + lead_cycles * T. The reference is taken at that time; the measured
+angle is extrapolated to it with the measured velocity (a predictor over the dead time).
+g(q) comes from the nominal model the cell hands over in ``info.dynamics`` (URDF + parameter
+file, with the declared tool load); the true robot deviates from it.
+
+Scenario (job ``compare``)::
+
+    controllers = ["model_based", { name = "pd_gravity", class = "pd_gravity_controller.py:PDGravity",
+                                    parameters = { settle_time = 0.2 } }]
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from controller import MODE_CST, ControllerInfo, ControllerInput, ControllerOutput
+from controller.tracking_clock import TrackingClock
+
+# Default gains per joint (joint side): a critically damped loop of 10 Hz per axis on the
+# diagonal of the nominal mass matrix (rotor inertia included) at the ISO 9283 start pose
+# with the 8 kg tool, J = (27.0, 35.8, 19.9, 0.390, 0.469, 0.0508) kg m^2:
+# Kp = J w^2, Kd = 2 J w, w = 2 pi 10 rad/s.
+DEFAULT_KP = (1.07e5, 1.41e5, 7.86e4, 1.54e3, 1.85e3, 2.01e2)   # N m / rad
+DEFAULT_KD = (3.40e3, 4.50e3, 2.50e3, 49.0, 59.0, 6.38)          # N m s / rad
+
+
+class PDGravity:
+    """Joint PD + gravity compensation in CST (see the module docstring).
+
+    kp, kd: 6 gains each (N m/rad, N m s/rad); settle_time: hold after enabling (s);
+    inertia_feedforward: add M(q_d) qdd_d (a computed-torque flavour), default False.
+    """
+
+    def __init__(self, kp=DEFAULT_KP, kd=DEFAULT_KD, settle_time: float = 0.2,
+                 inertia_feedforward: bool = False) -> None:
+        self.kp = np.asarray(kp, dtype=float).reshape(6)
+        self.kd = np.asarray(kd, dtype=float).reshape(6)
+        if np.any(self.kp < 0) or np.any(self.kd < 0):
+            raise ValueError("kp and kd must be >= 0")
+        self.settle_time = float(settle_time)
+        self.inertia_feedforward = bool(inertia_feedforward)
+        self.clock: TrackingClock | None = None
+
+    # the cell reads these (when the motion starts, why the controller stopped)
+    motion_start_s = property(lambda self: self.clock.motion_start_s if self.clock else None)
+    stop_reason = property(lambda self: self.clock.stop_reason if self.clock else None)
+    stopped_at_s = property(lambda self: self.clock.stopped_at_s if self.clock else None)
+
+    # -- the contract -----------------------------------------------------------
+    def setup(self, info: ControllerInfo) -> None:
+        if info.dynamics is None:
+            raise ValueError("PDGravity needs the cell's dynamics model (info.dynamics) for g(q)")
+        self.clock = TrackingClock(info, settle_time_s=self.settle_time)
+        self.dynamics = info.dynamics
+        self.lead_s = info.lead_cycles * info.period_s
+        self.torque_max = np.asarray(info.torque_max, dtype=float)
+        self.out = ControllerOutput.zeros(info.n_joints, mode=MODE_CST)
+
+    def step(self, inputs: ControllerInput) -> ControllerOutput:
+        out = self.out
+        tau_traj = self.clock.update(inputs, out.controlword)     # controlwords written; None: hold the start
+        if self.clock.stop_reason is not None:
+            out.target_torque[:] = 0.0
+            return out
+        q_d, qd_d, qdd_d = self.clock.reference(tau_traj)
+        q = inputs.position + inputs.velocity * self.lead_s         # predicted to when the output acts
+        qd = inputs.velocity
+        tau = self.kp * (q_d - q) + self.kd * (qd_d - qd) + self.dynamics.gravity(q)
+        if self.inertia_feedforward:
+            tau += self.dynamics.mass_matrix(q_d) @ qdd_d
+        if not math.isfinite(float(tau.sum())):
+            raise FloatingPointError(f"non-finite torque at t = {inputs.time_s} s")
+        np.clip(tau, -self.torque_max, self.torque_max, out=out.target_torque)
+        out.modes_of_operation[:] = MODE_CST
+        return out
+
+    def close(self) -> None:
+        pass
