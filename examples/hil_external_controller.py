@@ -69,7 +69,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--duration", type=float, default=2.0, help="time out and back, s")
     parser.add_argument("--enable-timeout", type=float, default=5.0, help="s to wait for all drives enabled")
     parser.add_argument("--stop-after", type=float, default=None,
-                        help="stop sending after this many seconds (to show the cell's reaction)")
+                        help="go silent this many seconds into the motion (to show the cell's reaction)")
     args = parser.parse_args(argv)
     with open(args.endpoint, encoding="utf-8") as file:
         desc = json.load(file)
@@ -108,8 +108,8 @@ def main(argv: list[str] | None = None) -> int:
         while msg is None:
             send(hold_frames(1))
             msg = bus.recv(0.1)
-            if msg is None and time.monotonic() - started > 5.0:
-                print("no PRes from the cell for 5 s: is `cosim serve` running?", file=sys.stderr)
+            if msg is None and time.monotonic() - started > 20.0:
+                print("no PRes from the cell for 20 s: is `cosim serve` running?", file=sys.stderr)
                 return 2
         pending = [msg]
         while True:
@@ -131,8 +131,9 @@ def main(argv: list[str] | None = None) -> int:
                     batches += node == 1
             cycles_seen += max(batches, 1)
             counter = cycles_seen % 240 + 1
-            if args.stop_after is not None and time.monotonic() - started > args.stop_after:
-                return 0  # go silent: the cell's counters must trip and the drives stop the arm
+            if args.stop_after is not None and enabled_at is not None and \
+                    (cycles_seen - enabled_at) * cycle_s > args.stop_after:
+                return 0  # go silent mid-motion: the cell's counters must trip and the drives stop the arm
             all_enabled = all(state(s) == "operation_enabled" for s in status)
             if all_enabled and enabled_at is None:
                 enabled_at = cycles_seen

@@ -11,7 +11,7 @@ PRes frames go out), and write what the drives apply from ``t_k`` to the ``bus.*
 variables. The master then steps the FMUs to ``t_k+1``. The cell never waits for the
 controller beyond the window.
 
-Before its first cycle the cell writes ``hil_endpoint.json`` into the results folder: the
+Just before its first cycle the cell writes ``hil_endpoint.json`` into the results folder: the
 addresses, the bus cycle, the nodes, the CiA 402 scaling of each node and the start pose,
 everything a controller in another program needs (``examples/hil_external_controller.py``).
 """
@@ -26,10 +26,10 @@ from typing import Any
 import numpy as np
 
 from cosim.cell.description import CellDescription
-from cosim.cell.wiring import BUS_INTEGER, BUS_REAL, DRIVES, N_JOINTS, joint_scaling
+from cosim.cell.wiring import N_JOINTS, joint_scaling
 from cosim.hil.settings import ENDPOINT_FILE, ServeSettings
 from cosim.master import Master, MemorySink, SimulationError
-from fieldbus import AppliedSetpoints, DriveActuals, DriveEndpoint, FieldbusConfig
+from fieldbus import DriveActuals, DriveEndpoint, FieldbusConfig
 from fieldbus.telegrams import RPDO1_BASE, SYNC_ID, TPDO1_BASE, TPDO2_BASE
 
 
@@ -48,30 +48,21 @@ class CellSideLink:
         self.taken = np.zeros(cycles + 1, dtype=bool)  # the controller's group came in time
         self.held = np.zeros(N_JOINTS, dtype=np.int64)  # cycles a drive held / extrapolated its set-point
         self.actuals = DriveActuals.zeros(N_JOINTS)
-        self._real = self._integer = None
+        self.bus = None
 
     def setup(self, master: Master) -> None:
-        n = N_JOINTS
-        self._real = master.reader([f"{d}.{name}" for name in ("position_actual", "velocity_actual", "torque_actual")
-                                    for d in DRIVES])
-        self._integer = master.reader([f"{d}.{name}" for name in ("statusword", "error_code") for d in DRIVES])
-        real_out = master.view([f"bus.{name}[{i}]" for name in BUS_REAL for i in range(1, n + 1)], writable=True)
-        integer_out = master.view([f"bus.{name}[{i}]" for name in BUS_INTEGER for i in range(1, n + 1)],
-                                  writable=True)
-        real, integer = self._real.read(), self._integer.read()
-        self.actuals = DriveActuals(statusword=integer[:n], position=real[:n], velocity=real[n:2 * n],
-                                    torque=real[2 * n:], error_code=integer[n:])
-        self.endpoint.nodes.bind_applied(AppliedSetpoints(
-            controlword=integer_out[:n], position=real_out[:n], torque_offset=real_out[n:],
-            fresh=np.zeros(n, dtype=bool), comm_fault=np.zeros(n, dtype=bool), fault_code=integer_out[n:]))
+        from cosim.cell.link import CellBus
+
+        self.bus = CellBus(master)
+        self.actuals = self.bus.actuals
+        self.endpoint.nodes.bind_applied(self.bus.applied)
 
     def __call__(self, t: float) -> None:
         k = self.cycle
         pacer = self.pacer
         pacer.wait(k)
         deadline = (pacer.deadline_ns(k) + self.window_ns) * 1e-9
-        self._real.read()
-        self._integer.read()
+        self.bus.read()
         endpoint = self.endpoint
         applied = endpoint.run_cycle_paced(k, self.actuals, deadline, clock=_now_s)
         if endpoint._last_taken == k:
@@ -106,10 +97,10 @@ def endpoint_description(cell: CellDescription, settings: ServeSettings, config:
         "stop_time_s": cell.stop_time_s,
         "label": cell.label,
         "frames": {"soc": f"0x{SYNC_ID:03X} UINT8 counter 1..overflow",
-                   "preq": f"0x{RPDO1_BASE:03X}+node <H controlword, <i target position [counts], "
-                           f"<h torque offset [0.1 % rated]",
+                   "preq": f"0x{RPDO1_BASE:03X}+node, 8 bytes (CSP) or 20 bytes CAN FD (all modes): "
+                           f"fieldbus/README.md, Frames",
                    "pres": f"0x{TPDO1_BASE:03X}+node <H statusword, <i position actual [counts], <h torque actual; "
-                           f"0x{TPDO2_BASE:03X}+node <i velocity actual [counts/s], <H error code"},
+                           f"0x{TPDO2_BASE:03X}+node: fieldbus/README.md, Frames"},
         "busy_poll_s": settings.busy_poll_s,
     }
 
@@ -219,9 +210,6 @@ def run_served_cell(cell: CellDescription, ctx: Any, settings: ServeSettings, *,
     endpoint = DriveEndpoint(config, joint_scaling(), log_path=cell.can_log)
     description = endpoint_description(cell, settings, config, window_s)
     description_path = Path(ctx.path(ENDPOINT_FILE))
-    tmp = description_path.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps(description, indent=1))
-    tmp.replace(description_path)
     if pacer is None:
         pacer = Pacer(period, settings.spin_s, period - window_s, capacity=cycles + 16)
     pacer.thresholds = {"window": window_s, "whole_cycle": period}
@@ -241,6 +229,10 @@ def run_served_cell(cell: CellDescription, ctx: Any, settings: ServeSettings, *,
             try:
                 master.initialize(stop_time)
                 engine = master.engine.name
+                # ready: the endpoint description appears just before the first cycle
+                tmp = description_path.with_suffix(".json.tmp")
+                tmp.write_text(json.dumps(description, indent=1))
+                tmp.replace(description_path)
                 with realtime_scheduling(settings.scheduling, 10, settings.cpu) as granted, no_cyclic_gc():
                     ctx.execute(master, stop_time)
             except SimulationError as exc:
