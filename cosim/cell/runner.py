@@ -60,7 +60,9 @@ class CellRun:
     runs the :class:`cosim.realtime.pacer.Pacer` (lateness per cycle) and the scheduling
     granted; for split runs what the two processes reported (``split``); for a user's
     controller its compute time per cycle as the cell measured it (``controller_timing``,
-    a :class:`controller.TimingSummary`; None for the built-in controller, which times itself)."""
+    a :class:`controller.TimingSummary`; None for the built-in controller, which times itself)
+    and what the controller contract itself cost per cycle (``port_overhead``, µs:
+    :meth:`controller.port.ControllerPort.overhead`)."""
 
     label: str
     record_path: Any
@@ -76,6 +78,7 @@ class CellRun:
     scheduling: str = "normal"
     split: dict[str, Any] | None = field(default=None)
     controller_timing: Any = None
+    port_overhead: dict[str, float] | None = None
 
 
 def write_recording(memory: MemorySink, sink: Any) -> None:
@@ -230,4 +233,4 @@ def _run_on_master(cell: CellDescription, controller: CellController, ctx: RunCo
             write_recording(memory, ctx.csv_sink(cell.record_file))
     return CellRun(cell.label, ctx.path(cell.record_file), recorder.rows_written, master.time, network.summary(),
                    wall, engine, memory, failure, cpu, pacer=pacer if paced else None, scheduling=granted,
-                   controller_timing=link.port.timing())
+                   controller_timing=link.port.timing(), port_overhead=link.port.overhead())
