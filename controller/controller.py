@@ -66,7 +66,7 @@ import native
 from controller.cycle_timer import CycleTimer, TimingSummary
 from controller.drive_compensation import DriveLoopModel, SetpointShaper
 from controller.feedforward import FeedForward
-from controller.contract import MODE_CSP, ControllerInfo, ControllerInput, ControllerOutput
+from controller.contract import ControllerInfo, ControllerInput, ControllerOutput
 from controller.compiled_cycle import FAST_REJECTED, FAST_STOP_CHECK, CompiledCycle, CompiledCycleError
 from controller.joint_reference import SINGULARITY_TOLERANCE, CartesianToJoint, SingularConfigurationError
 from controller.reference import JointTrajectory, TcpTrajectory
@@ -331,11 +331,11 @@ class Controller:
         self.setpoints.position[:] = self.q_start
         self.setpoints.controlword[:] = int(Command.DISABLE_VOLTAGE)
         # the contract's view of the same arrays (CSP; the bus carries position and torque offset)
-        self.output = ControllerOutput(controlword=self.setpoints.controlword,
-                                       modes_of_operation=np.full(N_JOINTS, MODE_CSP, np.int64),
-                                       target_position=self.setpoints.position, target_velocity=np.zeros(N_JOINTS),
-                                       velocity_offset=np.zeros(N_JOINTS), target_torque=np.zeros(N_JOINTS),
-                                       torque_offset=self.setpoints.torque_offset)
+        sp = self.setpoints
+        self.output = ControllerOutput(controlword=sp.controlword, modes_of_operation=sp.modes_of_operation,
+                                       target_position=sp.position, target_velocity=sp.target_velocity,
+                                       velocity_offset=sp.velocity_offset, target_torque=sp.target_torque,
+                                       torque_offset=sp.torque_offset)
         self._sequencers = [EnableSequencer() for _ in range(N_JOINTS)]
         self._zeros = np.zeros(N_JOINTS)
         self._tau_rest = np.zeros(N_JOINTS)

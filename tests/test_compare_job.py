@@ -164,3 +164,53 @@ def test_bad_entries_are_refused_before_running(tmp_path):
     with pytest.raises(ScenarioError, match=r"compare.controllers\[0\].*q_nope\[1\]"):
         load_scenario(_compare_toml(tmp_path, f'[{{ fmu_source = "{source}", fmu_inputs = {{ "q_nope[1]" = '
                                                '"position[1]" } }]', '["iso9283"]'))
+
+
+def test_a_failing_user_controller_is_a_failed_entry_and_the_others_run(tmp_path):
+    """A user controller that raises mid-run stops its own run cleanly (status failed, the reason,
+    its time series so far on disk); the comparison goes on and ranks the entries that ran."""
+    _joint_csv(tmp_path / "wave.csv")
+    (tmp_path / "flaky.py").write_text(
+        "from controller import ControllerOutput\n"
+        "from controller.tracking_clock import TrackingClock\n"
+        "class Flaky:\n"
+        "    def setup(self, info):\n"
+        "        self.clock = TrackingClock(info, settle_time_s=0.05)\n"
+        "        self.out = ControllerOutput.zeros(info.n_joints)\n"
+        "    def step(self, inputs):\n"
+        "        tau = self.clock.update(inputs, self.out.controlword)\n"
+        "        if inputs.time_s > 0.15:\n"
+        "            raise RuntimeError('sensor model diverged')\n"
+        "        self.out.target_position[:] = self.clock.reference(tau)[0]\n"
+        "        return self.out\n"
+        "    def close(self):\n"
+        "        pass\n", encoding="utf-8")
+    path = _compare_toml(tmp_path, '["model_based", "flaky.py:Flaky"]', '["wave.csv"]',
+                         [("figures = true", "figures = false")])
+    code, summary = run_scenario(path, tmp_path / "out")
+    assert code == 0, summary.get("reason")
+    rows = {r["controller"]: r for r in summary["table"]}
+    assert rows["model_based"]["status"] == "ok" and rows["model_based"]["rank"] == 1
+    assert rows["Flaky"]["status"] == "failed" and rows["Flaky"]["rank"] is None
+    entry = summary["entries"]["Flaky__wave"]
+    assert "sensor model diverged" in entry["failure"] and summary["failed_entries"] == ["Flaky__wave"]
+    with open(tmp_path / "out" / "timeseries_Flaky__wave.csv", newline="") as handle:
+        times = [float(r["time"]) for r in csv.DictReader(handle)]
+    assert 0.14 < times[-1] < 0.2
+
+
+def test_split_execution_gives_the_in_process_numbers(tmp_path):
+    """cosim run --split: controller and drives in two processes over UDP; same table as in process."""
+    import json
+
+    from cosim.cli import main
+
+    _joint_csv(tmp_path / "wave.csv")
+    path = _compare_toml(tmp_path, '["model_based"]', '["wave.csv"]', [("figures = true", "figures = false")])
+    tables = []
+    for extra in ([], ["--split"]):
+        out = tmp_path / ("split" if extra else "in_process")
+        assert main(["run", str(path), "--out", str(out), "--quiet", *extra]) == 0
+        tables.append(json.loads((out / "summary.json").read_text())["table"])
+    assert tables[0][0]["status"] == tables[1][0]["status"] == "ok"
+    assert tables[1][0]["tcp_error_max_mm"] == tables[0][0]["tcp_error_max_mm"]

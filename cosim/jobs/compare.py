@@ -547,6 +547,13 @@ def _user_description(ctx: RunContext, setup: CellSetup, ctrl: dict[str, Any], m
                                   extra_signals=extra_signals)
 
 
+def _largest(values: Any) -> float:
+    """The largest finite value of ``values`` (nan when there is none)."""
+    arr = np.asarray(values if values is not None else [], dtype=float)
+    finite = arr[np.isfinite(arr)]
+    return float(finite.max()) if finite.size else float("nan")
+
+
 def run_entry(ctx: RunContext, setup: CellSetup, ctrl: dict[str, Any], motion: _Motion, where: Where
               ) -> tuple[dict[str, Any], Any]:
     """Run one controller on one motion through the cell and evaluate it: (record, TrackingResult or None).
@@ -592,8 +599,7 @@ def run_entry(ctx: RunContext, setup: CellSetup, ctrl: dict[str, Any], motion: _
     entry.update(controller={"kind": ctrl["kind"], "mode": ctrl.get("mode"), "class": ctrl.get("class"),
                              "fmu": str(ctrl.get("fmu") or ctrl.get("fmu_source") or "") or None},
                  trajectory=motion.name, duration_s=duration,
-                 joint_lag_max_mrad=float(np.nanmax(entry["joint_lag_max_rad"]) * 1e3)
-                 if entry.get("joint_lag_max_rad") is not None else float("nan"), stop_time_s=stop_time)
+                 joint_lag_max_mrad=_largest(entry.get("joint_lag_max_rad")) * 1e3, stop_time_s=stop_time)
     if cell.failure is not None:
         entry["status"] = "failed"
         entry.setdefault("failure", str(cell.failure))
