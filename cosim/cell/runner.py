@@ -130,11 +130,12 @@ def add_cell_tasks(master: Master, network: Any, controller: CellController, per
     return master.add_recorder(signals, record_period_s, sink, name="cell"), link
 
 
-def build_cell_master(document: Mapping[str, Any]) -> Master:
-    """The master of a cell (``CellDescription.master_document()``, also in the split run's drive
-    process): its FMUs with their start values, the cell's master variables (``bus.*``,
-    ``tracker.*``) and its connections (not initialized, no tasks yet)."""
-    return build_master(dict(document), master_variables=cell_variables())
+def build_cell_master(cell: CellDescription | Mapping[str, Any]) -> Master:
+    """The master of a cell (a :class:`CellDescription`, or its ``master_document()`` as the split
+    run's drive process gets it): its FMUs with their start values, the cell's master variables
+    (``bus.*``, ``tracker.*``) and its connections (not initialized, no tasks yet)."""
+    document = cell.master_document() if isinstance(cell, CellDescription) else dict(cell)
+    return build_master(document, master_variables=cell_variables())
 
 
 def run_cell(cell: CellDescription, controller: CellController, ctx: RunContext, *, mode: str | None = None,
@@ -188,7 +189,7 @@ def _run_on_master(cell: CellDescription, controller: CellController, ctx: RunCo
         fb_config = deferred_recording(fb_config)
     period, stop_time = cell.period_s, cell.stop_time_s
     laser = LaserTracker(cell.true_robot.kinematic_model(), cell.tracker)
-    master = build_cell_master(cell.master_document())
+    master = build_cell_master(cell)
     memory = MemorySink()
     engine = ""
     granted = "normal"
