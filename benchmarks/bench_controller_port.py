@@ -10,10 +10,10 @@ Two measurements:
    cycle the port's total minus the controller's own time = the overhead of the contract.
    Target (issue 14): at most 10 µs per cycle.
 2. **Closed loop** (``closed_loop``): 2 s (or ``--sim-time``) of the ISO 9283 cell with the
-   built-in ``model_based`` controller and with a user controller of the same scenario
-   (:class:`BusyController` following the joint reference through
-   :class:`controller.tracking_clock.TrackingClock`, CSP): real-time factors and the wall
-   time per 400 µs cycle.
+   built-in ``model_based`` controller and with user controllers of the same scenario
+   (:class:`BusyController`: PD about the start pose; and following the path through
+   :class:`controller.tracking_clock.TrackingClock`, CSP): real-time factors, wall time per
+   400 µs cycle, the controller's own time and the contract's cost in the running cell.
 
 The machine is shared: the load average is printed with every figure.
 
@@ -108,8 +108,14 @@ def port_overhead(cycles: int = 20000, work_us: float = 20.0) -> dict[str, float
 
 
 def closed_loop(sim_time: float = 2.0) -> dict[str, dict[str, float]]:
-    """The ISO 9283 cell for ``sim_time`` s with the built-in model_based controller and with a
-    plain-Python user controller: real-time factor and wall µs per 400 µs cycle."""
+    """The ISO 9283 cell for ``sim_time`` s with the built-in model_based controller, with a
+    plain-Python user controller (PD about the start pose, no reference: its own work is a
+    few µs) and with the same controller following the path (the reference's IK in Python
+    every cycle, :class:`controller.tracking_clock.TrackingClock`): real-time factor, wall µs
+    per 400 µs cycle and the controller's own mean µs per cycle. ``overhead_in_cell_us``: the
+    user cell's wall per cycle minus the built-in cell's without its controller, minus the user
+    controller's own mean (noisy on a loaded machine); ``port_overhead_in_cell_*``: the same measured
+    directly in the running cell (:meth:`controller.port.ControllerPort.overhead`)."""
     import bench_closed_loop
 
     from cosim.cell import run_cell
@@ -121,20 +127,24 @@ def closed_loop(sim_time: float = 2.0) -> dict[str, dict[str, float]]:
         load = os.getloadavg()[0]
         scenario, cell, controller = bench_closed_loop.build(sim_time, "model_based")
         run = run_cell(cell, controller, RunContext(scenario, Path(work) / "builtin", quiet=True), mode="in_process")
-        out["builtin_model_based"] = _figures(run, sim_time, load, controller.timing().p50_us)
-        scenario = load_scenario(ROOT / "scenarios" / "iso9283.toml")
-        doc = scenario.data
-        doc["simulation"]["stop_time"] = sim_time
-        doc["results"]["can_log"] = False
-        setup = prepare(doc, str(scenario.path))
-        user = BusyController(0.0, track=True)
-        load = os.getloadavg()[0]
-        run = run_cell(user_cell(setup, user, "user"), user, RunContext(scenario, Path(work) / "user", quiet=True),
-                       mode="in_process")
-        own = statistics.median(user.own_ns) / 1e3 if user.own_ns else float("nan")
-        out["user_python_pd"] = _figures(run, sim_time, load, own)
-        if run.controller_timing is not None:
-            out["user_python_pd"]["port_timed_step_p50_us"] = run.controller_timing.p50_us
+        out["builtin_model_based"] = _figures(run, sim_time, load, controller.timing().mean_us)
+        for name, track in (("user_python_pd", False), ("user_python_tracking", True)):
+            scenario = load_scenario(ROOT / "scenarios" / "iso9283.toml")
+            doc = scenario.data
+            doc["simulation"]["stop_time"] = sim_time
+            doc["results"]["can_log"] = False
+            setup = prepare(doc, str(scenario.path))
+            user = BusyController(0.0, track=track)
+            load = os.getloadavg()[0]
+            run = run_cell(user_cell(setup, user, name), user,
+                           RunContext(scenario, Path(work) / name, quiet=True), mode="in_process")
+            own = statistics.fmean(user.own_ns) / 1e3 if user.own_ns else float("nan")
+            out[name] = _figures(run, sim_time, load, own)
+            out[name]["port_overhead_in_cell_p50_us"] = run.port_overhead["p50_us"]
+            out[name]["port_overhead_in_cell_mean_us"] = run.port_overhead["mean_us"]
+            base = out["builtin_model_based"]
+            out[name]["overhead_in_cell_us"] = (out[name]["wall_us_per_cycle"] - own
+                                                - (base["wall_us_per_cycle"] - base["controller_own_mean_us"]))
     return out
 
 
@@ -143,7 +153,7 @@ def _figures(run, sim_time: float, load: float, controller_us: float) -> dict[st
         raise run.failure
     cycles = sim_time / 400e-6
     return {"realtime_factor": run.reached_s / run.loop_wall_time_s,
-            "wall_us_per_cycle": run.loop_wall_time_s / cycles * 1e6, "controller_own_p50_us": controller_us,
+            "wall_us_per_cycle": run.loop_wall_time_s / cycles * 1e6, "controller_own_mean_us": controller_us,
             "load_average_before": load, "load_average_after": os.getloadavg()[0]}
 
 
@@ -163,8 +173,11 @@ def main() -> None:
 
         sys.path.insert(0, str(ROOT / "benchmarks"))
         for name, f in closed_loop(args.sim_time).items():
+            extra = (f", contract in the cell p50 {f['port_overhead_in_cell_p50_us']:.1f} us / mean "
+                     f"{f['port_overhead_in_cell_mean_us']:.1f} us (wall difference estimate "
+                     f"{f['overhead_in_cell_us']:.1f} us)") if "overhead_in_cell_us" in f else ""
             print(f"{name:22s} real-time factor {f['realtime_factor']:.2f}, {f['wall_us_per_cycle']:.1f} us wall per "
-                  f"400 us cycle, controller's own p50 {f['controller_own_p50_us']:.1f} us "
+                  f"400 us cycle, controller's own mean {f['controller_own_mean_us']:.1f} us{extra} "
                   f"(load {f['load_average_before']:.2f} -> {f['load_average_after']:.2f})")
 
 

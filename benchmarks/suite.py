@@ -197,7 +197,9 @@ def controller_port(sizes: Sizes, work: Path) -> dict[str, Any]:
             "builtin_realtime_factor": builtin["realtime_factor"], "user_realtime_factor": user["realtime_factor"],
             "builtin_wall_us_per_cycle": builtin["wall_us_per_cycle"],
             "user_wall_us_per_cycle": user["wall_us_per_cycle"],
-            "user_controller_own_p50_us": user["controller_own_p50_us"]}
+            "user_controller_own_mean_us": user["controller_own_mean_us"],
+            "user_overhead_in_cell_us": user["overhead_in_cell_us"],
+            "user_port_overhead_in_cell_p50_us": user["port_overhead_in_cell_p50_us"]}
 
 
 def bus(sizes: Sizes, work: Path) -> dict[str, Any]:

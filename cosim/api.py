@@ -36,6 +36,7 @@ Errors (documented in docs/scripting.md):
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
 import math
 import shutil
@@ -636,13 +637,20 @@ def run(scenario: "str | Path | Mapping[str, Any] | Scenario", out: str | Path |
 
 
 def execute(scenario: Scenario, out: str | Path, *, quiet: bool = True, realtime: bool = False,
-            split: bool = False, origin: str = "out", timeseries: str | None = None) -> RunResult:
+            split: bool = False, origin: str = "out", timeseries: str | None = None, serve: Any = None) -> RunResult:
     """Run an already loaded scenario into ``out`` and return the result whatever its status
     (the layer under :func:`run` and ``cosim run``; ``origin`` names where ``out`` came from in
-    an OutputFolderError, e.g. ``"--out"``). Raises ScenarioError, OutputFolderError,
-    KeyboardInterrupt as :func:`run` does; never RunFailed."""
-    return _execute_into(scenario, Path(out), _execution_options(scenario, realtime, split), quiet=quiet,
-                         origin=origin, temporary=False, timeseries=timeseries)
+    an OutputFolderError, e.g. ``"--out"``). ``serve`` (a :class:`cosim.hil.ServeSettings`):
+    run only the cell side of each robot-cell run, paced, for a controller elsewhere on the bus
+    (``cosim serve``). Raises ScenarioError, OutputFolderError, KeyboardInterrupt as :func:`run`
+    does; never RunFailed."""
+    if serve is not None:
+        options = _execution_options(scenario, True, False)
+        options = dataclasses.replace(options, mode="serve", realtime=True, serve=serve)
+    else:
+        options = _execution_options(scenario, realtime, split)
+    return _execute_into(scenario, Path(out), options, quiet=quiet, origin=origin, temporary=False,
+                         timeseries=timeseries)
 
 
 def _execution_options(sc: Scenario, realtime: bool, split: bool):

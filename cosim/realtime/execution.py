@@ -45,7 +45,7 @@ class CellExecution:
 
         opts = self.options
         load_before = load_average()
-        mode = "split" if opts.split else "paced"
+        mode = "serve" if opts.serve is not None else "split" if opts.split else "paced"
         run = run_cell(cell, controller, ctx, mode=mode, options=opts)
         if opts.split:
             self.split_runs[cell.label] = run.split
