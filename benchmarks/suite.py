@@ -184,6 +184,24 @@ def paced(sizes: Sizes, work: Path) -> dict[str, Any]:
             "scheduling": runs[0]["scheduling"]}
 
 
+def controller_port(sizes: Sizes, work: Path) -> dict[str, Any]:
+    """bench_controller_port: the contract's overhead per cycle for a plain-Python user controller
+    (isolated, 20 us of its own work), and the closed loop with the built-in vs a user controller."""
+    import bench_controller_port
+
+    iso = bench_controller_port.port_overhead(cycles=sizes.bus_cycles * 4, work_us=20.0)
+    cells = bench_controller_port.closed_loop(sizes.closed_loop_sim_s)
+    builtin, user = cells["builtin_model_based"], cells["user_python_pd"]
+    return {"overhead_p50_us": iso["overhead_p50_us"], "overhead_p99_us": iso["overhead_p99_us"],
+            "user_own_p50_us": iso["controller_own_p50_us"], "port_step_p50_us": iso["port_step_p50_us"],
+            "builtin_realtime_factor": builtin["realtime_factor"], "user_realtime_factor": user["realtime_factor"],
+            "builtin_wall_us_per_cycle": builtin["wall_us_per_cycle"],
+            "user_wall_us_per_cycle": user["wall_us_per_cycle"],
+            "user_controller_own_mean_us": user["controller_own_mean_us"],
+            "user_overhead_in_cell_us": user["overhead_in_cell_us"],
+            "user_port_overhead_in_cell_p50_us": user["port_overhead_in_cell_p50_us"]}
+
+
 def bus(sizes: Sizes, work: Path) -> dict[str, Any]:
     """bench_fieldbus.measure: one six-node cycle on simbus without recording, median of runs."""
     import bench_fieldbus
@@ -280,7 +298,8 @@ def identification(sizes: Sizes, work: Path) -> dict[str, Any]:
 
 
 SECTIONS: dict[str, Callable[[Sizes, Path], dict[str, Any]]] = {
-    "closed_loop": closed_loop, "closed_loop_split": closed_loop_split, "paced": paced, "bus": bus, "fmu": fmu,
+    "closed_loop": closed_loop, "closed_loop_split": closed_loop_split, "paced": paced,
+    "controller_port": controller_port, "bus": bus, "fmu": fmu,
     "planners": planners, "calibration": calibration, "identification": identification,
 }
 
@@ -290,6 +309,7 @@ REQUIRED: dict[str, tuple[str, ...]] = {
                     "controller_compute_p99_us"),
     "closed_loop_split": ("realtime_factor", "startup_s"),
     "paced": ("overrun_fraction", "lateness_p99_us"),
+    "controller_port": ("overhead_p50_us", "builtin_realtime_factor", "user_realtime_factor"),
     "bus": ("cycle_median_us",),
     "fmu": ("plant_step_100us_us", "plant_step_400us_us", "drive_step_100us_us", "drive_step_400us_us"),
     "planners": ("own_cp_solve_s", "toppra_solve_s", "own_cp_duration_s", "toppra_duration_s", "own_ptp_solve_s",

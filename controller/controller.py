@@ -66,7 +66,7 @@ import native
 from controller.cycle_timer import CycleTimer, TimingSummary
 from controller.drive_compensation import DriveLoopModel, SetpointShaper
 from controller.feedforward import FeedForward
-from controller.contract import MODE_CSP, ControllerInfo, ControllerInput, ControllerOutput
+from controller.contract import ControllerInfo, ControllerInput, ControllerOutput
 from controller.compiled_cycle import FAST_REJECTED, FAST_STOP_CHECK, CompiledCycle, CompiledCycleError
 from controller.joint_reference import SINGULARITY_TOLERANCE, CartesianToJoint, SingularConfigurationError
 from controller.reference import JointTrajectory, TcpTrajectory
@@ -76,8 +76,9 @@ from robot.inverse_kinematics import LIMIT_TOLERANCE, NumericIK
 
 N_JOINTS = 6
 MODES: tuple[str, ...] = ("standard", "model_based", "model_based_elastic")
-_STOP_STATES = {DriveState.FAULT: "Fault", DriveState.FAULT_REACTION_ACTIVE: "Fault reaction active",
+STOP_STATES = {DriveState.FAULT: "Fault", DriveState.FAULT_REACTION_ACTIVE: "Fault reaction active",
                 DriveState.QUICK_STOP_ACTIVE: "Quick stop active"}
+"""Drive states in which a controller stops commanding motion (state -> name for the reason)."""
 
 
 class ControllerConfigError(ValueError):
@@ -331,11 +332,11 @@ class Controller:
         self.setpoints.position[:] = self.q_start
         self.setpoints.controlword[:] = int(Command.DISABLE_VOLTAGE)
         # the contract's view of the same arrays (CSP; the bus carries position and torque offset)
-        self.output = ControllerOutput(controlword=self.setpoints.controlword,
-                                       modes_of_operation=np.full(N_JOINTS, MODE_CSP, np.int64),
-                                       target_position=self.setpoints.position, target_velocity=np.zeros(N_JOINTS),
-                                       velocity_offset=np.zeros(N_JOINTS), target_torque=np.zeros(N_JOINTS),
-                                       torque_offset=self.setpoints.torque_offset)
+        sp = self.setpoints
+        self.output = ControllerOutput(controlword=sp.controlword, modes_of_operation=sp.modes_of_operation,
+                                       target_position=sp.position, target_velocity=sp.target_velocity,
+                                       velocity_offset=sp.velocity_offset, target_torque=sp.target_torque,
+                                       torque_offset=sp.torque_offset)
         self._sequencers = [EnableSequencer() for _ in range(N_JOINTS)]
         self._zeros = np.zeros(N_JOINTS)
         self._tau_rest = np.zeros(N_JOINTS)
@@ -616,10 +617,10 @@ class Controller:
             if not fresh[i]:
                 continue  # a missed PRes: values held; the threshold counter decides
             state = decode_statusword(int(status))
-            if state in _STOP_STATES:
+            if state in STOP_STATES:
                 code = int(observed.error_code[i])
                 extra = f", error code 0x{code:04X}" if code else ""
-                return f"drive {i + 1} reports {_STOP_STATES[state]}{extra}"
+                return f"drive {i + 1} reports {STOP_STATES[state]}{extra}"
         return None
 
     def _stop(self, t: float, reason: str, observed: ObservedActuals) -> None:

@@ -36,6 +36,7 @@ Errors (documented in docs/scripting.md):
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
 import math
 import shutil
@@ -641,16 +642,23 @@ def run(scenario: "str | Path | Mapping[str, Any] | Scenario", out: str | Path |
 
 
 def execute(scenario: Scenario, out: str | Path, *, quiet: bool = True, realtime: bool = False,
-            split: bool = False, origin: str = "out", timeseries: str | None = None,
+            split: bool = False, origin: str = "out", timeseries: str | None = None, serve: Any = None,
             max_output: str | float | None = None, max_memory: str | float | None = None,
             ignore_budget: bool = False) -> RunResult:
     """Run an already loaded scenario into ``out`` and return the result whatever its status
     (the layer under :func:`run` and ``cosim run``; ``origin`` names where ``out`` came from in
-    an OutputFolderError, e.g. ``"--out"``). Raises ScenarioError, OutputFolderError,
-    KeyboardInterrupt as :func:`run` does; never RunFailed."""
-    return _execute_into(scenario, Path(out), _execution_options(scenario, realtime, split), quiet=quiet,
-                         origin=origin, temporary=False, timeseries=timeseries,
-                         budget=None if ignore_budget else (max_output, max_memory))
+    an OutputFolderError, e.g. ``"--out"``). ``serve`` (a :class:`cosim.hil.ServeSettings`):
+    run only the cell side of each robot-cell run, paced, for a controller elsewhere on the bus
+    (``cosim serve``). ``max_output``, ``max_memory``, ``ignore_budget``: as for :func:`run`.
+    Raises ScenarioError, OutputFolderError, KeyboardInterrupt as :func:`run` does (and
+    BudgetError); never RunFailed."""
+    if serve is not None:
+        options = _execution_options(scenario, True, False)
+        options = dataclasses.replace(options, mode="serve", realtime=True, serve=serve)
+    else:
+        options = _execution_options(scenario, realtime, split)
+    return _execute_into(scenario, Path(out), options, quiet=quiet, origin=origin, temporary=False,
+                         timeseries=timeseries, budget=None if ignore_budget else (max_output, max_memory))
 
 
 def _execution_options(sc: Scenario, realtime: bool, split: bool):

@@ -29,6 +29,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "cosim.commands.build_fmus",
     "cosim.commands.export_ssp",
     "cosim.commands.run",
+    "cosim.commands.serve",
     "cosim.commands.calibrate",
     "cosim.commands.sweep",
     "cosim.commands.identify",

@@ -345,11 +345,15 @@ class ManagingNodeEndpoint(_Endpoint):
         for msg in batch:
             base, node = msg.arbitration_id & ~0x7F, msg.arbitration_id & 0x7F
             if base in (TPDO1_BASE, TPDO2_BASE) and 1 <= node <= n and times[n + node] is not None:
-                msg.timestamp = times[n + node]  # the cell judged their timing; keep them in time here
+                msg.timestamp = times[n + node]  # the cell judged their timing
             else:
                 msg.timestamp = times[0]
         node = self.node
         node.start_cycle(cycle)
+        latest = node._latest
+        for i in range(n):  # every PRes that came is in time here: the cell keeps the time
+            if times[n + 1 + i] is not None:
+                latest[i] = times[n + 1 + i]
         if self._record is not None:
             self._record(batch)
         node.receive_all(batch)
@@ -411,7 +415,9 @@ class DriveEndpoint(_Endpoint):
         (counted in :attr:`frames_late`, logged). A cycle whose window ends without its
         group has lost its SoC and PReqs: the nodes' threshold counters count it (+8,
         -1 per good cycle) exactly as for frames lost on the wire, and the drives hold
-        or extrapolate the set-point. After more than ``REALIGN_AFTER`` cycles without
+        or extrapolate the set-point. Nothing counts as lost before the first group (the
+        nodes are not yet operational) nor while every node's fault reaction is latched
+        and no group comes. After more than ``REALIGN_AFTER`` cycles without
         a group (a controller that restarted), the newest group is taken and fixes the
         mapping anew. The PRes frames go out every cycle, polled or
         not, so a controller can pace itself on them."""
@@ -422,7 +428,10 @@ class DriveEndpoint(_Endpoint):
         if group:
             cn.receive_all(group)
         self._transmit(cn.responses(self._times, answer_all=True))
-        cn.end_cycle(cycle)
+        # nothing is lost before the controller's first frames (the nodes are not yet
+        # operational) nor once every node has reacted to a controller that went silent
+        judge = self._align is not None and (bool(group) or not all(cn.comm_fault))
+        cn.end_cycle(cycle, judge)
         emcy = cn.emergency_messages(self._t0 + cycle * self._cycle_time + self._emcy_offset)
         if emcy:
             saved, self._kinds = self._kinds, _NO_FAULTS

@@ -761,10 +761,21 @@ class ControlledNodes:
         return self._preq_ok[node - 1]
 
     # ------------------------------------------------------------------ end of cycle
-    def end_cycle(self, cycle: int) -> None:
-        """Judge the SoC and the PReqs of ``cycle``, decrement counters."""
+    def end_cycle(self, cycle: int, judge: bool = True) -> None:
+        """Judge the SoC and the PReqs of ``cycle``, decrement counters. ``judge`` False: the
+        nodes are not operational on the bus (a paced cell before its controller's first
+        frames, or whose every node has already reacted to a lost controller): nothing is
+        counted as lost, counters only decrement."""
         n = self.nodes
         t = self._t0 + cycle * self._cycle_time
+        if not judge:
+            self._sync_seen = False
+            self._preq_ok = [False] * n
+            self._preq_late = [False] * n
+            self._crc = [False] * n
+            if self.counters.busy:
+                self.counters.end_cycle(cycle, t)
+            return
         if not self._sync_seen:
             for i in range(n):
                 self._c_soc[i].error(cycle, t, "no valid SoC")

@@ -71,6 +71,7 @@ def _writer_process(path: str, connection: Any) -> None:
     for signum in (signal.SIGINT, signal.SIGTERM):
         signal.signal(signum, signal.SIG_IGN)
     sink = _LogSink(path)
+    connection.send("ready")  # imports done, file open: FrameRecorder.wait_ready
     try:
         while True:
             try:
@@ -122,6 +123,15 @@ class FrameRecorder(Closeable):
             receiver.close()
         else:
             self._sink = _LogSink(str(self.path))
+        self._ready = not background
+
+    def wait_ready(self, timeout_s: float = 60.0) -> bool:
+        """Wait until a background writer has started (its interpreter and python-can are
+        loaded): a real-time loop calls this before its first cycle, so the first hand-over
+        does not stall on a writer that is still starting. True when ready."""
+        if not self._ready and self._conn.poll(timeout_s):
+            self._ready = self._conn.recv() == "ready"
+        return self._ready
 
     def add_many(self, frames: list) -> None:
         """Record sent frames (copied: the senders reuse their message objects)."""
@@ -164,6 +174,7 @@ class FrameRecorder(Closeable):
             self.frames_written = self._sink.written
             return
         self._conn.send(None)
+        self.wait_ready(60.0)
         if self._conn.poll(60):
             self.frames_written = self._conn.recv()
         self._conn.close()

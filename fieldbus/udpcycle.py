@@ -13,7 +13,8 @@ Addressing (``channel`` = ``"host:port"``):
 * a multicast group (224.0.0.0/4): every bus on the group and port sees every datagram
   (loopback included); a bus ignores its own datagrams by their sender id;
 * a unicast address: the bus binds there and sends to ``peer="host:port"``; without
-  ``peer`` it answers the address of the last accepted datagram.
+  ``peer`` it answers the address of the last accepted datagram (before the first one,
+  what it sends goes nowhere and is counted in ``stats.no_peer``).
 
 Wire format (version 1, all integers big-endian = network order) — documented in
 ``fieldbus/README.md`` so a controller in any language can speak it::
@@ -24,7 +25,7 @@ Wire format (version 1, all integers big-endian = network order) — documented 
                        frame count n         u16
                        sender id             u32 (random per bus unless given)
                        sequence              u32 (per sender, +1 per datagram, wraps)
-                       send time             u64 (sender's monotonic clock, ns; informative)
+                       send time             u64 (sender's wall clock, ns since the epoch)
     n frames, each:    can id                u32 (bit 31 extended, bit 30 remote, bit 29 error frame)
                        length                u8  (0..64 data bytes)
                        flags                 u8  (bit 0 CAN FD, bit 1 bit-rate switch, bit 2 ESI)
@@ -52,6 +53,7 @@ import random
 import select
 import socket
 import struct
+import sys
 import time
 from collections import deque
 from dataclasses import asdict, dataclass
@@ -59,6 +61,8 @@ from typing import Any
 
 import can
 from can import BusABC, CanProtocol, Message
+
+from fieldbus.telegrams import FastMessage
 
 INTERFACE_NAME = "udpcycle"
 MAGIC = b"RXCB"
@@ -73,6 +77,21 @@ ID_ERROR = 1 << 29
 ID_MASK = 0x1FFFFFFF
 FLAG_FD, FLAG_BRS, FLAG_ESI = 1, 2, 4
 _DUPLICATE_WINDOW = 1024
+
+
+_CMSG_SPACE = socket.CMSG_SPACE(16) if hasattr(socket, "CMSG_SPACE") else 0
+#: Linux SO_TIMESTAMPNS (asm-generic and x86: 35; the socket module does not export it)
+_SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35 if sys.platform.startswith("linux") else None)
+_TIMESPEC = struct.Struct("@qq")
+
+
+def _kernel_time_ns(ancillary: list) -> int:
+    """Arrival time (ns since the epoch) from SO_TIMESTAMPNS ancillary data, 0 if absent."""
+    for level, kind, data in ancillary:
+        if level == socket.SOL_SOCKET and kind == _SO_TIMESTAMPNS and len(data) >= 16:
+            seconds, nanoseconds = _TIMESPEC.unpack_from(data)
+            return seconds * 1_000_000_000 + nanoseconds
+    return 0
 
 
 class UdpCycleError(can.CanInitializationError):
@@ -96,6 +115,7 @@ class TransportStats:
     injected_duplicates: int = 0
     injected_delays: int = 0
     send_overflows: int = 0
+    no_peer: int = 0
 
     def as_dict(self) -> dict[str, int]:
         return asdict(self)
@@ -160,12 +180,15 @@ def decode_datagram(payload: bytes) -> tuple[int, int, int, list[Message]]:
             raise ValueError(f"frame {len(frames) + 1} length {length}, expected <= {MAX_DATA}")
         if offset + length > len(payload):
             raise ValueError(f"truncated: frame {len(frames) + 1} wants {length} data bytes")
-        frames.append(Message(timestamp=stamp, arbitration_id=can_id & ID_MASK,
-                              is_extended_id=bool(can_id & ID_EXTENDED), is_remote_frame=bool(can_id & ID_REMOTE),
-                              is_error_frame=bool(can_id & ID_ERROR), dlc=length,
-                              data=payload[offset:offset + length], is_fd=bool(flags & FLAG_FD),
-                              bitrate_switch=bool(flags & FLAG_BRS), error_state_indicator=bool(flags & FLAG_ESI),
-                              check=False))
+        msg = FastMessage(stamp, can_id & ID_MASK, bytearray(payload[offset:offset + length]),
+                          bool(can_id & ID_ERROR))
+        if can_id & (ID_EXTENDED | ID_REMOTE) or flags:
+            msg.is_extended_id = bool(can_id & ID_EXTENDED)
+            msg.is_remote_frame = bool(can_id & ID_REMOTE)
+            msg.is_fd = bool(flags & FLAG_FD)
+            msg.bitrate_switch = bool(flags & FLAG_BRS)
+            msg.error_state_indicator = bool(flags & FLAG_ESI)
+        frames.append(msg)
         offset += length
     if offset != len(payload):
         raise ValueError(f"{len(payload) - offset} bytes after the last of {count} frames")
@@ -218,6 +241,10 @@ class UdpCycleBus(BusABC):
         drop_probability, duplicate_probability, delay_probability, delay_s, fault_seed:
             seeded transport fault injection on sent datagrams.
         receive_own_messages: also deliver this bus's own datagrams (multicast).
+        latency_samples: keep the one-way latency (ns) of the last this many received
+            datagrams in :attr:`latency_ns`: the kernel's arrival time (SO_TIMESTAMPNS)
+            minus the sender's send time from the header - meaningful on one host or
+            with synchronised clocks. 0 (default): not measured.
     """
 
     def __init__(self, channel: Any = None, can_filters: Any = None, *, peer: Any = None,
@@ -226,6 +253,7 @@ class UdpCycleBus(BusABC):
                  drop_probability: float = 0.0, duplicate_probability: float = 0.0,
                  delay_probability: float = 0.0, delay_s: float = 0.0, fault_seed: int = 0,
                  receive_own_messages: bool = False, receive_buffer_bytes: int = 1 << 20,
+                 latency_samples: int = 0,
                  **kwargs: object) -> None:
         if channel is None:
             raise UdpCycleError("udpcycle needs channel='host:port' (a multicast group or a local address)")
@@ -279,6 +307,13 @@ class UdpCycleBus(BusABC):
             what = "is in use" if error.errno in (98, 48) else f"cannot be used ({error.strerror or error})"
             raise UdpCycleError(f"udpcycle channel {channel!r}: the address {what}") from None
         self._sock.setblocking(False)
+        self.latency_ns: deque[int] = deque(maxlen=int(latency_samples))
+        self._kernel_stamps = bool(latency_samples) and _SO_TIMESTAMPNS is not None and bool(_CMSG_SPACE)
+        if self._kernel_stamps:
+            try:
+                self._sock.setsockopt(socket.SOL_SOCKET, _SO_TIMESTAMPNS, 1)
+            except OSError:
+                self._kernel_stamps = False
         super().__init__(channel=channel, can_filters=can_filters, **kwargs)
 
     @staticmethod
@@ -310,10 +345,11 @@ class UdpCycleBus(BusABC):
         if self._held:
             self._release_held()
         destination = self._dest
-        if destination is None:
-            raise can.CanOperationError("udpcycle: no peer to send to yet (give peer='host:port')")
+        if destination is None:  # nobody to send to yet (no peer given, nothing received): as on an empty wire
+            self.stats.no_peer += 1
+            return
         self._sequence = (self._sequence + 1) & 0xFFFFFFFF
-        payload = encode_datagram(msgs, self.sender_id, self._sequence, time.monotonic_ns())
+        payload = encode_datagram(msgs, self.sender_id, self._sequence, time.time_ns())
         self.stats.frames_sent += len(msgs)
         if self._p_drop or self._p_dup or self._p_delay:
             rng = self._rng
@@ -352,9 +388,13 @@ class UdpCycleBus(BusABC):
         """Read every datagram waiting on the socket; True if any frame was queued."""
         got = False
         sock = self._sock
+        stamped = self._kernel_stamps
         while True:
             try:
-                payload, address = sock.recvfrom(MAX_DATAGRAM)
+                if stamped:
+                    payload, ancillary, _flags, address = sock.recvmsg(MAX_DATAGRAM, _CMSG_SPACE)
+                else:
+                    payload, address = sock.recvfrom(MAX_DATAGRAM)
             except (BlockingIOError, InterruptedError):
                 return got
             except OSError:
@@ -363,12 +403,16 @@ class UdpCycleBus(BusABC):
                 self.stats.foreign += 1
                 continue
             try:
-                sender, seq, _sent_ns, frames = decode_datagram(payload)
+                sender, seq, sent_ns, frames = decode_datagram(payload)
             except ValueError:
                 self.stats.malformed += 1
                 continue
             if sender == self.sender_id and not self.receive_own_messages:
                 continue
+            if stamped and sent_ns:
+                arrived = _kernel_time_ns(ancillary)
+                if arrived:
+                    self.latency_ns.append(arrived - sent_ns)
             key = (address, sender)
             tracker = self._trackers.get(key)
             if tracker is None:

@@ -52,6 +52,35 @@ class Follow:
     stopped_at_s = property(lambda self: self.clock.stopped_at_s)
 
 
+class HoldInTorqueMode:
+    """Cyclic synchronous torque (mode 10) once the drives are enabled: gravity of the nominal
+    model plus a joint PD around the start pose."""
+
+    def __init__(self, kp=3000.0, kd=60.0):
+        self.kp, self.kd = kp, kd
+
+    def setup(self, info):
+        self.info = info
+        self.clock = TrackingClock(info, settle_time_s=0.005)
+        self.out = ControllerOutput.zeros(info.n_joints)
+        self.out.target_position[:] = info.q_start
+
+    def step(self, inputs):
+        tau = self.clock.update(inputs, self.out.controlword)
+        q = inputs.position
+        if self.clock.motion_start_s is not None:
+            self.out.modes_of_operation[:] = 10
+            self.out.target_torque[:] = (self.info.dynamics.gravity(q) + self.kp * (self.info.q_start - q)
+                                         - self.kd * inputs.velocity)
+        self.out.target_position[:] = q
+        return self.out
+
+    def close(self):
+        pass
+
+    motion_start_s = property(lambda self: self.clock.motion_start_s)
+
+
 class NoStep:
     def setup(self, info):
         pass
@@ -172,3 +201,20 @@ def test_a_controller_fmu_lacking_a_mapped_variable_is_an_error(tmp_path, pd_fmu
     with pytest.raises(ScenarioError) as info:
         load_scenario(path)
     assert_names_file_and_fragments(info.value, path, fragments)
+
+
+def test_a_user_controller_in_cyclic_synchronous_torque_mode_holds_the_arm(tmp_path):
+    """Mode 10 through the whole cell: the drives switch to CST (0x6061 shows 10) and the
+    controller's gravity + PD torque holds the arm at its start pose."""
+    path = scenario(tmp_path, 'class = "my_ctrl.py:HoldInTorqueMode"\nlabel = "cst"')
+    text = path.read_text().replace('signals = [', 'signals = ["drive*.modes_of_operation_display", ', 1)
+    path.write_text(text)
+    code, summary = run(path, tmp_path / "out")
+    assert code == 0 and summary["status"] == "ok", summary.get("reason")
+    with open(tmp_path / "out" / "timeseries_cst.csv") as f:
+        rows = list(csv.DictReader(f))
+    last = rows[-1]
+    assert [int(float(last[f"drive{i}.modes_of_operation_display"])) for i in range(1, 7)] == [10] * 6
+    first = rows[0]
+    drift = max(abs(float(last[f"plant.q[{i}]"]) - float(first[f"plant.q[{i}]"])) for i in range(1, 7))
+    assert drift < 2e-3, drift   # rad, held by the user's torque alone

@@ -76,9 +76,10 @@ def iso_ssp(tmp_path_factory):
 def test_export_of_the_main_job_is_valid_and_loads_in_fmpy(iso_ssp):
     ssd = read_ssd(str(iso_ssp), validate=True)  # fmpy's SSP reader, schema validation on
     assert [e.name for e in ssd.system.elements] == ["plant", *robot_cell.DRIVES]
-    assert len(ssd.system.connections) == len(robot_cell.cell_connections()) == 42
+    # the cell's generated wiring: 18 FMU-to-FMU connections and 8 bus inputs per drive (CiA 402 modes 8/9/10)
+    assert len(ssd.system.connections) == 66
     system = load_ssp(iso_ssp)
-    assert len(system.connections) == 18 and len(system.inputs_connections) == 24
+    assert len(system.connections) == 18 and len(system.inputs_connections) == 48
     assert all("Python controller" in by and "CiA 402" in by for _, by in system.system_inputs.values())
     assert sorted(system.system_inputs) == sorted(c.split(" -> ")[0] for c in system.inputs_connections)
     params = {f["name"]: f["parameters"] for f in system.fmus}

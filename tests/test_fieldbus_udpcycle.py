@@ -186,3 +186,14 @@ def test_powerlink_cycle_over_udpcycle_multicast_matches_simbus():
         assert network.frames_missing == 0
         # one datagram per direction per cycle: SoC+PReqs, PRes (no EMCY in a healthy run)
         assert network.mn_bus.stats.sent == 30 and network.cn_bus.stats.sent == 30
+
+
+def test_one_way_latency_from_kernel_arrival_and_header_send_time():
+    with can.Bus(interface="udpcycle", channel=f"127.0.0.1:{_port(11)}", peer=f"127.0.0.1:{_port(12)}") as tx, \
+            can.Bus(interface="udpcycle", channel=f"127.0.0.1:{_port(12)}", latency_samples=100) as rx:
+        for _ in range(20):
+            tx.send(can.Message(arbitration_id=0x201, data=b"\x01", is_extended_id=False))
+        assert len(_wait_frames(rx, 20)) == 20
+        latencies = list(rx.latency_ns)
+        assert len(latencies) == 20
+        assert all(0 < ns < 200_000_000 for ns in latencies)  # same host: positive, far below 0.2 s

@@ -39,9 +39,13 @@ def test_coupling_error_shrinks_with_the_macro_step(study):
     assert np.all(errors["gs100"] < COUNTS)  # Gauss-Seidel (drives first) at the default step
 
 
-def test_cosimulation_is_faster_at_larger_steps(study):
+def test_the_study_gives_the_same_q_with_either_engine(study):
+    """The master's Python engine and compiled kernel give the study bit-identical q. (The cost of
+    each macro step is measured by benchmarks/coupling_study.py, not here: runs of a few ms on the
+    shared, loaded machine made a wall- or CPU-time comparison flaky.)"""
     _, runs, _ = study
-    assert runs[400e-6].wall_time < runs[50e-6].wall_time
+    python = cosimulate(ensure_fmus(), controller_commands(DURATION), 400e-6, DURATION, engine="python")
+    assert np.array_equal(python.q, runs[400e-6].q) and np.array_equal(python.t, runs[400e-6].t)
 
 
 def test_the_study_runs_on_the_master_the_jobs_use(study):

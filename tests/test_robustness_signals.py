@@ -138,3 +138,57 @@ def test_split_run_ctrl_c_ends_the_drive_process_in_order(tmp_path):
     header, data = read_csv(out / "timeseries_standard.csv")
     assert "plant.q[1]" in header and data.shape[0] > 100
     assert abs(data[-1, 0] - stopped) < 0.05  # the drive side recorded up to about where it stopped
+
+
+def test_sweep_interrupted_closes_its_workers_and_says_so(tmp_path):
+    """SIGTERM to the sweep's process group: the embedded Dask workers ignore it and are closed by the
+    sweep; finished variants stay ok, the running ones and sweep.json say interrupted; exit 130."""
+    base = write_variant((ROOT / "scenarios" / "plant_drop.toml").read_text(), tmp_path / "base.toml", [])
+    sweep = tmp_path / "sweep.toml"
+    sweep.write_text(f'[sweep]\nname = "s"\nbase = "{base.name}"\n[[axes]]\nkey = "simulation.stop_time"\n'
+                     f'values = [20.0, 20.1, 20.2, 20.3]\n')
+    out = tmp_path / "out"
+    proc = subprocess.Popen([sys.executable, "-m", "cosim", "sweep", str(sweep), "--out", str(out), "--workers", "2",
+                             "--quiet"], env=ENV, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True)
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and not list(out.glob("variants/*/summary.json")):
+        assert proc.poll() is None, proc.communicate()[1]
+        time.sleep(0.2)
+    time.sleep(1.0)
+    children = descendants(proc.pid)
+    assert children  # the cluster's nanny and worker processes
+    os.killpg(proc.pid, signal.SIGTERM)
+    code, err = finish(proc)
+    assert code == 130, err
+    time.sleep(1.0)
+    assert not [pid for pid in children if alive(pid)]  # no worker process survived the sweep
+    statuses = {p.parent.name: json.loads(p.read_text())["status"] for p in out.glob("variants/*/summary.json")}
+    assert statuses and set(statuses.values()) <= {"ok", "interrupted"} and "interrupted" in statuses.values()
+    assert json.loads((out / "sweep.json").read_text())["status"] == "interrupted"
+
+
+def descendants(pid: int) -> list[int]:
+    """Process ids below ``pid`` (children, grandchildren, ...), from /proc."""
+    parents: dict[int, list[int]] = {}
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                ppid = int((entry / "stat").read_text().rsplit(")", 1)[1].split()[1])
+            except (OSError, IndexError, ValueError):
+                continue
+            parents.setdefault(ppid, []).append(int(entry.name))
+    found, todo = [], [pid]
+    while todo:
+        for child in parents.get(todo.pop(), []):
+            found.append(child)
+            todo.append(child)
+    return found
+
+
+def alive(pid: int) -> bool:
+    try:
+        state = (Path("/proc") / str(pid) / "stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state != "Z"

@@ -75,7 +75,11 @@ def check_cell(doc: dict[str, Any], where: Where, job_set_drive_parameters: Mapp
                                          f"the cell needs {sorted(needed)}", problem=f"FMU {name!r} missing")
     variables = {name: type_ for name, (type_, _) in wiring.cell_variables().items()}
     # the scenario's own connections first (their indices are the file's), then the generated ones
-    check_cosim_tables({**doc, "connections": wiring.merged_connections(doc["connections"])}, where,
+    try:
+        drive_variables = wiring.drive_variables_of(doc["fmus"])
+    except Exception:  # noqa: BLE001 - an FMU file that cannot be read: check_cosim_tables names it
+        drive_variables = None
+    check_cosim_tables({**doc, "connections": wiring.merged_connections(doc["connections"], drive_variables)}, where,
                        master_variables=variables)
     for name, builtin in needed.items():
         i, fmu = by_name[name]

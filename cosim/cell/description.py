@@ -18,7 +18,7 @@ from types import MappingProxyType
 from typing import Any
 
 from controller import ControllerInfo
-from cosim.cell.wiring import DRIVES, RECORDED_SIGNALS, cell_fmus, merged_connections
+from cosim.cell.wiring import DRIVES, RECORDED_SIGNALS, cell_fmus, drive_variables_of, merged_connections
 from cosim.jobs.laser_tracker import TrackerConfig
 from fieldbus import FieldbusConfig
 from robot.true_robot import TrueRobot
@@ -92,7 +92,7 @@ def describe_cell(doc: Mapping[str, Any], true_robot: TrueRobot, controller: Con
     signals += [s for s in extra_signals if s not in signals]
     signals += [s for s in RECORDED_SIGNALS if s not in signals]
     document = {"simulation": copy.deepcopy(doc["simulation"]), "fmus": fmus,
-                "connections": merged_connections(doc.get("connections") or [])}
+                "connections": merged_connections(doc.get("connections") or [], drive_variables_of(fmus))}
     return CellDescription(label=label, document=MappingProxyType(document), true_robot=true_robot, fieldbus=fb,
                            tracker=tracker, signals=tuple(signals), record_period_s=record["period"],
                            stop_time_s=float(stop_time if stop_time is not None else doc["simulation"]["stop_time"]),

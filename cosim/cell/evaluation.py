@@ -144,6 +144,7 @@ def evaluate_run(ctx: RunContext, mode: str, cell: CellRun, controller: Any, ref
                      fallback_cycles=controller.fallback_cycles)
     else:
         entry["controller"] = type(controller).__name__
+        entry["contract_overhead_us"] = getattr(cell, "port_overhead", None)
         if start is None:
             entry["note"] = ("the controller gives no motion_start_s: the reference is not aligned with the run, "
                              "tracking figures are not evaluated")

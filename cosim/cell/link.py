@@ -11,9 +11,55 @@ import numpy as np
 
 from controller import CellController, ControllerInfo
 from controller.port import ControllerFailure, ControllerPort
-from cosim.cell.wiring import BUS_INTEGER, BUS_REAL, DRIVES, N_JOINTS
+from cosim.cell.wiring import APPLIED_FIELD, BUS_INTEGER, BUS_REAL, DRIVES, N_JOINTS, OPTIONAL_DRIVE_OUTPUTS
 from cosim.master import Master, SimulationError
 from fieldbus import AppliedSetpoints, DriveActuals, PowerlinkNetwork
+
+
+class CellBus:
+    """The drives' side of the bus on a cell's master: what the drives report (a
+    ``fieldbus.DriveActuals`` whose arrays are views of the master's reused read buffers:
+    :meth:`read` refreshes them) and what they apply (a ``fieldbus.AppliedSetpoints`` whose
+    arrays are writable views of the ``bus.*`` master variables, connected to the drives'
+    inputs). Used by the bus-cycle task here and by the split run's drive process.
+
+    A drive FMU without ``modes_of_operation_display`` (0x6061) shows mode 8 (CSP).
+    """
+
+    def __init__(self, master: Master) -> None:
+        n = N_JOINTS
+        self._real = master.reader([f"{d}.{name}" for name in ("position_actual", "velocity_actual", "torque_actual")
+                                    for d in DRIVES])
+        integer = [f"{d}.{name}" for name in ("statusword", "error_code") for d in DRIVES]
+        display = [f"{d}.{name}" for name in OPTIONAL_DRIVE_OUTPUTS for d in DRIVES]
+        try:
+            self._integer = master.reader(integer + display)
+            self.has_display = True
+        except Exception:  # noqa: BLE001 - a drive FMU without 0x6061 (the minimal drive interface)
+            self._integer = master.reader(integer)
+            self.has_display = False
+        real_out = master.view([f"bus.{name}[{i}]" for name in BUS_REAL for i in range(1, n + 1)], writable=True)
+        integer_out = master.view([f"bus.{name}[{i}]" for name in BUS_INTEGER for i in range(1, n + 1)],
+                                  writable=True)
+        real, ints = self._real.read(), self._integer.read()
+        self.actuals = DriveActuals(statusword=ints[:n], position=real[:n], velocity=real[n:2 * n],
+                                    torque=real[2 * n:], error_code=ints[n:2 * n],
+                                    modes_of_operation_display=ints[2 * n:3 * n] if self.has_display else None)
+        views = {name: real_out[k * n:(k + 1) * n] for k, name in enumerate(BUS_REAL)}
+        views.update({name: integer_out[k * n:(k + 1) * n] for k, name in enumerate(BUS_INTEGER)})
+        self.applied = AppliedSetpoints(fresh=np.zeros(n, dtype=bool), comm_fault=np.zeros(n, dtype=bool),
+                                        **{APPLIED_FIELD.get(name, name): view for name, view in views.items()})
+        self._pairs = [(view, APPLIED_FIELD.get(name, name)) for name, view in views.items()]
+
+    def read(self) -> None:
+        """Refresh :attr:`actuals` from the drives' outputs."""
+        self._real.read()
+        self._integer.read()
+
+    def write(self, applied: AppliedSetpoints) -> None:
+        """Copy what ``applied`` holds into the ``bus.*`` variables."""
+        for view, name in self._pairs:
+            view[:] = getattr(applied, name)
 
 
 class FieldbusLink:
@@ -43,8 +89,7 @@ class FieldbusLink:
         self.cycle = 0
         self.actuals = DriveActuals.zeros(N_JOINTS)
         self.setpoints = self.port.setpoints
-        self._real = self._integer = None
-        self._real_out = self._integer_out = None
+        self.bus: CellBus | None = None
         self._copy_applied = True
         self._paced = hasattr(network, "last_late")
 
@@ -57,37 +102,21 @@ class FieldbusLink:
                 self.port.setup(self.info)
             except ControllerFailure as exc:
                 raise SimulationError("controller", 0.0, exc.reason) from exc
-        self._real = master.reader([f"{d}.{name}" for name in ("position_actual", "velocity_actual", "torque_actual")
-                                    for d in DRIVES])
-        self._integer = master.reader([f"{d}.{name}" for name in ("statusword", "error_code") for d in DRIVES])
-        self._real_out = master.view([f"bus.{name}[{i}]" for name in BUS_REAL for i in range(1, N_JOINTS + 1)],
-                                     writable=True)
-        self._integer_out = master.view([f"bus.{name}[{i}]" for name in BUS_INTEGER
-                                         for i in range(1, N_JOINTS + 1)], writable=True)
-        # the actual values are views of the readers' reused buffers: read() refreshes them
-        n = N_JOINTS
-        real, integer = self._real.read(), self._integer.read()
-        self.actuals = DriveActuals(statusword=integer[:n], position=real[:n], velocity=real[n:2 * n],
-                                    torque=real[2 * n:], error_code=integer[n:])
+        self.bus = CellBus(master)
+        self.actuals = self.bus.actuals
         # a PowerlinkNetwork writes what the drives apply straight into the bus.* variables;
         # other networks (e.g. cosim.realtime's PacedNetwork wrapper) get it copied each cycle
         bind = getattr(self.network, "bind_applied", None)
         self._copy_applied = bind is None
         if bind is not None:
-            bind(AppliedSetpoints(controlword=self._integer_out[:n], position=self._real_out[:n],
-                                  torque_offset=self._real_out[n:], fresh=np.zeros(n, dtype=bool),
-                                  comm_fault=np.zeros(n, dtype=bool), fault_code=self._integer_out[n:]))
+            bind(self.bus.applied)
 
     def __call__(self, t: float) -> None:
-        self._real.read()
-        self._integer.read()
+        bus = self.bus
+        bus.read()
         result = self.network.run_cycle(self.cycle, self.setpoints, self.actuals)
         if self._copy_applied:
-            n, applied = N_JOINTS, result.applied
-            self._real_out[:n] = applied.position
-            self._real_out[n:] = applied.torque_offset
-            self._integer_out[:n] = applied.controlword
-            self._integer_out[n:] = applied.fault_code
+            bus.write(result.applied)
         try:
             if self._paced:  # a wall-clock network (cosim.realtime.network.PacedNetwork) says whether it was late
                 network = self.network

@@ -14,7 +14,11 @@ Modes (``mode`` of :func:`run_cell`):
 ``split``
     controller and managing node in this process, drives and plant in a spawned process,
     frames over UDP multicast (``cosim run --split``; paced too with ``--realtime``):
-    :func:`cosim.split.cell.run_split_cell`.
+    :func:`cosim.split.cell.run_split_cell`;
+``serve``
+    the cell side only, paced, for a controller that is another program on the bus
+    (``cosim serve``): :func:`cosim.hil.cell_side.run_served_cell`; the job's controller
+    is not run.
 
 Without a ``mode`` the run follows ``ctx.execution`` (the ``cosim run`` options,
 :class:`cosim.realtime.execution.CellExecution`, which also reports lateness), else
@@ -27,7 +31,7 @@ from __future__ import annotations
 
 import contextlib
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
@@ -44,7 +48,7 @@ from cosim.scenario.cosim_tables import build_master
 from fieldbus import FieldbusConfig, PowerlinkNetwork
 from robot.parameters import load_parameters
 
-MODES = ("in_process", "paced", "split")
+MODES = ("in_process", "paced", "split", "serve")
 """The execution modes of :func:`run_cell`."""
 
 
@@ -57,7 +61,9 @@ class CellRun:
     runs the :class:`cosim.realtime.pacer.Pacer` (lateness per cycle) and the scheduling
     granted; for split runs what the two processes reported (``split``); for a user's
     controller its compute time per cycle as the cell measured it (``controller_timing``,
-    a :class:`controller.TimingSummary`; None for the built-in controller, which times itself)."""
+    a :class:`controller.TimingSummary`; None for the built-in controller, which times itself)
+    and what the controller contract itself cost per cycle (``port_overhead``, µs:
+    :meth:`controller.port.ControllerPort.overhead`)."""
 
     label: str
     record_path: Any
@@ -73,6 +79,7 @@ class CellRun:
     scheduling: str = "normal"
     split: dict[str, Any] | None = field(default=None)
     controller_timing: Any = None
+    port_overhead: dict[str, float] | None = None
 
 
 def master_units(master: Master, signals: Sequence[str]) -> dict[str, str]:
@@ -137,10 +144,12 @@ def add_cell_tasks(master: Master, network: Any, controller: CellController, per
     return master.add_recorder(signals, record_period_s, sink, name="cell"), link
 
 
-def build_cell_master(cell: CellDescription) -> Master:
-    """The master of ``cell``: its FMUs with their start values, the cell's master variables
+def build_cell_master(cell: CellDescription | Mapping[str, Any]) -> Master:
+    """The master of a cell (a :class:`CellDescription`, or its ``master_document()`` as the split
+    run's drive process gets it): its FMUs with their start values, the cell's master variables
     (``bus.*``, ``tracker.*``) and its connections (not initialized, no tasks yet)."""
-    return build_master(cell.master_document(), master_variables=cell_variables())
+    document = cell.master_document() if isinstance(cell, CellDescription) else dict(cell)
+    return build_master(document, master_variables=cell_variables())
 
 
 def run_cell(cell: CellDescription, controller: CellController, ctx: RunContext, *, mode: str | None = None,
@@ -170,6 +179,14 @@ def run_cell(cell: CellDescription, controller: CellController, ctx: RunContext,
         from cosim.realtime.config import ExecutionOptions
 
         options = ExecutionOptions(mode="split" if mode == "split" else "in_process", realtime=(mode == "paced"))
+    if mode == "serve":  # the cell side only: the controller is another program on the bus (cosim serve)
+        from cosim.hil.cell_side import run_served_cell
+        from cosim.hil.settings import ServeSettings
+
+        controller_close = getattr(controller, "close", None)
+        if callable(controller_close):
+            controller_close()  # the job's own controller does not run: the controller is elsewhere
+        return run_served_cell(cell, ctx, getattr(options, "serve", None) or ServeSettings(), pacer=pacer)
     if mode == "split":
         from cosim.split.cell import run_split_cell
 
@@ -239,4 +256,4 @@ def _run_on_master(cell: CellDescription, controller: CellController, ctx: RunCo
     recording = memory if paced else SeriesFile(ctx.path(record_file))
     return CellRun(cell.label, ctx.path(record_file), recorder.rows_written, master.time, network.summary(),
                    wall, engine, recording, failure, cpu, pacer=pacer if paced else None, scheduling=granted,
-                   controller_timing=link.port.timing())
+                   controller_timing=link.port.timing(), port_overhead=link.port.overhead())

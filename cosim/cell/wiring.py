@@ -20,7 +20,7 @@ scenario's ``[fmus.parameters]``.
 from __future__ import annotations
 
 import copy
-from collections.abc import Sequence
+from collections.abc import Collection, Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -39,8 +39,21 @@ DRIVES: tuple[str, ...] = tuple(f"drive{i}" for i in range(1, N_JOINTS + 1))
 PLANT_FMU = "rx130l_plant"
 DRIVE_FMU = "servo_drive"
 
-BUS_REAL = ("target_position", "torque_offset")
-BUS_INTEGER = ("controlword", "fault_code")
+BUS_REAL = ("target_position", "torque_offset", "target_velocity", "velocity_offset", "target_torque")
+"""Real master variables ``bus.<name>[i]`` of the fieldbus task (rad, N·m, rad/s, rad/s, N·m)."""
+BUS_INTEGER = ("controlword", "fault_code", "modes_of_operation")
+"""Integer master variables ``bus.<name>[i]`` of the fieldbus task."""
+BUS_START = {"modes_of_operation": 8}
+"""Start values of bus variables that are not 0 (cyclic synchronous position, CiA 402 0x6060 = 8)."""
+APPLIED_FIELD = {"target_position": "position"}
+"""The ``fieldbus.AppliedSetpoints`` field of a bus variable where the names differ."""
+
+REQUIRED_DRIVE_INPUTS = ("target_position", "torque_offset", "controlword", "fault_code", "q_meas", "qd_meas")
+"""Inputs every drive FMU of the cell has (the minimal drive interface, docs/fmus.md)."""
+OPTIONAL_DRIVE_INPUTS = ("target_velocity", "velocity_offset", "target_torque", "modes_of_operation")
+"""Drive inputs the cell connects when the drive FMU has them (CiA 402 modes 8/9/10)."""
+OPTIONAL_DRIVE_OUTPUTS = ("modes_of_operation_display",)
+"""Drive outputs the cell reads when the drive FMU has them (else mode 8 is shown)."""
 
 
 def bus_variables() -> dict[str, tuple[str, object]]:
@@ -52,7 +65,7 @@ def bus_variables() -> dict[str, tuple[str, object]]:
             out[f"bus.{name}[{i}]"] = ("Real", 0.0)
     for name in BUS_INTEGER:
         for i in range(1, N_JOINTS + 1):
-            out[f"bus.{name}[{i}]"] = ("Integer", 0)
+            out[f"bus.{name}[{i}]"] = ("Integer", BUS_START.get(name, 0))
     return out
 
 
@@ -66,14 +79,28 @@ def cell_variables() -> dict[str, tuple[str, object]]:
     return {**bus_variables(), **tracker_variables()}
 
 
-def cell_connections() -> list[str]:
-    """The connections the cell generates (42: seven per axis), in the order the master makes them."""
+def cell_connections(drive_variables: Mapping[str, Collection[str]] | None = None) -> list[str]:
+    """The connections the cell generates, in the order the master makes them: per axis, drive
+    torque -> plant, plant motor angle and speed -> drive encoder, ``bus.*[i]`` -> the drive's
+    set-point inputs - the required ones (42 in all) and, where ``drive_variables`` (drive
+    instance -> its variable names) says the drive FMU has them, the optional ones of the CiA 402
+    modes of operation (:data:`OPTIONAL_DRIVE_INPUTS`: 66 in all with the servo_drive FMU)."""
     out = []
     for i, drive in enumerate(DRIVES, start=1):
         out += [f"{drive}.tau_out -> {PLANT}.tau[{i}]", f"{PLANT}.q_motor[{i}] -> {drive}.q_meas",
                 f"{PLANT}.qd_motor[{i}] -> {drive}.qd_meas"]
-        out += [f"bus.{name}[{i}] -> {drive}.{name}" for name in BUS_REAL + BUS_INTEGER]
+        have = None if drive_variables is None else set(drive_variables.get(drive, ()))
+        out += [f"bus.{name}[{i}] -> {drive}.{name}" for name in BUS_REAL + BUS_INTEGER
+                if name not in OPTIONAL_DRIVE_INPUTS or (have is not None and name in have)]
     return out
+
+
+def drive_variables_of(fmus: Sequence[Mapping[str, Any]]) -> dict[str, set[str]]:
+    """Drive instance -> the variable names of its FMU (from the ``[[fmus]]`` tables' paths)."""
+    from cosim.master import load_model_description
+    from cosim.master.component import variables_of
+
+    return {f["name"]: set(variables_of(load_model_description(f["path"]))) for f in fmus if f["name"] in DRIVES}
 
 
 def _destination(text: str) -> str | None:
@@ -83,13 +110,14 @@ def _destination(text: str) -> str | None:
         return None  # reported by the scenario checks at its index
 
 
-def merged_connections(scenario_connections: Sequence[str]) -> list[str]:
+def merged_connections(scenario_connections: Sequence[str],
+                       drive_variables: Mapping[str, Collection[str]] | None = None) -> list[str]:
     """The connections of a cell: the scenario's own (in its order; a connection into an input the
     cell drives replaces the generated one; one identical to a generated one is kept once),
-    then the generated ones not replaced. With no scenario connections: :func:`cell_connections`."""
+    then the generated ones not replaced (:func:`cell_connections` with ``drive_variables``)."""
     own = list(dict.fromkeys(scenario_connections))
     taken = {_destination(text) for text in own}
-    return own + [text for text in cell_connections() if _destination(text) not in taken]
+    return own + [text for text in cell_connections(drive_variables) if _destination(text) not in taken]
 
 
 RECORDED_SIGNALS: tuple[str, ...] = (

@@ -3,11 +3,11 @@
 An FMU's native code runs in the master's process by default, so a crash in it (a NULL
 dereference, ``abort()``, ``_exit()``) kills the whole run and a hang in ``fmi2DoStep`` hangs
 it. ``ProxyFmuComponent`` loads the FMU in a child process instead and talks to it over a
-pipe; the master and both engines see the same :class:`~cosim.master.component.FmuComponent`
+socket pair; the master and both engines see the same :class:`~cosim.master.component.FmuComponent`
 interface (its per-step "function pointers" are ctypes callbacks that forward the call):
 
-* fmi2Set* calls are buffered and sent with the next fmi2DoStep (one round trip per step),
-  fmi2Get* is one round trip per bus type;
+* fmi2Set* calls are buffered and sent with the next fmi2DoStep, whose reply carries the
+  outputs the master read after the previous step (one round trip per step);
 * a child that dies (any signal, any exit) or does not answer a step within
   ``step_timeout_s`` (then it is killed) makes the call return fmi2Fatal, and the
   ``SimulationError`` names the component, the simulated time and the signal or timeout;
@@ -17,15 +17,19 @@ interface (its per-step "function pointers" are ctypes callbacks that forward th
 * the FMU's log messages are forwarded as they are logged, so the last ones before a crash
   are kept.
 
-Cost: one pipe round trip (about 20-40 µs on these machines) per step plus one per fmi2Get*
-bus type; docs/robustness.md has the measured figures. FMI 3.0 FMUs run in process only.
+Cost: one socket round trip per step (the outputs come back with the step's reply);
+docs/robustness.md has the measured figures. FMI 3.0 FMUs run in process only.
 """
 from __future__ import annotations
 
 import ctypes
-import multiprocessing
+import multiprocessing.connection
+import os
 import pickle
 import signal
+import socket
+import subprocess
+import sys
 import time
 from ctypes import c_double, c_int, c_void_p
 
@@ -55,6 +59,22 @@ class ChildGone(RuntimeError):
 
 
 # ----------------------------------------------------------------------------------------- child side
+def _ignore_interrupts() -> None:
+    """In the child before it execs Python: SIGINT/SIGTERM ignored (Python keeps an inherited SIG_IGN)."""
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(signum, signal.SIG_IGN)
+
+
+def _child_main() -> None:
+    """Entry point of the child process: ``-c ... FD FMU_PATH NAME LOGGING``."""
+    fd, fmu_path, name, logging_on = sys.argv[1:5]
+    conn = multiprocessing.connection.Connection(int(fd))
+    try:
+        _serve(conn, fmu_path, name, logging_on == "1")
+    finally:
+        conn.close()
+
+
 def _serve(conn, fmu_path: str, name: str, debug_logging: bool) -> None:
     """Child process: instantiate the FMU and answer requests until ``exit`` or the pipe closes."""
     for signum in (signal.SIGINT, signal.SIGTERM):
@@ -201,13 +221,19 @@ class ProxyFmuComponent(FmuComponent):
 
     # ------------------------------------------------------------------ process
     def instantiate(self, stop_at_address: int | None = None) -> None:
-        context = multiprocessing.get_context("spawn")
-        parent, child = context.Pipe(duplex=True)
-        self.process = context.Process(target=_serve, name=f"cosim-fmu-{self.name}", daemon=True,
-                                       args=(child, str(self.path), self.name, self.debug_logging))
-        self.process.start()
-        child.close()
-        self._conn = parent
+        # a plain subprocess over a socket pair, not multiprocessing: a Dask worker (a daemonic
+        # process) may not start multiprocessing children, and the FMU needs none of its machinery
+        parent_socket, child_socket = socket.socketpair()
+        env = dict(os.environ)
+        env["PYTHONPATH"] = os.pathsep.join([p for p in sys.path if p] + [env.get("PYTHONPATH", "")]).rstrip(os.pathsep)
+        try:
+            self.process = subprocess.Popen(
+                [sys.executable, "-c", "from cosim.master.proxy import _child_main; _child_main()",
+                 str(child_socket.fileno()), str(self.path), self.name, "1" if self.debug_logging else "0"],
+                pass_fds=(child_socket.fileno(),), env=env, preexec_fn=_ignore_interrupts, close_fds=True)
+        finally:
+            child_socket.close()
+        self._conn = multiprocessing.connection.Connection(parent_socket.detach())
         reply = self._receive(LIFECYCLE_TIMEOUT_S, "loading and instantiating the FMU", 0.0)
         if reply[0] == "error":
             raise self.error(0.0, reply[1])
@@ -225,8 +251,10 @@ class ProxyFmuComponent(FmuComponent):
 
     def _describe_death(self) -> str:
         process = self.process
-        process.join(timeout=2.0)
-        code = process.exitcode
+        try:
+            code = process.wait(timeout=2.0)
+        except subprocess.TimeoutExpired:
+            code = None
         if code is None:
             return "its process stopped answering"
         if code < 0:
@@ -238,9 +266,12 @@ class ProxyFmuComponent(FmuComponent):
         return f"its process exited with code {code}"
 
     def _kill(self) -> None:
-        if self.process is not None and self.process.is_alive():
+        if self.process is not None and self.process.poll() is None:
             self.process.kill()
-            self.process.join(timeout=5.0)
+            try:
+                self.process.wait(timeout=5.0)
+            except subprocess.TimeoutExpired:  # pragma: no cover - a process that survives SIGKILL
+                pass
 
     def _receive(self, timeout_s: float, what: str, t: float):
         """The next reply (forwarding log messages); ChildGone when the child died or timed out."""
@@ -419,7 +450,11 @@ class ProxyFmuComponent(FmuComponent):
             except Exception:  # noqa: BLE001
                 pass
         self.slave = None
-        self.process.join(timeout=SHUTDOWN_TIMEOUT_S)
+        if not self._busy:  # a child still inside an interrupted call is killed at once
+            try:
+                self.process.wait(timeout=SHUTDOWN_TIMEOUT_S)
+            except subprocess.TimeoutExpired:
+                pass
         self._kill()
         try:
             self._conn.close()

@@ -147,6 +147,9 @@ class ExecutionOptions:
     realtime: bool = False
     receive_timeout_s: float = DEFAULT_RECEIVE_TIMEOUT_S
     settings: RealtimeSettings = field(default_factory=RealtimeSettings)
+    #: ``cosim serve``: the cell side only, paced, for a controller elsewhere on the bus
+    #: (:class:`cosim.hil.settings.ServeSettings`; mode ``"serve"``)
+    serve: Any = None
 
     @property
     def split(self) -> bool:
@@ -155,10 +158,12 @@ class ExecutionOptions:
     @property
     def active(self) -> bool:
         """True when the run differs from the plain in-process, unpaced run."""
-        return self.realtime or self.split
+        return self.realtime or self.split or self.serve is not None
 
     def as_dict(self) -> dict[str, Any]:
         s = self.settings
+        if self.serve is not None:
+            return {"mode": "serve", "realtime": True, "serve": self.serve.as_dict()}
         return {"mode": self.mode, "realtime": self.realtime, "receive_timeout_s": self.receive_timeout_s,
                 "overrun_policy": s.overrun_policy, "spin_us": s.spin_s * 1e6, "scheduling": s.scheduling,
                 "cpu": s.cpu,

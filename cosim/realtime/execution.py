@@ -20,7 +20,7 @@ from cosim.realtime.pacer import LatenessLog
 from cosim.realtime.stats import combine, lateness_summary, load_average, write_histogram
 
 #: Jobs whose runs go through cosim.cell.runner.run_cell (and so honour --realtime/--split).
-CELL_JOBS = frozenset({"iso9283", "fieldbus_fault", "identification", "planners"})
+CELL_JOBS = frozenset({"iso9283", "fieldbus_fault", "identification", "planners", "compare"})
 
 
 class CellExecution:
@@ -45,7 +45,7 @@ class CellExecution:
 
         opts = self.options
         load_before = load_average()
-        mode = "split" if opts.split else "paced"
+        mode = "serve" if opts.serve is not None else "split" if opts.split else "paced"
         run = run_cell(cell, controller, ctx, mode=mode, options=opts)
         if opts.split:
             self.split_runs[cell.label] = run.split

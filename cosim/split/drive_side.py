@@ -24,6 +24,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from cosim.cell import wiring
+from cosim.cell.link import CellBus
 from cosim.jobs.laser_tracker import LaserTracker, TrackerConfig
 from cosim.master import EndSimulation, Master, SimulationError
 from cosim.realtime.pacer import no_cyclic_gc, realtime_scheduling
@@ -100,18 +101,8 @@ class DriveLink:
         self.actuals: DriveActuals | None = None
 
     def setup(self, master: Master) -> None:
-        n = wiring.N_JOINTS
-        drives = wiring.DRIVES
-        self._real = master.reader([f"{d}.{name}" for name in ("position_actual", "velocity_actual", "torque_actual")
-                                    for d in drives])
-        self._integer = master.reader([f"{d}.{name}" for name in ("statusword", "error_code") for d in drives])
-        self._real_out = master.view([f"bus.{name}[{i}]" for name in wiring.BUS_REAL for i in range(1, n + 1)],
-                                     writable=True)
-        self._integer_out = master.view([f"bus.{name}[{i}]" for name in wiring.BUS_INTEGER
-                                         for i in range(1, n + 1)], writable=True)
-        real, integer = self._real.read(), self._integer.read()
-        self.actuals = DriveActuals(statusword=integer[:n], position=real[:n], velocity=real[n:2 * n],
-                                    torque=real[2 * n:], error_code=integer[n:])
+        self.bus = CellBus(master)
+        self.actuals = self.bus.actuals
 
     def _wait_marker(self, t: float) -> int:
         conn = self.conn
@@ -128,8 +119,7 @@ class DriveLink:
 
     def __call__(self, t: float) -> None:
         n = wiring.N_JOINTS
-        self._real.read()
-        self._integer.read()
+        self.bus.read()
         flags = self._wait_marker(t)
         if flags & END:
             self.ended_at = self.cycle
@@ -141,12 +131,7 @@ class DriveLink:
         applied = self.endpoint.run_cycle(cycle, self.actuals)
         if not pres_expected(self.plan.for_cycle(cycle), n):
             self.conn.send(("ack", cycle))
-        out = self._real_out
-        out[:n] = applied.position
-        out[n:] = applied.torque_offset
-        out = self._integer_out
-        out[:n] = applied.controlword
-        out[n:] = applied.fault_code
+        self.bus.write(applied)
         self.cycle = cycle + 1
 
 
@@ -155,7 +140,7 @@ def drive_side_main(spec: DriveSideSpec, conn) -> None:
     report ``("done", {...})`` (or ``("error", text)``) on the duplex pipe ``conn``."""
     import signal
 
-    from cosim.scenario.cosim_tables import build_master
+    from cosim.cell.runner import build_cell_master
     from fieldbus.network import network_summary
 
     # Ctrl-C reaches the whole process group: the parent ends this side (END marker, or kill after
@@ -164,7 +149,7 @@ def drive_side_main(spec: DriveSideSpec, conn) -> None:
         signal.signal(signum, signal.SIG_IGN)
     endpoint = None
     try:
-        master = build_master(spec.cell_doc, master_variables=wiring.cell_variables())
+        master = build_cell_master(spec.cell_doc)
         endpoint = DriveEndpoint(spec.config, wiring.joint_scaling(), log_path=spec.can_log)
         use_directional_bus(endpoint, "cn", spec.config.bus.channel, *spec.ports)
         plan = OverrunFaultPlan(endpoint.plan, spec.config.nodes)

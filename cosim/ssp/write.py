@@ -216,9 +216,9 @@ def export_ssp(scenario: str | Path, out: str | Path) -> Path:
     fmus = cell_fmus or [dict(f) for f in doc["fmus"]]
     connections = list(doc.get("connections", []))
     if cell_fmus is not None:  # a robot cell: its generated wiring plus the scenario's own connections
-        from cosim.cell.wiring import merged_connections
+        from cosim.cell.wiring import drive_variables_of, merged_connections
 
-        connections = merged_connections(connections)
+        connections = merged_connections(connections, drive_variables_of(fmus))
     master_variables: dict[str, str] = {}
     descriptions = {f["name"]: variables_of(load_model_description(f["path"])) for f in fmus}
     for text in connections:

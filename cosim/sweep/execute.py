@@ -259,6 +259,30 @@ def _write_definition(sweep: Sweep, out_dir: Path, state: dict[str, Any]) -> Non
     os.replace(tmp, out_dir / SWEEP_FILE)
 
 
+def _mark_interrupted(todo: list[VariantTask], rows: dict[int, dict[str, Any]], exc: BaseException) -> None:
+    """Variants that were running when the sweep was interrupted (their workers are gone): their
+    summary.json from ``running`` to ``interrupted`` with the signal and the progress they had reached."""
+    name = getattr(exc, "signal_name", "SIGINT")
+    for task in todo:
+        if task.index in rows:
+            continue
+        path = Path(task.folder) / "summary.json"
+        try:
+            data = json.loads(path.read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            continue
+        if data.get("status") != "running":
+            continue
+        data.update(status="interrupted", signal=name, reason=f"sweep interrupted by {name}",
+                    stopped_at_s=data.get("sim_time_s"))
+        try:
+            tmp = path.with_name(path.name + ".tmp")
+            tmp.write_text(json.dumps(data, indent=2) + "\n", encoding="utf-8")
+            os.replace(tmp, path)
+        except OSError:
+            pass
+
+
 def run_sweep(sweep: Sweep, out_dir: str | Path | None = None, *, workers: int | None = None,
               scheduler: str | None = None, client: Any = None, progress: bool = True,
               resume: bool = True, transfer: str = "auto") -> SweepResult:
@@ -302,11 +326,19 @@ def run_sweep(sweep: Sweep, out_dir: str | Path | None = None, *, workers: int |
     if todo:
         context = contextlib.nullcontext(client) if client is not None else \
             dask_client(workers, scheduler, sweep.retries)
-        with context as dask_client_:
-            workers_seen = len(dask_client_.scheduler_info().get("workers", {}))
-            where = scheduler or getattr(dask_client_.scheduler, "address", "")
-            _run_tasks(dask_client_, sweep, todo, rows, table_path, len(tasks), reused, progress, mode == "ship")
-            workers_seen = max(workers_seen, len(dask_client_.scheduler_info().get("workers", {})))
+        try:
+            with context as dask_client_:
+                workers_seen = len(dask_client_.scheduler_info().get("workers", {}))
+                where = scheduler or getattr(dask_client_.scheduler, "address", "")
+                _run_tasks(dask_client_, sweep, todo, rows, table_path, len(tasks), reused, progress,
+                           mode == "ship")
+                workers_seen = max(workers_seen, len(dask_client_.scheduler_info().get("workers", {})))
+        except KeyboardInterrupt as exc:  # the cluster is closed: say so in every unfinished variant and sweep.json
+            _mark_interrupted(todo, rows, exc)
+            _write_definition(sweep, out_dir, {"status": "interrupted", "started_at": started_at, "reused": reused,
+                                               "signal": getattr(exc, "signal_name", "SIGINT"),
+                                               "finished": len(rows)})
+            raise
     ordered = [rows[t.index] for t in tasks]
     write_table(table_path, ordered, sweep.parameters)
     figure = None

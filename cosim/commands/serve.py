@@ -1,0 +1,98 @@
+"""``python -m cosim serve SCENARIO [--out DIR] [--channel HOST:PORT] [--peer HOST:PORT] ...``:
+the cell side of a hardware-in-the-loop run (docs/hil.md)."""
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+NAME = "serve"
+HELP = ("Run the cell side of the scenario's robot-cell runs (plant, drives, controlled nodes, tracker, "
+        "recorder) paced at the bus cycle for a controller in another program on the udpcycle bus; "
+        "writes hil_endpoint.json first, then the usual results (docs/hil.md).")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from cosim.hil.settings import DEFAULT_CHANNEL, DEFAULT_SPIN_S, DEFAULT_WINDOW_FRACTION
+
+    parser.add_argument("scenario", type=Path, help="scenario TOML file of a robot-cell job (e.g. scenarios/hil.toml)")
+    parser.add_argument("--out", type=Path, default=None, help="results folder (default results/<scenario name>/)")
+    parser.add_argument("--quiet", action="store_true", help="no progress bar")
+    parser.add_argument("--channel", default=DEFAULT_CHANNEL,
+                        help=f"the cell's address host:port, unicast or a multicast group (default {DEFAULT_CHANNEL})")
+    parser.add_argument("--peer", default=None,
+                        help="the controller's host:port (default: answer whoever sent the last valid datagram)")
+    parser.add_argument("--accept-from", default=None,
+                        help="comma-separated hosts or host:port accepted as the controller (default: any)")
+    parser.add_argument("--window", type=float, default=DEFAULT_WINDOW_FRACTION,
+                        help="fraction of the cycle the cell waits for the controller's frames (default "
+                             f"{DEFAULT_WINDOW_FRACTION})")
+    parser.add_argument("--spin-us", type=float, default=DEFAULT_SPIN_S * 1e6,
+                        help="busy-wait before each cycle deadline, us")
+    parser.add_argument("--busy-poll-us", type=float, default=0.0, help="spin on the socket while waiting, us")
+    parser.add_argument("--scheduling", choices=("fifo", "normal"), default="fifo",
+                        help="SCHED_FIFO when the OS grants it (default) or normal")
+    parser.add_argument("--cpu", default=None, help="pin to this CPU ('auto': the last usable one)")
+
+
+def run(args: argparse.Namespace) -> int:
+    from cosim.api import OutputFolderError, RunResult, ScenarioError, execute, load_scenario
+    from cosim.commands.exits import InvalidInput, signal_name_of
+    from cosim.hil.settings import ServeSettings, ServeSettingsError
+
+    try:
+        settings = ServeSettings(channel=args.channel, peer=args.peer,
+                                 accept_from=None if args.accept_from is None else
+                                 tuple(x.strip() for x in args.accept_from.split(",") if x.strip()),
+                                 window_fraction=args.window, spin_s=args.spin_us * 1e-6,
+                                 busy_poll_s=args.busy_poll_us * 1e-6, scheduling=args.scheduling, cpu=args.cpu)
+    except ServeSettingsError as exc:
+        raise InvalidInput(str(exc)) from None
+    _check_address_free(settings.channel)
+    try:
+        scenario = load_scenario(args.scenario)
+    except ScenarioError as exc:
+        raise InvalidInput(str(exc)) from None
+    out_dir = args.out if args.out is not None else Path("results") / scenario.name
+    origin = "--out" if args.out is not None else "results folder"
+    try:
+        result = execute(scenario, out_dir, quiet=args.quiet, origin=origin, serve=settings)
+    except (ScenarioError, OutputFolderError) as exc:
+        raise InvalidInput(str(exc)) from None
+    except KeyboardInterrupt as exc:
+        summary = RunResult(out_dir).summary
+        print(f"{scenario.name}: serve interrupted by {signal_name_of(exc)}"
+              f"{'' if summary.stopped_at_s is None else f' at t = {summary.stopped_at_s:.6g} s'}; results in "
+              f"{out_dir}/", file=sys.stderr)
+        return 130
+    if result.ok:
+        if not args.quiet:
+            print(f"{scenario.name}: served, results in {out_dir}/", file=sys.stderr)
+        return 0
+    print(f"error: {scenario.name}: served run failed: {(result.summary.reason or '').strip()}", file=sys.stderr)
+    return 3
+
+
+def _check_address_free(channel: str) -> None:
+    """A unicast --channel must be bindable now (exit 2 naming it otherwise, before anything runs)."""
+    import ipaddress
+    import socket
+
+    from cosim.commands.exits import InvalidInput
+
+    host, _, port = channel.rpartition(":")
+    try:
+        address = socket.gethostbyname(host)
+    except OSError as exc:
+        raise InvalidInput(f"--channel {channel!r}: cannot resolve {host!r} ({exc})") from None
+    if ipaddress.ip_address(address).is_multicast:
+        return
+    probe = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        probe.bind((address, int(port)))
+    except OSError as exc:
+        why = "is in use" if exc.errno in (98, 48) else f"cannot be used ({exc.strerror or exc})"
+        raise InvalidInput(f"--channel {channel!r}: the address {why}; expected a free UDP address of this "
+                           f"machine") from None
+    finally:
+        probe.close()

@@ -1,0 +1,266 @@
+"""The served cell: plant + drives + controlled nodes + tracker + recorder, paced at the bus
+cycle, answering whatever controller is on the bus (the ``serve`` mode of
+:func:`cosim.cell.runner.run_cell`).
+
+Per bus cycle k, :class:`CellSideLink` (master task, priority 0): wait for the cycle's wall
+deadline ``W_k`` (:class:`cosim.realtime.pacer.Pacer`: sleep, then spin), latch the drives'
+actual values at ``t_k``, run the controlled nodes' cycle with a window that closes at
+``W_k + window`` (:meth:`fieldbus.DriveEndpoint.run_cycle_paced`: the controller's SoC +
+PReqs of cycle k if they came in time, else a lost cycle for the threshold counters; the
+PRes frames go out), and write what the drives apply from ``t_k`` to the ``bus.*``
+variables. The master then steps the FMUs to ``t_k+1``. The cell never waits for the
+controller beyond the window.
+
+Just before its first cycle the cell writes ``hil_endpoint.json`` into the results folder: the
+addresses, the bus cycle, the nodes, the CiA 402 scaling of each node and the start pose,
+everything a controller in another program needs (``examples/hil_external_controller.py``).
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from cosim.cell.description import CellDescription
+from cosim.cell.wiring import N_JOINTS, joint_scaling
+from cosim.hil.settings import ENDPOINT_FILE, ServeSettings
+from cosim.master import Master, MemorySink, SimulationError
+from fieldbus import DriveActuals, DriveEndpoint, FieldbusConfig
+from fieldbus.telegrams import RPDO1_BASE, SYNC_ID, TPDO1_BASE, TPDO2_BASE
+
+
+def _now_s() -> float:
+    return time.perf_counter_ns() * 1e-9
+
+
+class CellSideLink:
+    """The served cell's bus-cycle task (see module docstring)."""
+
+    def __init__(self, endpoint: DriveEndpoint, pacer: Any, window_s: float, cycles: int) -> None:
+        self.endpoint = endpoint
+        self.pacer = pacer
+        self.window_ns = int(round(window_s * 1e9))
+        self.cycle = 0
+        self.taken = np.zeros(cycles + 1, dtype=bool)  # the controller's group came in time
+        self.held = np.zeros(N_JOINTS, dtype=np.int64)  # cycles a drive held / extrapolated its set-point
+        self.actuals = DriveActuals.zeros(N_JOINTS)
+        self.bus = None
+
+    def setup(self, master: Master) -> None:
+        from cosim.cell.link import CellBus
+
+        self.bus = CellBus(master)
+        self.actuals = self.bus.actuals
+        self.endpoint.nodes.bind_applied(self.bus.applied)
+
+    def __call__(self, t: float) -> None:
+        k = self.cycle
+        pacer = self.pacer
+        pacer.wait(k)
+        deadline = (pacer.deadline_ns(k) + self.window_ns) * 1e-9
+        self.bus.read()
+        endpoint = self.endpoint
+        applied = endpoint.run_cycle_paced(k, self.actuals, deadline, clock=_now_s)
+        if endpoint._last_taken == k:
+            self.taken[min(k, self.taken.size - 1)] = True
+        fresh = applied.fresh
+        if not fresh.all():
+            self.held += ~fresh
+        self.cycle = k + 1
+
+
+def endpoint_description(cell: CellDescription, settings: ServeSettings, config: FieldbusConfig,
+                         window_s: float) -> dict[str, Any]:
+    """What a controller in another program needs to know (written as ``hil_endpoint.json``)."""
+    scaling = joint_scaling()
+    host, _, port = settings.channel.rpartition(":")
+    controller_channel = settings.peer or f"{host}:{int(port) + 1}"
+    return {
+        "format": "rx130l-cosim hil endpoint 1",
+        "interface": "udpcycle",
+        "cell_channel": settings.channel,
+        "controller_channel": controller_channel,
+        "peer_fixed": settings.peer is not None,
+        "cycle_time_s": config.cycle_time_s,
+        "window_s": window_s,
+        "dead_time_cycles": config.dead_time_cycles,
+        "nodes": config.nodes,
+        "sync_counter_overflow": config.scaling.sync_counter_overflow,
+        "counts_per_rad": scaling.counts_per_rad.tolist(),
+        "torque_units_per_nm": scaling.units_per_newton_metre.tolist(),
+        "rated_torque_nm": scaling.rated_torque.tolist(),
+        "q_start_rad": np.asarray(cell.controller.q_start, dtype=float).tolist(),
+        "stop_time_s": cell.stop_time_s,
+        "label": cell.label,
+        "frames": {"soc": f"0x{SYNC_ID:03X} UINT8 counter 1..overflow",
+                   "preq": f"0x{RPDO1_BASE:03X}+node, 8 bytes (CSP) or 20 bytes CAN FD (all modes): "
+                           f"fieldbus/README.md, Frames",
+                   "pres": f"0x{TPDO1_BASE:03X}+node <H statusword, <i position actual [counts], <h torque actual; "
+                           f"0x{TPDO2_BASE:03X}+node: fieldbus/README.md, Frames"},
+        "busy_poll_s": settings.busy_poll_s,
+    }
+
+
+def _percentiles(values: np.ndarray, points=(50.0, 99.0, 99.9)) -> dict[str, float | None]:
+    keys = {50.0: "p50_us", 99.0: "p99_us", 99.9: "p99_9_us"}
+    if values.size == 0:
+        return {**{keys[p]: None for p in points}, "max_us": None}
+    out = {keys[p]: float(v) for p, v in zip(points, np.percentile(values, points))}
+    out["max_us"] = float(values.max())
+    return out
+
+
+def _longest_run(flags: np.ndarray) -> int:
+    longest = run = 0
+    for flag in flags.tolist():
+        run = run + 1 if flag else 0
+        longest = max(longest, run)
+    return longest
+
+
+def timing_report(link: CellSideLink, endpoint: DriveEndpoint, pacer: Any) -> dict[str, Any]:
+    """The served cell's side of the timing report (summary.json ``hil``)."""
+    log = pacer.log
+    lateness = log.lateness_us
+    overrun = log.overrun[:log.count]
+    cycles = link.cycle
+    taken = link.taken[:cycles]
+    first = int(np.argmax(taken)) if taken.any() else None
+    lost_by_node = {str(i + 1): 0 for i in range(N_JOINTS)}
+    faults = []
+    for e in endpoint.events.events:
+        if e.side == "cn" and e.kind == "loss_of_preq" and e.event == "error":
+            lost_by_node[str(e.node)] += 1
+        elif e.event in ("fault_reaction", "fault_cleared") and e.side == "cn":
+            faults.append({"cycle": e.cycle, "time_s": e.time_s, "node": e.node, "event": e.event, "kind": e.kind})
+    stats = getattr(endpoint.bus, "stats", None)
+    latency = np.asarray(getattr(endpoint.bus, "latency_ns", []), dtype=float) * 1e-3
+    return {
+        "cycles": cycles,
+        "overruns": int(overrun.sum()),
+        "overrun_fraction": float(overrun.mean()) if overrun.size else 0.0,
+        "longest_overrun_run": _longest_run(overrun),
+        "lateness": {**_percentiles(lateness),
+                     "max_at_cycle": int(log.cycles[int(np.argmax(lateness))]) if lateness.size else None},
+        "missed_ticks": int(log.missed_ticks),
+        "controller": {"first_cycle": first, "cycles_in_time": int(taken.sum()),
+                       "cycles_missed_after_first": int((~taken[first:]).sum()) if first is not None else 0},
+        "frames_lost_per_node": lost_by_node,
+        "frames_late": endpoint.frames_late,
+        "cycles_held_per_node": {str(i + 1): int(v) for i, v in enumerate(link.held)},
+        "fault_reactions": faults[:200],
+        "preq_one_way_latency": _percentiles(latency, (50.0, 99.0)),
+        "transport": stats.as_dict() if stats is not None else {},
+    }
+
+
+def write_timing_figure(path: Path, link: CellSideLink, pacer: Any, title: str) -> Path:
+    """Lateness per cycle, and when the controller's frames were missed."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    log = pacer.log
+    n = log.count
+    t = np.arange(n) * pacer.period_ns * 1e-9
+    fig, (a, b) = plt.subplots(2, 1, figsize=(9, 5.5), sharex=True)
+    lateness = np.maximum(log.lateness_us, 1e-3)
+    a.semilogy(t, lateness, ".", ms=1.5, color="tab:blue", label="lateness")
+    over = log.overrun[:n]
+    if over.any():
+        a.semilogy(t[over], lateness[over], "x", ms=4, color="tab:red", label=f"overrun ({int(over.sum())})")
+    a.axhline(pacer.tolerance_ns * 1e-3, color="grey", lw=0.8, ls="--", label="tolerance")
+    a.set_ylabel("cycle start lateness [µs]")
+    a.legend(loc="upper right", fontsize=8)
+    a.set_title(title, fontsize=9)
+    cycles = min(link.cycle, n)
+    missed = ~link.taken[:cycles]
+    b.step(t[:cycles], np.cumsum(missed), where="post", color="tab:orange", label="cycles without the controller's frames")
+    b.set_ylabel("cumulative cycles")
+    b.set_xlabel("wall time since the first cycle [s]")
+    b.legend(loc="upper left", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def run_served_cell(cell: CellDescription, ctx: Any, settings: ServeSettings, *, pacer: Any = None):
+    """Serve ``cell`` until its stop time (wall = simulated time, paced) or an interrupt;
+    returns the :class:`cosim.cell.runner.CellRun` (``pacer`` set, ``hil`` = the report)."""
+    from cosim.cell.runner import CellRun, build_cell_master, write_recording
+    from cosim.jobs.laser_tracker import LaserTracker
+    from cosim.realtime.pacer import Pacer, no_cyclic_gc, realtime_scheduling
+
+    base = cell.fieldbus
+    options = {**dict(base.bus.options), **settings.bus_options()}
+    bus = dataclasses.replace(base.bus, interface="udpcycle", channel=settings.channel, options=options)
+    config = dataclasses.replace(base, bus=bus)
+    period, stop_time = cell.period_s, cell.stop_time_s
+    window_s = settings.window_fraction * period
+    cycles = int(round(stop_time / period)) + 1
+    laser = LaserTracker(cell.true_robot.kinematic_model(), cell.tracker)
+    master = build_cell_master(cell)
+    memory = MemorySink()
+    endpoint = DriveEndpoint(config, joint_scaling(), log_path=cell.can_log)
+    description = endpoint_description(cell, settings, config, window_s)
+    description_path = Path(ctx.path(ENDPOINT_FILE))
+    if pacer is None:
+        pacer = Pacer(period, settings.spin_s, period - window_s, capacity=cycles + 16)
+    pacer.thresholds = {"window": window_s, "whole_cycle": period}
+    if endpoint.recorder is not None and getattr(endpoint.recorder, "background", False):
+        endpoint.recorder.wait_ready()  # a writer still starting would stall the first hand-over
+    link = CellSideLink(endpoint, pacer, window_s, cycles)
+    master.add_task(link, period, priority=0, name="served cell (fieldbus)", setup=link.setup)
+    master.add_task(laser, laser.config.period_s, priority=1, name="laser_tracker", setup=laser.setup)
+    recorder = master.add_recorder(list(cell.signals), cell.record_period_s, memory, name="cell")
+    failure: SimulationError | None = None
+    engine, granted = "", "normal"
+    ctx.label = cell.label
+    wall0, cpu0 = time.perf_counter(), time.process_time()
+    report: dict[str, Any] = {}
+    try:
+        with master:
+            try:
+                master.initialize(stop_time)
+                engine = master.engine.name
+                # ready: the endpoint description appears just before the first cycle
+                tmp = description_path.with_suffix(".json.tmp")
+                tmp.write_text(json.dumps(description, indent=1))
+                tmp.replace(description_path)
+                with realtime_scheduling(settings.scheduling, 10, settings.cpu) as granted, no_cyclic_gc():
+                    ctx.execute(master, stop_time)
+            except SimulationError as exc:
+                failure = exc
+    finally:
+        wall, cpu = time.perf_counter() - wall0, time.process_time() - cpu0
+        endpoint.close()
+        if memory.columns:
+            write_recording(memory, ctx.csv_sink(cell.record_file))
+        if link.cycle:
+            report = timing_report(link, endpoint, pacer)
+            report["settings"] = settings.as_dict()
+            report["endpoint_file"] = ENDPOINT_FILE
+            report["figure"] = write_timing_figure(
+                Path(ctx.path(f"hil_{cell.label}.png")), link, pacer,
+                f"{cell.label}: served cell, {link.cycle} cycles, {report['overruns']} overruns, "
+                f"{sum(report['frames_lost_per_node'].values())} lost PReqs").name
+            hil = dict(ctx.summary.data.get("hil") or {})
+            hil[cell.label] = report
+            ctx.summary.update(hil=hil)
+    summary = endpoint.summary() if hasattr(endpoint, "summary") else _endpoint_summary(endpoint)
+    run = CellRun(cell.label, ctx.path(cell.record_file), recorder.rows_written, master.time, summary, wall, engine,
+                  memory, failure, cpu, pacer=pacer, scheduling=granted)
+    run.hil = report
+    return run
+
+
+def _endpoint_summary(endpoint: DriveEndpoint) -> dict[str, Any]:
+    from fieldbus.network import network_summary
+
+    return network_summary(endpoint.config, endpoint.events, None, endpoint, endpoint.recorder, endpoint._cycle + 1)

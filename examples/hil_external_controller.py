@@ -1,0 +1,164 @@
+"""A minimal external controller for ``python -m cosim serve``: python-can and the
+documented telegram layout only (no import of the project's packages).
+
+It reads the cell's endpoint description (``hil_endpoint.json``, written by ``cosim
+serve`` before its first cycle), joins the bus through python-can's ``udpcycle``
+interface, enables the six drives through CiA 402 (shutdown 0x06 -> switch on 0x07 ->
+enable operation 0x0F, each when the statusword shows the state before it), moves every
+joint along a smooth cosine out and back in cyclic synchronous position mode, and stops.
+
+Timing: the cell keeps the time; this program follows it. Every cycle the cell sends
+its PRes frames (TPDO1 0x180+n, TPDO2 0x280+n); after each batch of them this program
+sends one datagram: the SoC (SYNC 0x080, counter 1..240) and one PReq (RPDO1 0x200+n)
+per drive. The SoC counter is the cell's cycle (as the number of PRes batches seen)
+plus one, modulo 240, plus one: a batch that is missed or answered too late costs that
+cycle's set-points (the cell's threshold counters count it).
+
+Usage::
+
+    python -m cosim serve scenarios/hil.toml --out results/hil &
+    python examples/hil_external_controller.py results/hil/hil_endpoint.json --amplitude 0.2 --duration 2
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import struct
+import sys
+import time
+
+import can
+
+SYNC_ID, RPDO1_BASE, TPDO1_BASE, TPDO2_BASE = 0x080, 0x200, 0x180, 0x280
+RPDO1 = struct.Struct("<Hih")  # controlword, target position [counts], torque offset [0.1 % rated]
+TPDO1 = struct.Struct("<Hih")  # statusword, position actual [counts], torque actual [0.1 % rated]
+TPDO2 = struct.Struct("<iH")  # velocity actual [counts/s], error code
+
+SHUTDOWN, SWITCH_ON, ENABLE_OPERATION, FAULT_RESET = 0x06, 0x07, 0x0F, 0x80
+
+
+def state(statusword: int) -> str:
+    """CiA 402 state from the statusword bits (0x006F mask; 0x004F for the first two)."""
+    if statusword & 0x4F == 0x40:
+        return "switch_on_disabled"
+    if statusword & 0x6F == 0x21:
+        return "ready_to_switch_on"
+    if statusword & 0x6F == 0x23:
+        return "switched_on"
+    if statusword & 0x6F == 0x27:
+        return "operation_enabled"
+    if statusword & 0x4F in (0x08, 0x0F):
+        return "fault"
+    return "other"
+
+
+def next_controlword(statusword: int, previous: int) -> int:
+    """The controlword that moves a drive one step towards 'operation enabled'."""
+    s = state(statusword)
+    if s == "fault":
+        return 0x00 if previous & FAULT_RESET else FAULT_RESET  # rising edge of bit 7
+    return {"switch_on_disabled": SHUTDOWN, "ready_to_switch_on": SWITCH_ON,
+            "switched_on": ENABLE_OPERATION}.get(s, ENABLE_OPERATION)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("endpoint", help="hil_endpoint.json written by cosim serve")
+    parser.add_argument("--amplitude", type=float, default=0.2, help="joint excursion, rad")
+    parser.add_argument("--duration", type=float, default=2.0, help="time out and back, s")
+    parser.add_argument("--enable-timeout", type=float, default=5.0, help="s to wait for all drives enabled")
+    parser.add_argument("--stop-after", type=float, default=None,
+                        help="go silent this many seconds into the motion (to show the cell's reaction)")
+    args = parser.parse_args(argv)
+    with open(args.endpoint, encoding="utf-8") as file:
+        desc = json.load(file)
+    n = desc["nodes"]
+    cpr = desc["counts_per_rad"]  # per node
+    q_start = desc["q_start_rad"]
+    cycle_s = desc["cycle_time_s"]
+    bus = can.Bus(interface="udpcycle", channel=desc["controller_channel"], peer=desc["cell_channel"],
+                  busy_poll_s=desc.get("busy_poll_s", 0.0))
+    status = [0] * n
+    position = [0] * n
+    controlword = [0] * n
+    counter = 0
+    cycles_seen = 0
+    enabled_at = None
+    motion_cycles = int(round(args.duration / cycle_s))
+    started = time.monotonic()
+
+    def send(frames: list) -> None:
+        send_many = getattr(bus, "send_many", None)
+        if send_many is not None:
+            send_many(frames)  # one datagram
+        else:
+            for frame in frames:
+                bus.send(frame)
+
+    def hold_frames(count: int) -> list:
+        """SoC + PReqs that keep every drive disabled where it is (announces this program)."""
+        return [can.Message(arbitration_id=SYNC_ID, data=bytes([count]), is_extended_id=False)] + \
+            [can.Message(arbitration_id=RPDO1_BASE + i + 1, is_extended_id=False,
+                         data=RPDO1.pack(0, round(q_start[i] * cpr[i]), 0)) for i in range(n)]
+
+    try:
+        # the cell answers whoever talks to it: say hello until its PRes frames come
+        msg = None
+        while msg is None:
+            send(hold_frames(1))
+            msg = bus.recv(0.1)
+            if msg is None and time.monotonic() - started > 20.0:
+                print("no PRes from the cell for 20 s: is `cosim serve` running?", file=sys.stderr)
+                return 2
+        pending = [msg]
+        while True:
+            # one batch of PRes frames = one cell cycle
+            msg = pending.pop() if pending else bus.recv(0.5)
+            if msg is None:
+                print("no PRes from the cell for 0.5 s: the cell stopped", file=sys.stderr)
+                return 0 if enabled_at is not None else 2
+            batch = [msg]
+            msg = bus.recv(0)
+            while msg is not None:
+                batch.append(msg)
+                msg = bus.recv(0)
+            batches = 0
+            for frame in batch:
+                node = frame.arbitration_id & 0x7F
+                if frame.arbitration_id & ~0x7F == TPDO1_BASE and 1 <= node <= n:
+                    status[node - 1], position[node - 1], _ = TPDO1.unpack(bytes(frame.data))
+                    batches += node == 1
+            cycles_seen += max(batches, 1)
+            counter = cycles_seen % 240 + 1
+            if args.stop_after is not None and enabled_at is not None and \
+                    (cycles_seen - enabled_at) * cycle_s > args.stop_after:
+                return 0  # go silent mid-motion: the cell's counters must trip and the drives stop the arm
+            all_enabled = all(state(s) == "operation_enabled" for s in status)
+            if all_enabled and enabled_at is None:
+                enabled_at = cycles_seen
+            if enabled_at is None:
+                if time.monotonic() - started > args.enable_timeout:
+                    print(f"drives not enabled after {args.enable_timeout} s: statuswords "
+                          f"{[hex(s) for s in status]}", file=sys.stderr)
+                    return 3
+                controlword = [next_controlword(s, c) for s, c in zip(status, controlword)]
+                target = [round(q * c) for q, c in zip(q_start, cpr)]  # hold where the arm starts
+            else:
+                k = cycles_seen - enabled_at
+                if k > motion_cycles + int(0.5 / cycle_s):  # motion done and 0.5 s of rest
+                    return 0
+                phase = min(k / motion_cycles, 1.0)
+                offset = args.amplitude * 0.5 * (1.0 - math.cos(2.0 * math.pi * phase))
+                controlword = [ENABLE_OPERATION] * n
+                target = [round((q + offset) * c) for q, c in zip(q_start, cpr)]
+            frames = [can.Message(arbitration_id=SYNC_ID, data=bytes([counter]), is_extended_id=False)]
+            frames += [can.Message(arbitration_id=RPDO1_BASE + i + 1, is_extended_id=False,
+                                   data=RPDO1.pack(controlword[i], target[i], 0)) for i in range(n)]
+            send(frames)
+    finally:
+        bus.shutdown()
+
+
+if __name__ == "__main__":
+    sys.exit(main())
