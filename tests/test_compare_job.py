@@ -130,9 +130,8 @@ def test_table_ranks_every_entry_and_is_written_as_csv_and_json(runs):
     assert abs(float(series[600]["payload.tau[2]"])) > 5.0
     # the PD + gravity class runs its drives in cyclic synchronous torque, the built-in modes in position
     for ctrl, mode in (("pd_gravity", 10), ("model_based", 8)):
-        with open(out / f"timeseries_{ctrl}__line.csv", newline="") as handle:
-            modes = {float(r[f"drive{j}.modes_of_operation_display"]) for r in list(csv.DictReader(handle))[300:]
-                     for j in range(1, 7)}
+        columns, data = read_series(out / f"timeseries_{ctrl}__line.parquet")
+        modes = {float(v) for j in range(1, 7) for v in data[300:, columns.index(f"drive{j}.modes_of_operation_display")]}
         assert modes == {mode}, (ctrl, modes)
     trajs = summary["trajectories"]
     assert trajs["pick_place_joint"]["kind"] == "joint" and trajs["line"]["kind"] == "cartesian"
