@@ -24,6 +24,8 @@ planners               own CP vs TOPP-RA (paper line, 200 intervals), own PtP vs
                        times and trajectory durations
 calibration            selecting 32 of the campaign's visible candidates (min eigenvalue)
 identification         base regressor + weighted least squares on a record
+hil                    the paced cell side and a following controller in two processes over
+                       udpcycle at 400 µs: overruns, lateness, frame round trip, lost cycles
 =====================  ==================================================================
 
 ``ratios``: own CP / TOPP-RA solve time and duration, own PtP / ruckig_feasible
@@ -73,6 +75,8 @@ class Sizes:
     calibration_grid: int | None
     calibration_restarts: int
     identification_samples: int
+    hil_seconds: float = 10.0
+    hil_runs: int = 5
 
 
 FULL = Sizes(repeats=3, closed_loop_sim_s=2.0, split_sim_s=0.4, paced_sim_s=10.0, bus_cycles=5000, fmu_batches=60,
@@ -80,7 +84,7 @@ FULL = Sizes(repeats=3, closed_loop_sim_s=2.0, split_sim_s=0.4, paced_sim_s=10.0
              identification_samples=5000)
 QUICK = Sizes(repeats=1, closed_loop_sim_s=0.1, split_sim_s=0.04, paced_sim_s=0.1, bus_cycles=300, fmu_batches=3,
               cp_intervals=30, ptp_intervals=20, calibration_candidates=300, calibration_grid=7, calibration_restarts=1,
-              identification_samples=300)
+              identification_samples=300, hil_seconds=0.3, hil_runs=1)
 
 
 def _median(values: list[float]) -> float:
@@ -297,10 +301,24 @@ def identification(sizes: Sizes, work: Path) -> dict[str, Any]:
     return bench_identification.bench_identify(sizes.identification_samples, max(sizes.repeats, 1))
 
 
+def hil(sizes: Sizes, work: Path) -> dict[str, Any]:
+    """Paced cell side + following controller in two processes over udpcycle at 400 µs
+    (benchmarks/bench_hil.py): medians over runs of the overrun fraction, the lateness p99,
+    the frame round trip p50/p99 and the lost cycles; every run's figures with its load."""
+    import bench_hil
+
+    out = bench_hil.run(sizes.hil_seconds, sizes.hil_runs)
+    m = out["median"]
+    return {"seconds": sizes.hil_seconds, "runs": out["runs"], "overrun_fraction": m["overrun_fraction"],
+            "longest_overrun_run": m["longest_overrun_run"], "lateness_p99_us": m["lateness_p99_us"],
+            "round_trip_p50_us": m["round_trip_p50_us"], "round_trip_p99_us": m["round_trip_p99_us"],
+            "lost_cycles": m["lost_cycles"]}
+
+
 SECTIONS: dict[str, Callable[[Sizes, Path], dict[str, Any]]] = {
     "closed_loop": closed_loop, "closed_loop_split": closed_loop_split, "paced": paced,
     "controller_port": controller_port, "bus": bus, "fmu": fmu,
-    "planners": planners, "calibration": calibration, "identification": identification,
+    "planners": planners, "calibration": calibration, "identification": identification, "hil": hil,
 }
 
 #: The figures bench.json must hold (section -> keys), checked by the test and by run_suite.
@@ -316,6 +334,7 @@ REQUIRED: dict[str, tuple[str, ...]] = {
                  "ruckig_solve_s", "ruckig_feasible_solve_s", "own_ptp_duration_s", "ruckig_feasible_duration_s"),
     "calibration": ("selection_s",),
     "identification": ("identification_s",),
+    "hil": ("overrun_fraction", "lateness_p99_us", "round_trip_p99_us"),
 }
 RATIOS = ("own_cp_vs_toppra_solve_time", "own_cp_vs_toppra_duration", "own_ptp_vs_ruckig_feasible_duration",
           "own_ptp_vs_ruckig_feasible_solve_time", "in_process_vs_split_realtime_factor")

@@ -76,8 +76,9 @@ from robot.inverse_kinematics import LIMIT_TOLERANCE, NumericIK
 
 N_JOINTS = 6
 MODES: tuple[str, ...] = ("standard", "model_based", "model_based_elastic")
-_STOP_STATES = {DriveState.FAULT: "Fault", DriveState.FAULT_REACTION_ACTIVE: "Fault reaction active",
+STOP_STATES = {DriveState.FAULT: "Fault", DriveState.FAULT_REACTION_ACTIVE: "Fault reaction active",
                 DriveState.QUICK_STOP_ACTIVE: "Quick stop active"}
+"""Drive states in which a controller stops commanding motion (state -> name for the reason)."""
 
 
 class ControllerConfigError(ValueError):
@@ -616,10 +617,10 @@ class Controller:
             if not fresh[i]:
                 continue  # a missed PRes: values held; the threshold counter decides
             state = decode_statusword(int(status))
-            if state in _STOP_STATES:
+            if state in STOP_STATES:
                 code = int(observed.error_code[i])
                 extra = f", error code 0x{code:04X}" if code else ""
-                return f"drive {i + 1} reports {_STOP_STATES[state]}{extra}"
+                return f"drive {i + 1} reports {STOP_STATES[state]}{extra}"
         return None
 
     def _stop(self, t: float, reason: str, observed: ObservedActuals) -> None:

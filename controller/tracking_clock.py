@@ -30,12 +30,11 @@ from __future__ import annotations
 import numpy as np
 
 from controller.contract import ControllerInfo, ControllerInput
+from controller.controller import STOP_STATES
 from controller.joint_reference import CartesianToJoint
 from controller.reference import JointTrajectory, TcpTrajectory
-from fieldbus import Command, DriveState, EnableSequencer, decode_statusword
+from fieldbus import Command, EnableSequencer, decode_statusword
 
-_STOP_STATES = {DriveState.FAULT: "Fault", DriveState.FAULT_REACTION_ACTIVE: "Fault reaction active",
-                DriveState.QUICK_STOP_ACTIVE: "Quick stop active"}
 
 
 class TrackingClock:
@@ -131,6 +130,6 @@ class TrackingClock:
         for i, status in enumerate(inputs.statusword.tolist()):
             if fresh[i] and (int(status) & 0x6F) != 0x27:
                 state = decode_statusword(int(status))
-                if state in _STOP_STATES:
-                    return f"drive {i + 1} reports {_STOP_STATES[state]}"
+                if state in STOP_STATES:
+                    return f"drive {i + 1} reports {STOP_STATES[state]}"
         return None

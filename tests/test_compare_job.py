@@ -57,17 +57,11 @@ def runs(tmp_path_factory):
     finally:
         path.unlink()
     assert code == 0 and summary["status"] == "ok", summary.get("reason")
-    # the main job on the same scenario settings: the example with job = "iso9283", model_based only
-    text = EXAMPLE.read_text(encoding="utf-8")
-    text = text[:text.index("\n[compare]\n")] + text[text.index("\n[results]\n"):]
-    main = write_variant(text, EXAMPLE.parent / f"_test_{tmp.name}_main.toml", [
-        *EXAMPLE_SHORT, ('job = "compare"', 'job = "iso9283"'),
-        ('period = "400 us"            # paper section 2.3.2', 'modes = ["model_based"]\nperiod = "400 us"'),
-        ("figures = true", "figures = false")])
-    try:
-        code, main_summary = run_scenario(main, tmp / "main_out")
-    finally:
-        main.unlink()
+    # the main job, scenarios/iso9283.toml, with the same two edits (ISO path cut at 0.6 s, settle 0.1 s)
+    main = write_variant(ISO_TEXT, tmp / "main.toml", [
+        *EXAMPLE_SHORT, ('modes = ["standard", "standard_speed_ff", "model_based"]', 'modes = ["model_based"]'),
+        ("can_log = true", "can_log = false"), ("figures = true", "figures = false")])
+    code, main_summary = run_scenario(main, tmp / "main_out")
     assert code == 0, main_summary.get("reason")
     return summary, tmp / "out", main_summary
 
@@ -121,12 +115,6 @@ def test_table_ranks_every_entry_and_is_written_as_csv_and_json(runs):
                  "timeseries_standard__line.csv", "tcp_model_based__quintic_ptp.csv",
                  "controller_standard__iso9283.csv"):
         assert (out / name).stat().st_size > 0, name
-    # the payload FMU (built from C) hangs 3 kg on the flange from t = 0.5 s, through the plant's tau_ext
-    with open(out / "timeseries_model_based__pick_place_joint.csv", newline="") as handle:
-        series = list(csv.DictReader(handle))
-    mass = {round(float(r["time"]), 4): float(r["payload.load_mass"]) for r in series}
-    assert mass[0.499] == 0.0 and mass[0.502] == 3.0 and mass[1.0] == 3.0
-    assert abs(float(series[600]["payload.tau[2]"])) > 5.0
     # the PD + gravity class runs its drives in cyclic synchronous torque, the built-in modes in position
     for ctrl, mode in (("pd_gravity", 10), ("model_based", 8)):
         with open(out / f"timeseries_{ctrl}__line.csv", newline="") as handle:

@@ -21,9 +21,9 @@ from cosim.scenario.schema import Table, Where
 PLANT_VARIABLES = frozenset({"tau[1]", "q[6]", "p[78]", "payload_mass"})
 """Variables the cell needs of the plant FMU (``rx130l_plant``)."""
 
-DRIVE_VARIABLES = frozenset({"target_position", "torque_offset", "controlword", "statusword", "position_actual",
-                             "torque_actual"})
-"""Variables the cell needs of every drive FMU (``servo_drive``)."""
+DRIVE_VARIABLES = wiring.REQUIRED_DRIVE_VARIABLES
+"""Variables the cell needs of every drive FMU: the required ones of the minimal drive
+interface (``fmus.servo_drive.interface``, docs/fmus.md)."""
 
 
 def fill_defaults(doc: dict[str, Any], schema: Table, keys: Iterable[str]) -> None:

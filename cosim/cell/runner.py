@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import contextlib
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
@@ -130,10 +130,12 @@ def add_cell_tasks(master: Master, network: Any, controller: CellController, per
     return master.add_recorder(signals, record_period_s, sink, name="cell"), link
 
 
-def build_cell_master(cell: CellDescription) -> Master:
-    """The master of ``cell``: its FMUs with their start values, the cell's master variables
+def build_cell_master(cell: CellDescription | Mapping[str, Any]) -> Master:
+    """The master of a cell (a :class:`CellDescription`, or its ``master_document()`` as the split
+    run's drive process gets it): its FMUs with their start values, the cell's master variables
     (``bus.*``, ``tracker.*``) and its connections (not initialized, no tasks yet)."""
-    return build_master(cell.master_document(), master_variables=cell_variables())
+    document = cell.master_document() if isinstance(cell, CellDescription) else dict(cell)
+    return build_master(document, master_variables=cell_variables())
 
 
 def run_cell(cell: CellDescription, controller: CellController, ctx: RunContext, *, mode: str | None = None,

@@ -135,12 +135,12 @@ class ControllerEntry(Spec):
         table.setdefault("name", table[key].stem if key == "fmu" else table[key].name)
         return table
 
-    # the class file, FMU or FMU source folder of an entry travels with a sweep's tasks
+    # the class file or FMU of an entry travels with a sweep's tasks (a source folder, like
+    # [[fmus]] source, does not: a shipped sweep needs the built FMU, fmu = "...")
     def referenced_file(self, value: Any) -> str | None:
         if isinstance(value, dict):
-            for key in ("fmu", "fmu_source"):
-                if isinstance(value.get(key), str):
-                    return value[key]
+            if isinstance(value.get("fmu"), str):
+                return value["fmu"]
             return class_spec_file(value.get("class"))
         if isinstance(value, str) and value.lower().endswith(".fmu"):
             return value
@@ -148,9 +148,8 @@ class ControllerEntry(Spec):
 
     def relocated(self, value: Any, path: str) -> Any:
         if isinstance(value, dict):
-            for key in ("fmu", "fmu_source"):
-                if isinstance(value.get(key), str):
-                    return {**value, key: path}
+            if isinstance(value.get("fmu"), str):
+                return {**value, "fmu": path}
             return {**value, "class": with_class_file(value["class"], path)}
         return path if value.lower().endswith(".fmu") else with_class_file(value, path)
 

@@ -140,7 +140,7 @@ def drive_side_main(spec: DriveSideSpec, conn) -> None:
     report ``("done", {...})`` (or ``("error", text)``) on the duplex pipe ``conn``."""
     import signal
 
-    from cosim.scenario.cosim_tables import build_master
+    from cosim.cell.runner import build_cell_master
     from fieldbus.network import network_summary
 
     # Ctrl-C reaches the whole process group: the parent ends this side (END marker, or kill after
@@ -149,7 +149,7 @@ def drive_side_main(spec: DriveSideSpec, conn) -> None:
         signal.signal(signum, signal.SIG_IGN)
     endpoint = None
     try:
-        master = build_master(spec.cell_doc, master_variables=wiring.cell_variables())
+        master = build_cell_master(spec.cell_doc)
         endpoint = DriveEndpoint(spec.config, wiring.joint_scaling(), log_path=spec.can_log)
         use_directional_bus(endpoint, "cn", spec.config.bus.channel, *spec.ports)
         plan = OverrunFaultPlan(endpoint.plan, spec.config.nodes)
