@@ -118,9 +118,11 @@ def check_cell(doc: dict[str, Any], where: Where, job_set_drive_parameters: Mapp
                 raise (where / "fmus")[by_name[fmu["name"]][0]].error(
                     f"a step that divides the {table} period {value!r} s (it reads FMU outputs then)", step,
                     problem="FMU step does not divide the period")
-    if doc.get("record") is not None and doc["record"].get("file", "timeseries.csv") != "timeseries.csv":
+    if doc.get("record") is not None and doc["record"].get("file", "timeseries") not in ("timeseries",
+                                                                                      "timeseries.csv"):
         raise (where / "record" / "file").error(
-            "no file name here: a robot-cell job writes one time series per mode (timeseries_<mode>.csv)",
+            "no file name here: a robot-cell job writes one time series per mode (timeseries_<mode>.parquet, "
+            "or .csv with --timeseries csv)",
             doc["record"]["file"], problem="key the job does not use")
     if doc.get("record") is not None and not is_integer_multiple(doc["record"]["period"], base):
         raise (where / "record" / "period").error(f"a positive integer multiple of macro_step = {base!r} s",
