@@ -153,13 +153,22 @@ def joint_scaling(parameters: RobotParameters | None = None) -> JointScaling:
     return JointScaling(p.gear_ratio, p.encoder_counts_per_motor_rev, p.rated_torque)
 
 
+def gear_start_values(true_robot: TrueRobot) -> dict[str, float]:
+    """The true robot's gear stiffness as plant start values (``stiffness[1..6]``, N m/rad)."""
+    if true_robot.gear_stiffness is None:
+        return {}
+    return {f"stiffness[{i}]": float(k) for i, k in enumerate(true_robot.gear_stiffness, start=1)}
+
+
 def cell_fmus(doc_fmus: list[dict[str, Any]], true_robot: TrueRobot, q0: Sequence[float]) -> list[dict[str, Any]]:
     """A copy of the scenario's ``[[fmus]]`` with the plant's and drives' start values filled in
-    (drive defaults first, then the scenario's own parameters on top)."""
+    (drive defaults first, then the scenario's own parameters on top). An elastic plant
+    (``elastic_joints = 1``) gets the true robot's gear stiffness unless the scenario sets it."""
     fmus = copy.deepcopy(doc_fmus)
     for fmu in fmus:
         if fmu["name"] == PLANT:
-            fmu["parameters"] = {**fmu["parameters"], **plant_start_values(true_robot, q0)}
+            gears = gear_start_values(true_robot) if fmu["parameters"].get("elastic_joints") else {}
+            fmu["parameters"] = {**gears, **fmu["parameters"], **plant_start_values(true_robot, q0)}
         elif fmu["name"] in DRIVES:
             axis = DRIVES.index(fmu["name"]) + 1
             fmu["parameters"] = {**drive_start_values(axis), **fmu["parameters"]}
