@@ -601,7 +601,9 @@ class RunResult:
 # ------------------------------------------------------------------------------------------ running
 def run(scenario: "str | Path | Mapping[str, Any] | Scenario", out: str | Path | None = None,
         overrides: Mapping[str, Any] | None = None, *, quiet: bool = True, realtime: bool = False,
-        split: bool = False, check: bool = True, timeseries: str | None = None) -> RunResult:
+        split: bool = False, check: bool = True, timeseries: str | None = None,
+        max_output: str | float | None = None, max_memory: str | float | None = None,
+        ignore_budget: bool = False) -> RunResult:
     """Validate and run a scenario; return its :class:`RunResult`.
 
     Args:
@@ -613,8 +615,11 @@ def run(scenario: "str | Path | Mapping[str, Any] | Scenario", out: str | Path |
         realtime, split: pace the robot cell at the wall clock / run controller and drives in two
             processes (as ``cosim run --realtime/--split``; docs/timing.md).
         check: raise :class:`RunFailed` when the run ends ``failed`` (False: return the result).
-        timeseries: the time-series file format, ``"parquet"`` or ``"csv"`` (None: the project's
-            default, see docs/ARCHITECTURE.md); :meth:`RunResult.timeseries` reads either.
+        timeseries: ``"parquet"`` (default, or ``$COSIM_TIMESERIES``) or ``"csv"``: the format
+            of the time-series files.
+        max_output, max_memory, ignore_budget: the run's budget (``cosim.results.budget``:
+            sizes like ``"5 GB"``; default: free disk space, half the RAM); a run estimated
+            above it raises :class:`cosim.results.budget.BudgetError` before anything runs.
 
     Raises:
         ScenarioError: invalid scenario or override (nothing is written, no folder is made).
@@ -630,27 +635,30 @@ def run(scenario: "str | Path | Mapping[str, Any] | Scenario", out: str | Path |
     else:
         out_dir, temporary = Path(out), False
     result = _execute_into(sc, out_dir, options, quiet=quiet, origin="out", temporary=temporary,
-                           timeseries=timeseries)
+                           timeseries=timeseries, budget=None if ignore_budget else (max_output, max_memory))
     if check and result.status != "ok":
         raise RunFailed(result) from result.error
     return result
 
 
 def execute(scenario: Scenario, out: str | Path, *, quiet: bool = True, realtime: bool = False,
-            split: bool = False, origin: str = "out", timeseries: str | None = None, serve: Any = None) -> RunResult:
+            split: bool = False, origin: str = "out", timeseries: str | None = None, serve: Any = None,
+            max_output: str | float | None = None, max_memory: str | float | None = None,
+            ignore_budget: bool = False) -> RunResult:
     """Run an already loaded scenario into ``out`` and return the result whatever its status
     (the layer under :func:`run` and ``cosim run``; ``origin`` names where ``out`` came from in
     an OutputFolderError, e.g. ``"--out"``). ``serve`` (a :class:`cosim.hil.ServeSettings`):
     run only the cell side of each robot-cell run, paced, for a controller elsewhere on the bus
-    (``cosim serve``). Raises ScenarioError, OutputFolderError, KeyboardInterrupt as :func:`run`
-    does; never RunFailed."""
+    (``cosim serve``). ``max_output``, ``max_memory``, ``ignore_budget``: as for :func:`run`.
+    Raises ScenarioError, OutputFolderError, KeyboardInterrupt as :func:`run` does (and
+    BudgetError); never RunFailed."""
     if serve is not None:
         options = _execution_options(scenario, True, False)
         options = dataclasses.replace(options, mode="serve", realtime=True, serve=serve)
     else:
         options = _execution_options(scenario, realtime, split)
     return _execute_into(scenario, Path(out), options, quiet=quiet, origin=origin, temporary=False,
-                         timeseries=timeseries)
+                         timeseries=timeseries, budget=None if ignore_budget else (max_output, max_memory))
 
 
 def _execution_options(sc: Scenario, realtime: bool, split: bool):
@@ -670,7 +678,7 @@ def _execution_options(sc: Scenario, realtime: bool, split: bool):
 
 
 def _execute_into(sc: Scenario, out_dir: Path, options, *, quiet: bool, origin: str, temporary: bool,
-                  timeseries: str | None = None) -> RunResult:
+                  timeseries: str | None = None, budget: tuple | None = (None, None)) -> RunResult:
     """Lock ``out_dir``, run the job, finish summary.json; the result (``error``: what failed the run)."""
     from cosim.commands.exits import describe_os_error
     from cosim.results.outdir import OutputFolderError, open_results_folder
@@ -682,9 +690,13 @@ def _execute_into(sc: Scenario, out_dir: Path, options, *, quiet: bool, origin: 
 
         execution = CellExecution(options)
     with open_results_folder(out_dir, origin):
+        if budget is not None:  # the folder is usable: the estimate, before anything runs or is written
+            from cosim.results.budget import check_budget, estimate_run
+            from cosim.results.timeseries import default_format
+
+            check_budget(estimate_run(sc.data, timeseries or default_format()), out_dir, *budget)
         try:
-            extra = {} if timeseries is None else {"timeseries_format": timeseries}
-            ctx = RunContext(sc.validated, out_dir, quiet=quiet, execution=execution, **extra)
+            ctx = RunContext(sc.validated, out_dir, quiet=quiet, execution=execution, timeseries_format=timeseries)
         except OSError as exc:
             raise OutputFolderError(describe_os_error(exc, f"{origin} {str(out_dir)!r}: cannot write summary.json"))\
                 from None

@@ -31,15 +31,10 @@ import numpy as np
 from numpy.typing import ArrayLike
 from threadpoolctl import threadpool_limits
 
+from identification.dynamic_defaults import MAX_CONDITION_NUMBER
 from identification.dynamic_errors import IdentificationDataError, InsufficientExcitationError
 
 N_JOINTS = 6
-MAX_CONDITION_NUMBER = 1.0e4
-"""Largest accepted condition number of the column-normalised base regressor. Measured on this
-arm: optimised order-5 excitation 4.5, random feasible Fourier series of the same order 15-66,
-sums of sines of the CLI tests about 240, a record where joint 6 does not move: inf. Above
-1e4, torque noise of 0.1 % of rated torque moves the weakest base parameters by more than
-their own size."""
 MIN_ROWS_PER_PARAMETER = 10
 """At least this many torque rows (samples x 6) per base parameter."""
 WLS_PASSES = 3

@@ -25,15 +25,11 @@ from __future__ import annotations
 import math
 
 import numpy as np
-import scipy.signal
 from numpy.typing import ArrayLike
 
+from identification.dynamic_defaults import DEFAULT_CUTOFF_HZ
 from identification.dynamic_errors import IdentificationDataError
 
-DEFAULT_CUTOFF_HZ = 20.0
-"""Default low-pass cut-off, Hz: about 30 times the highest harmonic of the default exciting
-trajectory (5 x 0.8 rad/s = 0.64 Hz) and above the content of the ISO 9283 path at 1 m/s,
-far below the 1250 Hz Nyquist frequency of 400 us samples."""
 FILTER_ORDER = 4
 """Butterworth order of the zero-phase low-pass (applied twice by filtfilt: 8th-order magnitude)."""
 EDGE_PAD_CUTOFF_PERIODS = 3.0
@@ -82,6 +78,8 @@ def _check_cutoff(sample_time: float, cutoff_hz: float) -> None:
 
 def _sos(sample_time: float, cutoff_hz: float) -> np.ndarray:
     _check_cutoff(sample_time, cutoff_hz)
+    import scipy.signal  # here, not at import: scipy.signal costs seconds to import
+
     return scipy.signal.butter(FILTER_ORDER, cutoff_hz, btype="low", output="sos", fs=1.0 / sample_time)
 
 
@@ -101,6 +99,8 @@ def zero_phase_lowpass(x: ArrayLike, sample_time: float, cutoff_hz: float = DEFA
     pad = min(x.shape[0] - 1, int(math.ceil(EDGE_PAD_CUTOFF_PERIODS / (cutoff_hz * sample_time))))
     fit = min(x.shape[0], max(8, int(math.ceil(EDGE_FIT_CUTOFF_PERIODS / (cutoff_hz * sample_time)))))
     extended = np.concatenate((_extrapolate(x[:fit][::-1], pad)[::-1], x, _extrapolate(x[-fit:], pad)), axis=0)
+    import scipy.signal
+
     y = scipy.signal.sosfiltfilt(_sos(sample_time, cutoff_hz), extended, axis=0, padtype=None)
     return y[pad:pad + x.shape[0]]
 

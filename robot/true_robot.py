@@ -27,7 +27,7 @@ from robot.dynamics import (
     COULOMB_SLICE, N_PARAMETERS, PARAMETER_NAMES, ROTOR_INERTIA_SLICE, VISCOUS_SLICE, DynamicParameterError,
     RobotDynamics, nominal_parameter_vector,
 )
-from robot.parameters import RobotParameters
+from robot.parameters import RobotParameters, load_parameters
 
 _DYNAMICS_STREAM = 0x64796E  # mixed with the seed: the dynamic deviations' own random stream
 
@@ -62,6 +62,10 @@ class DeviationMagnitudes:
     """each viscous friction coefficient times (1 + U(-a, a)), 1 (20 %)"""
     coulomb_relative: float = 0.20
     """each Coulomb friction torque times (1 + U(-a, a)), 1 (20 %)"""
+    stiffness_relative: float = 0.10
+    """each gear stiffness (``[elastic] stiffness`` of the parameter file) times (1 + U(-a, a)),
+    1 (10 %): reducer catalogues give typical, not guaranteed, torsional rigidity; the unit-to-
+    unit spread and the bearing and housing compliance in series make +-10 % a modest bound"""
 
     def __post_init__(self) -> None:
         for name, value in asdict(self).items():
@@ -89,6 +93,8 @@ class TrueRobot:
     geometric_errors: np.ndarray
     seed: int
     magnitudes: DeviationMagnitudes = field(default=DEFAULT_DEVIATION_MAGNITUDES)
+    gear_stiffness: np.ndarray | None = None
+    """(6,) N m/rad, the true gears' stiffness (used by the elastic plant; None: nominal)"""
 
     def kinematic_model(self) -> pin.Model:
         """Pinocchio model with the geometric errors folded into the placements (nominal inertias)."""
@@ -111,6 +117,7 @@ class TrueRobot:
             "payload": {"mass_kg": float(self.payload[0]), "com_in_tool0_m": self.payload[1:].tolist()},
             "dynamic_parameters": dict(zip(PARAMETER_NAMES, self.dynamic_parameters.tolist())),
             "geometric_errors": errors_as_dict(self.geometric_errors),
+            **({"gear_stiffness": self.gear_stiffness.tolist()} if self.gear_stiffness is not None else {}),
         }
 
 
@@ -149,11 +156,15 @@ def make_true_robot(seed: int, payload: ArrayLike | None = None,
     true_p[ROTOR_INERTIA_SLICE] *= 1.0 + rng.uniform(-1, 1, 6) * magnitudes.rotor_inertia_relative
     true_p[VISCOUS_SLICE] *= 1.0 + rng.uniform(-1, 1, 6) * magnitudes.viscous_relative
     true_p[COULOMB_SLICE] *= 1.0 + rng.uniform(-1, 1, 6) * magnitudes.coulomb_relative
+    # drawn last: the deviations above are the same as before the gears had a true stiffness
+    robot = parameters or load_parameters()
+    stiffness = np.asarray(robot.stiffness, dtype=float) * (
+        1.0 + rng.uniform(-1, 1, 6) * magnitudes.stiffness_relative)
 
     geometric = random_geometric_errors(
         seed, DEFAULT_ERROR_MAGNITUDES if geometric_magnitudes is None else geometric_magnitudes)
     return TrueRobot(_read_only(true_p), _read_only(load), _read_only(np.asarray(geometric, dtype=float)),
-                     seed, magnitudes)
+                     seed, magnitudes, _read_only(stiffness))
 
 
 def perturb_link(link_parameters_10: ArrayLike, rng: np.random.Generator,

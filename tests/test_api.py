@@ -160,7 +160,8 @@ def test_run_returns_summary_timeseries_and_equals_the_cli(tmp_path):
     cli = subprocess.run([sys.executable, "-m", "cosim", "run", str(path), "--out", str(tmp_path / "cli"),
                           "--quiet"], capture_output=True, text=True, cwd=ROOT)
     assert cli.returncode == 0, cli.stderr
-    assert (tmp_path / "cli" / "timeseries.csv").read_bytes() == (tmp_path / "api" / "timeseries.csv").read_bytes()
+    assert (tmp_path / "cli" / "timeseries.parquet").read_bytes() == \
+        (tmp_path / "api" / "timeseries.parquet").read_bytes()
     assert cosim.RunResult.open(tmp_path / "cli").summary["rows_recorded"] == 51
 
 

@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from cosim.results import read_series
 from cosim.scenario import ScenarioError, load_scenario
 from scenario_files import run_scenario, write_variant
 
@@ -112,14 +113,13 @@ def test_table_ranks_every_entry_and_is_written_as_csv_and_json(runs):
     data = json.loads((out / "compare.json").read_text())
     assert data["rank_by"] == "tcp_error_max_mm" and data["rows"] == rows
     for name in ("trajectory_pick_place_joint.csv", "trajectory_line.csv", "trajectory_quintic_ptp.csv",
-                 "timeseries_standard__line.csv", "tcp_model_based__quintic_ptp.csv",
-                 "controller_standard__iso9283.csv"):
+                 "timeseries_standard__line.parquet", "tcp_model_based__quintic_ptp.parquet",
+                 "controller_standard__iso9283.parquet"):
         assert (out / name).stat().st_size > 0, name
     # the PD + gravity class runs its drives in cyclic synchronous torque, the built-in modes in position
     for ctrl, mode in (("pd_gravity", 10), ("model_based", 8)):
-        with open(out / f"timeseries_{ctrl}__line.csv", newline="") as handle:
-            modes = {float(r[f"drive{j}.modes_of_operation_display"]) for r in list(csv.DictReader(handle))[300:]
-                     for j in range(1, 7)}
+        columns, data = read_series(out / f"timeseries_{ctrl}__line.parquet")
+        modes = {float(v) for j in range(1, 7) for v in data[300:, columns.index(f"drive{j}.modes_of_operation_display")]}
         assert modes == {mode}, (ctrl, modes)
     trajs = summary["trajectories"]
     assert trajs["pick_place_joint"]["kind"] == "joint" and trajs["line"]["kind"] == "cartesian"
@@ -190,8 +190,8 @@ def test_a_failing_user_controller_is_a_failed_entry_and_the_others_run(tmp_path
     assert rows["Flaky"]["status"] == "failed" and rows["Flaky"]["rank"] is None
     entry = summary["entries"]["Flaky__wave"]
     assert "sensor model diverged" in entry["failure"] and summary["failed_entries"] == ["Flaky__wave"]
-    with open(tmp_path / "out" / "timeseries_Flaky__wave.csv", newline="") as handle:
-        times = [float(r["time"]) for r in csv.DictReader(handle)]
+    columns, data = read_series(tmp_path / "out" / "timeseries_Flaky__wave.parquet")
+    times = data[:, columns.index("time")].tolist()
     assert 0.14 < times[-1] < 0.2
 
 

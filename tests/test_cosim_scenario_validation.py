@@ -51,7 +51,7 @@ def test_good_scenario_is_normalized(write):
     sim = s.data["simulation"]
     assert sim["macro_step"] == pytest.approx(0.1) and sim["coupling"] == "jacobi" and sim["engine"] == "auto"
     assert s.data["fmus"][0]["path"].is_absolute() and s.data["fmus"][1]["step"] == 0.2
-    assert s.data["record"]["file"] == "timeseries.csv"
+    assert s.data["record"]["file"] == "timeseries"  # -> timeseries.parquet (or .csv with --timeseries csv)
 
 
 CASES = [

@@ -12,6 +12,7 @@ from fmpy import extract, read_model_description
 from fmpy.fmi2 import FMU2Slave
 from fmpy.validation import validate_fmu
 
+from cosim.results import read_series
 from fmus.source_fmu import SourceFmuError, build_source_fmu
 from robot.dynamics import RobotDynamics
 
@@ -111,7 +112,6 @@ def test_feedforward_controller_fmu_computes_its_documented_law():
 def test_payload_example_picks_a_part_through_tau_ext(tmp_path):
     """examples/payload_pick.toml as a user runs it: the payload FMU (built from C) hangs 3 kg on the
     flange at 0.6 s through the plant's tau_ext; the three controllers run and are ranked."""
-    import csv
     import json
 
     from cosim.cli import main
@@ -122,8 +122,8 @@ def test_payload_example_picks_a_part_through_tau_ext(tmp_path):
     rows = {r["controller"]: r for r in summary["table"]}
     assert set(rows) == {"standard", "model_based", "pd_gravity"}
     assert all(r["status"] == "ok" for r in rows.values()) and rows["model_based"]["rank"] == 1
-    with open(out / "timeseries_model_based__pick_place_joint.csv", newline="") as handle:
-        series = list(csv.DictReader(handle))
+    columns, data = read_series(out / "timeseries_model_based__pick_place_joint.parquet")
+    series = [dict(zip(columns, row)) for row in data]
     mass = {round(float(r["time"]), 4): float(r["payload.load_mass"]) for r in series}
     assert mass[0.599] == 0.0 and mass[0.602] == 3.0 and mass[1.5] == 3.0
     # its weight on axis 2 is about m g times the horizontal reach of the flange (> 1 m here)

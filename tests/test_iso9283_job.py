@@ -129,7 +129,7 @@ def test_failing_fmu_stops_cleanly_with_partial_results(tmp_path):
     assert summary["modes"]["model_based"]["status"] == "failed"
     header, data = read_csv(out / "timeseries_model_based.csv")
     assert 1 <= data.shape[0] <= summary["stopped_at_s"] / 1e-3 + 2
-    assert (out / "controller_model_based.csv").is_file() and (out / "tcp_model_based.csv").is_file()
+    assert (out / "controller_model_based.parquet").is_file() and (out / "tcp_model_based.parquet").is_file()
 
 
 def test_drive_fault_stops_the_controller_and_fails_the_run(tmp_path):

@@ -87,11 +87,17 @@ def test_connections_are_generated_and_a_scenario_lists_only_what_differs(tmp_pa
 
     assert "connections" not in load_scenario(ROOT / "scenarios" / "iso9283.toml").data or \
         not load_scenario(ROOT / "scenarios" / "iso9283.toml").data["connections"]
-    generated = cell_connections()
-    assert len(generated) == 42 and merged_connections([]) == generated
-    assert merged_connections(generated) == generated  # an old file listing all 42 gives the same wiring
+    from cosim.cell.wiring import drive_variables_of
+
     path = variant(tmp_path, "[scenario]", 'connections = ["plant.qd[2] -> drive1.qd_meas"]\n[scenario]')
     doc = load_scenario(path).data
-    merged = merged_connections(doc["connections"])
+    servo = drive_variables_of(doc["fmus"])
+    generated = cell_connections(servo)
+    assert len(generated) == 66 and merged_connections([], servo) == generated  # all inputs of servo_drive
+    assert merged_connections(generated, servo) == generated  # an old file listing them gives the same wiring
+    merged = merged_connections(doc["connections"], servo)
     assert merged[0] == "plant.qd[2] -> drive1.qd_meas" and "plant.qd_motor[1] -> drive1.qd_meas" not in merged
-    assert len(merged) == 42
+    assert len(merged) == 66
+    # a drive of the minimal interface gets only its required inputs (5 per axis)
+    minimal = cell_connections({d: {"q_meas", "qd_meas", "target_position", "controlword"} for d in servo})
+    assert len(minimal) == 30 and not any("torque_offset" in c or "fault_code" in c for c in minimal)

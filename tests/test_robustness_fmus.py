@@ -9,7 +9,6 @@ process and out of process, with both engines.
 """
 from __future__ import annotations
 
-import csv
 import json
 import os
 import signal
@@ -23,6 +22,7 @@ import pytest
 
 from c_test_fmus import build_misbehave_fmu
 from cosim.cli import main
+from cosim.results import read_series
 
 ROOT = Path(__file__).resolve().parents[1]
 ENV = {**os.environ, "PYTHONPATH": str(ROOT), "MPLBACKEND": "Agg"}
@@ -73,9 +73,9 @@ def scenario(fmu_dir: Path, tmp_path: Path, mode: int, bad_options: str = "out_o
 
 
 def read_csv(path: Path) -> tuple[list[str], np.ndarray]:
-    with open(path, newline="") as handle:
-        rows = list(csv.reader(handle))
-    return rows[0], np.array(rows[1:], dtype=float)
+    """The run's time series of ``path``'s stem (Parquet, the default format; while the run
+    goes, its stream ``.parquet.partial``)."""
+    return read_series(path)
 
 
 def test_the_test_fmu_is_valid(fmu_dir):
@@ -106,7 +106,7 @@ def test_crash_or_hang_out_of_process_fails_cleanly(fmu_dir, tmp_path, capsys, m
     assert summary["stopped_at_s"] == pytest.approx(0.499)
     for word in words:
         assert word in summary["reason"], summary["reason"]
-    header, data = read_csv(out / "timeseries.csv")
+    header, data = read_csv(out / "timeseries.parquet")
     assert header == ["time", "clock.y", "bad.y", "bad.echo"]
     assert data.shape[0] == 50 and data[-1, 0] == pytest.approx(0.49)  # every sample before the crash
     assert np.allclose(data[:, 1], data[:, 0]) and np.allclose(data[:, 2], data[:, 0])
@@ -146,7 +146,7 @@ def test_fmu_that_ends_the_simulation_ends_the_run_normally(fmu_dir, tmp_path, c
     assert summary["status"] == "ok"
     assert summary["ended_by"]["instance"] == "bad" and summary["ended_by"]["status"] == "fmi2Discard"
     assert summary["ended_by"]["last_successful_time"] == pytest.approx(0.5)
-    _, data = read_csv(out / "timeseries.csv")
+    _, data = read_csv(out / "timeseries.parquet")
     assert data[-1, 0] == pytest.approx(0.5) and data[-1, 2] == pytest.approx(0.5)  # its last values, at 0.5 s
     assert data[-2, 0] == pytest.approx(0.49)
 
@@ -158,7 +158,7 @@ def test_out_of_process_gives_the_same_numbers(fmu_dir, tmp_path, capsys):
         path = tmp_path / f"{isolation}.toml"
         path.write_text(text.replace("stop_time = 0.5", f'stop_time = 0.05\nisolation = "{isolation}"'))
         assert main(["run", str(path), "--out", str(tmp_path / isolation), "--quiet"]) == 0, capsys.readouterr().err
-        runs[isolation] = read_csv(tmp_path / isolation / "timeseries.csv")
+        runs[isolation] = read_csv(tmp_path / isolation / "timeseries.parquet")
     assert runs["none"][0] == runs["all"][0]
     assert np.array_equal(runs["none"][1], runs["all"][1])  # bit for bit
 

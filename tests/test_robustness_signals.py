@@ -7,7 +7,6 @@ die first).
 """
 from __future__ import annotations
 
-import csv
 import json
 import os
 import signal
@@ -19,6 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from cosim.results import read_series
 from scenario_files import write_variant
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -54,9 +54,8 @@ def finish(proc: subprocess.Popen) -> tuple[int, str]:
 
 
 def read_csv(path: Path) -> tuple[list[str], np.ndarray]:
-    with open(path, newline="") as handle:
-        rows = list(csv.reader(handle))
-    return rows[0], np.array(rows[1:], dtype=float)
+    """The time series (Parquet, the default format) of ``path``'s stem."""
+    return read_series(path.with_suffix(".parquet"))
 
 
 @pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT])
@@ -75,7 +74,7 @@ def test_fmus_job_interrupted_keeps_its_time_series(tmp_path, signum):
     assert summary["status"] == "interrupted" and summary["signal"] == name and summary["job"] == "fmus"
     assert 0.5 <= summary["stopped_at_s"] < 3000.0
     assert summary["sim_time_s"] == pytest.approx(summary["stopped_at_s"])
-    header, data = read_csv(out / "timeseries.csv")
+    header, data = read_csv(out / "timeseries.parquet")
     assert header[0] == "time" and data.shape[0] >= 400  # rows every 1 ms up to where it stopped
     assert data[-1, 0] <= summary["stopped_at_s"] + 1e-9
     assert np.all(np.isfinite(data))
@@ -106,7 +105,7 @@ def test_main_job_ctrl_c_to_the_process_group(tmp_path):
     assert summary["mode"] == "standard" and summary["job"] == "iso9283"
     stopped = summary["stopped_at_s"]
     assert 0.3 <= stopped < 12.6
-    header, data = read_csv(out / "timeseries_standard.csv")
+    header, data = read_csv(out / "timeseries_standard.parquet")
     assert "plant.q[1]" in header and data.shape[0] >= 250
     assert stopped - 0.01 <= data[-1, 0] <= stopped + 1e-9  # recorded up to where it stopped
     frames = list(can.LogReader(str(out / "can_standard.blf")))

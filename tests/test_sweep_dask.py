@@ -13,6 +13,7 @@ from pathlib import Path
 import pytest
 
 from cosim.cli import main as cosim_main
+from cosim.results import read_series
 from cosim.sweep import dask_client, load_sweep, run_sweep
 from cosim_fmu_models import build_test_fmu
 
@@ -133,7 +134,7 @@ def test_rows_equal_serial_runs_of_the_same_variants(tmp_path, client):
         assert float(row["sim_time_s"]) == summary["sim_time_s"]
         assert int(row["rows_recorded"]) == summary["rows_recorded"]
         variant_dir = result.out_dir / row["folder"]
-        assert (variant_dir / "timeseries.csv").read_bytes() == (alone / "timeseries.csv").read_bytes()
+        assert (variant_dir / "timeseries.parquet").read_bytes() == (alone / "timeseries.parquet").read_bytes()
         assert float(row["wall_time_s"]) > 0
 
 
@@ -191,8 +192,8 @@ def test_killed_worker_is_retried_and_failures_recorded(tmp_path, client):
     killer_row = rows[(2.0, 0.5)]
     assert killer_row["status"] == "ok", killer_row["reason"]
     assert killer_row["worker"].split(":")[1] != killed_pid   # finished by another process
-    series = read_table(result.out_dir / killer_row["folder"] / "timeseries.csv")
-    assert float(series[-1]["k.y"]) == pytest.approx(2.0 + 0.1)
+    columns, series = read_series(result.out_dir / killer_row["folder"] / "timeseries.parquet")
+    assert float(series[-1, columns.index("k.y")]) == pytest.approx(2.0 + 0.1)
     for (offset, fail_time), row in rows.items():
         if fail_time == 0.5:
             assert row["status"] == "ok", row["reason"]
@@ -266,7 +267,8 @@ def test_local_cluster_ship_equals_shared(tmp_path, client):
     for a, b in zip(shipped.records(), shared.records()):
         for column in ("variant", "status", "reason", "hash", "rows_recorded", "sim_time_s"):
             assert a.get(column) == b.get(column)
-        assert (Path(a["folder"]) / "timeseries.csv").read_bytes() == (Path(b["folder"]) / "timeseries.csv").read_bytes()
+        assert (Path(a["folder"]) / "timeseries.parquet").read_bytes() == \
+            (Path(b["folder"]) / "timeseries.parquet").read_bytes()
 
 
 def test_user_planner_file_relative_to_the_base_scenario(tmp_path, client):

@@ -216,13 +216,13 @@ def test_sweep_on_workers_without_the_clients_files(tmp_path, scheduler):
         folder = Path(row["folder"])
         assert folder.parent == out / "variants"
         names = sorted(p.name for p in folder.iterdir())
-        assert names == ["run.log", "scenario.toml", "summary.json", "sweep_row.json", "timeseries.csv"]
-        assert row["artifacts"] == ["timeseries.csv"]
+        assert names == ["run.log", "scenario.toml", "summary.json", "sweep_row.json", "timeseries.parquet"]
+        assert row["artifacts"] == ["timeseries.parquet"]
         summary = json.loads((folder / "summary.json").read_text())
         local = cosim.run(client_dir / "base.toml", out=tmp_path / f"local_{y0}_{fail_time}", check=False,
                           overrides={"fmus[0].parameters.y0": y0, "fmus[1].parameters.fail_time": fail_time})
         assert summary["status"] == local.status == row["status"]
-        assert (folder / "timeseries.csv").read_bytes() == (local.out / "timeseries.csv").read_bytes()
+        assert (folder / "timeseries.parquet").read_bytes() == (local.out / "timeseries.parquet").read_bytes()
         # the variant's scenario.toml is the client's document (the client's paths), runnable here
         assert cosim.load_scenario(folder / "scenario.toml").data["fmus"][0]["path"] == \
             client_dir / "fmus" / "Integrator.fmu"
@@ -244,7 +244,7 @@ def test_sweep_on_workers_without_the_clients_files(tmp_path, scheduler):
     assert row["status"] == "ok" and row["store"] == f"file://{store}/{Path(row['folder']).parent.name}/" \
         f"{Path(row['folder']).name}"
     remote = store / "variants" / Path(row["folder"]).name
-    assert sorted(p.name for p in remote.iterdir()) == ["run.log", "summary.json", "timeseries.csv"]
+    assert sorted(p.name for p in remote.iterdir()) == ["run.log", "summary.json", "timeseries.parquet"]
     assert sorted(p.name for p in Path(row["folder"]).iterdir()) == ["run.log", "scenario.toml", "summary.json",
                                                                      "sweep_row.json"]
 

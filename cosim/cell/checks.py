@@ -21,9 +21,9 @@ from cosim.scenario.schema import Table, Where
 PLANT_VARIABLES = frozenset({"tau[1]", "q[6]", "p[78]", "payload_mass"})
 """Variables the cell needs of the plant FMU (``rx130l_plant``)."""
 
-DRIVE_VARIABLES = frozenset({"target_position", "torque_offset", "controlword", "statusword", "position_actual",
-                             "torque_actual"})
-"""Variables the cell needs of every drive FMU (``servo_drive``)."""
+DRIVE_VARIABLES = wiring.REQUIRED_DRIVE_VARIABLES
+"""Variables the cell needs of every drive FMU: the required ones of the minimal drive
+interface (``fmus.servo_drive.interface``, docs/fmus.md)."""
 
 
 def fill_defaults(doc: dict[str, Any], schema: Table, keys: Iterable[str]) -> None:
@@ -118,9 +118,11 @@ def check_cell(doc: dict[str, Any], where: Where, job_set_drive_parameters: Mapp
                 raise (where / "fmus")[by_name[fmu["name"]][0]].error(
                     f"a step that divides the {table} period {value!r} s (it reads FMU outputs then)", step,
                     problem="FMU step does not divide the period")
-    if doc.get("record") is not None and doc["record"].get("file", "timeseries.csv") != "timeseries.csv":
+    if doc.get("record") is not None and doc["record"].get("file", "timeseries") not in ("timeseries",
+                                                                                      "timeseries.csv"):
         raise (where / "record" / "file").error(
-            "no file name here: a robot-cell job writes one time series per mode (timeseries_<mode>.csv)",
+            "no file name here: a robot-cell job writes one time series per mode (timeseries_<mode>.parquet, "
+            "or .csv with --timeseries csv)",
             doc["record"]["file"], problem="key the job does not use")
     if doc.get("record") is not None and not is_integer_multiple(doc["record"]["period"], base):
         raise (where / "record" / "period").error(f"a positive integer multiple of macro_step = {base!r} s",

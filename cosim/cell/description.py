@@ -88,12 +88,20 @@ def describe_cell(doc: Mapping[str, Any], true_robot: TrueRobot, controller: Con
             if fmu["name"] in DRIVES:
                 fmu["parameters"] = {**fmu["parameters"], **drive_parameters}
     record = doc.get("record") or {"period": tracker.period_s, "signals": []}
+    drive_variables = drive_variables_of(fmus)
     signals = list(record["signals"])
     signals += [s for s in extra_signals if s not in signals]
-    signals += [s for s in RECORDED_SIGNALS if s not in signals]
+    signals += [s for s in RECORDED_SIGNALS if s not in signals and _available(s, drive_variables)]
     document = {"simulation": copy.deepcopy(doc["simulation"]), "fmus": fmus,
-                "connections": merged_connections(doc.get("connections") or [], drive_variables_of(fmus))}
+                "connections": merged_connections(doc.get("connections") or [], drive_variables)}
     return CellDescription(label=label, document=MappingProxyType(document), true_robot=true_robot, fieldbus=fb,
                            tracker=tracker, signals=tuple(signals), record_period_s=record["period"],
                            stop_time_s=float(stop_time if stop_time is not None else doc["simulation"]["stop_time"]),
                            controller=controller, record_file=record_file, can_log=can_log)
+
+
+def _available(signal: str, drive_variables: Mapping[str, set[str]]) -> bool:
+    """Whether a signal the cell always records exists (a drive of the minimal interface may lack
+    ``current_actual`` or ``following_error``)."""
+    instance, _, variable = signal.partition(".")
+    return instance not in drive_variables or variable in drive_variables[instance]

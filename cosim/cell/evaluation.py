@@ -11,7 +11,6 @@ import numpy as np
 
 from controller import Controller, ControllerLog
 from cosim.cell.runner import CellRun
-from cosim.jobs.columns_csv import write_columns_csv
 from cosim.jobs.tracking_metrics import TrackingResult, desired_joints, evaluate
 from cosim.scenario.context import RunContext
 
@@ -32,11 +31,32 @@ DEFINITIONS = {
 }
 
 
+SERIES_UNITS = (("t_apply", "s"), ("tau_ff", "N.m"), ("qdd_d", "rad/s2"), ("qd_d", "rad/s"), ("q_d", "rad"),
+                ("q_obs", "rad"), ("target", "rad"), ("compute_us", "us"), ("lag", "rad"), ("arc_length", "m"),
+                ("x_", "m"), ("y_", "m"), ("z_", "m"), ("q", "rad"), ("t", "s"), ("tau", "s"))
+"""Units of the controller log and TCP series columns by name prefix (first match; ``*_mm`` are mm)."""
+
+
+def series_units(columns) -> dict[str, str]:
+    """Units of the columns of ``controller_<mode>`` and ``tcp_<mode>`` (see :data:`SERIES_UNITS`)."""
+    units = {}
+    for name in columns:
+        if name.endswith("_mm"):
+            units[name] = "mm"
+            continue
+        for prefix, unit in SERIES_UNITS:
+            if name == prefix or (name.startswith(prefix) and (prefix.endswith("_") or name[len(prefix):].isdigit()
+                                                               or prefix in ("t_apply", "compute_us", "arc_length"))):
+                units[name] = unit
+                break
+    return units
+
+
 def evaluate_run(ctx: RunContext, mode: str, cell: CellRun, controller: Any, reference, path, true_robot,
                  kinematic_model: Any = None, q_start: Any = None,
                  port_timing: Any = None) -> tuple[dict[str, Any], TrackingResult]:
     """Post-process one run of the ISO 9283 path on the cell (also after a failure): write
-    ``controller_<mode>.csv`` (the controller log), ``tcp_<mode>.csv`` (programmed, commanded
+    ``controller_<mode>`` (the controller log), ``tcp_<mode>`` (Parquet, or CSV on request; programmed, commanded
     and measured TCP in m, base_link; TCP and path errors in mm; joint set-points and lag
     errors in rad) and return (the summary entry of the run, the tracking result).
 
@@ -60,7 +80,7 @@ def evaluate_run(ctx: RunContext, mode: str, cell: CellRun, controller: Any, ref
     start = getattr(controller, "motion_start_s", None)
     if builtin:
         log = controller.log.columns()
-        write_columns_csv(ctx.path(f"controller_{mode}.csv"), log)
+        controller_file = ctx.write_series(f"controller_{mode}", log, series_units(log))
         t_apply = log["t_apply"]
         stack = [np.column_stack([log[f"{g}{j}"] for j in range(1, 7)]) for g in ("q_d", "qd_d", "qdd_d")]
         ok = np.isfinite(stack[0]).all(axis=1)
@@ -90,7 +110,7 @@ def evaluate_run(ctx: RunContext, mode: str, cell: CellRun, controller: Any, ref
         series[f"q{j + 1}"] = q[:, j]
     for j in range(6):
         series[f"lag{j + 1}"] = lag[:, j]
-    write_columns_csv(ctx.path(f"tcp_{mode}.csv"), series)
+    tcp_file = ctx.write_series(f"tcp_{mode}", series, series_units(series))
     timing = controller.timing() if builtin else port_timing
     entry: dict[str, Any] = {
         "status": "ok" if cell.failure is None else "failed",
@@ -113,8 +133,8 @@ def evaluate_run(ctx: RunContext, mode: str, cell: CellRun, controller: Any, ref
         "fieldbus": {k: cell.fieldbus[k] for k in ("cycles_run", "frames_sent", "frames_dropped", "frames_recorded",
                                                    "log_path", "dead_time_cycles", "node_fault", "comm_fault",
                                                    "scaling_saturations", "event_tally")},
-        "files": {"timeseries": f"timeseries_{mode}.csv", "controller": f"controller_{mode}.csv" if builtin else None,
-                  "tcp": f"tcp_{mode}.csv", "can_log": Path(cell.fieldbus["log_path"]).name
+        "files": {"timeseries": ctx.series_name(f"timeseries_{mode}"), "controller": controller_file if builtin else None,
+                  "tcp": tcp_file, "can_log": Path(cell.fieldbus["log_path"]).name
                   if cell.fieldbus.get("log_path") else None},
     }
     if builtin:

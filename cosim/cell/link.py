@@ -11,7 +11,7 @@ import numpy as np
 
 from controller import CellController, ControllerInfo
 from controller.port import ControllerFailure, ControllerPort
-from cosim.cell.wiring import APPLIED_FIELD, BUS_INTEGER, BUS_REAL, DRIVES, N_JOINTS, OPTIONAL_DRIVE_OUTPUTS
+from cosim.cell.wiring import APPLIED_FIELD, BUS_INTEGER, BUS_REAL, DRIVES, N_JOINTS
 from cosim.master import Master, SimulationError
 from fieldbus import AppliedSetpoints, DriveActuals, PowerlinkNetwork
 
@@ -23,28 +23,38 @@ class CellBus:
     arrays are writable views of the ``bus.*`` master variables, connected to the drives'
     inputs). Used by the bus-cycle task here and by the split run's drive process.
 
-    A drive FMU without ``modes_of_operation_display`` (0x6061) shows mode 8 (CSP).
+    Drive FMUs of the minimal interface (``fmus.servo_drive.interface``): a value not every drive
+    has reads as its default (0 rad/s, 0 N·m, error code 0, mode 8 = CSP); bus variables
+    without a drive input are written and not connected.
     """
 
     def __init__(self, master: Master) -> None:
         n = N_JOINTS
-        self._real = master.reader([f"{d}.{name}" for name in ("position_actual", "velocity_actual", "torque_actual")
-                                    for d in DRIVES])
-        integer = [f"{d}.{name}" for name in ("statusword", "error_code") for d in DRIVES]
-        display = [f"{d}.{name}" for name in OPTIONAL_DRIVE_OUTPUTS for d in DRIVES]
-        try:
-            self._integer = master.reader(integer + display)
-            self.has_display = True
-        except Exception:  # noqa: BLE001 - a drive FMU without 0x6061 (the minimal drive interface)
-            self._integer = master.reader(integer)
-            self.has_display = False
+        real_names, int_names = ("position_actual", "velocity_actual", "torque_actual"), ("statusword", "error_code")
+        display = "modes_of_operation_display"
+        try:  # every drive has every value (the servo_drive FMU): two readers, one call each per cycle
+            self._readers = [master.reader([f"{d}.{name}" for name in real_names for d in DRIVES]),
+                             master.reader([f"{d}.{name}" for name in (*int_names, display) for d in DRIVES])]
+            real, ints = (r.read() for r in self._readers)
+            fields = {"position": real[:n], "velocity": real[n:2 * n], "torque": real[2 * n:],
+                      "statusword": ints[:n], "error_code": ints[n:2 * n], "modes_of_operation_display": ints[2 * n:]}
+        except Exception:  # noqa: BLE001 - a drive of the minimal interface: one reader per value it has
+            self._readers, fields = [], {}
+            for field_name, var, default, dtype in (
+                    ("position", "position_actual", 0.0, float), ("velocity", "velocity_actual", 0.0, float),
+                    ("torque", "torque_actual", 0.0, float), ("statusword", "statusword", 0, np.int64),
+                    ("error_code", "error_code", 0, np.int64), ("modes_of_operation_display", display, 8, np.int64)):
+                try:
+                    reader = master.reader([f"{d}.{var}" for d in DRIVES])
+                except Exception:  # noqa: BLE001 - absent (optional): the controller sees the default
+                    fields[field_name] = np.full(n, default, dtype=dtype)
+                else:
+                    self._readers.append(reader)
+                    fields[field_name] = reader.read()
         real_out = master.view([f"bus.{name}[{i}]" for name in BUS_REAL for i in range(1, n + 1)], writable=True)
         integer_out = master.view([f"bus.{name}[{i}]" for name in BUS_INTEGER for i in range(1, n + 1)],
                                   writable=True)
-        real, ints = self._real.read(), self._integer.read()
-        self.actuals = DriveActuals(statusword=ints[:n], position=real[:n], velocity=real[n:2 * n],
-                                    torque=real[2 * n:], error_code=ints[n:2 * n],
-                                    modes_of_operation_display=ints[2 * n:3 * n] if self.has_display else None)
+        self.actuals = DriveActuals(**fields)
         views = {name: real_out[k * n:(k + 1) * n] for k, name in enumerate(BUS_REAL)}
         views.update({name: integer_out[k * n:(k + 1) * n] for k, name in enumerate(BUS_INTEGER)})
         self.applied = AppliedSetpoints(fresh=np.zeros(n, dtype=bool), comm_fault=np.zeros(n, dtype=bool),
@@ -53,8 +63,8 @@ class CellBus:
 
     def read(self) -> None:
         """Refresh :attr:`actuals` from the drives' outputs."""
-        self._real.read()
-        self._integer.read()
+        for reader in self._readers:
+            reader.read()
 
     def write(self, applied: AppliedSetpoints) -> None:
         """Copy what ``applied`` holds into the ``bus.*`` variables."""

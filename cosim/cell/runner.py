@@ -39,9 +39,10 @@ from controller import CellController, ControllerInfo
 from cosim.cell.description import CellDescription
 from cosim.cell.link import FieldbusLink
 from cosim.cell.wiring import N_JOINTS, cell_variables, joint_scaling
-from cosim.jobs.laser_tracker import LaserTracker
+from cosim.jobs.laser_tracker import TRACKER_VARIABLES, LaserTracker
 from cosim.master import Master, MemorySink, Recorder, SimulationError
 from cosim.realtime.pacer import no_cyclic_gc
+from cosim.results.timeseries import SeriesFile
 from cosim.scenario.context import RunContext
 from cosim.scenario.cosim_tables import build_master
 from fieldbus import FieldbusConfig, PowerlinkNetwork
@@ -71,7 +72,7 @@ class CellRun:
     fieldbus: dict[str, Any]
     loop_wall_time_s: float
     engine: str
-    recording: MemorySink
+    recording: MemorySink | SeriesFile
     failure: SimulationError | None = None
     loop_cpu_time_s: float = float("nan")
     pacer: Any = None
@@ -79,6 +80,19 @@ class CellRun:
     split: dict[str, Any] | None = field(default=None)
     controller_timing: Any = None
     port_overhead: dict[str, float] | None = None
+
+
+def master_units(master: Master, signals: Sequence[str]) -> dict[str, str]:
+    """The unit of each recorded signal the FMUs declare (``unit`` or declared type's unit)."""
+    units = {"time": "s", **{name: "m" for name in TRACKER_VARIABLES}}
+    for signal in signals:
+        try:
+            unit = master.unit(signal)
+        except (AttributeError, KeyError, ValueError):
+            continue
+        if unit:
+            units[signal] = unit
+    return units
 
 
 def write_recording(memory: MemorySink, sink: Any) -> None:
@@ -148,10 +162,11 @@ def run_cell(cell: CellDescription, controller: CellController, ctx: RunContext,
     (default: the defaults); ``pacer`` a :class:`~cosim.realtime.pacer.Pacer` to use (tests:
     one on a virtual clock); ``on_cycle(cycle, session)`` a hook of split runs.
 
-    The recorder samples into memory (``CellRun.recording``), written to
-    ``cell.record_file`` in the results folder when the loop has ended (formatting CSV text
-    in the loop would cost as much as the bus; it is output, not loop work, and stays out of
-    ``loop_wall_time_s``).
+    In process, the recorder streams to ``cell.record_file`` in the results folder as the
+    run goes (Parquet by default, bounded buffer, :class:`cosim.results.timeseries.ParquetSink`;
+    the suffix follows the run's format) and ``CellRun.recording`` reads it back; paced and
+    split runs sample into memory and write the file when the loop has ended (no file I/O
+    inside a paced cycle).
     """
     if mode is None:
         execution = getattr(ctx, "execution", None)
@@ -191,6 +206,9 @@ def _run_on_master(cell: CellDescription, controller: CellController, ctx: RunCo
     laser = LaserTracker(cell.true_robot.kinematic_model(), cell.tracker)
     master = build_cell_master(cell)
     memory = MemorySink()
+    record_file = ctx.series_name(cell.record_file)
+    units = master_units(master, cell.signals)
+    sink = memory if paced else ctx.series_sink(record_file, units)
     engine = ""
     granted = "normal"
     failure: SimulationError | None = None
@@ -212,7 +230,7 @@ def _run_on_master(cell: CellDescription, controller: CellController, ctx: RunCo
             bus = PacedNetwork(network, pacer, settings.overrun_policy, cycles=int(round(stop_time / period)) + 1)
             scheduling = realtime_scheduling(settings.scheduling, settings.fifo_priority, settings.cpu)
         recorder, link = add_cell_tasks(master, bus, controller, period, laser, cell.signals, cell.record_period_s,
-                                        memory, cell.controller, cell.stop_grace_s)
+                                        sink, cell.controller, cell.stop_grace_s)
         if paced:
             ctx.label = cell.label  # no summary heartbeat in a paced loop
         else:
@@ -231,8 +249,11 @@ def _run_on_master(cell: CellDescription, controller: CellController, ctx: RunCo
         network.close()
         wall = time.perf_counter() - wall0
         cpu = time.process_time() - cpu0
-        if memory.columns:
-            write_recording(memory, ctx.csv_sink(cell.record_file))
-    return CellRun(cell.label, ctx.path(cell.record_file), recorder.rows_written, master.time, network.summary(),
-                   wall, engine, memory, failure, cpu, pacer=pacer if paced else None, scheduling=granted,
+        if paced and memory.columns:
+            write_recording(memory, ctx.series_sink(record_file, units))
+        elif not paced:
+            sink.close()  # the master closed its recorder (footer written); again is a no-op
+    recording = memory if paced else SeriesFile(ctx.path(record_file))
+    return CellRun(cell.label, ctx.path(record_file), recorder.rows_written, master.time, network.summary(),
+                   wall, engine, recording, failure, cpu, pacer=pacer if paced else None, scheduling=granted,
                    controller_timing=link.port.timing(), port_overhead=link.port.overhead())

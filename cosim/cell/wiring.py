@@ -29,6 +29,7 @@ from controller import DriveLoopModel, speed_comparison_lead
 from cosim.jobs.laser_tracker import TRACKER_VARIABLES
 from cosim.master.variables import parse_connection
 from fieldbus import JointScaling
+from fmus.servo_drive.interface import REQUIRED as DRIVE_REQUIRED
 from fmus.servo_drive.params import drive_start_values
 from robot.parameters import RobotParameters, load_parameters
 from robot.true_robot import TrueRobot
@@ -48,12 +49,10 @@ BUS_START = {"modes_of_operation": 8}
 APPLIED_FIELD = {"target_position": "position"}
 """The ``fieldbus.AppliedSetpoints`` field of a bus variable where the names differ."""
 
-REQUIRED_DRIVE_INPUTS = ("target_position", "torque_offset", "controlword", "fault_code", "q_meas", "qd_meas")
-"""Inputs every drive FMU of the cell has (the minimal drive interface, docs/fmus.md)."""
-OPTIONAL_DRIVE_INPUTS = ("target_velocity", "velocity_offset", "target_torque", "modes_of_operation")
-"""Drive inputs the cell connects when the drive FMU has them (CiA 402 modes 8/9/10)."""
-OPTIONAL_DRIVE_OUTPUTS = ("modes_of_operation_display",)
-"""Drive outputs the cell reads when the drive FMU has them (else mode 8 is shown)."""
+REQUIRED_DRIVE_VARIABLES: frozenset[str] = DRIVE_REQUIRED
+"""Variables every drive FMU of the cell has (the minimal drive interface,
+``fmus.servo_drive.interface``, docs/fmus.md); the cell connects, reads and records every
+optional one a drive FMU has and leaves out the others."""
 
 
 def bus_variables() -> dict[str, tuple[str, object]]:
@@ -82,16 +81,17 @@ def cell_variables() -> dict[str, tuple[str, object]]:
 def cell_connections(drive_variables: Mapping[str, Collection[str]] | None = None) -> list[str]:
     """The connections the cell generates, in the order the master makes them: per axis, drive
     torque -> plant, plant motor angle and speed -> drive encoder, ``bus.*[i]`` -> the drive's
-    set-point inputs - the required ones (42 in all) and, where ``drive_variables`` (drive
-    instance -> its variable names) says the drive FMU has them, the optional ones of the CiA 402
-    modes of operation (:data:`OPTIONAL_DRIVE_INPUTS`: 66 in all with the servo_drive FMU)."""
+    set-point inputs: the required ones (``target_position``, ``controlword``) and, where
+    ``drive_variables`` (drive instance -> its variable names) says the drive FMU has them, the
+    optional ones (torque offset, fault code, the CiA 402 modes of operation: 66 connections in
+    all with the servo_drive FMU, 30 with a drive of the minimal interface)."""
     out = []
     for i, drive in enumerate(DRIVES, start=1):
         out += [f"{drive}.tau_out -> {PLANT}.tau[{i}]", f"{PLANT}.q_motor[{i}] -> {drive}.q_meas",
                 f"{PLANT}.qd_motor[{i}] -> {drive}.qd_meas"]
-        have = None if drive_variables is None else set(drive_variables.get(drive, ()))
+        have = set(drive_variables.get(drive, ())) if drive_variables is not None else set()
         out += [f"bus.{name}[{i}] -> {drive}.{name}" for name in BUS_REAL + BUS_INTEGER
-                if name not in OPTIONAL_DRIVE_INPUTS or (have is not None and name in have)]
+                if name in REQUIRED_DRIVE_VARIABLES or name in have]
     return out
 
 
@@ -153,13 +153,22 @@ def joint_scaling(parameters: RobotParameters | None = None) -> JointScaling:
     return JointScaling(p.gear_ratio, p.encoder_counts_per_motor_rev, p.rated_torque)
 
 
+def gear_start_values(true_robot: TrueRobot) -> dict[str, float]:
+    """The true robot's gear stiffness as plant start values (``stiffness[1..6]``, N m/rad)."""
+    if true_robot.gear_stiffness is None:
+        return {}
+    return {f"stiffness[{i}]": float(k) for i, k in enumerate(true_robot.gear_stiffness, start=1)}
+
+
 def cell_fmus(doc_fmus: list[dict[str, Any]], true_robot: TrueRobot, q0: Sequence[float]) -> list[dict[str, Any]]:
     """A copy of the scenario's ``[[fmus]]`` with the plant's and drives' start values filled in
-    (drive defaults first, then the scenario's own parameters on top)."""
+    (drive defaults first, then the scenario's own parameters on top). An elastic plant
+    (``elastic_joints = 1``) gets the true robot's gear stiffness unless the scenario sets it."""
     fmus = copy.deepcopy(doc_fmus)
     for fmu in fmus:
         if fmu["name"] == PLANT:
-            fmu["parameters"] = {**fmu["parameters"], **plant_start_values(true_robot, q0)}
+            gears = gear_start_values(true_robot) if fmu["parameters"].get("elastic_joints") else {}
+            fmu["parameters"] = {**gears, **fmu["parameters"], **plant_start_values(true_robot, q0)}
         elif fmu["name"] in DRIVES:
             axis = DRIVES.index(fmu["name"]) + 1
             fmu["parameters"] = {**drive_start_values(axis), **fmu["parameters"]}

@@ -31,8 +31,7 @@ def _finite_above(option: str, low: float):
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """DATA, --validate, --out, --method, --cutoff-hz, --max-condition."""
-    from identification.dynamic_estimation import MAX_CONDITION_NUMBER
-    from identification.dynamic_signals import DEFAULT_CUTOFF_HZ
+    from identification.dynamic_defaults import DEFAULT_CUTOFF_HZ, MAX_CONDITION_NUMBER
 
     parser.add_argument("data", type=Path, help="identification record CSV (see docs/identification.md)")
     parser.add_argument("--validate", type=Path, default=None, metavar="VAL.csv",

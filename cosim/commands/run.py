@@ -26,6 +26,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="pace the run at the controller cycle (wall clock); see docs/timing.md")
     parser.add_argument("--split", action="store_true",
                         help="controller in this process, drives and plant in another (python-can udp_multicast)")
+    parser.add_argument("--max-output", default=None, metavar="SIZE",
+                        help="refuse a run estimated to write more (e.g. '5 GB'; default: $COSIM_MAX_OUTPUT, else the "
+                             "free disk space)")
+    parser.add_argument("--max-memory", default=None, metavar="SIZE",
+                        help="refuse a run estimated to hold more in memory (default: $COSIM_MAX_MEMORY, else half "
+                             "the RAM)")
+    parser.add_argument("--ignore-budget", action="store_true", help="run even above --max-output/--max-memory")
+    parser.add_argument("--timeseries", choices=("parquet", "csv"), default=None,
+                        help="format of the time-series files (default: parquet, or $COSIM_TIMESERIES); "
+                             "see docs/ARCHITECTURE.md")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -48,9 +58,14 @@ def run(args: argparse.Namespace) -> int:
         out_dir, origin = Path("results") / scenario.name, "results folder"
     try:
         result = execute(scenario, out_dir, quiet=args.quiet, realtime=getattr(args, "realtime", False),
-                         split=getattr(args, "split", False), origin=origin)
+                         split=getattr(args, "split", False), origin=origin,
+                         timeseries=getattr(args, "timeseries", None), max_output=getattr(args, "max_output", None),
+                         max_memory=getattr(args, "max_memory", None),
+                         ignore_budget=getattr(args, "ignore_budget", False))
     except (ScenarioError, OutputFolderError) as exc:
         raise InvalidInput(str(exc)) from None
+    except ValueError as exc:  # BudgetError (estimate above the budget), a bad size, $COSIM_TIMESERIES
+        raise InvalidInput(f"{args.scenario}: {exc}") from None
     except KeyboardInterrupt as exc:  # SIGINT, or SIGTERM through the CLI's handler
         from cosim.api import RunResult
         from cosim.commands.exits import signal_name_of

@@ -23,8 +23,8 @@ controller's deadline misses.
 
 Results: ``compare.csv`` and ``compare.json`` (the table, one row per entry, ranked per
 trajectory by ``[compare] rank_by``), ``summary.json`` (the table plus every entry's full
-record, updated after each entry), per entry ``timeseries_<label>.csv``,
-``tcp_<label>.csv``, ``controller_<label>.csv`` (label ``<controller>__<trajectory>``),
+record, updated after each entry), per entry ``timeseries_<label>``,
+``tcp_<label>``, ``controller_<label>`` (Parquet, or CSV on request) (label ``<controller>__<trajectory>``),
 per planned or file trajectory ``trajectory_<name>.csv``; figures
 ``compare_metrics.png`` (every metric for every entry, log axes where values span
 decades) and ``compare_tcp_error.png`` (TCP error over the motion per trajectory).
@@ -135,12 +135,12 @@ class ControllerEntry(Spec):
         table.setdefault("name", table[key].stem if key == "fmu" else table[key].name)
         return table
 
-    # the class file, FMU or FMU source folder of an entry travels with a sweep's tasks
+    # the class file or FMU of an entry travels with a sweep's tasks (a source folder, like
+    # [[fmus]] source, does not: a shipped sweep needs the built FMU, fmu = "...")
     def referenced_file(self, value: Any) -> str | None:
         if isinstance(value, dict):
-            for key in ("fmu", "fmu_source"):
-                if isinstance(value.get(key), str):
-                    return value[key]
+            if isinstance(value.get("fmu"), str):
+                return value["fmu"]
             return class_spec_file(value.get("class"))
         if isinstance(value, str) and value.lower().endswith(".fmu"):
             return value
@@ -148,9 +148,8 @@ class ControllerEntry(Spec):
 
     def relocated(self, value: Any, path: str) -> Any:
         if isinstance(value, dict):
-            for key in ("fmu", "fmu_source"):
-                if isinstance(value.get(key), str):
-                    return {**value, key: path}
+            if isinstance(value.get("fmu"), str):
+                return {**value, "fmu": path}
             return {**value, "class": with_class_file(value["class"], path)}
         return path if value.lower().endswith(".fmu") else with_class_file(value, path)
 
@@ -437,8 +436,8 @@ def _stop_time(doc: dict[str, Any], motion: _Motion) -> float:
 def _evaluate_joint(ctx: RunContext, label: str, cell: CellRun, controller: Any, motion: _Motion,
                     setup: CellSetup):
     """Metrics of a joint-trajectory run (the main job's definitions; programmed = the planned flange
-    by the controller's kinematic model; one segment); writes tcp_<label>.csv and controller_<label>.csv."""
-    from cosim.jobs.columns_csv import write_columns_csv
+    by the controller's kinematic model; one segment); writes tcp_<label> and controller_<label> (Parquet, or CSV on request)."""
+    from cosim.cell.evaluation import series_units
     from robot.kinematics import FlangeKinematics
 
     rec = cell.recording
@@ -453,7 +452,7 @@ def _evaluate_joint(ctx: RunContext, label: str, cell: CellRun, controller: Any,
     builtin = isinstance(getattr(controller, "log", None), ControllerLog)
     if builtin:
         log = controller.log.columns()
-        write_columns_csv(ctx.path(f"controller_{label}.csv"), log)
+        ctx.write_series(f"controller_{label}", log, series_units(log))
         stack = [np.column_stack([log[f"{g}{j}"] for j in range(1, 7)]) for g in ("q_d", "qd_d", "qdd_d")]
         ok = np.isfinite(stack[0]).all(axis=1)
         q_d = (desired_joints(t, log["t_apply"][ok], stack[0][ok], stack[1][ok], stack[2][ok]) if ok.any()
@@ -473,7 +472,7 @@ def _evaluate_joint(ctx: RunContext, label: str, cell: CellRun, controller: Any,
             series[f"{axis}_{name}"] = arr[:, k]
     for j in range(6):
         series[f"lag{j + 1}"] = q_d[:, j] - q[:, j]
-    write_columns_csv(ctx.path(f"tcp_{label}.csv"), series)
+    tcp_file = ctx.write_series(f"tcp_{label}", series, series_units(series))
     timing = controller.timing() if builtin else cell.controller_timing
     entry = {"status": "ok" if cell.failure is None else "failed", **result.metrics([motion.name]),
              "deadline_misses": getattr(timing, "deadline_misses", None),
@@ -482,8 +481,8 @@ def _evaluate_joint(ctx: RunContext, label: str, cell: CellRun, controller: Any,
              "motion_start_s": start, "sim_time_s": cell.reached_s, "loop_wall_time_s": cell.loop_wall_time_s,
              "path_completed": bool(start is not None and t.size and t[-1] >= t_end - 1e-9),
              "stop_reason": getattr(controller, "stop_reason", None),
-             "files": {"timeseries": f"timeseries_{label}.csv", "tcp": f"tcp_{label}.csv",
-                       **({"controller": f"controller_{label}.csv"} if builtin else {})}}
+             "files": {"timeseries": ctx.series_name(f"timeseries_{label}"), "tcp": tcp_file,
+                       **({"controller": ctx.series_name(f"controller_{label}")} if builtin else {})}}
     if cell.failure is not None:
         entry["failure"] = str(cell.failure)
     return entry, result

@@ -92,7 +92,7 @@ def write_figures(out_dir: Path, rows: list[dict[str, Any]], results: dict[tuple
         ax.axis("off")
     fig.suptitle(f"Comparison: {len(controllers)} controllers x {len(set(r['trajectory'] for r in rows))} "
                  f"trajectories on one seeded robot (rank: {rank_by}, per trajectory)", fontsize=11)
-    fig.tight_layout()
+    fig.tight_layout(rect=(0.0, 0.0, 1.0, 1.0 - 0.45 / fig.get_figheight()))   # room for the title
     written.append(_save(fig, out_dir / "compare_metrics.png", plt))
 
     trajectories = list(dict.fromkeys(r["trajectory"] for r in rows))

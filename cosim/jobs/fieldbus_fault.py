@@ -166,8 +166,8 @@ def run(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
     fields: dict[str, Any] = {
         "modes": {mode: entry}, "fieldbus": net, "trips": trips, "expected_trips": expected,
         "controller": stop, "rest": rest, "drives_at_end": _drive_states(cell),
-        "files": {"timeseries": f"timeseries_{mode}.csv", "controller": f"controller_{mode}.csv",
-                  "tcp": f"tcp_{mode}.csv", "can_log": entry["files"]["can_log"]},
+        "files": {"timeseries": ctx.series_name(f"timeseries_{mode}"), "controller": ctx.series_name(f"controller_{mode}"),
+                  "tcp": ctx.series_name(f"tcp_{mode}"), "can_log": entry["files"]["can_log"]},
     }
     if doc["results"]["figures"]:
         from cosim.jobs.fieldbus_fault_figure import write_figure

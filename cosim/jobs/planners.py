@@ -19,7 +19,7 @@ current set-point ``current_demand`` reached its clamp min(current_limit, torque
 (gear_ratio torque_constant))).
 
 Results: ``summary.json`` (updated after every planner), ``trajectory_<name>.csv``,
-``timeseries_<name>.csv`` when executed, figures ``figure7_velocity_profile.png`` (CP
+``timeseries_<name>.parquet`` (or .csv on request) when executed, figures ``figure7_velocity_profile.png`` (CP
 planners), ``figure8_active_constraints.png`` (own_cp), ``figure9_ptp.png`` (own_ptp).
 See docs/planners.md.
 """
@@ -311,7 +311,7 @@ def _execute(ctx: RunContext, doc: dict[str, Any], name: str, traj: Any, true_ro
         "current_demand_peak_ratio": peak_ratio.tolist(),
         "sim_time_s": cell.reached_s,
         "loop_wall_time_s": cell.loop_wall_time_s,
-        "files": {"timeseries": f"timeseries_{name}.csv"},
+        "files": {"timeseries": ctx.series_name(f"timeseries_{name}")},
     }
     if cell.failure is not None:
         entry["failure"] = str(cell.failure)

@@ -357,6 +357,17 @@ class Master:
         except ValueError as exc:
             raise MasterConfigError(str(exc)) from None
 
+    def unit(self, signal: str) -> str:
+        """The unit an FMU declares for ``signal`` (its ``unit``, else its declared type's),
+        ``""`` for master variables and unitless FMU variables."""
+        inst, var = self._split(signal)
+        if inst not in self._fmus:
+            return ""
+        variable = self._fmus[inst].variable(var)
+        unit = getattr(variable, "unit", None)
+        declared = getattr(variable, "declaredType", None)
+        return unit or (getattr(declared, "unit", None) if declared is not None else None) or ""
+
     def _resolve_fmu_variable(self, signal: str, who: str):
         inst, var = self._split(signal)
         if inst not in self._fmus:

@@ -1,6 +1,7 @@
-"""Run results: summary.json, streamed time-series files and the progress bar."""
+"""Run results: summary.json, streamed time-series files (Parquet or CSV) and the progress bar."""
 from cosim.results.progress import ProgressBar
 from cosim.results.summary import SummaryWriter
-from cosim.results.timeseries import CsvSink, read_csv
+from cosim.results.timeseries import CsvSink, ParquetSink, read_csv, read_series, read_units, write_columns
 
-__all__ = ["CsvSink", "ProgressBar", "SummaryWriter", "read_csv"]
+__all__ = ["CsvSink", "ParquetSink", "ProgressBar", "SummaryWriter", "read_csv", "read_series", "read_units",
+           "write_columns"]

@@ -1,20 +1,52 @@
-"""Time series streamed to CSV while a run goes (a ``cosim.master.recorder.Sink``).
+"""Time series written while a run goes: Parquet by default, CSV on request.
 
-The header is ``time,<signal>,...``; time is in s, values in the FMU's units (SI in
-this project). Reals are written with ``repr`` (shortest round-trip decimal), Integer
-and Boolean columns as integers. Rows are appended as blocks arrive and the file is
-flushed on every ``flush()``, so a run that fails keeps every row recorded before.
-:class:`FileSink` is the flush/close part any one-file sink shares (also the split
-run's raw-row sink).
+Two sinks implement ``cosim.master.recorder.Sink`` (``open(columns, kinds)``,
+``write(block)``, ``flush()``, ``close()``; column 0 is ``time`` in s):
+
+* :class:`ParquetSink` (default): one column per signal, ``float64`` for Real signals
+  and ``int64`` for Integer/Boolean ones (exact), zstd-compressed with the byte-stream-
+  split encoding for floats (lossless: every float64 comes back bit for bit), the unit
+  of each column in its field metadata (``b"unit"``). Rows are buffered in one
+  preallocated block of at most ``buffer_rows`` rows (bounded memory, whatever the run's
+  length) and streamed as an Arrow batch to ``<file>.partial`` when the block is full or,
+  on ``flush()``, when ``flush_interval_s`` of wall time passed: readable while the run
+  goes and after a crash (every complete batch). ``close()`` (every run end, error and
+  signal included, closes its sinks) turns the stream into the Parquet file;
+* :class:`CsvSink`: header ``time,<signal>,...``, Reals with ``repr`` (shortest
+  round-trip decimal), Integer/Boolean columns as integers, flushed on every ``flush()``.
+
+:func:`write_columns` writes named columns of equal length at once (format by suffix),
+:func:`read_series` reads either format back (column names, float64 array),
+:func:`read_units` the units. ``COSIM_TIMESERIES=csv`` in the environment (or ``cosim run
+--timeseries csv``) makes runs write CSV instead of Parquet.
 """
 from __future__ import annotations
 
 import csv
-from collections.abc import Sequence
+import os
+import time
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import IO
 
 import numpy as np
+
+FORMATS = ("parquet", "csv")
+SUFFIXES = {"parquet": ".parquet", "csv": ".csv"}
+ENV_FORMAT = "COSIM_TIMESERIES"
+DEFAULT_BUFFER_ROWS = 8192
+"""Rows buffered per Parquet sink before a row group is written (8192 x 40 columns = 2.6 MB)."""
+DEFAULT_FLUSH_INTERVAL_S = 1.0
+"""Longest wall time rows wait in a Parquet sink's buffer before they are streamed to disk."""
+COMPRESSION = "zstd"
+
+
+def default_format() -> str:
+    """``$COSIM_TIMESERIES`` (``parquet`` or ``csv``), else ``parquet``."""
+    value = os.environ.get(ENV_FORMAT, "").strip().lower() or "parquet"
+    if value not in FORMATS:
+        raise ValueError(f"{ENV_FORMAT}={os.environ[ENV_FORMAT]!r}: expected one of {', '.join(FORMATS)}")
+    return value
 
 
 class FileSink:
@@ -36,8 +68,9 @@ class FileSink:
 class CsvSink(FileSink):
     """Write recorder rows to ``path`` (created with its directory; overwritten)."""
 
-    def __init__(self, path: str | Path) -> None:
+    def __init__(self, path: str | Path, units: Mapping[str, str] | None = None) -> None:
         self.path = Path(path)
+        self.units = dict(units or {})  # CSV has no place for them (docs list the units)
         self._file = None
         self._int_columns: list[int] = []
 
@@ -57,12 +90,276 @@ class CsvSink(FileSink):
         self._file.write("".join(",".join(map(repr, row)) + "\n" for row in rows))
 
 
-def read_csv(path: str | Path) -> tuple[list[str], np.ndarray]:
-    """Read a file written by CsvSink: (column names, float64 array of shape (rows, columns))."""
+def _schema(columns: Sequence[str], integer: Sequence[bool], units: Mapping[str, str]):
+    import pyarrow as pa
+
+    fields = []
+    for name, is_int in zip(columns, integer):
+        unit = units.get(name, "s" if name in ("time", "t") else "")
+        fields.append(pa.field(name, pa.int64() if is_int else pa.float64(),
+                               metadata={b"unit": unit.encode()} if unit else None))
+    return pa.schema(fields, metadata={b"writer": b"rx130l-cosim"})
+
+
+def _writer(path: Path, schema):
+    import pyarrow.parquet as pq
+
+    floats = [f.name for f in schema if str(f.type) == "double"]
+    return pq.ParquetWriter(path, schema, compression=COMPRESSION, use_dictionary=False,
+                            use_byte_stream_split=floats or False, write_statistics=False)
+
+
+PARTIAL_SUFFIX = ".partial"
+"""While a run goes, a Parquet sink streams to ``<file>.parquet.partial`` (Arrow IPC stream,
+zstd): readable at any moment up to the last complete batch, also after a crash."""
+ROW_GROUP_ROWS = 65536
+
+
+class ParquetSink:
+    """Stream recorder rows with bounded memory; ``units`` maps column names to units (``time``: s).
+
+    While the run goes the rows go, batch by batch, to ``<path>.partial`` (an Arrow IPC
+    stream: every complete batch is readable, by :func:`read_series` too, even after the
+    process was killed); :meth:`close` turns it into the Parquet file ``path`` (row groups
+    of up to 65536 rows, streamed, then an atomic rename) and removes the stream."""
+
+    def __init__(self, path: str | Path, units: Mapping[str, str] | None = None,
+                 buffer_rows: int = DEFAULT_BUFFER_ROWS, flush_interval_s: float = DEFAULT_FLUSH_INTERVAL_S) -> None:
+        self.path = Path(path)
+        self.partial = self.path.with_name(self.path.name + PARTIAL_SUFFIX)
+        self.units = dict(units or {})
+        self.buffer_rows = int(buffer_rows)
+        self.flush_interval_s = float(flush_interval_s)
+        self.rows_written = 0
+        self._file = None
+        self._stream = None
+        self._schema = None
+        self._buffer: np.ndarray | None = None
+        self._fill = 0
+        self._int_columns: list[int] = []
+        self._last = time.perf_counter()
+
+    def open(self, columns: Sequence[str], kinds: Sequence[str]) -> None:
+        import pyarrow as pa
+
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self.path.unlink(missing_ok=True)  # a reader must not mistake an old run's file for this one
+        integer = [k in ("Integer", "Boolean") for k in kinds]
+        self._int_columns = [i for i, flag in enumerate(integer) if flag]
+        self._schema = _schema(columns, integer, self.units)
+        self._file = pa.OSFile(str(self.partial), "wb")
+        self._stream = pa.ipc.new_stream(self._file, self._schema,
+                                         options=pa.ipc.IpcWriteOptions(compression=COMPRESSION))
+        # the schema (column names, units) on disk at once: readable even if the run dies now
+        self._stream.write_batch(pa.RecordBatch.from_arrays([pa.array([], type=f.type) for f in self._schema],
+                                                            schema=self._schema))
+        self._file.flush()
+        self._buffer = np.empty((self.buffer_rows, len(columns)))
+        self._fill = 0
+
+    def write(self, block: np.ndarray) -> None:
+        block = np.asarray(block, dtype=float)
+        start = 0
+        while start < len(block):
+            take = min(len(block) - start, self.buffer_rows - self._fill)
+            self._buffer[self._fill:self._fill + take] = block[start:start + take]
+            self._fill += take
+            start += take
+            if self._fill == self.buffer_rows:
+                self._write_batch()
+
+    def _write_batch(self) -> None:
+        import pyarrow as pa
+
+        if not self._fill or self._stream is None:
+            return
+        data = self._buffer[:self._fill]
+        arrays = [pa.array(data[:, i].astype(np.int64) if i in self._int_columns else np.ascontiguousarray(data[:, i]))
+                  for i in range(data.shape[1])]
+        self._stream.write_batch(pa.RecordBatch.from_arrays(arrays, schema=self._schema))
+        self._file.flush()
+        self.rows_written += self._fill
+        self._fill = 0
+        self._last = time.perf_counter()
+
+    def flush(self) -> None:
+        if self._fill and time.perf_counter() - self._last >= self.flush_interval_s:
+            self._write_batch()
+
+    def close(self) -> None:
+        if self._stream is None:
+            return
+        try:
+            self._write_batch()
+        finally:
+            self._stream.close()
+            self._file.close()
+            self._stream = self._file = None
+            self._buffer = None
+        _partial_to_parquet(self.partial, self.path, self._schema)
+
+
+def _partial_to_parquet(partial: Path, path: Path, schema) -> None:
+    """Rewrite the Arrow stream ``partial`` as the Parquet file ``path`` (bounded memory)."""
+    import pyarrow as pa
+
+    tmp = path.with_name(path.name + ".tmp")
+    writer = _writer(tmp, schema)
+    try:
+        with pa.OSFile(str(partial), "rb") as source:
+            reader = pa.ipc.open_stream(source)
+            pending, rows = [], 0
+            for batch in reader:
+                pending.append(batch)
+                rows += batch.num_rows
+                if rows >= ROW_GROUP_ROWS:
+                    writer.write_table(pa.Table.from_batches(pending, schema=schema))
+                    pending, rows = [], 0
+            if pending:
+                writer.write_table(pa.Table.from_batches(pending, schema=schema))
+    finally:
+        writer.close()
+    os.replace(tmp, path)
+    partial.unlink(missing_ok=True)
+
+
+def _read_partial(partial: Path) -> tuple[list[str], np.ndarray]:
+    """The complete batches of an Arrow stream a sink is writing (or left after a crash)."""
+    import pyarrow as pa
+
+    batches, names = [], []
+    with pa.OSFile(str(partial), "rb") as source:
+        try:
+            reader = pa.ipc.open_stream(source)
+            names = list(reader.schema.names)
+            while True:
+                batches.append(reader.read_next_batch())
+        except (StopIteration, pa.ArrowInvalid, OSError):
+            pass
+    rows = [np.column_stack([b.column(i).to_numpy().astype(float) for i in range(len(names))])
+            for b in batches if b.num_rows]
+    return names, (np.concatenate(rows) if rows else np.zeros((0, len(names))))
+
+
+def sink_for(path: str | Path, units: Mapping[str, str] | None = None):
+    """A :class:`ParquetSink` or :class:`CsvSink` by the suffix of ``path``."""
     path = Path(path)
+    return CsvSink(path, units) if path.suffix == ".csv" else ParquetSink(path, units)
+
+
+def _integral(column: np.ndarray) -> bool:
+    """True when every value is an integer a float64 represents exactly (and no -0.0)."""
+    return bool(column.size and np.all(np.isfinite(column)) and np.all(column == np.rint(column))
+                and np.all(np.abs(column) < 2.0 ** 53) and not np.any(np.signbit(column) & (column == 0.0)))
+
+
+def write_columns(path: str | Path, columns: Mapping[str, np.ndarray], units: Mapping[str, str] | None = None) -> Path:
+    """Write ``columns`` (name -> (n,) array) to ``path``: Parquet (``.parquet``; integral
+    float columns stored as exact int64) or CSV (``.csv``, floats with ``repr``, NaN as
+    ``nan``); ``units`` into the Parquet column metadata. Returns the path."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    names = list(columns)
+    arrays = [np.asarray(columns[n], dtype=float) for n in names]
+    if path.suffix == ".csv":
+        data = np.column_stack(arrays) if names else np.zeros((0, 0))
+        with open(path, "w", encoding="utf-8", newline="") as f:
+            f.write(",".join(names) + "\n")
+            rows = data.tolist()
+            for start in range(0, len(rows), 4096):
+                f.write("".join(",".join(map(repr, row)) + "\n" for row in rows[start:start + 4096]))
+        return path
+    import pyarrow as pa
+
+    integer = [_integral(a) for a in arrays]
+    schema = _schema(names, integer, dict(units or {}))
+    table = pa.Table.from_arrays([pa.array(a.astype(np.int64) if i else a) for a, i in zip(arrays, integer)],
+                                 schema=schema)
+    writer = _writer(path, schema)
+    try:
+        writer.write_table(table, row_group_size=65536)
+    finally:
+        writer.close()
+    return path
+
+
+def resolve_series(path: str | Path) -> Path:
+    """``path`` if it exists; else the same stem with the other format's suffix (a test or
+    script written for ``x.csv`` finds ``x.parquet``), or the stream ``x.parquet.partial`` of
+    a run still going (or killed); else ``path``."""
+    path = Path(path)
+    if path.exists():
+        return path
+    for suffix in (".parquet", ".csv", ".parquet" + PARTIAL_SUFFIX):
+        other = Path(f"{path.with_suffix('') if path.suffix in ('.csv', '.parquet') else path}{suffix}")
+        if other.exists():
+            return other
+    return path
+
+
+def read_series(path: str | Path) -> tuple[list[str], np.ndarray]:
+    """Read a time-series file of either format (see :func:`resolve_series`): (column
+    names, float64 array of shape (rows, columns))."""
+    path = resolve_series(path)
+    if path.name.endswith(PARTIAL_SUFFIX):
+        return _read_partial(path)
+    if path.suffix == ".parquet":
+        import pyarrow.parquet as pq
+
+        table = pq.read_table(path)
+        names = list(table.column_names)
+        if not table.num_rows:
+            return names, np.zeros((0, len(names)))
+        return names, np.column_stack([table.column(i).to_numpy().astype(float, copy=False)
+                                       for i in range(len(names))])
     with open(path, encoding="utf-8", newline="") as f:
         header = next(csv.reader(f))
     data = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
     if data.size == 0:
         data = np.zeros((0, len(header)))
     return header, data
+
+
+class SeriesFile:
+    """A written time series read back on first use (``columns``, ``data``, ``column(name)``):
+    what a run streamed to disk, for the evaluation after the loop, without a copy held in
+    memory during the loop. ``MemorySink``-compatible for readers."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        self._loaded: tuple[list[str], np.ndarray] | None = None
+
+    def _load(self) -> tuple[list[str], np.ndarray]:
+        if self._loaded is None:
+            self._loaded = read_series(self.path) if resolve_series(self.path).exists() else ([], np.zeros((0, 0)))
+        return self._loaded
+
+    @property
+    def columns(self) -> list[str]:
+        return self._load()[0]
+
+    @property
+    def data(self) -> np.ndarray:
+        return self._load()[1]
+
+    def column(self, name: str) -> np.ndarray:
+        return self.data[:, self.columns.index(name)]
+
+
+read_csv = read_series
+"""Former name of :func:`read_series` (reads CSV and Parquet)."""
+
+
+def read_units(path: str | Path) -> dict[str, str]:
+    """Units of a Parquet time series' columns (``{}`` for CSV: see the docs)."""
+    path = resolve_series(path)
+    if path.suffix != ".parquet":
+        return {}
+    import pyarrow.parquet as pq
+
+    schema = pq.read_schema(path)
+    return {f.name: (f.metadata or {}).get(b"unit", b"").decode() for f in schema}
+
+
+__all__ = ["CsvSink", "DEFAULT_BUFFER_ROWS", "ENV_FORMAT", "FORMATS", "FileSink", "PARTIAL_SUFFIX", "ParquetSink", "SUFFIXES", "SeriesFile",
+           "default_format", "read_csv", "read_series", "read_units", "resolve_series", "sink_for", "write_columns"]

@@ -17,7 +17,7 @@ from pathlib import Path
 from cosim.master import Master
 from cosim.results.progress import ProgressBar
 from cosim.results.summary import SummaryWriter
-from cosim.results.timeseries import CsvSink
+from cosim.results.timeseries import SUFFIXES, default_format, sink_for, write_columns
 from cosim.scenario.loader import Scenario
 
 #: Wall-time intervals between progress-bar and summary.json updates, s.
@@ -39,10 +39,16 @@ class RunContext:
         label: label of the master being executed (shown in the bar, reported on failure).
         execution: how robot cells run (:class:`cosim.realtime.execution.CellExecution`:
             split, paced) or None (one process, unpaced).
+        timeseries_format: ``"parquet"`` (default, ``$COSIM_TIMESERIES``) or ``"csv"``: the
+            format of every time series the run writes (:meth:`series_name`).
     """
 
-    def __init__(self, scenario: Scenario, out_dir: str | Path, quiet: bool = False, execution=None) -> None:
+    def __init__(self, scenario: Scenario, out_dir: str | Path, quiet: bool = False, execution=None,
+                 timeseries_format: str | None = None) -> None:
         self.scenario = scenario
+        self.timeseries_format = timeseries_format or default_format()
+        if self.timeseries_format not in SUFFIXES:
+            raise ValueError(f"timeseries format: expected one of {', '.join(SUFFIXES)}, got {self.timeseries_format!r}")
         self.execution = execution  # cosim.realtime.CellExecution (--realtime/--split) or None
         self.out_dir = Path(out_dir)
         self.out_dir.mkdir(parents=True, exist_ok=True)
@@ -74,9 +80,24 @@ class RunContext:
         """``out_dir / name``."""
         return self.out_dir / name
 
-    def csv_sink(self, name: str) -> CsvSink:
-        """A CSV time-series sink writing ``out_dir / name``."""
-        return CsvSink(self.path(name))
+    def series_name(self, name: str) -> str:
+        """The file name of the time series ``name`` (``"tcp_standard"`` or ``"tcp_standard.csv"``)
+        in this run's format: ``tcp_standard.parquet`` by default, ``.csv`` on request."""
+        stem = name[:-len(Path(name).suffix)] if Path(name).suffix in (".csv", ".parquet") else name
+        return stem + SUFFIXES[self.timeseries_format]
+
+    def series_sink(self, name: str, units: dict[str, str] | None = None):
+        """A streaming recorder sink writing ``out_dir / series_name(name)`` (Parquet or CSV)."""
+        return sink_for(self.path(self.series_name(name)), units)
+
+    csv_sink = series_sink
+    """Former name of :meth:`series_sink` (writes the run's format, Parquet by default)."""
+
+    def write_series(self, name: str, columns, units: dict[str, str] | None = None) -> str:
+        """Write named columns of equal length as the time series ``name``; return the file name."""
+        file = self.series_name(name)
+        write_columns(self.path(file), columns, units)
+        return file
 
     def attach(self, master: Master, total_s: float, label: str = "") -> None:
         """Add the heartbeat task (progress bar, summary.json sim_time_s) to ``master`` (before initialize)."""

@@ -29,6 +29,7 @@ from cosim.master.master import COUPLINGS, ENGINES
 from cosim.master.variables import (MasterTypeUnsupported, bus_type, check_connection_ends, check_declared_range,
                                     check_start_value, is_pattern, matches_pattern, parse_connection, split_signal)
 from cosim.realtime.config import execution_fields
+from cosim.results.timeseries import sink_for
 from cosim.scenario.schema import (AnyValue, Boolean, Field, FilePath, Integer, List, Number, String, Table, Where)
 
 if TYPE_CHECKING:
@@ -115,8 +116,10 @@ RECORD_TABLE = Table({
     "period": Field(Number(unit="s", gt=0), required=True, doc="the sampling period: a number in s > 0"),
     "signals": Field(List(String(), min_len=1), required=True,
                      doc="a list of signal names '<instance>.<variable>' (globs like 'drive1.*' allowed)"),
-    "file": Field(String(pattern=r"[A-Za-z0-9_.-]+\.csv", pattern_doc="naming a .csv file in the results folder"),
-                  default="timeseries.csv"),
+    "file": Field(String(pattern=r"[A-Za-z0-9_-][A-Za-z0-9_.-]*", pattern_doc="a file name in the results folder: "
+                         "'NAME' (the run's format: NAME.parquet, or NAME.csv with --timeseries csv), "
+                         "'NAME.parquet' or 'NAME.csv'"),
+                  default="timeseries", doc="the time-series file (Parquet by default)"),
 }, doc="the [record] table")
 
 OUTPUT_TABLE = Table({
@@ -332,7 +335,8 @@ def build_master(doc: dict, master_variables: Mapping[str, tuple[str, object]] |
 
 def add_record(master: Master, doc: dict, ctx: "RunContext", file: str | None = None,
                extra_signals: list[str] | None = None) -> Recorder | None:
-    """Add the ``[record]`` table's recorder writing CSV into the results folder (None without [record]).
+    """Add the ``[record]`` table's recorder streaming into the results folder (Parquet unless
+    ``[record] file`` ends in ``.csv`` or the run asks for CSV; None without [record]).
 
     ``file`` overrides ``[record] file`` (e.g. one file per mode of a job);
     ``extra_signals`` are recorded after the table's signals (e.g. a job's master variables).
@@ -341,7 +345,18 @@ def add_record(master: Master, doc: dict, ctx: "RunContext", file: str | None = 
     if record is None:
         return None
     signals = list(record["signals"]) + [s for s in (extra_signals or []) if s not in record["signals"]]
-    return master.add_recorder(signals, record["period"], ctx.csv_sink(file or record["file"]), name="record")
+    name = file or record["file"]
+    units = {"time": "s"}
+    for signal in master.expand_signals(signals):
+        try:
+            units[signal] = master.unit(signal)
+        except Exception:  # a glob or a master variable: no declared unit
+            continue
+    if Path(name).suffix in (".csv", ".parquet"):
+        sink = sink_for(ctx.path(name), units)  # the scenario chose the format
+    else:
+        sink = ctx.series_sink(name, units)
+    return master.add_recorder(signals, record["period"], sink, name="record")
 
 
 __all__ = ["COSIM_FIELDS", "FMU_TABLE", "OUTPUT_TABLE", "RECORD_TABLE", "SIMULATION_TABLE", "add_record",

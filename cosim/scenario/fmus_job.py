@@ -28,7 +28,7 @@ def run_fmus_job(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
     with master:
         master.initialize(stop_time)
         ctx.summary.update(engine=master.engine.name, fmus={f["name"]: str(f["path"]) for f in doc["fmus"]},
-                           timeseries=None if recorder is None else doc["record"]["file"])
+                           timeseries=None if recorder is None else recorder.sink.path.name)
         ctx.execute(master)
     fields: dict[str, Any] = {"rows_recorded": 0 if recorder is None else recorder.rows_written}
     if master.ended_by is not None:

@@ -254,7 +254,8 @@ def run_split_cell(cell: CellDescription, controller, ctx, *, options: Execution
         memory.write(rows)
     raw.unlink(missing_ok=True)
     raw.parent.rmdir()
-    write_recording(memory, ctx.csv_sink(record_file))
+    record_file = ctx.series_name(record_file)
+    write_recording(memory, ctx.series_sink(record_file))
     if interrupted is not None:
         raise interrupted
     cycles = session.cycle + 1
