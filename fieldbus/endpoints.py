@@ -364,20 +364,17 @@ class ManagingNodeEndpoint(_Endpoint):
     def send_following(self, setpoints: Setpoints) -> None:
         """SoC and PReqs for the cell's next cycle (after :meth:`follow`), in one batch."""
         cycle = self._follow_cycle + 1
-        times = self.schedule.timestamps(cycle)
+        faults = self.plan.for_cycle(cycle)  # the scenario's injected faults apply to what this side sends
+        if faults is None:
+            times, self._kinds = self.schedule.timestamps(cycle), _NO_FAULTS
+        else:
+            times, self._kinds = self.schedule.faulty_timestamps(cycle, faults), faults.kinds
+            self._record_injected(cycle, faults)
         node = self.node
         frames = node.encode(cycle, times, setpoints)
         if frames is None:
-            frames = node.frames(cycle, times, setpoints.controlword.tolist(), setpoints.position.tolist(),
-                                 setpoints.torque_offset.tolist())
-        if self._send_many is not None:
-            self._send_many(frames)
-        else:
-            for msg in frames:
-                self.bus.send(msg)
-        self.frames_sent += len(frames)
-        if self._record is not None:
-            self._record(frames)
+            frames = node.frames(cycle, times, *[getattr(setpoints, name).tolist() for name in _SETPOINT_FIELDS])
+        self._transmit(frames)
 
     def run_cycle(self, cycle: int, setpoints: Setpoints) -> ObservedActuals:
         """send_setpoints + collect_actuals (for a controller in its own process)."""
