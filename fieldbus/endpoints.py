@@ -364,20 +364,17 @@ class ManagingNodeEndpoint(_Endpoint):
     def send_following(self, setpoints: Setpoints) -> None:
         """SoC and PReqs for the cell's next cycle (after :meth:`follow`), in one batch."""
         cycle = self._follow_cycle + 1
-        times = self.schedule.timestamps(cycle)
+        faults = self.plan.for_cycle(cycle)  # the scenario's injected faults apply to what this side sends
+        if faults is None:
+            times, self._kinds = self.schedule.timestamps(cycle), _NO_FAULTS
+        else:
+            times, self._kinds = self.schedule.faulty_timestamps(cycle, faults), faults.kinds
+            self._record_injected(cycle, faults)
         node = self.node
         frames = node.encode(cycle, times, setpoints)
         if frames is None:
-            frames = node.frames(cycle, times, setpoints.controlword.tolist(), setpoints.position.tolist(),
-                                 setpoints.torque_offset.tolist())
-        if self._send_many is not None:
-            self._send_many(frames)
-        else:
-            for msg in frames:
-                self.bus.send(msg)
-        self.frames_sent += len(frames)
-        if self._record is not None:
-            self._record(frames)
+            frames = node.frames(cycle, times, *[getattr(setpoints, name).tolist() for name in _SETPOINT_FIELDS])
+        self._transmit(frames)
 
     def run_cycle(self, cycle: int, setpoints: Setpoints) -> ObservedActuals:
         """send_setpoints + collect_actuals (for a controller in its own process)."""
@@ -399,6 +396,15 @@ class DriveEndpoint(_Endpoint):
         self.nodes = ControlledNodes(self.config, scaling, self.layout, self.events)
         self._emcy_offset = (self.layout.nominal_end_of_isochronous + self.layout.mn_turnaround
                              + self.layout.wire_soa + self.layout.cn_response)
+
+    def _end_of_cycle(self, cycle: int) -> None:
+        """EMCYs of nodes that tripped (asynchronous slot, never faulted by injection), own recording."""
+        emcy = self.nodes.emergency_messages(self._t0 + cycle * self._cycle_time + self._emcy_offset)
+        if emcy:
+            saved, self._kinds = self._kinds, _NO_FAULTS
+            self._transmit(emcy)
+            self._kinds = saved
+        self._flush_own_recording(cycle)
 
     def run_cycle_paced(self, cycle: int, actuals: DriveActuals, deadline: float,
                         clock=time.monotonic) -> AppliedSetpoints:
@@ -432,12 +438,7 @@ class DriveEndpoint(_Endpoint):
         # operational) nor once every node has reacted to a controller that went silent
         judge = self._align is not None and (bool(group) or not all(cn.comm_fault))
         cn.end_cycle(cycle, judge)
-        emcy = cn.emergency_messages(self._t0 + cycle * self._cycle_time + self._emcy_offset)
-        if emcy:
-            saved, self._kinds = self._kinds, _NO_FAULTS
-            self._transmit(emcy)
-            self._kinds = saved
-        self._flush_own_recording(cycle)
+        self._end_of_cycle(cycle)
         return applied
 
     def _newest_group(self, cycle: int, deadline: float, clock) -> list:
@@ -513,10 +514,5 @@ class DriveEndpoint(_Endpoint):
             cn.receive_all(received)
         self._transmit(cn.responses(self._times))
         cn.end_cycle(cycle)
-        emcy = cn.emergency_messages(self._t0 + cycle * self._cycle_time + self._emcy_offset)
-        if emcy:
-            saved, self._kinds = self._kinds, _NO_FAULTS
-            self._transmit(emcy)
-            self._kinds = saved
-        self._flush_own_recording(cycle)
+        self._end_of_cycle(cycle)
         return applied

@@ -5,7 +5,6 @@ runs; a controller that raises or returns NaN mid-run ends the run cleanly with 
 series so far on disk."""
 from __future__ import annotations
 
-import csv
 import json
 import re
 from pathlib import Path
@@ -13,6 +12,7 @@ from pathlib import Path
 import pytest
 
 from cosim.cli import main
+from cosim.results import read_series
 from cosim.scenario import ScenarioError, load_scenario
 from error_checks import assert_names_file_and_fragments
 from realtime_support import short_scenario_text
@@ -116,7 +116,7 @@ def test_a_user_controller_class_runs_the_cell(tmp_path):
     assert entry["motion_start_s"] == pytest.approx(0.0144, abs=2e-3)   # enabled ~3.6 ms + settle 10 + lead 0.8
     assert 0.0 < entry["tcp_error_max_mm"] < 5.0                        # it tracks the path
     assert entry["controller_cycles_timed"] == 151 and entry["cycle_compute_us"]["p50"] > 0
-    assert (tmp_path / "out" / "timeseries_follow.csv").is_file() and (tmp_path / "out" / "tcp_follow.csv").is_file()
+    assert (tmp_path / "out" / "timeseries_follow.parquet").is_file() and (tmp_path / "out" / "tcp_follow.parquet").is_file()
 
 
 @pytest.mark.parametrize("params, reason", [
@@ -131,10 +131,9 @@ def test_a_user_controller_that_raises_or_returns_nan_stops_the_run_cleanly(tmp_
     assert summary["stopped_at_s"] == pytest.approx(50 * 400e-6)
     entry = summary["modes"]["Follow"]
     assert entry["status"] == "failed" and entry["stopped_at_s"] == pytest.approx(0.02)
-    with open(tmp_path / "out" / "timeseries_Follow.csv") as f:
-        rows = list(csv.reader(f))
+    _, data = read_series(tmp_path / "out" / "timeseries_Follow.parquet")
     # the time series up to the failing cycle is on disk (400 us rows: 0 .. 19.6 ms)
-    assert len(rows) - 1 == 50 and float(rows[-1][0]) == pytest.approx(0.0196)
+    assert data.shape[0] == 50 and float(data[-1, 0]) == pytest.approx(0.0196)
 
 
 @pytest.mark.parametrize("lines, extra, fragments", [
@@ -185,7 +184,7 @@ def test_a_failing_controller_fmu_stops_the_run_cleanly(tmp_path, pd_fmu):
     code, summary = run(path, tmp_path / "out")
     assert code != 0 and summary["status"] == "failed" and "fmi2DoStep failed" in summary["reason"]
     assert summary["stopped_at_s"] == pytest.approx(0.02, abs=1e-3)
-    assert (tmp_path / "out" / "timeseries_pd_fmu.csv").is_file()
+    assert (tmp_path / "out" / "timeseries_pd_fmu.parquet").is_file()
 
 
 @pytest.mark.parametrize("inputs, extra, fragments", [
@@ -211,8 +210,8 @@ def test_a_user_controller_in_cyclic_synchronous_torque_mode_holds_the_arm(tmp_p
     path.write_text(text)
     code, summary = run(path, tmp_path / "out")
     assert code == 0 and summary["status"] == "ok", summary.get("reason")
-    with open(tmp_path / "out" / "timeseries_cst.csv") as f:
-        rows = list(csv.DictReader(f))
+    columns, data = read_series(tmp_path / "out" / "timeseries_cst.parquet")
+    rows = [dict(zip(columns, row)) for row in data]
     last = rows[-1]
     assert [int(float(last[f"drive{i}.modes_of_operation_display"])) for i in range(1, 7)] == [10] * 6
     first = rows[0]

@@ -157,3 +157,32 @@ def test_a_bad_channel_is_refused_before_anything_runs(tmp_path):
     assert serve.returncode == 2
     assert "--channel 'localhost': expected host:port" in serve.stderr
     assert not (tmp_path / "out").exists()
+
+
+def test_split_realtime_runs_our_controller_against_the_served_cell(tmp_path):
+    """``cosim run --split --realtime``: our controller follows the served cell in another
+    process; the run completes and tracks the ISO path like the in-process run."""
+    text = (ROOT / "scenarios" / "iso9283.toml").read_text()
+    text = text.replace('stop_time = "12.6 s"', 'stop_time = "1 s"')
+    text = text.replace('modes = ["standard", "standard_speed_ff", "model_based"]', 'modes = ["model_based"]')
+    text = text.replace('period = "400 us"            # paper section 2.3.2', 'period = "2 ms"')
+    text = text.replace("cycle_time_us = 400", "cycle_time_us = 2000\n[fieldbus.thresholds]\ncn_loss_of_soc = 80\n"
+                        "cn_loss_of_preq = 80")
+    text = text.replace('builtin = "servo_drive"',
+                        'builtin = "servo_drive"\n[fmus.parameters]\nposition_sample_time = 0.002  # s, the bus cycle')
+    text = text.replace("figures = true", "figures = false").replace("can_log = true", "can_log = false")
+    path = tmp_path / "iso.toml"
+    path.write_text(text)
+    runs = {}
+    for name, flags in (("in_process", []), ("hil", ["--split", "--realtime"])):
+        done = subprocess.run([sys.executable, "-m", "cosim", "run", str(path), "--out", str(tmp_path / name),
+                               "--quiet", *flags], env=_env(), capture_output=True, text=True, timeout=600)
+        assert done.returncode == 0, done.stderr[-2000:]
+        runs[name] = json.loads((tmp_path / name / "summary.json").read_text())
+    hil = runs["hil"]["hil_split"]["model_based"]
+    assert hil["controller_side"]["cycles"] >= 490 and hil["cell_side"]["controller"]["first_cycle"] == 0
+    assert hil["round_trip"]["p50_us"] is not None
+    assert (tmp_path / "hil" / hil["cell_results"] / "summary.json").exists()
+    e_in = runs["in_process"]["modes"]["model_based"]["tcp_error_max_mm"]
+    e_hil = runs["hil"]["modes"]["model_based"]["tcp_error_max_mm"]
+    assert e_hil == pytest.approx(e_in, rel=0.5)  # a loaded test machine loses cycles; the benchmark says how close

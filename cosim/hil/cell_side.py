@@ -190,9 +190,15 @@ def write_timing_figure(path: Path, link: CellSideLink, pacer: Any, title: str) 
     return path
 
 
-def run_served_cell(cell: CellDescription, ctx: Any, settings: ServeSettings, *, pacer: Any = None):
+def run_served_cell(cell: CellDescription, ctx: Any, settings: ServeSettings, *, pacer: Any = None,
+                    on_ready: Any = None, start_on_first_frame_s: float | None = None):
     """Serve ``cell`` until its stop time (wall = simulated time, paced) or an interrupt;
-    returns the :class:`cosim.cell.runner.CellRun` (``pacer`` set, ``hil`` = the report)."""
+    returns the :class:`cosim.cell.runner.CellRun` (``pacer`` set, ``hil`` = the report).
+
+    ``on_ready()`` is called when the bus is open and the FMUs are initialised;
+    ``start_on_first_frame_s``: then wait up to this many wall seconds for the controller's
+    first datagram and make it cycle 0 (a split run, whose controller starts with the cell),
+    instead of starting at once (``cosim serve``)."""
     from cosim.cell.runner import CellRun, build_cell_master, write_recording
     from cosim.jobs.laser_tracker import LaserTracker
     from cosim.realtime.pacer import Pacer, no_cyclic_gc, realtime_scheduling
@@ -233,6 +239,12 @@ def run_served_cell(cell: CellDescription, ctx: Any, settings: ServeSettings, *,
                 tmp = description_path.with_suffix(".json.tmp")
                 tmp.write_text(json.dumps(description, indent=1))
                 tmp.replace(description_path)
+                if on_ready is not None:
+                    on_ready()
+                if start_on_first_frame_s is not None:
+                    import select
+
+                    select.select([endpoint.bus.fileno()], [], [], start_on_first_frame_s)
                 with realtime_scheduling(settings.scheduling, 10, settings.cpu) as granted, no_cyclic_gc():
                     ctx.execute(master, stop_time)
             except SimulationError as exc:
@@ -257,6 +269,7 @@ def run_served_cell(cell: CellDescription, ctx: Any, settings: ServeSettings, *,
     run = CellRun(cell.label, ctx.path(cell.record_file), recorder.rows_written, master.time, summary, wall, engine,
                   memory, failure, cpu, pacer=pacer, scheduling=granted)
     run.hil = report
+    run.preq_latency_us = [x * 1e-3 for x in getattr(endpoint.bus, "latency_ns", ())]
     return run
 
 

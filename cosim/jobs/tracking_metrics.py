@@ -44,8 +44,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from controller import quintic_hermite
+from robot.joints import N_JOINTS
 
-N_JOINTS = 6
 AT_WINDOW_SAMPLES = 150
 """Half-width (samples) of the window of commanded points searched for the foot of the
 normal plane of a measured point: 150 ms at 1 ms, far above any lag."""

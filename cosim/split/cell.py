@@ -86,6 +86,11 @@ def run_split_cell(cell: CellDescription, controller, ctx, *, options: Execution
     {"port", "drive_process_exit_code", "controller_stop_cycle", "drive_side_wall_s", "loop_wall_s"
     (cycles only, after the drive process is ready), "realtime_factor" (incl. start-up),
     "loop_realtime_factor", "frames_missing_*", ...}."""
+    if options.realtime and pacer is None and on_cycle is None:
+        # paced split: the served cell keeps the time in its own process, this one follows it
+        from cosim.hil.split import run_hil_split
+
+        return run_hil_split(cell, controller, ctx, options=options)
     label, stop_time, stop_grace_s = cell.label, cell.stop_time_s, cell.stop_grace_s
     record_file, can_log, true_robot = cell.record_file, cell.can_log, cell.true_robot
     fb_config = cell.fieldbus

@@ -1,0 +1,258 @@
+"""``cosim run SCENARIO --split --realtime``: our own controller in this process, the served
+cell (:func:`cosim.hil.cell_side.run_served_cell`) in another, both on the wall clock.
+
+The cell side keeps the time, as real drives do, and never waits for the controller; this
+process follows it (:meth:`fieldbus.ManagingNodeEndpoint.follow`): each batch of the cell's
+PRes frames is one bus cycle, the controller steps on what it observed and its set-points
+go out at once as the next cycle's SoC + PReqs, one ``udpcycle`` datagram per direction on
+loopback. The cell starts its cycle 0 with the controller's first datagram, so both count
+the same cycles and the run is comparable with the in-process one. A controller answer
+that misses the cell's window is a lost cycle there (threshold counters); the controller
+sees the skipped cycle as ``previous_output_late``.
+
+The cell side writes its own results (time series, CAN log of the drive side, hil report)
+into ``cell_side_<run>/`` of the results folder and sends its recording back, so the job
+evaluates the run as any other; summary.json ``hil_split.<run>`` holds both sides' timing.
+"""
+from __future__ import annotations
+
+import dataclasses
+import multiprocessing
+import socket
+import time
+import traceback
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from cosim.cell.description import CellDescription
+from cosim.hil.settings import ServeSettings
+
+#: Wall seconds to wait for the cell process to come up (imports, FMU instantiation).
+START_TIMEOUT_S = 180.0
+#: Wall seconds without the cell's PRes after which the controller side gives up.
+SILENCE_TIMEOUT_S = 5.0
+
+
+def _free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+        probe.bind(("127.0.0.1", 0))
+        return probe.getsockname()[1]
+
+
+def picklable_cell(cell: CellDescription) -> CellDescription:
+    """``cell`` with what the cell side needs only (read-only views and controller models dropped)."""
+    import copy
+
+    from cosim.realtime.network import deferred_recording
+
+    info = dataclasses.replace(cell.controller, reference=None, kinematic_model=None, dynamics=None, parameters={})
+    # the CAN log is buffered for the whole (bounded) run, as in the paced one-process run:
+    # a writer process that falls behind on a loaded machine would stall the cycle
+    return dataclasses.replace(cell, document=copy.deepcopy(dict(cell.document)), controller=info,
+                               fieldbus=deferred_recording(cell.fieldbus))
+
+
+@dataclass
+class _Scenario:
+    """What a RunContext needs of a scenario (the cell side's own results folder)."""
+
+    name: str
+
+    @property
+    def job(self):
+        return self
+
+    @property
+    def data(self) -> dict:
+        return {}
+
+
+def cell_side_main(cell: CellDescription, settings: ServeSettings, out_dir: str, conn) -> None:
+    """Process target: serve ``cell`` into ``out_dir``; ``("ready", {})`` when it can take the
+    controller's first datagram, then ``("done", {...})`` or ``("error", text)``."""
+    from cosim.hil.cell_side import run_served_cell
+    from cosim.scenario.context import RunContext
+
+    try:
+        ctx = RunContext(_Scenario(f"cell_side_{cell.label}"), out_dir, quiet=True)
+        run = run_served_cell(cell, ctx, settings, on_ready=lambda: conn.send(("ready", {})),
+                              start_on_first_frame_s=START_TIMEOUT_S)
+        log = run.pacer.log
+        failure = None if run.failure is None else {"component": run.failure.component, "time": run.failure.time,
+                                                     "reason": run.failure.reason}
+        ctx.summary.update(status="failed" if failure else "ok")
+        ctx.summary.write()
+        conn.send(("done", {"columns": run.recording.columns, "kinds": run.recording.kinds,
+                            "data": run.recording.data, "reached_s": run.reached_s, "fieldbus": run.fieldbus,
+                            "hil": run.hil, "failure": failure, "wall_s": run.loop_wall_time_s,
+                            "engine": run.engine, "scheduling": run.scheduling,
+                            "pacer": {"period_ns": run.pacer.period_ns, "tolerance_ns": run.pacer.tolerance_ns,
+                                      "thresholds": run.pacer.thresholds, "cycles": log.cycles[:log.count],
+                                      "lateness_ns": log.lateness_ns[:log.count], "work_ns": log.work_ns[:log.count],
+                                      "overrun": log.overrun[:log.count], "missed_ticks": log.missed_ticks},
+                            "preq_latency_us": getattr(run, "preq_latency_us", [])}))
+    except BaseException:  # noqa: BLE001 - reported to the controller side
+        try:
+            conn.send(("error", traceback.format_exc()))
+        except (BrokenPipeError, OSError):
+            pass
+    finally:
+        conn.close()
+
+
+class _PacerRecord:
+    """The cell side's pacer as the execution report reads it (period, tolerance, log)."""
+
+    def __init__(self, data: dict) -> None:
+        from cosim.realtime.pacer import LatenessLog
+
+        self.period_ns = data["period_ns"]
+        self.tolerance_ns = data["tolerance_ns"]
+        self.thresholds = data["thresholds"]
+        n = len(data["cycles"])
+        self.log = LatenessLog(n + 16)
+        for i in range(n):
+            self.log.append(int(data["cycles"][i]), int(data["lateness_ns"][i]), bool(data["overrun"][i]),
+                            int(data["work_ns"][i]))
+        self.log.missed_ticks = data["missed_ticks"]
+
+
+def _percentiles(values: np.ndarray) -> dict[str, float | None]:
+    if values.size == 0:
+        return {"p50_us": None, "p99_us": None, "max_us": None}
+    p50, p99 = np.percentile(values, [50.0, 99.0])
+    return {"p50_us": float(p50), "p99_us": float(p99), "max_us": float(values.max())}
+
+
+def run_hil_split(cell: CellDescription, controller: Any, ctx: Any, *, options: Any) -> Any:
+    """Run ``cell`` with ``controller`` split and paced as the module docstring says; returns
+    the :class:`cosim.cell.runner.CellRun` (recording from the cell side)."""
+    from controller.port import ControllerFailure, ControllerPort
+    from cosim.cell.runner import CellRun, write_recording
+    from cosim.cell.wiring import N_JOINTS, joint_scaling
+    from cosim.master import MemorySink, SimulationError
+    from cosim.realtime.pacer import no_cyclic_gc, realtime_scheduling
+    from fieldbus import ManagingNodeEndpoint
+
+    label, period, stop_time = cell.label, cell.period_s, cell.stop_time_s
+    cell_port, ctrl_port = _free_port(), _free_port()
+    while ctrl_port == cell_port:
+        ctrl_port = _free_port()
+    settings = ServeSettings(channel=f"127.0.0.1:{cell_port}", peer=f"127.0.0.1:{ctrl_port}",
+                             scheduling=options.settings.scheduling)
+    side_dir = Path(ctx.path(f"cell_side_{label}"))
+    context = multiprocessing.get_context("spawn")
+    conn, child_conn = context.Pipe(duplex=True)
+    process = context.Process(target=cell_side_main, args=(picklable_cell(cell), settings, str(side_dir), child_conn),
+                              name=f"cosim-served-cell-{label}", daemon=False)  # it has a CAN-log writer child
+    bus = dataclasses.replace(cell.fieldbus.bus, interface="udpcycle", channel=f"127.0.0.1:{ctrl_port}",
+                              options={**dict(cell.fieldbus.bus.options), "peer": f"127.0.0.1:{cell_port}",
+                                       "latency_samples": 1 << 20, "busy_poll_s": 0.0})
+    config = dataclasses.replace(cell.fieldbus, bus=bus)
+    port = ControllerPort(controller, N_JOINTS, q_start=cell.controller.q_start)
+    stop_cycle = int(round(stop_time / period))
+    failure: SimulationError | None = None
+    child: dict[str, Any] | None = None
+    wait_ns, compute_ns, skipped = [], [], 0
+    granted = "normal"
+    wall0, cpu0 = time.perf_counter(), time.process_time()
+    endpoint = None
+    try:
+        try:
+            port.setup(cell.controller)
+        except ControllerFailure as exc:
+            raise SimulationError("controller", 0.0, exc.reason) from exc
+        process.start()
+        child_conn.close()
+        if not conn.poll(START_TIMEOUT_S):
+            raise SimulationError("served cell", 0.0, f"the cell process did not start within {START_TIMEOUT_S} s")
+        kind, payload = conn.recv()
+        if kind != "ready":
+            raise SimulationError("served cell", 0.0, f"the cell process failed to start: {payload}")
+        endpoint = ManagingNodeEndpoint(config, joint_scaling(), log_path=cell.can_log)
+        setpoints = port.setpoints
+        last = -1
+        ctx.label = label
+        with realtime_scheduling(options.settings.scheduling, options.settings.fifo_priority) as granted, \
+                no_cyclic_gc():
+            endpoint.send_following(setpoints)  # the cell's cycle 0 starts with this datagram
+            while True:
+                waited = time.perf_counter_ns()
+                got = endpoint.follow(SILENCE_TIMEOUT_S)
+                got_at = time.perf_counter_ns()
+                if got is None:
+                    if process.is_alive() and last < stop_cycle - 1:
+                        failure = SimulationError("served cell", last * period,
+                                                  f"no PRes from the cell process for {SILENCE_TIMEOUT_S} s")
+                    break
+                cycle, observed = got
+                if cycle >= stop_cycle:
+                    break
+                jumped = cycle - last > 1
+                skipped += max(cycle - last - 1, 0)
+                last = cycle
+                try:
+                    setpoints = port.step(cycle, cycle * period, observed, jumped, False)
+                except ControllerFailure as exc:
+                    failure = SimulationError("controller", exc.time_s, exc.reason)
+                    break
+                endpoint.send_following(setpoints)
+                wait_ns.append(got_at - waited)
+                compute_ns.append(time.perf_counter_ns() - got_at)
+                stopped_at = port.stopped_at_s
+                if stopped_at is not None and cycle * period - stopped_at >= cell.stop_grace_s - 1e-12:
+                    failure = SimulationError("controller", stopped_at, f"motion stopped: {port.stop_reason}")
+                    break
+        if conn.poll(stop_time + START_TIMEOUT_S):
+            kind, payload = conn.recv()
+            if kind == "done":
+                child = payload
+            elif failure is None:
+                failure = SimulationError("served cell", last * period, f"the cell process failed: {payload}")
+    finally:
+        port.close()
+        if endpoint is not None:
+            controller_latency = np.asarray(endpoint.bus.latency_ns, dtype=float) * 1e-3
+            endpoint.close()
+        else:
+            controller_latency = np.zeros(0)
+        process.join(timeout=30)
+        if process.is_alive():
+            process.terminate()
+    wall, cpu = time.perf_counter() - wall0, time.process_time() - cpu0
+    memory = MemorySink()
+    if child is not None:
+        memory.open(child["columns"], child["kinds"])
+        if len(child["data"]):
+            memory.write(child["data"])
+        if child["failure"] is not None and failure is None:
+            f = child["failure"]
+            failure = SimulationError(f["component"], f["time"], f["reason"])
+    if memory.columns:
+        write_recording(memory, ctx.csv_sink(cell.record_file))
+    cell_latency = np.asarray(child["preq_latency_us"] if child else [], dtype=float)
+    n = min(cell_latency.size, controller_latency.size)
+    rtt = cell_latency[:n] + controller_latency[:n]
+    report = {
+        "controller_side": {"cycles": last + 1, "cycles_skipped": skipped,
+                            "wait_for_pres": _percentiles(np.asarray(wait_ns, dtype=float) * 1e-3),
+                            "compute": _percentiles(np.asarray(compute_ns, dtype=float) * 1e-3),
+                            "pres_one_way_latency": _percentiles(controller_latency),
+                            "scheduling": granted},
+        "cell_side": child["hil"] if child else {},
+        "round_trip": _percentiles(rtt),
+        "cell_results": side_dir.name,
+    }
+    summary = dict(ctx.summary.data.get("hil_split") or {})
+    summary[label] = report
+    ctx.summary.update(hil_split=summary)
+    pacer = _PacerRecord(child["pacer"]) if child else None
+    run = CellRun(label, ctx.path(cell.record_file), len(memory.data) if memory.columns else 0,
+                  child["reached_s"] if child else 0.0, child["fieldbus"] if child else {}, wall,
+                  child["engine"] if child else "", memory, failure, cpu, pacer=pacer,
+                  scheduling=child["scheduling"] if child else "normal")
+    run.hil = report
+    return run
