@@ -52,12 +52,12 @@ import native
 
 from robot.dynamics import RobotDynamics
 from robot.symbolic import chain_structure, inverse_dynamics_expression
+from robot.joints import N_JOINTS
 
 if TYPE_CHECKING:
     from controller.drive_compensation import SetpointShaper
     from fieldbus import Setpoints
 
-N_JOINTS = 6
 FUNCTION_NAME = "controller_cycle"
 CFLAGS = ("-O2", "-fPIC", "-shared", "-std=c99", "-ffp-contract=off")
 FAST_CYCLE_SOURCE = Path(__file__).with_name("fast_cycle.c")

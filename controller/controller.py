@@ -73,8 +73,8 @@ from controller.reference import JointTrajectory, TcpTrajectory
 from fieldbus import Command, DriveState, EnableSequencer, ObservedActuals, Setpoints, decode_statusword
 from robot.dynamics import RobotDynamics
 from robot.inverse_kinematics import LIMIT_TOLERANCE, NumericIK
+from robot.joints import N_JOINTS
 
-N_JOINTS = 6
 MODES: tuple[str, ...] = ("standard", "model_based", "model_based_elastic")
 STOP_STATES = {DriveState.FAULT: "Fault", DriveState.FAULT_REACTION_ACTIVE: "Fault reaction active",
                 DriveState.QUICK_STOP_ACTIVE: "Quick stop active"}

@@ -30,8 +30,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-
-N_JOINTS = 6
+from robot.joints import N_JOINTS
 
 
 def speed_comparison_lead(position_sample_time: float, speed_sample_time: float, speed_filter_time: float) -> float:

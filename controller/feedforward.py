@@ -23,8 +23,7 @@ from numpy.typing import ArrayLike
 from robot.dynamics import COULOMB_SLICE, ROTOR_INERTIA_SLICE, VISCOUS_SLICE, RobotDynamics
 from robot.parameters import RobotParameters, load_parameters
 from robot.symbolic import ChainStructure, chain_structure, inverse_dynamics_expression
-
-N_JOINTS = 6
+from robot.joints import N_JOINTS
 
 
 class FeedForward:

@@ -27,8 +27,8 @@ import pinocchio as pin
 from scipy.linalg import lapack
 
 from robot.inverse_kinematics import LIMIT_TOLERANCE, NumericIK
+from robot.joints import N_JOINTS
 
-N_JOINTS = 6
 DEFAULT_IK_TOLERANCE = 1e-10
 """Newton convergence bound on |log6| (m and rad): 0.1 nm / 0.1 nrad, far below the
 0.1 um resolution that matters for TCP errors; keeps the derivatives consistent."""

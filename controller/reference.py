@@ -34,8 +34,8 @@ from typing import Any
 
 import numpy as np
 import pinocchio as pin
+from robot.joints import N_JOINTS
 
-N_JOINTS = 6
 _KNOT_TOLERANCE = 1e-9
 """Relative distance (in grid steps) below which a time is taken as a knot."""
 

@@ -219,7 +219,7 @@ def load_scenario(scenario: "str | Path | Mapping[str, Any] | Scenario",
             ``output``) or gives a value of the wrong type or unit. ``.file`` is the path,
             ``"<dict>"`` or ``"<string>"``.
     """
-    from cosim.scenario.loader import load_document, read_toml_file
+    from cosim.scenario.loader import load_document, read_toml_file, resolve_path
 
     if isinstance(scenario, Scenario):
         return scenario.with_overrides(overrides) if overrides else scenario
@@ -236,7 +236,7 @@ def load_scenario(scenario: "str | Path | Mapping[str, Any] | Scenario",
         validated = _validate_labelled(document, STRING_LABEL, base_dir)
         source = STRING_LABEL
     elif isinstance(scenario, (str, Path)):
-        path = Path(scenario)
+        path = resolve_path(scenario)  # a project scenario of an installed package from any folder
         validated = load_document(read_toml_file(path, "scenario"), path)
         source = str(path)
     else:

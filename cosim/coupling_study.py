@@ -17,8 +17,7 @@ import numpy as np
 from cosim.master import Master, MemorySink
 from fmus.coupling import CONTROLLER_PERIOD, Q0, Commands, Trajectory
 from fmus.servo_drive.params import drive_start_values
-
-N_JOINTS = len(Q0)
+from robot.joints import N_JOINTS
 
 
 def cosimulate(fmu_paths: dict[str, Path], commands: Commands, macro_step: float, duration: float,

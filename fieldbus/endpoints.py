@@ -397,6 +397,15 @@ class DriveEndpoint(_Endpoint):
         self._emcy_offset = (self.layout.nominal_end_of_isochronous + self.layout.mn_turnaround
                              + self.layout.wire_soa + self.layout.cn_response)
 
+    def _end_of_cycle(self, cycle: int) -> None:
+        """EMCYs of nodes that tripped (asynchronous slot, never faulted by injection), own recording."""
+        emcy = self.nodes.emergency_messages(self._t0 + cycle * self._cycle_time + self._emcy_offset)
+        if emcy:
+            saved, self._kinds = self._kinds, _NO_FAULTS
+            self._transmit(emcy)
+            self._kinds = saved
+        self._flush_own_recording(cycle)
+
     def run_cycle_paced(self, cycle: int, actuals: DriveActuals, deadline: float,
                         clock=time.monotonic) -> AppliedSetpoints:
         """The cell side of a hardware-in-the-loop run: like :meth:`run_cycle`, but the
@@ -429,12 +438,7 @@ class DriveEndpoint(_Endpoint):
         # operational) nor once every node has reacted to a controller that went silent
         judge = self._align is not None and (bool(group) or not all(cn.comm_fault))
         cn.end_cycle(cycle, judge)
-        emcy = cn.emergency_messages(self._t0 + cycle * self._cycle_time + self._emcy_offset)
-        if emcy:
-            saved, self._kinds = self._kinds, _NO_FAULTS
-            self._transmit(emcy)
-            self._kinds = saved
-        self._flush_own_recording(cycle)
+        self._end_of_cycle(cycle)
         return applied
 
     def _newest_group(self, cycle: int, deadline: float, clock) -> list:
@@ -510,10 +514,5 @@ class DriveEndpoint(_Endpoint):
             cn.receive_all(received)
         self._transmit(cn.responses(self._times))
         cn.end_cycle(cycle)
-        emcy = cn.emergency_messages(self._t0 + cycle * self._cycle_time + self._emcy_offset)
-        if emcy:
-            saved, self._kinds = self._kinds, _NO_FAULTS
-            self._transmit(emcy)
-            self._kinds = saved
-        self._flush_own_recording(cycle)
+        self._end_of_cycle(cycle)
         return applied

@@ -92,14 +92,7 @@ class SimulatedTimeBus(BusABC):
     def drain(self) -> list[Message]:
         """All queued messages at once (in order), filtered like ``recv``; an extension
         of this interface for batch receivers."""
-        queue = self._queue
-        if not queue:
-            return []
-        messages = list(queue)
-        queue.clear()
-        if self._filters is not None:
-            messages = [m for m in messages if self._matches_filters(m)]
-        return messages
+        return drain_queue(self, self._queue)
 
     @property
     def pending(self) -> int:
@@ -118,6 +111,17 @@ class SimulatedTimeBus(BusABC):
     @staticmethod
     def _detect_available_configs() -> list[can.typechecking.AutoDetectedConfig]:
         return [{"interface": INTERFACE_NAME, "channel": name} for name in _CHANNELS]
+
+
+def drain_queue(bus: BusABC, queue: deque) -> list[Message]:
+    """Everything in ``queue`` (emptied), in order, filtered by ``bus``'s python-can filters."""
+    if not queue:
+        return []
+    messages = list(queue)
+    queue.clear()
+    if bus._filters is not None:
+        messages = [m for m in messages if bus._matches_filters(m)]
+    return messages
 
 
 def register() -> None:

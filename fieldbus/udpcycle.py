@@ -62,6 +62,7 @@ from typing import Any
 import can
 from can import BusABC, CanProtocol, Message
 
+from fieldbus.simbus import drain_queue
 from fieldbus.telegrams import FastMessage
 
 INTERFACE_NAME = "udpcycle"
@@ -459,14 +460,7 @@ class UdpCycleBus(BusABC):
         if self._held:
             self._release_held()
         self._read_available()
-        queue = self._queue
-        if not queue:
-            return []
-        messages = list(queue)
-        queue.clear()
-        if self._filters is not None:
-            messages = [m for m in messages if self._matches_filters(m)]
-        return messages
+        return drain_queue(self, self._queue)
 
     def fileno(self) -> int:
         return self._sock.fileno()

@@ -32,8 +32,8 @@ from numpy.typing import ArrayLike
 
 from identification.dynamic_errors import IdentificationDataError
 from identification.dynamic_signals import sample_time_of
+from robot.joints import N_JOINTS
 
-N_JOINTS = 6
 Q_COLUMNS = tuple(f"q{i}" for i in range(1, 7))
 TAU_COLUMNS = tuple(f"tau{i}" for i in range(1, 7))
 QD_COLUMNS = tuple(f"qd{i}" for i in range(1, 7))

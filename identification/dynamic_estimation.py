@@ -33,8 +33,8 @@ from threadpoolctl import threadpool_limits
 
 from identification.dynamic_defaults import MAX_CONDITION_NUMBER
 from identification.dynamic_errors import IdentificationDataError, InsufficientExcitationError
+from robot.joints import N_JOINTS
 
-N_JOINTS = 6
 MIN_ROWS_PER_PARAMETER = 10
 """At least this many torque rows (samples x 6) per base parameter."""
 WLS_PASSES = 3

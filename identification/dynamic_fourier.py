@@ -27,8 +27,8 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from identification.dynamic_errors import ExcitationDesignError
+from robot.joints import N_JOINTS
 
-N_JOINTS = 6
 DEFAULT_ORDER = 5
 """N of eq. 29 (paper: 5)."""
 DEFAULT_OMEGA_F = 0.8

@@ -27,8 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 from scipy.signal import savgol_filter
-
-N_JOINTS = 6
+from robot.joints import N_JOINTS
 
 
 @dataclass(frozen=True)

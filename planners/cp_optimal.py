@@ -58,8 +58,8 @@ import numpy as np
 from planners.base import CPProblem, Planner, PlannerInputError, PlanResult, PlanStatus
 from planners.path_dynamics import PathDynamics, TimeLaw, path_dynamics, trajectory_from_time_law
 from robot.dynamics import RobotDynamics
+from robot.joints import N_JOINTS
 
-N_JOINTS = 6
 DEFAULT_IPOPT_OPTIONS: dict[str, Any] = {
     "ipopt.print_level": 0,
     "ipopt.sb": "yes",

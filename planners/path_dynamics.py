@@ -31,8 +31,8 @@ import pinocchio as pin
 from planners.paths import JointPath
 from planners.trajectory import Trajectory, uniform_times
 from robot.dynamics import COULOMB_SLICE, VISCOUS_SLICE, RobotDynamics
+from robot.joints import N_JOINTS
 
-N_JOINTS = 6
 FrictionModel = Literal["full", "coulomb", "none"]
 DERIVATIVE_STEP = 1e-5
 """Sigma step of the central differences giving m', c', g', v'."""

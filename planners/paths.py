@@ -40,8 +40,7 @@ from scipy.spatial.transform import Rotation
 
 from robot.inverse_kinematics import AnalyticIK, UnreachablePoseError
 from robot.kinematics import FlangeKinematics, KinematicsInputError, as_rotation_matrix, rotation_from_cardan
-
-N_JOINTS = 6
+from robot.joints import N_JOINTS
 
 
 class PathError(ValueError):

@@ -42,8 +42,8 @@ import numpy as np
 import native
 from robot.dynamics import COULOMB_SLICE, N_PARAMETERS, VISCOUS_SLICE
 from robot.symbolic import ChainStructure, inverse_dynamics_expression
+from robot.joints import N_JOINTS
 
-N_JOINTS = 6
 N_NODE_INPUTS = 30
 N_NODE_OUTPUTS = 19
 N_SCALES = 36

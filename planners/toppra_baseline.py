@@ -41,8 +41,8 @@ from planners.base import CPProblem, Planner, PlannerInputError, PlanResult, Pla
 from planners.path_dynamics import TimeLaw, friction_coefficients, trajectory_from_time_law
 from planners.paths import JointPath
 from robot.dynamics import RobotDynamics
+from robot.joints import N_JOINTS
 
-N_JOINTS = 6
 logging.getLogger("toppra").setLevel(logging.ERROR)
 
 

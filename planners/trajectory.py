@@ -24,10 +24,11 @@ from typing import TYPE_CHECKING, Any, Iterable
 import numpy as np
 from numpy.typing import ArrayLike
 
-if TYPE_CHECKING:  # pragma: no cover
-    from planners.base import JointLimits
+from robot.joints import N_JOINTS
 
-N_JOINTS = 6
+if TYPE_CHECKING:  # pragma: no cover
+    from planners.limits import JointLimits
+
 JOINT_GROUPS: tuple[str, ...] = ("q", "qd", "qdd", "tau")
 DEFAULT_CHECK_DT = 1e-3
 """Sample time [s] at which constraint ratios are evaluated (issue 6: 1 ms)."""

@@ -34,8 +34,8 @@ from numpy.typing import ArrayLike
 
 from robot.description import FLANGE_FRAME, load_model
 from robot.parameters import RobotParameters, load_parameters
+from robot.joints import N_JOINTS
 
-N_JOINTS = 6
 N_LINK_PARAMETERS = 10
 N_PARAMETERS = 78
 INERTIAL_SLICE = slice(0, 60)

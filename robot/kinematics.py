@@ -25,8 +25,8 @@ from numpy.typing import ArrayLike
 from scipy.spatial.transform import Rotation
 
 from robot.description import FLANGE_FRAME, load_model
+from robot.joints import N_JOINTS
 
-N_JOINTS = 6
 ROTATION_TOLERANCE = 1e-6
 """Largest accepted deviation of R @ R.T from the identity (and of det R from 1) for a
 rotation matrix given as input. 1e-6 admits rotations printed with 7 significant

@@ -22,8 +22,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from robot.description import PARAMS_PATH, RobotDescriptionError, load_model
-
-N_JOINTS = 6
+from robot.joints import N_JOINTS
 
 
 class ParameterFileError(ValueError):

@@ -7,9 +7,10 @@ from pathlib import Path
 
 import numpy as np
 
+from robot.joints import N_JOINTS
+
 ROOT = Path(__file__).resolve().parents[1]
 PERIOD = 400e-6
-N_JOINTS = 6
 BUS_TARGETS = [f"bus.target_position[{i}]" for i in range(1, 7)]
 
 

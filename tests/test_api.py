@@ -210,14 +210,11 @@ def test_build_sweep_validates_every_variant_before_running(tmp_path):
     assert list(tmp_path.iterdir()) == [path]                        # nothing written
 
 
-def test_cli_help_stays_fast():
-    import time
-
-    start = time.perf_counter()
+def test_cli_help_imports_nothing_heavy():
+    # how fast --help answers is a benchmark figure (docs/ARCHITECTURE.md), not a timed test
     out = subprocess.run([sys.executable, "-m", "cosim", "--help"], capture_output=True, text=True, cwd=ROOT)
     assert out.returncode == 0 and "run" in out.stdout
     code = ("import sys, cosim.cli; cosim.cli.build_parser(); "
             "print(sorted(m for m in ('cosim.api', 'cosim.sweep', 'dask', 'fmpy', 'pandas') if m in sys.modules))")
     loaded = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, check=True)
     assert loaded.stdout.strip() == "[]", loaded.stdout        # the parser imports no API, sweep or Dask code
-    assert time.perf_counter() - start < 20                    # generous: a loaded 2-core machine

@@ -49,3 +49,14 @@ def test_each_level_of_model_buys_accuracy(short_run):
         entry = summary["modes"][mode]
         assert entry["tcp_error_spectrum_peak_hz"] >= 2.0
         assert set(entry["residual_vibration"]) >= {"peak_mm", "settling_time_s", "static_offset_mm"}
+
+
+def test_a_gear_too_stiff_for_the_plant_step_fails_cleanly_naming_the_key(tmp_path):
+    path = write_variant(SCENARIO.read_text(encoding="utf-8"), tmp_path / "iso.toml", [
+        ("elastic_joints = 1 ", '"stiffness[6]" = 1e8\nelastic_joints = 1 '),
+        ('stop_time = "12.6 s"', 'stop_time = "0.5 s"'), ("can_log = true", "can_log = false"),
+        ("figures = true", "figures = false")])
+    code, summary = run_scenario(path, tmp_path / "out")
+    assert code == 3 and summary["status"] == "failed" and summary["failed_component"] == "plant"
+    assert "stiffness[6] = 1e+08 N.m/rad" in summary["reason"]
+    assert "RK4 is stable up to stiffness[6] = " in summary["reason"]

@@ -39,3 +39,84 @@ def test_imports_point_down(package):
         if bad:
             offenders[str(path.relative_to(ROOT))] = sorted(bad)
     assert not offenders, f"imports pointing up or sideways: {offenders}"
+
+
+# Inside cosim/: the master, the results and the scenario layer know nothing of the jobs, the
+# robot cell, the execution modes (realtime, split, hil) or the commands built on them.
+COSIM_LOWER = ("master", "results", "scenario")
+COSIM_UPPER = {"jobs", "cell", "realtime", "split", "hil", "commands", "sweep", "api", "cli"}
+
+
+def _all_imports(path: Path) -> set[str]:
+    """Every absolute module imported anywhere in ``path`` (also inside functions), except
+    under ``if TYPE_CHECKING:``."""
+    tree = ast.parse(path.read_text(encoding="utf-8"))
+    skip = {id(n) for node in ast.walk(tree) if isinstance(node, ast.If)
+            and getattr(node.test, "id", getattr(node.test, "attr", "")) == "TYPE_CHECKING"
+            for n in ast.walk(node)}
+    names: set[str] = set()
+    for node in ast.walk(tree):
+        if id(node) in skip:
+            continue
+        if isinstance(node, ast.Import):
+            names.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            names.add(node.module)
+    return names
+
+
+@pytest.mark.parametrize("layer", COSIM_LOWER)
+def test_cosim_lower_layers_import_no_job_or_execution_code(layer):
+    offenders = {}
+    for path in (ROOT / "cosim" / layer).rglob("*.py"):
+        bad = sorted(m for m in _all_imports(path) if m.startswith("cosim.") and m.split(".")[1] in COSIM_UPPER)
+        if bad:
+            offenders[str(path.relative_to(ROOT))] = bad
+    assert not offenders, f"cosim/{layer} imports job/execution code: {offenders}"
+
+
+def _module_graph(packages: tuple[str, ...]) -> dict[str, set[str]]:
+    graph: dict[str, set[str]] = {}
+    for package in packages:
+        for path in (ROOT / package).rglob("*.py"):
+            parts = path.relative_to(ROOT).with_suffix("").parts
+            module = ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+            graph[module] = {m for m in _all_imports(path) if m.split(".")[0] in OURS}
+    return graph
+
+
+def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    found, state, stack = [], {}, []
+
+    def visit(node: str) -> None:
+        state[node] = 1
+        stack.append(node)
+        for nxt in sorted(graph.get(node, ())):
+            if nxt not in graph:
+                continue
+            if state.get(nxt) == 1:
+                found.append(stack[stack.index(nxt):] + [nxt])
+            elif nxt not in state:
+                visit(nxt)
+        stack.pop()
+        state[node] = 2
+
+    for node in sorted(graph):
+        if node not in state:
+            visit(node)
+    return found
+
+
+@pytest.mark.parametrize("pairs", [("cosim.scenario", "cosim.realtime"), ("planners.base", "planners.trajectory")])
+def test_former_import_cycles_stay_removed(pairs):
+    graph = _module_graph(("cosim", "planners"))
+    cycles = [c for c in _cycles(graph) if any(m.startswith(pairs[0]) for m in c)
+              and any(m.startswith(pairs[1]) for m in c)]
+    assert not cycles, f"import cycle through {pairs}: {cycles[:3]}"
+
+
+def test_n_joints_is_defined_once():
+    defined = [str(p.relative_to(ROOT)) for package in OURS for p in (ROOT / package).rglob("*.py")
+               if any(isinstance(n, ast.Assign) and any(getattr(t, "id", "") == "N_JOINTS" for t in n.targets)
+                      for n in ast.parse(p.read_text(encoding="utf-8")).body)]
+    assert defined == ["robot/joints.py"], defined

@@ -47,3 +47,16 @@ def test_installed_scenarios_are_found_from_any_folder(tmp_path, monkeypatch):
     assert loader.resolve_path("scenarios/iso9283.toml") == Path("scenarios/iso9283.toml")  # a local file wins
     assert loader.resolve_path("other/iso9283.toml") == Path("other/iso9283.toml")  # no guessing elsewhere
     assert loader.resolve_path("scenarios/missing.toml") == Path("scenarios/missing.toml")
+
+
+def test_the_cli_and_the_api_find_installed_scenarios(tmp_path, monkeypatch):
+    """``cosim run scenarios/iso9283.toml`` outside a checkout: the CLI and the API resolve it."""
+    import cosim
+
+    folder = tmp_path / loader.PACKAGED_SCENARIOS
+    folder.mkdir(parents=True)
+    (folder / "plant_drop.toml").write_bytes((ROOT / "scenarios" / "plant_drop.toml").read_bytes())
+    monkeypatch.setattr(sys, "prefix", str(tmp_path))
+    monkeypatch.chdir(tmp_path)
+    assert cosim.load_scenario("scenarios/plant_drop.toml").path == folder / "plant_drop.toml"
+    assert loader.load_scenario("plant_drop").path == folder / "plant_drop.toml"

@@ -33,8 +33,8 @@ from fmus.servo_drive.interface import REQUIRED as DRIVE_REQUIRED
 from fmus.servo_drive.params import drive_start_values
 from robot.parameters import RobotParameters, load_parameters
 from robot.true_robot import TrueRobot
+from robot.joints import N_JOINTS
 
-N_JOINTS = 6
 PLANT = "plant"
 DRIVES: tuple[str, ...] = tuple(f"drive{i}" for i in range(1, N_JOINTS + 1))
 PLANT_FMU = "rx130l_plant"

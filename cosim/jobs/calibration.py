@@ -17,7 +17,6 @@ from cosim.scenario.context import RunContext
 from cosim.scenario.loader import SCENARIO_FIELD, Scenario
 from cosim.scenario.registry import register_job
 from cosim.scenario.schema import Boolean, Field, Integer, List, Number, String, Table
-from identification.calibration_campaign import run_calibration_campaign
 from identification.calibration_observability import OBSERVATION_INDICES
 from identification.calibration_scaling import COLUMN_SCALINGS
 
@@ -72,6 +71,8 @@ SCHEMA = Table({"scenario": SCENARIO_FIELD, **{name: Field(spec) for name, spec 
 
 def run_calibration_job(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
     """Run the campaign into the results folder; return the summary fields."""
+    from identification.calibration_campaign import run_calibration_campaign  # heavy: only when this job runs
+
     config = {name: scenario.data[name] for name in SECTIONS if name in scenario.data}
     return run_calibration_campaign(config, ctx.out_dir, write_summary=False)
 

@@ -44,8 +44,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from controller import quintic_hermite
+from robot.joints import N_JOINTS
 
-N_JOINTS = 6
 AT_WINDOW_SAMPLES = 150
 """Half-width (samples) of the window of commanded points searched for the foot of the
 normal plane of a measured point: 150 ms at 1 ms, far above any lag."""
@@ -161,21 +161,27 @@ def distance_to_polyline(points: np.ndarray, polyline: np.ndarray, window: int =
     idx = np.arange(m)
     best = _pair_distance2(points, a, ab, ab2, idx, np.clip(idx, 0, n - 2))  # own segment: in every window
     reach = np.sqrt(best) * (1.0 + 1e-9) + 1e-12
-    mid = a + 0.5 * ab
-    half = 0.5 * np.sqrt(ab2) * (1.0 + 1e-9)
-    offsets = np.arange(-window, window + 1)
-    for start in range(0, m, 1024):
-        rows = idx[start:start + 1024]
-        seg = np.clip(rows[:, None] + offsets[None, :], 0, n - 2)
-        dx = points[rows, 0][:, None] - mid[seg, 0]
-        dy = points[rows, 1][:, None] - mid[seg, 1]
-        dz = points[rows, 2][:, None] - mid[seg, 2]
-        limit = reach[rows][:, None] + half[seg]
-        near = dx * dx + dy * dy + dz * dz <= limit * limit
-        r, c = np.nonzero(near)
-        if r.size:
-            i, j = rows[r], seg[r, c]
-            np.minimum.at(best, i, _pair_distance2(points, a, ab, ab2, i, j))
+    # segment j = clip(i + k, 0, n - 2) for offset k is the slice [k + window, k + window + m) of the
+    # segment arrays padded with the first / last segment (contiguous slices, no gathers)
+    pad = (window, window + max(m - (n - 1), 0))
+    mid = np.pad(a + 0.5 * ab, (pad, (0, 0)), mode="edge")
+    half = np.pad(0.5 * np.sqrt(ab2) * (1.0 + 1e-9), pad, mode="edge")
+    px, py, pz = (np.ascontiguousarray(points[:, k]) for k in range(3))
+    mx, my, mz = (np.ascontiguousarray(mid[:, k]) for k in range(3))
+    rows, segs = [], []
+    for k in range(-window, window + 1):
+        lo = k + window
+        dx = px - mx[lo:lo + m]
+        dy = py - my[lo:lo + m]
+        dz = pz - mz[lo:lo + m]
+        limit = reach + half[lo:lo + m]
+        near = np.flatnonzero(dx * dx + dy * dy + dz * dz <= limit * limit)
+        if near.size:
+            rows.append(near)
+            segs.append(np.clip(near + k, 0, n - 2))
+    if rows:
+        i, j = np.concatenate(rows), np.concatenate(segs)
+        np.minimum.at(best, i, _pair_distance2(points, a, ab, ab2, i, j))
     return np.sqrt(best)
 
 

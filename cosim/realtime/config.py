@@ -24,82 +24,12 @@ histogram_bins = 60
 """
 from __future__ import annotations
 
-import functools
 from dataclasses import dataclass, field
 from typing import Any
 
-
-EXECUTION_MODES = ("in_process", "split")
-OVERRUN_POLICIES = ("hold", "skip", "lost_frame")
-SCHEDULING = ("fifo", "normal")
-DEFAULT_SPIN_S = 100e-6
-DEFAULT_RECEIVE_TIMEOUT_S = 2.0
-
-@functools.lru_cache(maxsize=1)
-def _tables() -> tuple[Any, Any]:
-    """The [execution] and [realtime] table specs (built on first use: ``cosim.scenario``
-    imports this module while it initializes, so the schema helper is imported late)."""
-    from cosim.scenario.schema import Boolean, Field, Integer, Number, String, Table, Where
-
-    class Tolerance(String):
-        """'auto' or a time (s)."""
-
-        @property
-        def expected(self) -> str:  # type: ignore[override]
-            return "'auto' or a time in s >= 0 (e.g. '10 us')"
-
-        def check(self, value: Any, where: Where) -> Any:
-            if value == "auto":
-                return "auto"
-            if isinstance(value, bool):
-                raise where.error(self.expected, value)
-            try:
-                return Number(unit="s", min=0, max=1.0).check(value, where)
-            except ValueError:
-                raise where.error(self.expected, value) from None
-
-    class Cpu(String):
-        """'auto', 'none' or a CPU index."""
-
-        @property
-        def expected(self) -> str:  # type: ignore[override]
-            return "'auto' (the highest-numbered usable CPU), 'none' (not pinned) or a CPU index >= 0"
-
-        def check(self, value: Any, where: Where) -> Any:
-            if value in ("auto", "none"):
-                return value
-            if isinstance(value, int) and not isinstance(value, bool) and value >= 0:
-                return value
-            raise where.error(self.expected, value)
-
-    execution = Table({
-        "mode": Field(String(choices=EXECUTION_MODES), default="in_process",
-                      doc="'in_process' (one process) or 'split' (controller | drives + plant, python-can between)"),
-        "realtime": Field(Boolean(), default=False, doc="pace the run at the controller cycle (wall clock)"),
-        "receive_timeout": Field(Number(unit="s", gt=0, max=600), default=DEFAULT_RECEIVE_TIMEOUT_S,
-                                 doc="split mode: wall seconds a side waits for the other side's frames"),
-    }, doc="the [execution] table")
-    realtime = Table({
-        "overrun_policy": Field(String(choices=OVERRUN_POLICIES), default="hold",
-                                doc="what a late cycle's telegrams carry: 'hold', 'skip' or 'lost_frame'"),
-        "spin": Field(Number(unit="s", min=0, max=0.1), default=DEFAULT_SPIN_S,
-                      doc="busy-wait before each wall deadline: a time in s in [0, 0.1]"),
-        "scheduling": Field(String(choices=SCHEDULING), default="fifo"),
-        "fifo_priority": Field(Integer(min=1, max=99), default=10),
-        "cpu": Field(Cpu(), default="auto"),
-        "tolerance": Field(Tolerance(), default="auto"),
-        "histogram_bins": Field(Integer(min=5, max=1000), default=60),
-    }, doc="the [realtime] table")
-    return execution, realtime
-
-
-def execution_fields() -> dict[str, Any]:
-    """``{"execution": Field, "realtime": Field}`` to merge into a job's document schema
-    (cosim.scenario.cosim_tables.COSIM_FIELDS does)."""
-    from cosim.scenario.schema import Field
-
-    execution, realtime = _tables()
-    return {"execution": Field(execution, default={}), "realtime": Field(realtime, default={})}
+from cosim.scenario.execution_tables import (DEFAULT_RECEIVE_TIMEOUT_S, DEFAULT_SPIN_S,  # noqa: F401
+                                             EXECUTION_MODES, OVERRUN_POLICIES, SCHEDULING, _tables,
+                                             execution_fields, execution_tables)
 
 
 @dataclass(frozen=True)
@@ -168,18 +98,6 @@ class ExecutionOptions:
                 "overrun_policy": s.overrun_policy, "spin_us": s.spin_s * 1e6, "scheduling": s.scheduling,
                 "cpu": s.cpu,
                 "tolerance_us": None if s.tolerance_s is None else s.tolerance_s * 1e6}
-
-
-def execution_tables(doc: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
-    """The ``[execution]`` and ``[realtime]`` tables of a validated document with every default
-    filled (an absent table validates as ``{}`` without its fields' defaults)."""
-    from cosim.scenario.schema import Where
-
-    tables = []
-    for key, spec in zip(("execution", "realtime"), _tables()):
-        table = doc.get(key) or {}
-        tables.append(spec.check(dict(table), Where(None) / key))
-    return tables[0], tables[1]
 
 
 def execution_options(doc: dict[str, Any], *, realtime: bool | None = None, split: bool | None = None) -> ExecutionOptions:

@@ -28,8 +28,8 @@ from cosim.master.component import SUPPORTED_FMUS, variables_of
 from cosim.master.master import COUPLINGS, ENGINES
 from cosim.master.variables import (MasterTypeUnsupported, bus_type, check_connection_ends, check_declared_range,
                                     check_start_value, is_pattern, matches_pattern, parse_connection, split_signal)
-from cosim.realtime.config import execution_fields
 from cosim.results.timeseries import sink_for
+from cosim.scenario.execution_tables import execution_fields
 from cosim.scenario.schema import (AnyValue, Boolean, Field, FilePath, Integer, List, Number, String, Table, Where)
 
 if TYPE_CHECKING:
@@ -135,7 +135,7 @@ COSIM_FIELDS: dict[str, Field] = {
     "connections": Field(List(String()), default=[]),
     "record": Field(RECORD_TABLE),
     "output": Field(OUTPUT_TABLE, default={}),
-    **execution_fields(),  # [execution], [realtime]: cosim/realtime/config.py
+    **execution_fields(),  # [execution], [realtime]: cosim/scenario/execution_tables.py
 }
 
 
