@@ -146,7 +146,7 @@ def test_sweep_interrupted_closes_its_workers_and_says_so(tmp_path):
     base = write_variant((ROOT / "scenarios" / "plant_drop.toml").read_text(), tmp_path / "base.toml", [])
     sweep = tmp_path / "sweep.toml"
     sweep.write_text(f'[sweep]\nname = "s"\nbase = "{base.name}"\n[[axes]]\nkey = "simulation.stop_time"\n'
-                     f'values = [20.0, 20.1, 20.2, 20.3]\n')
+                     f'values = [300.0, 300.1, 300.2, 300.3]\n')  # long: still running when SIGTERM comes
     out = tmp_path / "out"
     proc = subprocess.Popen([sys.executable, "-m", "cosim", "sweep", str(sweep), "--out", str(out), "--workers", "2",
                              "--quiet"], env=ENV, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
