@@ -190,14 +190,27 @@ class FmuSpec:
             lines.append(f"    <ScalarVariable {attrs}>\n      <{v.type}{type_attrs}/>\n    </ScalarVariable>")
         return "\n".join(lines)
 
-    def model_description_xml(self) -> str:
-        """The complete ``modelDescription.xml`` text (FMI 2.0, co-simulation)."""
+    def common_xml(self) -> str:
+        """The ``modelDescription.xml`` elements that read the same in FMI 2.0 and 3.0:
+        ``UnitDefinitions``, ``LogCategories`` and ``DefaultExperiment`` (indented, one per line)."""
         used_units = sorted({v.unit for v in self.variables if v.unit is not None})
         unit_xml = []
         for unit in used_units:
             exps = " ".join(f'{k}="{e}"' for k, e in UNITS[unit].items())
             unit_xml.append(f'    <Unit name="{unit}"><BaseUnit {exps}/></Unit>' if exps
                             else f'    <Unit name="{unit}"/>')
+        return f"""  <UnitDefinitions>
+{chr(10).join(unit_xml)}
+  </UnitDefinitions>
+  <LogCategories>
+    <Category name="logStatusError" description="errors: rejected calls and numerical failures"/>
+    <Category name="logStatusWarning" description="warnings"/>
+    <Category name="logEvents" description="CiA 402 state transitions and limits (debug logging only)"/>
+  </LogCategories>
+  <DefaultExperiment startTime="0" stopTime="{self.default_stop!r}" stepSize="{self.default_step!r}"/>"""
+
+    def model_description_xml(self) -> str:
+        """The complete ``modelDescription.xml`` text (FMI 2.0, co-simulation)."""
         index = {v.name: i + 1 for i, v in enumerate(self.variables)}
         outputs = [v for v in self.variables if v.causality == OUTPUT]
         for v in outputs:
@@ -231,15 +244,7 @@ class FmuSpec:
 {sources}
     </SourceFiles>
   </CoSimulation>
-  <UnitDefinitions>
-{chr(10).join(unit_xml)}
-  </UnitDefinitions>
-  <LogCategories>
-    <Category name="logStatusError" description="errors: rejected calls and numerical failures"/>
-    <Category name="logStatusWarning" description="warnings"/>
-    <Category name="logEvents" description="CiA 402 state transitions and limits (debug logging only)"/>
-  </LogCategories>
-  <DefaultExperiment startTime="0" stopTime="{self.default_stop!r}" stepSize="{self.default_step!r}"/>
+{self.common_xml()}
   <ModelVariables>
 {self._render_variables_xml()}
   </ModelVariables>

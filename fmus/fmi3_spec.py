@@ -18,7 +18,7 @@ import hashlib
 from dataclasses import dataclass
 from xml.sax.saxutils import quoteattr
 
-from fmus.fmi2_spec import OUTPUT, PARAMETER, UNITS, FmuSpec, Variable, _fmt
+from fmus.fmi2_spec import OUTPUT, PARAMETER, FmuSpec, Variable, _fmt
 
 FMI3_TYPE = {"Real": "Float64", "Integer": "Int32"}
 
@@ -104,11 +104,6 @@ def instantiation_token(spec: FmuSpec) -> str:
 
 def model_description_xml3(spec: FmuSpec) -> str:
     """The complete FMI 3.0 ``modelDescription.xml`` text (co-simulation, no event mode)."""
-    used_units = sorted({v.unit for v in spec.variables if v.unit is not None})
-    unit_xml = []
-    for unit in used_units:
-        exps = " ".join(f'{k}="{e}"' for k, e in UNITS[unit].items())
-        unit_xml.append(f'    <Unit name="{unit}"><BaseUnit {exps}/></Unit>' if exps else f'    <Unit name="{unit}"/>')
     variables = fmi3_variables(spec)
     by_element = {e.name: var.value_reference for var in variables for e in var.elements}
     structure = []
@@ -135,15 +130,7 @@ def model_description_xml3(spec: FmuSpec) -> str:
     hasEventMode="false"
     providesIntermediateUpdate="false"
     canReturnEarlyAfterIntermediateUpdate="false"/>
-  <UnitDefinitions>
-{chr(10).join(unit_xml)}
-  </UnitDefinitions>
-  <LogCategories>
-    <Category name="logStatusError" description="errors: rejected calls and numerical failures"/>
-    <Category name="logStatusWarning" description="warnings"/>
-    <Category name="logEvents" description="CiA 402 state transitions and limits (debug logging only)"/>
-  </LogCategories>
-  <DefaultExperiment startTime="0" stopTime="{spec.default_stop!r}" stepSize="{spec.default_step!r}"/>
+{spec.common_xml()}
   <ModelVariables>
 {_variables_xml(spec)}
   </ModelVariables>

@@ -488,9 +488,9 @@ def _validate(ctx: RunContext, doc: dict[str, Any], rec: FieldbusRecorder, ctl: 
     for name, pred in predictions.items():
         for j in range(6):
             columns[f"tau_{name}{j + 1}"] = pred[:, j]
-    from cosim.jobs.columns_csv import write_columns_csv
+    from cosim.results import write_columns
 
-    write_columns_csv(ctx.path("validation_torques.csv"), columns)
+    write_columns(ctx.path("validation_torques.csv"), columns)  # CSV by its suffix
     return {"trajectory": "EN ISO 9283 test path", "run_with_model": label, "samples": int(t.size),
             "relative_rms_error": errors["identified"],
             "max_relative_rms_error": float(max(errors["identified"])),

@@ -9,34 +9,7 @@
  * and puts the instance into the error mode, from which only fmi2Get*, fmi2Reset,
  * fmi2SetFMUstate and fmi2FreeInstance are accepted.
  */
-#include <math.h>
-#include <stdarg.h>
-#include <stdio.h>
-#include <stdlib.h>
-#include <string.h>
-
-#include "fmu_instance.h"
-
-#define MAX_MESSAGE 1024
-#define STATE_MAGIC 0x52583133u /* "RX13" */
-
-static const char *const MODE_NAME[] = {"instantiated", "initialization", "step", "terminated", "error"};
-
-void fmu_log(const Instance *inst, fmi2Status status, const char *category, const char *fmt, ...)
-{
-    char message[MAX_MESSAGE];
-    va_list args;
-    if (!inst || !inst->functions.logger) return;
-    if (status < fmi2Warning && !inst->logging_on) return;
-    va_start(args, fmt);
-    vsnprintf(message, sizeof message, fmt, args);
-    va_end(args);
-    /* "%s" keeps a '%' inside the message from being read as a format directive */
-    inst->functions.logger(inst->functions.componentEnvironment, inst->instance_name, status,
-                           category, "%s", message);
-}
-
-#define LOG_ERROR(inst, ...) fmu_log((inst), fmi2Error, "logStatusError", __VA_ARGS__)
+#include "fmu_wrapper.h"
 
 /* Mode checks ---------------------------------------------------------------- */
 
@@ -44,22 +17,6 @@ static int check_instance(const Instance *inst, const char *fn)
 {
     (void)fn;
     return inst != NULL;
-}
-
-static fmi2Status reject_mode(Instance *inst, const char *fn)
-{
-    LOG_ERROR(inst, "%s: not allowed in %s mode", fn, MODE_NAME[inst->d.mode]);
-    return fmi2Error;
-}
-
-static void set_start_values(Instance *inst)
-{
-    int k;
-    memset(&inst->d, 0, sizeof inst->d);
-    inst->d.mode = MODE_INSTANTIATED;
-    for (k = 0; k < N_REALS; k++) inst->d.r[k] = REAL_START[k];
-    for (k = 0; k < N_INTEGERS; k++) inst->d.i[k] = INTEGER_START[k];
-    model_reset(inst);
 }
 
 /* Common functions ----------------------------------------------------------- */
@@ -83,7 +40,6 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
                               fmi2String fmuResourceLocation, const fmi2CallbackFunctions *functions,
                               fmi2Boolean visible, fmi2Boolean loggingOn)
 {
-    Instance *inst;
     Instance probe;
     (void)fmuResourceLocation;
     (void)visible;
@@ -106,30 +62,12 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
                   fmuGUID ? fmuGUID : "(null)", MODEL_GUID);
         return NULL;
     }
-    inst = (Instance *)calloc(1, sizeof *inst);
-    if (!inst) {
-        LOG_ERROR(&probe, "fmi2Instantiate: out of memory");
-        return NULL;
-    }
-    inst->instance_name = (char *)malloc(strlen(instanceName) + 1);
-    if (!inst->instance_name) {
-        free(inst);
-        LOG_ERROR(&probe, "fmi2Instantiate: out of memory");
-        return NULL;
-    }
-    strcpy(inst->instance_name, instanceName);
-    inst->functions = *functions;
-    inst->logging_on = loggingOn ? 1 : 0;
-    set_start_values(inst);
-    return inst;
+    return new_instance(&probe, instanceName, loggingOn, "fmi2Instantiate");
 }
 
 void fmi2FreeInstance(fmi2Component c)
 {
-    Instance *inst = (Instance *)c;
-    if (!inst) return;
-    free(inst->instance_name);
-    free(inst);
+    free_instance((Instance *)c);
 }
 
 fmi2Status fmi2SetupExperiment(fmi2Component c, fmi2Boolean toleranceDefined, fmi2Real tolerance,
@@ -140,17 +78,7 @@ fmi2Status fmi2SetupExperiment(fmi2Component c, fmi2Boolean toleranceDefined, fm
     (void)tolerance;
     if (!check_instance(inst, "fmi2SetupExperiment")) return fmi2Error;
     if (inst->d.mode != MODE_INSTANTIATED) return reject_mode(inst, "fmi2SetupExperiment");
-    if (!isfinite(startTime)) {
-        LOG_ERROR(inst, "fmi2SetupExperiment: startTime=%g is not a finite number", startTime);
-        return fmi2Error;
-    }
-    if (stopTimeDefined && !(stopTime >= startTime)) {
-        LOG_ERROR(inst, "fmi2SetupExperiment: stopTime=%g is before startTime=%g", stopTime, startTime);
-        return fmi2Error;
-    }
-    inst->d.start_time = startTime;
-    inst->d.time = startTime;
-    return fmi2OK;
+    return set_start_time(inst, "fmi2SetupExperiment", startTime, stopTimeDefined, stopTime);
 }
 
 fmi2Status fmi2EnterInitializationMode(fmi2Component c)
@@ -166,19 +94,14 @@ fmi2Status fmi2ExitInitializationMode(fmi2Component c)
 {
     Instance *inst = (Instance *)c;
     if (!check_instance(inst, "fmi2ExitInitializationMode")) return fmi2Error;
-    if (inst->d.mode != MODE_INITIALIZATION) return reject_mode(inst, "fmi2ExitInitializationMode");
-    if (model_initialize(inst) != 0) return fmi2Error; /* stays in initialization mode */
-    inst->d.mode = MODE_STEP;
-    return fmi2OK;
+    return exit_initialization(inst, "fmi2ExitInitializationMode");
 }
 
 fmi2Status fmi2Terminate(fmi2Component c)
 {
     Instance *inst = (Instance *)c;
     if (!check_instance(inst, "fmi2Terminate")) return fmi2Error;
-    if (inst->d.mode != MODE_STEP && inst->d.mode != MODE_ERROR) return reject_mode(inst, "fmi2Terminate");
-    inst->d.mode = MODE_TERMINATED;
-    return fmi2OK;
+    return terminate(inst, "fmi2Terminate");
 }
 
 fmi2Status fmi2Reset(fmi2Component c)
@@ -206,22 +129,6 @@ static int check_vr_args(Instance *inst, const char *fn, const fmi2ValueReferenc
             return 0;
         }
     }
-    return 1;
-}
-
-/* In Initialization Mode the outputs follow the parameters and inputs set so far (for a
- * model that provides model_initial_outputs; otherwise they keep their start values). */
-static int initial_outputs(Instance *inst, const char *fn)
-{
-#ifdef MODEL_INITIAL_OUTPUTS
-    if (inst->d.mode == MODE_INITIALIZATION && model_initial_outputs(inst) != 0) {
-        LOG_ERROR(inst, "%s: the outputs cannot be computed in initialization mode (see the message before)", fn);
-        return 0;
-    }
-#else
-    (void)inst;
-    (void)fn;
-#endif
     return 1;
 }
 
@@ -259,48 +166,6 @@ fmi2Status fmi2GetString(fmi2Component c, const fmi2ValueReference vr[], size_t 
     Instance *inst = (Instance *)c;
     if (!check_instance(inst, "fmi2GetString")) return fmi2Error;
     return check_vr_args(inst, "fmi2GetString", vr, nvr, value, 0) ? fmi2OK : fmi2Error;
-}
-
-/* May a variable of this kind be set in the current mode? */
-static int settable(const Instance *inst, int kind)
-{
-    int mode = inst->d.mode;
-    if (kind == KIND_INPUT) return mode == MODE_INSTANTIATED || mode == MODE_INITIALIZATION || mode == MODE_STEP;
-    if (kind == KIND_PARAMETER) return mode == MODE_INSTANTIATED || mode == MODE_INITIALIZATION;
-    return 0;
-}
-
-static const char *kind_name(int kind)
-{
-    switch (kind) {
-    case KIND_INPUT: return "input";
-    case KIND_OUTPUT: return "output";
-    case KIND_PARAMETER: return "fixed parameter";
-    default: return "local";
-    }
-}
-
-static int check_set(Instance *inst, const char *fn, const char *name, int kind, double value,
-                     double lo, double hi)
-{
-    if (!settable(inst, kind)) {
-        if (kind == KIND_PARAMETER)
-            LOG_ERROR(inst, "%s: %s is a fixed parameter and can only be set before "
-                      "fmi2ExitInitializationMode (mode is %s)", fn, name, MODE_NAME[inst->d.mode]);
-        else
-            LOG_ERROR(inst, "%s: %s is an %s and cannot be set (mode %s)", fn, name, kind_name(kind),
-                      MODE_NAME[inst->d.mode]);
-        return 0;
-    }
-    if (!isfinite(value)) {
-        LOG_ERROR(inst, "%s: %s=%g is not a finite number", fn, name, value);
-        return 0;
-    }
-    if (value < lo || value > hi) {
-        LOG_ERROR(inst, "%s: %s=%.17g is outside its range [%g, %g]", fn, name, value, lo, hi);
-        return 0;
-    }
-    return 1;
 }
 
 fmi2Status fmi2SetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, const fmi2Real value[])
@@ -351,65 +216,25 @@ fmi2Status fmi2SetString(fmi2Component c, const fmi2ValueReference vr[], size_t 
 
 /* FMU state ------------------------------------------------------------------- */
 
-typedef struct {
-    unsigned magic;
-    unsigned size;
-    char guid[64];
-    FmuData d;
-} Snapshot;
-
 fmi2Status fmi2GetFMUstate(fmi2Component c, fmi2FMUstate *FMUstate)
 {
     Instance *inst = (Instance *)c;
-    Snapshot *snap;
     if (!check_instance(inst, "fmi2GetFMUstate")) return fmi2Error;
-    if (!FMUstate) {
-        LOG_ERROR(inst, "fmi2GetFMUstate: NULL state pointer");
-        return fmi2Error;
-    }
-    snap = (Snapshot *)*FMUstate;
-    if (!snap) {
-        snap = (Snapshot *)calloc(1, sizeof *snap);
-        if (!snap) {
-            LOG_ERROR(inst, "fmi2GetFMUstate: out of memory");
-            return fmi2Error;
-        }
-    }
-    snap->magic = STATE_MAGIC;
-    snap->size = (unsigned)sizeof(Snapshot);
-    strncpy(snap->guid, MODEL_GUID, sizeof snap->guid - 1);
-    snap->d = inst->d;
-    *FMUstate = snap;
-    return fmi2OK;
-}
-
-static int valid_snapshot(Instance *inst, const Snapshot *snap, const char *fn)
-{
-    if (!snap || snap->magic != STATE_MAGIC || snap->size != sizeof(Snapshot) ||
-        strncmp(snap->guid, MODEL_GUID, sizeof snap->guid) != 0) {
-        LOG_ERROR(inst, "%s: the FMU state does not come from this FMU (%s)", fn, MODEL_IDENTIFIER_STRING);
-        return 0;
-    }
-    return 1;
+    return get_state(inst, "fmi2GetFMUstate", FMUstate);
 }
 
 fmi2Status fmi2SetFMUstate(fmi2Component c, fmi2FMUstate FMUstate)
 {
     Instance *inst = (Instance *)c;
     if (!check_instance(inst, "fmi2SetFMUstate")) return fmi2Error;
-    if (!valid_snapshot(inst, (const Snapshot *)FMUstate, "fmi2SetFMUstate")) return fmi2Error;
-    inst->d = ((const Snapshot *)FMUstate)->d;
-    return fmi2OK;
+    return set_state(inst, "fmi2SetFMUstate", FMUstate);
 }
 
 fmi2Status fmi2FreeFMUstate(fmi2Component c, fmi2FMUstate *FMUstate)
 {
     Instance *inst = (Instance *)c;
     if (!check_instance(inst, "fmi2FreeFMUstate")) return fmi2Error;
-    if (FMUstate) {
-        free(*FMUstate);
-        *FMUstate = NULL;
-    }
+    free_state(FMUstate);
     return fmi2OK;
 }
 
@@ -417,49 +242,22 @@ fmi2Status fmi2SerializedFMUstateSize(fmi2Component c, fmi2FMUstate FMUstate, si
 {
     Instance *inst = (Instance *)c;
     if (!check_instance(inst, "fmi2SerializedFMUstateSize")) return fmi2Error;
-    if (!size) {
-        LOG_ERROR(inst, "fmi2SerializedFMUstateSize: NULL size pointer");
-        return fmi2Error;
-    }
-    if (!valid_snapshot(inst, (const Snapshot *)FMUstate, "fmi2SerializedFMUstateSize")) return fmi2Error;
-    *size = sizeof(Snapshot);
-    return fmi2OK;
+    return serialized_state_size(inst, "fmi2SerializedFMUstateSize", FMUstate, size);
 }
 
 fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate FMUstate, fmi2Byte serializedState[], size_t size)
 {
     Instance *inst = (Instance *)c;
     if (!check_instance(inst, "fmi2SerializeFMUstate")) return fmi2Error;
-    if (!valid_snapshot(inst, (const Snapshot *)FMUstate, "fmi2SerializeFMUstate")) return fmi2Error;
-    if (!serializedState || size < sizeof(Snapshot)) {
-        LOG_ERROR(inst, "fmi2SerializeFMUstate: buffer of %lu bytes given, %lu needed", (unsigned long)size,
-                  (unsigned long)sizeof(Snapshot));
-        return fmi2Error;
-    }
-    memcpy(serializedState, FMUstate, sizeof(Snapshot));
-    return fmi2OK;
+    return serialize_state(inst, "fmi2SerializeFMUstate", FMUstate, serializedState, size);
 }
 
 fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte serializedState[], size_t size,
                                    fmi2FMUstate *FMUstate)
 {
     Instance *inst = (Instance *)c;
-    Snapshot *snap;
     if (!check_instance(inst, "fmi2DeSerializeFMUstate")) return fmi2Error;
-    if (!serializedState || !FMUstate || size != sizeof(Snapshot)) {
-        LOG_ERROR(inst, "fmi2DeSerializeFMUstate: %lu bytes given, %lu expected", (unsigned long)size,
-                  (unsigned long)sizeof(Snapshot));
-        return fmi2Error;
-    }
-    if (!valid_snapshot(inst, (const Snapshot *)serializedState, "fmi2DeSerializeFMUstate")) return fmi2Error;
-    snap = (Snapshot *)(*FMUstate ? *FMUstate : malloc(sizeof(Snapshot)));
-    if (!snap) {
-        LOG_ERROR(inst, "fmi2DeSerializeFMUstate: out of memory");
-        return fmi2Error;
-    }
-    memcpy(snap, serializedState, sizeof(Snapshot));
-    *FMUstate = snap;
-    return fmi2OK;
+    return deserialize_state(inst, "fmi2DeSerializeFMUstate", serializedState, size, FMUstate);
 }
 
 fmi2Status fmi2GetDirectionalDerivative(fmi2Component c, const fmi2ValueReference vUnknown_ref[], size_t nUnknown,
@@ -501,35 +299,9 @@ fmi2Status fmi2DoStep(fmi2Component c, fmi2Real currentCommunicationPoint, fmi2R
                       fmi2Boolean noSetFMUStatePriorToCurrentPoint)
 {
     Instance *inst = (Instance *)c;
-    double t = currentCommunicationPoint, h = communicationStepSize;
-    int k;
     (void)noSetFMUStatePriorToCurrentPoint;
     if (!check_instance(inst, "fmi2DoStep")) return fmi2Error;
-    if (inst->d.mode != MODE_STEP) return reject_mode(inst, "fmi2DoStep");
-    if (!isfinite(h) || !(h > 0.0)) {
-        LOG_ERROR(inst, "fmi2DoStep: communicationStepSize=%g, expected a finite number > 0", h);
-        return fmi2Error;
-    }
-    if (!isfinite(t) || fabs(t - inst->d.time) > 1e-9 * (1.0 + fabs(t))) {
-        LOG_ERROR(inst, "fmi2DoStep: currentCommunicationPoint=%.12g does not match the FMU time %.12g "
-                  "(steps must follow each other without gaps)", t, inst->d.time);
-        return fmi2Error;
-    }
-    k = model_do_step(inst, inst->d.time, h);
-    if (k == MODEL_STEP_REJECTED) return fmi2Error;
-    if (k != 0) {
-        inst->d.mode = MODE_ERROR;
-        return fmi2Error;
-    }
-    for (k = 0; k < N_REALS; k++) {
-        if (REAL_KIND[k] == KIND_OUTPUT && !isfinite(inst->d.r[k])) {
-            LOG_ERROR(inst, "fmi2DoStep: output %s became %g at t=%.9g", REAL_NAME[k], inst->d.r[k], t + h);
-            inst->d.mode = MODE_ERROR;
-            return fmi2Error;
-        }
-    }
-    inst->d.time = t + h;
-    return fmi2OK;
+    return do_step(inst, "fmi2DoStep", currentCommunicationPoint, communicationStepSize);
 }
 
 fmi2Status fmi2CancelStep(fmi2Component c)

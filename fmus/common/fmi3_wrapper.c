@@ -13,39 +13,9 @@
  * a step puts the instance into the error mode. The FMU has no event mode
  * (hasEventMode = false), never returns early and never ends the simulation itself.
  */
-#include <math.h>
-#include <stdarg.h>
-#include <stdio.h>
-#include <stdlib.h>
-#include <string.h>
-
 #include "fmu_instance.h"
 #include "fmi3_variables.h"
-
-#define MAX_MESSAGE 1024
-#define STATE_MAGIC 0x52583133u /* "RX13" */
-
-static const char *const MODE_NAME[] = {"instantiated", "initialization", "step", "terminated", "error"};
-
-void fmu_log(const Instance *inst, fmi2Status status, const char *category, const char *fmt, ...)
-{
-    char message[MAX_MESSAGE];
-    va_list args;
-    if (!inst || !inst->functions.logger) return;
-    if (status < fmi3Warning && !inst->logging_on) return;
-    va_start(args, fmt);
-    vsnprintf(message, sizeof message, fmt, args);
-    va_end(args);
-    inst->functions.logger(inst->functions.environment, status, category, message);
-}
-
-#define LOG_ERROR(inst, ...) fmu_log((inst), fmi3Error, "logStatusError", __VA_ARGS__)
-
-static fmi3Status reject_mode(Instance *inst, const char *fn)
-{
-    LOG_ERROR(inst, "%s: not allowed in %s mode", fn, MODE_NAME[inst->d.mode]);
-    return fmi3Error;
-}
+#include "fmu_wrapper.h"
 
 static fmi3Status unsupported(fmi3Instance instance, const char *fn, const char *why)
 {
@@ -53,16 +23,6 @@ static fmi3Status unsupported(fmi3Instance instance, const char *fn, const char 
     if (!inst) return fmi3Error;
     LOG_ERROR(inst, "%s: %s (%s)", fn, why, MODEL_IDENTIFIER_STRING);
     return fmi3Error;
-}
-
-static void set_start_values(Instance *inst)
-{
-    int k;
-    memset(&inst->d, 0, sizeof inst->d);
-    inst->d.mode = MODE_INSTANTIATED;
-    for (k = 0; k < N_REALS; k++) inst->d.r[k] = REAL_START[k];
-    for (k = 0; k < N_INTEGERS; k++) inst->d.i[k] = INTEGER_START[k];
-    model_reset(inst);
 }
 
 /* Common functions ----------------------------------------------------------- */
@@ -116,7 +76,6 @@ fmi3Instance fmi3InstantiateCoSimulation(fmi3String instanceName, fmi3String ins
                                          fmi3LogMessageCallback logMessage,
                                          fmi3IntermediateUpdateCallback intermediateUpdate)
 {
-    Instance *inst;
     Instance probe;
     (void)resourcePath; (void)visible; (void)earlyReturnAllowed; (void)requiredIntermediateVariables;
     (void)intermediateUpdate;
@@ -143,30 +102,12 @@ fmi3Instance fmi3InstantiateCoSimulation(fmi3String instanceName, fmi3String ins
                   MODEL_IDENTIFIER_STRING);
         return NULL;
     }
-    inst = (Instance *)calloc(1, sizeof *inst);
-    if (!inst) {
-        LOG_ERROR(&probe, "fmi3InstantiateCoSimulation: out of memory");
-        return NULL;
-    }
-    inst->instance_name = (char *)malloc(strlen(instanceName) + 1);
-    if (!inst->instance_name) {
-        free(inst);
-        LOG_ERROR(&probe, "fmi3InstantiateCoSimulation: out of memory");
-        return NULL;
-    }
-    strcpy(inst->instance_name, instanceName);
-    inst->functions = probe.functions;
-    inst->logging_on = loggingOn ? 1 : 0;
-    set_start_values(inst);
-    return inst;
+    return new_instance(&probe, instanceName, loggingOn, "fmi3InstantiateCoSimulation");
 }
 
 void fmi3FreeInstance(fmi3Instance instance)
 {
-    Instance *inst = (Instance *)instance;
-    if (!inst) return;
-    free(inst->instance_name);
-    free(inst);
+    free_instance((Instance *)instance);
 }
 
 fmi3Status fmi3EnterInitializationMode(fmi3Instance instance, fmi3Boolean toleranceDefined, fmi3Float64 tolerance,
@@ -177,16 +118,8 @@ fmi3Status fmi3EnterInitializationMode(fmi3Instance instance, fmi3Boolean tolera
     (void)tolerance;
     if (!inst) return fmi3Error;
     if (inst->d.mode != MODE_INSTANTIATED) return reject_mode(inst, "fmi3EnterInitializationMode");
-    if (!isfinite(startTime)) {
-        LOG_ERROR(inst, "fmi3EnterInitializationMode: startTime=%g is not a finite number", startTime);
+    if (set_start_time(inst, "fmi3EnterInitializationMode", startTime, stopTimeDefined, stopTime) != fmi3OK)
         return fmi3Error;
-    }
-    if (stopTimeDefined && !(stopTime >= startTime)) {
-        LOG_ERROR(inst, "fmi3EnterInitializationMode: stopTime=%g is before startTime=%g", stopTime, startTime);
-        return fmi3Error;
-    }
-    inst->d.start_time = startTime;
-    inst->d.time = startTime;
     inst->d.mode = MODE_INITIALIZATION;
     return fmi3OK;
 }
@@ -195,10 +128,7 @@ fmi3Status fmi3ExitInitializationMode(fmi3Instance instance)
 {
     Instance *inst = (Instance *)instance;
     if (!inst) return fmi3Error;
-    if (inst->d.mode != MODE_INITIALIZATION) return reject_mode(inst, "fmi3ExitInitializationMode");
-    if (model_initialize(inst) != 0) return fmi3Error; /* stays in initialization mode */
-    inst->d.mode = MODE_STEP;
-    return fmi3OK;
+    return exit_initialization(inst, "fmi3ExitInitializationMode");
 }
 
 fmi3Status fmi3EnterEventMode(fmi3Instance instance)
@@ -210,9 +140,7 @@ fmi3Status fmi3Terminate(fmi3Instance instance)
 {
     Instance *inst = (Instance *)instance;
     if (!inst) return fmi3Error;
-    if (inst->d.mode != MODE_STEP && inst->d.mode != MODE_ERROR) return reject_mode(inst, "fmi3Terminate");
-    inst->d.mode = MODE_TERMINATED;
-    return fmi3OK;
+    return terminate(inst, "fmi3Terminate");
 }
 
 fmi3Status fmi3Reset(fmi3Instance instance)
@@ -257,20 +185,6 @@ static int check_refs(Instance *inst, const char *fn, const fmi3ValueReference v
     return 1;
 }
 
-static int initial_outputs(Instance *inst, const char *fn)
-{
-#ifdef MODEL_INITIAL_OUTPUTS
-    if (inst->d.mode == MODE_INITIALIZATION && model_initial_outputs(inst) != 0) {
-        LOG_ERROR(inst, "%s: the outputs cannot be computed in initialization mode (see the message before)", fn);
-        return 0;
-    }
-#else
-    (void)inst;
-    (void)fn;
-#endif
-    return 1;
-}
-
 fmi3Status fmi3GetFloat64(fmi3Instance instance, const fmi3ValueReference vr[], size_t nvr, fmi3Float64 values[],
                           size_t nValues)
 {
@@ -302,36 +216,6 @@ fmi3Status fmi3GetInt32(fmi3Instance instance, const fmi3ValueReference vr[], si
         for (e = 0; e < VAR3_COUNT[j]; e++) values[n++] = inst->d.i[VAR3_FIRST[j] + e];
     }
     return fmi3OK;
-}
-
-static int settable(const Instance *inst, int kind)
-{
-    int mode = inst->d.mode;
-    if (kind == KIND_INPUT) return mode == MODE_INSTANTIATED || mode == MODE_INITIALIZATION || mode == MODE_STEP;
-    if (kind == KIND_PARAMETER) return mode == MODE_INSTANTIATED || mode == MODE_INITIALIZATION;
-    return 0;
-}
-
-static int check_set(Instance *inst, const char *fn, const char *name, int kind, double value, double lo, double hi)
-{
-    if (!settable(inst, kind)) {
-        if (kind == KIND_PARAMETER)
-            LOG_ERROR(inst, "%s: %s is a fixed parameter and can only be set before fmi3ExitInitializationMode "
-                      "(mode is %s)", fn, name, MODE_NAME[inst->d.mode]);
-        else
-            LOG_ERROR(inst, "%s: %s cannot be set (%s, mode %s)", fn, name,
-                      kind == KIND_OUTPUT ? "an output" : "a local", MODE_NAME[inst->d.mode]);
-        return 0;
-    }
-    if (!isfinite(value)) {
-        LOG_ERROR(inst, "%s: %s=%g is not a finite number", fn, name, value);
-        return 0;
-    }
-    if (value < lo || value > hi) {
-        LOG_ERROR(inst, "%s: %s=%.17g is outside its range [%g, %g]", fn, name, value, lo, hi);
-        return 0;
-    }
-    return 1;
 }
 
 fmi3Status fmi3SetFloat64(fmi3Instance instance, const fmi3ValueReference vr[], size_t nvr,
@@ -439,64 +323,24 @@ fmi3Status fmi3SetClock(fmi3Instance instance, const fmi3ValueReference vr[], si
 
 /* FMU state ------------------------------------------------------------------- */
 
-typedef struct {
-    unsigned magic;
-    unsigned size;
-    char guid[64];
-    FmuData d;
-} Snapshot;
-
 fmi3Status fmi3GetFMUState(fmi3Instance instance, fmi3FMUState *state)
 {
     Instance *inst = (Instance *)instance;
-    Snapshot *snap;
     if (!inst) return fmi3Error;
-    if (!state) {
-        LOG_ERROR(inst, "fmi3GetFMUState: NULL state pointer");
-        return fmi3Error;
-    }
-    snap = (Snapshot *)*state;
-    if (!snap) {
-        snap = (Snapshot *)calloc(1, sizeof *snap);
-        if (!snap) {
-            LOG_ERROR(inst, "fmi3GetFMUState: out of memory");
-            return fmi3Error;
-        }
-    }
-    snap->magic = STATE_MAGIC;
-    snap->size = (unsigned)sizeof(Snapshot);
-    strncpy(snap->guid, MODEL_TOKEN3, sizeof snap->guid - 1);
-    snap->d = inst->d;
-    *state = snap;
-    return fmi3OK;
-}
-
-static int valid_snapshot(Instance *inst, const Snapshot *snap, const char *fn)
-{
-    if (!snap || snap->magic != STATE_MAGIC || snap->size != sizeof(Snapshot) ||
-        strncmp(snap->guid, MODEL_TOKEN3, sizeof snap->guid) != 0) {
-        LOG_ERROR(inst, "%s: the FMU state does not come from this FMU (%s)", fn, MODEL_IDENTIFIER_STRING);
-        return 0;
-    }
-    return 1;
+    return get_state(inst, "fmi3GetFMUState", state);
 }
 
 fmi3Status fmi3SetFMUState(fmi3Instance instance, fmi3FMUState state)
 {
     Instance *inst = (Instance *)instance;
     if (!inst) return fmi3Error;
-    if (!valid_snapshot(inst, (const Snapshot *)state, "fmi3SetFMUState")) return fmi3Error;
-    inst->d = ((const Snapshot *)state)->d;
-    return fmi3OK;
+    return set_state(inst, "fmi3SetFMUState", state);
 }
 
 fmi3Status fmi3FreeFMUState(fmi3Instance instance, fmi3FMUState *state)
 {
     if (!instance) return fmi3Error;
-    if (state) {
-        free(*state);
-        *state = NULL;
-    }
+    free_state(state);
     return fmi3OK;
 }
 
@@ -504,49 +348,22 @@ fmi3Status fmi3SerializedFMUStateSize(fmi3Instance instance, fmi3FMUState state,
 {
     Instance *inst = (Instance *)instance;
     if (!inst) return fmi3Error;
-    if (!size) {
-        LOG_ERROR(inst, "fmi3SerializedFMUStateSize: NULL size pointer");
-        return fmi3Error;
-    }
-    if (!valid_snapshot(inst, (const Snapshot *)state, "fmi3SerializedFMUStateSize")) return fmi3Error;
-    *size = sizeof(Snapshot);
-    return fmi3OK;
+    return serialized_state_size(inst, "fmi3SerializedFMUStateSize", state, size);
 }
 
 fmi3Status fmi3SerializeFMUState(fmi3Instance instance, fmi3FMUState state, fmi3Byte serializedState[], size_t size)
 {
     Instance *inst = (Instance *)instance;
     if (!inst) return fmi3Error;
-    if (!valid_snapshot(inst, (const Snapshot *)state, "fmi3SerializeFMUState")) return fmi3Error;
-    if (!serializedState || size < sizeof(Snapshot)) {
-        LOG_ERROR(inst, "fmi3SerializeFMUState: buffer of %lu bytes given, %lu needed", (unsigned long)size,
-                  (unsigned long)sizeof(Snapshot));
-        return fmi3Error;
-    }
-    memcpy(serializedState, state, sizeof(Snapshot));
-    return fmi3OK;
+    return serialize_state(inst, "fmi3SerializeFMUState", state, serializedState, size);
 }
 
 fmi3Status fmi3DeserializeFMUState(fmi3Instance instance, const fmi3Byte serializedState[], size_t size,
                                    fmi3FMUState *state)
 {
     Instance *inst = (Instance *)instance;
-    Snapshot *snap;
     if (!inst) return fmi3Error;
-    if (!serializedState || !state || size != sizeof(Snapshot)) {
-        LOG_ERROR(inst, "fmi3DeserializeFMUState: %lu bytes given, %lu expected", (unsigned long)size,
-                  (unsigned long)sizeof(Snapshot));
-        return fmi3Error;
-    }
-    if (!valid_snapshot(inst, (const Snapshot *)serializedState, "fmi3DeserializeFMUState")) return fmi3Error;
-    snap = (Snapshot *)(*state ? *state : malloc(sizeof(Snapshot)));
-    if (!snap) {
-        LOG_ERROR(inst, "fmi3DeserializeFMUState: out of memory");
-        return fmi3Error;
-    }
-    memcpy(snap, serializedState, sizeof(Snapshot));
-    *state = snap;
-    return fmi3OK;
+    return deserialize_state(inst, "fmi3DeserializeFMUState", serializedState, size, state);
 }
 
 /* Not provided ----------------------------------------------------------------- */
@@ -741,8 +558,6 @@ fmi3Status fmi3DoStep(fmi3Instance instance, fmi3Float64 currentCommunicationPoi
                       fmi3Boolean *terminateSimulation, fmi3Boolean *earlyReturn, fmi3Float64 *lastSuccessfulTime)
 {
     Instance *inst = (Instance *)instance;
-    double t = currentCommunicationPoint, h = communicationStepSize;
-    int k;
     (void)noSetFMUStatePriorToCurrentPoint;
     if (!inst) return fmi3Error;
     if (!eventHandlingNeeded || !terminateSimulation || !earlyReturn || !lastSuccessfulTime) {
@@ -753,30 +568,8 @@ fmi3Status fmi3DoStep(fmi3Instance instance, fmi3Float64 currentCommunicationPoi
     *terminateSimulation = fmi3False;
     *earlyReturn = fmi3False;
     *lastSuccessfulTime = inst->d.time;
-    if (inst->d.mode != MODE_STEP) return reject_mode(inst, "fmi3DoStep");
-    if (!isfinite(h) || !(h > 0.0)) {
-        LOG_ERROR(inst, "fmi3DoStep: communicationStepSize=%g, expected a finite number > 0", h);
+    if (do_step(inst, "fmi3DoStep", currentCommunicationPoint, communicationStepSize) != fmi3OK)
         return fmi3Error;
-    }
-    if (!isfinite(t) || fabs(t - inst->d.time) > 1e-9 * (1.0 + fabs(t))) {
-        LOG_ERROR(inst, "fmi3DoStep: currentCommunicationPoint=%.12g does not match the FMU time %.12g "
-                  "(steps must follow each other without gaps)", t, inst->d.time);
-        return fmi3Error;
-    }
-    k = model_do_step(inst, inst->d.time, h);
-    if (k == MODEL_STEP_REJECTED) return fmi3Error;
-    if (k != 0) {
-        inst->d.mode = MODE_ERROR;
-        return fmi3Error;
-    }
-    for (k = 0; k < N_REALS; k++) {
-        if (REAL_KIND[k] == KIND_OUTPUT && !isfinite(inst->d.r[k])) {
-            LOG_ERROR(inst, "fmi3DoStep: output %s became %g at t=%.9g", REAL_NAME[k], inst->d.r[k], t + h);
-            inst->d.mode = MODE_ERROR;
-            return fmi3Error;
-        }
-    }
-    inst->d.time = t + h;
     *lastSuccessfulTime = inst->d.time;
     return fmi3OK;
 }

@@ -6,7 +6,8 @@
  *                      ranges, causalities, names)
  *   model_state.h      the model's internal state struct `ModelState`
  * and implements the three model_* functions declared below. fmi2_wrapper.c does all
- * FMI bookkeeping: argument checks, modes, logging, FMU state snapshots. Compiled with
+ * FMI bookkeeping: argument checks, modes, logging, FMU state snapshots (what is not
+ * version-specific lives in fmu_wrapper.h, shared with fmi3_wrapper.c). Compiled with
  * -DFMU_FMI3, the same model sources build against fmi3_wrapper.c instead (FMI 3.0
  * co-simulation): the model code keeps using the fmi2* status names, which FMI 3.0
  * numbers alike (OK 0, Warning 1, Discard 2, Error 3, Fatal 4).
