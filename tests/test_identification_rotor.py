@@ -3,11 +3,14 @@ term b_i qdd_i, measured on the drive FMU, removed before identifying; the per-p
 table against the true robot. Figures of the full campaign: docs/identification.md."""
 from __future__ import annotations
 
+import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
 
+from cosim.cli import main
 from cosim.jobs.identification import ROTOR_TERMS, parameter_error_table
 from cosim.jobs.identification_torque_sampling import sampled_torque_bias
 from identification.dynamic_base_parameters import nominal_base_parameters
@@ -95,3 +98,28 @@ def test_parameter_error_table_names_every_base_parameter_and_the_rotors():
     assert table["rotor_inertias"]["Ia3"]["uncorrected"] == pytest.approx(values[ia3] - 0.55)
     assert table["rotor_inertias_within_10_percent"]
     assert table["max_abs_relative_error_percent"] == pytest.approx(5.0)
+
+
+def test_short_campaign_reports_every_parameter_and_the_rotor_inertias(tmp_path):
+    """The identification job (2 periods, 3 SLSQP iterations, a 1 s ISO run; about 8 s): the
+    summary holds the torque-sampling correction, every base parameter's error against the true
+    robot and the rotor inertias, within 10 % with the correction and far off without it."""
+    text = (Path(__file__).resolve().parents[1] / "scenarios" / "identification.toml").read_text()
+    for old, new in [("periods = 5 ", "periods = 2 "), ("max_iterations = 300", "max_iterations = 3"),
+                     ("random_baselines = 10", "random_baselines = 1"), ('stop_time = "12.6 s"', 'stop_time = "1 s"'),
+                     ('compare_models = ["nominal", "identified", "true"]', 'compare_models = ["nominal"]'),
+                     ("figures = true", "figures = false"), ("records = true", "records = false")]:
+        assert old in text, old
+        text = text.replace(old, new)
+    scenario = tmp_path / "identification.toml"
+    scenario.write_text(text)
+    assert main(["run", str(scenario), "--out", str(tmp_path / "res"), "--quiet"]) == 0
+    ident = json.loads((tmp_path / "res" / "summary.json").read_text())["identification"]
+    assert len(ident["parameter_errors"]) == ident["base_parameters"] == 52
+    assert ident["processing"]["torque_acceleration_bias_Nm_per_rad_s2"] == \
+        ident["torque_sampling_correction"]["bias_Nm_per_rad_s2"]
+    rotors = ident["rotor_inertias"]
+    assert ident["rotor_inertias_within_10_percent"]
+    assert all(abs(r["error_percent"]) < 10.0 for r in rotors.values()), rotors
+    assert rotors["Ia3"]["uncorrected_error_percent"] < -40.0  # the -61 % of issue 16
+    assert rotors["Ia1"]["base_parameter"] == "Izz1R" and rotors["Ia3"]["base_parameter"] == "Ia3"
