@@ -26,6 +26,8 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
+#: both processes ask for SCHED_FIFO (granted to root; 'normal (...)' otherwise, reported per run)
+SCHEDULING = "fifo"
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
@@ -56,7 +58,9 @@ def cell_side(seconds: float, ports: tuple[int, int], window_s: float, queue) ->
     import select
 
     select.select([endpoint.bus.fileno()], [], [], 120.0)  # start with the controller's first datagram
-    with no_cyclic_gc():
+    from cosim.realtime.pacer import realtime_scheduling
+
+    with realtime_scheduling(SCHEDULING, 10) as granted, no_cyclic_gc():
         for k in range(cycles):
             pacer.wait(k)
             deadline = (pacer.deadline_ns(k) + int(window_s * 1e9)) * 1e-9
@@ -64,7 +68,7 @@ def cell_side(seconds: float, ports: tuple[int, int], window_s: float, queue) ->
             endpoint.run_cycle_paced(k, actuals, deadline, clock=lambda: time.perf_counter_ns() * 1e-9)
     log = pacer.log
     lost = sum(1 for e in endpoint.events.events if e.kind == "loss_of_preq" and e.event == "error" and e.node == 1)
-    out = {"cycles": log.count, "lateness_us": log.lateness_us.tolist(), "overrun": log.overrun[:log.count].tolist(),
+    out = {"cycles": log.count, "scheduling": granted, "lateness_us": log.lateness_us.tolist(), "overrun": log.overrun[:log.count].tolist(),
            "lost_cycles": lost, "frames_late": endpoint.frames_late,
            "latency_in_us": [x * 1e-3 for x in endpoint.bus.latency_ns], "stats": endpoint.bus.stats.as_dict()}
     endpoint.close()
@@ -82,6 +86,17 @@ def controller_side(seconds: float, ports: tuple[int, int], queue) -> None:
     end = time.monotonic() + seconds + 1.0
     skipped = 0
     last = -1
+    from cosim.realtime.pacer import no_cyclic_gc, realtime_scheduling
+
+    with realtime_scheduling(SCHEDULING, 10), no_cyclic_gc():
+        skipped, last = _follow(endpoint, setpoints, end)
+    queue.put({"cycles_followed": last + 1, "cycles_skipped": skipped,
+               "latency_in_us": [x * 1e-3 for x in endpoint.bus.latency_ns]})
+    endpoint.close()
+
+
+def _follow(endpoint, setpoints, end: float) -> tuple[int, int]:
+    skipped, last = 0, -1
     while time.monotonic() < end:
         got = endpoint.follow(0.2)
         if got is None:
@@ -91,9 +106,7 @@ def controller_side(seconds: float, ports: tuple[int, int], queue) -> None:
         last = cycle
         setpoints.position[:] = observed.position + 1e-4
         endpoint.send_following(setpoints)
-    queue.put({"cycles_followed": last + 1, "cycles_skipped": skipped,
-               "latency_in_us": [x * 1e-3 for x in endpoint.bus.latency_ns]})
-    endpoint.close()
+    return skipped, last
 
 
 def run_once(seconds: float, base_port: int, window_s: float = 200e-6) -> dict:
@@ -127,7 +140,7 @@ def run_once(seconds: float, base_port: int, window_s: float = 200e-6) -> dict:
             "round_trip_us": {"p50": float(np.percentile(rtt, 50)), "p99": float(np.percentile(rtt, 99)),
                               "max": float(rtt.max())} if n else {"p50": None, "p99": None, "max": None},
             "lost_cycles": c["lost_cycles"], "frames_late": c["frames_late"],
-            "controller_cycles_skipped": k["cycles_skipped"], "transport": c["stats"],
+            "controller_cycles_skipped": k["cycles_skipped"], "transport": c["stats"], "scheduling": c["scheduling"],
             "load_average_before": load_before, "load_average_after": os.getloadavg()}
 
 

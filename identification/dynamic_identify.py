@@ -330,22 +330,40 @@ def identify_periodic(q: ArrayLike, tau: ArrayLike, sample_time: float, samples_
                       skip_periods: int = 1, periods: int | None = None, cutoff_hz: float = DEFAULT_CUTOFF_HZ,
                       base: BaseParameters | None = None, method: str = "wls",
                       max_condition: float = MAX_CONDITION_NUMBER, max_samples: int | None = DEFAULT_MAX_SAMPLES,
-                      consistent: bool = False) -> DynamicIdentification:
+                      consistent: bool = False,
+                      torque_acceleration_bias: ArrayLike | None = None) -> DynamicIdentification:
     """Identify from a record of a repeated periodic trajectory (:func:`prepare_periodic`,
-    then the same harmonics dropped from tau and the regressor, then least squares)."""
+    then the same harmonics dropped from tau and the regressor, then least squares).
+
+    ``torque_acceleration_bias``: (6,) N m per rad/s^2, a known measurement term ``b_i qdd_i``
+    in joint i's torque besides the rigid-body torque (a drive that samples its torque in step
+    with its speed loop reports ``b_i qdd_i`` too, ``b_i < 0``; see docs/identification.md). It
+    is subtracted from the averaged torque, with qdd the Fourier derivative: the term is exactly
+    collinear with the rotor-inertia column of joint i, so no excitation can separate it and,
+    uncorrected, it is identified as rotor inertia ``Ia_i + b_i``.
+    """
     base = base or nominal_base_parameters()
     prepared = prepare_periodic(q, tau, sample_time, samples_per_period, skip_periods=skip_periods,
                                 periods=periods, cutoff_hz=cutoff_hz)
     w = base_regressor(base, prepared.q, prepared.qd, prepared.qdd)
     n = w.shape[0]
     w = periodic_lowpass(w.reshape(n, -1), sample_time, cutoff_hz).reshape(w.shape)
-    tau_f = periodic_lowpass(prepared.tau, sample_time, cutoff_hz)
+    tau_avg = prepared.tau
+    how = dict(prepared.how)
+    if torque_acceleration_bias is not None:
+        bias = np.asarray(torque_acceleration_bias, dtype=float)
+        if bias.shape != (prepared.tau.shape[1],) or not np.all(np.isfinite(bias)):
+            raise IdentificationDataError(f"torque_acceleration_bias: expected {prepared.tau.shape[1]} finite values "
+                                          f"in N m per rad/s^2, got {bias.tolist()!r}")
+        tau_avg = tau_avg - bias * prepared.qdd
+        how["torque_acceleration_bias_Nm_per_rad_s2"] = bias.tolist()
+    tau_f = periodic_lowpass(tau_avg, sample_time, cutoff_hz)
     stride = 1
     if max_samples is not None and n > max_samples:
         stride = max(1, min(int(math.ceil(n / max_samples)), int(1.0 / (4.0 * cutoff_hz * sample_time))))
     # band-limited to cutoff_hz over one period T: about 2 cutoff T independent values per joint
     return identify_regressor(w[::stride], tau_f[::stride], base=base, method=method, max_condition=max_condition,
-                              data=dict(prepared.how, decimation=stride),
+                              data=dict(how, decimation=stride),
                               independent_samples=2.0 * cutoff_hz * n * sample_time, consistent=consistent)
 
 

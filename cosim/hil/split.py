@@ -151,7 +151,9 @@ def run_hil_split(cell: CellDescription, controller: Any, ctx: Any, *, options: 
     bus = dataclasses.replace(cell.fieldbus.bus, interface="udpcycle", channel=f"127.0.0.1:{ctrl_port}",
                               options={**dict(cell.fieldbus.bus.options), "peer": f"127.0.0.1:{cell_port}",
                                        "latency_samples": 1 << 20, "busy_poll_s": 0.0})
-    config = dataclasses.replace(cell.fieldbus, bus=bus)
+    from cosim.realtime.network import deferred_recording
+
+    config = deferred_recording(dataclasses.replace(cell.fieldbus, bus=bus))  # no CAN-log hand-over in the loop
     port = ControllerPort(controller, N_JOINTS, q_start=cell.controller.q_start)
     stop_cycle = int(round(stop_time / period))
     failure: SimulationError | None = None
