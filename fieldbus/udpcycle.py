@@ -117,6 +117,7 @@ class TransportStats:
     injected_delays: int = 0
     send_overflows: int = 0
     no_peer: int = 0
+    send_errors: int = 0
 
     def as_dict(self) -> dict[str, int]:
         return asdict(self)
@@ -277,6 +278,7 @@ class UdpCycleBus(BusABC):
         self.sender_id = int(sender_id) if sender_id is not None else int.from_bytes(os.urandom(4), "big")
         self._sequence = 0
         self.stats = TransportStats()
+        self.last_send_error = ""
         self._queue: deque[Message] = deque()
         self._trackers: dict[tuple, _SequenceTracker] = {}
         self._busy_poll_s = float(busy_poll_s)
@@ -372,8 +374,10 @@ class UdpCycleBus(BusABC):
         except BlockingIOError:  # socket buffer full: the datagram is lost, as on a wire
             self.stats.send_overflows += 1
             return
-        except OSError as error:
-            raise can.CanOperationError(f"udpcycle send to {destination[0]}:{destination[1]}: {error}") from None
+        except OSError as error:  # e.g. an unreachable peer: counted, like a frame lost on the wire
+            self.stats.send_errors += 1
+            self.last_send_error = f"udpcycle send to {destination[0]}:{destination[1]}: {error}"
+            return
         self.stats.sent += 1
 
     def _release_held(self) -> None:

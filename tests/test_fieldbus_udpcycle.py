@@ -197,3 +197,11 @@ def test_one_way_latency_from_kernel_arrival_and_header_send_time():
         latencies = list(rx.latency_ns)
         assert len(latencies) == 20
         assert all(0 < ns < 200_000_000 for ns in latencies)  # same host: positive, far below 0.2 s
+
+
+def test_an_unreachable_peer_is_counted_not_raised():
+    # nothing listens on loopback port 9: whatever the kernel reports, send never raises
+    with can.Bus(interface="udpcycle", channel=f"127.0.0.1:{_port(13)}", peer="127.0.0.1:9") as bus:
+        for _ in range(3):
+            bus.send(can.Message(arbitration_id=0x201, data=b"\x00", is_extended_id=False))
+        assert bus.stats.sent + bus.stats.send_errors == 3
