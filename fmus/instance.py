@@ -52,7 +52,10 @@ def status_label(status: int) -> str:
 
 
 def _route_log(environment, instance_name, status, category, message) -> None:
-    sink = _SINKS.get(environment or 0)
+    sinks = _SINKS
+    if sinks is None:  # interpreter shutdown: the module's globals are already gone
+        return
+    sink = sinks.get(environment or 0)
     text = message.decode("utf-8", "replace") if message else ""
     if sink is None:
         print(f"[{status_label(status).upper()}] {text}")
