@@ -60,6 +60,23 @@ class _LogSink:
         self.logger.stop()
 
 
+def _send_whole(connection: Any, message: Any) -> None:
+    """``connection.send(message)`` with SIGINT and SIGTERM held back until it is complete: a
+    KeyboardInterrupt in the middle of a large message would leave half of it in the pipe and
+    the writer could not read another message. The signal is delivered right after."""
+    import signal
+
+    mask = getattr(signal, "pthread_sigmask", None)
+    if mask is None:
+        connection.send(message)
+        return
+    previous = mask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
+    try:
+        connection.send(message)
+    finally:
+        mask(signal.SIG_SETMASK, previous)
+
+
 def _writer_process(path: str, connection: Any) -> None:
     """Child process: feed (records, watermark) batches to a sink until None arrives.
 
@@ -76,7 +93,7 @@ def _writer_process(path: str, connection: Any) -> None:
         while True:
             try:
                 batch = connection.recv()
-            except EOFError:  # the parent is gone: keep what was written
+            except (EOFError, OSError):  # the parent is gone (or died mid-message): keep what was written
                 break
             if batch is None:
                 break
@@ -162,7 +179,7 @@ class FrameRecorder(Closeable):
             self.frames_written = self._sink.written
             return
         try:
-            self._conn.send((records, watermark_s))
+            _send_whole(self._conn, (records, watermark_s))
         except (BrokenPipeError, OSError) as error:
             raise RuntimeError(f"fieldbus recorder process for {self.path} died: {error}") from error
 
@@ -173,7 +190,7 @@ class FrameRecorder(Closeable):
             self._sink.close()
             self.frames_written = self._sink.written
             return
-        self._conn.send(None)
+        _send_whole(self._conn, None)
         self.wait_ready(60.0)
         if self._conn.poll(60):
             self.frames_written = self._conn.recv()
