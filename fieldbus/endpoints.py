@@ -144,6 +144,10 @@ class _Endpoint(Closeable):
             expected = "a cycle number >= 0" if self._cycle < 0 else f"cycle {self._cycle + 1} (cycles run consecutively)"
             raise ValueError(f"run_cycle(cycle={cycle}): expected {expected}")
         self._cycle = cycle
+        self._schedule_sending(cycle)
+
+    def _schedule_sending(self, cycle: int) -> None:
+        """This cycle's frame times and the injected faults of the frames this side sends."""
         faults = self.plan.for_cycle(cycle)
         if faults is None:
             self._times = self.schedule.timestamps(cycle)
@@ -210,15 +214,7 @@ class _Endpoint(Closeable):
         otherwise wait for the ``expected`` identifiers (-> simulated timestamp)."""
         bus = self.bus
         if self.synchronous:
-            drain = self._drain
-            if drain is not None:
-                return drain()
-            received = []
-            msg = bus.recv(0)
-            while msg is not None:
-                received.append(msg)
-                msg = bus.recv(0)
-            return received
+            return self._read_now()
         waiting = dict(expected)
         received = []
         deadline = time.monotonic() + self.config.bus.receive_timeout_s
@@ -338,10 +334,8 @@ class ManagingNodeEndpoint(_Endpoint):
         batches += lost - self._follow_lost
         self._follow_lost = lost
         cycle = self._follow_cycle + batches
-        self._follow_cycle = cycle
-        self._cycle = cycle - 1
-        self._begin(cycle)
-        times = self._times
+        self._follow_cycle = self._cycle = cycle
+        times = self.schedule.timestamps(cycle)  # receiving only: the injected faults apply when sending
         for msg in batch:
             base, node = msg.arbitration_id & ~0x7F, msg.arbitration_id & 0x7F
             if base in (TPDO1_BASE, TPDO2_BASE) and 1 <= node <= n and times[n + node] is not None:
@@ -364,16 +358,12 @@ class ManagingNodeEndpoint(_Endpoint):
     def send_following(self, setpoints: Setpoints) -> None:
         """SoC and PReqs for the cell's next cycle (after :meth:`follow`), in one batch."""
         cycle = self._follow_cycle + 1
-        faults = self.plan.for_cycle(cycle)  # the scenario's injected faults apply to what this side sends
-        if faults is None:
-            times, self._kinds = self.schedule.timestamps(cycle), _NO_FAULTS
-        else:
-            times, self._kinds = self.schedule.faulty_timestamps(cycle, faults), faults.kinds
-            self._record_injected(cycle, faults)
+        self._schedule_sending(cycle)  # the scenario's injected faults apply to what this side sends
         node = self.node
-        frames = node.encode(cycle, times, setpoints)
+        frames = node.encode(cycle, self._times, setpoints)
         if frames is None:
-            frames = node.frames(cycle, times, *[getattr(setpoints, name).tolist() for name in _SETPOINT_FIELDS])
+            frames = node.frames(cycle, self._times, *[getattr(setpoints, name).tolist()
+                                                       for name in _SETPOINT_FIELDS])
         self._transmit(frames)
 
     def run_cycle(self, cycle: int, setpoints: Setpoints) -> ObservedActuals:
