@@ -125,10 +125,9 @@ def run_once(seconds: float, base_port: int, window_s: float = 200e-6) -> dict:
     ctrl.join(10)
     lateness = np.asarray(c["lateness_us"])
     overrun = np.asarray(c["overrun"], dtype=bool)
-    longest = run = 0
-    for flag in overrun:
-        run = run + 1 if flag else 0
-        longest = max(longest, run)
+    from cosim.hil.cell_side import longest_run
+
+    longest = longest_run(overrun)
     up = np.asarray(c["latency_in_us"])  # controller -> cell
     down = np.asarray(k["latency_in_us"])  # cell -> controller
     n = min(up.size, down.size)

@@ -105,7 +105,8 @@ def endpoint_description(cell: CellDescription, settings: ServeSettings, config:
     }
 
 
-def _percentiles(values: np.ndarray, points=(50.0, 99.0, 99.9)) -> dict[str, float | None]:
+def percentiles_us(values: np.ndarray, points=(50.0, 99.0, 99.9)) -> dict[str, float | None]:
+    """``p50_us``/``p99_us``/``p99_9_us`` (those of ``points``) and ``max_us`` of ``values`` (µs); None when empty."""
     keys = {50.0: "p50_us", 99.0: "p99_us", 99.9: "p99_9_us"}
     if values.size == 0:
         return {**{keys[p]: None for p in points}, "max_us": None}
@@ -114,7 +115,8 @@ def _percentiles(values: np.ndarray, points=(50.0, 99.0, 99.9)) -> dict[str, flo
     return out
 
 
-def _longest_run(flags: np.ndarray) -> int:
+def longest_run(flags: np.ndarray) -> int:
+    """The longest run of consecutive True in ``flags``."""
     longest = run = 0
     for flag in flags.tolist():
         run = run + 1 if flag else 0
@@ -143,8 +145,8 @@ def timing_report(link: CellSideLink, endpoint: DriveEndpoint, pacer: Any) -> di
         "cycles": cycles,
         "overruns": int(overrun.sum()),
         "overrun_fraction": float(overrun.mean()) if overrun.size else 0.0,
-        "longest_overrun_run": _longest_run(overrun),
-        "lateness": {**_percentiles(lateness),
+        "longest_overrun_run": longest_run(overrun),
+        "lateness": {**percentiles_us(lateness),
                      "max_at_cycle": int(log.cycles[int(np.argmax(lateness))]) if lateness.size else None},
         "missed_ticks": int(log.missed_ticks),
         "controller": {"first_cycle": first, "cycles_in_time": int(taken.sum()),
@@ -153,7 +155,7 @@ def timing_report(link: CellSideLink, endpoint: DriveEndpoint, pacer: Any) -> di
         "frames_late": endpoint.frames_late,
         "cycles_held_per_node": {str(i + 1): int(v) for i, v in enumerate(link.held)},
         "fault_reactions": faults[:200],
-        "preq_one_way_latency": _percentiles(latency, (50.0, 99.0)),
+        "preq_one_way_latency": percentiles_us(latency, (50.0, 99.0)),
         "transport": stats.as_dict() if stats is not None else {},
     }
 

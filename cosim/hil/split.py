@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import dataclasses
 import multiprocessing
-import socket
 import time
 import traceback
 from dataclasses import dataclass
@@ -28,18 +27,16 @@ from typing import Any
 import numpy as np
 
 from cosim.cell.description import CellDescription
+from cosim.hil.cell_side import percentiles_us
 from cosim.hil.settings import ServeSettings
+from cosim.split.protocol import free_udp_port
 
 #: Wall seconds to wait for the cell process to come up (imports, FMU instantiation).
 START_TIMEOUT_S = 180.0
 #: Wall seconds without the cell's PRes after which the controller side gives up.
 SILENCE_TIMEOUT_S = 5.0
-
-
-def _free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
-        probe.bind(("127.0.0.1", 0))
-        return probe.getsockname()[1]
+#: The percentiles of the controller side's figures.
+POINTS = (50.0, 99.0)
 
 
 def picklable_cell(cell: CellDescription) -> CellDescription:
@@ -120,13 +117,6 @@ class _PacerRecord:
         self.log.missed_ticks = data["missed_ticks"]
 
 
-def _percentiles(values: np.ndarray) -> dict[str, float | None]:
-    if values.size == 0:
-        return {"p50_us": None, "p99_us": None, "max_us": None}
-    p50, p99 = np.percentile(values, [50.0, 99.0])
-    return {"p50_us": float(p50), "p99_us": float(p99), "max_us": float(values.max())}
-
-
 def run_hil_split(cell: CellDescription, controller: Any, ctx: Any, *, options: Any) -> Any:
     """Run ``cell`` with ``controller`` split and paced as the module docstring says; returns
     the :class:`cosim.cell.runner.CellRun` (recording from the cell side)."""
@@ -138,9 +128,9 @@ def run_hil_split(cell: CellDescription, controller: Any, ctx: Any, *, options: 
     from fieldbus import ManagingNodeEndpoint
 
     label, period, stop_time = cell.label, cell.period_s, cell.stop_time_s
-    cell_port, ctrl_port = _free_port(), _free_port()
+    cell_port, ctrl_port = free_udp_port(), free_udp_port()
     while ctrl_port == cell_port:
-        ctrl_port = _free_port()
+        ctrl_port = free_udp_port()
     settings = ServeSettings(channel=f"127.0.0.1:{cell_port}", peer=f"127.0.0.1:{ctrl_port}",
                              scheduling=options.settings.scheduling)
     side_dir = Path(ctx.path(f"cell_side_{label}"))
@@ -240,12 +230,12 @@ def run_hil_split(cell: CellDescription, controller: Any, ctx: Any, *, options: 
     rtt = cell_latency[:n] + controller_latency[:n]
     report = {
         "controller_side": {"cycles": last + 1, "cycles_skipped": skipped,
-                            "wait_for_pres": _percentiles(np.asarray(wait_ns, dtype=float) * 1e-3),
-                            "compute": _percentiles(np.asarray(compute_ns, dtype=float) * 1e-3),
-                            "pres_one_way_latency": _percentiles(controller_latency),
+                            "wait_for_pres": percentiles_us(np.asarray(wait_ns, dtype=float) * 1e-3, POINTS),
+                            "compute": percentiles_us(np.asarray(compute_ns, dtype=float) * 1e-3, POINTS),
+                            "pres_one_way_latency": percentiles_us(controller_latency, POINTS),
                             "scheduling": granted},
         "cell_side": child["hil"] if child else {},
-        "round_trip": _percentiles(rtt),
+        "round_trip": percentiles_us(rtt, POINTS),
         "cell_results": side_dir.name,
     }
     summary = dict(ctx.summary.data.get("hil_split") or {})
