@@ -74,25 +74,12 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _check_address_free(channel: str) -> None:
-    """A unicast --channel must be bindable now (exit 2 naming it otherwise, before anything runs)."""
-    import ipaddress
-    import socket
-
+    """--channel must be usable now: the udpcycle interface opens and closes it once (exit 2
+    with its message otherwise, before anything runs)."""
     from cosim.commands.exits import InvalidInput
+    from fieldbus.udpcycle import UdpCycleBus, UdpCycleError
 
-    host, _, port = channel.rpartition(":")
     try:
-        address = socket.gethostbyname(host)
-    except OSError as exc:
-        raise InvalidInput(f"--channel {channel!r}: cannot resolve {host!r} ({exc})") from None
-    if ipaddress.ip_address(address).is_multicast:
-        return
-    probe = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    try:
-        probe.bind((address, int(port)))
-    except OSError as exc:
-        why = "is in use" if exc.errno in (98, 48) else f"cannot be used ({exc.strerror or exc})"
-        raise InvalidInput(f"--channel {channel!r}: the address {why}; expected a free UDP address of this "
-                           f"machine") from None
-    finally:
-        probe.close()
+        UdpCycleBus(channel=channel).shutdown()
+    except UdpCycleError as exc:
+        raise InvalidInput(f"--channel {channel!r}: {exc}; expected a free UDP address of this machine") from None
