@@ -155,6 +155,7 @@ def timing_report(link: CellSideLink, endpoint: DriveEndpoint, pacer: Any) -> di
         "frames_late": endpoint.frames_late,
         "cycles_held_per_node": {str(i + 1): int(v) for i, v in enumerate(link.held)},
         "fault_reactions": faults[:200],
+        "cycle_time_mismatch": endpoint.cadence.report(),
         "preq_one_way_latency": percentiles_us(latency, (50.0, 99.0)),
         "transport": stats.as_dict() if stats is not None else {},
     }
