@@ -360,6 +360,10 @@ class ManagingNodeEndpoint(_Endpoint):
     def __init__(self, config: FieldbusConfig | dict | None, scaling: JointScaling, **kwargs: Any) -> None:
         super().__init__(config, scaling, **kwargs)
         self.node = ManagingNode(self.config, scaling, self.layout, self.events)
+        #: following a paced cell: the frame time the cell put on its newest PRes of node 1, as
+        #: received (its simulated time, so its own cycle number; on interfaces that keep the
+        #: sender's timestamps, such as udpcycle), None before the first
+        self.peer_time_s: float | None = None
 
     def send_setpoints(self, cycle: int, setpoints: Setpoints) -> None:
         """SoC and PReqs of ``cycle`` carrying ``setpoints`` (SI units)."""
@@ -424,6 +428,8 @@ class ManagingNodeEndpoint(_Endpoint):
         self._follow_cycle = self._cycle = cycle
         times = self.schedule.timestamps(cycle)  # receiving only: the injected faults apply when sending
         for msg in batch:
+            if msg.arbitration_id == head:
+                self.peer_time_s = msg.timestamp  # as the cell stamped it (before this side's restamping)
             base, node = msg.arbitration_id & ~0x7F, msg.arbitration_id & 0x7F
             if base in (TPDO1_BASE, TPDO2_BASE) and 1 <= node <= n and times[n + node] is not None:
                 msg.timestamp = times[n + node]  # the cell judged their timing
