@@ -41,10 +41,14 @@ class RunContext:
             split, paced) or None (one process, unpaced).
         timeseries_format: ``"parquet"`` (default, ``$COSIM_TIMESERIES``) or ``"csv"``: the
             format of every time series the run writes (:meth:`series_name`).
+
+    ``wall_origin``/``wall_time_from``: where summary.json's wall time starts
+    (:class:`cosim.results.summary.SummaryWriter`; default: now, ``"run call"``).
     """
 
     def __init__(self, scenario: Scenario, out_dir: str | Path, quiet: bool = False, execution=None,
-                 timeseries_format: str | None = None) -> None:
+                 timeseries_format: str | None = None, wall_origin: float | None = None,
+                 wall_time_from: str = "run call") -> None:
         self.scenario = scenario
         self.timeseries_format = timeseries_format or default_format()
         if self.timeseries_format not in SUFFIXES:
@@ -53,7 +57,8 @@ class RunContext:
         self.out_dir = Path(out_dir)
         self.out_dir.mkdir(parents=True, exist_ok=True)
         self.quiet = quiet
-        self.summary = SummaryWriter(self.out_dir / "summary.json", scenario.name, scenario.job.name)
+        self.summary = SummaryWriter(self.out_dir / "summary.json", scenario.name, scenario.job.name,
+                                     wall_origin=wall_origin, wall_time_from=wall_time_from)
         self.sim_time_s = 0.0
         self.label = ""
         self._bar: ProgressBar | None = None
@@ -67,6 +72,7 @@ class RunContext:
         its ``label``, simulated time (s) and the simulated seconds it covered, for the final status."""
         self.label = label
         self._last_time_s = float(time_s)
+        self.summary.note_where(mode=label, at_s=time_s)
         self.sim_time_s += float(covered_s)
 
     @property
@@ -104,17 +110,19 @@ class RunContext:
         period = master.base_step * max(1, math.floor(total_s / HEARTBEATS_PER_RUN / master.base_step))
         state = {"bar": 0.0, "summary": time.perf_counter(), "guard": 0.0}
         self.label = label
+        self.summary.note_where(mode=label, at_s=master.start_time)
 
         def heartbeat(t: float) -> None:
             now = time.perf_counter()
+            self.summary.note_time(self._base + t - master.start_time, t)  # for the supervisor: two numbers
             if self._bar is not None and now - state["bar"] > PROGRESS_INTERVAL_S:
                 self._bar.update(t - master.start_time)
                 state["bar"] = now
             if now - state["summary"] > SUMMARY_INTERVAL_S:
-                self.summary.progress(self._base + t - master.start_time)
+                self.summary.progress(self._base + t - master.start_time, at_s=t)
                 state["summary"] = now
             elif now - state["guard"] > PROGRESS_INTERVAL_S:  # what a crash would leave (crashguard)
-                self.summary.note_progress(self._base + t - master.start_time)
+                self.summary.note_progress(self._base + t - master.start_time, at_s=t)
                 state["guard"] = now
 
         master.add_task(heartbeat, period, priority=1_000_000, name="cosim.heartbeat")
@@ -141,5 +149,5 @@ class RunContext:
             self._bar.update(master.time - master.start_time, force=True)
             self._bar.close()
             self._bar = None
-        self.summary.progress(self.sim_time_s)
+        self.summary.progress(self.sim_time_s, at_s=master.time)
         return reached
