@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-OURS = {"native", "robot", "fieldbus", "fmus", "controller", "planners", "identification", "cosim"}
+OURS = {"native", "robot", "fieldbus", "fmus", "controller", "planners", "calibration", "identification", "cosim"}
 ALLOWED = {
     "native": {"native"},
     "robot": {"robot", "native"},
@@ -15,6 +15,7 @@ ALLOWED = {
     "fmus": {"fmus", "robot", "fieldbus", "native"},
     "controller": {"controller", "robot", "fieldbus", "native"},
     "planners": {"planners", "robot", "fieldbus", "native"},
+    "calibration": {"calibration", "robot", "fieldbus", "native"},
     "identification": {"identification", "robot", "fieldbus", "native"},
     "cosim": OURS,
 }
@@ -42,9 +43,10 @@ def test_imports_point_down(package):
 
 
 # Inside cosim/: the master, the results and the scenario layer know nothing of the jobs, the
-# robot cell, the execution modes (realtime, split, hil) or the commands built on them.
+# robot cell, the laser tracker and tracking metrics, the execution modes (realtime, split, hil)
+# or the commands built on them.
 COSIM_LOWER = ("master", "results", "scenario")
-COSIM_UPPER = {"jobs", "cell", "realtime", "split", "hil", "commands", "sweep", "api", "cli"}
+COSIM_UPPER = {"jobs", "cell", "tracking", "realtime", "split", "hil", "commands", "sweep", "api", "cli"}
 
 
 def _all_imports(path: Path) -> set[str]:
