@@ -179,3 +179,23 @@ def periodic_derivatives(q: ArrayLike, sample_time: float,
     kept = spectrum * mask
     return (np.fft.irfft(kept, n=n, axis=0), np.fft.irfft(kept * iw, n=n, axis=0),
             np.fft.irfft(kept * iw**2, n=n, axis=0))
+
+
+def periodic_evaluate(x: ArrayLike, sample_time: float, cutoff_hz: float, times: ArrayLike,
+                      derivative: int = 0) -> np.ndarray:
+    """The band-limited Fourier series of ONE period ``x`` (n, ...) sampled every ``sample_time``
+    s from phase 0, or its ``derivative``-th time derivative, at arbitrary ``times`` (s, taken
+    modulo the period): exact interpolation of the periodic signal up to ``cutoff_hz``."""
+    x = np.asarray(x, dtype=float)
+    _check_cutoff(sample_time, cutoff_hz)
+    n = x.shape[0]
+    spectrum = np.fft.rfft(x, axis=0)
+    freqs = np.fft.rfftfreq(n, sample_time)
+    keep = freqs <= cutoff_hz
+    if n % 2 == 0:
+        keep[-1] = False
+    weights = np.where(np.arange(freqs.size) == 0, 1.0, 2.0)[keep] / n
+    omega = 2.0 * np.pi * freqs[keep]
+    coef = spectrum[keep].reshape(int(keep.sum()), -1) * (weights * (1j * omega) ** derivative)[:, None]
+    phase = np.exp(1j * np.outer(np.asarray(times, dtype=float), omega))
+    return (phase @ coef).real.reshape((-1,) + x.shape[1:])

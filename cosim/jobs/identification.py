@@ -33,6 +33,7 @@ figures ``figure5a_excitation_path.png``, ``figure5b_torques.png``.
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import time
@@ -107,6 +108,16 @@ CONTROLLER_TABLE = Table({
                             doc="feed-forward models run on the ISO 9283 path"),
 }, doc="the [controller] table")
 
+STIFFNESS_TABLE = Table({
+    "reflector": Field(List(Number(unit="m"), length=3), default=[0.10, 0.05, 0.08],
+                       doc="where the laser tracker's reflector sits on the tool during the excitation run, m in "
+                           "tool0 (off the axis of joint 6, so that its gear's twist is seen); elastic plant only"),
+    "decimate": Field(Integer(min=1), default=2, doc="every n-th tracker sample enters the stiffness fit"),
+    "max_relative_std": Field(Number(gt=0), default=0.15,
+                              doc="an axis whose compliance has a larger relative standard error is reported "
+                                  "as not identifiable"),
+}, doc="the [stiffness] table (gear stiffness and damping; used when the plant has elastic_joints = 1)")
+
 PATH_TABLE = Table({
     "speed": Field(Number(unit="m/s", gt=0, max=2.0), default=1.0),
     "acceleration": Field(Number(unit="m/s^2", gt=0, max=20.0), default=5.0),
@@ -125,6 +136,7 @@ SCHEMA = Table({
     "controller": Field(CONTROLLER_TABLE, default={}),
     "excitation": Field(EXCITATION_TABLE, default={}),
     "measurement": Field(MEASUREMENT_TABLE, default={}),
+    "stiffness": Field(STIFFNESS_TABLE, default={}),
     "path": Field(PATH_TABLE, default={}),
     "tracker": Field(TRACKER_TABLE, default={}),
     "fieldbus": Field(Table({}, extra=AnyValue(), doc="a [fieldbus] table (fieldbus/powerlink_defaults.toml keys)"),
@@ -132,7 +144,7 @@ SCHEMA = Table({
     "results": Field(RESULTS_TABLE, default={}),
 }, doc="an identification scenario document")
 
-_TABLES = ("true_robot", "controller", "excitation", "measurement", "path", "tracker", "results")
+_TABLES = ("true_robot", "controller", "excitation", "measurement", "stiffness", "path", "tracker", "results")
 
 
 def _fill_table_defaults(doc: dict[str, Any]) -> None:
@@ -214,6 +226,12 @@ class FieldbusRecorder:
 
 
 # ---------------------------------------------------------------------------------------- set-up
+def elastic_plant(doc: dict[str, Any]) -> bool:
+    """Whether the scenario's plant FMU runs the flexible-joint model (``elastic_joints = 1``)."""
+    return any(f["name"] == wiring.PLANT and int(f.get("parameters", {}).get("elastic_joints", 0))
+               for f in doc["fmus"])
+
+
 def snapped_omega(omega_f: float, period_s: float) -> tuple[float, int]:
     """(omega_f, samples per period) with the period a whole number of controller cycles."""
     n = int(round(2.0 * math.pi / omega_f / period_s))
@@ -272,7 +290,8 @@ def run(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
     drive_model = wiring.drive_loop_model(doc["fmus"], period) if ctrl["drive_compensation"] else None
     tracker = tracker_config(doc["tracker"])
 
-    def run_on_cell(ctl: Any, label: str, stop: float, name: str):
+    elastic = elastic_plant(doc)
+    def run_on_cell(ctl: Any, label: str, stop: float, name: str, tracker=tracker):
         """Run the cell with ``ctl`` (a controller or its FieldbusRecorder) for ``stop`` s."""
         cell = describe_cell(doc, true_robot, controller_info(ctl, fb, label=label, source=str(scenario.path)),
                              label=label, stop_time=stop, fieldbus=fb, tracker=tracker,
@@ -305,7 +324,8 @@ def run(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
     controller = Controller(reference, _config(doc, ctrl["excitation_mode"], lead), kinematic_model=kin,
                             dynamics=nominal, drive_model=drive_model, capacity=capacity)
     recorder = FieldbusRecorder(controller, capacity, sigma, meas["noise_seed"])
-    cell = run_on_cell(recorder, "excitation", stop_time, "excitation")
+    exc_tracker = dataclasses.replace(tracker, reflector=tuple(doc["stiffness"]["reflector"])) if elastic else tracker
+    cell = run_on_cell(recorder, "excitation", stop_time, "excitation", tracker=exc_tracker)
     if cell.failure is not None:
         raise cell.failure
     if controller.motion_start_s is None:
@@ -358,6 +378,11 @@ def run(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
             "physically_consistent": c.consistent, "misfit_in_noise_units": c.misfit, "evaluations": c.nfev,
             "median_relative_error_vs_true": float(np.median(np.abs(c.base_values - true_base)
                                                              / np.maximum(np.abs(true_base), 1e-12)))}
+    if elastic:
+        ctx.summary.update(phase="identifying the gear stiffness", identification=ident_summary)
+        ident_summary["gear_stiffness"] = _gear_stiffness(doc, ident, q_x, cell, controller.motion_start_s,
+                                                          traj.period, samples_per_period, true_robot)
+        ident_summary["stiffness_within_10_percent"] = ident_summary["gear_stiffness"]["within_10_percent"]
     ctx.summary.update(phase="validating", excitation_run=excite_summary, identification=ident_summary)
 
     # 4-5. ISO 9283 with the three models ----------------------------------------------------
@@ -443,6 +468,64 @@ def parameter_error_table(names, definitions, values, std, true_base, bias=None)
             "max_abs_relative_error_percent": float(np.max(np.abs(rel))),
             "rotor_inertias": rotors,
             "rotor_inertias_within_10_percent": bool(all(abs(r["error_percent"]) <= 10.0 for r in rotors.values()))}
+
+
+def _gear_stiffness(doc: dict[str, Any], ident, q_x: np.ndarray, cell, motion_start_s: float, period_s: float,
+                    samples_per_period: int, true_robot) -> dict[str, Any]:
+    """Gear stiffness and damping per axis from the excitation run on the elastic plant: the
+    averaged period of the fieldbus motor positions and of the tracker's reflector readings,
+    the gear torques from the identified base parameters (identification/gear_stiffness.py)."""
+    from identification.signals import average_periods
+    from identification.gear_stiffness import identify_gear_stiffness_periodic
+    from robot.parameters import load_parameters
+
+    robot = load_parameters()
+    exc_t, st, meas = doc["excitation"], doc["stiffness"], doc["measurement"]
+    tracker_dt = doc["tracker"]["period"]
+    rec = cell.recording
+    cols = list(rec.columns)
+    t = rec.data[:, 0]
+    step = float(np.median(np.diff(t[:100]))) if t.size > 1 else float("nan")
+    if not abs(step - tracker_dt) < 1e-9:
+        raise ValueError(f"the excitation run was recorded every {step} s; the stiffness fit needs every tracker "
+                         f"sample: set [record] period = [tracker] period = {tracker_dt} s")
+    per_period = period_s / tracker_dt
+    if abs(per_period - round(per_period)) > 1e-6:
+        raise ValueError(f"the excitation period {period_s} s is not a whole number of tracker periods "
+                         f"({tracker_dt} s): the tracker cannot be averaged over periods")
+    m = int(round(per_period))
+    start = motion_start_s + exc_t["skip_periods"] * period_s
+    first = int(np.searchsorted(t, start - 1e-9))
+    periods = exc_t["periods"] - exc_t["skip_periods"]
+    tracker = rec.data[first:first + periods * m, [cols.index(c) for c in ("tracker.x", "tracker.y", "tracker.z")]]
+    if tracker.shape[0] < periods * m:
+        raise ValueError(f"the excitation run recorded {tracker.shape[0]} tracker samples after the skipped "
+                         f"period(s), expected {periods * m}")
+    tracker_mean, _ = average_periods(tracker, m, periods)
+    motor_mean, _ = average_periods(q_x, samples_per_period, periods, exc_t["skip_periods"])
+    plant = next(f for f in doc["fmus"] if f["name"] == wiring.PLANT).get("parameters", {})
+    nominal_k = true_robot.gear_stiffness if true_robot.gear_stiffness is not None else robot.stiffness
+    true_k = np.array([plant.get(f"stiffness[{i}]", nominal_k[i - 1]) for i in range(1, 7)], dtype=float)
+    true_b = np.array([plant.get(f"damping[{i}]", robot.gear_damping[i - 1]) for i in range(1, 7)], dtype=float)
+    wall0 = time.perf_counter()
+    est = identify_gear_stiffness_periodic(
+        ident.base, ident.values, motor_mean, doc["controller"]["period"], tracker_mean, tracker_dt,
+        float(t[first] - start), true_robot.kinematic_model(), rotor_inertia=robot.rotor_inertia,
+        motor_friction_share=robot.motor_friction_share, cutoff_hz=meas["cutoff"], reflector=st["reflector"],
+        decimate=st["decimate"], max_relative_std=st["max_relative_std"])
+    out = est.to_dict(true_k, true_b)
+    errors = out["stiffness_error_percent"]
+    out.update(
+        wall_time_s=time.perf_counter() - wall0,
+        nominal_stiffness_error_percent=(100.0 * (np.asarray(robot.stiffness) / true_k - 1.0)).tolist(),
+        within_10_percent=bool(all(e is not None and abs(e) <= 10.0 for e in errors)),
+        reflector_m_in_tool0=list(st["reflector"]), periods_averaged=periods, tracker_samples_per_period=m,
+        assumptions="calibrated kinematics (the true robot's geometry for f_DK and J); gear torques from the "
+                    "identified base parameters minus the rotor inertias (Ia1, Ia2 regrouped with link inertias: "
+                    "their catalogue values, robot/rx130l_params.toml) and the motor share of the friction "
+                    "([elastic] motor_friction_share); quasi-static deflection below the cut-off "
+                    f"{meas['cutoff']:g} Hz; linear gears")
+    return out
 
 
 def _ratio(a: float, b: float) -> float:

@@ -17,7 +17,10 @@ is ``f_DK,true(q_plant)``. (The plant's rigid-body dynamics use the nominal geom
 the mm-level geometric errors change the dynamics negligibly.)
 
 The tracker is registered to ``base_link`` (its own placement and registration
-errors are not modelled); it always sees the reflector.
+errors are not modelled); it always sees the reflector. The reflector sits at the flange
+centre by default; ``TrackerConfig.reflector`` puts it elsewhere on the tool (m in
+``tool0``), e.g. off the axis of joint 6 so that a rotation about that axis is seen
+(the identification campaign's gear-stiffness measurement).
 
 Each sample is one call of a small compiled function (``tracker_kernel.c``, built by
 :mod:`native`): the same forward kinematics as pinocchio on the same model (to
@@ -51,9 +54,10 @@ class _TrackerPlan(ctypes.Structure):
                 ("flange", ctypes.c_double * 3), ("q", ctypes.c_void_p), ("out", ctypes.c_void_p)]
 
 
-def compiled_chain(model: pin.Model, frame_id: int) -> _TrackerPlan | None:
+def compiled_chain(model: pin.Model, frame_id: int, reflector=(0.0, 0.0, 0.0)) -> _TrackerPlan | None:
     """The kernel's description of ``model`` (six revolute joints in a serial chain, the
-    frame on joint 6), or None when the model is not such a chain."""
+    frame on joint 6; the measured point ``reflector`` in m in that frame), or None when the
+    model is not such a chain."""
     if model.nq != 6 or model.njoints != 7 or list(model.parents) != [0, 0, 1, 2, 3, 4, 5]:
         return None
     frame = model.frames[frame_id]
@@ -75,7 +79,7 @@ def compiled_chain(model: pin.Model, frame_id: int) -> _TrackerPlan | None:
         plan.p[j - 1][:] = placement.translation.tolist()
         plan.axis[j - 1][:] = axis.tolist()
         plan.kind[j - 1] = kind
-    plan.flange[:] = frame.placement.translation.tolist()
+    plan.flange[:] = frame.placement.act(np.asarray(reflector, dtype=float)).tolist()
     return plan
 
 TRACKER_VARIABLES: tuple[str, ...] = ("tracker.x", "tracker.y", "tracker.z")
@@ -100,11 +104,13 @@ class TrackerConfigError(ValueError):
 
 @dataclass(frozen=True)
 class TrackerConfig:
-    """Laser-tracker settings: period (s), position noise sigma per axis (m), noise seed."""
+    """Laser-tracker settings: period (s), position noise sigma per axis (m), noise seed, and
+    where the reflector sits on the tool (m in ``tool0``; default the flange centre)."""
 
     period_s: float = DEFAULT_PERIOD_S
     noise_sigma_m: float = DEFAULT_POSITION_SIGMA_M
     seed: int = 0
+    reflector: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     def __post_init__(self) -> None:
         if not (isinstance(self.period_s, (int, float)) and math.isfinite(self.period_s) and self.period_s > 0):
@@ -114,6 +120,10 @@ class TrackerConfig:
             raise TrackerConfigError(f"tracker noise_sigma_m = {self.noise_sigma_m!r}: expected metres in [0, 1e-3]")
         if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
             raise TrackerConfigError(f"tracker seed = {self.seed!r}: expected an integer >= 0")
+        r = np.asarray(self.reflector, dtype=float) if np.ndim(self.reflector) == 1 else None
+        if r is None or r.shape != (3,) or not np.all(np.isfinite(r)) or np.linalg.norm(r) > 1.0:
+            raise TrackerConfigError(f"tracker reflector = {self.reflector!r}: expected 3 numbers in m (tool0 frame), "
+                                     "at most 1 m from the flange centre")
 
 
 class LaserTracker:
@@ -148,7 +158,7 @@ class LaserTracker:
         self._q = master.reader(list(self.joint_signals))
         self._out = master.view(list(TRACKER_VARIABLES), writable=True)
         library = load_library(KERNEL_SOURCE)
-        plan = compiled_chain(self.model, self.frame_id)
+        plan = compiled_chain(self.model, self.frame_id, self.config.reflector)
         try:
             q_view = master.view(list(self.joint_signals))
         except ValueError:  # the joint signals are not contiguous on the bus
@@ -176,9 +186,11 @@ class LaserTracker:
         self._next = 0
 
     def flange_position(self, q: np.ndarray) -> np.ndarray:
-        """True flange position (3,) m for joint angles q (6,) rad (no noise)."""
+        """True position (3,) m of the reflector (default: the flange centre) for joint angles
+        q (6,) rad (no noise)."""
         pin.forwardKinematics(self.model, self.data, q)
-        return pin.updateFramePlacement(self.model, self.data, self.frame_id).translation
+        return pin.updateFramePlacement(self.model, self.data, self.frame_id).act(
+            np.asarray(self.config.reflector, dtype=float))
 
     def __call__(self, t: float) -> None:
         if self._sample is not None:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import can
 import numpy as np
+import pytest
 
 from fieldbus import DriveActuals, DriveEndpoint, JointScaling, ManagingNodeEndpoint, Setpoints
 from fieldbus.simbus import unique_channel
@@ -147,3 +148,70 @@ def test_a_controller_that_misses_a_cycle_catches_up_with_one_loss():
     assert [(k, c) for k, c, _ in seen if k in (19, 21, 22)] == [(19, 19), (21, 21), (22, 22)]
     assert {c for c, _, _ in _errors(cn, "loss_of_preq")} == {21}
     assert not any(e.event == "threshold_reached" for e in cn.events.events)
+
+
+def _self_clocked_run(controller_cycle_s, cycles, cell_cycle_s=4e-4):
+    """A controller on its own clock (not following the cell) at ``controller_cycle_s``;
+    its k-th group goes out at k * controller_cycle_s, the cell's windows close on a virtual clock."""
+    channel = unique_channel("hil")
+    mn = ManagingNodeEndpoint(CONFIG, SCALING, channel=channel)
+    cn = DriveEndpoint(CONFIG, SCALING, channel=channel)
+    clock = Clock()
+    sp, act = Setpoints.zeros(6), DriveActuals.zeros(6)
+    sp.controlword[:] = 0x0F
+    sent = 0
+    for k in range(cycles):
+        clock.t = k * cell_cycle_s + cell_cycle_s / 2
+        while sent * controller_cycle_s <= clock.t:
+            mn.send_setpoints(sent, sp)
+            mn._read_now()  # the PRes frames: this controller does not look at them
+            sent += 1
+        act.statusword[:] = 0x27
+        cn.run_cycle_paced(k, act, deadline=clock.t, clock=clock)
+    cn.close()
+    mn.close()
+    return cn
+
+
+def _mismatch_events(cn):
+    return [e for e in cn.events.events if e.kind == "cycle_time_mismatch"]
+
+
+def test_a_slower_controller_is_a_counted_logged_cycle_time_mismatch(caplog):
+    cn = _self_clocked_run(1e-3, 1500)
+    events = _mismatch_events(cn)
+    assert len(events) == 1 and events[0].event == "error"  # one episode, logged once
+    assert "about 1 ms, the cell's 0.4 ms" in events[0].detail
+    report = cn.cadence.report()
+    assert report["controller_cycle_time_s_estimate"] == pytest.approx(1e-3, rel=0.02)
+    assert report["blocks"] == report["blocks_judged"] >= 4
+    assert any("cycle_time_mismatch" in r.getMessage() for r in caplog.records)
+    # and its frames are what POWERLINK makes of them: lost cycles, trips
+    assert _errors(cn, "loss_of_preq") and any(e.event == "threshold_reached" for e in cn.events.events)
+
+
+def test_a_faster_controller_is_a_cycle_time_mismatch():
+    cn = _self_clocked_run(2e-4, 1500)
+    report = cn.cadence.report()
+    assert report is not None and report["controller_cycle_time_s_estimate"] == pytest.approx(2e-4, rel=0.02)
+    assert len(_mismatch_events(cn)) == 1
+
+
+def test_controllers_in_step_are_no_mismatch():
+    assert _self_clocked_run(4e-4, 1500).cadence.report() is None
+    cn, _, _ = _follow_run(1500, late={300, 700, 701})  # a follower that misses cycles and catches up
+    assert cn.cadence.report() is None and cn.cadence.blocks >= 4
+    cn, _ = _run({100, 500}, 1500)
+    assert cn.cadence.report() is None and not _mismatch_events(cn)
+
+
+def test_a_restarted_controller_counter_jump_is_no_mismatch():
+    from fieldbus.endpoints import ControllerCadence
+
+    cadence = ControllerCadence(240, 4e-4)
+    for k in range(2000):
+        counter = (k + (97 if k >= 600 else 0)) % 240 + 1  # it restarted at cycle 600 with another counter
+        if 560 <= k < 600:
+            continue  # gone for 40 cycles first
+        assert cadence.note(k, counter) is None
+    assert cadence.report() is None and cadence.blocks >= 7

@@ -141,3 +141,13 @@ def test_snapped_omega_and_recorder():
     assert np.allclose(t, [4e-4, 8e-4]) and np.allclose(q[:, 0], [1.0, 2.0]) and np.allclose(tau, 1.0)
     t, q, tau = rec.window(4e-4, 2 * 4e-4, 4e-4, position_lag_cycles=1)  # position of t_k arrives at t_k+1
     assert np.allclose(t, [4e-4, 8e-4]) and np.allclose(q[:, 0], [2.0, 3.0])
+
+
+def test_elastic_campaign_scenario_loads():
+    from cosim.jobs.identification import elastic_plant
+
+    scenario = load_scenario("scenarios/identification_elastic.toml")
+    assert scenario.job.name == "identification" and elastic_plant(scenario.data)
+    assert not elastic_plant(load_scenario(SCENARIO).data)
+    assert len(scenario.data["stiffness"]["reflector"]) == 3
+    assert scenario.data["measurement"]["cutoff"] < 14.0  # below the first gear resonance

@@ -128,12 +128,13 @@ def test_a_killed_controller_trips_the_counters_and_the_drives_stop_the_arm(serv
     assert hil["figure"] and (out / hil["figure"]).exists()
 
 
-def test_serve_stops_cleanly_on_sigterm(tmp_path):
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT], ids=["SIGTERM", "Ctrl-C"])
+def test_serve_stops_cleanly_on_sigterm_and_ctrl_c(tmp_path, sig):
     out = tmp_path / "out"
-    serve = _serve(_scenario(tmp_path, "60 s"), out, PORT + 5)
+    serve = _serve(_scenario(tmp_path, "60 s"), out, PORT + 5 if sig == signal.SIGTERM else PORT + 6)
     _wait_endpoint(out, serve)
     time.sleep(1.0)
-    serve.send_signal(signal.SIGTERM)
+    serve.send_signal(sig)
     _, err = serve.communicate(timeout=120)
     assert serve.returncode == 130, err
     assert "Traceback" not in err
@@ -190,3 +191,29 @@ def test_split_realtime_runs_our_controller_against_the_served_cell(tmp_path):
     # feed-forward for a cycle, so on a shared test machine the split run is not the in-process figure
     # (docs/hil.md, Measured: 0.70 mm vs 0.0102 mm at 400 us on the idle machine)
     assert e_in < 0.05 and e_hil < 5.0
+
+
+def test_a_controller_at_another_cycle_time_is_a_counted_logged_mismatch(tmp_path):
+    """A controller on its own 6 ms clock against the cell's 2 ms cycle: no hang, no traceback;
+    the run ends normally, the mismatch is counted in summary.json and named on stderr."""
+    out = tmp_path / "out"
+    serve = _serve(_scenario(tmp_path, "3 s"), out, PORT + 3)
+    desc = _wait_endpoint(out, serve)
+    bus = can.Bus(interface="udpcycle", channel=desc["controller_channel"], peer=desc["cell_channel"])
+    try:
+        counter, next_at = 0, time.monotonic()
+        while serve.poll() is None and time.monotonic() < next_at + 60:
+            frames = [can.Message(arbitration_id=0x080, data=bytes([counter % 240 + 1]), is_extended_id=False)]
+            frames += [can.Message(arbitration_id=0x200 + i, data=bytes(8), is_extended_id=False) for i in range(1, 7)]
+            bus.send_many(frames)
+            counter += 1
+            next_at += 3 * desc["cycle_time_s"]
+            while bus.recv(max(next_at - time.monotonic(), 0.0)) is not None:
+                pass  # the PRes frames: this controller keeps its own time
+    finally:
+        bus.shutdown()
+    _, err = serve.communicate(timeout=120)
+    assert serve.returncode == 0, err
+    assert "Traceback" not in err and "cycle-time mismatch" in err
+    found = json.loads((out / "summary.json").read_text())["hil"]["model_based"]["cycle_time_mismatch"]
+    assert found["controller_cycle_time_s_estimate"] == pytest.approx(6e-3, rel=0.1)

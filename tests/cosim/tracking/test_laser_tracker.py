@@ -66,3 +66,31 @@ def test_tracker_task_compiled_and_pinocchio_agree(true_model, monkeypatch):
     assert np.ptp(fast[:, 4:], axis=0).max() > 0.01  # the arm moved
     assert np.abs(fast[:, 1:4] - slow[:, 1:4]).max() < 1e-12  # same readings (noise included) to round-off
     assert 1e-7 < np.std(np.diff(fast[:20, 1])) < 1e-4  # noise is there
+
+
+def test_reflector_off_the_flange(true_model):
+    """A reflector on the tool (m in tool0): the compiled sample and pinocchio agree, it sees a
+    turn of joint 6 (the flange centre does not), and a bad offset is named."""
+    reflector = (0.12, -0.05, 0.08)
+    tracker = LaserTracker(true_model, TrackerConfig(reflector=reflector))
+    centre = LaserTracker(true_model)
+    q = np.array([0.1, -0.4, 0.9, 0.2, 0.6, 0.3])
+    turned = q + np.array([0, 0, 0, 0, 0, 1e-3])
+    # the flange centre lies on axis 6 up to the true robot's geometric errors (< 1 mm here)
+    assert np.linalg.norm(centre.flange_position(turned) - centre.flange_position(q)) < 1e-6
+    moved = np.linalg.norm(tracker.flange_position(turned) - tracker.flange_position(q))
+    assert moved == pytest.approx(1e-3 * np.hypot(0.12, 0.05), rel=0.02)
+    library = laser_tracker.load_library(laser_tracker.KERNEL_SOURCE)
+    if library is not None:
+        import ctypes
+        plan = laser_tracker.compiled_chain(true_model, true_model.getFrameId("tool0"), reflector)
+        fn = library.tracker_sample
+        fn.argtypes, fn.restype = [ctypes.c_void_p, ctypes.c_void_p], None
+        qq, out = q.copy(), np.zeros(3)
+        plan.q, plan.out = qq.ctypes.data, out.ctypes.data
+        fn(ctypes.byref(plan), None)
+        assert np.abs(out - tracker.flange_position(q)).max() < 1e-12
+    with pytest.raises(laser_tracker.TrackerConfigError, match="reflector"):
+        TrackerConfig(reflector=(0.1, 0.0))
+    with pytest.raises(laser_tracker.TrackerConfigError, match="reflector"):
+        TrackerConfig(reflector=(2.0, 0.0, 0.0))
