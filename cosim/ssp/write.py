@@ -11,7 +11,7 @@ from typing import Any
 
 from lxml import etree
 
-from cosim.master.component import load_model_description, variables_of
+from fmus.fmu import load_model_description, variables_of
 from cosim.master.variables import bus_type, parse_connection
 from cosim.ssp.errors import SspError
 from cosim.ssp.schema import NS, SSD_XSD, SSV_XSD, problems

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from fmus.build import ensure_fmus
-from fmus.fast_fmu import FastFmu2Slave
+from fmus.fmu import Fmu
 from fmus.servo_drive.params import drive_start_values
 
 # statusword & 0x6F of each state (CiA 402 table)
@@ -21,12 +21,12 @@ class Axis:
     def __init__(self, **overrides):
         values = dict(drive_start_values(4))
         values.update(overrides)
-        self.drive = FastFmu2Slave(ensure_fmus()["servo_drive"], "cia402", values,
-                                   real_inputs=("target_position", "torque_offset", "q_meas", "qd_meas"),
-                                   real_outputs=("tau_out", "position_actual", "velocity_actual",
-                                                 "torque_actual", "brake_torque"),
-                                   integer_inputs=("controlword", "fault_code"),
-                                   integer_outputs=("statusword", "error_code"))
+        self.drive = Fmu(ensure_fmus()["servo_drive"], "cia402", values,
+                         real_inputs=("target_position", "torque_offset", "q_meas", "qd_meas"),
+                         real_outputs=("tau_out", "position_actual", "velocity_actual",
+                                       "torque_actual", "brake_torque"),
+                         integer_inputs=("controlword", "fault_code"),
+                         integer_outputs=("statusword", "error_code")).start()
         self.inertia, self.q, self.qd, self.t, self.target = 0.21, 0.0, 0.0, 0.0, 0.0
         self.velocity = 0.0  # rad/s of the target ramp
         self.load = 0.0  # N m, external torque on the axis (e.g. gravity)
@@ -183,7 +183,7 @@ def test_following_error_window_raises_fault_8611():
     axis.run(ENABLE, samples=60)  # ramp from the (slow) actual speed, then 10 ms standstill
     assert axis.state == FAULT
     assert int(axis.drive.get_integer_outputs()[1]) == 0x8611
-    assert any("following error" in message for _, message in axis.drive.messages)
+    assert any("following error" in message for message in axis.drive.messages)
 
 
 def test_brake_holds_below_its_holding_torque_and_slips_above():

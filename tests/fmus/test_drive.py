@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from fmus.build import ensure_fmus
-from fmus.fast_fmu import FastFmu2Slave
+from fmus.fmu import Fmu
 from fmus.servo_drive.axis_bench import INPUTS, OUTPUTS, simulate_axis, step_metrics
 from fmus.servo_drive.params import drive_start_values, load_drive_parameters
 from fmus.servo_drive.reference import DriveReference
@@ -117,8 +117,8 @@ def test_encoder_quantisation(drive_fmu):
 
 
 def _constant_input_drive(path, steps_per_call):
-    drive = FastFmu2Slave(path, "sub", drive_start_values(3), real_inputs=INPUTS, real_outputs=OUTPUTS,
-                          integer_inputs=("controlword",))
+    drive = Fmu(path, "sub", drive_start_values(3), real_inputs=INPUTS, real_outputs=OUTPUTS,
+                integer_inputs=("controlword",)).start()
     drive.set_integer_inputs((0x0F,))  # no effect before the shutdown command
     h = 50e-6 * steps_per_call
     t = 0.0
@@ -143,8 +143,8 @@ def test_internal_substeps_independent_of_the_communication_step(drive_fmu):
 def test_fmu_is_bit_identical_to_the_python_oracle(drive_fmu, axis):
     values = drive_start_values(axis)
     inertia = [20.0, 20.0, 10.0, 0.2, 0.2, 0.05][axis - 1]
-    drive = FastFmu2Slave(drive_fmu, "oracle", values, real_inputs=INPUTS, real_outputs=OUTPUTS,
-                          integer_inputs=("controlword",))
+    drive = Fmu(drive_fmu, "oracle", values, real_inputs=INPUTS, real_outputs=OUTPUTS,
+                integer_inputs=("controlword",)).start()
     oracle = DriveReference(dict(values))
     oracle.initialize(0.0, 0.0, 0.0)
     q = qd = current = 0.0

@@ -9,7 +9,7 @@ import pytest
 
 from fieldbus import DriveActuals, EnableSequencer, JointScaling, PowerlinkNetwork, Setpoints, motion_enabled
 from fmus.build import ensure_fmus
-from fmus.fast_fmu import FastFmu2Slave
+from fmus.fmu import Fmu
 from fmus.servo_drive.params import drive_start_values
 
 PARAMS = tomllib.loads((Path(__file__).resolve().parents[2] / "robot" / "rx130l_params.toml").read_text())
@@ -31,9 +31,9 @@ class OneAxisCell:
         self.scaling = JointScaling([TRAIN["gear_ratio"]["value"][a]], TRAIN["encoder_counts_per_motor_rev"]["value"],
                                     [TRAIN["rated_torque"]["value"][a]])
         self.network = PowerlinkNetwork({"nodes": 1}, self.scaling)
-        self.drive = FastFmu2Slave(ensure_fmus()["servo_drive"], "bus_axis", drive_start_values(AXIS),
-                                   real_inputs=REAL_IN, real_outputs=REAL_OUT, integer_inputs=INT_IN,
-                                   integer_outputs=INT_OUT)
+        self.drive = Fmu(ensure_fmus()["servo_drive"], "bus_axis", drive_start_values(AXIS),
+                         real_inputs=REAL_IN, real_outputs=REAL_OUT, integer_inputs=INT_IN,
+                         integer_outputs=INT_OUT).start()
         self.setpoints, self.actuals = Setpoints.zeros(1), DriveActuals.zeros(1)
         self.sequencer = EnableSequencer()
         self.inertia, self.q, self.qd, self.t, self.cycle = inertia, 0.0, 0.0, 0.0, 0

@@ -11,7 +11,8 @@ from fmpy.fmi2 import FMU2Slave
 from fmpy.validation import validate_fmu
 
 from fmus.build import ensure_fmus
-from fmus.fast_fmu import FastFmu2Slave
+from fmus.errors import SimulationError
+from fmus.fmu import Fmu
 from fmus.servo_drive.params import drive_start_values
 
 SHUTDOWN, ENABLE, QUICK_STOP_CMD = 0x06, 0x0F, 0x02
@@ -30,9 +31,9 @@ class Axis:
     def __init__(self, axis=4, inertia=0.21, load=0.0, **overrides):
         values = dict(drive_start_values(axis))
         values.update(overrides)
-        self.drive = FastFmu2Slave(ensure_fmus()["servo_drive"], f"modes{axis}", values, real_inputs=REAL_IN,
-                                   real_outputs=REAL_OUT, integer_inputs=("controlword", "modes_of_operation"),
-                                   integer_outputs=INT_OUT)
+        self.drive = Fmu(ensure_fmus()["servo_drive"], f"modes{axis}", values, real_inputs=REAL_IN,
+                         real_outputs=REAL_OUT, integer_inputs=("controlword", "modes_of_operation"),
+                         integer_outputs=INT_OUT).start()
         self.inertia, self.load = inertia, load
         self.q = self.qd = self.t = 0.0
         self.target = self.velocity = self.velocity_offset = self.torque = self.torque_offset = 0.0
@@ -244,7 +245,7 @@ def test_unsupported_mode_is_refused_reported_and_counted():
     assert axis.statusword & 0x0080  # warning bit while the request stands
     assert axis.statusword & 0x6F == 0x27  # still operation enabled, no fault
     assert axis.integer("unsupported_mode_requests") == 1  # once per request, not per sample
-    warnings = [m for s, m in axis.drive.messages if s == "Warning"]
+    warnings = [m for m in axis.drive.messages if m.startswith("[fmi2Warning]")]
     assert len(warnings) == 1 and "modes_of_operation (0x6060) = 1 is not supported" in warnings[0]
     axis.mode = -3
     axis.run(0.002)
@@ -252,7 +253,7 @@ def test_unsupported_mode_is_refused_reported_and_counted():
     axis.mode = CSV
     axis.run(0.002)
     assert not axis.statusword & 0x0080 and axis.display == CSV
-    with pytest.raises(ValueError, match="modes_of_operation=300"):  # beyond INT8: fmi2SetInteger refuses
+    with pytest.raises(SimulationError, match="modes_of_operation=300"):  # beyond INT8: fmi2SetInteger refuses
         axis.drive.set_integer_inputs((ENABLE, 300))
 
 
@@ -357,9 +358,9 @@ def test_modes_and_switches_are_bit_identical_to_the_python_oracle(axis_number):
 
     values = drive_start_values(axis_number)
     inertia = [20.0, 20.0, 10.0, 0.2, 0.2, 0.05][axis_number - 1]
-    drive = FastFmu2Slave(ensure_fmus()["servo_drive"], "oracle_modes", values, real_inputs=REAL_IN,
-                          real_outputs=REAL_OUT, integer_inputs=("controlword", "modes_of_operation"),
-                          integer_outputs=INT_OUT)
+    drive = Fmu(ensure_fmus()["servo_drive"], "oracle_modes", values, real_inputs=REAL_IN,
+                real_outputs=REAL_OUT, integer_inputs=("controlword", "modes_of_operation"),
+                integer_outputs=INT_OUT).start()
     oracle = DriveReference(dict(values))
     oracle.initialize(0.0, 0.0, 0.0)
     q = qd = current = 0.0

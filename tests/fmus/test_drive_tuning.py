@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from fmus.build import ensure_fmus
-from fmus.fast_fmu import FastFmu2Slave
+from fmus.fmu import Fmu
 from fmus.servo_drive.params import DriveParameterError, drive_start_values, load_drive_parameters
 from fmus.servo_drive.tuning import cascade_gains, inertia_range, symmetric_optimum_a
 
@@ -39,7 +39,7 @@ def test_every_axis_initialises():
     path = ensure_fmus()["servo_drive"]
     for axis in range(1, 7):
         values = drive_start_values(axis)
-        with FastFmu2Slave(path, f"axis{axis}", values) as drive:
+        with Fmu(path, f"axis{axis}", values).start() as drive:
             assert drive.get_value("gear_ratio") == values["gear_ratio"]
             assert drive.get_value("statusword") & 0x6F == 0x40
 

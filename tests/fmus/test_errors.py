@@ -9,7 +9,8 @@ from fmpy import extract, read_model_description
 from fmpy.fmi2 import FMU2Slave
 
 from fmus.build import ensure_fmus
-from fmus.fast_fmu import FastFmu2Slave, FmuCallError
+from fmus.errors import FmuConfigError, SimulationError
+from fmus.fmu import Fmu
 from fmus.servo_drive.params import drive_start_values
 
 FMI2_ERROR = 3
@@ -22,28 +23,28 @@ def paths():
 
 @pytest.fixture
 def plant(paths):
-    fmu = FastFmu2Slave(paths["rx130l_plant"], "plant", real_inputs=[f"tau[{k}]" for k in range(1, 7)],
-                        real_outputs=[f"q[{k}]" for k in range(1, 7)])
+    fmu = Fmu(paths["rx130l_plant"], "plant", real_inputs=[f"tau[{k}]" for k in range(1, 7)],
+              real_outputs=[f"q[{k}]" for k in range(1, 7)]).start()
     yield fmu
     fmu.close()
 
 
 @pytest.fixture
 def drive(paths):
-    fmu = FastFmu2Slave(paths["servo_drive"], "drive", drive_start_values(1),
-                        real_inputs=["target_position", "torque_offset", "q_meas", "qd_meas"],
-                        real_outputs=["tau_out"], integer_inputs=["controlword"])
+    fmu = Fmu(paths["servo_drive"], "drive", drive_start_values(1),
+              real_inputs=["target_position", "torque_offset", "q_meas", "qd_meas"],
+              real_outputs=["tau_out"], integer_inputs=["controlword"]).start()
     yield fmu
     fmu.close()
 
 
 def _raw(fmu):
-    return fmu._fmu.dll, fmu._component
+    return fmu.slave.dll, fmu.component
 
 
 @pytest.mark.parametrize("h", [-1e-3, 0.0, float("nan"), float("inf")])
 def test_bad_step_size_is_rejected_and_the_instance_stays_usable(plant, h):
-    with pytest.raises(FmuCallError, match="communicationStepSize"):
+    with pytest.raises(SimulationError, match="communicationStepSize"):
         plant.do_step(0.0, h)
     plant.do_step(0.0, 1e-3)
     assert np.all(np.isfinite(plant.get_outputs()))
@@ -51,12 +52,12 @@ def test_bad_step_size_is_rejected_and_the_instance_stays_usable(plant, h):
 
 def test_gap_between_steps_is_rejected(plant):
     plant.do_step(0.0, 1e-3)
-    with pytest.raises(FmuCallError, match="does not match the FMU time"):
+    with pytest.raises(SimulationError, match="does not match the FMU time"):
         plant.do_step(5e-3, 1e-3)
 
 
 def test_drive_step_not_a_multiple_of_the_current_sample(drive):
-    with pytest.raises(FmuCallError, match="not a multiple of current_sample_time"):
+    with pytest.raises(SimulationError, match="not a multiple of current_sample_time"):
         drive.do_step(0.0, 75e-6)
     drive.do_step(0.0, 100e-6)
 
@@ -64,7 +65,7 @@ def test_drive_step_not_a_multiple_of_the_current_sample(drive):
 @pytest.mark.parametrize("value", [float("nan"), float("inf"), -float("inf")])
 def test_non_finite_input_is_rejected_and_not_stored(drive, value):
     drive.set_inputs([0.1, 0.0, 0.0, 0.0])
-    with pytest.raises(FmuCallError, match="target_position=.* is not a finite number"):
+    with pytest.raises(SimulationError, match="target_position=.* is not a finite number"):
         drive.set_inputs([value, 0.0, 0.0, 0.0])
     assert drive.get_value("target_position") == 0.1
 
@@ -80,32 +81,33 @@ def test_unknown_value_references(paths, drive):
     assert dll.fmi2GetInteger(component, vr, 1, integer) == FMI2_ERROR
     # no Boolean or String variables at all: every value reference is unknown
     assert dll.fmi2GetBoolean(component, (ctypes.c_uint * 1)(0), 1, integer) == FMI2_ERROR
-    messages = [m for _, m in drive.messages]
-    assert sum("unknown value reference 99999" in m for m in messages) == 4
+    assert sum("unknown value reference 99999" in m for m in drive.messages) == 4
 
 
 def test_wrong_type_and_wrong_causality(drive):
-    with pytest.raises(FmuCallError, match="is Integer, expected Real"):
-        FastFmu2Slave(drive.path, "typed", real_inputs=["controlword"])
-    with pytest.raises(FmuCallError, match="expected an integer"):
+    with pytest.raises(FmuConfigError, match="is Integer, expected Real"):
+        Fmu(drive.path, "typed", real_inputs=["controlword"])
+    with pytest.raises(FmuConfigError, match="has no variable 'torque'"):
+        Fmu(drive.path, "named", real_outputs=["torque"])
+    with pytest.raises(FmuConfigError, match="expected an integer"):
         drive.set_value("controlword", 1.5)
-    with pytest.raises(FmuCallError, match="tau_out is an output and cannot be set"):
+    with pytest.raises(SimulationError, match="tau_out is an output and cannot be set"):
         drive.set_value("tau_out", 1.0)
-    with pytest.raises(FmuCallError, match="fixed parameter"):
+    with pytest.raises(SimulationError, match="fixed parameter"):
         drive.set_value("position_kv", 10.0)
-    with pytest.raises(FmuCallError, match="controlword=70000 is outside its range"):
+    with pytest.raises(SimulationError, match="controlword=70000 is outside its range"):
         drive.set_value("controlword", 70000)
 
 
 def test_parameter_range_and_consistency_checked_at_initialization(paths):
-    with pytest.raises(FmuCallError, match="gear_ratio=-1 is outside its range"):
-        FastFmu2Slave(paths["servo_drive"], "bad", {"gear_ratio": -1.0})
-    with pytest.raises(FmuCallError, match="must be integer multiples of"):
-        FastFmu2Slave(paths["servo_drive"], "bad", {"speed_sample_time": 130e-6})
-    with pytest.raises(FmuCallError, match="quick_stop_option_code=4"):
-        FastFmu2Slave(paths["servo_drive"], "bad", {"quick_stop_option_code": 4})
-    with pytest.raises(FmuCallError, match="payload_mass=-2 is outside"):
-        FastFmu2Slave(paths["rx130l_plant"], "bad", {"payload_mass": -2.0})
+    with pytest.raises(SimulationError, match="gear_ratio=-1 is outside its range"):
+        Fmu(paths["servo_drive"], "bad", {"gear_ratio": -1.0}).start()
+    with pytest.raises(SimulationError, match="must be integer multiples of"):
+        Fmu(paths["servo_drive"], "bad", {"speed_sample_time": 130e-6}).start()
+    with pytest.raises(SimulationError, match="quick_stop_option_code=4"):
+        Fmu(paths["servo_drive"], "bad", {"quick_stop_option_code": 4}).start()
+    with pytest.raises(SimulationError, match="payload_mass=-2 is outside"):
+        Fmu(paths["rx130l_plant"], "bad", {"payload_mass": -2.0}).start()
 
 
 def test_calls_in_the_wrong_mode(paths):
@@ -131,9 +133,9 @@ def test_guid_mismatch_refuses_to_instantiate(paths):
 
 def test_non_finite_state_is_an_error_mode_until_reset(plant):
     plant.set_inputs([1e308] * 6)
-    with pytest.raises(FmuCallError, match="became non-finite"):
+    with pytest.raises(SimulationError, match="became non-finite"):
         plant.do_step(0.0, 1e-3)
-    with pytest.raises(FmuCallError, match="not allowed in error mode"):
+    with pytest.raises(SimulationError, match="not allowed in error mode"):
         plant.do_step(1e-3, 1e-3)
     dll, component = _raw(plant)
     assert dll.fmi2Reset(component) == 0

@@ -11,7 +11,7 @@ from fmpy import read_model_description
 from fmpy.validation import validate_fmu
 
 from cosim.cli import main
-from cosim.master.component import variables_of
+from fmus.fmu import variables_of
 from cosim.results import read_csv
 from fmus.build import ensure_fmus
 

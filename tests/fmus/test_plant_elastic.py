@@ -193,7 +193,7 @@ def test_outputs_in_initialization_mode(plant):
 
 def _collecting_callbacks(messages):
     """fmi2 callbacks whose logger appends the FMU's messages to ``messages`` (with
-    fmpy's proxy for the variadic logger, as cosim.master.component does)."""
+    fmpy's proxy for the variadic logger, as fmus.instance does)."""
     import ctypes
 
     from fmpy.fmi2 import (fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE, fmi2CallbackFunctions,

@@ -1,9 +1,9 @@
-"""FMI 3.0 co-simulation FMUs in the master: flattened variables and the C adapter binding.
+"""FMI 3.0 co-simulation FMUs behind :class:`fmus.fmu.Fmu`: flattened variables and the C adapter binding.
 
-The master's buses carry three types (Real = float64, Integer = 32-bit int, Boolean).
-An FMI 3.0 variable is flattened into bus elements, one per scalar or array element:
-``u`` (scalar), ``u[2]`` (1-D, 1-based like FMI 2.0 structured names), ``M[1,2]`` (n-D,
-row-major). Each element travels on the bus of its type (conversion rules, docs/fmus.md
+An :class:`~fmus.fmu.Fmu` exchanges three value types, the ones the master's buses carry
+(Real = float64, Integer = 32-bit int, Boolean). An FMI 3.0 variable is flattened into
+bus elements, one per scalar or array element: ``u`` (scalar), ``u[2]`` (1-D, 1-based
+like FMI 2.0 structured names), ``M[1,2]`` (n-D, row-major). Each element travels on the bus of its type (conversion rules, docs/fmus.md
 "FMI 3.0 in the master"):
 
 =================================  ============  ===============================================
@@ -19,7 +19,7 @@ Boolean                            Boolean       exact
 Clock (output)                     Boolean       1 when the clock ticked at the event that ended
                                                  the last step (read and recorded only)
 Binary (output)                    Integer       its size in bytes (read and recorded only; the
-                                                 bytes via ``FmuComponent.get_binary``)
+                                                 bytes via ``Fmu.get_binary``)
 String, input Clock/Binary         —             cannot be connected, read by tasks or recorded
 =================================  ============  ===============================================
 
@@ -32,12 +32,14 @@ import ctypes
 import itertools
 from ctypes import POINTER, Structure, c_char, c_double, c_int, c_longlong, c_size_t, c_uint, c_void_p
 from dataclasses import dataclass
+from functools import lru_cache
+from pathlib import Path
 
 import numpy as np
 from fmpy.model_description import ModelDescription
 
-from cosim.master.errors import MasterConfigError
-from cosim.master.kernel import load_fmi3_adapter
+import native
+from fmus.errors import FmuConfigError
 
 #: FMI 3.0 types with their adapter code, shadow dtype and master bus.
 TYPE_CODE = {"Float32": 0, "Float64": 1, "Int8": 2, "UInt8": 3, "Int16": 4, "UInt16": 5, "Int32": 6,
@@ -87,7 +89,7 @@ def _dimensions(variable, by_vr: dict[int, object]) -> list[int]:
         else:
             ref = by_vr.get(d.valueReference)
             if ref is None or ref.start is None:
-                raise MasterConfigError(f"variable '{variable.name}': array dimension refers to value reference "
+                raise FmuConfigError(f"variable '{variable.name}': array dimension refers to value reference "
                                         f"{d.valueReference}, which has no start value")
             dims.append(int(str(ref.start).split()[0]))
     return dims
@@ -108,7 +110,7 @@ def _parse_start(text, fmi_type: str, count: int, name: str) -> list | None:
     if len(values) == 1 and count > 1:
         values = values * count
     if len(values) != count:
-        raise MasterConfigError(f"variable '{name}': start has {len(values)} values for {count} elements")
+        raise FmuConfigError(f"variable '{name}': start has {len(values)} values for {count} elements")
     return values
 
 
@@ -193,6 +195,17 @@ class A3Ctx(Structure):
     ]
 
 
+#: The adapter's C source, built and cached by the project's native layer (:mod:`native`).
+ADAPTER_SOURCE = Path(__file__).with_name("fmi3_adapter.c")
+CFLAGS = ("-O2", "-shared", "-fPIC", "-std=c99")
+
+
+@lru_cache(maxsize=1)
+def load_fmi3_adapter() -> ctypes.CDLL | None:
+    """Return the compiled FMI 3.0 adapter library (fmi3_adapter.c), or None if it cannot be built."""
+    return native.load_library(ADAPTER_SOURCE, CFLAGS, what="FMI 3.0 adapter")
+
+
 class Fmi3Binding:
     """The adapter context of one FMI 3.0 instance: element table, shadow copies, function pointers.
 
@@ -205,9 +218,9 @@ class Fmi3Binding:
         elements = [e for e in elements if e.valueReference >= 0]  # Strings are never exchanged
         lib = load_fmi3_adapter()
         if lib is None:
-            raise MasterConfigError("FMI 3.0 FMUs need the master's compiled FMI 3.0 adapter "
-                                    "(cosim/master/fmi3_adapter.c), which could not be built: is a C compiler "
-                                    "installed (set CC)?")
+            raise FmuConfigError("FMI 3.0 FMUs need the compiled FMI 3.0 adapter "
+                                 "(fmus/fmi3_adapter.c), which could not be built: is a C compiler "
+                                 "installed (set CC)?")
         self.lib = lib
         self.elements = elements
         offsets: dict[tuple[int, str], int] = {}
@@ -295,4 +308,4 @@ class Fmi3Binding:
 
 
 __all__ = ["FMI3_BUS", "Fmi3Binding", "Fmi3Element", "INTEGER_RANGE", "READ_ONLY_TYPES", "TYPE_CODE",
-           "check_fmi3_start", "flatten"]
+           "check_fmi3_start", "flatten", "load_fmi3_adapter"]

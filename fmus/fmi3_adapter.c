@@ -1,7 +1,8 @@
 /*
- * FMI 3.0 co-simulation FMUs behind the master's FMI 2.0-shaped call interface.
+ * FMI 3.0 co-simulation FMUs behind the FMI 2.0-shaped call interface of fmus.fmu.Fmu.
  *
- * The master's engines (kernel.c, engines.PythonEngine) exchange values with an FMU
+ * Fmu's per-step calls and the master's engines (cosim/master/kernel.c,
+ * engines.PythonEngine) exchange values with an FMU
  * through functions of the form set(component, refs[], n, values[]) on three buses
  * (Real = double, Integer = int, Boolean = int) and step it with do_step(component, t,
  * h, noSetFMUStatePriorToCurrentPoint). For an FMI 3.0 FMU, `component` is an a3_ctx
