@@ -11,7 +11,7 @@ import numpy as np
 
 from controller import Controller, ControllerLog
 from cosim.cell.runner import CellRun
-from cosim.jobs.tracking_metrics import TrackingResult, desired_joints, evaluate
+from cosim.tracking.metrics import TrackingResult, desired_joints, evaluate
 from cosim.scenario.context import RunContext
 
 DEFINITIONS = {

@@ -23,8 +23,8 @@ from cosim.cell.evaluation import DEFINITIONS, evaluate_run
 from cosim.cell.parts import (BUILTIN_MODES, controller_models, drive_speed_feedforward, fill_cell_defaults,
                               make_true_robot, mode_fmus, tracker_config)
 from cosim.cell.runner import CellRun, controller_info, run_cell
-from cosim.jobs.laser_tracker import TrackerConfig
-from cosim.jobs.tracking_metrics import TrackingResult
+from cosim.tracking.laser_tracker import TrackerConfig
+from cosim.tracking.metrics import TrackingResult
 from cosim.scenario.context import RunContext
 
 

@@ -40,7 +40,7 @@ from controller import CellController, ControllerInfo
 from cosim.cell.description import CellDescription
 from cosim.cell.link import FieldbusLink
 from cosim.cell.wiring import N_JOINTS, cell_variables, joint_scaling
-from cosim.jobs.laser_tracker import TRACKER_VARIABLES, LaserTracker
+from cosim.tracking.laser_tracker import TRACKER_VARIABLES, LaserTracker
 from cosim.master import Master, MemorySink, Recorder, SimulationError
 from cosim.realtime.pacer import no_cyclic_gc
 from cosim.results.timeseries import SeriesFile

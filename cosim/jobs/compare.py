@@ -13,7 +13,7 @@ A scenario lists the controllers and the trajectories (``[compare]``, docs/bring
 
 Every pair runs through the same robot cell (:mod:`cosim.cell`: the
 ``[true_robot]`` drawn once from its seed, POWERLINK-timed fieldbus, drive FMUs, plant
-FMU, laser tracker) and is evaluated the same way (:mod:`cosim.jobs.tracking_metrics`:
+FMU, laser tracker) and is evaluated the same way (:mod:`cosim.tracking.metrics`:
 TCP error measured vs commanded with the TRUE kinematics, ISO 9283 AT, joint lag);
 a ``model_based`` x ``iso9283`` entry is the main job's ``model_based`` run, to the last
 digit. Added per entry: the peak ratio of the drives' current set-point to its clamp,
@@ -49,7 +49,7 @@ from cosim.cell.parts import (BUILTIN_MODES, CELL_FIELDS, check_cell_scenario, d
                               fill_cell_defaults, mode_fmus)
 from cosim.cell.runner import CellRun, controller_info, run_cell
 from cosim.jobs import planners as planners_job
-from cosim.jobs.tracking_metrics import desired_joints, evaluate
+from cosim.tracking.metrics import desired_joints, evaluate
 from cosim.scenario.context import RunContext
 from cosim.scenario.cosim_tables import COSIM_FIELDS
 from cosim.scenario.loader import SCENARIO_FIELD, Scenario

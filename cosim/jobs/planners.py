@@ -38,7 +38,7 @@ from cosim.cell.evaluation import controller_log_columns
 from cosim.cell.runner import controller_info, run_cell
 from cosim.scenario.cosim_tables import COSIM_FIELDS
 from cosim.scenario.loader import SCENARIO_FIELD
-from cosim.jobs.tracking_metrics import desired_joints, residual_vibration
+from cosim.tracking.metrics import desired_joints, residual_vibration
 from cosim.scenario.context import RunContext
 from cosim.scenario.loader import Scenario
 from cosim.scenario.registry import register_job
@@ -306,7 +306,7 @@ def _execute(ctx: RunContext, doc: dict[str, Any], name: str, traj: Any, true_ro
         "tcp_error_rms_mm": float(np.sqrt(np.mean(err[window] ** 2))) if window.any() else None,
         "tcp_error_max_noise_free_mm": float(err_free[window].max()) if window.any() else None,
         "joint_lag_max_rad": (np.abs(q_d - q)[window].max(axis=0).tolist() if window.any() else None),
-        # after the trajectory's end (0.2 s of standstill): cosim.jobs.tracking_metrics.residual_vibration
+        # after the trajectory's end (0.2 s of standstill): cosim.tracking.metrics.residual_vibration
         "residual_vibration": (residual_vibration(t, actual - commanded, start + reference.duration)
                                if start is not None else None),
         "drive_saturated": bool(np.any(current >= SATURATION_FRACTION * clamp)),
