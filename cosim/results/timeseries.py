@@ -129,7 +129,10 @@ def _writer(path: Path, schema):
 PARTIAL_SUFFIX = ".partial"
 """While a run goes, a Parquet sink streams to ``<file>.parquet.partial`` (Arrow IPC stream,
 zstd): readable at any moment up to the last complete batch, also after a crash."""
-ROW_GROUP_ROWS = 65536
+ROW_GROUP_ROWS = 16384
+"""Rows per Parquet row group: a reader holds one group at a time (16384 x 40 float64 columns =
+5 MB); 0.2 % larger files than 65536-row groups on the main job, and memory that stays flat
+however long the file (64k-row groups cost a growing 9 MB more when closing a 600 s series)."""
 
 
 class ParquetSink:
@@ -138,7 +141,7 @@ class ParquetSink:
     While the run goes the rows go, batch by batch, to ``<path>.partial`` (an Arrow IPC
     stream: every complete batch is readable, by :func:`read_series` too, even after the
     process was killed); :meth:`close` turns it into the Parquet file ``path`` (row groups
-    of up to 65536 rows, streamed, then an atomic rename) and removes the stream."""
+    of :data:`ROW_GROUP_ROWS` rows, streamed, then an atomic rename) and removes the stream."""
 
     def __init__(self, path: str | Path, units: Mapping[str, str] | None = None,
                  buffer_rows: int = DEFAULT_BUFFER_ROWS, flush_interval_s: float | None = None) -> None:
@@ -294,7 +297,7 @@ def write_columns(path: str | Path, columns: Mapping[str, np.ndarray], units: Ma
                                  schema=schema)
     writer = _writer(path, schema)
     try:
-        writer.write_table(table, row_group_size=65536)
+        writer.write_table(table, row_group_size=ROW_GROUP_ROWS)
     finally:
         writer.close()
     return path
@@ -337,8 +340,8 @@ def read_series(path: str | Path) -> tuple[list[str], np.ndarray]:
     return header, data
 
 
-READ_CHUNK_ROWS = 65536
-"""Rows per chunk of :func:`iter_series` (65536 x 40 float64 columns = 21 MB)."""
+READ_CHUNK_ROWS = 16384
+"""Rows per chunk of :func:`iter_series` (16384 x 40 float64 columns = 5 MB)."""
 
 
 def iter_series(path: str | Path, columns: Sequence[str] | None = None, rows: int = READ_CHUNK_ROWS):
@@ -355,7 +358,9 @@ def iter_series(path: str | Path, columns: Sequence[str] | None = None, rows: in
 
             pf = pq.ParquetFile(path)
             names = list(columns) if columns is not None else list(pf.schema_arrow.names)
-            batches = pf.iter_batches(batch_size=rows, columns=names)
+            # one row group at a time (ParquetFile.iter_batches holds memory that grows with the file)
+            batches = (batch for g in range(pf.num_row_groups)
+                       for batch in pf.read_row_group(g, columns=names, use_threads=False).to_batches(rows))
         else:
             names, batches = _partial_batches(path, columns)
         for batch in batches:
