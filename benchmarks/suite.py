@@ -281,8 +281,8 @@ def calibration(sizes: Sizes, work: Path) -> dict[str, Any]:
 
     import bench_calibration
 
-    from identification.calibration_config_selection import select_configurations
-    from identification.calibration_tracker import TrackerSetup
+    from calibration.config_selection import select_configurations
+    from calibration.optical_tracker import TrackerSetup
 
     grid = {}
     if sizes.calibration_grid is not None and "values_per_axis" in inspect.signature(

@@ -269,7 +269,7 @@ def run_served_cell(cell: CellDescription, ctx: Any, settings: ServeSettings, *,
     first datagram and make it cycle 0 (a split run, whose controller starts with the cell),
     instead of starting at once (``cosim serve``)."""
     from cosim.cell.runner import CellRun, build_cell_master, write_recording
-    from cosim.jobs.laser_tracker import LaserTracker
+    from cosim.tracking.laser_tracker import LaserTracker
     from cosim.realtime.pacer import Pacer, no_cyclic_gc, realtime_scheduling
     from cosim.realtime.schedule import precompute_schedules
 
