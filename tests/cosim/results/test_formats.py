@@ -95,8 +95,16 @@ def test_budget_estimate_and_refusal(tmp_path):
     est = estimate_run(doc)
     assert 30e6 < est.output_bytes < 100e6  # the main job writes 48 MB (Parquet)
     long_doc = {**doc, "simulation": {**doc["simulation"], "stop_time": 36000.0}}
-    with pytest.raises(BudgetError, match=r"about 1\d\d GB of output .*memory .*--max-output"):
-        check_budget(estimate_run(long_doc), tmp_path, max_output="1 TB", max_memory="1 GB")
+    with pytest.raises(BudgetError, match=r"about 1\d\d GB of output .*memory: output .*--max-output"):
+        check_budget(estimate_run(long_doc), tmp_path, max_output="100 GB", max_memory="1 GB")
+    # in process everything streams: memory does not grow with the run's length ...
+    streamed = estimate_run(long_doc).memory_bytes
+    assert streamed == estimate_run({**doc, "simulation": {**doc["simulation"], "stop_time": 60.0}}).memory_bytes
+    assert streamed < 50e6
+    check_budget(estimate_run(long_doc), tmp_path, max_output="1 TB", max_memory="1 GB")
+    # ... a paced or split run holds its recording and controller log until the loop ends
+    with pytest.raises(BudgetError, match=r"memory \d+(\.\d+)? GB > 1 GB \(--max-memory\)"):
+        check_budget(estimate_run(long_doc, in_memory=True), tmp_path, max_output="1 TB", max_memory="1 GB")
     check_budget(est, tmp_path, max_output="1 GB", max_memory="1 GB")  # fits
     assert estimate_run(doc, "csv").output_bytes > est.output_bytes
     assert parse_size("2 GB") == 2e9 and parse_size("1 MiB") == 2 ** 20
