@@ -19,7 +19,7 @@ from controller.controller import LOG_COLUMNS
 from controller.cycle_timer import CycleTimer
 from cosim.results.timeseries import ParquetSink, iter_series, last_row, read_series, tail, write_columns
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[3]
 
 
 def _scenario(tmp_path: Path, stop_time: str) -> Path:
