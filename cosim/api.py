@@ -644,12 +644,15 @@ def run(scenario: "str | Path | Mapping[str, Any] | Scenario", out: str | Path |
 def execute(scenario: Scenario, out: str | Path, *, quiet: bool = True, realtime: bool = False,
             split: bool = False, origin: str = "out", timeseries: str | None = None, serve: Any = None,
             max_output: str | float | None = None, max_memory: str | float | None = None,
-            ignore_budget: bool = False) -> RunResult:
+            ignore_budget: bool = False, clock_from_process_start: bool = False) -> RunResult:
     """Run an already loaded scenario into ``out`` and return the result whatever its status
     (the layer under :func:`run` and ``cosim run``; ``origin`` names where ``out`` came from in
     an OutputFolderError, e.g. ``"--out"``). ``serve`` (a :class:`cosim.hil.ServeSettings`):
     run only the cell side of each robot-cell run, paced, for a controller elsewhere on the bus
     (``cosim serve``). ``max_output``, ``max_memory``, ``ignore_budget``: as for :func:`run`.
+    ``clock_from_process_start``: summary.json's ``wall_time_s`` and ``realtime_factor`` count
+    from this process's start (``cosim run``: the whole command, interpreter start and imports
+    included; ``wall_time_from = "process start"``) instead of from this call.
     Raises ScenarioError, OutputFolderError, KeyboardInterrupt as :func:`run` does (and
     BudgetError); never RunFailed."""
     if serve is not None:
@@ -658,7 +661,8 @@ def execute(scenario: Scenario, out: str | Path, *, quiet: bool = True, realtime
     else:
         options = _execution_options(scenario, realtime, split)
     return _execute_into(scenario, Path(out), options, quiet=quiet, origin=origin, temporary=False,
-                         timeseries=timeseries, budget=None if ignore_budget else (max_output, max_memory))
+                         timeseries=timeseries, budget=None if ignore_budget else (max_output, max_memory),
+                         clock_from_process_start=clock_from_process_start)
 
 
 def _execution_options(sc: Scenario, realtime: bool, split: bool):
@@ -678,8 +682,16 @@ def _execution_options(sc: Scenario, realtime: bool, split: bool):
 
 
 def _execute_into(sc: Scenario, out_dir: Path, options, *, quiet: bool, origin: str, temporary: bool,
-                  timeseries: str | None = None, budget: tuple | None = (None, None)) -> RunResult:
+                  timeseries: str | None = None, budget: tuple | None = (None, None),
+                  clock_from_process_start: bool = False) -> RunResult:
     """Lock ``out_dir``, run the job, finish summary.json; the result (``error``: what failed the run)."""
+    wall_origin, wall_time_from = None, "run call"
+    if clock_from_process_start:
+        from cosim.results.summary import process_started_perf_counter
+
+        wall_origin = process_started_perf_counter()
+        if wall_origin is not None:
+            wall_time_from = "process start"
     from cosim.commands.exits import describe_os_error
     from cosim.results.outdir import OutputFolderError, open_results_folder
     from cosim.scenario import RunContext
@@ -696,7 +708,8 @@ def _execute_into(sc: Scenario, out_dir: Path, options, *, quiet: bool, origin: 
 
             check_budget(estimate_run(sc.data, timeseries or default_format()), out_dir, *budget)
         try:
-            ctx = RunContext(sc.validated, out_dir, quiet=quiet, execution=execution, timeseries_format=timeseries)
+            ctx = RunContext(sc.validated, out_dir, quiet=quiet, execution=execution, timeseries_format=timeseries,
+                             wall_origin=wall_origin, wall_time_from=wall_time_from)
         except OSError as exc:
             raise OutputFolderError(describe_os_error(exc, f"{origin} {str(out_dir)!r}: cannot write summary.json"))\
                 from None

@@ -2,6 +2,7 @@
 import json
 import subprocess
 import sys
+import time
 
 import numpy as np
 import pytest
@@ -9,6 +10,7 @@ import pytest
 from cosim.cli import main
 from cosim.master import EndSimulation
 from cosim.results import read_csv
+from cosim.results.summary import SummaryWriter, process_started_perf_counter
 from cosim.scenario import (COSIM_FIELDS, SCENARIO_FIELD, RunContext, ScenarioError, add_record, build_master,
                             check_cosim_tables, load_scenario, register_job)
 from cosim.scenario.schema import Field, List, Number, String, Table
@@ -74,6 +76,34 @@ def test_ok_run_via_subprocess_default_results_folder(fmu_workdir):
     assert summary["wall_time_s"] > 0 and summary["realtime_factor"] == pytest.approx(2.0 / summary["wall_time_s"])
     _, data = read_csv(fmu_workdir / "results" / "fine" / "timeseries.csv")
     assert len(data) == 41 and data[-1, 0] == pytest.approx(2.0)
+
+
+def test_cli_wall_time_counts_from_the_process_start(fmu_workdir):
+    """``cosim run``'s realtime_factor is end to end: the wall clock starts when the interpreter
+    started (here 0.6 s of sleep before the command is even parsed), not when the job starts."""
+    path = fmu_workdir / "chain.toml"
+    path.write_text(FAILING.format(mode=1).replace('name = "failing"', 'name = "fine"').replace(
+        "fail_time = 0.5", "fail_time = 99.0"))
+    code = ("import sys, time; time.sleep(0.6); from cosim.cli import main; "
+            f"raise SystemExit(main(['run', {str(path)!r}, '--out', 'late', '--quiet']))")
+    t0 = time.perf_counter()
+    proc = subprocess.run([sys.executable, "-c", code], cwd=fmu_workdir, capture_output=True, text=True, timeout=120)
+    elapsed = time.perf_counter() - t0
+    assert proc.returncode == 0, proc.stderr
+    summary = json.loads((fmu_workdir / "late" / "summary.json").read_text())
+    assert summary["wall_time_from"] == "process start"
+    assert 0.6 <= summary["wall_time_s"] <= elapsed + 0.02  # clock tick resolution of the start time
+    assert summary["realtime_factor"] == pytest.approx(2.0 / summary["wall_time_s"])
+
+
+def test_process_start_is_in_the_past(tmp_path):
+    started = process_started_perf_counter()
+    assert started is not None and 0.0 < time.perf_counter() - started < 30 * 86400
+    # a run from Python counts from its call; a given origin is kept
+    assert SummaryWriter(tmp_path / "a.json", "s", "j").data["wall_time_from"] == "run call"
+    writer = SummaryWriter(tmp_path / "b.json", "s", "j", wall_origin=time.perf_counter() - 5.0,
+                           wall_time_from="process start")
+    assert writer.wall_time_s >= 5.0 and writer.data["wall_time_from"] == "process start"
 
 
 def test_help_mentions_run():

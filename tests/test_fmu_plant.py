@@ -130,3 +130,21 @@ def test_parameters_and_payload_of_a_true_robot(plant):
     nominal = run_reference(NOMINAL, tau_of_t, duration=0.5)
     assert np.abs(fmu[:, :6] - ref[:, :6]).max() < 1e-8
     assert np.abs(nominal[:, :6] - ref[:, :6]).max() > 1e-2  # the parameters matter
+
+
+def test_geometric_errors_of_a_true_robot(plant):
+    """The true robot's 39 geometric errors as FMU parameters (set by the cell, as for the
+    tracker) enter the plant's dynamics: against pinocchio built with the true geometry."""
+    from cosim.cell.wiring import plant_start_values
+
+    true = make_true_robot(1, payload=[8.0, 0.0, 0.0, 0.08])
+    start = {k: v for k, v in plant_start_values(true, Q0).items() if not k.startswith(("q0[", "qd0["))}
+    assert sum(k.startswith("geometric_errors[") for k in start) == 39
+    tau_of_t = PROFILES["sinusoids with reversals"]
+    fmu = run_fmu(plant, tau_of_t, start=start, duration=0.5)
+    ref = run_reference(true.dynamics(), tau_of_t, duration=0.5)  # pinocchio on the true geometry
+    nominal_geometry = run_reference(RobotDynamics(true.dynamic_parameters, true.payload), tau_of_t, duration=0.5)
+    error = np.abs(fmu[:, :6] - ref[:, :6]).max()
+    effect = np.abs(nominal_geometry[:, :6] - ref[:, :6]).max()
+    assert error < 1e-8, f"max |q_fmu - q_pinocchio(true geometry)| = {error:.3e} rad over 0.5 s"
+    assert effect > 1000 * error, f"the geometry changes q by only {effect:.3e} rad"

@@ -127,6 +127,27 @@ def test_true_robot_payload_and_nonlinear_gear(plant):
     assert np.abs(out[:, 12:18] - ref[:, 12:18]).max() < 1e-8
 
 
+def test_geometric_errors_enter_the_elastic_links(plant):
+    """Seed-1 true robot (8 kg payload) with its 39 geometric errors and gears as the cell sets
+    them: links against pinocchio built with the true geometry (ElasticArm(model=...))."""
+    from cosim.cell.wiring import gear_start_values, plant_start_values
+
+    true = make_true_robot(1, payload=[8.0, 0.0, 0.0, 0.08])
+    start = {k: v for k, v in {**gear_start_values(true), **plant_start_values(true, Q0)}.items()
+             if not k.startswith(("q0[", "qd0["))}
+    tau_of_t = PROFILES["sinusoids with reversals"][0]
+    out = run_fmu(plant, tau_of_t, 0.5, start=start)
+    gear = {"stiffness": true.gear_stiffness}
+    arm = ElasticArm(true.dynamic_parameters, true.payload, gear, model=true.kinematic_model())
+    ref = solve(arm, arm.start_state(Q0), tau_of_t, H, 0.5)
+    nominal = ElasticArm(true.dynamic_parameters, true.payload, gear)
+    ref_nominal = solve(nominal, nominal.start_state(Q0), tau_of_t, H, 0.5)
+    error = max(np.abs(out[:, :6] - ref[:, :6]).max(), np.abs(out[:, 12:18] - ref[:, 12:18]).max())
+    effect = np.abs(ref_nominal[:, :6] - ref[:, :6]).max()
+    assert error < 1e-8, f"max |q_fmu - q_ref(true geometry)| = {error:.3e} rad over 0.5 s"
+    assert effect > 1000 * error, f"the geometry changes q by only {effect:.3e} rad"
+
+
 def stiff_limit_errors(plant, factors=(1e1, 1e2, 1e3)):
     """max |q_elastic - q_rigid| (rad, 0.3 s) for the gear stiffness scaled by each factor
     (damping by sqrt(factor): same damping ratio), Stribeck off, 1 us sub-steps."""

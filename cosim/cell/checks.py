@@ -98,7 +98,7 @@ def check_cell(doc: dict[str, Any], where: Where, job_set_drive_parameters: Mapp
     for key in plant["parameters"]:
         if key.startswith(wiring.JOB_SET_PLANT_PARAMETERS):
             raise (where / "fmus")[plant_i].error(
-                "no q0/qd0/p/payload parameters: the job sets them from [true_robot] and the path start",
+                "no q0/qd0/p/payload/geometric_errors parameters: the job sets them from [true_robot] and the path start",
                 problem=f"parameter {key!r} is set by the job")
     try:
         fb = FieldbusConfig.from_dict(doc["fieldbus"], source=str(where.file) if where.file else "<scenario>")

@@ -61,7 +61,7 @@ def run(args: argparse.Namespace) -> int:
                          split=getattr(args, "split", False), origin=origin,
                          timeseries=getattr(args, "timeseries", None), max_output=getattr(args, "max_output", None),
                          max_memory=getattr(args, "max_memory", None),
-                         ignore_budget=getattr(args, "ignore_budget", False))
+                         ignore_budget=getattr(args, "ignore_budget", False), clock_from_process_start=True)
     except (ScenarioError, OutputFolderError) as exc:
         raise InvalidInput(str(exc)) from None
     except ValueError as exc:  # BudgetError (estimate above the budget), a bad size, $COSIM_TIMESERIES

@@ -5,8 +5,11 @@ Fields every run has: ``scenario``, ``job``, ``status`` (``"running"``, ``"ok"``
 interrupted (plus ``signal`` and ``failed_in``/``interrupted_in``, the mode or part that
 was running), ``sim_time_s`` (simulated
 seconds reached), ``wall_time_s``, ``realtime_factor`` (= sim_time_s / wall_time_s, >1 is
-faster than real time), ``started_at`` (UTC, ISO 8601). Jobs add their own fields with
-``update``. Non-finite floats are written as null (strict JSON).
+faster than real time), ``wall_time_from`` (where the wall clock starts: ``"process start"``
+for ``python -m cosim run``, the whole command from the interpreter's start to the final
+status, imports, set-up, writing and figures included; ``"run call"`` for a run started from
+Python, :func:`cosim.run`), ``started_at`` (UTC, ISO 8601, the same origin). Jobs add their
+own fields with ``update``. Non-finite floats are written as null (strict JSON).
 """
 from __future__ import annotations
 
@@ -21,6 +24,23 @@ from typing import Any
 
 #: Stands for the signal's name in the crash summary (crashguard.c writes the name there).
 _SIGNAL_MARK = "@@SIGNAL@@"
+
+
+def process_started_perf_counter() -> float | None:
+    """The :func:`time.perf_counter` reading at which this process started (from its start time
+    in ``/proc/self/stat``, in clock ticks since boot, against ``CLOCK_BOOTTIME``; resolution one
+    clock tick, 10 ms), or None where that is not available (not Linux)."""
+    try:
+        with open("/proc/self/stat", "rb") as handle:
+            fields = handle.read().rsplit(b")", 1)[1].split()
+        started = int(fields[19]) / os.sysconf("SC_CLK_TCK")  # field 22 of proc(5): starttime
+        now_boot, now_perf = time.clock_gettime(time.CLOCK_BOOTTIME), time.perf_counter()
+    except (OSError, ValueError, IndexError, AttributeError):
+        return None
+    age = now_boot - started
+    if not 0.0 <= age < 30 * 86400:  # a clock that does not match: no claim
+        return None
+    return now_perf - age
 
 
 def _json_safe(value: Any) -> Any:
@@ -44,20 +64,27 @@ class SummaryWriter:
         path: the summary.json path (its directory is created).
         scenario: scenario name.
         job: job type name.
+        wall_origin: the :func:`time.perf_counter` reading the wall time counts from (default:
+            now); :func:`process_started_perf_counter` for a whole command.
+        wall_time_from: what ``wall_origin`` is, written as ``wall_time_from``.
     """
 
-    def __init__(self, path: str | Path, scenario: str, job: str) -> None:
+    def __init__(self, path: str | Path, scenario: str, job: str, wall_origin: float | None = None,
+                 wall_time_from: str = "run call") -> None:
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._wall0 = time.perf_counter()
+        now = time.perf_counter()
+        self._wall0 = now if wall_origin is None else min(float(wall_origin), now)
         self._guarded = False
+        started = datetime.fromtimestamp(time.time() - (now - self._wall0), timezone.utc)
         self.data: dict[str, Any] = {
             "scenario": scenario,
             "job": job,
             "status": "running",
-            "started_at": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+            "started_at": started.isoformat(timespec="seconds"),
             "sim_time_s": 0.0,
             "wall_time_s": 0.0,
+            "wall_time_from": wall_time_from,
             "realtime_factor": None,
         }
         self.write()

@@ -41,10 +41,14 @@ class RunContext:
             split, paced) or None (one process, unpaced).
         timeseries_format: ``"parquet"`` (default, ``$COSIM_TIMESERIES``) or ``"csv"``: the
             format of every time series the run writes (:meth:`series_name`).
+
+    ``wall_origin``/``wall_time_from``: where summary.json's wall time starts
+    (:class:`cosim.results.summary.SummaryWriter`; default: now, ``"run call"``).
     """
 
     def __init__(self, scenario: Scenario, out_dir: str | Path, quiet: bool = False, execution=None,
-                 timeseries_format: str | None = None) -> None:
+                 timeseries_format: str | None = None, wall_origin: float | None = None,
+                 wall_time_from: str = "run call") -> None:
         self.scenario = scenario
         self.timeseries_format = timeseries_format or default_format()
         if self.timeseries_format not in SUFFIXES:
@@ -53,7 +57,8 @@ class RunContext:
         self.out_dir = Path(out_dir)
         self.out_dir.mkdir(parents=True, exist_ok=True)
         self.quiet = quiet
-        self.summary = SummaryWriter(self.out_dir / "summary.json", scenario.name, scenario.job.name)
+        self.summary = SummaryWriter(self.out_dir / "summary.json", scenario.name, scenario.job.name,
+                                     wall_origin=wall_origin, wall_time_from=wall_time_from)
         self.sim_time_s = 0.0
         self.label = ""
         self._bar: ProgressBar | None = None
