@@ -124,8 +124,9 @@ def prepare_motion(record: MotionRecord, cutoff_hz: float = DEFAULT_CUTOFF_HZ) -
 
 def base_regressor(base: BaseParameters, q: ArrayLike, qd: ArrayLike, qdd: ArrayLike,
                    dynamics: RobotDynamics | None = None) -> np.ndarray:
-    """``Theta_1`` (n, 6, n_base) of joint states (n, 6) on the nominal kinematic structure."""
-    dynamics = dynamics or _structure_dynamics()
+    """``Theta_1`` (n, 6, n_base) of joint states (n, 6) on the kinematic structure of ``dynamics``,
+    else the one ``base`` was computed on (``base.structure``), else the nominal arm."""
+    dynamics = dynamics or getattr(base, "structure", None) or _structure_dynamics()
     q, qd, qdd = (np.asarray(x, dtype=float) for x in (q, qd, qdd))
     return base.base_regressor(dynamics.regressor_batch(q, qd, qdd))
 
@@ -163,8 +164,12 @@ class DynamicIdentification:
         if consistent:
             if self.consistent is None:
                 raise IdentificationError("no physically consistent estimate was computed (consistent=True)")
-            return RobotDynamics(self.consistent.parameters, np.zeros(4))
-        return RobotDynamics(self.full_parameters, np.zeros(4))
+            return RobotDynamics(self.consistent.parameters, np.zeros(4), model=self._model())
+        return RobotDynamics(self.full_parameters, np.zeros(4), model=self._model())
+
+    def _model(self):
+        """The kinematic structure the base parameters belong to (None: the nominal arm)."""
+        return None if self.base.structure is None else self.base.structure.model
 
     def consistent_model(self) -> "DynamicIdentification":
         """This identification with the physically consistent fit's base values and parameters."""
@@ -177,7 +182,7 @@ class DynamicIdentification:
         """Model torques (n, 6) in N m along joint states (n, 6) (evaluated in chunks)."""
         q, qd, qdd = (np.atleast_2d(np.asarray(x, dtype=float)) for x in (q, qd, qdd))
         out = np.empty_like(q)
-        dynamics = _structure_dynamics()
+        dynamics = self.base.structure or _structure_dynamics()
         for k in range(0, q.shape[0], _CHUNK):
             sl = slice(k, k + _CHUNK)
             out[sl] = predict_torques(base_regressor(self.base, q[sl], qd[sl], qdd[sl], dynamics), self.values)
