@@ -128,7 +128,7 @@ class _PartClock:
 def breakdown(sim_time: float, mode: str, out_dir: Path) -> tuple[dict[str, tuple[float, float]], int]:
     """Thread CPU time per part of the loop, µs per controller cycle and per call."""
     from controller import Controller
-    from cosim.jobs.laser_tracker import LaserTracker
+    from cosim.tracking.laser_tracker import LaserTracker
     from cosim.master import engines, master, recorder
     from fieldbus import PowerlinkNetwork
 

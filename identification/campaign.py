@@ -10,7 +10,7 @@
   a log. Nothing here knows a cell, a fieldbus or an FMU;
 * :func:`estimate`: periodic averaging, Fourier derivatives, parallel filtering, (weighted) least
   squares on the base parameters, optionally the physically consistent fit
-  (:func:`identification.dynamic_identify.identify_periodic`), the drives' torque-sampling term
+  (:func:`identification.identify.identify_periodic`), the drives' torque-sampling term
   removed when the experiment reports it;
 * :func:`estimate_stiffness`: with tracker readings in the data (an elastic arm), the gear stiffness
   and damping of every axis (:func:`identification.gear_stiffness.identify_gear_stiffness_periodic`);
@@ -110,7 +110,7 @@ class ExperimentData:
 
 
 class Experiment(Protocol):
-    """Runs ``trajectory`` (a :class:`identification.dynamic_fourier.FourierTrajectory`, repeated
+    """Runs ``trajectory`` (a :class:`identification.fourier.FourierTrajectory`, repeated
     for ``duration_s``) on a robot and returns what was measured."""
 
     def __call__(self, trajectory: Any, duration_s: float) -> ExperimentData: ...
@@ -151,7 +151,7 @@ def design(settings: CampaignSettings, payload: ArrayLike = (0.0, 0.0, 0.0, 0.0)
     """The optimal exciting trajectory for the controller's model (``payload``: what it knows of
     the load), with ``omega_f`` snapped to the sample time; returns (ExcitationResult, samples per
     period)."""
-    from identification.dynamic_excitation import (ExcitationLimits, ExcitationProblem, ExcitationSettings,
+    from identification.excitation import (ExcitationLimits, ExcitationProblem, ExcitationSettings,
                                                    design_excitation)
 
     s = settings
@@ -170,8 +170,8 @@ def estimate(data: ExperimentData, settings: CampaignSettings, samples_per_perio
     the arm's calibrated kinematics (a pinocchio model) for the regressor, None: the nominal arm."""
     import dataclasses
 
-    from identification.dynamic_base_parameters import nominal_base_parameters
-    from identification.dynamic_identify import identify_periodic
+    from identification.base_parameters import nominal_base_parameters
+    from identification.identify import identify_periodic
     from robot.dynamics import RobotDynamics
 
     if abs(data.sample_time - settings.sample_time) > 1e-12:
@@ -196,7 +196,7 @@ def estimate_stiffness(identification, data: ExperimentData, settings: CampaignS
     arm's (calibrated) kinematics; ``rotor_inertia`` (kg m^2, joint side): the catalogue values
     for the rotors regrouped with link inertias; ``motor_friction_share``: the motor side's
     share of the friction (1)."""
-    from identification.dynamic_signals import average_periods
+    from identification.signals import average_periods
     from identification.gear_stiffness import identify_gear_stiffness_periodic
 
     tracker = data.tracker

@@ -255,8 +255,8 @@ def run(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
     """Design, excite on the cell, identify (identification.campaign), validate, compare."""
     from fieldbus import FieldbusConfig
     from identification.campaign import CampaignSettings, Truth, run_campaign
-    from identification.dynamic_data import motion_record, write_motion_csv
-    from identification.dynamic_identify import validate
+    from identification.data import motion_record, write_motion_csv
+    from identification.identify import validate
     from planners.iso9283 import ISO_Q_HINT, iso9283_test_path
     from robot.description import load_model
     from robot.dynamics import RobotDynamics
@@ -415,7 +415,7 @@ def _cell_experiment(doc, ctx, trajectory, duration, run_on_cell, kin, nominal, 
     drives' torque-sampling term measured on the drive FMU, and on the elastic plant the tracker's
     readings of the reflector on the tool."""
     from identification.campaign import ExperimentData, TrackerRecord
-    from identification.dynamic_data import motion_record, write_motion_csv
+    from identification.data import motion_record, write_motion_csv
 
     ctrl, meas = doc["controller"], doc["measurement"]
     period = ctrl["period"]
@@ -469,9 +469,9 @@ def _ratio(a: float, b: float) -> float:
 def _validate(ctx: RunContext, doc: dict[str, Any], rec: FieldbusRecorder, ctl: Controller, path, ident, models,
               true_robot, validate, motion_record, write_motion_csv, label: str) -> dict[str, Any]:
     """Measured (fieldbus) vs predicted torques along the ISO 9283 path run with model ``label``."""
-    from identification.dynamic_estimation import relative_rms_error
-    from identification.dynamic_identify import prepare_motion
-    from identification.dynamic_signals import zero_phase_lowpass
+    from identification.estimation import relative_rms_error
+    from identification.identify import prepare_motion
+    from identification.signals import zero_phase_lowpass
 
     period = doc["controller"]["period"]
     t, q, tau = rec.window(ctl.motion_start_s, path.duration, period, doc["measurement"]["position_lag_cycles"])

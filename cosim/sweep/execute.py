@@ -257,6 +257,15 @@ def _write_definition(sweep: Sweep, out_dir: Path, state: dict[str, Any]) -> Non
     tmp = out_dir / (SWEEP_FILE + ".tmp")
     tmp.write_text(json.dumps(data, indent=2, default=str) + "\n", encoding="utf-8")
     os.replace(tmp, out_dir / SWEEP_FILE)
+    # what the supervisor writes if this process dies now (cosim/commands/supervisor.py): sweep.json and the
+    # variants still running failed, with how the process ended
+    from cosim.results import lastwords
+
+    if data.get("status") == "running":
+        lastwords.publish(out_dir / SWEEP_FILE, json.loads(json.dumps(data, default=str)),
+                          also=(f"{VARIANTS_DIR}/*/summary.json",))
+    else:
+        lastwords.retract(out_dir / SWEEP_FILE)
 
 
 def _mark_interrupted(todo: list[VariantTask], rows: dict[int, dict[str, Any]], exc: BaseException) -> None:
