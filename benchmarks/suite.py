@@ -1,6 +1,6 @@
 """The performance suite behind ``python -m cosim bench [--out DIR] [--quick]``.
 
-Every figure of the project's performance claims, measured in one run on this machine,
+Every figure of the project's performance claims, measured in one run on the machine it runs on,
 each a median over repeated runs, with the machine described and the ratios against
 the baselines computed from the same run. The timing code is the benchmarks' own
 (``bench_closed_loop``, ``bench_fieldbus``, ``bench_fmu``, ``bench_planners_cp``,

@@ -92,7 +92,7 @@ def _last_time(rec: Any) -> float | None:
 class SetpointStream:
     """The controller log's set-points read forward from its file for the recording's chunks in
     time order: :meth:`desired` gives ``q_d`` at a chunk's times exactly as
-    :func:`cosim.jobs.tracking_metrics.desired_joints` over the whole log would (each time
+    :func:`cosim.tracking.metrics.desired_joints` over the whole log would (each time
     gets the same pair of cycles), holding only the cycles from the chunk's start onwards."""
 
     def __init__(self, path: Any) -> None:
@@ -127,7 +127,7 @@ class SetpointStream:
     def desired(self, t: np.ndarray, q: np.ndarray) -> np.ndarray:
         """q_d (m, 6) at the times ``t`` (ascending, after the previous call's); ``q`` when the
         log has no set-point at all."""
-        from cosim.jobs.tracking_metrics import desired_joints
+        from cosim.tracking.metrics import desired_joints
 
         t_max = float(t[-1])
         while not self.done and (not self.t.size or self.t[-1] <= t_max):
@@ -153,7 +153,7 @@ class SetpointStream:
 class ResidualStream:
     """The residual vibration after the motion's end (``t >= t_end``) from the noise-free TCP
     error vectors given chunk by chunk, with the same numbers as
-    :func:`cosim.jobs.tracking_metrics.residual_vibration` over all of them: the vectors go to
+    :func:`cosim.tracking.metrics.residual_vibration` over all of them: the vectors go to
     an unnamed temporary file in ``folder`` (24 bytes per sample, removed when closed) and are
     read back in chunks once the final pose (the last ``FINAL_POSE_WINDOW_S``) is known."""
 
@@ -200,7 +200,7 @@ class ResidualStream:
     def result(self) -> tuple[dict[str, float], np.ndarray, np.ndarray]:
         """(the residual-vibration metrics, seconds after t_end and noise-free error norm (m)
         of its first :data:`RESIDUAL_FIGURE_S`) and close the temporary file."""
-        from cosim.jobs.tracking_metrics import FINAL_POSE_WINDOW_S
+        from cosim.tracking.metrics import FINAL_POSE_WINDOW_S
 
         nan = float("nan")
         try:
@@ -291,7 +291,7 @@ def evaluate_run(ctx: RunContext, mode: str, cell: CellRun, controller: Any, ref
     reference's IK with ``kinematic_model`` from ``q_start``, aligned at the controller's
     ``motion_start_s``; its compute times are ``port_timing`` (the cell's
     :meth:`controller.port.ControllerPort.timing`)."""
-    from cosim.jobs.tracking_metrics import VIBRATION_BAND_M
+    from cosim.tracking.metrics import VIBRATION_BAND_M
     from robot.kinematics import FlangeKinematics
 
     builtin = isinstance(controller, Controller) or isinstance(getattr(controller, "log", None), ControllerLog)

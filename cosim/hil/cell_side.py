@@ -237,7 +237,8 @@ def run_served_cell(cell: CellDescription, ctx: Any, settings: ServeSettings, *,
     memory = MemorySink()
     endpoint = DriveEndpoint(config, joint_scaling(), log_path=cell.can_log)
     # the frame timestamps of the whole run now: the schedule draws its jitter 1024 cycles at a
-    # time, 0.4-10 ms per block on this machine - a lost cycle every 0.4 s inside the loop
+    # time, 0.4-10 ms per block on the loaded 2-core development VM (0.41 ms median, 34 ms worst
+    # over 39 blocks at load average 15) - a lost cycle every 0.4 s inside the loop
     precompute_schedules((endpoint,), cycles + 1, False, compact=True)
     description = endpoint_description(cell, settings, config, window_s)
     description_path = Path(ctx.path(ENDPOINT_FILE))

@@ -19,7 +19,7 @@ from controller.controller import LOG_COLUMNS
 from controller.cycle_timer import CycleTimer
 from cosim.results.timeseries import ParquetSink, iter_series, last_row, read_series, tail, write_columns
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[3]
 
 
 def _scenario(tmp_path: Path, stop_time: str) -> Path:
@@ -30,6 +30,13 @@ def _scenario(tmp_path: Path, stop_time: str) -> Path:
     path = tmp_path / "cell.toml"
     path.write_text(text, encoding="utf-8")
     return path
+
+
+def _children(pid: int) -> list[int]:
+    try:
+        return [int(x) for x in Path(f"/proc/{pid}/task/{pid}/children").read_text().split()]
+    except OSError:
+        return []
 
 
 def test_sigkilled_cell_run_leaves_the_running_mode_readable(tmp_path):
@@ -52,11 +59,15 @@ def test_sigkilled_cell_run_leaves_the_running_mode_readable(tmp_path):
             if reached >= 6.0:
                 break
         assert child.poll() is None, f"the run ended before the kill: {child.stderr.read()[-2000:]}"
-        os.killpg(child.pid, signal.SIGKILL)
+        # python -m cosim run forks: the process that runs the job is the supervisor's child
+        runner = _children(child.pid) or [child.pid]
+        for pid in runner:
+            os.kill(pid, signal.SIGKILL)
+        child.wait(60)  # the supervisor notices and writes the final status
     finally:
         if child.poll() is None:
             os.killpg(child.pid, signal.SIGKILL)
-        child.wait(30)
+            child.wait(30)
     assert reached >= 6.0
     series = out / "timeseries_standard.parquet.partial"
     log = out / "controller_standard.parquet.partial"
@@ -72,6 +83,8 @@ def test_sigkilled_cell_run_leaves_the_running_mode_readable(tmp_path):
         assert t[-1] >= reached - 3.5, (t[-1], reached)
     assert np.isfinite(data).all()
     assert np.allclose(np.diff(log_data[:, 0]), 400e-6, rtol=1e-6)  # every cycle, none missing
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["status"] != "running"  # the supervisor's final status (cosim/results/lastwords.py)
 
 
 def test_streaming_log_holds_one_block(tmp_path):
