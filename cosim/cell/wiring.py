@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from controller import DriveLoopModel, speed_comparison_lead
-from cosim.jobs.laser_tracker import TRACKER_VARIABLES
+from cosim.tracking.laser_tracker import TRACKER_VARIABLES
 from cosim.master.variables import parse_connection
 from fieldbus import JointScaling
 from fmus.servo_drive.interface import REQUIRED as DRIVE_REQUIRED

@@ -31,7 +31,7 @@ def driven_by(signal: str) -> str:
                 "POWERLINK bus carrying CiA 402 telegrams (fieldbus/, cosim.cell.link.FieldbusLink); "
                 "not an FMU")
     if owner == "tracker":
-        return "the Python laser tracker model (cosim.jobs.laser_tracker); not an FMU"
+        return "the Python laser tracker model (cosim.tracking.laser_tracker); not an FMU"
     return f"a Python task of the job (master variable owner '{owner}'); not an FMU"
 
 
