@@ -21,7 +21,8 @@ import numpy as np
 
 from robot.dynamics import RobotDynamics
 from robot.symbolic import (
-    bias_function, forward_dynamics_function, inverse_dynamics_function, mass_matrix_function,
+    bias_function, forward_dynamics_function, forward_dynamics_placements_function, inverse_dynamics_function,
+    mass_matrix_function,
 )
 
 HARNESS = r"""
@@ -36,7 +37,9 @@ int main(void) {
     casadi_real u[6] = {10, 200, 50, 5, 3, 1}, p[78], load[4] = {5.0, 0.0, 0.0, 0.1}, out[6];
     for (int k = 0; k < 78; ++k) p[k] = 0.1 + 0.01 * k;
     for (int k = 0; k < 60; k += 10) p[k] = 10.0;
-    const casadi_real* arg[5] = {q, qd, u, p, load};
+    casadi_real g[84] = {0}; /* placements: identity rotations with small offsets (dense enough) */
+    for (int k = 0; k < 84; ++k) g[k] = 0.01 * (k % 7);
+    const casadi_real* arg[6] = {q, qd, u, p, load, g};
     casadi_real* res[1] = {out};
     casadi_int* iw = malloc(sizeof(casadi_int) * (n_iw + 1));
     casadi_real* w = malloc(sizeof(casadi_real) * (n_w + 1));
@@ -85,13 +88,17 @@ def _compiled_ns(function: ca.Function, folder: Path) -> tuple[float, int]:
 
 def main() -> None:
     fd, inv, fd_mb = forward_dynamics_function(), inverse_dynamics_function(), _m_backslash_b()
+    fd_g = forward_dynamics_placements_function("rx130l_fd_geo")
+    fd_l = forward_dynamics_placements_function("rx130l_fd_link", link_only=True)
     print("CasADi SX instruction counts")
     print(f"  rx130l_fd (ABA)          {fd.n_instructions():6d}")
+    print(f"  ABA, placements input    {fd_g.n_instructions():6d}   (the plant FMU's, true geometry)")
+    print(f"  ABA, links only, placem. {fd_l.n_instructions():6d}   (the elastic plant's link side)")
     print(f"  M \\ b (CRBA+RNEA+solve)  {fd_mb.n_instructions():6d}")
     print(f"  rx130l_id (RNEA)         {inv.n_instructions():6d}")
     if shutil.which("gcc"):
         with tempfile.TemporaryDirectory() as tmp:
-            for function in (fd, fd_mb, inv):
+            for function in (fd, fd_g, fd_l, fd_mb, inv):
                 ns, size = _compiled_ns(function, Path(tmp))
                 print(f"  compiled {function.name():14s} gcc -O2: {ns / 1000:6.2f} us/call (median), C {size / 1024:5.0f} kB")
 

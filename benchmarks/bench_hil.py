@@ -45,6 +45,7 @@ def _scaling():
 
 def cell_side(seconds: float, ports: tuple[int, int], window_s: float, queue) -> None:
     from cosim.realtime.pacer import Pacer, no_cyclic_gc
+    from cosim.realtime.schedule import precompute_schedules
     from fieldbus import DriveActuals, DriveEndpoint
 
     cell, ctrl = ports
@@ -52,6 +53,7 @@ def cell_side(seconds: float, ports: tuple[int, int], window_s: float, queue) ->
     period = endpoint.config.cycle_time_s
     cycles = int(round(seconds / period))
     pacer = Pacer(period, 150e-6, period - window_s, capacity=cycles + 16)
+    precompute_schedules((endpoint,), cycles + 1, False, compact=True)  # as cosim serve
     actuals = DriveActuals.zeros(6)
     actuals.statusword[:] = 0x27
     queue.put("ready")
@@ -80,6 +82,9 @@ def controller_side(seconds: float, ports: tuple[int, int], queue) -> None:
 
     cell, ctrl = ports
     endpoint = ManagingNodeEndpoint(_config(f"127.0.0.1:{ctrl}", f"127.0.0.1:{cell}", 200e-6), _scaling())
+    from cosim.realtime.schedule import precompute_schedules
+
+    precompute_schedules((endpoint,), int(round(seconds / endpoint.config.cycle_time_s)) + 16, False, compact=True)
     setpoints = Setpoints.zeros(6)
     setpoints.controlword[:] = 0x0F
     endpoint.send_following(setpoints)  # announce: the cell answers with PRes every cycle anyway
@@ -164,12 +169,210 @@ def run(seconds: float = 10.0, runs: int = 5) -> dict:
     return summary
 
 
+# ------------------------------------------------------------------ a deliberately late controller
+#: Cycles (of the cell, counted from the first PRes the controller sees) in which the controller answers too late:
+#: three single late cycles, then two in a row (the second trips the default threshold 15).
+LATE_CYCLES = (1500, 2500, 3500, 4500, 4501)
+#: the served run's wall time (the controller is up before the cell starts)
+LATE_SECONDS = 2.5
+
+
+def expected_counters(lost: list[int], cycles: int, increment: int = 8, decrement: int = 1,
+                      threshold: int = 15) -> dict:
+    """What POWERLINK specifies (EPSG DS 301 4.7.4.1) for a CN that misses the SoC and PReq of
+    the cycles ``lost``: per lost cycle one loss-of-SoC and one loss-of-PReq error, each
+    counter +``increment``, -``decrement`` per cycle without error (not below 0); the
+    reaction in the cycle the counter reaches ``threshold``. -> {"errors": {cycle: counter},
+    "trips": [cycles]} (the same for every node and for both counters)."""
+    value, errors, trips, lost_set = 0, {}, [], set(lost)
+    for k in range(cycles):
+        if k in lost_set:
+            before = value
+            value += increment
+            errors[k] = value
+            if before < threshold <= value:
+                trips.append(k)
+        else:
+            value = max(value - decrement, 0)
+    return {"errors": errors, "trips": trips}
+
+
+def late_controller(endpoint_file: str, late: tuple[int, ...], seconds: float, queue) -> None:
+    """Follow the served cell until it stops, enable the drives, hold the start pose, and answer the PRes of
+    the cycle before each ``late`` cycle only after that cycle's window has closed (mid-way
+    between the window's end and the next cycle): the group arrives in the next cycle's window,
+    where the cell must drop it. Started before ``cosim serve``: it waits for ``endpoint_file``."""
+    import logging
+
+    from cosim.cell.wiring import joint_scaling
+    from cosim.realtime.pacer import no_cyclic_gc, realtime_scheduling
+    from cosim.realtime.schedule import precompute_schedules
+    from fieldbus import EnableSequencer, ManagingNodeEndpoint, Setpoints
+
+    logging.getLogger("fieldbus").setLevel(logging.ERROR)  # its own view of the skipped cycles: not needed here
+    queue.put("ready")
+    path = Path(endpoint_file)
+    while not path.exists():
+        time.sleep(0.001)
+    desc = json.loads(path.read_text())
+    period, window = desc["cycle_time_s"], desc["window_s"]
+    delay_ns = int((period + window + (period - window) / 2) * 1e9)  # from the PRes of the cycle before
+    config = _config(desc["controller_channel"], desc["cell_channel"], 200e-6)
+    config["cycle_time_us"] = round(period * 1e6, 6)
+    endpoint = ManagingNodeEndpoint(config, joint_scaling())
+    precompute_schedules((endpoint,), int(seconds / period) + 16, False, compact=True)
+    setpoints = Setpoints.zeros(desc["nodes"])
+    setpoints.position[:] = desc["q_start_rad"]
+    sequencers = [EnableSequencer() for _ in range(desc["nodes"])]
+    late_set, sent_late, last, first = set(late), [], -1, None
+    endpoint.send_following(setpoints)  # the cell takes it as the first group
+    with realtime_scheduling(SCHEDULING, 10), no_cyclic_gc():
+        while True:
+            got = endpoint.follow(0.5)
+            arrived = time.perf_counter_ns()
+            if got is None:
+                break
+            cycle, observed = got
+            last = cycle
+            # the cell's own cycle number, from the frame time it stamped on its PRes
+            cell_cycle = int(endpoint.peer_time_s // period + 1e-9)
+            first = cell_cycle if first is None else first
+            for i, sequencer in enumerate(sequencers):
+                setpoints.controlword[i] = sequencer.next_controlword(int(observed.statusword[i]))
+            if cell_cycle + 1 - first in late_set and cell_cycle + 1 not in sent_late:
+                while time.perf_counter_ns() - arrived < delay_ns:
+                    pass
+                sent_late.append(cell_cycle + 1)
+            endpoint.send_following(setpoints)
+    stats = endpoint.bus.stats.as_dict()
+    endpoint.close()
+    queue.put({"late_sent": sent_late, "first_cell_cycle": first, "cycles_followed": last + 1,
+               "transport": stats})
+
+
+def _late_scenario(work: Path, seconds: float) -> Path:
+    text = (ROOT / "scenarios" / "hil.toml").read_text().replace('stop_time = "6 s"', f'stop_time = "{seconds} s"')
+    path = work / "hil_late.toml"
+    path.write_text(text)
+    return path
+
+
+def _cell_cycles_in_can_log(path: Path, period: float) -> tuple[set[int], set[int]]:
+    """Cycles with the cell's SoC taken, cycles with a PRes sent, from the cell's CAN log."""
+    import can
+
+    soc, pres = set(), set()
+    for msg in can.LogReader(str(path)):
+        k = int(msg.timestamp // period + 1e-9) if msg.arbitration_id != 0x080 else round(msg.timestamp / period)
+        if msg.arbitration_id == 0x080:
+            soc.add(k)
+        elif msg.arbitration_id == 0x181:
+            pres.add(k)
+    return soc, pres
+
+
+def late_run(work: Path, seconds: float = LATE_SECONDS, late: tuple[int, ...] = LATE_CYCLES,
+             port: int | None = None) -> dict:
+    """``cosim serve`` (scenarios/hil.toml at 400 µs, FMUs, CAN log) against :func:`late_controller`
+    in another process: expected vs observed lost cycles and counter values per late cycle,
+    observed from the cell's CAN log (cycles without SoC/PReqs) and its fieldbus events."""
+    import subprocess
+
+    from fieldbus import FieldbusConfig
+
+    work.mkdir(parents=True, exist_ok=True)
+    out = work / "served"
+    port = port or 47700 + (os.getpid() % 300) * 2
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]),
+           "MPLBACKEND": "Agg"}
+    load_before = os.getloadavg()
+    endpoint_file = out / "hil_endpoint.json"
+    ctx = mp.get_context("spawn")
+    queue = ctx.Queue()
+    controller = ctx.Process(target=late_controller, args=(str(endpoint_file), tuple(late), seconds, queue))
+    controller.start()
+    if queue.get(timeout=180) != "ready":
+        raise RuntimeError("the late controller did not start")
+    serve = subprocess.Popen([sys.executable, "-m", "cosim", "serve", str(_late_scenario(work, seconds)), "--out",
+                              str(out), "--quiet", "--channel", f"127.0.0.1:{port}", "--scheduling", SCHEDULING],
+                             env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        ctrl = queue.get(timeout=seconds + 120)
+    finally:
+        controller.join(10)
+        _, err = serve.communicate(timeout=seconds + 180)
+    summary = json.loads((out / "summary.json").read_text())
+    hil = summary["hil"]["model_based"]
+    desc = json.loads(endpoint_file.read_text())
+    period = desc["cycle_time_s"]
+    first = hil["controller"]["first_cycle"]
+    cycles = hil["cycles"]
+    planned = list(ctrl["late_sent"])  # cell cycles (the controller read them from the cell's PRes)
+    threshold = FieldbusConfig.from_dict({}).thresholds.cn_loss_of_preq  # hil.toml keeps the default
+    expected = expected_counters(planned, cycles, threshold=threshold)
+    observed = {row["cycle"]: row["counters"] for row in hil["lost_cycles"]}
+    trips: dict[int, set[int]] = {}
+    for f in hil["fault_reactions"]:
+        if f["event"] == "fault_reaction" and f["kind"] in ("loss_of_soc", "loss_of_preq"):
+            trips.setdefault(f["cycle"], set()).add(f["node"])
+    soc, pres = _cell_cycles_in_can_log(out / "can_model_based.blf", period)
+    judged = range(first, min(first + ctrl["cycles_followed"], cycles))
+    missing_soc = sorted(k for k in judged if k not in soc)
+    per_cycle = []
+    for k in planned:
+        row = observed.get(k, {})
+        per_cycle.append({"cycle": k, "expected_counter": expected["errors"][k],
+                          "observed_loss_of_preq_counters": row.get("loss_of_preq"),
+                          "observed_loss_of_soc_counters": row.get("loss_of_soc"),
+                          "soc_in_can_log": k in soc, "pres_in_can_log": k in pres,
+                          "expected_trip": k in expected["trips"], "observed_trip_nodes": sorted(trips.get(k, ()))})
+    unplanned = sorted(k for k in set(observed) - set(planned) if k in judged)
+    for r in per_cycle:
+        r["exact"] = (r["observed_loss_of_preq_counters"] == [r["expected_counter"]] * 6
+                      and r["observed_loss_of_soc_counters"] == [r["expected_counter"]] * 6
+                      and not r["soc_in_can_log"] and r["pres_in_can_log"]
+                      and r["expected_trip"] == (r["observed_trip_nodes"] == list(range(1, 7))))
+    exact = sum(r["exact"] for r in per_cycle)
+    return {"seconds": seconds, "cycles": cycles, "first_cycle": first, "late_controller_cycles": list(late),
+            "late_cell_cycles": planned, "per_cycle": per_cycle, "observed_lost_cycles": sorted(observed),
+            "missing_soc_in_can_log": missing_soc, "unplanned_lost_cycles": unplanned,
+            "planned_exact": exact, "planned_exact_fraction": exact / len(per_cycle) if per_cycle else 0.0,
+            "frames_late": hil["frames_late"], "overruns": hil["overruns"],
+            "serve_exit": serve.returncode, "serve_stderr_tail": err[-500:] if serve.returncode else "",
+            "load_average_before": load_before, "load_average_after": os.getloadavg()}
+
+
+def print_late(r: dict) -> None:
+    print(f"late controller against cosim serve, {r['cycles']} cycles (first group in cell cycle "
+          f"{r['first_cycle']}), load {r['load_average_before'][0]:.2f} -> {r['load_average_after'][0]:.2f}:")
+    for row in r["per_cycle"]:
+        print(f"  cell cycle {row['cycle']}: counters expected {row['expected_counter']}, observed loss of PReq "
+              f"{row['observed_loss_of_preq_counters']}, loss of SoC {row['observed_loss_of_soc_counters']},"
+              f" SoC in CAN log {row['soc_in_can_log']}, PRes {row['pres_in_can_log']}, trip expected "
+              f"{row['expected_trip']} observed nodes {row['observed_trip_nodes']}: {'exact' if row['exact'] else 'DIFFERS'}")
+    print(f"  planned cycles exactly as POWERLINK specifies: {r['planned_exact']} of {len(r['per_cycle'])}; "
+          f"unplanned lost cycles "
+          f"{r['unplanned_lost_cycles']} (stalls); cycles without SoC in the CAN log {len(r['missing_soc_in_can_log'])}"
+          f"; late frames dropped {r['frames_late']}")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--seconds", type=float, default=10.0)
     parser.add_argument("--runs", type=int, default=5)
     parser.add_argument("--json", type=Path, default=None)
+    parser.add_argument("--late", action="store_true",
+                        help="only the deliberately late controller against cosim serve (LATE_CYCLES)")
     args = parser.parse_args(argv)
+    if args.late:
+        import tempfile
+
+        with tempfile.TemporaryDirectory(prefix="bench-hil-late-") as tmp:
+            late = late_run(Path(tmp))
+        print_late(late)
+        if args.json:
+            args.json.write_text(json.dumps(late, indent=1))
+        return 0
     out = run(args.seconds, args.runs)
     for i, r in enumerate(out["runs"]):
         print(f"run {i}: {r['cycles']} cycles, overruns {r['overruns']} ({100 * r['overrun_fraction']:.3f} %), "

@@ -93,8 +93,11 @@ def matmul(a: Sequence[Sequence], b: Sequence[Sequence]) -> list:
     return [[dot(a[r], [b[k][c] for k in range(3)]) for c in range(3)] for r in range(3)]
 
 
-def numeric(matrix: np.ndarray) -> list:
-    """A numpy vector or matrix as (nested) lists of Python floats."""
+def numeric(matrix: np.ndarray | list) -> list:
+    """A numpy vector or matrix as (nested) lists of Python floats; a (nested) list, e.g. of
+    symbolic entries (a placement that is an input of the function), is returned as it is."""
+    if isinstance(matrix, list):
+        return matrix
     return [[float(x) for x in row] for row in matrix] if matrix.ndim == 2 else [float(x) for x in matrix]
 
 

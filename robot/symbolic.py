@@ -31,6 +31,7 @@ Units: rad, rad/s, rad/s^2, N m, kg, m (payload centre of mass in ``tool0``).
 """
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from functools import lru_cache
 from typing import Any, Sequence
@@ -247,12 +248,15 @@ def inverse_dynamics_expression(structure: ChainStructure, q: Expr, qd: Expr, qd
 # ----------------------------------------------------------------------------------
 
 def forward_dynamics_expression(structure: ChainStructure, q: Expr, qd: Expr, tau: Expr, p: Expr,
-                                payload: Expr) -> list:
-    """ABA: the 6 joint accelerations (rad/s^2) as a list of scalar expressions."""
+                                payload: Expr, include_friction: bool = True, include_rotor: bool = True) -> list:
+    """ABA: the 6 joint accelerations (rad/s^2) as a list of scalar expressions.
+
+    ``include_friction`` / ``include_rotor`` False: the friction and rotor-inertia entries of
+    ``p`` are left out structurally (the link side of an elastic joint)."""
     bodies = _bodies(structure, p, payload)
     transforms = _joint_transforms(structure, q)
-    friction = _friction(structure, p, qd)
-    rotor = p[ROTOR_INERTIA_SLICE]
+    friction = _friction(structure, p, qd) if include_friction else [0.0] * N_JOINTS
+    rotor = p[ROTOR_INERTIA_SLICE] if include_rotor else [0.0] * N_JOINTS
     bias_acc: list = []
     art_inertia: list = []
     art_bias: list = []
@@ -422,6 +426,95 @@ def _build_inverse_dynamics(structure: ChainStructure) -> ca.Function:
     tau = _column(inverse_dynamics_expression(structure, q, qd, qdd, p, payload))
     return ca.Function(INVERSE_DYNAMICS_NAME, [q, qd, qdd, p, payload], [tau],
                        ["q", "qd", "qdd", "p", "payload"], ["tau"], _FUNCTION_OPTIONS)
+
+
+# ----------------------------------------------------------------------------------
+# Geometry as an input: the true robot's kinematic errors in the plant's dynamics
+# ----------------------------------------------------------------------------------
+
+N_GEOMETRIC_ERRORS = 39
+"""Length of the error vector of :mod:`robot.geometric_errors` (m and rad)."""
+N_PLACEMENTS = 12 * (N_JOINTS + 1)
+"""Length of the placement vector: per joint 1..6 then the flange (``tool0`` in link 6), the
+rotation row by row (9) and the translation (3, m): ``x_parent = R x_child + t``."""
+
+
+def placements_expression(structure: ChainStructure, errors: Expr) -> list:
+    """The joint and flange placements (:data:`N_PLACEMENTS` scalars) with the 39 geometric
+    errors ``errors`` folded in exactly as :meth:`robot.geometric_errors.GeometricErrorModel.
+    joint_placements` folds them: joint i is ``(R_nom Rot(u, tilt_u) [Rot(v, tilt_v)] Rot(axis,
+    offset_i), t_nom + dt_i)`` (``dt`` = ``base`` for joint 1, ``len_i`` otherwise), the flange
+    ``(R_f Rot(x, flange_rx) Rot(y, flange_ry), t_f + flange)``. The tilt axes of each joint are
+    read from the error model's parameter names (``tilt<i>_<axis>``)."""
+    from robot.geometric_errors import ERROR_PARAMETER_NAMES
+
+    index = {name: k for k, name in enumerate(ERROR_PARAMETER_NAMES)}
+    unit = np.eye(3)
+
+    def turn(rot: list, axis: np.ndarray, angle: Expr) -> list:
+        return sp.matmul(rot, sp.axis_rotation(axis, ca.cos(angle), ca.sin(angle)))
+
+    out: list = []
+    for i in range(N_JOINTS):
+        rot = sp.numeric(structure.rotations[i])
+        tilts = [(name, k) for name, k in index.items() if name.startswith(f"tilt{i + 1}_")]
+        for name, k in tilts:  # in parameter order: first u, then v
+            rot = turn(rot, unit["xyz".index(name[-1])], errors[k])
+        rot = turn(rot, structure.axes[i], errors[index[f"offset{i + 1}"]])
+        prefix = "base" if i == 0 else f"len{i + 1}"
+        shift = [errors[index[f"{prefix}_{c}"]] for c in "xyz"]
+        out += [x for row in rot for x in row] + sp.add(sp.numeric(structure.translations[i]), shift)
+    rot = turn(turn(sp.numeric(structure.flange_rotation), unit[0], errors[index["flange_rx"]]),
+               unit[1], errors[index["flange_ry"]])
+    shift = [errors[index[f"flange_{c}"]] for c in "xyz"]
+    out += [x for row in rot for x in row] + sp.add(sp.numeric(structure.flange_translation), shift)
+    return out
+
+
+def structure_with_placements(structure: ChainStructure, placements: Expr) -> ChainStructure:
+    """``structure`` with its joint and flange placements taken from ``placements``
+    (:data:`N_PLACEMENTS` scalars, e.g. an SX input): the axes, parents, gravity and
+    smoothing velocity stay. The algorithms above accept it like a numeric structure."""
+    def rotation(k: int) -> list:
+        return [[placements[k + 3 * r + c] for c in range(3)] for r in range(3)]
+
+    def translation(k: int) -> list:
+        return [placements[k + 9 + c] for c in range(3)]
+
+    return dataclasses.replace(
+        structure, rotations=tuple(rotation(12 * i) for i in range(N_JOINTS)),
+        translations=tuple(translation(12 * i) for i in range(N_JOINTS)),
+        flange_rotation=rotation(12 * N_JOINTS), flange_translation=translation(12 * N_JOINTS))
+
+
+def placements_function(model: pin.Model | None = None, parameters: RobotParameters | None = None,
+                        name: str = "rx130l_placements") -> ca.Function:
+    """``name(errors[39]) -> placements[84]``: :func:`placements_expression` on the nominal
+    structure (numeric, e.g. ``placements_function()(errors)``, or generated to C)."""
+    structure = _structure_or_default(model, parameters)
+    errors = ca.SX.sym("errors", N_GEOMETRIC_ERRORS)
+    return ca.Function(name, [errors], [_column(placements_expression(structure, errors))], ["errors"],
+                       ["placements"], _FUNCTION_OPTIONS)
+
+
+def forward_dynamics_placements_function(name: str = "rx130l_fd_placements", *, link_only: bool = False,
+                                         model: pin.Model | None = None,
+                                         parameters: RobotParameters | None = None) -> ca.Function:
+    """``name(q, qd, tau, p, payload, placements) -> qdd``: the ABA of :func:`forward_dynamics_function`
+    with the joint and flange placements as the input ``placements`` (:data:`N_PLACEMENTS`, e.g.
+    :func:`placements_function` of a true robot's geometric errors) instead of constants.
+    ``link_only``: without rotor inertia and friction (the link side of an elastic joint).
+
+    Cost: the constant placements of the nominal arm are signed permutations that cost nothing;
+    general ones turn them into full 3x3 products (``benchmarks/bench_dynamics.py`` prints both)."""
+    placements = ca.SX.sym("placements", N_PLACEMENTS)
+    structure = structure_with_placements(_structure_or_default(model, parameters), placements)
+    q, qd, tau, p, payload = _symbols(("q", N_JOINTS), ("qd", N_JOINTS), ("tau", N_JOINTS),
+                                      ("p", N_PARAMETERS), ("payload", 4))
+    qdd = _column(forward_dynamics_expression(structure, q, qd, tau, p, payload, include_friction=not link_only,
+                                              include_rotor=not link_only))
+    return ca.Function(name, [q, qd, tau, p, payload, placements], [qdd],
+                       ["q", "qd", "tau", "p", "payload", "placements"], ["qdd"], _FUNCTION_OPTIONS)
 
 
 # ----------------------------------------------------------------------------------

@@ -15,12 +15,14 @@ from robot.parameters import load_parameters
 class ElasticArm:
     """Right-hand side and static start state of the two-mass-per-axis arm (SI, joint side)."""
 
-    def __init__(self, p: np.ndarray, payload, gear: dict[str, np.ndarray] | None = None):
+    def __init__(self, p: np.ndarray, payload, gear: dict[str, np.ndarray] | None = None, model=None):
+        """``model``: the links' pinocchio model (default nominal; a true robot's
+        ``kinematic_model()`` for its geometric errors)."""
         robot = load_parameters()
         self.p = np.asarray(p, dtype=float)
         link_p = self.p.copy()
         link_p[ROTOR_INERTIA_SLICE] = link_p[VISCOUS_SLICE] = link_p[COULOMB_SLICE] = 0.0
-        self.links = RobotDynamics(link_p, payload)
+        self.links = RobotDynamics(link_p, payload, model=model)
         gear = gear or {}
         self.k = np.asarray(gear.get("stiffness", robot.stiffness), dtype=float)
         self.k3 = np.asarray(gear.get("stiffness_cubic", robot.stiffness_cubic), dtype=float)

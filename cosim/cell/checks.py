@@ -64,7 +64,7 @@ def check_cell(doc: dict[str, Any], where: Where, job_set_drive_parameters: Mapp
     Raises ScenarioError (a ValueError) at the first key that is wrong.
     """
     from cosim.master import load_model_description
-    from cosim.master.component import variables_of
+    from fmus.fmu import variables_of
     from fieldbus import FieldbusConfig, FieldbusConfigError
 
     by_name = {fmu["name"]: (i, fmu) for i, fmu in enumerate(doc["fmus"])}
@@ -98,7 +98,7 @@ def check_cell(doc: dict[str, Any], where: Where, job_set_drive_parameters: Mapp
     for key in plant["parameters"]:
         if key.startswith(wiring.JOB_SET_PLANT_PARAMETERS):
             raise (where / "fmus")[plant_i].error(
-                "no q0/qd0/p/payload parameters: the job sets them from [true_robot] and the path start",
+                "no q0/qd0/p/payload/geometric_errors parameters: the job sets them from [true_robot] and the path start",
                 problem=f"parameter {key!r} is set by the job")
     try:
         fb = FieldbusConfig.from_dict(doc["fieldbus"], source=str(where.file) if where.file else "<scenario>")

@@ -12,7 +12,7 @@ drives replaces the generated one; any other connection (a plugged-in FMU, e.g. 
 payload acting through ``plant.tau_ext[i]``) is added.
 
 The plant is set to the TRUE robot (``robot.true_robot.make_true_robot``): its 78
-dynamic parameters and payload as FMU start values, its start configuration ``q0`` =
+dynamic parameters, payload and 39 geometric errors as FMU start values, its start configuration ``q0`` =
 the controller's start pose (the arm starts at rest there). Drive parameters are
 :func:`fmus.servo_drive.params.drive_start_values` of each axis, overridden by the
 scenario's ``[fmus.parameters]``.
@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from controller import DriveLoopModel, speed_comparison_lead
-from cosim.jobs.laser_tracker import TRACKER_VARIABLES
+from cosim.tracking.laser_tracker import TRACKER_VARIABLES
 from cosim.master.variables import parse_connection
 from fieldbus import JointScaling
 from fmus.servo_drive.interface import REQUIRED as DRIVE_REQUIRED
@@ -98,7 +98,7 @@ def cell_connections(drive_variables: Mapping[str, Collection[str]] | None = Non
 def drive_variables_of(fmus: Sequence[Mapping[str, Any]]) -> dict[str, set[str]]:
     """Drive instance -> the variable names of its FMU (from the ``[[fmus]]`` tables' paths)."""
     from cosim.master import load_model_description
-    from cosim.master.component import variables_of
+    from fmus.fmu import variables_of
 
     return {f["name"]: set(variables_of(load_model_description(f["path"]))) for f in fmus if f["name"] in DRIVES}
 
@@ -129,12 +129,13 @@ RECORDED_SIGNALS: tuple[str, ...] = (
 speeds of the plant, joint torques and motor currents of the drives, the drives' own
 following errors, the tracker's measurement."""
 
-JOB_SET_PLANT_PARAMETERS = ("q0[", "qd0[", "p[", "payload_mass", "payload_com[")
+JOB_SET_PLANT_PARAMETERS = ("q0[", "qd0[", "p[", "payload_mass", "payload_com[", "geometric_errors[")
 """Plant parameters the cell sets itself (from the true robot and the start pose)."""
 
 
 def plant_start_values(true_robot: TrueRobot, q0: Sequence[float]) -> dict[str, float]:
-    """Start values of the plant FMU: the true robot's 78 parameters and payload, at rest at ``q0`` (rad)."""
+    """Start values of the plant FMU: the true robot's 78 parameters, payload and 39 geometric errors
+    (the plant's dynamics run on the true geometry, as the tracker's kinematics do), at rest at ``q0`` (rad)."""
     values: dict[str, float] = {}
     for i, q in enumerate(q0, start=1):
         values[f"q0[{i}]"] = float(q)
@@ -144,6 +145,8 @@ def plant_start_values(true_robot: TrueRobot, q0: Sequence[float]) -> dict[str, 
     values["payload_mass"] = float(true_robot.payload[0])
     for i, c in enumerate(true_robot.payload[1:], start=1):
         values[f"payload_com[{i}]"] = float(c)
+    for k, e in enumerate(true_robot.geometric_errors, start=1):
+        values[f"geometric_errors[{k}]"] = float(e)
     return values
 
 

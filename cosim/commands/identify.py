@@ -31,7 +31,7 @@ def _finite_above(option: str, low: float):
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """DATA, --validate, --out, --method, --cutoff-hz, --max-condition."""
-    from identification.dynamic_defaults import DEFAULT_CUTOFF_HZ, MAX_CONDITION_NUMBER
+    from identification.defaults import DEFAULT_CUTOFF_HZ, MAX_CONDITION_NUMBER
 
     parser.add_argument("data", type=Path, help="identification record CSV (see docs/identification.md)")
     parser.add_argument("--validate", type=Path, default=None, metavar="VAL.csv",
@@ -54,9 +54,9 @@ def run(args: argparse.Namespace) -> int:
     """Read, check units, identify, check the fit, validate, write; invalid input -> exit 2,
     implausible fit -> exit 3 (no parameter file written)."""
     from cosim.commands.exits import InvalidInput, RunFailed, describe_os_error
-    from identification.dynamic_data import read_motion_csv
-    from identification.dynamic_identify import identify, validate, write_identification_outputs
-    from identification.dynamic_plausibility import check_fit, check_record_units
+    from identification.data import read_motion_csv
+    from identification.identify import identify, validate, write_identification_outputs
+    from identification.plausibility import check_fit, check_record_units
 
     out_dir = args.out or Path("results") / f"identify-{args.data.stem}"
     try:

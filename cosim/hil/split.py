@@ -125,6 +125,7 @@ def run_hil_split(cell: CellDescription, controller: Any, ctx: Any, *, options: 
     from cosim.cell.wiring import N_JOINTS, joint_scaling
     from cosim.master import MemorySink, SimulationError
     from cosim.realtime.pacer import no_cyclic_gc, realtime_scheduling
+    from cosim.realtime.schedule import precompute_schedules
     from fieldbus import ManagingNodeEndpoint
 
     label, period, stop_time = cell.label, cell.period_s, cell.stop_time_s
@@ -165,6 +166,7 @@ def run_hil_split(cell: CellDescription, controller: Any, ctx: Any, *, options: 
         if kind != "ready":
             raise SimulationError("served cell", 0.0, f"the cell process failed to start: {payload}")
         endpoint = ManagingNodeEndpoint(config, joint_scaling(), log_path=cell.can_log)
+        precompute_schedules((endpoint,), stop_cycle + 2, False, compact=True)  # no jitter blocks drawn in the loop
         setpoints = port.setpoints
         last = -1
         ctx.label = label

@@ -1,6 +1,6 @@
 """Job ``identification``: the paper's section 4 campaign, closed through the co-simulation.
 
-1. **Design** (:mod:`identification.dynamic_excitation`): an optimal exciting Fourier
+1. **Design** (:mod:`identification.excitation`): an optimal exciting Fourier
    trajectory (eq. 29-30) for the controller's model, against random feasible series
    of the same order; ``omega_f`` is snapped so that one period is a whole number of
    controller cycles (periodic averaging needs it).
@@ -14,7 +14,7 @@
    optional Gaussian current-measurement noise. ``torque_actual`` is the drive's own
    estimate ``N k_t i`` (joint side): it includes the reflected rotor inertia and the
    friction the motor overcomes, which the regressor models (columns Ia, fv, fc).
-3. **Identify** (:func:`identification.dynamic_identify.identify_periodic`): skip the
+3. **Identify** (:func:`identification.identify.identify_periodic`): skip the
    first period(s), average the rest, differentiate in the Fourier domain (no phase
    lag), weighted least squares on the base parameters.
 4. **Validate** on the EN ISO 9283 path (the main job's path, run with the nominal
@@ -240,7 +240,7 @@ def snapped_omega(omega_f: float, period_s: float) -> tuple[float, int]:
 
 def design(doc: dict[str, Any], nominal_payload: np.ndarray, omega_f: float):
     """The optimal exciting trajectory of the scenario's [excitation] table (nominal model)."""
-    from identification.dynamic_excitation import (ExcitationLimits, ExcitationProblem, ExcitationSettings,
+    from identification.excitation import (ExcitationLimits, ExcitationProblem, ExcitationSettings,
                                                    design_excitation)
 
     e = doc["excitation"]
@@ -269,8 +269,8 @@ def _noise_sigma(doc: dict[str, Any]) -> np.ndarray:
 def run(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
     """Design, excite, identify, validate, compare (see module docstring)."""
     from fieldbus import FieldbusConfig
-    from identification.dynamic_data import motion_record, write_motion_csv
-    from identification.dynamic_identify import identify_periodic, validate
+    from identification.data import motion_record, write_motion_csv
+    from identification.identify import identify_periodic, validate
     from planners.iso9283 import ISO_Q_HINT, iso9283_test_path
     from robot.description import load_model
     from robot.dynamics import RobotDynamics
@@ -475,7 +475,7 @@ def _gear_stiffness(doc: dict[str, Any], ident, q_x: np.ndarray, cell, motion_st
     """Gear stiffness and damping per axis from the excitation run on the elastic plant: the
     averaged period of the fieldbus motor positions and of the tracker's reflector readings,
     the gear torques from the identified base parameters (identification/gear_stiffness.py)."""
-    from identification.dynamic_signals import average_periods
+    from identification.signals import average_periods
     from identification.gear_stiffness import identify_gear_stiffness_periodic
     from robot.parameters import load_parameters
 
@@ -535,9 +535,9 @@ def _ratio(a: float, b: float) -> float:
 def _validate(ctx: RunContext, doc: dict[str, Any], rec: FieldbusRecorder, ctl: Controller, path, ident, models,
               true_robot, validate, motion_record, write_motion_csv, label: str) -> dict[str, Any]:
     """Measured (fieldbus) vs predicted torques along the ISO 9283 path run with model ``label``."""
-    from identification.dynamic_estimation import relative_rms_error
-    from identification.dynamic_identify import prepare_motion
-    from identification.dynamic_signals import zero_phase_lowpass
+    from identification.estimation import relative_rms_error
+    from identification.identify import prepare_motion
+    from identification.signals import zero_phase_lowpass
 
     period = doc["controller"]["period"]
     t, q, tau = rec.window(ctl.motion_start_s, path.duration, period, doc["measurement"]["position_lag_cycles"])

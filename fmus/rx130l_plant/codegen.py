@@ -1,10 +1,17 @@
-"""Generate the plant's forward dynamics as C with CasADi.
+"""Generate the plant's dynamics as C with CasADi.
 
-The SX function ``rx130l_fd(q, qd, tau, p[78], payload[4]) -> qdd`` of
-:mod:`robot.symbolic` is renamed ``rx130l_plant_fd`` and generated with the internal
-symbol prefix ``rx130l_plant_fd_`` and without export attributes, so that (compiled
-with ``-fvisibility=hidden``) no generated symbol can clash with another library in the
-importing process.
+Three SX functions of :mod:`robot.symbolic`, generated into one C file with the internal
+symbol prefix ``rx130l_plant_fd_`` and without export attributes, so that (compiled with
+``-fvisibility=hidden``) no generated symbol can clash with another library in the
+importing process:
+
+- ``rx130l_plant_geometry(errors[39]) -> placements[84]``: the joint and flange placements
+  with the true robot's geometric errors folded in (:func:`robot.symbolic.placements_function`),
+  evaluated once at initialisation;
+- ``rx130l_plant_fd(q, qd, tau, p[78], payload[4], placements[84]) -> qdd``: the rigid
+  joints' forward dynamics (ABA with rotor inertia and friction) on those placements;
+- ``rx130l_plant_fd_link(...)`` (same inputs): the links alone, without rotor inertia and
+  friction (the link side of the elastic joints).
 """
 from __future__ import annotations
 
@@ -13,17 +20,18 @@ from pathlib import Path
 
 import casadi as ca
 
-from robot.symbolic import forward_dynamics_function
+from robot.symbolic import forward_dynamics_placements_function, placements_function
 
 GENERATED_NAME = "rx130l_plant_fd"
+GEOMETRY_NAME = "rx130l_plant_geometry"
+LINK_NAME = "rx130l_plant_fd_link"
 GENERATED_FILE = "rx130l_plant_fd.c"
 
 
-def plant_dynamics_function() -> ca.Function:
-    """The forward dynamics under the plant's own function name (same inputs and outputs)."""
-    fd = forward_dynamics_function()
-    inputs = [ca.SX.sym(fd.name_in(k), fd.size_in(k)) for k in range(fd.n_in())]
-    return ca.Function(GENERATED_NAME, inputs, fd.call(inputs), fd.name_in(), fd.name_out(), {"cse": True})
+def plant_functions() -> list[ca.Function]:
+    """The generated functions under the plant's own names (see the module docstring)."""
+    return [placements_function(name=GEOMETRY_NAME), forward_dynamics_placements_function(GENERATED_NAME),
+            forward_dynamics_placements_function(LINK_NAME, link_only=True)]
 
 
 def generated_dynamics_sources() -> dict[str, str]:
@@ -33,7 +41,8 @@ def generated_dynamics_sources() -> dict[str, str]:
         "with_export": False,
         "prefix": f"{GENERATED_NAME}_",
     })
-    generator.add(plant_dynamics_function())
+    for function in plant_functions():
+        generator.add(function)
     with tempfile.TemporaryDirectory() as tmp:
         generator.generate(tmp + "/")
         c_text = (Path(tmp) / GENERATED_FILE).read_text()

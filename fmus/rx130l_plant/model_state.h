@@ -9,9 +9,9 @@ typedef struct {
     /* q[6] (rad), qd[6] (rad/s) of the links, then (elastic joints only) the motor
      * angles th[6] (rad) and speeds thd[6] (rad/s) divided by the gear ratios; joint 1 first */
     double x[24];
-    /* elastic joints: the 78 dynamic parameters with rotor inertia and friction zeroed
-     * (they act on the motor side and through f_link) - the link side's ABA parameters */
-    double p_link[78];
+    /* joint 1..6 and flange placements (rotation row by row, translation) with the
+     * geometric_errors folded in: rx130l_plant_geometry(geometric_errors), set at initialisation */
+    double placements[84];
 } ModelState;
 
 #endif

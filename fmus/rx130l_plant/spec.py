@@ -1,8 +1,9 @@
 """Variables of the ``rx130l_plant`` FMU (names, causality, units, defaults).
 
 Defaults are the nominal robot: the URDF inertias and the parameter file's rotor
-inertia and friction (``robot.dynamics.nominal_parameter_vector``) and its nominal
-payload. ``p[k]`` is element ``k-1`` of the 78-vector of :mod:`robot.dynamics`
+inertia and friction (``robot.dynamics.nominal_parameter_vector``), its nominal
+payload and no geometric errors (``geometric_errors[k]`` = element ``k-1`` of the 39-vector
+of :mod:`robot.geometric_errors`, folded into the joint placements of the dynamics). ``p[k]`` is element ``k-1`` of the 78-vector of :mod:`robot.dynamics`
 (description attribute: its name in ``PARAMETER_NAMES``).
 """
 from __future__ import annotations
@@ -55,6 +56,7 @@ def plant_spec() -> FmuSpec:
              "largest RK4 sub-step inside fmi2DoStep (each step is split into equal sub-steps)",
              unit="s", start=DEFAULT_INTEGRATION_STEP, min=1e-7, max=1e-2)
     _add_elastic_variables(spec, robot)
+    _add_geometry_variables(spec)
     _declare_initial_dependencies(spec)
     return spec
 
@@ -100,6 +102,16 @@ def _add_elastic_variables(spec: FmuSpec, robot) -> None:
     spec.add("coulomb_smoothing_velocity", "Real", PARAMETER,
              "tanh width of the Coulomb and Stribeck terms of the elastic model (the rigid model's is compiled in)",
              unit="rad/s", start=float(robot.coulomb_smoothing_velocity), min=1e-9)
+
+
+def _add_geometry_variables(spec: FmuSpec) -> None:
+    """The 39 geometric errors of the true arm (appended last: earlier value references stay)."""
+    from robot.geometric_errors import ERROR_PARAMETER_NAMES, is_angle_parameter
+
+    spec.add_array("geometric_errors", [0.0] * len(ERROR_PARAMETER_NAMES), PARAMETER, "", descriptions=[
+        f"geometric error {name} (robot.geometric_errors.ERROR_PARAMETER_NAMES[{k}]), folded into the joint and "
+        f"flange placements of the dynamics" for k, name in enumerate(ERROR_PARAMETER_NAMES)],
+        units=["rad" if is_angle_parameter(name) else "m" for name in ERROR_PARAMETER_NAMES])
 
 
 def _declare_initial_dependencies(spec: FmuSpec) -> None:
