@@ -138,10 +138,13 @@ class _WorkerSummary:
             self._last = now
             _send_whole(self._connection, ("progress", self._mode, float(sim_time_s)))
 
-    def progress(self, sim_time_s: float) -> None:
+    def progress(self, sim_time_s: float, *args: Any, **kwargs: Any) -> None:
         self._send(sim_time_s, force=True)
 
-    def note_progress(self, sim_time_s: float) -> None:
+    def note_progress(self, sim_time_s: float, *args: Any, **kwargs: Any) -> None:
+        self._send(sim_time_s)
+
+    def note_time(self, sim_time_s: float, *args: Any, **kwargs: Any) -> None:
         self._send(sim_time_s)
 
     def update(self, **fields: Any) -> None:
@@ -150,6 +153,13 @@ class _WorkerSummary:
     def write(self) -> None:
         """Nothing: summary.json belongs to the parent."""
 
+    def __getattr__(self, name: str) -> Any:
+        """Any other writer method (``note_where``, ...) does nothing here: the parent keeps
+        summary.json and the supervisor's record of where the run is."""
+        if name.startswith("_"):
+            raise AttributeError(name)
+        return lambda *args, **kwargs: None
+
 
 def _send_whole(connection: Any, message: Any) -> None:
     """``connection.send`` with SIGTERM held back until the message is whole (a stop request in
@@ -157,6 +167,16 @@ def _send_whole(connection: Any, message: Any) -> None:
     previous = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGTERM, signal.SIGINT})
     try:
         connection.send(message)
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
+
+
+def _recv_whole(connection: Any) -> Any:
+    """``connection.recv`` with SIGINT/SIGTERM held back until the message is read whole (a
+    KeyboardInterrupt between its length and its bytes would leave the pipe unreadable)."""
+    previous = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGTERM, signal.SIGINT})
+    try:
+        return connection.recv()
     finally:
         signal.pthread_sigmask(signal.SIG_SETMASK, previous)
 
@@ -271,6 +291,7 @@ class _Pool:
                 self._receive(timeout_s=PROGRESS_INTERVAL_S)
                 covered = self._covered()
                 bar.update(covered - self.base_s)
+                self._note_where()
                 now = time.perf_counter()
                 if now - last_summary > 2.0:
                     ctx.summary.progress(covered)
@@ -293,6 +314,14 @@ class _Pool:
             self._stop_all(quiet=True)
             ctx.sim_time_s = self._covered()
 
+    def _note_where(self) -> None:
+        """Tell the summary writer (for a crash guard or supervisor writing on this process's
+        behalf) the first mode still running and its simulated time."""
+        running = [m for m in self.modes if m in self.running]
+        note_where = getattr(self.ctx.summary, "note_where", None)
+        if running and note_where is not None:
+            note_where(mode=running[0], at_s=self.progress.get(running[0], 0.0))
+
     def _receive(self, timeout_s: float) -> None:
         from multiprocessing.connection import wait
 
@@ -302,7 +331,7 @@ class _Pool:
         for conn in wait(list(connections), timeout=timeout_s):
             mode = connections[conn]
             try:
-                message = conn.recv()
+                message = _recv_whole(conn)
             except (EOFError, OSError):
                 self._died(mode)
                 continue
@@ -368,7 +397,7 @@ class _Pool:
                         if not process.is_alive():
                             break
                         continue
-                    message = conn.recv()
+                    message = _recv_whole(conn)
                 except (EOFError, OSError):
                     break
                 if message[0] == "progress":

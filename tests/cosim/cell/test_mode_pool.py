@@ -20,7 +20,7 @@ import pytest
 from cosim.results import read_series
 from scenario_files import write_variant
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[3]
 SCENARIO = (ROOT / "scenarios" / "iso9283.toml").read_text(encoding="utf-8")
 MODES_LINE = 'modes = ["standard", "standard_speed_ff", "model_based"]'
 ENV = {**os.environ, "PYTHONPATH": str(ROOT), "MPLBACKEND": "Agg"}
@@ -109,6 +109,15 @@ def children(pid: int) -> list[int]:
     return sorted(found)
 
 
+def workers_of(pid: int) -> list[int]:
+    """The mode workers of the ``cosim run`` process ``pid``: its children, or under the supervisor
+    (cosim/commands/supervisor.py) the children of the run's process."""
+    kids = children(pid)
+    if len(kids) == 1 and children(kids[0]):
+        return children(kids[0])
+    return kids
+
+
 def alive(pid: int) -> bool:
     try:
         return (Path("/proc") / str(pid) / "stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
@@ -122,7 +131,7 @@ def test_signal_to_the_group_stops_every_worker_in_order(tmp_path, signum):
     out = tmp_path / "out"
     proc = start(path, out, 2)
     wait_until_simulating(proc, out, 0.6)
-    workers = children(proc.pid)
+    workers = workers_of(proc.pid)
     assert len(workers) == 2
     os.killpg(proc.pid, signum)
     _, err = proc.communicate(timeout=150)
@@ -150,7 +159,7 @@ def test_a_killed_worker_fails_the_run_naming_its_mode(tmp_path):
     out = tmp_path / "out"
     proc = start(path, out, 2)
     wait_until_simulating(proc, out, 0.3)
-    workers = children(proc.pid)
+    workers = workers_of(proc.pid)
     assert len(workers) == 2
     os.kill(workers[1], signal.SIGKILL)  # the second worker started runs model_based
     _, err = proc.communicate(timeout=150)
