@@ -149,7 +149,7 @@ def run_hil_split(cell: CellDescription, controller: Any, ctx: Any, *, options: 
     stop_cycle = int(round(stop_time / period))
     failure: SimulationError | None = None
     child: dict[str, Any] | None = None
-    wait_ns, compute_ns, skipped = [], [], 0
+    wait_ns, compute_ns, wakeup_ns, skipped = [], [], [], 0
     granted = "normal"
     wall0, cpu0 = time.perf_counter(), time.process_time()
     endpoint = None
@@ -183,6 +183,9 @@ def run_hil_split(cell: CellDescription, controller: Any, ctx: Any, *, options: 
                                                   f"no PRes from the cell process for {SILENCE_TIMEOUT_S} s")
                     break
                 cycle, observed = got
+                arrived = endpoint.bus.oldest_arrival_ns
+                if arrived:
+                    wakeup_ns.append(time.time_ns() - arrived)
                 if cycle >= stop_cycle:
                     break
                 jumped = cycle - last > 1
@@ -235,6 +238,11 @@ def run_hil_split(cell: CellDescription, controller: Any, ctx: Any, *, options: 
                             "wait_for_pres": percentiles_us(np.asarray(wait_ns, dtype=float) * 1e-3, POINTS),
                             "compute": percentiles_us(np.asarray(compute_ns, dtype=float) * 1e-3, POINTS),
                             "pres_one_way_latency": percentiles_us(controller_latency, POINTS),
+                            # from the PRes datagram's kernel arrival to this process having read it: long
+                            # when the process was not running (a stall of the OS or the hypervisor)
+                            "wakeup_after_pres": percentiles_us(np.asarray(wakeup_ns, dtype=float) * 1e-3,
+                                                                POINTS),
+                            "stalls_over_one_cycle": int(np.count_nonzero(np.asarray(wakeup_ns) > period * 1e9)),
                             "scheduling": granted},
         "cell_side": child["hil"] if child else {},
         "round_trip": percentiles_us(rtt, POINTS),
