@@ -60,8 +60,9 @@ from fmus.instance import (SET_T, STEP_T, FmuInstantiateError, bound_addresses, 
 VALUE_TYPES = ("Real", "Integer", "Boolean")
 #: FMI type -> value type it is exchanged as (FMI 2.0 Enumeration as Integer; FMI 3.0: ``fmi3.FMI3_BUS``).
 VALUE_TYPE_OF = {"Real": "Real", "Integer": "Integer", "Enumeration": "Integer", "Boolean": "Boolean", **FMI3_BUS}
-_CTYPE = {"Real": (np.float64, ctypes.c_double), "Integer": (np.intc, ctypes.c_int),
-          "Boolean": (np.intc, ctypes.c_int)}
+#: Value type -> numpy dtype and ctypes type of its values (Boolean as fmi2Boolean, an int).
+VALUE_DTYPE = {"Real": np.float64, "Integer": np.intc, "Boolean": np.intc}
+VALUE_CTYPE = {"Real": ctypes.c_double, "Integer": ctypes.c_int, "Boolean": ctypes.c_int}
 #: What an Fmu runs, in words (for error messages).
 SUPPORTED_FMUS = "an FMI 2.0 or FMI 3.0 co-simulation FMU"
 
@@ -187,7 +188,7 @@ class Fmu:
                                      f"{variable.type}, expected {value_type}")
             refs.append(variable.valueReference)
         vrs = np.array(refs or [0], dtype=np.uint32)
-        buffer = np.zeros(max(len(refs), 1), dtype=_CTYPE[value_type][0])[:len(refs)]
+        buffer = np.zeros(max(len(refs), 1), dtype=VALUE_DTYPE[value_type])[:len(refs)]
         return value_type, vrs, len(refs), buffer, vrs.ctypes.data, buffer.ctypes.data
 
     # ----------------------------------------------------------------- lifecycle
@@ -445,7 +446,7 @@ class Fmu:
                 raise FmuConfigError(f"FMU '{self.name}': {name} = {value!r}, expected a number")
         elif value_type == "Integer" and (isinstance(value, bool) or int(value) != value):
             raise FmuConfigError(f"FMU '{self.name}': {name} = {value!r}, expected an integer")
-        ctype = _CTYPE[value_type][1]
+        ctype = VALUE_CTYPE[value_type]
         vr = (ctypes.c_uint * 1)(variable.valueReference)
         converted = float(value) if value_type == "Real" else int(value)
         self.check(f"{self.api}Set{value_type}({name})", self.time,
@@ -454,7 +455,7 @@ class Fmu:
     def get_value(self, name: str) -> float | int | bool:
         """Get one variable by name (slower: for set-up and inspection)."""
         variable, value_type = self._value_type(name)
-        ctype = _CTYPE[value_type][1]
+        ctype = VALUE_CTYPE[value_type]
         out = (ctype * 1)()
         vr = (ctypes.c_uint * 1)(variable.valueReference)
         self.check(f"{self.api}Get{value_type}({name})", self.time,
@@ -462,5 +463,5 @@ class Fmu:
         return {"Real": float, "Integer": int, "Boolean": bool}[value_type](out[0])
 
 
-__all__ = ["Fmu", "SUPPORTED_FMUS", "VALUE_TYPES", "VALUE_TYPE_OF", "fmu_kind_problem", "load_model_description",
-           "status_name", "variables_of"]
+__all__ = ["Fmu", "SUPPORTED_FMUS", "VALUE_CTYPE", "VALUE_DTYPE", "VALUE_TYPES", "VALUE_TYPE_OF", "fmu_kind_problem",
+           "load_model_description", "status_name", "variables_of"]
