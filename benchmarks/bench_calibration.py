@@ -2,7 +2,7 @@
 
 Run: ``python benchmarks/bench_calibration.py`` (about 5 min on a loaded 2-core
 machine; ``--quick`` for ~1 min: whitened units, min_eigenvalue, no 4,000 set).
-Targets (issue 7): selecting 32 of about 4,000 candidates in at most 10 s (paper: about
+Targets: selecting 32 of about 4,000 candidates in at most 10 s (paper: about
 five minutes), observation index at least 18.5 times a linear scan of the same size.
 
 Prints, for the campaign's candidate set (13^6 grid, default tracker: 3,680 visible):

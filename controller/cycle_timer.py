@@ -7,7 +7,7 @@ exceeds the budget is a deadline miss. The CPU time excludes the time the operat
 system gave other processes while the cycle ran: on a shared machine the wall-clock
 tail (p99, max) shows preemption, the CPU time shows what the computation costs. On a real industrial PC the
 budget is what the 400 µs cycle leaves for the controller; here it is a scenario
-value (default 100 µs, the issue's target for the p99 compute time).
+value (default 100 µs, the main job's target for the p99 compute time, docs/main_job.md).
 """
 from __future__ import annotations
 

@@ -836,7 +836,7 @@ def run_sweep(sweep: "Sweep | str | Path | Mapping[str, Any]", out: str | Path |
 
     Args:
         sweep: from :func:`build_sweep` or :func:`load_sweep`, or what :func:`load_sweep` takes.
-        out: results folder on this machine (sweep.csv, sweep.json, figure, ``variants/``);
+        out: results folder on the local machine (sweep.csv, sweep.json, figure, ``variants/``);
             default ``results/<sweep name>/``.
         workers: processes of the embedded LocalCluster (default: CPU count).
         scheduler: address of an existing Dask scheduler (``tcp://host:8786``) instead.

@@ -40,6 +40,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from fractions import Fraction
+import dataclasses
 from functools import lru_cache
 from typing import Any
 
@@ -106,6 +107,8 @@ class BaseParameters:
     names: tuple[str, ...] = PARAMETER_NAMES
     units: tuple[str, ...] = PARAMETER_UNITS
     combination: np.ndarray = field(init=False, repr=False)
+    structure: Any = field(default=None, compare=False, repr=False)
+    """the RobotDynamics whose kinematic structure the regressor uses (None: the nominal arm)"""
 
     def __post_init__(self) -> None:
         combination = np.zeros((self.independent.size, len(self.names)))
@@ -264,10 +267,13 @@ def compute_base_parameters(dynamics: RobotDynamics | None = None, *, n_states: 
         raise BaseParameterError(f"n_states = {n_states!r}, expected an integer >= {math.ceil(N_PARAMETERS / 6)}")
     if not (isinstance(rank_tolerance, float) and 0.0 < rank_tolerance < 1.0):
         raise BaseParameterError(f"rank_tolerance = {rank_tolerance!r}, expected a float in (0, 1)")
+    given = dynamics is not None
     dynamics = dynamics or RobotDynamics()
     q, qd, qdd = random_states(dynamics.parameters, n_states, seed)
     theta = dynamics.regressor_batch(q, qd, qdd).reshape(-1, N_PARAMETERS)
-    return base_parameters_of(theta, rank_tolerance=rank_tolerance, n_states=n_states, seed=seed)
+    base = base_parameters_of(theta, rank_tolerance=rank_tolerance, n_states=n_states, seed=seed)
+    # the regressor of this structure (a calibrated arm's geometry differs from the nominal one)
+    return dataclasses.replace(base, structure=dynamics) if given else base
 
 
 @threadpool_limits.wrap(limits=1, user_api="blas")

@@ -1,6 +1,6 @@
 """Defaults of the dynamic identification that the CLI shows in its help, in a module
 that imports nothing (``python -m cosim --help`` must not load numpy or scipy).
-``dynamic_signals`` and ``dynamic_estimation`` use these; each is defined only here."""
+``signals`` and ``estimation`` use these; each is defined only here."""
 
 DEFAULT_CUTOFF_HZ = 20.0
 """Default low-pass cut-off, Hz: about 30 times the highest harmonic of the default exciting

@@ -124,8 +124,9 @@ def prepare_motion(record: MotionRecord, cutoff_hz: float = DEFAULT_CUTOFF_HZ) -
 
 def base_regressor(base: BaseParameters, q: ArrayLike, qd: ArrayLike, qdd: ArrayLike,
                    dynamics: RobotDynamics | None = None) -> np.ndarray:
-    """``Theta_1`` (n, 6, n_base) of joint states (n, 6) on the nominal kinematic structure."""
-    dynamics = dynamics or _structure_dynamics()
+    """``Theta_1`` (n, 6, n_base) of joint states (n, 6) on the kinematic structure of ``dynamics``,
+    else the one ``base`` was computed on (``base.structure``), else the nominal arm."""
+    dynamics = dynamics or getattr(base, "structure", None) or _structure_dynamics()
     q, qd, qdd = (np.asarray(x, dtype=float) for x in (q, qd, qdd))
     return base.base_regressor(dynamics.regressor_batch(q, qd, qdd))
 
@@ -163,8 +164,12 @@ class DynamicIdentification:
         if consistent:
             if self.consistent is None:
                 raise IdentificationError("no physically consistent estimate was computed (consistent=True)")
-            return RobotDynamics(self.consistent.parameters, np.zeros(4))
-        return RobotDynamics(self.full_parameters, np.zeros(4))
+            return RobotDynamics(self.consistent.parameters, np.zeros(4), model=self._model())
+        return RobotDynamics(self.full_parameters, np.zeros(4), model=self._model())
+
+    def _model(self):
+        """The kinematic structure the base parameters belong to (None: the nominal arm)."""
+        return None if self.base.structure is None else self.base.structure.model
 
     def consistent_model(self) -> "DynamicIdentification":
         """This identification with the physically consistent fit's base values and parameters."""
@@ -177,7 +182,7 @@ class DynamicIdentification:
         """Model torques (n, 6) in N m along joint states (n, 6) (evaluated in chunks)."""
         q, qd, qdd = (np.atleast_2d(np.asarray(x, dtype=float)) for x in (q, qd, qdd))
         out = np.empty_like(q)
-        dynamics = _structure_dynamics()
+        dynamics = self.base.structure or _structure_dynamics()
         for k in range(0, q.shape[0], _CHUNK):
             sl = slice(k, k + _CHUNK)
             out[sl] = predict_torques(base_regressor(self.base, q[sl], qd[sl], qdd[sl], dynamics), self.values)
@@ -275,12 +280,16 @@ def identify_states(q: ArrayLike, qd: ArrayLike, qdd: ArrayLike, tau: ArrayLike,
 
 def identify(record: MotionRecord, *, base: BaseParameters | None = None, method: str = "wls",
              cutoff_hz: float = DEFAULT_CUTOFF_HZ, max_condition: float = MAX_CONDITION_NUMBER,
-             max_samples: int | None = DEFAULT_MAX_SAMPLES, consistent: bool = False) -> DynamicIdentification:
-    """Identify the base parameters from a record (prepare, parallel filtering, least squares)."""
+             max_samples: int | None = DEFAULT_MAX_SAMPLES, consistent: bool = False,
+             torque_acceleration_bias: ArrayLike | None = None) -> DynamicIdentification:
+    """Identify the base parameters from a record (prepare, parallel filtering, least squares).
+
+    ``torque_acceleration_bias``: (6,) N m per rad/s^2, the drives' torque-sampling term
+    ``b_i qdd_i`` removed from the measured torque first (see :func:`identify_periodic`)."""
     base = base or nominal_base_parameters()
     prepared = prepare_motion(record, cutoff_hz)
     w = base_regressor(base, prepared.q, prepared.qd, prepared.qdd)
-    tau = prepared.tau
+    tau = _remove_sampling_term(prepared.tau, prepared.qdd, torque_acceleration_bias)
     dt = prepared.how["sample_time_s"]
     if prepared.how["derivatives"] != "given in the record":
         n = w.shape[0]
@@ -291,6 +300,8 @@ def identify(record: MotionRecord, *, base: BaseParameters | None = None, method
         stride = max(1, min(int(math.ceil(w.shape[0] / max_samples)), int(1.0 / (4.0 * cutoff_hz * dt))))
     data = {"source": record.source, "record_samples": record.samples, "duration_s": record.duration,
             **prepared.how, "decimation": stride}
+    if torque_acceleration_bias is not None:
+        data["torque_acceleration_bias_Nm_per_rad_s2"] = np.asarray(torque_acceleration_bias, dtype=float).tolist()
     filtered = prepared.how["derivatives"] != "given in the record"
     return identify_regressor(w[::stride], tau[::stride], base=base, method=method, max_condition=max_condition,
                               data=data, independent_samples=2.0 * cutoff_hz * record.duration if filtered else None,
@@ -351,12 +362,8 @@ def identify_periodic(q: ArrayLike, tau: ArrayLike, sample_time: float, samples_
     tau_avg = prepared.tau
     how = dict(prepared.how)
     if torque_acceleration_bias is not None:
-        bias = np.asarray(torque_acceleration_bias, dtype=float)
-        if bias.shape != (prepared.tau.shape[1],) or not np.all(np.isfinite(bias)):
-            raise IdentificationDataError(f"torque_acceleration_bias: expected {prepared.tau.shape[1]} finite values "
-                                          f"in N m per rad/s^2, got {bias.tolist()!r}")
-        tau_avg = tau_avg - bias * prepared.qdd
-        how["torque_acceleration_bias_Nm_per_rad_s2"] = bias.tolist()
+        tau_avg = _remove_sampling_term(tau_avg, prepared.qdd, torque_acceleration_bias)
+        how["torque_acceleration_bias_Nm_per_rad_s2"] = np.asarray(torque_acceleration_bias, dtype=float).tolist()
     tau_f = periodic_lowpass(tau_avg, sample_time, cutoff_hz)
     stride = 1
     if max_samples is not None and n > max_samples:
@@ -398,9 +405,23 @@ class Validation:
                 "samples": int(self.t.size), "processing": self.how}
 
 
+def _remove_sampling_term(tau: np.ndarray, qdd: np.ndarray, bias: ArrayLike | None) -> np.ndarray:
+    """``tau - b qdd`` (the drives' torque-sampling term), or ``tau`` without a bias."""
+    if bias is None:
+        return tau
+    b = np.asarray(bias, dtype=float)
+    if b.shape != (tau.shape[1],) or not np.all(np.isfinite(b)):
+        raise IdentificationDataError(f"torque_acceleration_bias: expected {tau.shape[1]} finite values "
+                                      f"in N m per rad/s^2, got {np.ravel(b).tolist()!r}")
+    return tau - b * qdd
+
+
 def validate(identification: DynamicIdentification, record: MotionRecord,
-             cutoff_hz: float = DEFAULT_CUTOFF_HZ) -> Validation:
-    """Predict the torques of ``record`` with the identified model and compare (all samples)."""
+             cutoff_hz: float = DEFAULT_CUTOFF_HZ, torque_acceleration_bias: ArrayLike | None = None) -> Validation:
+    """Predict the torques of ``record`` with the identified model and compare (all samples).
+
+    ``torque_acceleration_bias``: the drives' torque-sampling term is removed from the measured
+    torque first (as in the identification); the validation's ``tau`` is then that corrected torque."""
     if record.samples > MAX_PROCESSED_SAMPLES:
         raise IdentificationDataError(f"{record.source}: {record.samples} samples, expected at most "
                                       f"{MAX_PROCESSED_SAMPLES} for a validation record (predictions are written "
@@ -408,10 +429,11 @@ def validate(identification: DynamicIdentification, record: MotionRecord,
     prepared = prepare_motion(record, cutoff_hz)
     predicted = identification.predict(prepared.q, prepared.qd, prepared.qdd)
     dt = prepared.how["sample_time_s"]
-    measured_f = zero_phase_lowpass(record.tau, dt, cutoff_hz)
+    tau = _remove_sampling_term(np.asarray(record.tau, dtype=float), prepared.qdd, torque_acceleration_bias)
+    measured_f = zero_phase_lowpass(tau, dt, cutoff_hz)
     predicted_f = zero_phase_lowpass(predicted, dt, cutoff_hz)
-    return Validation(record.t, record.tau, predicted, relative_rms_error(measured_f, predicted_f),
-                      relative_rms_error(record.tau, predicted),
+    return Validation(record.t, tau, predicted, relative_rms_error(measured_f, predicted_f),
+                      relative_rms_error(tau, predicted),
                       np.sqrt(np.mean((predicted_f - measured_f) ** 2, axis=0)),
                       {"source": record.source, **prepared.how})
 

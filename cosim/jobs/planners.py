@@ -1,4 +1,4 @@
-"""Job ``planners``: the paper's section 5 side by side (issue 6), optionally executed on the cell.
+"""Job ``planners``: the paper's section 5 side by side, optionally executed on the cell.
 
 A scenario names the planners to run (``[planners] run``, names of :data:`PLANNERS`) and
 the problem (``[problem]``: the paper's straight line, ``planners.paper_line``; weights

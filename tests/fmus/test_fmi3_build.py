@@ -11,9 +11,9 @@ from fmpy import read_model_description
 from fmpy.validation import validate_fmu
 
 from cosim.cli import main
-from fmus.fmu import variables_of
 from cosim.results import read_csv
 from fmus.build import ensure_fmus
+from fmus.fmu import variables_of
 
 REPO = Path(__file__).resolve().parents[2]
 

@@ -11,7 +11,8 @@ import math
 import numpy as np
 import pytest
 
-from cosim.jobs.identification import FieldbusRecorder, snapped_omega
+from cosim.jobs.identification import FieldbusRecorder
+from identification.campaign import snapped_omega
 from cosim.scenario import ScenarioError, load_scenario
 from identification.base_parameters import nominal_base_parameters
 from identification.consistent import (parameters_from_theta, parameters_jacobian,

@@ -46,11 +46,14 @@ def _sines(seed: int, duration: float, joints: tuple[int, ...] = tuple(range(6))
     return t, q, qd, qdd
 
 
-def _write_record(path, t, q, qd, qdd, noise_seed: int, derivatives: bool = False) -> np.ndarray:
+def _write_record(path, t, q, qd, qdd, noise_seed: int, derivatives: bool = False,
+                  sampling_bias=None) -> np.ndarray:
     arm = make_true_robot(UNSEEN_SEED, payload=PAYLOAD)
     # the plant FMU uses the nominal geometry with the true inertial/friction parameters
     truth = RobotDynamics(arm.dynamic_parameters, arm.payload)
     tau = np.array([truth.inverse_dynamics(a, b, c) for a, b, c in zip(q, qd, qdd)])
+    if sampling_bias is not None:  # what a drive that latches torque in step with its speed loop reports
+        tau = tau + np.asarray(sampling_bias) * qdd
     params = load_parameters()
     rng = np.random.default_rng(noise_seed)
     lsb_q = 2 * math.pi / (params.encoder_counts_per_motor_rev * params.gear_ratio)
@@ -183,3 +186,49 @@ def test_malformed_records_raise_clear_errors(tmp_path, case, match):
 def test_missing_file_exit_code(tmp_path, capsys):
     assert main(["identify", str(tmp_path / "nope.csv"), "--out", str(tmp_path / "o")]) == 2
     assert "file not found" in capsys.readouterr().err
+
+
+SAMPLING_BIAS = [-0.2, -0.4, -0.3, -0.05, -0.05, -0.02]  # N m per rad/s^2, ~35 % of Ia3..Ia6
+
+
+def test_torque_sampling_correction(tmp_path, capsys):
+    """A record whose torque carries the drives' sampling term b_i qdd_i: uncorrected, Ia3..Ia6
+    come out as Ia_i + b_i; with --torque-sampling-bias b they come back to the truth, and the
+    summary says which b was removed. 'drives' measures b on the servo-drive FMU; a bad value is
+    refused with exit code 2."""
+    data, val = tmp_path / "data.csv", tmp_path / "val.csv"
+    _write_record(data, *_sines(11, 12.0), noise_seed=1, sampling_bias=SAMPLING_BIAS)
+    _write_record(val, *_sines(22, 5.0), noise_seed=2, sampling_bias=SAMPLING_BIAS)
+    arm = make_true_robot(UNSEEN_SEED, payload=PAYLOAD)
+    true_ia = np.asarray(arm.dynamic_parameters)[60:66]
+
+    def rotors(out):
+        values = {p["name"]: p["value"] for p in json.loads((out / "parameters.json").read_text())["base_parameters"]}
+        return np.array([values[f"Ia{j}"] for j in range(3, 7)])
+
+    plain, fixed = tmp_path / "plain", tmp_path / "fixed"
+    assert main(["identify", str(data), "--out", str(plain)]) == 0
+    bias = ",".join(str(b) for b in SAMPLING_BIAS)
+    assert main(["identify", str(data), "--validate", str(val), "--out", str(fixed), f"--torque-sampling-bias={bias}"]) == 0
+    uncorrected = rotors(plain) / true_ia[2:] - 1
+    corrected = rotors(fixed) / true_ia[2:] - 1
+    print("uncorrected / Ia - 1:", uncorrected.round(4), "corrected / Ia - 1:", corrected.round(4))
+    # the term is collinear with the rotor columns alone: the correction moves exactly those by -b
+    assert np.allclose(rotors(fixed) - rotors(plain), -np.array(SAMPLING_BIAS[2:]), rtol=1e-3)
+    assert np.all(np.abs(corrected) < 0.10) and uncorrected[0] < -0.25
+    summary = json.loads((fixed / "summary.json").read_text())
+    assert summary["torque_sampling_correction"]["bias_Nm_per_rad_s2"] == SAMPLING_BIAS
+    assert np.all(np.array(summary["relative_rms_error"]) < 0.03)
+
+    drives = tmp_path / "drives"
+    assert main(["identify", str(data), "--validate", str(val), "--out", str(drives),
+                 "--torque-sampling-bias", "drives"]) == 0
+    measured = json.loads((drives / "summary.json").read_text())["torque_sampling_correction"]
+    assert "servo drives" in measured["source"] and all(b < 0 for b in measured["bias_Nm_per_rad_s2"])
+
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as stop:
+        main(["identify", str(data), "--out", str(tmp_path / "bad"), "--torque-sampling-bias", "1,2,3"])
+    assert stop.value.code == 2 and "--torque-sampling-bias" in capsys.readouterr().err
+    assert main(["identify", str(data), "--out", str(tmp_path / "bad"), "--torque-sampling-bias", "nope.toml"]) == 2
+    assert "nope.toml" in capsys.readouterr().err

@@ -1,4 +1,4 @@
-"""Own time/energy-optimal PtP planner (paper eq. 40): targets of issue 6 on the paper line,
+"""Own time/energy-optimal PtP planner (paper eq. 40): its targets on the paper line,
 dense-output consistency with pinocchio's inverse dynamics, exact derivatives, energy
 weighting, and honest statuses for requests that cannot be met."""
 from __future__ import annotations
@@ -39,7 +39,7 @@ def paper_ptp():
 
 
 def test_paper_line_targets(paper_ptp, dynamics):
-    """Issue 6: certified optimal, max_constraint_ratio <= 1.001 at 1 ms (torques by
+    """Certified optimal, max_constraint_ratio <= 1.001 at 1 ms (torques by
     pinocchio's inverse dynamics), <= 0.7 x own CP duration, shorter than ruckig_feasible."""
     res = paper_ptp
     assert res.status is PlanStatus.OPTIMAL and res.message == "Solve_Succeeded"

@@ -16,7 +16,7 @@ from robot.inverse_kinematics import (
 from robot.kinematics import FlangeKinematics, KinematicsInputError, pose_error, rotation_from_cardan
 
 N_POSES = 10_000
-TOL = 1e-9  # m and rad: the FK(IK(x)) = x bound
+TOL = 1e-9  # m and rad: the required FK(IK(x)) = x bound
 
 
 @pytest.fixture(scope="module")

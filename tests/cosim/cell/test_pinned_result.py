@@ -4,7 +4,7 @@ They were taken after the cell moved to cosim/cell/ with generated connections, 
 main job was checked identical to the run before the move (tcp_error_max_mm of every mode, the
 tcp_*.csv and timeseries_*.csv files byte for byte). A change of these digits means the
 simulation changed: say why in the commit. Re-pinned when the plant's dynamics took the true
-robot's 39 geometric errors (issue 16; before: 0.010246121224081707 / 0.003713130149533058 /
+robot's 39 geometric errors (before: 0.010246121224081707 / 0.003713130149533058 /
 0.0016932704552584492 on the nominal geometry)."""
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""scenarios/fieldbus_loss.toml (issue 4), shortened: a burst of lost PReq frames to node 3
+"""scenarios/fieldbus_loss.toml, shortened: a burst of lost PReq frames to node 3
 during the ISO 9283 motion trips the POWERLINK threshold counters of node 3 at the
 expected cycle; drive 3 runs its CiA 402 fault reaction and ends in Fault with its
 holding brake taking the gravity load; the controller stops commanding motion; the robot

@@ -1,4 +1,4 @@
-"""Job 'planners' (issue 6), reduced: scenarios/cp_line.toml with one executed planner and a
+"""Job 'planners', reduced: scenarios/cp_line.toml with one executed planner and a
 short settle time, scenarios/ptp_line.toml with a coarse PtP grid and no execution; the
 summary fields carry real values, the files are written, bad scenarios are refused."""
 from __future__ import annotations
@@ -30,7 +30,7 @@ def run(path: Path, out: Path) -> dict:
 @pytest.fixture(scope="module")
 def cp_run(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("cp")
-    # 200 intervals (the issue's default): the dense 1 ms check then stays within 1.001
+    # 200 intervals (CPProblem.n_intervals' default): the dense 1 ms check then stays within 1.001
     path = variant(tmp, CP_TEXT, [('plant = "true"', 'plant = "true"\nexecute_only = ["own_cp"]'),
                                   ('settle_time = "0.2 s"', 'settle_time = "0.05 s"')])
     return run(path, tmp / "out"), tmp / "out"
