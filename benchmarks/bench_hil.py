@@ -45,6 +45,7 @@ def _scaling():
 
 def cell_side(seconds: float, ports: tuple[int, int], window_s: float, queue) -> None:
     from cosim.realtime.pacer import Pacer, no_cyclic_gc
+    from cosim.realtime.schedule import precompute_schedules
     from fieldbus import DriveActuals, DriveEndpoint
 
     cell, ctrl = ports
@@ -52,6 +53,7 @@ def cell_side(seconds: float, ports: tuple[int, int], window_s: float, queue) ->
     period = endpoint.config.cycle_time_s
     cycles = int(round(seconds / period))
     pacer = Pacer(period, 150e-6, period - window_s, capacity=cycles + 16)
+    precompute_schedules((endpoint,), cycles + 1, False, compact=True)  # as cosim serve
     actuals = DriveActuals.zeros(6)
     actuals.statusword[:] = 0x27
     queue.put("ready")
@@ -80,6 +82,9 @@ def controller_side(seconds: float, ports: tuple[int, int], queue) -> None:
 
     cell, ctrl = ports
     endpoint = ManagingNodeEndpoint(_config(f"127.0.0.1:{ctrl}", f"127.0.0.1:{cell}", 200e-6), _scaling())
+    from cosim.realtime.schedule import precompute_schedules
+
+    precompute_schedules((endpoint,), int(round(seconds / endpoint.config.cycle_time_s)) + 16, False, compact=True)
     setpoints = Setpoints.zeros(6)
     setpoints.controlword[:] = 0x0F
     endpoint.send_following(setpoints)  # announce: the cell answers with PRes every cycle anyway
@@ -164,12 +169,346 @@ def run(seconds: float = 10.0, runs: int = 5) -> dict:
     return summary
 
 
+# ------------------------------------------------------------------ a deliberately late controller
+#: Cycles (of the cell, counted from the first PRes the controller sees) in which the controller answers too late:
+#: three single late cycles, then two in a row (the second trips the default threshold 15).
+LATE_CYCLES = (1500, 2500, 3500, 4500, 4501)
+#: the served run's wall time (the controller is up before the cell starts)
+LATE_SECONDS = 2.5
+
+
+def expected_counters(lost: list[int], cycles: int, increment: int = 8, decrement: int = 1,
+                      threshold: int = 15) -> dict:
+    """What POWERLINK specifies (EPSG DS 301 4.7.4.1) for a CN that misses the SoC and PReq of
+    the cycles ``lost``: per lost cycle one loss-of-SoC and one loss-of-PReq error, each
+    counter +``increment``, -``decrement`` per cycle without error (not below 0); the
+    reaction in the cycle the counter reaches ``threshold``. -> {"errors": {cycle: counter},
+    "trips": [cycles]} (the same for every node and for both counters)."""
+    value, errors, trips, lost_set = 0, {}, [], set(lost)
+    for k in range(cycles):
+        if k in lost_set:
+            before = value
+            value += increment
+            errors[k] = value
+            if before < threshold <= value:
+                trips.append(k)
+        else:
+            value = max(value - decrement, 0)
+    return {"errors": errors, "trips": trips}
+
+
+def late_controller(endpoint_file: str, late: tuple[int, ...], seconds: float, queue) -> None:
+    """Follow the served cell until it stops, enable the drives, hold the start pose, and answer the PRes of
+    the cycle before each ``late`` cycle only after that cycle's window has closed (mid-way
+    between the window's end and the next cycle): the group arrives in the next cycle's window,
+    where the cell must drop it. Started before ``cosim serve``: it waits for ``endpoint_file``."""
+    import logging
+
+    from cosim.cell.wiring import joint_scaling
+    from cosim.realtime.pacer import no_cyclic_gc, realtime_scheduling
+    from cosim.realtime.schedule import precompute_schedules
+    from fieldbus import EnableSequencer, ManagingNodeEndpoint, Setpoints
+
+    logging.getLogger("fieldbus").setLevel(logging.ERROR)  # its own view of the skipped cycles: not needed here
+    queue.put("ready")
+    path = Path(endpoint_file)
+    while not path.exists():
+        time.sleep(0.001)
+    desc = json.loads(path.read_text())
+    period, window = desc["cycle_time_s"], desc["window_s"]
+    delay_ns = int((period + window + (period - window) / 2) * 1e9)  # from the PRes of the cycle before
+    config = _config(desc["controller_channel"], desc["cell_channel"], 200e-6)
+    config["cycle_time_us"] = round(period * 1e6, 6)
+    endpoint = ManagingNodeEndpoint(config, joint_scaling())
+    precompute_schedules((endpoint,), int(seconds / period) + 16, False, compact=True)
+    setpoints = Setpoints.zeros(desc["nodes"])
+    setpoints.position[:] = desc["q_start_rad"]
+    sequencers = [EnableSequencer() for _ in range(desc["nodes"])]
+    late_set, sent_late, last, first = set(late), [], -1, None
+    endpoint.send_following(setpoints)  # the cell takes it as the first group
+    with realtime_scheduling(SCHEDULING, 10), no_cyclic_gc():
+        while True:
+            got = endpoint.follow(0.5)
+            arrived = time.perf_counter_ns()
+            if got is None:
+                break
+            cycle, observed = got
+            last = cycle
+            # the cell's own cycle number, from the frame time it stamped on its PRes
+            cell_cycle = int(endpoint.peer_time_s // period + 1e-9)
+            first = cell_cycle if first is None else first
+            for i, sequencer in enumerate(sequencers):
+                setpoints.controlword[i] = sequencer.next_controlword(int(observed.statusword[i]))
+            if cell_cycle + 1 - first in late_set and cell_cycle + 1 not in sent_late:
+                while time.perf_counter_ns() - arrived < delay_ns:
+                    pass
+                sent_late.append(cell_cycle + 1)
+            endpoint.send_following(setpoints)
+    stats = endpoint.bus.stats.as_dict()
+    endpoint.close()
+    queue.put({"late_sent": sent_late, "first_cell_cycle": first, "cycles_followed": last + 1,
+               "transport": stats})
+
+
+def _late_scenario(work: Path, seconds: float) -> Path:
+    text = (ROOT / "scenarios" / "hil.toml").read_text().replace('stop_time = "6 s"', f'stop_time = "{seconds} s"')
+    path = work / "hil_late.toml"
+    path.write_text(text)
+    return path
+
+
+def _cell_cycles_in_can_log(path: Path, period: float) -> tuple[set[int], set[int]]:
+    """Cycles with the cell's SoC taken, cycles with a PRes sent, from the cell's CAN log."""
+    import can
+
+    soc, pres = set(), set()
+    for msg in can.LogReader(str(path)):
+        k = int(msg.timestamp // period + 1e-9) if msg.arbitration_id != 0x080 else round(msg.timestamp / period)
+        if msg.arbitration_id == 0x080:
+            soc.add(k)
+        elif msg.arbitration_id == 0x181:
+            pres.add(k)
+    return soc, pres
+
+
+def late_run(work: Path, seconds: float = LATE_SECONDS, late: tuple[int, ...] = LATE_CYCLES,
+             port: int | None = None) -> dict:
+    """``cosim serve`` (scenarios/hil.toml at 400 µs, FMUs, CAN log) against :func:`late_controller`
+    in another process: expected vs observed lost cycles and counter values per late cycle,
+    observed from the cell's CAN log (cycles without SoC/PReqs) and its fieldbus events."""
+    import subprocess
+
+    from fieldbus import FieldbusConfig
+
+    work.mkdir(parents=True, exist_ok=True)
+    out = work / "served"
+    port = port or 47700 + (os.getpid() % 300) * 2
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]),
+           "MPLBACKEND": "Agg"}
+    load_before = os.getloadavg()
+    endpoint_file = out / "hil_endpoint.json"
+    ctx = mp.get_context("spawn")
+    queue = ctx.Queue()
+    controller = ctx.Process(target=late_controller, args=(str(endpoint_file), tuple(late), seconds, queue))
+    controller.start()
+    if queue.get(timeout=180) != "ready":
+        raise RuntimeError("the late controller did not start")
+    serve = subprocess.Popen([sys.executable, "-m", "cosim", "serve", str(_late_scenario(work, seconds)), "--out",
+                              str(out), "--quiet", "--channel", f"127.0.0.1:{port}", "--scheduling", SCHEDULING],
+                             env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        ctrl = queue.get(timeout=seconds + 120)
+    finally:
+        controller.join(10)
+        _, err = serve.communicate(timeout=seconds + 180)
+    summary = json.loads((out / "summary.json").read_text())
+    hil = summary["hil"]["model_based"]
+    desc = json.loads(endpoint_file.read_text())
+    period = desc["cycle_time_s"]
+    first = hil["controller"]["first_cycle"]
+    cycles = hil["cycles"]
+    planned = list(ctrl["late_sent"])  # cell cycles (the controller read them from the cell's PRes)
+    threshold = FieldbusConfig.from_dict({}).thresholds.cn_loss_of_preq  # hil.toml keeps the default
+    expected = expected_counters(planned, cycles, threshold=threshold)
+    observed = {row["cycle"]: row["counters"] for row in hil["lost_cycles"]}
+    trips: dict[int, set[int]] = {}
+    for f in hil["fault_reactions"]:
+        if f["event"] == "fault_reaction" and f["kind"] in ("loss_of_soc", "loss_of_preq"):
+            trips.setdefault(f["cycle"], set()).add(f["node"])
+    soc, pres = _cell_cycles_in_can_log(out / "can_model_based.blf", period)
+    judged = range(first, min(first + ctrl["cycles_followed"], cycles))
+    missing_soc = sorted(k for k in judged if k not in soc)
+    per_cycle = []
+    for k in planned:
+        row = observed.get(k, {})
+        per_cycle.append({"cycle": k, "expected_counter": expected["errors"][k],
+                          "observed_loss_of_preq_counters": row.get("loss_of_preq"),
+                          "observed_loss_of_soc_counters": row.get("loss_of_soc"),
+                          "soc_in_can_log": k in soc, "pres_in_can_log": k in pres,
+                          "expected_trip": k in expected["trips"], "observed_trip_nodes": sorted(trips.get(k, ()))})
+    unplanned = sorted(k for k in set(observed) - set(planned) if k in judged)
+    for r in per_cycle:
+        r["exact"] = (r["observed_loss_of_preq_counters"] == [r["expected_counter"]] * 6
+                      and r["observed_loss_of_soc_counters"] == [r["expected_counter"]] * 6
+                      and not r["soc_in_can_log"] and r["pres_in_can_log"]
+                      and r["expected_trip"] == (r["observed_trip_nodes"] == list(range(1, 7))))
+    exact = sum(r["exact"] for r in per_cycle)
+    return {"seconds": seconds, "cycles": cycles, "first_cycle": first, "late_controller_cycles": list(late),
+            "late_cell_cycles": planned, "per_cycle": per_cycle, "observed_lost_cycles": sorted(observed),
+            "missing_soc_in_can_log": missing_soc, "unplanned_lost_cycles": unplanned,
+            "planned_exact": exact, "planned_exact_fraction": exact / len(per_cycle) if per_cycle else 0.0,
+            "frames_late": hil["frames_late"], "overruns": hil["overruns"],
+            "serve_exit": serve.returncode, "serve_stderr_tail": err[-500:] if serve.returncode else "",
+            "load_average_before": load_before, "load_average_after": os.getloadavg()}
+
+
+def print_late(r: dict) -> None:
+    print(f"late controller against cosim serve, {r['cycles']} cycles (first group in cell cycle "
+          f"{r['first_cycle']}), load {r['load_average_before'][0]:.2f} -> {r['load_average_after'][0]:.2f}:")
+    for row in r["per_cycle"]:
+        print(f"  cell cycle {row['cycle']}: counters expected {row['expected_counter']}, observed loss of PReq "
+              f"{row['observed_loss_of_preq_counters']}, loss of SoC {row['observed_loss_of_soc_counters']},"
+              f" SoC in CAN log {row['soc_in_can_log']}, PRes {row['pres_in_can_log']}, trip expected "
+              f"{row['expected_trip']} observed nodes {row['observed_trip_nodes']}: {'exact' if row['exact'] else 'DIFFERS'}")
+    print(f"  planned cycles exactly as POWERLINK specifies: {r['planned_exact']} of {len(r['per_cycle'])}; "
+          f"unplanned lost cycles "
+          f"{r['unplanned_lost_cycles']} (stalls); cycles without SoC in the CAN log {len(r['missing_soc_in_can_log'])}"
+          f"; late frames dropped {r['frames_late']}")
+
+
+# ------------------------------------------------------------------ ISO 9283, paced split vs in process
+#: Counters that do not trip on the lost cycles of a loaded machine, so the paced split run
+#: completes and its TCP error can be compared (the default 15 trips at two lost in a row).
+ISO_THRESHOLD = 200
+
+
+def iso_scenario(work: Path, stop_time_s: float | None = None, missing_setpoint: str = "hold",
+                 name: str = "iso") -> Path:
+    """scenarios/iso9283.toml, model_based mode only, no figures, thresholds ``ISO_THRESHOLD``,
+    the drives' reaction to a missing set-point ``missing_setpoint`` ('hold' or 'extrapolate')."""
+    text = (ROOT / "scenarios" / "iso9283.toml").read_text()
+    text = text.replace('modes = ["standard", "standard_speed_ff", "model_based"]', 'modes = ["model_based"]')
+    if stop_time_s is not None:
+        text = text.replace('stop_time = "12.6 s"', f'stop_time = "{stop_time_s} s"')
+    text = text.replace("figures = true", "figures = false")
+    text = text.replace("cycle_time_us = 400", f"cycle_time_us = 400\n[fieldbus.thresholds]\ncn_loss_of_soc = "
+                        f"{ISO_THRESHOLD}\ncn_loss_of_preq = {ISO_THRESHOLD}\n[fieldbus.reaction]\n"
+                        f'missing_setpoint = "{missing_setpoint}"')
+    work.mkdir(parents=True, exist_ok=True)
+    path = work / f"{name}.toml"
+    path.write_text(text)
+    return path
+
+
+def _run_cosim(args: list[str], timeout: float) -> int:
+    """Exit code of ``python -m cosim ARGS --quiet``: 0, or 3 (the run failed, its summary says
+    why); anything else raises."""
+    import subprocess
+
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]),
+           "MPLBACKEND": "Agg"}
+    done = subprocess.run([sys.executable, "-m", "cosim", *args, "--quiet"], env=env, capture_output=True,
+                          text=True, timeout=timeout)
+    if done.returncode not in (0, 3):
+        raise RuntimeError(f"cosim {' '.join(args)} exited with {done.returncode}: {done.stderr[-1500:]}")
+    return done.returncode
+
+
+def iso_split_run(scenario: Path, out: Path, split: bool) -> dict:
+    """One ISO 9283 model_based run, in process (unpaced) or paced split; its TCP errors and,
+    split, the timing of both sides and where the lost cycles came from."""
+    load_before = os.getloadavg()
+    _run_cosim(["run", str(scenario), "--out", str(out)] + (["--split", "--realtime"] if split else []), 900)
+    summary = json.loads((out / "summary.json").read_text())
+    mode = (summary.get("modes") or {}).get("model_based") or {}
+    ok = summary["status"] == "ok"  # a run whose counters tripped has no comparable TCP error
+    row = {"tcp_error_max_mm": mode.get("tcp_error_max_mm") if ok else None,
+           "tcp_error_rms_mm": mode.get("tcp_error_rms_mm") if ok else None,
+           "status": summary["status"], "reason": summary.get("reason"),
+           "load_average_before": load_before, "load_average_after": os.getloadavg()}
+    if split:
+        hil = summary["hil_split"]["model_based"]
+        cell = hil["cell_side"] or {}
+        if not cell:
+            return row
+        lost = cell.get("lost_cycles", [])
+        lost_cycles = [r["cycle"] for r in lost]
+        # a lost cycle the cell started late (its own stall) vs one it started in time (the controller was late)
+        overrun_cycles = set(summary.get("realtime", {}).get("overrun_cycles", []))
+        cell_side_stall = sum(1 for k in lost_cycles if k in overrun_cycles or k - 1 in overrun_cycles)
+        row.update({"cycles": cell["cycles"], "overrun_fraction": cell["overrun_fraction"],
+                    "overruns": cell["overruns"], "longest_overrun_run": cell["longest_overrun_run"],
+                    "lateness": cell["lateness"], "round_trip_us": hil["round_trip"],
+                    "lost_cycles": sum(cell["frames_lost_per_node"].values()) // 6,
+                    "lost_fraction": sum(cell["frames_lost_per_node"].values()) / 6 / max(cell["cycles"], 1),
+                    "lost_after_cell_overrun": cell_side_stall,
+                    "lost_with_cell_in_time": len(lost_cycles) - cell_side_stall,
+                    "controller_cycles_skipped": hil["controller_side"]["cycles_skipped"],
+                    "controller_stalls_over_one_cycle": hil["controller_side"].get("stalls_over_one_cycle"),
+                    "cell_overrun_causes": {k: v for k, v in cell.get("overrun_causes", {}).items()
+                                            if k in ("stalled", "own_work", "other")},
+                    "controller_compute_us": hil["controller_side"]["compute"],
+                    "frames_late": cell["frames_late"], "scheduling": hil["controller_side"]["scheduling"]})
+    return row
+
+
+def iso_split(work: Path, runs: int = 5, stop_time_s: float | None = None, missing_setpoint: str = "hold") -> dict:
+    """The issue's figure: ISO 9283 model-based TCP error of the paced split run (our controller
+    in this process, ``cosim serve``'s cell in another, 400 µs) against the in-process run;
+    ``runs`` split runs, medians."""
+    scenario = iso_scenario(work, stop_time_s, missing_setpoint)
+    reference = iso_split_run(scenario, work / "in_process", split=False)
+    split = [iso_split_run(scenario, work / f"split_{i}", split=True) for i in range(runs)]
+
+    def med(key):
+        values = [r[key] for r in split if r.get(key) is not None]
+        return statistics.median(values) if values else None
+
+    tcp = med("tcp_error_max_mm")
+    completed = sum(1 for r in split if r["status"] == "ok")
+    return {"runs": runs, "completed_runs": completed,"stop_time_s": stop_time_s, "missing_setpoint": missing_setpoint, "threshold": ISO_THRESHOLD,
+            "in_process": reference, "split_runs": split,
+            "tcp_error_max_mm_in_process": reference["tcp_error_max_mm"], "tcp_error_max_mm_split": tcp,
+            "tcp_error_rms_mm_in_process": reference["tcp_error_rms_mm"], "tcp_error_rms_mm_split": med("tcp_error_rms_mm"),
+            "tcp_error_ratio": tcp / reference["tcp_error_max_mm"] if tcp is not None else None,
+            "overrun_fraction": med("overrun_fraction"), "lost_fraction": med("lost_fraction"),
+            "round_trip_p99_us": statistics.median([r["round_trip_us"]["p99_us"] for r in split
+                                                    if (r.get("round_trip_us") or {}).get("p99_us") is not None]
+                                                   or [float("nan")])}
+
+
+def print_iso(r: dict) -> None:
+    ref = r["in_process"]
+    print(f"ISO 9283 model_based, missing set-point '{r['missing_setpoint']}', thresholds {r['threshold']}: "
+          f"in process max/RMS TCP error {ref['tcp_error_max_mm']:.4f}/{ref['tcp_error_rms_mm']:.4f} mm")
+    for i, x in enumerate(r["split_runs"]):
+        if x["status"] != "ok" or "cycles" not in x:
+            print(f"  split {i}: {x['status']}: {x.get('reason')}")
+            continue
+        print(f"  split {i}: max/RMS {x['tcp_error_max_mm']:.4f}/{x['tcp_error_rms_mm']:.4f} mm, {x['cycles']} cycles, "
+              f"overruns {100 * x['overrun_fraction']:.3f} %, lost {x['lost_cycles']} ({100 * x['lost_fraction']:.3f} %: "
+              f"{x['lost_after_cell_overrun']} after a cell overrun, {x['lost_with_cell_in_time']} with the cell in "
+              f"time), round trip p50/p99 {x['round_trip_us']['p50_us']}/{x['round_trip_us']['p99_us']} us, load "
+              f"{x['load_average_before'][0]:.2f} -> {x['load_average_after'][0]:.2f}")
+    if r["tcp_error_ratio"] is None:
+        print(f"  no split run completed of {r['runs']}")
+        return
+    print(f"  median of {r['completed_runs']} completed runs of {r['runs']}: split max TCP error "
+          f"{r['tcp_error_max_mm_split']:.4f} mm = {r['tcp_error_ratio']:.3g} x in process; "
+          f"overruns {100 * r['overrun_fraction']:.3f} %, lost {100 * r['lost_fraction']:.3f} %")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--seconds", type=float, default=10.0)
     parser.add_argument("--runs", type=int, default=5)
     parser.add_argument("--json", type=Path, default=None)
+    parser.add_argument("--late", action="store_true",
+                        help="only the deliberately late controller against cosim serve (LATE_CYCLES)")
+    parser.add_argument("--iso", action="store_true",
+                        help="only the ISO 9283 model-based TCP error, paced split (--runs) vs in process")
+    parser.add_argument("--stop-time", type=float, default=None, help="--iso: seconds of the ISO path (default all)")
+    parser.add_argument("--missing-setpoint", choices=("hold", "extrapolate"), default="hold",
+                        help="--iso: the drives' reaction to a lost set-point")
     args = parser.parse_args(argv)
+    if args.iso:
+        import tempfile
+
+        with tempfile.TemporaryDirectory(prefix="bench-hil-iso-") as tmp:
+            iso = iso_split(Path(tmp), args.runs, args.stop_time, args.missing_setpoint)
+        print_iso(iso)
+        if args.json:
+            args.json.write_text(json.dumps(iso, indent=1))
+        return 0
+    if args.late:
+        import tempfile
+
+        with tempfile.TemporaryDirectory(prefix="bench-hil-late-") as tmp:
+            late = late_run(Path(tmp))
+        print_late(late)
+        if args.json:
+            args.json.write_text(json.dumps(late, indent=1))
+        return 0
     out = run(args.seconds, args.runs)
     for i, r in enumerate(out["runs"]):
         print(f"run {i}: {r['cycles']} cycles, overruns {r['overruns']} ({100 * r['overrun_fraction']:.3f} %), "

@@ -7,8 +7,12 @@ Register a new command by adding its module name to ``COMMAND_MODULES``.
 Errors and exit codes (cosim/commands/exits.py, docs/robustness.md): whatever a command
 raises becomes one ``error: ...`` line on stderr and a documented exit code (2 bad input
 or unusable output folder, 3 failed run, 130 interrupted); the traceback is printed only
-with ``--debug``. SIGTERM is handled like Ctrl-C (SIGINT): the command stops, flushes
-what it has, writes its final status and exits with 130.
+with ``--debug``. SIGTERM and SIGHUP are handled like Ctrl-C (SIGINT): the command stops,
+flushes what it has, writes its final status and exits with 130.
+
+From the command line (``main()`` without ``argv``), ``run``, ``serve`` and ``sweep`` run in a
+child process watched by a supervisor that writes the final status if that process dies
+without writing it (killed, out of memory, ``_exit()`` in an FMU): cosim/commands/supervisor.py.
 """
 from __future__ import annotations
 
@@ -59,6 +63,10 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+INTERRUPTS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+"""Signals that end a command cleanly (final status ``interrupted``, exit 130)."""
+
+
 class _SignalState:
     """How SIGINT/SIGTERM are handled: ``armed`` raises Interrupted once; while a command
     writes its final status (``defer_signals``) they are only counted."""
@@ -89,12 +97,12 @@ def defer_signals() -> Iterator[None]:
 
 
 def install_signal_handlers() -> dict[int, object]:
-    """SIGINT and SIGTERM raise :class:`~cosim.commands.exits.Interrupted` (a KeyboardInterrupt) once;
+    """SIGINT, SIGTERM and SIGHUP raise :class:`~cosim.commands.exits.Interrupted` (a KeyboardInterrupt) once;
     returns the previous handlers (for :func:`restore_signal_handlers`)."""
     _SignalState.armed = True
     _SignalState.deferred = []
     previous: dict[int, object] = {}
-    for signum in (signal.SIGINT, signal.SIGTERM):
+    for signum in INTERRUPTS:
         try:
             previous[signum] = signal.signal(signum, _on_signal)
         except (ValueError, OSError):  # not the main thread: leave the defaults
@@ -120,10 +128,21 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Parse ``argv`` and run the chosen command; return the process exit code.
 
     Exceptions escaping a command become one line on stderr and an exit code; with
-    ``--debug`` the traceback is printed too.
+    ``--debug`` the traceback is printed too. Without ``argv`` (the command line of ``python -m
+    cosim`` or the ``cosim`` script), ``run``, ``serve`` and ``sweep`` run supervised.
     """
     parser = build_parser()
     args = parser.parse_args(argv)
+    if argv is None:
+        from cosim.commands import supervisor
+
+        if supervisor.wanted(args.command):
+            return supervisor.supervise(lambda: _run_command(args))
+    return _run_command(args)
+
+
+def _run_command(args: argparse.Namespace) -> int:
+    """Run the parsed command with the signal handlers; exceptions become the line and the code."""
     debug = bool(getattr(args, "debug", False))
     previous = install_signal_handlers()
     try:

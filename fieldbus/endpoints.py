@@ -48,6 +48,100 @@ SYNCHRONOUS_INTERFACES = ("simbus", "virtual")  # deliver inside send(), keep ti
 _NO_FAULTS: dict[int, str] = {}  # the medium's faults of a fault-free cycle (never modified)
 
 
+class ControllerCadence:
+    """How fast the controller's SoC counter advances against the paced cell's cycles: a
+    controller that runs its own clock at another cycle time than the cell's is detected,
+    counted and logged (a *cycle-time mismatch*), not only seen as lost frames.
+
+    Every SoC the cell reads (taken or late) is noted with the cell cycle in which it was
+    read. Over blocks of at least ``block_cycles`` cell cycles holding at least
+    ``min_groups`` SoCs, the unwrapped counter advance divided by the cycles elapsed is the
+    ratio of the two cycle times (cell / controller): 1 for a controller in step (also one
+    that follows the cell and catches up after a miss), 0.4 for a 1 ms controller against a
+    400 µs cell, 2 for a 200 µs one. A block whose ratio is outside ``[1 - tolerance,
+    1 + tolerance]`` is out of band; two in a row are a mismatch (one alone may hold the
+    counter jump of a controller that restarted). The start of each mismatch episode is
+    logged as an event ``cycle_time_mismatch`` with the estimated controller cycle.
+    """
+
+    def __init__(self, overflow: int, cycle_time_s: float, block_cycles: int = 250, min_groups: int = 10,
+                 tolerance: float = 0.2) -> None:
+        self.overflow = overflow
+        self.cycle_time_s = cycle_time_s
+        self.block_cycles = block_cycles
+        self.min_groups = min_groups
+        self.tolerance = tolerance
+        self.blocks = 0  # judged blocks
+        self.mismatched_blocks = 0
+        self.episodes = 0
+        self.first_cycle: int | None = None  # cell cycle of the first mismatched block's end
+        self.ratios: list[float] = []  # cell / controller cycle time per mismatched block
+        self._in_episode = False
+        self._pending: float | None = None  # ratio of an out-of-band block not yet confirmed by the next
+        self._start: int | None = None  # cell cycle of the block's first SoC
+        self._last_counter = 0
+        self._advance = 0
+        self._groups = 0
+
+    def note(self, cycle: int, counter: int, time_s: float | None = None) -> tuple[float, float] | None:
+        """A SoC with ``counter`` read in cell cycle ``cycle`` at wall time ``time_s`` (s, any
+        origin; default ``cycle`` times the cycle time: a cell that never misses a tick);
+        returns (ratio, controller cycle time estimate in s) when this SoC closed a mismatched
+        block, else None. Elapsed time is measured on the wall clock, so a cell that dropped
+        ticks after a stall does not misjudge the controller."""
+        if time_s is not None:
+            cycle_or_time = time_s / self.cycle_time_s  # in cycles of the cell, on the wall clock
+        else:
+            cycle_or_time = float(cycle)
+        if self._start is None:
+            self._start, self._last_counter, self._advance, self._groups = cycle_or_time, counter, 0, 1
+            return None
+        step = (counter - self._last_counter) % self.overflow
+        if step > self.overflow // 2:  # older than the newest (a late duplicate of the sender's): not an advance
+            return None
+        self._advance += step
+        self._last_counter = counter
+        self._groups += 1
+        elapsed = cycle_or_time - self._start
+        if elapsed < self.block_cycles or self._groups < self.min_groups:
+            if elapsed >= 4 * self.block_cycles:  # too few SoCs to judge (a silent controller): start over
+                self._start, self._advance, self._groups = cycle_or_time, 0, 1
+            return None
+        ratio = self._advance / elapsed
+        self.blocks += 1
+        self._start, self._advance, self._groups = cycle_or_time, 0, 1
+        if abs(ratio - 1.0) <= self.tolerance:
+            self._in_episode, self._pending = False, None
+            return None
+        if not self._in_episode and self._pending is None:
+            self._pending = ratio  # one block alone may hold a restarted controller's counter jump
+            return None
+        if self._pending is not None:
+            self.mismatched_blocks += 1
+            self.ratios.append(self._pending)
+            self._pending = None
+        self.mismatched_blocks += 1
+        self.ratios.append(ratio)
+        if self._in_episode:
+            return None
+        self._in_episode = True
+        self.episodes += 1
+        if self.first_cycle is None:
+            self.first_cycle = cycle
+        return ratio, (self.cycle_time_s / ratio if ratio > 0 else float("inf"))
+
+    def report(self) -> dict[str, Any] | None:
+        """The mismatch for a summary (None when none was seen)."""
+        if not self.mismatched_blocks:
+            return None
+        import statistics
+
+        ratio = statistics.median(self.ratios)
+        return {"episodes": self.episodes, "blocks": self.mismatched_blocks, "blocks_judged": self.blocks,
+                "first_cycle": self.first_cycle, "cell_cycle_time_s": self.cycle_time_s,
+                "controller_cycle_time_s_estimate": self.cycle_time_s / ratio if ratio > 0 else None}
+
+
 def default_channel(config: FieldbusConfig) -> str | int:
     """The configured channel; when empty a fresh in-process channel (simbus, virtual)
     or python-can's default multicast group (udp_multicast)."""
@@ -273,6 +367,10 @@ class ManagingNodeEndpoint(_Endpoint):
     def __init__(self, config: FieldbusConfig | dict | None, scaling: JointScaling, **kwargs: Any) -> None:
         super().__init__(config, scaling, **kwargs)
         self.node = ManagingNode(self.config, scaling, self.layout, self.events)
+        #: following a paced cell: the frame time the cell put on its newest PRes of node 1, as
+        #: received (its simulated time, so its own cycle number; on interfaces that keep the
+        #: sender's timestamps, such as udpcycle), None before the first
+        self.peer_time_s: float | None = None
 
     def send_setpoints(self, cycle: int, setpoints: Setpoints) -> None:
         """SoC and PReqs of ``cycle`` carrying ``setpoints`` (SI units)."""
@@ -337,6 +435,8 @@ class ManagingNodeEndpoint(_Endpoint):
         self._follow_cycle = self._cycle = cycle
         times = self.schedule.timestamps(cycle)  # receiving only: the injected faults apply when sending
         for msg in batch:
+            if msg.arbitration_id == head:
+                self.peer_time_s = msg.timestamp  # as the cell stamped it (before this side's restamping)
             base, node = msg.arbitration_id & ~0x7F, msg.arbitration_id & 0x7F
             if base in (TPDO1_BASE, TPDO2_BASE) and 1 <= node <= n and times[n + node] is not None:
                 msg.timestamp = times[n + node]  # the cell judged their timing
@@ -384,6 +484,7 @@ class DriveEndpoint(_Endpoint):
     def __init__(self, config: FieldbusConfig | dict | None, scaling: JointScaling, **kwargs: Any) -> None:
         super().__init__(config, scaling, **kwargs)
         self.nodes = ControlledNodes(self.config, scaling, self.layout, self.events)
+        self.cadence = ControllerCadence(self.config.scaling.sync_counter_overflow, self.config.cycle_time_s)
         self._emcy_offset = (self.layout.nominal_end_of_isochronous + self.layout.mn_turnaround
                              + self.layout.wire_soa + self.layout.cn_response)
 
@@ -456,6 +557,8 @@ class DriveEndpoint(_Endpoint):
                 break
             msg = self.bus.recv(min(remaining, 0.002))
             pending = [] if msg is None else [msg]
+        if groups:
+            self._note_cadence(cycle, groups, deadline)
         chosen = None
         for index in range(len(groups) - 1, -1, -1):
             if bytes(groups[index][0].data[:1]) == expected:
@@ -483,6 +586,22 @@ class DriveEndpoint(_Endpoint):
         if self._record is not None and (self._record_received or self._owns_recorder):
             self._record(out)  # what the cell took, with the cycle's timestamps
         return out
+
+    def _note_cadence(self, cycle: int, groups: list, time_s: float) -> None:
+        """Judge the controller's SoC counter against this cell's cycles (:class:`ControllerCadence`)."""
+        cadence = self.cadence
+        for group in groups:
+            if not group[0].data:
+                continue
+            found = cadence.note(cycle, group[0].data[0], time_s)
+            if found is not None:
+                ratio, estimate = found
+                self.events.add(FieldbusEvent(
+                    self._t0 + cycle * self._cycle_time, cycle, "cn", 0, "cycle_time_mismatch", "error", -1,
+                    cadence.mismatched_blocks, -1,
+                    f"cycle-time mismatch: the controller's SoC counter advances {ratio:.3g} per cell cycle, "
+                    f"its cycle is about {estimate * 1e3:.4g} ms, the cell's {self._cycle_time * 1e3:.4g} ms "
+                    f"(hil_endpoint.json cycle_time_s); its frames miss their cycles"))
 
     def run_cycle(self, cycle: int, actuals: DriveActuals) -> AppliedSetpoints:
         """SoC of ``cycle``: latch ``actuals``, apply the due set-points, receive the

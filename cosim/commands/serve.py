@@ -65,6 +65,7 @@ def run(args: argparse.Namespace) -> int:
               f"{'' if summary.stopped_at_s is None else f' at t = {summary.stopped_at_s:.6g} s'}; results in "
               f"{out_dir}/", file=sys.stderr)
         return 130
+    _warn_cycle_time_mismatch(result.summary.raw.get("hil") or {})
     if result.ok:
         if not args.quiet:
             print(f"{scenario.name}: served, results in {out_dir}/", file=sys.stderr)
@@ -83,3 +84,16 @@ def _check_address_free(channel: str) -> None:
         UdpCycleBus(channel=channel).shutdown()
     except UdpCycleError as exc:
         raise InvalidInput(f"--channel {channel!r}: {exc}; expected a free UDP address of this machine") from None
+
+
+def _warn_cycle_time_mismatch(hil: dict) -> None:
+    """One line per served run whose controller ran at another cycle time (docs/hil.md)."""
+    for label, report in hil.items():
+        found = report.get("cycle_time_mismatch") if isinstance(report, dict) else None
+        if found:
+            estimate = found.get("controller_cycle_time_s_estimate")
+            print(f"warning: {label}: cycle-time mismatch from cell cycle {found['first_cycle']} on "
+                  f"({found['blocks']} of {found['blocks_judged']} blocks): the controller's cycle is about "
+                  f"{'?' if estimate is None else f'{estimate * 1e3:.4g}'} ms, the cell's "
+                  f"{found['cell_cycle_time_s'] * 1e3:.4g} ms (hil_endpoint.json cycle_time_s); its frames were "
+                  f"lost cycles for the threshold counters (summary.json hil.{label})", file=sys.stderr)

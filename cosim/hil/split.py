@@ -125,6 +125,7 @@ def run_hil_split(cell: CellDescription, controller: Any, ctx: Any, *, options: 
     from cosim.cell.wiring import N_JOINTS, joint_scaling
     from cosim.master import MemorySink, SimulationError
     from cosim.realtime.pacer import no_cyclic_gc, realtime_scheduling
+    from cosim.realtime.schedule import precompute_schedules
     from fieldbus import ManagingNodeEndpoint
 
     label, period, stop_time = cell.label, cell.period_s, cell.stop_time_s
@@ -148,7 +149,7 @@ def run_hil_split(cell: CellDescription, controller: Any, ctx: Any, *, options: 
     stop_cycle = int(round(stop_time / period))
     failure: SimulationError | None = None
     child: dict[str, Any] | None = None
-    wait_ns, compute_ns, skipped = [], [], 0
+    wait_ns, compute_ns, wakeup_ns, skipped = [], [], [], 0
     granted = "normal"
     wall0, cpu0 = time.perf_counter(), time.process_time()
     endpoint = None
@@ -165,6 +166,7 @@ def run_hil_split(cell: CellDescription, controller: Any, ctx: Any, *, options: 
         if kind != "ready":
             raise SimulationError("served cell", 0.0, f"the cell process failed to start: {payload}")
         endpoint = ManagingNodeEndpoint(config, joint_scaling(), log_path=cell.can_log)
+        precompute_schedules((endpoint,), stop_cycle + 2, False, compact=True)  # no jitter blocks drawn in the loop
         setpoints = port.setpoints
         last = -1
         ctx.label = label
@@ -181,6 +183,9 @@ def run_hil_split(cell: CellDescription, controller: Any, ctx: Any, *, options: 
                                                   f"no PRes from the cell process for {SILENCE_TIMEOUT_S} s")
                     break
                 cycle, observed = got
+                arrived = endpoint.bus.oldest_arrival_ns
+                if arrived:
+                    wakeup_ns.append(time.time_ns() - arrived)
                 if cycle >= stop_cycle:
                     break
                 jumped = cycle - last > 1
@@ -233,6 +238,11 @@ def run_hil_split(cell: CellDescription, controller: Any, ctx: Any, *, options: 
                             "wait_for_pres": percentiles_us(np.asarray(wait_ns, dtype=float) * 1e-3, POINTS),
                             "compute": percentiles_us(np.asarray(compute_ns, dtype=float) * 1e-3, POINTS),
                             "pres_one_way_latency": percentiles_us(controller_latency, POINTS),
+                            # from the PRes datagram's kernel arrival to this process having read it: long
+                            # when the process was not running (a stall of the OS or the hypervisor)
+                            "wakeup_after_pres": percentiles_us(np.asarray(wakeup_ns, dtype=float) * 1e-3,
+                                                                POINTS),
+                            "stalls_over_one_cycle": int(np.count_nonzero(np.asarray(wakeup_ns) > period * 1e9)),
                             "scheduling": granted},
         "cell_side": child["hil"] if child else {},
         "round_trip": percentiles_us(rtt, POINTS),

@@ -41,7 +41,7 @@ from typing import Any
 from cosim.cell.mode_runs import prepare, run_mode, run_user
 from cosim.cell.parts import CELL_FIELDS, check_cell_scenario
 from cosim.cell.user_controller import make_user_controller, user_controller_label
-from cosim.jobs.tracking_metrics import TrackingResult
+from cosim.tracking.metrics import TrackingResult
 from cosim.scenario.context import RunContext
 from cosim.scenario.cosim_tables import COSIM_FIELDS
 from cosim.scenario.loader import SCENARIO_FIELD, Scenario

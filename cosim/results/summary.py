@@ -27,11 +27,16 @@ _SIGNAL_MARK = "@@SIGNAL@@"
 
 
 def process_started_perf_counter() -> float | None:
-    """The :func:`time.perf_counter` reading at which this process started (from its start time
+    """The :func:`time.perf_counter` reading at which this process (under the supervisor: the
+    supervisor, where the command started) started (from its start time
     in ``/proc/self/stat``, in clock ticks since boot, against ``CLOCK_BOOTTIME``; resolution one
     clock tick, 10 ms), or None where that is not available (not Linux)."""
+    from cosim.results import lastwords
+
+    # under the supervisor (python -m cosim run), the command started with the supervisor, before the fork
+    stat = f"/proc/{os.getppid()}/stat" if lastwords.active() else "/proc/self/stat"
     try:
-        with open("/proc/self/stat", "rb") as handle:
+        with open(stat, "rb") as handle:
             fields = handle.read().rsplit(b")", 1)[1].split()
         started = int(fields[19]) / os.sysconf("SC_CLK_TCK")  # field 22 of proc(5): starttime
         now_boot, now_perf = time.clock_gettime(time.CLOCK_BOOTTIME), time.perf_counter()
@@ -76,6 +81,8 @@ class SummaryWriter:
         now = time.perf_counter()
         self._wall0 = now if wall_origin is None else min(float(wall_origin), now)
         self._guarded = False
+        self.where: dict[str, Any] = {}
+        self._key = str(self.path.absolute())
         started = datetime.fromtimestamp(time.time() - (now - self._wall0), timezone.utc)
         self.data: dict[str, Any] = {
             "scenario": scenario,
@@ -94,21 +101,49 @@ class SummaryWriter:
         """Wall time since the writer was created, s."""
         return time.perf_counter() - self._wall0
 
+    def note_where(self, mode: str | None = None, at_s: float | None = None) -> None:
+        """Where the run is, for a summary written on its behalf if its process dies (crash guard,
+        supervisor): the ``mode`` (or part) running and its simulated time ``at_s`` (s). No file write."""
+        if mode is not None:
+            self.where["mode"] = mode or None
+        if at_s is not None:
+            self.where["stopped_at_s"] = round(float(at_s), 12)
+
+    def note_time(self, sim_time_s: float, at_s: float) -> None:
+        """The latest progress for the supervisor only (two numbers in shared memory: cheap enough for
+        every heartbeat; cosim/results/lastwords.py). No file write."""
+        from cosim.results import lastwords
+
+        lastwords.note_time(self._key, sim_time_s, at_s)
+
+    def dying_words(self) -> dict[str, Any]:
+        """The running summary with where the run is (``mode``, ``stopped_at_s``): the base of the
+        ``failed`` summary the crash guard or the supervisor writes if the process dies now."""
+        data = dict(self.data)
+        data.setdefault("mode", self.where.get("mode"))
+        data["stopped_at_s"] = self.where.get("stopped_at_s", data.get("sim_time_s"))
+        return data
+
     def _guard(self) -> None:
-        """Prepare the summary a fatal signal leaves (crashguard.py), or drop it once the run ended."""
-        from cosim.results import crashguard
+        """Prepare the summary a dying process leaves: the crash guard's (crashguard.py, fatal signals
+        in this process) and the supervisor's (lastwords.py, any death); drop them once the run ended."""
+        from cosim.results import crashguard, lastwords
 
         if self.data.get("status") != "running":
             crashguard.disarm()
+            lastwords.retract(self._key)
             return
+        words = self.dying_words()
+        lastwords.publish(self._key, _json_safe(words))
         if not self._guarded:
             self._guarded = crashguard.install(self.path)
             if not self._guarded:
                 return
-        last = self.data.get("sim_time_s")
-        crash = dict(self.data, status="failed", signal=_SIGNAL_MARK, stopped_at_s=last,
+        last, mode = words["stopped_at_s"], words.get("mode")
+        crash = dict(words, status="failed", signal=_SIGNAL_MARK,
                      reason=f"the run's process died from {_SIGNAL_MARK} (a crash in native code: an in-process "
-                            f"FMU or a compiled helper); last progress recorded at t = {last} s. Run third-party "
+                            f"FMU or a compiled helper); last progress recorded at t = {last} s"
+                            f"{f' in mode {mode}' if mode else ''}. Run third-party "
                             f"FMUs out of process to isolate them (docs/robustness.md)")
         text = json.dumps(_json_safe(crash), indent=2, allow_nan=False) + "\n"
         crashguard.arm(text.replace(_SIGNAL_MARK, "\x01"))
@@ -145,20 +180,25 @@ class SummaryWriter:
         except OSError:
             pass
 
-    def progress(self, sim_time_s: float) -> None:
-        """Record how far the run got (simulated s) and the wall time so far; rewrite."""
+    def progress(self, sim_time_s: float, at_s: float | None = None) -> None:
+        """Record how far the run got (simulated s; ``at_s``: the running part's own time, see
+        :meth:`note_where`) and the wall time so far; rewrite."""
+        self.note_where(at_s=at_s)
         wall = self.wall_time_s
         self.data["sim_time_s"] = round(float(sim_time_s), 12)  # n * h0 carries float noise (0.49999999999999994)
         self.data["wall_time_s"] = wall
         self.data["realtime_factor"] = sim_time_s / wall if wall > 0 else None
         self.write()
 
-    def note_progress(self, sim_time_s: float) -> None:
-        """Record the simulated time reached for the crash summary only (no file write; cheap enough
-        for every progress-bar update)."""
+    def note_progress(self, sim_time_s: float, at_s: float | None = None) -> None:
+        """Record the simulated time reached for the crash guard's and the supervisor's summary only
+        (no file write; cheap enough for every progress-bar update)."""
+        from cosim.results import lastwords
+
         self.data["sim_time_s"] = round(float(sim_time_s), 12)
         self.data["wall_time_s"] = self.wall_time_s
-        if self._guarded:
+        self.note_where(at_s=at_s)
+        if self._guarded or lastwords.active():
             self._guard()
 
     def update(self, **fields: Any) -> None:

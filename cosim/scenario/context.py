@@ -72,6 +72,7 @@ class RunContext:
         its ``label``, simulated time (s) and the simulated seconds it covered, for the final status."""
         self.label = label
         self._last_time_s = float(time_s)
+        self.summary.note_where(mode=label, at_s=time_s)
         self.sim_time_s += float(covered_s)
 
     @property
@@ -109,17 +110,19 @@ class RunContext:
         period = master.base_step * max(1, math.floor(total_s / HEARTBEATS_PER_RUN / master.base_step))
         state = {"bar": 0.0, "summary": time.perf_counter(), "guard": 0.0}
         self.label = label
+        self.summary.note_where(mode=label, at_s=master.start_time)
 
         def heartbeat(t: float) -> None:
             now = time.perf_counter()
+            self.summary.note_time(self._base + t - master.start_time, t)  # for the supervisor: two numbers
             if self._bar is not None and now - state["bar"] > PROGRESS_INTERVAL_S:
                 self._bar.update(t - master.start_time)
                 state["bar"] = now
             if now - state["summary"] > SUMMARY_INTERVAL_S:
-                self.summary.progress(self._base + t - master.start_time)
+                self.summary.progress(self._base + t - master.start_time, at_s=t)
                 state["summary"] = now
             elif now - state["guard"] > PROGRESS_INTERVAL_S:  # what a crash would leave (crashguard)
-                self.summary.note_progress(self._base + t - master.start_time)
+                self.summary.note_progress(self._base + t - master.start_time, at_s=t)
                 state["guard"] = now
 
         master.add_task(heartbeat, period, priority=1_000_000, name="cosim.heartbeat")
@@ -146,5 +149,5 @@ class RunContext:
             self._bar.update(master.time - master.start_time, force=True)
             self._bar.close()
             self._bar = None
-        self.summary.progress(self.sim_time_s)
+        self.summary.progress(self.sim_time_s, at_s=master.time)
         return reached

@@ -1,6 +1,6 @@
 """Run a sweep's variants as independent tasks on Dask (``dask.distributed``).
 
-By default an embedded ``LocalCluster`` of worker PROCESSES is started on this machine
+By default an embedded ``LocalCluster`` of worker PROCESSES is started on the local machine
 (``n_workers = workers`` (default: CPU count), one thread each, so an FMU instance never
 meets a second thread); with ``scheduler = "tcp://host:8786"`` the same tasks go to an
 existing cluster, whose workers need this project installed (``pip install -e .``) and
@@ -257,6 +257,15 @@ def _write_definition(sweep: Sweep, out_dir: Path, state: dict[str, Any]) -> Non
     tmp = out_dir / (SWEEP_FILE + ".tmp")
     tmp.write_text(json.dumps(data, indent=2, default=str) + "\n", encoding="utf-8")
     os.replace(tmp, out_dir / SWEEP_FILE)
+    # what the supervisor writes if this process dies now (cosim/commands/supervisor.py): sweep.json and the
+    # variants still running failed, with how the process ended
+    from cosim.results import lastwords
+
+    if data.get("status") == "running":
+        lastwords.publish(out_dir / SWEEP_FILE, json.loads(json.dumps(data, default=str)),
+                          also=(f"{VARIANTS_DIR}/*/summary.json",))
+    else:
+        lastwords.retract(out_dir / SWEEP_FILE)
 
 
 def _mark_interrupted(todo: list[VariantTask], rows: dict[int, dict[str, Any]], exc: BaseException) -> None:
