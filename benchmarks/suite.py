@@ -353,7 +353,7 @@ def hil(sizes: Sizes, work: Path) -> dict[str, Any]:
             "iso_tcp_error_max_mm_in_process": iso["tcp_error_max_mm_in_process"],
             "iso_tcp_error_max_mm_split": iso["tcp_error_max_mm_split"], "iso_tcp_error_ratio": iso["tcp_error_ratio"],
             "iso_overrun_fraction": iso["overrun_fraction"], "iso_lost_fraction": iso["lost_fraction"],
-            "iso_round_trip_p99_us": iso["round_trip_p99_us"], "iso_completed_runs": iso["completed_runs"], "iso": iso}
+            "iso_round_trip_p99_us": iso["round_trip_p99_us"], "iso_steal_ms_per_s": iso["steal_ms_per_s"], "iso_completed_runs": iso["completed_runs"], "iso": iso}
 
 
 SECTIONS: dict[str, Callable[[Sizes, Path], dict[str, Any]]] = {
@@ -499,6 +499,7 @@ ROWS: tuple[tuple[str, str, str, str], ...] = (
     ("hil", "iso_overrun_fraction", "hil: ISO 9283 paced split, cell overrun fraction", ""),
     ("hil", "iso_lost_fraction", "hil: ISO 9283 paced split, lost cycles fraction", ""),
     ("hil", "iso_round_trip_p99_us", "hil: ISO 9283 paced split, frame round trip p99", "us"),
+    ("hil", "iso_steal_ms_per_s", "hil: ISO 9283 paced split, CPU time stolen by the hypervisor", "ms/s"),
     ("hil", "iso_tcp_error_max_mm_in_process", "hil: ISO 9283 model-based max TCP error, in process", "mm"),
     ("hil", "iso_tcp_error_max_mm_split", "hil: ISO 9283 model-based max TCP error, paced split", "mm"),
     ("hil", "iso_tcp_error_ratio", "hil: ISO 9283 max TCP error, split / in process", "x"),
