@@ -11,14 +11,17 @@ and prints a table.
 Sections (keys of ``bench.json["figures"]``):
 
 =====================  ==================================================================
-closed_loop            in-process cell (ISO 9283 path, model-based): wall/CPU real-time
-                       factor, controller compute p50/p99 (wall, µs)
+closed_loop            in-process cell (ISO 9283 path, model-based, rigid plant): wall/CPU
+                       real-time factor, controller compute p50/p99 (wall, µs)
+closed_loop_elastic    the main job's cell (elastic plant, true geometry), modes model_based
+                       and model_based_elastic: the same figures per mode
 closed_loop_split      the same cell split over two processes (udp_multicast): RTF of the
                        cycles (without process start-up), start-up time
 paced                  the in-process cell paced at 400 µs (10 s runs): overrun fraction,
                        lateness p99
 bus                    one POWERLINK cycle with six nodes (simbus, no recording): µs
-fmu                    plant and drive doStep (fast path, 100 µs and 400 µs steps): µs
+fmu                    plant and drive doStep (fast path, 100 µs and 400 µs steps): µs; the
+                       plant also as the main job runs it (elastic joints, 100 µs sub-steps)
 planners               own CP vs TOPP-RA (paper line, 200 intervals), own PtP vs Ruckig
                        (plain and torque-feasible) between the line's end poses: solve
                        times and trajectory durations
@@ -144,6 +147,23 @@ def closed_loop(sizes: Sizes, work: Path) -> dict[str, Any]:
             "engine": runs[0]["engine"]}
 
 
+def closed_loop_elastic(sizes: Sizes, work: Path) -> dict[str, Any]:
+    """bench_closed_loop.one_run on the main job's cell (scenarios/iso9283.toml: elastic plant),
+    modes model_based and model_based_elastic, median over runs each."""
+    import bench_closed_loop
+
+    out: dict[str, Any] = {"sim_time_s": sizes.closed_loop_sim_s, "runs": sizes.repeats,
+                           "scenario": bench_closed_loop.ELASTIC_SCENARIO.name}
+    for mode in ("model_based", "model_based_elastic"):
+        runs = [bench_closed_loop.one_run(sizes.closed_loop_sim_s, mode, False, work / f"{mode}{k}",
+                                          bench_closed_loop.ELASTIC_SCENARIO) for k in range(sizes.repeats)]
+        out[f"{mode}_realtime_factor"] = _median([r["realtime"] for r in runs])
+        out[f"{mode}_cpu_realtime_factor"] = _median([r["cpu_realtime"] for r in runs])
+        out[f"{mode}_controller_compute_p50_us"] = _median([r["p50"] for r in runs])
+        out[f"{mode}_controller_compute_p99_us"] = _median([r["p99"] for r in runs])
+    return out
+
+
 def closed_loop_split(sizes: Sizes, work: Path) -> dict[str, Any]:
     """The bench_closed_loop cell split over two processes (cosim.split), unpaced."""
     import bench_closed_loop
@@ -243,6 +263,11 @@ def fmu(sizes: Sizes, work: Path) -> dict[str, Any]:
             slow = _median([dict((r[0], r[1]) for r in run)[label] for run in rows])
             out[f"{name}_step_{h}us_us"] = fast
             out[f"{name}_step_{h}us_fmpy_us"] = slow
+    rows = [bench_fmu.bench_plant(paths["rx130l_plant"], sizes.fmu_batches, bench_fmu.ELASTIC_PLANT)
+            for _ in range(sizes.repeats)]
+    for h in (100, 400):  # the main job's plant: elastic joints, 100 us RK4 sub-steps
+        out[f"plant_elastic_step_{h}us_us"] = _median([dict((r[0], r[2]) for r in run)[f"plant doStep {h} us"]
+                                                       for run in rows])
     return out
 
 
@@ -355,7 +380,8 @@ def memory(sizes: Sizes, work: Path) -> dict[str, Any]:
 
 
 SECTIONS: dict[str, Callable[[Sizes, Path], dict[str, Any]]] = {
-    "closed_loop": closed_loop, "closed_loop_split": closed_loop_split, "paced": paced,
+    "closed_loop": closed_loop, "closed_loop_elastic": closed_loop_elastic, "closed_loop_split": closed_loop_split,
+    "paced": paced,
     "controller_port": controller_port, "bus": bus, "fmu": fmu,
     "planners": planners, "calibration": calibration, "identification": identification, "hil": hil,
     "memory": memory,
@@ -365,11 +391,14 @@ SECTIONS: dict[str, Callable[[Sizes, Path], dict[str, Any]]] = {
 REQUIRED: dict[str, tuple[str, ...]] = {
     "closed_loop": ("realtime_factor", "cpu_realtime_factor", "controller_compute_p50_us",
                     "controller_compute_p99_us"),
+    "closed_loop_elastic": ("model_based_realtime_factor", "model_based_cpu_realtime_factor",
+                            "model_based_elastic_realtime_factor", "model_based_elastic_cpu_realtime_factor"),
     "closed_loop_split": ("realtime_factor", "startup_s"),
     "paced": ("overrun_fraction", "lateness_p99_us"),
     "controller_port": ("overhead_p50_us", "builtin_realtime_factor", "user_realtime_factor"),
     "bus": ("cycle_median_us",),
-    "fmu": ("plant_step_100us_us", "plant_step_400us_us", "drive_step_100us_us", "drive_step_400us_us"),
+    "fmu": ("plant_step_100us_us", "plant_step_400us_us", "plant_elastic_step_100us_us", "drive_step_100us_us",
+            "drive_step_400us_us"),
     "planners": ("own_cp_solve_s", "toppra_solve_s", "own_cp_duration_s", "toppra_duration_s", "own_ptp_solve_s",
                  "ruckig_solve_s", "ruckig_feasible_solve_s", "own_ptp_duration_s", "ruckig_feasible_duration_s"),
     "calibration": ("selection_s",),
@@ -456,6 +485,12 @@ def run_suite(out_dir: str | Path, quick: bool = False, sections: list[str] | No
 ROWS: tuple[tuple[str, str, str, str], ...] = (
     ("closed_loop", "realtime_factor", "closed-loop real-time factor, in-process (wall)", "x"),
     ("closed_loop", "cpu_realtime_factor", "closed-loop real-time factor, in-process (CPU time)", "x"),
+    ("closed_loop_elastic", "model_based_realtime_factor", "elastic plant, model_based: real-time factor (wall)", "x"),
+    ("closed_loop_elastic", "model_based_cpu_realtime_factor", "elastic plant, model_based: (CPU time)", "x"),
+    ("closed_loop_elastic", "model_based_elastic_realtime_factor",
+     "elastic plant, model_based_elastic: real-time factor (wall)", "x"),
+    ("closed_loop_elastic", "model_based_elastic_cpu_realtime_factor", "elastic plant, model_based_elastic: (CPU time)",
+     "x"),
     ("closed_loop_split", "realtime_factor", "closed-loop real-time factor, split (cycles only)", "x"),
     ("closed_loop_split", "startup_s", "split: drive process start-up", "s"),
     ("closed_loop", "controller_compute_p50_us", "controller compute p50 (wall)", "us"),
@@ -465,6 +500,7 @@ ROWS: tuple[tuple[str, str, str, str], ...] = (
     ("bus", "cycle_median_us", "POWERLINK cycle, 6 nodes (simbus)", "us"),
     ("fmu", "plant_step_100us_us", "plant FMU doStep 100 us", "us"),
     ("fmu", "plant_step_400us_us", "plant FMU doStep 400 us", "us"),
+    ("fmu", "plant_elastic_step_100us_us", "plant FMU doStep 100 us, elastic (main job)", "us"),
     ("fmu", "drive_step_100us_us", "drive FMU doStep 100 us", "us"),
     ("fmu", "drive_step_400us_us", "drive FMU doStep 400 us", "us"),
     ("planners", "own_cp_solve_s", "own CP solve (paper line)", "s"),
