@@ -2,12 +2,12 @@
 
 Run: ``python benchmarks/bench_calibration.py`` (about 5 min on a loaded 2-core
 machine; ``--quick`` for ~1 min: whitened units, min_eigenvalue, no 4,000 set).
-Targets (issue 7): selecting 32 of about 4,000 candidates in at most 10 s (paper: about
+Targets: selecting 32 of about 4,000 candidates in at most 10 s (paper: about
 five minutes), observation index at least 18.5 times a linear scan of the same size.
 
 Prints, for the campaign's candidate set (13^6 grid, default tracker: 3,680 visible):
 
-* per unit choice (``identification.calibration_scaling``: whitened, unit_rms,
+* per unit choice (``calibration.scaling``: whitened, unit_rms,
   natural) and per observation index: the 5-restart selection's CPU and wall time,
   its ratio against the linear scan and the median random selection, the equivalent
   smaller-is-better / power forms, and for min_eigenvalue and d_optimality the
@@ -32,14 +32,14 @@ import time
 
 import numpy as np
 
-from identification.calibration_candidates import visible_candidates
-from identification.calibration_config_selection import _Search, select_configurations
-from identification.calibration_design_bounds import min_eigenvalue_upper_bound
-from identification.calibration_identifiability import identifiable_parameters
-from identification.calibration_index_comparison import compare_observation_indices
-from identification.calibration_observability import OBSERVATION_INDICES, get_index, observation_index
-from identification.calibration_scaling import COLUMN_SCALINGS, selection_jacobians
-from identification.calibration_tracker import TrackerNoise, TrackerSetup
+from calibration.candidates import visible_candidates
+from calibration.config_selection import _Search, select_configurations
+from calibration.design_bounds import min_eigenvalue_upper_bound
+from calibration.identifiability import identifiable_parameters
+from calibration.index_comparison import compare_observation_indices
+from calibration.observability import OBSERVATION_INDICES, get_index, observation_index
+from calibration.scaling import COLUMN_SCALINGS, selection_jacobians
+from calibration.optical_tracker import TrackerNoise, TrackerSetup
 from robot.geometric_errors import default_error_model, error_standard_deviations
 
 TARGET_TIME_S = 10.0

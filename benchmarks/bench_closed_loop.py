@@ -1,7 +1,7 @@
 """Closed-loop speed: plant + six drives + POWERLINK bus + 400 us controller (IK + eq. 7
 feed-forward) + 1 ms laser tracker + 1 ms recorder, on the co-simulation master.
 
-Target (issue 5): at least 3x faster than real time on one core (median of 5 runs of
+Target: at least 3x faster than real time on one core (median of 5 runs of
 2 simulated seconds of the ISO 9283 path, model-based mode); controller compute p99
 <= 100 us.
 
@@ -26,7 +26,8 @@ Printed per run and as medians:
 CPU-time clock (fieldbus ``run_cycle``, ``Controller.step``, the stepping kernel
 ``advance`` = the seven FMUs, the tracker task, the recorder's ``sample``/``flush``; the
 rest of ``Master.run`` is the master's own Python and the fieldbus task's glue). Each
-wrapper costs two ``thread_time_ns`` calls (about 1-2 us on this machine), so the parts
+wrapper costs two ``thread_time_ns`` calls (about 1-2 us per wrapper at load 0.6-0.9,
+docs/main_job.md), so the parts
 add up to more than an unwrapped run. Each part is exclusive of the other parts nested
 in it (the recorder's flush inside its sample). Shown per 400 us controller cycle.
 
@@ -128,7 +129,7 @@ class _PartClock:
 def breakdown(sim_time: float, mode: str, out_dir: Path) -> tuple[dict[str, tuple[float, float]], int]:
     """Thread CPU time per part of the loop, µs per controller cycle and per call."""
     from controller import Controller
-    from cosim.jobs.laser_tracker import LaserTracker
+    from cosim.tracking.laser_tracker import LaserTracker
     from cosim.master import engines, master, recorder
     from fieldbus import PowerlinkNetwork
 

@@ -1,5 +1,5 @@
 """Cost of the FMUs per call: doStep of each FMU and get/set of its I/O, through fmpy's
-FMU2Slave API and through the fast path (fmus.fast_fmu.FastFmu2Slave: prepared ctypes
+FMU2Slave API and through the one FMU class (fmus.fmu.Fmu: prepared ctypes
 arrays, direct library calls). Prints medians in microseconds.
 
 fmpy and fast-path batches are interleaved so both see the same machine load.
@@ -18,7 +18,7 @@ from fmpy import extract, read_model_description
 from fmpy.fmi2 import FMU2Slave
 
 from fmus.build import ensure_fmus
-from fmus.fast_fmu import FastFmu2Slave
+from fmus.fmu import Fmu
 from fmus.servo_drive.params import drive_start_values
 
 BATCH = 50  # calls per timed batch
@@ -75,7 +75,7 @@ class Clock:
 
 def bench_plant(path, repeats: int) -> list[tuple[str, float, float]]:
     slow, vr = fmpy_slave(path, "plant_fmpy", {})
-    fast = FastFmu2Slave(path, "plant_fast", real_inputs=TAU, real_outputs=PLANT_OUT)
+    fast = Fmu(path, "plant_fast", real_inputs=TAU, real_outputs=PLANT_OUT).start()
     tau_vr, out_vr = [vr[n] for n in TAU], [vr[n] for n in PLANT_OUT]
     tau_list, tau_array = [0.0] * 6, np.zeros(6)
     rows = [("plant set 6 tau", *paired_medians(lambda: slow.setReal(tau_vr, tau_list),
@@ -97,8 +97,8 @@ def bench_plant(path, repeats: int) -> list[tuple[str, float, float]]:
 def bench_drive(path, repeats: int) -> list[tuple[str, float, float]]:
     start = drive_start_values(2)
     slow, vr = fmpy_slave(path, "drive_fmpy", start)
-    fast = FastFmu2Slave(path, "drive_fast", start, real_inputs=DRIVE_IN, real_outputs=DRIVE_OUT,
-                         integer_inputs=["controlword"])
+    fast = Fmu(path, "drive_fast", start, real_inputs=DRIVE_IN, real_outputs=DRIVE_OUT,
+               integer_inputs=["controlword"]).start()
     for controlword, t in ((0x06, 0.0), (0x0F, 400e-6)):  # operation enabled: all loops run
         slow.setInteger([vr["controlword"]], [controlword])
         slow.doStep(t, 400e-6)

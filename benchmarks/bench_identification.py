@@ -32,7 +32,7 @@ def _median_time(fn, repeats: int = 3) -> float:
 
 
 def bench_base() -> None:
-    from identification.dynamic_base_parameters import compute_base_parameters
+    from identification.base_parameters import compute_base_parameters
 
     wall = _median_time(compute_base_parameters)
     base = compute_base_parameters()
@@ -41,7 +41,7 @@ def bench_base() -> None:
 
 
 def bench_full_design(seed: int, baselines: int) -> None:
-    from identification.dynamic_excitation import ExcitationProblem, design_excitation
+    from identification.excitation import ExcitationProblem, design_excitation
 
     problem = ExcitationProblem()
     result = design_excitation(problem, seed=seed, random_baselines=baselines)
@@ -60,9 +60,9 @@ def bench_full_design(seed: int, baselines: int) -> None:
 
 
 def bench_solvers(seed: int) -> None:
-    from identification.dynamic_excitation import (ExcitationProblem, ExcitationSettings, optimise_excitation,
+    from identification.excitation import (ExcitationProblem, ExcitationSettings, optimise_excitation,
                                                    random_feasible_trajectory)
-    from identification.dynamic_excitation_ipopt import optimise_excitation_ipopt
+    from identification.excitation_ipopt import optimise_excitation_ipopt
 
     problem = ExcitationProblem(settings=ExcitationSettings(order=2, samples=30, constraint_samples=40,
                                                             max_iterations=100))
@@ -78,9 +78,9 @@ def bench_solvers(seed: int) -> None:
 
 def bench_identify(n: int = 5000, repeats: int = 3) -> dict[str, float]:
     """Time the identification of the base parameters from ``n`` samples; returns the medians (s)."""
-    from identification.dynamic_base_parameters import nominal_base_parameters
-    from identification.dynamic_estimation import weighted_least_squares
-    from identification.dynamic_identify import base_regressor
+    from identification.base_parameters import nominal_base_parameters
+    from identification.estimation import weighted_least_squares
+    from identification.identify import base_regressor
 
     base = nominal_base_parameters()
     rng = np.random.default_rng(0)

@@ -8,7 +8,7 @@ sequence, then hold the start pose). Every FMU steps at the macro step.
 
 Ways to step the same thing (same FMUs, same connections, same task):
   fmpy_api     hand-written loop over fmpy's FMU2Slave.setReal/getReal/doStep
-  fast_fmu     hand-written loop over fmus.fast_fmu.FastFmu2Slave (prepared ctypes arrays)
+  fast_fmu     hand-written loop over fmus.fmu.Fmu (the one FMU class: prepared I/O arrays)
   master_py    cosim.master.Master, Python engine (ctypes call per FMI function)
   master_c     cosim.master.Master, compiled kernel (one ctypes call per stretch of steps)
   master_c3    the same with the FMI 3.0 builds of the plant and drives (build/fmus/fmi3/),
@@ -33,7 +33,7 @@ import numpy as np
 
 from cosim.master import Master
 from fmus.build import ensure_fmus
-from fmus.fast_fmu import FastFmu2Slave
+from fmus.fmu import Fmu
 from fmus.servo_drive.params import drive_start_values
 
 Q0 = (0.0, -0.3, 1.2, 0.0, 0.6, 0.0)  # start pose, rad
@@ -153,14 +153,14 @@ def run_fmpy_api(paths, h: float, sim_time: float) -> float:
     return wall
 
 
-# ----------------------------------------------------------------------------- FastFmu2Slave
+# ----------------------------------------------------------------------------- Fmu hand loop
 def run_fast_fmu(paths, h: float, sim_time: float) -> float:
-    """The same loop over the fmus package's FastFmu2Slave."""
-    plant = FastFmu2Slave(paths["rx130l_plant"], "plant", plant_start(),
-                          real_inputs=[f"tau[{i}]" for i in range(1, 7)],
-                          real_outputs=[f"q[{i}]" for i in range(1, 7)] + [f"qd[{i}]" for i in range(1, 7)])
-    drives = [FastFmu2Slave(paths["servo_drive"], f"drive{i}", drive_start_values(i), real_inputs=DRIVE_IN,
-                            real_outputs=DRIVE_OUT, integer_inputs=["controlword"], integer_outputs=["statusword"])
+    """The same loop over fmus.fmu.Fmu's prepared I/O arrays."""
+    plant = Fmu(paths["rx130l_plant"], "plant", plant_start(),
+                real_inputs=[f"tau[{i}]" for i in range(1, 7)],
+                real_outputs=[f"q[{i}]" for i in range(1, 7)] + [f"qd[{i}]" for i in range(1, 7)]).start()
+    drives = [Fmu(paths["servo_drive"], f"drive{i}", drive_start_values(i), real_inputs=DRIVE_IN,
+                  real_outputs=DRIVE_OUT, integer_inputs=["controlword"], integer_outputs=["statusword"]).start()
               for i in range(1, 7)]
     n_steps = round(sim_time / h)
     k_ctrl = round(CONTROL_PERIOD / h)

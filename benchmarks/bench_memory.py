@@ -1,12 +1,23 @@
 """Memory of a long run stays flat: peak RSS of the same streaming run at two lengths.
 
-The plain-FMU job (the plant FMU, 18 signals recorded every 1 ms, 1 ms macro step) runs
-once for ``--short`` and once for ``--long`` simulated seconds (default 60 s and 600 s),
-each in a fresh interpreter (`python -m cosim run`), and prints each run's peak
-resident memory (``ru_maxrss`` of the child), the rows written and the ratio long/short.
-The time series streams through :class:`cosim.results.timeseries.ParquetSink` (bounded
-buffer, row groups written as the run goes), so the ratio should stay within 1.10.
-Run: python benchmarks/bench_memory.py [--short 60] [--long 600] [--timeseries parquet|csv]
+Two jobs (``--job``):
+
+``fmus`` (default)
+    the plain-FMU job (the plant FMU, 18 signals recorded every 1 ms, 1 ms macro step);
+``cell``
+    the robot cell of the main job (scenarios/iso9283.toml, one mode - ``model_based`` -
+    through controller, POWERLINK-timed fieldbus, six drive FMUs and the plant FMU, laser
+    tracker at 1 ms): the ISO 9283 path (12.2 s), then the arm holds its end pose under
+    control until the stop time. Every series streams to disk (recording, controller log at
+    400 us, TCP series) with bounded buffers and the evaluation reads them back in chunks
+    (cosim.cell.evaluation). ``--can-log`` adds the BLF CAN log (its writer is another process,
+    whose memory is not in the figure).
+
+Each length runs once for ``--short`` and once for ``--long`` simulated seconds (default
+60 s and 600 s) in a fresh interpreter (``python -m cosim run``); the figure is each run's
+peak resident memory (``ru_maxrss`` of the child), with the rows written and the ratio
+long/short, which should stay within 1.10.
+Run: python benchmarks/bench_memory.py [--job fmus|cell] [--short 60] [--long 600] [--timeseries parquet|csv]
 """
 from __future__ import annotations
 
@@ -40,11 +51,28 @@ signals = ["plant.q[*]", "plant.qd[*]", "plant.qdd[*]"]
 """
 
 
-def peak_rss_mib(seconds: float, folder: Path, fmt: str) -> tuple[float, int, float]:
+def cell_scenario(seconds: float, can_log: bool = False) -> str:
+    """The main job's scenario with one mode (model_based), ``seconds`` of simulated time, no figures."""
+    text = (ROOT / "scenarios" / "iso9283.toml").read_text(encoding="utf-8")
+    replace = {'stop_time = "12.6 s"': f"stop_time = {seconds!r}",
+               'modes = ["standard", "standard_speed_ff", "model_based"]': 'modes = ["model_based"]',
+               "figures = true": "figures = false", 'name = "iso9283"': f'name = "cell_memory_{seconds:g}"'}
+    if not can_log:
+        replace["can_log = true"] = "can_log = false"
+    for old, new in replace.items():
+        if old not in text:
+            raise SystemExit(f"scenarios/iso9283.toml: {old!r} not found (the benchmark edits it)")
+        text = text.replace(old, new)
+    return text
+
+
+def peak_rss_mib(seconds: float, folder: Path, fmt: str, job: str = "fmus", can_log: bool = False
+                 ) -> tuple[float, int, float]:
     """Run the scenario for ``seconds`` in a child; (peak RSS MiB, rows, wall s)."""
-    path = folder / f"memory_{int(seconds)}.toml"
-    path.write_text(SCENARIO.format(seconds=seconds), encoding="utf-8")
-    out = folder / f"out_{int(seconds)}"
+    path = folder / f"memory_{job}_{seconds:g}.toml"
+    text = SCENARIO.format(seconds=seconds) if job == "fmus" else cell_scenario(seconds, can_log)
+    path.write_text(text, encoding="utf-8")
+    out = folder / f"out_{job}_{seconds:g}"
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]))
     child = subprocess.Popen([sys.executable, "-m", "cosim", "run", str(path), "--out", str(out), "--quiet",
                               "--timeseries", fmt, "--ignore-budget"], env=env, cwd=folder)
@@ -52,7 +80,14 @@ def peak_rss_mib(seconds: float, folder: Path, fmt: str) -> tuple[float, int, fl
     if status != 0:
         raise SystemExit(f"run of {seconds} s failed (status {status})")
     summary = json.loads((out / "summary.json").read_text())
-    return usage.ru_maxrss / 1024.0, int(summary["rows_recorded"]), float(summary.get("wall_time_s") or 0.0)
+    if job == "fmus":
+        rows = int(summary["rows_recorded"])
+    else:
+        from cosim.results.timeseries import series_rows
+
+        rows = series_rows(out / "timeseries_model_based.parquet") if fmt == "parquet" else \
+            sum(1 for _ in open(out / "timeseries_model_based.csv", encoding="utf-8")) - 1
+    return usage.ru_maxrss / 1024.0, rows, float(summary.get("wall_time_s") or 0.0)
 
 
 def main(argv: list[str] | None = None) -> dict:
@@ -60,16 +95,25 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--short", type=float, default=60.0)
     parser.add_argument("--long", type=float, default=600.0)
     parser.add_argument("--timeseries", choices=("parquet", "csv"), default="parquet")
+    parser.add_argument("--job", choices=("fmus", "cell"), default="fmus")
+    parser.add_argument("--can-log", action="store_true", help="cell: write the BLF CAN log too")
     args = parser.parse_args(argv)
-    with tempfile.TemporaryDirectory() as tmp:
-        short = peak_rss_mib(args.short, Path(tmp), args.timeseries)
-        long = peak_rss_mib(args.long, Path(tmp), args.timeseries)
-    result = {"short_s": args.short, "long_s": args.long, "short_peak_rss_mib": short[0], "long_peak_rss_mib": long[0],
-              "short_rows": short[1], "long_rows": long[1], "ratio": long[0] / short[0],
-              "load_average": os.getloadavg(), "format": args.timeseries}
-    print(f"peak RSS: {args.short:g} s run {short[0]:.1f} MiB ({short[1]} rows), {args.long:g} s run "
-          f"{long[0]:.1f} MiB ({long[1]} rows): ratio {result['ratio']:.3f} "
-          f"({args.timeseries}; load average {result['load_average'][0]:.2f})")
+    return measure(args.short, args.long, args.timeseries, args.job, args.can_log)
+
+
+def measure(short_s: float, long_s: float, fmt: str = "parquet", job: str = "fmus", can_log: bool = False,
+            folder: Path | None = None) -> dict:
+    """Peak RSS of the ``job`` at ``short_s`` and ``long_s`` simulated seconds; prints and returns the figures."""
+    with tempfile.TemporaryDirectory(dir=folder) as tmp:
+        short = peak_rss_mib(short_s, Path(tmp), fmt, job, can_log)
+        long = peak_rss_mib(long_s, Path(tmp), fmt, job, can_log)
+    result = {"job": job, "short_s": short_s, "long_s": long_s, "short_peak_rss_mib": short[0],
+              "long_peak_rss_mib": long[0], "short_rows": short[1], "long_rows": long[1],
+              "short_wall_s": short[2], "long_wall_s": long[2], "ratio": long[0] / short[0],
+              "load_average": os.getloadavg(), "format": fmt, "can_log": can_log}
+    print(f"peak RSS ({job}): {short_s:g} s run {short[0]:.1f} MiB ({short[1]} rows, {short[2]:.0f} s wall), "
+          f"{long_s:g} s run {long[0]:.1f} MiB ({long[1]} rows, {long[2]:.0f} s wall): ratio {result['ratio']:.3f} "
+          f"({fmt}; load average {result['load_average'][0]:.2f})")
     return result
 
 

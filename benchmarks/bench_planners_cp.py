@@ -1,4 +1,4 @@
-"""Benchmark of the CP planners on the paper line (issue 6): solve times, durations,
+"""Benchmark of the CP planners on the paper line: solve times, durations,
 constraint ratios, and the energy-weighting table.
 
 Run: ``python benchmarks/bench_planners_cp.py [--repeats N]``. Prints medians over

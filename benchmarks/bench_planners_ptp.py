@@ -1,4 +1,4 @@
-"""Benchmark of the PtP planners on the paper line (issue 6): solve times, durations,
+"""Benchmark of the PtP planners on the paper line: solve times, durations,
 constraint ratios, the energy-weighting table and Figure 9.
 
 Run: ``python benchmarks/bench_planners_ptp.py [--repeats N] [--out DIR] [--quick]``.

@@ -1,6 +1,6 @@
 """The performance suite behind ``python -m cosim bench [--out DIR] [--quick]``.
 
-Every figure of the project's performance claims, measured in one run on this machine,
+Every figure of the project's performance claims, measured in one run on the machine it runs on,
 each a median over repeated runs, with the machine described and the ratios against
 the baselines computed from the same run. The timing code is the benchmarks' own
 (``bench_closed_loop``, ``bench_fieldbus``, ``bench_fmu``, ``bench_planners_cp``,
@@ -79,6 +79,8 @@ class Sizes:
     hil_runs: int = 5
     hil_late_seconds: float = 2.5
     hil_late_cycles: tuple[int, ...] = (1500, 2500, 3500, 4500, 4501)
+    hil_iso_runs: int = 5
+    hil_iso_stop_time_s: float | None = None  # the whole ISO 9283 path (12.6 s)
 
 
 FULL = Sizes(repeats=3, closed_loop_sim_s=2.0, split_sim_s=0.4, paced_sim_s=10.0, bus_cycles=5000, fmu_batches=60,
@@ -87,7 +89,7 @@ FULL = Sizes(repeats=3, closed_loop_sim_s=2.0, split_sim_s=0.4, paced_sim_s=10.0
 QUICK = Sizes(repeats=1, closed_loop_sim_s=0.1, split_sim_s=0.04, paced_sim_s=0.1, bus_cycles=300, fmu_batches=3,
               cp_intervals=30, ptp_intervals=20, calibration_candidates=300, calibration_grid=7, calibration_restarts=1,
               identification_samples=300, hil_seconds=0.3, hil_runs=1, hil_late_seconds=1.2,
-              hil_late_cycles=(500, 1200, 1201))
+              hil_late_cycles=(500, 1200, 1201), hil_iso_runs=1, hil_iso_stop_time_s=0.6)
 
 
 def _median(values: list[float]) -> float:
@@ -279,8 +281,8 @@ def calibration(sizes: Sizes, work: Path) -> dict[str, Any]:
 
     import bench_calibration
 
-    from identification.calibration_config_selection import select_configurations
-    from identification.calibration_tracker import TrackerSetup
+    from calibration.config_selection import select_configurations
+    from calibration.optical_tracker import TrackerSetup
 
     grid = {}
     if sizes.calibration_grid is not None and "values_per_axis" in inspect.signature(
@@ -315,13 +317,18 @@ def hil(sizes: Sizes, work: Path) -> dict[str, Any]:
     out = bench_hil.run(sizes.hil_seconds, sizes.hil_runs)
     m = out["median"]
     late = bench_hil.late_run(work / "late", sizes.hil_late_seconds, sizes.hil_late_cycles)
+    iso = bench_hil.iso_split(work / "iso", sizes.hil_iso_runs, sizes.hil_iso_stop_time_s)
     return {"seconds": sizes.hil_seconds, "runs": out["runs"], "overrun_fraction": m["overrun_fraction"],
             "longest_overrun_run": m["longest_overrun_run"], "lateness_p99_us": m["lateness_p99_us"],
             "round_trip_p50_us": m["round_trip_p50_us"], "round_trip_p99_us": m["round_trip_p99_us"],
             "lost_cycles": m["lost_cycles"],
             "late_planned_cycles": len(late["per_cycle"]), "late_exact_cycles": late["planned_exact"],
             "late_exact_fraction": late["planned_exact_fraction"],
-            "late_unplanned_lost_cycles": len(late["unplanned_lost_cycles"]), "late": late}
+            "late_unplanned_lost_cycles": len(late["unplanned_lost_cycles"]), "late": late,
+            "iso_tcp_error_max_mm_in_process": iso["tcp_error_max_mm_in_process"],
+            "iso_tcp_error_max_mm_split": iso["tcp_error_max_mm_split"], "iso_tcp_error_ratio": iso["tcp_error_ratio"],
+            "iso_overrun_fraction": iso["overrun_fraction"], "iso_lost_fraction": iso["lost_fraction"],
+            "iso_round_trip_p99_us": iso["round_trip_p99_us"], "iso_steal_ms_per_s": iso["steal_ms_per_s"], "iso_completed_runs": iso["completed_runs"], "iso": iso}
 
 
 SECTIONS: dict[str, Callable[[Sizes, Path], dict[str, Any]]] = {
@@ -343,7 +350,8 @@ REQUIRED: dict[str, tuple[str, ...]] = {
                  "ruckig_solve_s", "ruckig_feasible_solve_s", "own_ptp_duration_s", "ruckig_feasible_duration_s"),
     "calibration": ("selection_s",),
     "identification": ("identification_s",),
-    "hil": ("overrun_fraction", "lateness_p99_us", "round_trip_p99_us", "late_exact_fraction"),
+    "hil": ("overrun_fraction", "lateness_p99_us", "round_trip_p99_us", "late_exact_fraction",
+            "iso_tcp_error_ratio"),
 }
 RATIOS = ("own_cp_vs_toppra_solve_time", "own_cp_vs_toppra_duration", "own_ptp_vs_ruckig_feasible_duration",
           "own_ptp_vs_ruckig_feasible_solve_time", "in_process_vs_split_realtime_factor")
@@ -452,6 +460,13 @@ ROWS: tuple[tuple[str, str, str, str], ...] = (
     ("hil", "lost_cycles", "hil: lost cycles per run", ""),
     ("hil", "late_exact_fraction", "hil: late controller, planned cycles exactly as specified", ""),
     ("hil", "late_unplanned_lost_cycles", "hil: late controller, unplanned lost cycles", ""),
+    ("hil", "iso_overrun_fraction", "hil: ISO 9283 paced split, cell overrun fraction", ""),
+    ("hil", "iso_lost_fraction", "hil: ISO 9283 paced split, lost cycles fraction", ""),
+    ("hil", "iso_round_trip_p99_us", "hil: ISO 9283 paced split, frame round trip p99", "us"),
+    ("hil", "iso_steal_ms_per_s", "hil: ISO 9283 paced split, CPU time stolen by the hypervisor", "ms/s"),
+    ("hil", "iso_tcp_error_max_mm_in_process", "hil: ISO 9283 model-based max TCP error, in process", "mm"),
+    ("hil", "iso_tcp_error_max_mm_split", "hil: ISO 9283 model-based max TCP error, paced split", "mm"),
+    ("hil", "iso_tcp_error_ratio", "hil: ISO 9283 max TCP error, split / in process", "x"),
 )
 
 

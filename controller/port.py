@@ -104,7 +104,8 @@ class ControllerPort:
         self.close_error: str | None = None
         # a user's controller is timed here (the built-in one times its own work)
         self.timer: CycleTimer | None = None if self._alias_out is not None else CycleTimer(100e-6)
-        self._overhead_ns: list[int] = []
+        # the port's own cost per cycle, bounded for any length of run (CycleTimer folds long runs)
+        self._overhead: CycleTimer | None = CycleTimer(1.0) if self.timer is not None else None
 
     # ------------------------------------------------------------------ lifecycle
     def setup(self, info: ControllerInfo) -> None:
@@ -176,19 +177,17 @@ class ControllerPort:
         own = time.perf_counter_ns() - started
         timer.record(own, time.thread_time_ns() - cpu_started)
         sp = self._convert(out, cycle, t)
-        self._overhead_ns.append(time.perf_counter_ns() - entered - own)
+        self._overhead.record(time.perf_counter_ns() - entered - own)
         return sp
 
     def overhead(self) -> dict[str, float] | None:
         """What the port itself cost per cycle of a user controller, µs (p50, p99, mean over the
         cycles run): binding the input, timing, checking and copying the output - the time of
         :meth:`step` minus the controller's own ``step``. None for the built-in controller."""
-        if self.timer is None or not self._overhead_ns:
+        if self._overhead is None or not self._overhead.count:
             return None
-        values = sorted(self._overhead_ns)
-        n = len(values)
-        return {"p50_us": values[n // 2] / 1e3, "p99_us": values[min(n - 1, int(0.99 * n))] / 1e3,
-                "mean_us": sum(values) / n / 1e3, "cycles": n}
+        s = self._overhead.summary()
+        return {"p50_us": s.p50_us, "p99_us": s.p99_us, "mean_us": s.mean_us, "cycles": s.cycles}
 
     def timing(self) -> TimingSummary | None:
         """Compute time of a user controller's ``step`` per cycle (None for the built-in controller,

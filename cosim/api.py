@@ -706,7 +706,8 @@ def _execute_into(sc: Scenario, out_dir: Path, options, *, quiet: bool, origin: 
             from cosim.results.budget import check_budget, estimate_run
             from cosim.results.timeseries import default_format
 
-            check_budget(estimate_run(sc.data, timeseries or default_format()), out_dir, *budget)
+            held = execution is not None and bool(getattr(execution, "active", False))
+            check_budget(estimate_run(sc.data, timeseries or default_format(), in_memory=held), out_dir, *budget)
         try:
             ctx = RunContext(sc.validated, out_dir, quiet=quiet, execution=execution, timeseries_format=timeseries,
                              wall_origin=wall_origin, wall_time_from=wall_time_from)
@@ -835,7 +836,7 @@ def run_sweep(sweep: "Sweep | str | Path | Mapping[str, Any]", out: str | Path |
 
     Args:
         sweep: from :func:`build_sweep` or :func:`load_sweep`, or what :func:`load_sweep` takes.
-        out: results folder on this machine (sweep.csv, sweep.json, figure, ``variants/``);
+        out: results folder on the local machine (sweep.csv, sweep.json, figure, ``variants/``);
             default ``results/<sweep name>/``.
         workers: processes of the embedded LocalCluster (default: CPU count).
         scheduler: address of an existing Dask scheduler (``tcp://host:8786``) instead.

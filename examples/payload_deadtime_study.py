@@ -16,7 +16,7 @@ three keys with the sweep-axis syntax:
 Results in ``--out`` (default ``results/payload_deadtime_study/``): ``table.csv`` (the table
 printed, full precision), ``payload_deadtime_study.png`` and the sweep's own files
 (``sweep.csv``, one folder per variant). The same 8 variants run through
-``python -m cosim sweep`` give the same numbers to the last digit (tests/test_examples_study.py).
+``python -m cosim sweep`` give the same numbers to the last digit (tests/examples/test_study.py).
 """
 from __future__ import annotations
 

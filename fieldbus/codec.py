@@ -5,8 +5,8 @@ PRes payloads, apply the due set-points, digest received PDOs, scale telegram in
 to SI) through this CPython extension when it is available; each function changes
 nothing and returns a status when it meets anything unusual, and the nodes then run
 their Python code, which stays the reference (identical results, tested in
-``tests/test_fieldbus_fast_paths.py``). On this machine a cycle of six nodes costs
-about 250 000 instructions in Python and about a half of that with the codec.
+``tests/fieldbus/test_fast_paths.py``). The fieldbus cycle of six nodes costs
+254 000 instructions in Python and 100 000 with the codec (callgrind, docs/main_job.md).
 
 The extension is built against this interpreter's headers and cached by the project's
 native layer (:mod:`native`: per-user cache, lock, atomic replacement; ``COSIM_NATIVE=require``

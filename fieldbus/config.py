@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from fieldbus.errors import FieldbusConfigError
+from fieldbus.timing import check_cycle_budget
 
 DEFAULTS_PATH = Path(__file__).with_name("powerlink_defaults.toml")
 
@@ -256,7 +257,6 @@ class FieldbusConfig:
         values = _merge(table or {}, source)
         config = _build(values, source)
         # the frame schedule must fit in the cycle (checked with the timing model)
-        from fieldbus.timing import check_cycle_budget
         check_cycle_budget(config)
         return config
 

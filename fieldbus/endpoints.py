@@ -83,11 +83,18 @@ class ControllerCadence:
         self._advance = 0
         self._groups = 0
 
-    def note(self, cycle: int, counter: int) -> tuple[float, float] | None:
-        """A SoC with ``counter`` read in cell cycle ``cycle``; returns (ratio, controller
-        cycle time estimate in s) when this SoC closed a mismatched block, else None."""
+    def note(self, cycle: int, counter: int, time_s: float | None = None) -> tuple[float, float] | None:
+        """A SoC with ``counter`` read in cell cycle ``cycle`` at wall time ``time_s`` (s, any
+        origin; default ``cycle`` times the cycle time: a cell that never misses a tick);
+        returns (ratio, controller cycle time estimate in s) when this SoC closed a mismatched
+        block, else None. Elapsed time is measured on the wall clock, so a cell that dropped
+        ticks after a stall does not misjudge the controller."""
+        if time_s is not None:
+            cycle_or_time = time_s / self.cycle_time_s  # in cycles of the cell, on the wall clock
+        else:
+            cycle_or_time = float(cycle)
         if self._start is None:
-            self._start, self._last_counter, self._advance, self._groups = cycle, counter, 0, 1
+            self._start, self._last_counter, self._advance, self._groups = cycle_or_time, counter, 0, 1
             return None
         step = (counter - self._last_counter) % self.overflow
         if step > self.overflow // 2:  # older than the newest (a late duplicate of the sender's): not an advance
@@ -95,14 +102,14 @@ class ControllerCadence:
         self._advance += step
         self._last_counter = counter
         self._groups += 1
-        elapsed = cycle - self._start
+        elapsed = cycle_or_time - self._start
         if elapsed < self.block_cycles or self._groups < self.min_groups:
             if elapsed >= 4 * self.block_cycles:  # too few SoCs to judge (a silent controller): start over
-                self._start, self._advance, self._groups = cycle, 0, 1
+                self._start, self._advance, self._groups = cycle_or_time, 0, 1
             return None
         ratio = self._advance / elapsed
         self.blocks += 1
-        self._start, self._advance, self._groups = cycle, 0, 1
+        self._start, self._advance, self._groups = cycle_or_time, 0, 1
         if abs(ratio - 1.0) <= self.tolerance:
             self._in_episode, self._pending = False, None
             return None
@@ -551,7 +558,7 @@ class DriveEndpoint(_Endpoint):
             msg = self.bus.recv(min(remaining, 0.002))
             pending = [] if msg is None else [msg]
         if groups:
-            self._note_cadence(cycle, groups)
+            self._note_cadence(cycle, groups, deadline)
         chosen = None
         for index in range(len(groups) - 1, -1, -1):
             if bytes(groups[index][0].data[:1]) == expected:
@@ -580,13 +587,13 @@ class DriveEndpoint(_Endpoint):
             self._record(out)  # what the cell took, with the cycle's timestamps
         return out
 
-    def _note_cadence(self, cycle: int, groups: list) -> None:
+    def _note_cadence(self, cycle: int, groups: list, time_s: float) -> None:
         """Judge the controller's SoC counter against this cell's cycles (:class:`ControllerCadence`)."""
         cadence = self.cadence
         for group in groups:
             if not group[0].data:
                 continue
-            found = cadence.note(cycle, group[0].data[0])
+            found = cadence.note(cycle, group[0].data[0], time_s)
             if found is not None:
                 ratio, estimate = found
                 self.events.add(FieldbusEvent(

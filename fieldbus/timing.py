@@ -32,7 +32,7 @@ import numpy as np
 from fieldbus.errors import FieldbusConfigError
 from fieldbus.telegrams import PRES_PAYLOAD_BYTES, PREQ_PAYLOAD_BYTES
 
-if TYPE_CHECKING:
+if TYPE_CHECKING:  # annotations only: fieldbus.config imports this module for its cycle-budget check
     from fieldbus.config import FieldbusConfig, TimingConfig
     from fieldbus.faults import CycleFaults
 

@@ -109,7 +109,7 @@ def default_out_dir() -> Path:
 
 
 def _platform_dir() -> str:
-    return fmpy.platform  # "linux64" on this machine
+    return fmpy.platform  # "linux64" on x86-64 Linux
 
 
 def input_hash(recipe: FmuRecipe, fmi: int = 2) -> str:

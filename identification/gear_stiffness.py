@@ -247,8 +247,8 @@ def identify_gear_stiffness_periodic(base, base_values: ArrayLike, motor_period:
     motion is evaluated at the tracker's instants from its Fourier series up to ``cutoff_hz``;
     the gear torques follow from the link-side base parameters; the same harmonics are dropped
     from the regressor columns and from the measured deviation (parallel filtering)."""
-    from identification.dynamic_identify import base_regressor
-    from identification.dynamic_signals import periodic_derivatives, periodic_evaluate, periodic_lowpass
+    from identification.identify import base_regressor
+    from identification.signals import periodic_derivatives, periodic_evaluate, periodic_lowpass
 
     tracker_period = np.asarray(tracker_period, dtype=float)
     times = tracker_phase + np.arange(tracker_period.shape[0]) * tracker_sample_time

@@ -19,7 +19,8 @@ equal intervals of length h = T / N: the states (q, qd, qdd) at the N + 1 nodes 
 constant jerk per interval, linked by the exact integrator of q''' = jerk (no
 integration error). The dynamics enter implicitly: tau = ID(q, qd, qdd) is evaluated,
 not integrated, so no mass-matrix inverse or forward simulation is needed (implicit
-collocation solved PtP problems 25-50x faster than multiple shooting on this machine).
+collocation solved PtP problems 25-50x faster than multiple shooting in the project's first
+trials; not re-measured, docs/planners_ptp.md).
 Because the motion is an explicit polynomial, the dense output at 1 ms is the
 optimiser's own motion, and its torque is the inverse dynamics of the dense (q, qd, qdd)
 -- exactly what the constraints saw at the nodes. Acceleration is piecewise linear, so
@@ -78,7 +79,8 @@ from robot.kinematics import transform_from_pose
 from robot.symbolic import chain_structure
 
 RATIO_TOLERANCE = 1.001
-"""Largest accepted |value| / limit of the dense trajectory (issue 6)."""
+"""Largest accepted |value| / limit of the dense trajectory; above it the offending joints' limits are
+tightened and the problem is solved again (docs/planners_ptp.md)."""
 CHECKED_KINDS: tuple[str, ...] = ("velocity", "acceleration", "jerk", "torque", "torque_rate", "position")
 """Limit kinds checked on the dense trajectory (each only where its limit is finite)."""
 DEFAULT_JERK_REGULARISATION = 1e-5

@@ -1,6 +1,6 @@
 """Planner summaries (summary.json ``planners.<name>``) and the paper's Figures 7 and 8.
 
-``planner_summary`` gives the numbers issue 6 asks for: duration_s, solve_time_s,
+``planner_summary`` gives the numbers each planner is compared by: duration_s, solve_time_s,
 max_constraint_ratio (largest |value| / limit over velocity, acceleration, torque and
 torque rate, resampled at 1 ms, torque recomputed by the robot's inverse dynamics),
 energy (integral tau^T tau dt, N^2 m^2 s), plus status and the per-kind ratios.

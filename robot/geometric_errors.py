@@ -58,7 +58,7 @@ derivative (m per unit) and rows 3-5 the derivative of the flange orientation as
 small rotation vector in base-frame axes (rad per unit), i.e. the derivative of
 :func:`robot.kinematics.pose_error` (``target=perturbed``, ``actual=unperturbed``).
 Identifiability (rank-revealing QR over well-spread configurations, checked in
-tests/test_robot_geometric_errors.py and tests/test_calibration_identifiability.py):
+tests/robot/test_geometric_errors.py and tests/calibration/test_identifiability.py):
 **30** of the 39 columns are independent for full pose measurements, the paper's 30
 (the 4R + 2P + 6 count of a complete model of a 6R arm); **25** for position-only
 measurements (the flange tilts and ``offset6`` then have no first-order effect, as they

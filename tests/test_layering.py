@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-OURS = {"native", "robot", "fieldbus", "fmus", "controller", "planners", "identification", "cosim"}
+OURS = {"native", "robot", "fieldbus", "fmus", "controller", "planners", "calibration", "identification", "cosim"}
 ALLOWED = {
     "native": {"native"},
     "robot": {"robot", "native"},
@@ -15,6 +15,7 @@ ALLOWED = {
     "fmus": {"fmus", "robot", "fieldbus", "native"},
     "controller": {"controller", "robot", "fieldbus", "native"},
     "planners": {"planners", "robot", "fieldbus", "native"},
+    "calibration": {"calibration", "robot", "fieldbus", "native"},
     "identification": {"identification", "robot", "fieldbus", "native"},
     "cosim": OURS,
 }
@@ -42,9 +43,10 @@ def test_imports_point_down(package):
 
 
 # Inside cosim/: the master, the results and the scenario layer know nothing of the jobs, the
-# robot cell, the execution modes (realtime, split, hil) or the commands built on them.
+# robot cell, the laser tracker and tracking metrics, the execution modes (realtime, split, hil)
+# or the commands built on them.
 COSIM_LOWER = ("master", "results", "scenario")
-COSIM_UPPER = {"jobs", "cell", "realtime", "split", "hil", "commands", "sweep", "api", "cli"}
+COSIM_UPPER = {"jobs", "cell", "tracking", "realtime", "split", "hil", "commands", "sweep", "api", "cli"}
 
 
 def _all_imports(path: Path) -> set[str]:
@@ -107,9 +109,10 @@ def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
     return found
 
 
-@pytest.mark.parametrize("pairs", [("cosim.scenario", "cosim.realtime"), ("planners.base", "planners.trajectory")])
+@pytest.mark.parametrize("pairs", [("cosim.scenario", "cosim.realtime"), ("planners.base", "planners.trajectory"),
+                                   ("fieldbus.config", "fieldbus.timing")])
 def test_former_import_cycles_stay_removed(pairs):
-    graph = _module_graph(("cosim", "planners"))
+    graph = _module_graph(("cosim", "planners", "fieldbus"))
     cycles = [c for c in _cycles(graph) if any(m.startswith(pairs[0]) for m in c)
               and any(m.startswith(pairs[1]) for m in c)]
     assert not cycles, f"import cycle through {pairs}: {cycles[:3]}"
@@ -120,3 +123,16 @@ def test_n_joints_is_defined_once():
                if any(isinstance(n, ast.Assign) and any(getattr(t, "id", "") == "N_JOINTS" for t in n.targets)
                       for n in ast.parse(p.read_text(encoding="utf-8")).body)]
     assert defined == ["robot/joints.py"], defined
+
+
+def _module_level_imports(path: Path) -> set[str]:
+    return {node.module for node in ast.parse(path.read_text(encoding="utf-8")).body
+            if isinstance(node, ast.ImportFrom) and node.level == 0 and node.module}
+
+
+def test_fieldbus_config_imports_the_timing_model_at_module_level():
+    """The configuration checks its cycle budget with the timing model, which names the
+    configuration's types for annotations only: a plain downward import, not one hidden in a
+    function (which is how a cycle would come back unnoticed)."""
+    assert "fieldbus.timing" in _module_level_imports(ROOT / "fieldbus" / "config.py")
+    assert "fieldbus.config" not in _all_imports(ROOT / "fieldbus" / "timing.py")

@@ -64,7 +64,7 @@ def check_cell(doc: dict[str, Any], where: Where, job_set_drive_parameters: Mapp
     Raises ScenarioError (a ValueError) at the first key that is wrong.
     """
     from cosim.master import load_model_description
-    from cosim.master.component import variables_of
+    from fmus.fmu import variables_of
     from fieldbus import FieldbusConfig, FieldbusConfigError
 
     by_name = {fmu["name"]: (i, fmu) for i, fmu in enumerate(doc["fmus"])}

@@ -19,7 +19,7 @@ from typing import Any
 
 from controller import ControllerInfo
 from cosim.cell.wiring import DRIVES, RECORDED_SIGNALS, cell_fmus, drive_variables_of, merged_connections
-from cosim.jobs.laser_tracker import TrackerConfig
+from cosim.tracking.laser_tracker import TrackerConfig
 from fieldbus import FieldbusConfig
 from robot.true_robot import TrueRobot
 

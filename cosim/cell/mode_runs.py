@@ -23,8 +23,8 @@ from cosim.cell.evaluation import DEFINITIONS, evaluate_run
 from cosim.cell.parts import (BUILTIN_MODES, controller_models, drive_speed_feedforward, fill_cell_defaults,
                               make_true_robot, mode_fmus, tracker_config)
 from cosim.cell.runner import CellRun, controller_info, run_cell
-from cosim.jobs.laser_tracker import TrackerConfig
-from cosim.jobs.tracking_metrics import TrackingResult
+from cosim.tracking.laser_tracker import TrackerConfig
+from cosim.tracking.metrics import TrackingResult
 from cosim.scenario.context import RunContext
 
 
@@ -135,7 +135,7 @@ def run_mode(ctx: RunContext, setup: CellSetup, mode: str, extra_signals: Sequen
     cell_description, controller = mode_cell(setup, mode, ctx, extra_signals)
     cell = run_cell(cell_description, controller, ctx)
     rec = cell.recording
-    if cell.failure is not None and (rec is None or not rec.columns or rec.data.shape[0] == 0):
+    if cell.failure is not None and (rec is None or not rec.columns or cell.rows_recorded == 0):
         raise cell.failure  # failed before the first sample (e.g. an FMU refused its parameters): nothing to evaluate
     entry, result = evaluate_run(ctx, mode, cell, controller, setup.reference, setup.path, setup.true_robot)
     entry = {"drive_speed_feedforward": settings["drive_speed_feedforward"],

@@ -20,7 +20,7 @@ import numpy as np
 
 from cosim.cell import wiring
 from cosim.cell.checks import check_cell, fill_defaults
-from cosim.jobs.laser_tracker import DEFAULT_POSITION_SIGMA_M
+from cosim.tracking.laser_tracker import DEFAULT_POSITION_SIGMA_M
 from cosim.scenario.schema import AnyValue, Boolean, Field, FilePath, Integer, List, Number, String, Table, Where
 
 SPEED_FEEDFORWARD_PARAMETER = "speed_feedforward_gain"
@@ -174,8 +174,8 @@ def check_cell_scenario(doc: dict[str, Any], where: Where) -> None:
 
 
 def tracker_config(table: dict[str, Any]):
-    """The :class:`cosim.jobs.laser_tracker.TrackerConfig` of a ``[tracker]`` table."""
-    from cosim.jobs.laser_tracker import TrackerConfig
+    """The :class:`cosim.tracking.laser_tracker.TrackerConfig` of a ``[tracker]`` table."""
+    from cosim.tracking.laser_tracker import TrackerConfig
 
     return TrackerConfig(table["period"], table["noise_sigma"], table["seed"])
 

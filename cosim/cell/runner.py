@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import contextlib
 import time
+from pathlib import Path
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Callable
@@ -39,7 +40,7 @@ from controller import CellController, ControllerInfo
 from cosim.cell.description import CellDescription
 from cosim.cell.link import FieldbusLink
 from cosim.cell.wiring import N_JOINTS, cell_variables, joint_scaling
-from cosim.jobs.laser_tracker import TRACKER_VARIABLES, LaserTracker
+from cosim.tracking.laser_tracker import TRACKER_VARIABLES, LaserTracker
 from cosim.master import Master, MemorySink, Recorder, SimulationError
 from cosim.realtime.pacer import no_cyclic_gc
 from cosim.results.timeseries import SeriesFile
@@ -80,6 +81,9 @@ class CellRun:
     split: dict[str, Any] | None = field(default=None)
     controller_timing: Any = None
     port_overhead: dict[str, float] | None = None
+    controller_record: Any = None
+    """The built-in controller's log streamed as the run went (``controller_<name>`` in the
+    results folder, Parquet or CSV); None when it stayed in memory (paced and split runs)."""
 
 
 def master_units(master: Master, signals: Sequence[str]) -> dict[str, str]:
@@ -102,6 +106,24 @@ def write_recording(memory: MemorySink, sink: Any) -> None:
     if len(data):
         sink.write(data)
     sink.close()
+
+
+def controller_log_of(controller: Any) -> Any:
+    """The :class:`controller.ControllerLog` of a built-in controller (or of a wrapper that
+    delegates to one, as the identification job's recorder), else None."""
+    from controller import ControllerLog
+
+    try:
+        log = getattr(controller, "log", None)
+    except Exception:  # a user's controller with a property that fails: it has no built-in log
+        return None
+    return log if isinstance(log, ControllerLog) else None
+
+
+def controller_record_name(cell: CellDescription) -> str:
+    """``controller_<name>`` for the cell's ``timeseries_<name>`` record file (the label otherwise)."""
+    stem = Path(cell.record_file).stem
+    return "controller_" + (stem[len("timeseries_"):] if stem.startswith("timeseries_") else cell.label)
 
 
 def controller_info(controller: Any, fb_config: FieldbusConfig, *, label: str = "",
@@ -216,7 +238,15 @@ def _run_on_master(cell: CellDescription, controller: CellController, ctx: RunCo
     cpu0 = time.process_time()
     network = PowerlinkNetwork(fb_config, joint_scaling(), log_path=cell.can_log)
     link = None
+    log = None if paced else controller_log_of(controller)  # paced: no file I/O in the loop
+    controller_file = None
     try:
+        if log is not None:  # the controller's log streams beside the recording (bounded memory)
+            from cosim.cell.evaluation import series_units
+            from controller.controller import LOG_COLUMNS
+
+            controller_file = ctx.series_name(controller_record_name(cell))
+            log.stream_to(ctx.series_sink(controller_file, series_units(LOG_COLUMNS)))
         bus: Any = network
         scheduling: Any = contextlib.nullcontext("normal")
         if paced:
@@ -253,7 +283,10 @@ def _run_on_master(cell: CellDescription, controller: CellController, ctx: RunCo
             write_recording(memory, ctx.series_sink(record_file, units))
         elif not paced:
             sink.close()  # the master closed its recorder (footer written); again is a no-op
+        if log is not None:
+            log.close_stream()
     recording = memory if paced else SeriesFile(ctx.path(record_file))
     return CellRun(cell.label, ctx.path(record_file), recorder.rows_written, master.time, network.summary(),
                    wall, engine, recording, failure, cpu, pacer=pacer if paced else None, scheduling=granted,
-                   controller_timing=link.port.timing(), port_overhead=link.port.overhead())
+                   controller_timing=link.port.timing(), port_overhead=link.port.overhead(),
+                   controller_record=ctx.path(controller_file) if controller_file else None)

@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from controller import DriveLoopModel, speed_comparison_lead
-from cosim.jobs.laser_tracker import TRACKER_VARIABLES
+from cosim.tracking.laser_tracker import TRACKER_VARIABLES
 from cosim.master.variables import parse_connection
 from fieldbus import JointScaling
 from fmus.servo_drive.interface import REQUIRED as DRIVE_REQUIRED
@@ -98,7 +98,7 @@ def cell_connections(drive_variables: Mapping[str, Collection[str]] | None = Non
 def drive_variables_of(fmus: Sequence[Mapping[str, Any]]) -> dict[str, set[str]]:
     """Drive instance -> the variable names of its FMU (from the ``[[fmus]]`` tables' paths)."""
     from cosim.master import load_model_description
-    from cosim.master.component import variables_of
+    from fmus.fmu import variables_of
 
     return {f["name"]: set(variables_of(load_model_description(f["path"]))) for f in fmus if f["name"] in DRIVES}
 

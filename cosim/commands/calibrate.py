@@ -45,11 +45,11 @@ def run(args: argparse.Namespace) -> int:
     """Read, calibrate, check plausibility, write; invalid input -> exit 2, implausible fit -> exit 3
     (no URDF written)."""
     from cosim.commands.exits import InvalidInput, RunFailed, describe_decode_error, describe_os_error
-    from identification.calibration_measurements import read_measurements_csv
-    from identification.calibration_outputs import write_calibration_outputs
-    from identification.calibration_plausibility import assess_calibration
-    from identification.calibration_solver import calibrate
-    from identification.calibration_tracker import TrackerNoise
+    from calibration.measurements import read_measurements_csv
+    from calibration.outputs import write_calibration_outputs
+    from calibration.plausibility import assess_calibration
+    from calibration.solver import calibrate
+    from calibration.optical_tracker import TrackerNoise
     from robot.geometric_errors import GeometricErrorModel, default_error_model
 
     out_dir = args.out or Path("results") / f"calibrate-{args.measurements.stem}"

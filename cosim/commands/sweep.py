@@ -30,7 +30,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("sweep", type=Path, help="sweep TOML file (see docs/sweeps.md)")
     parser.add_argument("--scheduler", default=None, metavar="ADDRESS",
                         help="address of an existing Dask scheduler (e.g. tcp://10.0.0.5:8786); "
-                        "default: an embedded LocalCluster on this machine")
+                        "default: an embedded LocalCluster on the local machine")
     parser.add_argument("--workers", type=_positive_int, default=None, metavar="N",
                         help="worker processes of the embedded cluster (default: CPU count; one thread each)")
     parser.add_argument("--out", type=Path, default=None, help="results folder (default: results/<sweep name>/)")

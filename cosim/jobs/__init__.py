@@ -1,3 +1,4 @@
-"""Robot jobs of ``python -m cosim run``: the robot cell wiring shared by the jobs
-(plant + six drives + fieldbus + controller + laser tracker) and the job modules
-(``iso9283``: the paper's section 2 experiment)."""
+"""Jobs of ``python -m cosim run`` and their figures: the ISO 9283 experiment (``iso9283``,
+the paper's section 2), planners, comparison, fieldbus faults, calibration and identification.
+They run the robot cell of :mod:`cosim.cell` (built there, once) and evaluate it with
+:mod:`cosim.tracking` (laser tracker, tracking metrics)."""

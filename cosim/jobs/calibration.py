@@ -1,6 +1,6 @@
 """Job ``calibration``: the simulated geometric-calibration campaign (paper section 3).
 
-Runs :func:`identification.calibration_campaign.run_calibration_campaign` with the
+Runs :func:`calibration.campaign.run_calibration_campaign` with the
 scenario's tables (all optional; defaults and meaning in that module and in
 docs/calibration.md) and puts its summary into ``summary.json``: Table 2 figures
 (``uncalibrated``/``calibrated``), identifiable parameters, observation-index ratios
@@ -17,8 +17,8 @@ from cosim.scenario.context import RunContext
 from cosim.scenario.loader import SCENARIO_FIELD, Scenario
 from cosim.scenario.registry import register_job
 from cosim.scenario.schema import Boolean, Field, Integer, List, Number, String, Table
-from identification.calibration_observability import OBSERVATION_INDICES
-from identification.calibration_scaling import COLUMN_SCALINGS
+from calibration.observability import OBSERVATION_INDICES
+from calibration.scaling import COLUMN_SCALINGS
 
 TRUE_ROBOT = Table({
     "seed": Field(Integer(min=0), doc="seed of robot.true_robot.make_true_robot (its geometric errors)"),
@@ -71,7 +71,7 @@ SCHEMA = Table({"scenario": SCENARIO_FIELD, **{name: Field(spec) for name, spec 
 
 def run_calibration_job(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
     """Run the campaign into the results folder; return the summary fields."""
-    from identification.calibration_campaign import run_calibration_campaign  # heavy: only when this job runs
+    from calibration.campaign import run_calibration_campaign  # heavy: only when this job runs
 
     config = {name: scenario.data[name] for name in SECTIONS if name in scenario.data}
     return run_calibration_campaign(config, ctx.out_dir, write_summary=False)

@@ -13,7 +13,7 @@ A scenario lists the controllers and the trajectories (``[compare]``, docs/bring
 
 Every pair runs through the same robot cell (:mod:`cosim.cell`: the
 ``[true_robot]`` drawn once from its seed, POWERLINK-timed fieldbus, drive FMUs, plant
-FMU, laser tracker) and is evaluated the same way (:mod:`cosim.jobs.tracking_metrics`:
+FMU, laser tracker) and is evaluated the same way (:mod:`cosim.tracking.metrics`:
 TCP error measured vs commanded with the TRUE kinematics, ISO 9283 AT, joint lag);
 a ``model_based`` x ``iso9283`` entry is the main job's ``model_based`` run, to the last
 digit. Added per entry: the peak ratio of the drives' current set-point to its clamp,
@@ -43,13 +43,13 @@ import numpy as np
 from controller import ControllerLog
 from cosim.cell import wiring
 from cosim.cell.description import describe_cell
-from cosim.cell.evaluation import evaluate_run
+from cosim.cell.evaluation import controller_log_columns, evaluate_run, recording_chunks
 from cosim.cell.mode_runs import CellSetup, mode_cell, prepare
 from cosim.cell.parts import (BUILTIN_MODES, CELL_FIELDS, check_cell_scenario, drive_speed_feedforward,
                               fill_cell_defaults, mode_fmus)
 from cosim.cell.runner import CellRun, controller_info, run_cell
 from cosim.jobs import planners as planners_job
-from cosim.jobs.tracking_metrics import desired_joints, evaluate
+from cosim.tracking.metrics import desired_joints, evaluate
 from cosim.scenario.context import RunContext
 from cosim.scenario.cosim_tables import COSIM_FIELDS
 from cosim.scenario.loader import SCENARIO_FIELD, Scenario
@@ -450,9 +450,8 @@ def _evaluate_joint(ctx: RunContext, label: str, cell: CellRun, controller: Any,
     tau = np.clip(t - (start if start is not None else np.inf), 0.0, traj.duration)
     planned_q = traj.sample(traj.t[0] + tau).q
     builtin = isinstance(getattr(controller, "log", None), ControllerLog)
-    if builtin:
-        log = controller.log.columns()
-        ctx.write_series(f"controller_{label}", log, series_units(log))
+    if builtin:  # a joint trajectory's run: stop_time follows the trajectory, its rows and log are held whole
+        log = controller_log_columns(ctx, f"controller_{label}", cell, controller)
         stack = [np.column_stack([log[f"{g}{j}"] for j in range(1, 7)]) for g in ("q_d", "qd_d", "qdd_d")]
         ok = np.isfinite(stack[0]).all(axis=1)
         q_d = (desired_joints(t, log["t_apply"][ok], stack[0][ok], stack[1][ok], stack[2][ok]) if ok.any()
@@ -492,30 +491,41 @@ def _drive_metrics(cell: CellRun, doc_fmus: list[dict[str, Any]], window: tuple[
                    ) -> dict[str, Any]:
     """Over the motion window: the peak of |current set-point| / its clamp min(current_limit, torque_limit /
     (gear_ratio torque_constant)) (also over the whole run, which includes the enable transient),
-    the mechanical energy and the tau^T tau integral; ``drive_saturated``: the clamp reached anywhere."""
+    the mechanical energy and the tau^T tau integral; ``drive_saturated``: the clamp reached anywhere.
+    The recording is read chunk by chunk; only the motion window's rows are held."""
     rec = cell.recording
-    cols, data = rec.columns, rec.data
-    t = data[:, 0]
     params = wiring.drive_parameters(doc_fmus)
     clamp = np.array([min(p["current_limit"], p["torque_limit"] / (p["gear_ratio"] * p["torque_constant"]))
                       for p in params])
-    current = np.abs(data[:, [cols.index(f"{d}.current_demand") for d in wiring.DRIVES]])
-    torque = data[:, [cols.index(f"{d}.tau_out") for d in wiring.DRIVES]]
-    qd = data[:, [cols.index(f"{wiring.PLANT}.qd[{i}]") for i in range(1, 7)]]
-    mask = (t >= window[0] - 1e-9) & (t <= window[1] + 1e-9)
-    whole = current.max(axis=0) / clamp if t.size else np.full(6, np.nan)
-    ratio = current[mask].max(axis=0) / clamp if mask.any() else np.full(6, np.nan)
-    if mask.sum() >= 2:
-        tm = t[mask]
-        power = np.abs(torque[mask] * qd[mask]).sum(axis=1)
-        tau2 = (torque[mask] ** 2).sum(axis=1)
+    columns = ([rec.columns[0]] + [f"{d}.current_demand" for d in wiring.DRIVES]
+               + [f"{d}.tau_out" for d in wiring.DRIVES] + [f"{wiring.PLANT}.qd[{i}]" for i in range(1, 7)])
+    whole = np.full(6, -np.inf)
+    saturated = False
+    rows = 0
+    kept: list[np.ndarray] = []
+    for block in recording_chunks(rec, columns):
+        current = np.abs(block[:, 1:7])
+        whole = np.maximum(whole, current.max(axis=0))
+        saturated = saturated or bool(np.any(current >= SATURATION_FRACTION * clamp))
+        t = block[:, 0]
+        mask = (t >= window[0] - 1e-9) & (t <= window[1] + 1e-9)
+        if mask.any():
+            kept.append(block[mask])
+        rows += t.size
+    inside = np.concatenate(kept) if kept else np.zeros((0, 19))
+    tm, current, torque, qd = inside[:, 0], np.abs(inside[:, 1:7]), inside[:, 7:13], inside[:, 13:19]
+    whole = whole / clamp if rows else np.full(6, np.nan)
+    ratio = current.max(axis=0) / clamp if tm.size else np.full(6, np.nan)
+    if tm.size >= 2:
+        power = np.abs(torque * qd).sum(axis=1)
+        tau2 = (torque ** 2).sum(axis=1)
         energy = float(np.sum(0.5 * (power[1:] + power[:-1]) * np.diff(tm)))
         tau_sq = float(np.sum(0.5 * (tau2[1:] + tau2[:-1]) * np.diff(tm)))
     else:
         energy = tau_sq = float("nan")
     return {"current_peak_ratio": float(np.max(ratio)), "current_peak_ratio_per_axis": ratio.tolist(),
             "current_peak_ratio_whole_run": float(np.max(whole)),
-            "drive_saturated": bool(np.any(current >= SATURATION_FRACTION * clamp)),
+            "drive_saturated": saturated,
             "energy_J": energy, "tau_squared_integral": tau_sq}
 
 

@@ -117,7 +117,7 @@ def expected_trips(fieldbus) -> list[dict[str, Any]]:
 
 def _drive_states(cell: CellRun) -> list[dict[str, Any]]:
     """State, statusword, error code and brake torque of every drive in the last recorded row."""
-    cols, last = cell.recording.columns, cell.recording.data[-1]
+    cols, last = cell.recording.columns, _last_row(cell)
     states = []
     for d in wiring.DRIVES:
         sw = int(last[cols.index(f"{d}.statusword")])
@@ -127,11 +127,29 @@ def _drive_states(cell: CellRun) -> list[dict[str, Any]]:
     return states
 
 
+def _last_row(cell: CellRun) -> np.ndarray:
+    """The recording's last row (read from the end of its file when it streamed)."""
+    rec = cell.recording
+    if hasattr(rec, "chunks"):
+        from cosim.results.timeseries import last_row
+
+        return last_row(rec.path)
+    return rec.data[-1]
+
+
 def _rest(cell: CellRun, window: float, tolerance: float) -> dict[str, Any]:
-    data, cols = cell.recording.data, cell.recording.columns
+    rec = cell.recording
+    cols = rec.columns
+    take = [cols[0]] + [f"plant.qd[{i}]" for i in range(1, 7)]
+    if hasattr(rec, "chunks"):  # only the recording's last seconds are read
+        from cosim.results.timeseries import tail
+
+        _, data = tail(rec.path, window + 1.0, take)
+    else:
+        data = rec.data[:, [cols.index(c) for c in take]]
     t = data[:, 0]
     last = t >= t[-1] - window + 1e-12
-    qd = np.abs(data[np.ix_(last, [cols.index(f"plant.qd[{i}]") for i in range(1, 7)])]).max(axis=0)
+    qd = np.abs(data[last][:, 1:]).max(axis=0)
     return {"window_s": window, "speed_tolerance_rad_s": tolerance, "max_joint_speed_rad_s": qd.tolist(),
             "at_rest": bool(np.all(qd < tolerance)), "end_time_s": float(t[-1])}
 

@@ -32,10 +32,20 @@ def write_figure(file: Path, cell: Any, trips: list[dict[str, Any]], controller:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    data, cols = cell.recording.data, cell.recording.columns
+    from cosim.cell.evaluation import recording_chunks
+
+    rec = cell.recording
+    cols = [rec.columns[0]] + [f"{name}{i}{suffix}" for name, suffix in (("plant.qd[", "]"), ("drive", ".tau_out"),
+                                                                         ("drive", ".statusword")) for i in range(1, 7)]
+    first = min((tr["time_s"] for tr in trips), default=None)
+    kept = []
+    for block in recording_chunks(rec, cols):  # only the plotted columns from the first trip on are held
+        if first is None:
+            first = block[0, 0] + before_s
+        kept.append(block[block[:, 0] >= first - before_s])
+    data = np.concatenate(kept) if kept else np.zeros((0, len(cols)))
     t = data[:, 0]
-    first = min((tr["time_s"] for tr in trips), default=t[0] + before_s)
-    shown = t >= first - before_s
+    shown = np.ones(t.size, dtype=bool)
     fig, axes = plt.subplots(3, 1, figsize=(9, 8), sharex=True)
     for i in range(1, 7):
         axes[0].plot(t[shown], data[shown, cols.index(f"plant.qd[{i}]")], lw=0.9, label=f"axis {i}")

@@ -1,42 +1,40 @@
 """Job ``identification``: the paper's section 4 campaign, closed through the co-simulation.
 
-1. **Design** (:mod:`identification.dynamic_excitation`): an optimal exciting Fourier
-   trajectory (eq. 29-30) for the controller's model, against random feasible series
-   of the same order; ``omega_f`` is snapped so that one period is a whole number of
-   controller cycles (periodic averaging needs it).
-2. **Excite**: the trajectory, repeated ``[excitation] periods`` times, runs closed loop
-   on the robot cell (:mod:`cosim.cell`: controller -> POWERLINK-timed
-   CiA 402 fieldbus -> servo-drive FMUs <-> plant FMU set to the seeded TRUE robot,
-   whose inertias, friction, rotor inertias and payload the controller does not know).
-   The data are what a user gets: the drives' ``position_actual`` (0x6064, encoder
-   counts) and ``torque_actual`` (0x6077, 0.1 % of rated torque) as the fieldbus
-   delivers them to the controller every 400 us (:class:`FieldbusRecorder`), plus an
-   optional Gaussian current-measurement noise. ``torque_actual`` is the drive's own
-   estimate ``N k_t i`` (joint side): it includes the reflected rotor inertia and the
-   friction the motor overcomes, which the regressor models (columns Ia, fv, fc).
-3. **Identify** (:func:`identification.dynamic_identify.identify_periodic`): skip the
-   first period(s), average the rest, differentiate in the Fourier domain (no phase
-   lag), weighted least squares on the base parameters.
-4. **Validate** on the EN ISO 9283 path (the main job's path, run with the nominal
-   model's feed-forward, as the robot ran before identification): measured versus
-   predicted torque per joint (Figure 5(b)), relative RMS error per joint for the
-   identified, nominal and true models.
-5. **Use**: the ISO 9283 path runs in model-based mode with the identified model, and
-   with the true parameters; the TCP errors of the three models are compared.
+The workflow (design the excitation -> run the experiment -> estimate -> report) lives in
+:mod:`identification.campaign` as pure steps; this job passes it the cell-specific part,
+the **experiment** (:func:`_cell_experiment`), and adds what only a simulated cell can do:
+
+* **Excite on the cell**: the trajectory, repeated ``[excitation] periods`` times, runs closed
+  loop on the robot cell (:mod:`cosim.cell`: controller -> POWERLINK-timed CiA 402 fieldbus ->
+  servo-drive FMUs <-> plant FMU set to the seeded TRUE robot, whose inertias, friction, rotor
+  inertias, payload and - on the elastic plant - gear stiffness the controller does not know).
+  The data are what a user gets: the drives' ``position_actual`` (0x6064, encoder counts) and
+  ``torque_actual`` (0x6077, 0.1 % of rated torque) as the fieldbus delivers them to the
+  controller every 400 us (:class:`FieldbusRecorder`), plus an optional Gaussian
+  current-measurement noise; the drives' torque-sampling term measured on the drive FMU
+  (:mod:`cosim.jobs.identification_torque_sampling`); on the elastic plant
+  (``elastic_joints = 1``) the laser tracker's readings of a reflector on the tool
+  (``[stiffness] reflector``), from which the campaign identifies the gear stiffness and damping.
+* **Judge against the truth**: every identified parameter against the true robot (the report).
+* **Validate** on the EN ISO 9283 path (the main job's path, run with the nominal model's
+  feed-forward): measured versus predicted torque per joint (Figure 5(b)), relative RMS error
+  per joint for the identified, nominal and true models.
+* **Use**: the ISO 9283 path runs in model-based mode with the identified model, and with the
+  true parameters; the TCP errors of the three models are compared.
 
 Results: ``summary.json``; ``excitation.json`` (trajectory, condition numbers, solve
 time, feasibility); ``parameters.json`` (identified base parameters, definitions, std,
-true values); ``identification_record.csv`` and ``validation_record.csv`` (what was
-measured, in the ``python -m cosim identify`` format); ``validation_torques.csv``;
-per ISO run ``timeseries_<model>.csv``, ``controller_<model>.csv``, ``tcp_<model>.csv``;
-figures ``figure5a_excitation_path.png``, ``figure5b_torques.png``.
+true values; gear stiffness on the elastic plant); ``identification_record.csv`` and
+``validation_record.csv`` (what was measured, in the ``python -m cosim identify`` format);
+``validation_torques.csv``; per ISO run ``timeseries_<model>``, ``controller_<model>``,
+``tcp_<model>``; figures ``figure5a_excitation_path.png``, ``figure5b_torques.png``,
+``figure_parameter_errors.png``.
 """
 from __future__ import annotations
 
 import dataclasses
 import json
 import math
-import time
 from typing import Any
 
 import numpy as np
@@ -89,6 +87,10 @@ MEASUREMENT_TABLE = Table({
                                  doc="cycles by which position actual lags torque actual (drive latching)"),
     "consistent": Field(Boolean(), default=True,
                         doc="also fit a physically consistent parameter vector and validate it"),
+    "kinematics": Field(String(choices=("calibrated", "nominal")), default="calibrated",
+                        doc="the arm's geometry in the regressor (and the stiffness fit): 'calibrated' = the true "
+                            "robot's (a perfectly calibrated arm, as after the calibration campaign), 'nominal' = "
+                            "the URDF's (the plant's true geometry then biases the base parameters)"),
     "torque_sampling_correction": Field(Boolean(), default=True,
                                         doc="remove the drives' torque-actual sampling term b_i qdd_i (measured on "
                                             "the drive FMU, cosim/jobs/identification_torque_sampling.py) before "
@@ -167,6 +169,10 @@ def check(doc: dict[str, Any], where: Where) -> None:
     if any(lo >= hi for lo, hi in zip(exc_t["tcp_box_min"], exc_t["tcp_box_max"])):
         raise (where / "excitation" / "tcp_box_max").error(f"above tcp_box_min = {exc_t['tcp_box_min']}",
                                                            exc_t["tcp_box_max"])
+    if elastic_plant(doc) and doc["measurement"]["kinematics"] != "calibrated":
+        raise (where / "measurement" / "kinematics").error(
+            "'calibrated' on the elastic plant (the gear-stiffness fit needs the arm's true geometry)",
+            doc["measurement"]["kinematics"])
     nyquist = 0.5 / ctrl["period"]
     if doc["measurement"]["cutoff"] >= nyquist:
         raise (where / "measurement" / "cutoff").error(f"below the Nyquist frequency {nyquist:g} Hz of the "
@@ -232,27 +238,6 @@ def elastic_plant(doc: dict[str, Any]) -> bool:
                for f in doc["fmus"])
 
 
-def snapped_omega(omega_f: float, period_s: float) -> tuple[float, int]:
-    """(omega_f, samples per period) with the period a whole number of controller cycles."""
-    n = int(round(2.0 * math.pi / omega_f / period_s))
-    return 2.0 * math.pi / (n * period_s), n
-
-
-def design(doc: dict[str, Any], nominal_payload: np.ndarray, omega_f: float):
-    """The optimal exciting trajectory of the scenario's [excitation] table (nominal model)."""
-    from identification.dynamic_excitation import (ExcitationLimits, ExcitationProblem, ExcitationSettings,
-                                                   design_excitation)
-
-    e = doc["excitation"]
-    limits = ExcitationLimits.from_parameters(position_margin=e["position_margin"],
-                                              torque_fraction=e["torque_fraction"],
-                                              tcp_box=(e["tcp_box_min"], e["tcp_box_max"]))
-    settings = ExcitationSettings(order=e["order"], omega_f=omega_f, samples=e["samples"],
-                                  constraint_samples=e["constraint_samples"], max_iterations=e["max_iterations"])
-    problem = ExcitationProblem(limits=limits, settings=settings, payload=nominal_payload)
-    return design_excitation(problem, seed=e["seed"], random_baselines=e["random_baselines"], centre=e["centre"])
-
-
 def _config(doc: dict[str, Any], mode: str, lead_cycles: int) -> ControllerConfig:
     c = doc["controller"]
     return ControllerConfig(mode=mode, period_s=c["period"], lead_cycles=lead_cycles,
@@ -267,10 +252,11 @@ def _noise_sigma(doc: dict[str, Any]) -> np.ndarray:
 
 # ---------------------------------------------------------------------------------------- running
 def run(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
-    """Design, excite, identify, validate, compare (see module docstring)."""
+    """Design, excite on the cell, identify (identification.campaign), validate, compare."""
     from fieldbus import FieldbusConfig
-    from identification.dynamic_data import motion_record, write_motion_csv
-    from identification.dynamic_identify import identify_periodic, validate
+    from identification.campaign import CampaignSettings, Truth, run_campaign
+    from identification.data import motion_record, write_motion_csv
+    from identification.identify import validate
     from planners.iso9283 import ISO_Q_HINT, iso9283_test_path
     from robot.description import load_model
     from robot.dynamics import RobotDynamics
@@ -289,8 +275,8 @@ def run(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
     nominal = RobotDynamics(payload=known_payload, model=kin)
     drive_model = wiring.drive_loop_model(doc["fmus"], period) if ctrl["drive_compensation"] else None
     tracker = tracker_config(doc["tracker"])
-
     elastic = elastic_plant(doc)
+
     def run_on_cell(ctl: Any, label: str, stop: float, name: str, tracker=tracker):
         """Run the cell with ``ctl`` (a controller or its FieldbusRecorder) for ``stop`` s."""
         cell = describe_cell(doc, true_robot, controller_info(ctl, fb, label=label, source=str(scenario.path)),
@@ -305,85 +291,57 @@ def run(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
                     "payload_com_m": true_robot.payload[1:].tolist(),
                     "dynamic_deviations": doc["true_robot"]["dynamic_deviations"],
                     "geometric_errors": doc["true_robot"]["geometric_errors"]},
+        plant="elastic" if elastic else "rigid",
         noise_assumptions=_noise_assumptions(params, fb, sigma, meas))
+    settings = CampaignSettings.from_tables(period, exc_t, meas, doc["stiffness"] if elastic else None)
+    state: dict[str, Any] = {}
 
-    # 1. design ------------------------------------------------------------------------------
-    omega_f, samples_per_period = snapped_omega(exc_t["omega_f"], period)
-    excitation = design(doc, known_payload, omega_f)
-    ctx.path("excitation.json").write_text(json.dumps(excitation.to_dict(), indent=2) + "\n")
-    traj = excitation.trajectory
-    excitation_fields = {k: v for k, v in excitation.to_dict().items() if k not in ("trajectory", "limits")}
-    excitation_fields.update(omega_f_requested_rad_s=exc_t["omega_f"], samples_per_period_400us=samples_per_period)
-    ctx.summary.update(phase="exciting", excitation=excitation_fields)
+    def experiment(trajectory, duration: float):
+        """The cell-specific step: the trajectory closed loop on the robot cell, measured as a user
+        would (fieldbus actual values, the tracker on the reflector, the drives' sampling term)."""
+        return _cell_experiment(doc, ctx, trajectory, duration, run_on_cell, kin, nominal, drive_model, lead, sigma,
+                                params, elastic, tracker, state)
 
-    # 2. excite on the cell ------------------------------------------------------------------
-    duration = exc_t["periods"] * traj.period
-    reference = JointTrajectory.from_sampler(traj.sample, duration, period)
-    stop_time = 0.02 + ctrl["settle_time"] + duration + 0.3
-    capacity = int(stop_time / period) + 16
-    controller = Controller(reference, _config(doc, ctrl["excitation_mode"], lead), kinematic_model=kin,
-                            dynamics=nominal, drive_model=drive_model, capacity=capacity)
-    recorder = FieldbusRecorder(controller, capacity, sigma, meas["noise_seed"])
-    exc_tracker = dataclasses.replace(tracker, reflector=tuple(doc["stiffness"]["reflector"])) if elastic else tracker
-    cell = run_on_cell(recorder, "excitation", stop_time, "excitation", tracker=exc_tracker)
-    if cell.failure is not None:
-        raise cell.failure
-    if controller.motion_start_s is None:
-        raise RuntimeError("the controller never started the exciting trajectory")
-    lag = meas["position_lag_cycles"]
-    t_x, q_x, tau_x = recorder.window(controller.motion_start_s, duration, period, lag)
-    excite_summary = {"motion_start_s": controller.motion_start_s, "duration_s": duration,
-                      "samples": int(t_x.size), "sim_time_s": cell.reached_s, "loop_wall_time_s": cell.loop_wall_time_s,
-                      "controller_mode": ctrl["excitation_mode"],
-                      "max_abs_torque_Nm": np.abs(tau_x).max(axis=0).tolist(),
-                      "max_torque_ratio_of_effort": float(np.max(np.abs(tau_x) / params.effort_limit))}
-    if doc["results"]["records"]:
-        write_motion_csv(ctx.path("identification_record.csv"),
-                         motion_record(t_x - t_x[0], q_x, tau_x, source="identification_record"))
+    def on_step(name: str, fields: dict[str, Any]) -> None:
+        if name == "designed":
+            excitation = fields["excitation"]
+            ctx.path("excitation.json").write_text(json.dumps(excitation.to_dict(), indent=2) + "\n")
+            state["excitation_fields"] = {k: v for k, v in excitation.to_dict().items()
+                                          if k not in ("trajectory", "limits")}
+            state["excitation_fields"].update(omega_f_requested_rad_s=exc_t["omega_f"],
+                                              samples_per_period_400us=fields["samples_per_period"])
+            ctx.summary.update(phase="exciting", excitation=state["excitation_fields"])
+        elif name == "measured":
+            ctx.summary.update(phase="identifying", excitation_run=fields["data"].info)
 
-    # 3. identify ----------------------------------------------------------------------------
-    sampling = None
-    if meas["torque_sampling_correction"]:
-        from cosim.jobs.identification_torque_sampling import sampled_torque_bias
-
-        sampling = sampled_torque_bias(doc["fmus"], period)
-    bias = np.asarray(sampling["bias_Nm_per_rad_s2"]) if sampling is not None else None
-    wall0 = time.perf_counter()
-    ident = identify_periodic(q_x, tau_x, period, samples_per_period, skip_periods=exc_t["skip_periods"],
-                              cutoff_hz=meas["cutoff"], method=meas["method"], consistent=meas["consistent"],
-                              torque_acceleration_bias=bias)
-    ident_wall = time.perf_counter() - wall0
-    true_base = ident.base.base_values(RobotDynamics(true_robot.dynamic_parameters, true_robot.payload)
-                                       .parameter_vector(include_payload=True))
+    truth_p = RobotDynamics(true_robot.dynamic_parameters, true_robot.payload).parameter_vector(include_payload=True)
+    truth_k, truth_b = _true_gears(doc, true_robot, params) if elastic else (None, None)
+    stiffness_model = {"rotor_inertia": params.rotor_inertia,
+                       "motor_friction_share": params.motor_friction_share,
+                       "nominal_stiffness": params.stiffness} if elastic else None
+    calibrated = true_robot.kinematic_model() if meas["kinematics"] == "calibrated" else None
+    campaign = run_campaign(settings, experiment, payload=known_payload, truth=Truth(truth_p, truth_k, truth_b),
+                            kinematic_model=calibrated, stiffness_model=stiffness_model, on_step=on_step)
+    ident = campaign.identification
+    excitation_fields, excite_summary = state["excitation_fields"], campaign.data.info
+    true_base = ident.base.base_values(truth_p)
     parameters = ident.to_dict()
     for entry, value in zip(parameters["base_parameters"], true_base):
         entry["true_value"] = float(value)
         entry["error_in_std"] = (entry["value"] - float(value)) / entry["std"] if entry["std"] > 0 else None
+    if campaign.stiffness is not None:
+        parameters["gear_stiffness"] = campaign.report["gear_stiffness"]
     ctx.path("parameters.json").write_text(json.dumps(parameters, indent=2) + "\n")
-    rel_err = np.abs(ident.values - true_base) / np.maximum(np.abs(true_base), 1e-12)
-    ident_summary = {"base_parameters": ident.base.count, "method": ident.estimate.method,
-                     "condition_number_measured": ident.estimate.condition_number,
-                     "joint_noise_sigma_Nm": ident.estimate.joint_sigma.tolist(),
-                     "wall_time_s": ident_wall, "processing": ident.data,
-                     "within_3_std_of_true": int(np.sum(np.abs(ident.values - true_base) <= 3 * ident.estimate.std)),
-                     "median_relative_error_vs_true": float(np.median(rel_err)),
-                     "standard_vector_links_physically_consistent":
-                         parameters["standard_parameters_matching_base_values"]["links_physically_consistent"]}
-    ident_summary.update(parameter_error_table(ident.base.base_names, ident.base.definitions(), ident.values,
-                                               ident.estimate.std, true_base, bias))
-    ident_summary["torque_sampling_correction"] = sampling if sampling is not None else "off"
-    if ident.consistent is not None:
-        c = ident.consistent
-        ident_summary["physically_consistent_fit"] = {
-            "physically_consistent": c.consistent, "misfit_in_noise_units": c.misfit, "evaluations": c.nfev,
-            "median_relative_error_vs_true": float(np.median(np.abs(c.base_values - true_base)
-                                                             / np.maximum(np.abs(true_base), 1e-12)))}
-    if elastic:
-        ctx.summary.update(phase="identifying the gear stiffness", identification=ident_summary)
-        ident_summary["gear_stiffness"] = _gear_stiffness(doc, ident, q_x, cell, controller.motion_start_s,
-                                                          traj.period, samples_per_period, true_robot)
-        ident_summary["stiffness_within_10_percent"] = ident_summary["gear_stiffness"]["within_10_percent"]
+    ident_summary = dict(campaign.report)
+    ident_summary["standard_vector_links_physically_consistent"] = (
+        parameters["standard_parameters_matching_base_values"]["links_physically_consistent"])
+    if campaign.stiffness is not None:
+        ident_summary["gear_stiffness"].update(
+            reflector_m_in_tool0=list(settings.reflector), periods_averaged=settings.periods - settings.skip_periods,
+            assumptions=STIFFNESS_ASSUMPTIONS.format(cutoff=settings.cutoff_hz))
     ctx.summary.update(phase="validating", excitation_run=excite_summary, identification=ident_summary)
+    excitation = campaign.excitation
+
 
     # 4-5. ISO 9283 with the three models ----------------------------------------------------
     path = iso9283_test_path(speed=doc["path"]["speed"], acceleration=doc["path"]["acceleration"])
@@ -432,100 +390,76 @@ def run(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
     return fields
 
 
-ROTOR_TERMS = {"Izz1R": "Ia1", "Iyy2R": "Ia2", "Ia3": "Ia3", "Ia4": "Ia4", "Ia5": "Ia5", "Ia6": "Ia6"}
-"""The base parameters that hold the rotor inertias (Ia1 and Ia2 are regrouped with link inertias
-about the same axis: only the sums are identifiable; Ia3-Ia6 are base parameters alone)."""
+STIFFNESS_ASSUMPTIONS = (
+    "calibrated kinematics (the true robot's geometry for f_DK and J); gear torques from the identified base "
+    "parameters minus the rotor inertias (Ia1, Ia2 regrouped with link inertias: their catalogue values, "
+    "robot/rx130l_params.toml) and the motor share of the friction ([elastic] motor_friction_share); "
+    "quasi-static deflection below the cut-off {cutoff:g} Hz; linear gears")
 
 
-def parameter_error_table(names, definitions, values, std, true_base, bias=None) -> dict[str, Any]:
-    """Every identified base parameter against the true robot, and the rotor inertias.
-
-    ``bias``: the torque-sampling term removed before identifying (N m per rad/s^2 per joint)
-    or None; each rotor-inertia row also gives the value the identification would report
-    without the correction (identified + b_i: the term is collinear with that column alone).
-    """
-    values, std, true_base = (np.asarray(v, dtype=float) for v in (values, std, true_base))
-    error = values - true_base
-    rel = 100.0 * error / np.maximum(np.abs(true_base), 1e-12)
-    table = [{"name": n, "definition": d, "identified": float(v), "true": float(t), "error_percent": float(r),
-              "error_in_std": float(e / s) if s > 0 else None}
-             for n, d, v, t, r, e, s in zip(names, definitions, values, true_base, rel, error, std)]
-    rotors: dict[str, Any] = {}
-    index = {n: i for i, n in enumerate(names)}
-    for name, rotor in ROTOR_TERMS.items():
-        if name not in index:
-            continue
-        i = index[name]
-        row = {"base_parameter": name, "definition": definitions[i], "identified": float(values[i]),
-               "true": float(true_base[i]), "error_percent": float(rel[i])}
-        if bias is not None:
-            joint = int(rotor[-1]) - 1
-            apparent = float(values[i] + bias[joint])
-            row.update(uncorrected=apparent, uncorrected_error_percent=float(100.0 * (apparent - true_base[i])
-                                                                             / abs(true_base[i])))
-        rotors[rotor] = row
-    return {"parameter_errors": table,
-            "max_abs_relative_error_percent": float(np.max(np.abs(rel))),
-            "rotor_inertias": rotors,
-            "rotor_inertias_within_10_percent": bool(all(abs(r["error_percent"]) <= 10.0 for r in rotors.values()))}
-
-
-def _gear_stiffness(doc: dict[str, Any], ident, q_x: np.ndarray, cell, motion_start_s: float, period_s: float,
-                    samples_per_period: int, true_robot) -> dict[str, Any]:
-    """Gear stiffness and damping per axis from the excitation run on the elastic plant: the
-    averaged period of the fieldbus motor positions and of the tracker's reflector readings,
-    the gear torques from the identified base parameters (identification/gear_stiffness.py)."""
-    from identification.dynamic_signals import average_periods
-    from identification.gear_stiffness import identify_gear_stiffness_periodic
-    from robot.parameters import load_parameters
-
-    robot = load_parameters()
-    exc_t, st, meas = doc["excitation"], doc["stiffness"], doc["measurement"]
-    tracker_dt = doc["tracker"]["period"]
-    rec = cell.recording
-    cols = list(rec.columns)
-    t = rec.data[:, 0]
-    step = float(np.median(np.diff(t[:100]))) if t.size > 1 else float("nan")
-    if not abs(step - tracker_dt) < 1e-9:
-        raise ValueError(f"the excitation run was recorded every {step} s; the stiffness fit needs every tracker "
-                         f"sample: set [record] period = [tracker] period = {tracker_dt} s")
-    per_period = period_s / tracker_dt
-    if abs(per_period - round(per_period)) > 1e-6:
-        raise ValueError(f"the excitation period {period_s} s is not a whole number of tracker periods "
-                         f"({tracker_dt} s): the tracker cannot be averaged over periods")
-    m = int(round(per_period))
-    start = motion_start_s + exc_t["skip_periods"] * period_s
-    first = int(np.searchsorted(t, start - 1e-9))
-    periods = exc_t["periods"] - exc_t["skip_periods"]
-    tracker = rec.data[first:first + periods * m, [cols.index(c) for c in ("tracker.x", "tracker.y", "tracker.z")]]
-    if tracker.shape[0] < periods * m:
-        raise ValueError(f"the excitation run recorded {tracker.shape[0]} tracker samples after the skipped "
-                         f"period(s), expected {periods * m}")
-    tracker_mean, _ = average_periods(tracker, m, periods)
-    motor_mean, _ = average_periods(q_x, samples_per_period, periods, exc_t["skip_periods"])
+def _true_gears(doc: dict[str, Any], true_robot, params) -> tuple[np.ndarray, np.ndarray]:
+    """The plant's gear stiffness and damping per axis (the scenario's plant parameters, else
+    the true robot's stiffness and the parameter file's damping, as cosim.cell.wiring sets them)."""
     plant = next(f for f in doc["fmus"] if f["name"] == wiring.PLANT).get("parameters", {})
-    nominal_k = true_robot.gear_stiffness if true_robot.gear_stiffness is not None else robot.stiffness
-    true_k = np.array([plant.get(f"stiffness[{i}]", nominal_k[i - 1]) for i in range(1, 7)], dtype=float)
-    true_b = np.array([plant.get(f"damping[{i}]", robot.gear_damping[i - 1]) for i in range(1, 7)], dtype=float)
-    wall0 = time.perf_counter()
-    est = identify_gear_stiffness_periodic(
-        ident.base, ident.values, motor_mean, doc["controller"]["period"], tracker_mean, tracker_dt,
-        float(t[first] - start), true_robot.kinematic_model(), rotor_inertia=robot.rotor_inertia,
-        motor_friction_share=robot.motor_friction_share, cutoff_hz=meas["cutoff"], reflector=st["reflector"],
-        decimate=st["decimate"], max_relative_std=st["max_relative_std"])
-    out = est.to_dict(true_k, true_b)
-    errors = out["stiffness_error_percent"]
-    out.update(
-        wall_time_s=time.perf_counter() - wall0,
-        nominal_stiffness_error_percent=(100.0 * (np.asarray(robot.stiffness) / true_k - 1.0)).tolist(),
-        within_10_percent=bool(all(e is not None and abs(e) <= 10.0 for e in errors)),
-        reflector_m_in_tool0=list(st["reflector"]), periods_averaged=periods, tracker_samples_per_period=m,
-        assumptions="calibrated kinematics (the true robot's geometry for f_DK and J); gear torques from the "
-                    "identified base parameters minus the rotor inertias (Ia1, Ia2 regrouped with link inertias: "
-                    "their catalogue values, robot/rx130l_params.toml) and the motor share of the friction "
-                    "([elastic] motor_friction_share); quasi-static deflection below the cut-off "
-                    f"{meas['cutoff']:g} Hz; linear gears")
-    return out
+    nominal_k = true_robot.gear_stiffness if true_robot.gear_stiffness is not None else params.stiffness
+    k = np.array([plant.get(f"stiffness[{i}]", nominal_k[i - 1]) for i in range(1, 7)], dtype=float)
+    b = np.array([plant.get(f"damping[{i}]", params.gear_damping[i - 1]) for i in range(1, 7)], dtype=float)
+    return k, b
+
+
+def _cell_experiment(doc, ctx, trajectory, duration, run_on_cell, kin, nominal, drive_model, lead, sigma, params,
+                     elastic, tracker, state):
+    """Run ``trajectory`` for ``duration`` s closed loop on the cell (controller in the scenario's
+    excitation mode with the nominal model) and return the :class:`identification.campaign.ExperimentData`
+    a user gets: the fieldbus actual values every cycle (positions aligned with the torques), the
+    drives' torque-sampling term measured on the drive FMU, and on the elastic plant the tracker's
+    readings of the reflector on the tool."""
+    from identification.campaign import ExperimentData, TrackerRecord
+    from identification.data import motion_record, write_motion_csv
+
+    ctrl, meas = doc["controller"], doc["measurement"]
+    period = ctrl["period"]
+    reference = JointTrajectory.from_sampler(trajectory.sample, duration, period)
+    stop_time = 0.02 + ctrl["settle_time"] + duration + 0.3
+    capacity = int(stop_time / period) + 16
+    controller = Controller(reference, _config(doc, ctrl["excitation_mode"], lead), kinematic_model=kin,
+                            dynamics=nominal, drive_model=drive_model, capacity=capacity)
+    recorder = FieldbusRecorder(controller, capacity, sigma, meas["noise_seed"])
+    reflector = tuple(doc["stiffness"]["reflector"]) if elastic else (0.0, 0.0, 0.0)
+    cell = run_on_cell(recorder, "excitation", stop_time, "excitation",
+                       tracker=dataclasses.replace(tracker, reflector=reflector))
+    if cell.failure is not None:
+        raise cell.failure
+    start = controller.motion_start_s
+    if start is None:
+        raise RuntimeError("the controller never started the exciting trajectory")
+    t_x, q_x, tau_x = recorder.window(start, duration, period, meas["position_lag_cycles"])
+    info = {"motion_start_s": start, "duration_s": duration, "samples": int(t_x.size), "sim_time_s": cell.reached_s,
+            "loop_wall_time_s": cell.loop_wall_time_s, "controller_mode": ctrl["excitation_mode"],
+            "max_abs_torque_Nm": np.abs(tau_x).max(axis=0).tolist(),
+            "max_torque_ratio_of_effort": float(np.max(np.abs(tau_x) / params.effort_limit))}
+    if doc["results"]["records"]:
+        write_motion_csv(ctx.path("identification_record.csv"),
+                         motion_record(t_x - t_x[0], q_x, tau_x, source="identification_record"))
+    sampling = None
+    if meas["torque_sampling_correction"]:
+        from cosim.jobs.identification_torque_sampling import sampled_torque_bias
+
+        sampling = sampled_torque_bias(doc["fmus"], period)
+    readings = None
+    if elastic:
+        rec = cell.recording
+        cols = list(rec.columns)
+        t = rec.data[:, 0]
+        step = float(np.median(np.diff(t[:100]))) if t.size > 1 else float("nan")
+        if not abs(step - tracker.period_s) < 1e-9:
+            raise ValueError(f"the excitation run was recorded every {step} s; the stiffness fit needs every tracker "
+                             f"reading: set [record] period = [tracker] period = {tracker.period_s} s")
+        keep = t >= start - 1e-9
+        positions = rec.data[keep][:, [cols.index(c) for c in ("tracker.x", "tracker.y", "tracker.z")]]
+        readings = TrackerRecord(t[keep] - start, positions, reflector)
+    bias = np.asarray(sampling["bias_Nm_per_rad_s2"]) if sampling is not None else None
+    return ExperimentData(q_x, tau_x, period, readings, bias, sampling, info)
 
 
 def _ratio(a: float, b: float) -> float:
@@ -535,9 +469,9 @@ def _ratio(a: float, b: float) -> float:
 def _validate(ctx: RunContext, doc: dict[str, Any], rec: FieldbusRecorder, ctl: Controller, path, ident, models,
               true_robot, validate, motion_record, write_motion_csv, label: str) -> dict[str, Any]:
     """Measured (fieldbus) vs predicted torques along the ISO 9283 path run with model ``label``."""
-    from identification.dynamic_estimation import relative_rms_error
-    from identification.dynamic_identify import prepare_motion
-    from identification.dynamic_signals import zero_phase_lowpass
+    from identification.estimation import relative_rms_error
+    from identification.identify import prepare_motion
+    from identification.signals import zero_phase_lowpass
 
     period = doc["controller"]["period"]
     t, q, tau = rec.window(ctl.motion_start_s, path.duration, period, doc["measurement"]["position_lag_cycles"])

@@ -34,7 +34,7 @@ def sampled_torque_bias(doc_fmus: list[dict[str, Any]], period_s: float) -> dict
 
     ``bias`` is b_i of the module docstring for torque samples taken at the position-cycle
     boundary (where the fieldbus latches torque actual: checked against the plant's applied
-    torque in tests/test_identification_rotor.py); ``kappa`` = b_i / (N^2 k_t K_p T).
+    torque in tests/identification/test_rotor.py); ``kappa`` = b_i / (N^2 k_t K_p T).
     """
     from cosim.cell.wiring import drive_parameters
     from fmus.build import ensure_fmus

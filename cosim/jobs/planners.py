@@ -1,4 +1,4 @@
-"""Job ``planners``: the paper's section 5 side by side (issue 6), optionally executed on the cell.
+"""Job ``planners``: the paper's section 5 side by side, optionally executed on the cell.
 
 A scenario names the planners to run (``[planners] run``, names of :data:`PLANNERS`) and
 the problem (``[problem]``: the paper's straight line, ``planners.paper_line``; weights
@@ -34,10 +34,11 @@ from cosim.cell.description import describe_cell
 from cosim.cell.parts import (BUILTIN_MODES, CELL_FIELDS, check_cell_scenario, controller_models,
                               drive_speed_feedforward, fill_cell_defaults, make_true_robot, mode_fmus,
                               tracker_config)
+from cosim.cell.evaluation import controller_log_columns
 from cosim.cell.runner import controller_info, run_cell
 from cosim.scenario.cosim_tables import COSIM_FIELDS
 from cosim.scenario.loader import SCENARIO_FIELD
-from cosim.jobs.tracking_metrics import desired_joints, residual_vibration
+from cosim.tracking.metrics import desired_joints, residual_vibration
 from cosim.scenario.context import RunContext
 from cosim.scenario.loader import Scenario
 from cosim.scenario.registry import register_job
@@ -277,7 +278,8 @@ def _execute(ctx: RunContext, doc: dict[str, Any], name: str, traj: Any, true_ro
     t = data[:, 0]
     q = data[:, [cols.index(f"{wiring.PLANT}.q[{i}]") for i in range(1, 7)]]
     measured = data[:, [cols.index(s) for s in ("tracker.x", "tracker.y", "tracker.z")]]
-    log = controller.log.columns()
+    # the run's length is the trajectory's (stop_time above): its rows and log are held whole
+    log = controller_log_columns(ctx, f"controller_{name}", cell, controller)
     stack = [np.column_stack([log[f"{g}{j}"] for j in range(1, 7)]) for g in ("q_d", "qd_d", "qdd_d")]
     ok = np.isfinite(stack[0]).all(axis=1)
     q_d = desired_joints(t, log["t_apply"][ok], stack[0][ok], stack[1][ok], stack[2][ok]) if ok.any() else q
@@ -304,7 +306,7 @@ def _execute(ctx: RunContext, doc: dict[str, Any], name: str, traj: Any, true_ro
         "tcp_error_rms_mm": float(np.sqrt(np.mean(err[window] ** 2))) if window.any() else None,
         "tcp_error_max_noise_free_mm": float(err_free[window].max()) if window.any() else None,
         "joint_lag_max_rad": (np.abs(q_d - q)[window].max(axis=0).tolist() if window.any() else None),
-        # after the trajectory's end (0.2 s of standstill): cosim.jobs.tracking_metrics.residual_vibration
+        # after the trajectory's end (0.2 s of standstill): cosim.tracking.metrics.residual_vibration
         "residual_vibration": (residual_vibration(t, actual - commanded, start + reference.duration)
                                if start is not None else None),
         "drive_saturated": bool(np.any(current >= SATURATION_FRACTION * clamp)),

@@ -3,14 +3,14 @@
 Knows FMUs, connections, periodic tasks and recorders; nothing about robots.
 See docs/cosim.md for the coupling scheme (who sees which values when).
 """
-from cosim.master.component import FmuComponent, load_model_description
 from cosim.master.errors import EndSimulation, MasterConfigError, SimulationError
 from cosim.master.master import Master, SignalReader, Task, ticks_of
 from cosim.master.recorder import MemorySink, Recorder, Sink
 from cosim.master.variables import ConnectionSpec, check_connection_ends, check_start_value, parse_connection
+from fmus.fmu import Fmu, load_model_description
 
 __all__ = [
-    "ConnectionSpec", "EndSimulation", "FmuComponent", "Master", "MasterConfigError", "MemorySink", "Recorder",
+    "ConnectionSpec", "EndSimulation", "Fmu", "Master", "MasterConfigError", "MemorySink", "Recorder",
     "SignalReader", "SimulationError", "Sink", "Task", "check_connection_ends", "check_start_value",
     "load_model_description", "parse_connection", "ticks_of",
 ]

@@ -19,13 +19,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from cosim.master.component import FmuComponent, status_name
 from cosim.master.errors import FmuEnded, FmuTerminated, SimulationError
 from cosim.master.kernel import (FAIL_ENDED, FAIL_GET, FAIL_NONFINITE, FAIL_SET, FAIL_STEP, CFailure, CPlan, CSlave,
                                  load_kernel)
+from fmus.fmu import VALUE_DTYPE, VALUE_TYPES, Fmu, status_name
 
-BUS_ORDER = ("Real", "Integer", "Boolean")
-BUS_DTYPE = {"Real": np.float64, "Integer": np.intc, "Boolean": np.intc}
+BUS_ORDER = VALUE_TYPES  # the value types an Fmu exchanges, one bus each
+BUS_DTYPE = VALUE_DTYPE
 
 
 @dataclass
@@ -45,7 +45,7 @@ class Exchange:
 class SlavePlan:
     """What one FMU exchanges at each of its steps (bus type -> Exchange / copies)."""
 
-    component: FmuComponent
+    component: Fmu
     step_ticks: int
     inputs: dict[str, Exchange]
     published: dict[str, Exchange]

@@ -1,42 +1,20 @@
 """Errors raised by the co-simulation master.
 
 ``MasterConfigError`` is bad wiring found while building a co-simulation (unknown
-variable, type or causality mismatch, step not a multiple of the base step); it is a
-``ValueError``. ``SimulationError`` is a failure while the simulation runs (an FMU
-returned fmi2Error/fmi2Fatal/fmi2Discard, produced NaN/Inf, or a task raised); it
-carries the component, the simulated time and the FMU's last logged messages.
+variable, type or causality mismatch, step not a multiple of the base step); it is the
+FMU layer's ``fmus.errors.FmuConfigError`` (a ``ValueError``), so a wrong variable name
+is one error whether the FMU or the master finds it. ``SimulationError``
+(``fmus.errors``) is a failure while the simulation runs (an FMU returned
+fmi2Error/fmi2Fatal/fmi2Discard, produced NaN/Inf, or a task raised); it carries the
+component, the simulated time and the FMU's last logged messages.
 """
 from __future__ import annotations
 
-from collections.abc import Sequence
+from fmus.errors import FmuConfigError, SimulationError
 
 
-class MasterConfigError(ValueError):
-    """A co-simulation was wired wrongly; the message names component, variable, given and expected."""
-
-
-class SimulationError(RuntimeError):
-    """The simulation failed at simulated time ``time`` (s) in ``component``.
-
-    Attributes:
-        component: instance name of the FMU (or task name) that failed.
-        time: simulated time in s of the communication point where it failed.
-        reason: one-line description (status returned, variable that became NaN, ...).
-        messages: the component's last logged messages, oldest first.
-    """
-
-    def __init__(self, component: str, time: float, reason: str, messages: Sequence[str] = (),
-                 hint: str = "") -> None:
-        self.component = component
-        self.time = float(time)
-        self.reason = reason
-        self.messages = list(messages)
-        text = f"{component} at t = {self.time:.9g} s: {reason}"
-        if self.messages:
-            text += "\n  FMU log:\n" + "\n".join(f"    {m}" for m in self.messages)
-        elif hint:
-            text += f" ({hint})"
-        super().__init__(text)
+#: Bad wiring of a co-simulation: the FMU layer's configuration error (one class for both).
+MasterConfigError = FmuConfigError
 
 
 class EndSimulation(Exception):
@@ -62,3 +40,6 @@ class FmuTerminated(FmuEnded):
         super().__init__(tick)
         self.instance = instance
         self.last_successful_time = float(last_successful_time)
+
+
+__all__ = ["EndSimulation", "FmuEnded", "FmuTerminated", "MasterConfigError", "SimulationError"]

@@ -18,8 +18,6 @@ SOURCE = Path(__file__).with_name("kernel.c")
 
 #: Failure kinds reported by the kernel (``cosim_failure.what``).
 FAIL_SET, FAIL_STEP, FAIL_GET, FAIL_NONFINITE, FAIL_ENDED = 1, 2, 3, 4, 5
-#: The FMI 3.0 adapter (fmi3_adapter.c), built the same way into its own library.
-ADAPTER_SOURCE = Path(__file__).with_name("fmi3_adapter.c")
 
 LongArray3 = c_longlong * 3
 PtrArray3 = c_void_p * 3
@@ -94,16 +92,10 @@ def load_kernel() -> ctypes.CDLL | None:
     return lib
 
 
-@lru_cache(maxsize=1)
-def load_fmi3_adapter() -> ctypes.CDLL | None:
-    """Return the compiled FMI 3.0 adapter library (fmi3_adapter.c), or None if it cannot be built."""
-    return native.load_library(ADAPTER_SOURCE, CFLAGS, what="master's FMI 3.0 adapter")
-
-
 def address_of(array) -> int:
     """Address of a numpy array's data (kept alive by the caller)."""
     return int(array.ctypes.data)
 
 
 __all__ = ["CFailure", "CPlan", "CSlave", "FAIL_ENDED", "FAIL_GET", "FAIL_NONFINITE", "FAIL_SET", "FAIL_STEP",
-           "load_fmi3_adapter", "load_kernel", "address_of", "c_uint"]
+           "load_kernel", "address_of", "c_uint"]

@@ -41,7 +41,6 @@ from pathlib import Path
 
 import numpy as np
 
-from cosim.master.component import FmuComponent, load_model_description, status_name
 from cosim.master.engines import (BUS_DTYPE, BUS_ORDER, Exchange, NativeEngine, Plan, PythonEngine, SlavePlan,
                                   gather, make_engine, publish, set_inputs)
 from cosim.master.errors import EndSimulation, FmuEnded, FmuTerminated, MasterConfigError, SimulationError
@@ -49,6 +48,7 @@ from cosim.master.recorder import Recorder, Sink
 from cosim.master.variables import (MasterTypeUnsupported, bus_type, check_connection_ends, check_declared_range,
                                     check_start_value,
                                     is_pattern, matches_pattern, parse_connection, split_signal)
+from fmus.fmu import Fmu, load_model_description, status_name
 
 COUPLINGS = ("jacobi", "gauss_seidel")
 ENGINES = ("auto", "native", "python")
@@ -149,7 +149,8 @@ class Master:
         self.coupling = coupling
         self.engine_choice = engine
         self.profile = bool(profile)
-        self._fmus: dict[str, FmuComponent] = {}
+        self._fmus: dict[str, Fmu] = {}
+        self._step_ticks: dict[str, int] = {}  # instance -> its communication step in base steps
         self._variables: dict[str, _MasterVariable] = {}
         self._connections: dict[str, str] = {}  # destination -> source
         self._exposed: list[str] = []
@@ -179,7 +180,7 @@ class Master:
 
     def add_fmu(self, name: str, path: str | Path, step: float | None = None,
                 start_values: dict[str, object] | None = None, debug_logging: bool = False,
-                out_of_process: bool = False, step_timeout: float | None = None) -> FmuComponent:
+                out_of_process: bool = False, step_timeout: float | None = None) -> Fmu:
         """Add an FMI 2.0 co-simulation FMU instance.
 
         Args:
@@ -199,21 +200,22 @@ class Master:
             raise MasterConfigError(f"instance name {name!r} is already used")
         step_ticks = 1 if step is None else ticks_of(step, self.base_step, f"step of FMU '{name}'")
         if out_of_process:
-            from cosim.master.proxy import ProxyFmuComponent
+            from cosim.master.proxy import ProxyFmu
 
-            component = ProxyFmuComponent(name, path, step_ticks, start_values or {}, debug_logging,
-                                          step_timeout_s=step_timeout)
+            component = ProxyFmu(path, name, start_values, debug_logging=debug_logging,
+                                 step_timeout_s=step_timeout)
         elif step_timeout is not None:
             raise MasterConfigError(f"step_timeout of FMU '{name}': only an out-of-process FMU can be timed out "
                                     f"(out_of_process=True)")
         else:
-            component = FmuComponent(name, path, step_ticks, start_values or {}, debug_logging)
+            component = Fmu(path, name, start_values, debug_logging=debug_logging)
         for var_name, value in component.start_values.items():
             problem = check_start_value(component.variable(var_name), value) \
                 or check_declared_range(component.variable(var_name), value)
             if problem:
                 raise MasterConfigError(f"start value of '{name}.{var_name}': expected {problem}, got {value!r}")
         self._fmus[name] = component
+        self._step_ticks[name] = step_ticks
         return component
 
     def add_variable(self, signal: str, type: str = "Real", start: object = 0) -> None:
@@ -420,7 +422,7 @@ class Master:
                                         [v.name for v in chosen])
                 if t == "Real":
                     n_check = len(outputs)
-            slaves.append(SlavePlan(comp, comp.step_ticks, {}, published, n_check))
+            slaves.append(SlavePlan(comp, self._step_ticks[inst], {}, published, n_check))
         for slave in slaves:
             inst = slave.component.name
             for t in BUS_ORDER:
@@ -726,8 +728,8 @@ class Master:
 
     # ------------------------------------------------------------------ inspection
     @property
-    def fmus(self) -> dict[str, FmuComponent]:
-        """Instance name -> FmuComponent (model description, log messages)."""
+    def fmus(self) -> dict[str, Fmu]:
+        """Instance name -> its :class:`fmus.fmu.Fmu` (model description, log messages)."""
         return dict(self._fmus)
 
     @property

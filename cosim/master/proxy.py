@@ -2,9 +2,10 @@
 
 An FMU's native code runs in the master's process by default, so a crash in it (a NULL
 dereference, ``abort()``, ``_exit()``) kills the whole run and a hang in ``fmi2DoStep`` hangs
-it. ``ProxyFmuComponent`` loads the FMU in a child process instead and talks to it over a
-socket pair; the master and both engines see the same :class:`~cosim.master.component.FmuComponent`
-interface (its per-step "function pointers" are ctypes callbacks that forward the call):
+it. ``ProxyFmu`` loads the FMU in a child process instead (as an :class:`fmus.fmu.Fmu` there)
+and talks to it over a socket pair; the master and both engines see the same
+:class:`~fmus.fmu.Fmu` interface (``ProxyFmu`` is a subclass whose per-step "function
+pointers" are ctypes callbacks that forward the call):
 
 * fmi2Set* calls are buffered and sent with the next fmi2DoStep, whose reply carries the
   outputs the master read after the previous step (one round trip per step);
@@ -33,8 +34,8 @@ import sys
 import time
 from ctypes import c_double, c_int, c_void_p
 
-from cosim.master.component import FmuComponent
 from cosim.master.errors import MasterConfigError, SimulationError
+from fmus.fmu import VALUE_CTYPE, VALUE_TYPES, Fmu
 from fmus.instance import SET_T, STEP_T
 
 #: Default longest wall time one fmi2DoStep (and one Set/Get round trip) may take out of process, s.
@@ -47,13 +48,13 @@ SHUTDOWN_TIMEOUT_S = 5.0
 
 _FATAL = 4
 _ERROR = 3
-_DTYPES = {"Real": ctypes.c_double, "Integer": ctypes.c_int, "Boolean": ctypes.c_int}
-_TYPE_CODE = {"Real": 0, "Integer": 1, "Boolean": 2}
-_TYPE_NAME = ("Real", "Integer", "Boolean")
+_DTYPES = VALUE_CTYPE
+_TYPE_NAME = VALUE_TYPES
+_TYPE_CODE = {name: code for code, name in enumerate(_TYPE_NAME)}
 
 
 class ChildGone(RuntimeError):
-    """The FMU's process died or was killed (``status`` 4 = fatal, for FmuComponent.call)."""
+    """The FMU's process died or was killed (``status`` 4 = fatal, for Fmu.call)."""
 
     status = _FATAL
 
@@ -79,12 +80,10 @@ def _serve(conn, fmu_path: str, name: str, debug_logging: bool) -> None:
     """Child process: instantiate the FMU and answer requests until ``exit`` or the pipe closes."""
     for signum in (signal.SIGINT, signal.SIGTERM):
         signal.signal(signum, signal.SIG_IGN)
-    from cosim.master.component import status_name
-    from fmus.instance import FmuInstance, FmuInstantiateError
 
-    def logger(status: int, category: str, text: str) -> None:
+    def forward(text: str) -> None:
         try:
-            conn.send_bytes(b"L" + f"[{status_name(status)}] {category + ': ' if category else ''}{text}".encode())
+            conn.send_bytes(b"L" + text.encode())
         except OSError:
             pass
 
@@ -92,15 +91,17 @@ def _serve(conn, fmu_path: str, name: str, debug_logging: bool) -> None:
         conn.send_bytes(b"P" + pickle.dumps(obj))
 
     try:
-        instance = FmuInstance(fmu_path, name, logger, logging_on=debug_logging)
-    except (FmuInstantiateError, OSError, ValueError) as exc:
-        reply(("error", str(exc), getattr(exc, "status", _ERROR)))
+        fmu = Fmu(fmu_path, name, debug_logging=debug_logging, on_message=forward)
+        fmu.instantiate()
+    except (SimulationError, OSError, ValueError) as exc:
+        reason = exc.reason if isinstance(exc, SimulationError) else str(exc)
+        reply(("error", reason, getattr(exc, "status", _ERROR)))
         return
-    slave = instance.slave
-    handle = instance.component
-    set_fn = [instance.raw(f"Set{t}") for t in _TYPE_NAME]
-    get_fn = [instance.raw(f"Get{t}") for t in _TYPE_NAME]
-    do_step = instance.raw("DoStep")
+    slave = fmu.slave
+    handle = fmu.component
+    set_fn = [getattr(slave.dll, f"fmi2Set{t}") for t in _TYPE_NAME]
+    get_fn = [getattr(slave.dll, f"fmi2Get{t}") for t in _TYPE_NAME]
+    do_step = slave.dll.fmi2DoStep
     reply(("ready",))
     while True:
         try:
@@ -150,6 +151,10 @@ def _serve(conn, fmu_path: str, name: str, debug_logging: bool) -> None:
             if method == "exit":
                 reply(("ok", None))
                 break
+            if method == "freeInstance":  # through the Fmu, which then knows it is freed
+                fmu.close(terminate=False)
+                reply(("ok", None))
+                continue
             try:
                 reply(("ok", getattr(slave, method)(*args)))
             except Exception as exc:  # noqa: BLE001 - reported to the parent
@@ -167,9 +172,9 @@ _COUNT = struct.Struct("<I")
 
 # ----------------------------------------------------------------------------------------- parent side
 class _RemoteSlave:
-    """The fmpy lifecycle calls FmuComponent makes (``slave.setupExperiment(...)`` ...), forwarded."""
+    """The fmpy lifecycle calls Fmu makes (``slave.setupExperiment(...)`` ...), forwarded."""
 
-    def __init__(self, proxy: "ProxyFmuComponent") -> None:
+    def __init__(self, proxy: "ProxyFmu") -> None:
         self._proxy = proxy
 
     def __getattr__(self, method: str):
@@ -184,19 +189,19 @@ class _RemoteError(RuntimeError):
         self.status = status
 
 
-class ProxyFmuComponent(FmuComponent):
+class ProxyFmu(Fmu):
     """An FMI 2.0 FMU instance in a child process (see the module docstring).
 
-    Args: as :class:`~cosim.master.component.FmuComponent`, plus ``step_timeout_s``: the longest
-    wall time (s) a step or a Set/Get round trip may take before the child is killed (default
-    :data:`DEFAULT_STEP_TIMEOUT_S`).
+    Args: as :class:`~fmus.fmu.Fmu` (path, name, start values, ``debug_logging``, ``log_capacity``),
+    plus ``step_timeout_s``: the longest wall time (s) a step or a Set/Get round trip may take
+    before the child is killed (default :data:`DEFAULT_STEP_TIMEOUT_S`).
     """
 
     out_of_process = True
 
-    def __init__(self, name, path, step_ticks, start_values, debug_logging=False, log_capacity=50,
+    def __init__(self, path, name, start_values=None, *, debug_logging: bool = False, log_capacity: int = 50,
                  step_timeout_s: float | None = None) -> None:
-        super().__init__(name, path, step_ticks, start_values, debug_logging, log_capacity)
+        super().__init__(path, name, start_values, debug_logging=debug_logging, log_capacity=log_capacity)
         if self.fmi3:
             raise MasterConfigError(f"FMU '{name}' ({self.path.name}): out-of-process execution supports FMI 2.0 "
                                     f"co-simulation FMUs; run this FMI 3.0 FMU in process")
@@ -242,12 +247,8 @@ class ProxyFmuComponent(FmuComponent):
         self._callbacks_keep = [STEP_T(self._do_step)] + [SET_T(self._make_set(t)) for t in _TYPE_NAME] + \
             [SET_T(self._make_get(t)) for t in _TYPE_NAME]
         addresses = [ctypes.cast(cb, c_void_p).value for cb in self._callbacks_keep]
-        self.fn_address = {"DoStep": addresses[0],
-                           **{f"Set{t}": addresses[1 + i] for i, t in enumerate(_TYPE_NAME)},
-                           **{f"Get{t}": addresses[4 + i] for i, t in enumerate(_TYPE_NAME)}}
-        self.do_step_fn = STEP_T(self.fn_address["DoStep"])
-        self.set_fn = {t: SET_T(self.fn_address["Set" + t]) for t in _TYPE_NAME}
-        self.get_fn = {t: SET_T(self.fn_address["Get" + t]) for t in _TYPE_NAME}
+        self._bind({"DoStep": addresses[0], **{f"Set{t}": addresses[1 + i] for i, t in enumerate(_TYPE_NAME)},
+                    **{f"Get{t}": addresses[4 + i] for i, t in enumerate(_TYPE_NAME)}})
 
     def _describe_death(self) -> str:
         process = self.process
@@ -423,7 +424,7 @@ class ProxyFmuComponent(FmuComponent):
 
     # ------------------------------------------------------------------ errors and shutdown
     def error(self, time: float, reason: str):
-        """As FmuComponent.error, naming the crash or timeout; an interrupt caught inside a forwarded
+        """As Fmu.error, naming the crash or timeout; an interrupt caught inside a forwarded
         call is handed back (the engine raises it) instead of being reported as an FMU failure."""
         if self._interrupt is not None:
             interrupt, self._interrupt = self._interrupt, None
@@ -463,4 +464,4 @@ class ProxyFmuComponent(FmuComponent):
         self.process = None
 
 
-__all__ = ["ChildGone", "DEFAULT_STEP_TIMEOUT_S", "LIFECYCLE_TIMEOUT_S", "ProxyFmuComponent", "SHUTDOWN_TIMEOUT_S"]
+__all__ = ["ChildGone", "DEFAULT_STEP_TIMEOUT_S", "LIFECYCLE_TIMEOUT_S", "ProxyFmu", "SHUTDOWN_TIMEOUT_S"]

@@ -16,12 +16,13 @@ from fnmatch import fnmatchcase
 
 from fmpy.model_description import ModelDescription, ScalarVariable
 
-from cosim.master.fmi3 import FMI3_BUS, READ_ONLY_TYPES, Fmi3Element, check_fmi3_start
+from fmus.fmi3 import READ_ONLY_TYPES, Fmi3Element, check_fmi3_start
+from fmus import fmu
 
 #: FMI 2.0 scalar types a start value may have.
 VALUE_TYPES: tuple[str, ...] = ("Real", "Integer", "Enumeration", "Boolean", "String")
 #: Types that can travel on the master's signal buses (connections, tasks, recorders).
-BUS_TYPES: tuple[str, ...] = ("Real", "Integer", "Boolean")
+BUS_TYPES: tuple[str, ...] = fmu.VALUE_TYPES
 
 _EXPECTED_PYTHON = {
     "Real": "a finite number (float or int)",
@@ -33,15 +34,12 @@ _EXPECTED_PYTHON = {
 
 
 def bus_type(fmi_type: str) -> str:
-    """Return the bus a variable of FMI type ``fmi_type`` travels on (Enumeration uses Integer;
-    FMI 3.0 types: see cosim/master/fmi3.py)."""
-    if fmi_type == "Enumeration":
-        return "Integer"
-    if fmi_type in BUS_TYPES:
-        return fmi_type
-    if fmi_type in FMI3_BUS:
-        return FMI3_BUS[fmi_type]
-    raise MasterTypeUnsupported(fmi_type)
+    """Return the bus a variable of FMI type ``fmi_type`` travels on: the value type an
+    :class:`fmus.fmu.Fmu` exchanges it as (Enumeration uses Integer; FMI 3.0 types: see fmus/fmi3.py)."""
+    try:
+        return fmu.VALUE_TYPE_OF[fmi_type]
+    except KeyError:
+        raise MasterTypeUnsupported(fmi_type) from None
 
 
 class MasterTypeUnsupported(ValueError):

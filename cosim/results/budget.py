@@ -2,11 +2,16 @@
 before anything runs, and the budget it must fit in.
 
 The estimate counts what grows with the simulated time: recorded rows (``[record]`` or
-the robot cell's 1 ms tracker rate) times columns, the controller's per-cycle log (held
-in memory for the evaluation and written at the end of each mode), the TCP evaluation
-series and the CAN log (about 14 frames of 11 bytes per 400 µs cycle, BLF-compressed).
-Bytes per stored value: 7 in Parquet (zstd, byte-stream-split float64, measured on the
-main job), 20 in CSV (shortest round-trip decimals), 8 in memory.
+the robot cell's 1 ms tracker rate) times columns, the controller's per-cycle log, the TCP
+evaluation series and the CAN log (about 14 frames of 11 bytes per 400 µs cycle,
+BLF-compressed). Bytes per stored value: 7 in Parquet (zstd, byte-stream-split float64,
+measured on the main job), 20 in CSV (shortest round-trip decimals), 8 in memory.
+
+Memory: in process every series streams to disk with bounded buffers and the evaluation
+reads the files back in chunks (``cosim.cell.evaluation``), so what a cell job holds is one
+chunk of rows and the motion window's samples (the ISO path's duration, not the run's);
+paced and split runs (``--realtime``, ``--split``) keep the recording and the controller
+log in memory until the loop ends (no file I/O in a paced cycle): ``in_memory=True``.
 
 Budget (``cosim run`` refuses a run that exceeds it, exit code 2, with the estimate in
 the message): output at most ``--max-output`` / ``$COSIM_MAX_OUTPUT`` (default: the free
@@ -31,6 +36,10 @@ CELL_DEFAULT_COLUMNS = 40
 CONTROLLER_LOG_COLUMNS = 42
 TCP_COLUMNS = 33
 CAN_BYTES_PER_CYCLE = 14 * 11
+EVAL_CHUNK_ROWS = 16384
+"""Rows the cell's evaluation reads at once (cosim.cell.evaluation.EVAL_CHUNK_ROWS)."""
+ISO_PATH_S_AT_1_M_S = 12.3
+"""Duration (s) of the ISO 9283 test path at 1 m/s (planners.iso9283): its window is held whole."""
 GLOB_SIGNALS = 10
 """Signals assumed for one glob pattern in [record] signals (e.g. 'drive1.*')."""
 _UNITS = {"": 1, "b": 1, "k": 1e3, "kb": 1e3, "m": 1e6, "mb": 1e6, "g": 1e9, "gb": 1e9, "t": 1e12, "tb": 1e12,
@@ -91,8 +100,9 @@ def _signal_count(signals: list[str]) -> int:
     return sum(GLOB_SIGNALS if any(c in s for c in "*?[") and not s.endswith("]") else 1 for s in signals)
 
 
-def estimate_run(doc: dict[str, Any], timeseries_format: str = "parquet") -> Estimate:
-    """Estimate the output and memory of the validated scenario ``doc``."""
+def estimate_run(doc: dict[str, Any], timeseries_format: str = "parquet", in_memory: bool = False) -> Estimate:
+    """Estimate the output and memory of the validated scenario ``doc`` (``in_memory``: a paced
+    or split cell run, which holds its recording and controller log until the loop ends)."""
     est = Estimate()
     sim = doc.get("simulation") or {}
     stop = float(sim.get("stop_time") or 0.0)
@@ -111,11 +121,15 @@ def estimate_run(doc: dict[str, Any], timeseries_format: str = "parquet") -> Est
         columns = signals + CELL_DEFAULT_COLUMNS
         est.add("time series", modes * rows * columns * bpv, 0.0)
         est.add("controller logs", modes * cycles * CONTROLLER_LOG_COLUMNS * bpv,
-                cycles * CONTROLLER_LOG_COLUMNS * MEMORY_BYTES_PER_VALUE)
-        est.add("TCP series", modes * rows * TCP_COLUMNS * bpv, modes * rows * TCP_COLUMNS * MEMORY_BYTES_PER_VALUE)
+                cycles * CONTROLLER_LOG_COLUMNS * MEMORY_BYTES_PER_VALUE if in_memory else 0.0)
+        est.add("TCP series", modes * rows * TCP_COLUMNS * bpv, 0.0)
         if (doc.get("results") or {}).get("can_log", False):
             est.add("CAN logs", modes * cycles * CAN_BYTES_PER_CYCLE)
-        est.memory_bytes += rows * columns * MEMORY_BYTES_PER_VALUE  # one recording read back per mode
+        speed = float((doc.get("path") or {}).get("speed") or 1.0)
+        window_rows = min(rows, ISO_PATH_S_AT_1_M_S / max(speed, 1e-3) / record_period)
+        chunk = rows if in_memory else min(rows, EVAL_CHUNK_ROWS)
+        # the recording (or one chunk of it) with its TCP columns, and the motion window's samples
+        est.memory_bytes += (chunk * (columns + TCP_COLUMNS) + window_rows * TCP_COLUMNS) * MEMORY_BYTES_PER_VALUE
     elif record:
         rows = stop / float(record.get("period") or 1.0)
         est.add("time series", rows * (1 + signals) * bpv)

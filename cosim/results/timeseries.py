@@ -25,6 +25,7 @@ from __future__ import annotations
 import csv
 import os
 import time
+import warnings
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import IO
@@ -37,7 +38,23 @@ ENV_FORMAT = "COSIM_TIMESERIES"
 DEFAULT_BUFFER_ROWS = 8192
 """Rows buffered per Parquet sink before a row group is written (8192 x 40 columns = 2.6 MB)."""
 DEFAULT_FLUSH_INTERVAL_S = 1.0
-"""Longest wall time rows wait in a Parquet sink's buffer before they are streamed to disk."""
+"""Longest wall time (s) rows wait in a Parquet sink's buffer before they are streamed to disk
+(``$COSIM_FLUSH_INTERVAL_S`` overrides it)."""
+ENV_FLUSH_INTERVAL = "COSIM_FLUSH_INTERVAL_S"
+
+
+def default_flush_interval() -> float:
+    """``$COSIM_FLUSH_INTERVAL_S`` (a number of seconds >= 0) or :data:`DEFAULT_FLUSH_INTERVAL_S`."""
+    text = os.environ.get(ENV_FLUSH_INTERVAL, "").strip()
+    if not text:
+        return DEFAULT_FLUSH_INTERVAL_S
+    try:
+        value = float(text)
+    except ValueError:
+        value = -1.0
+    if not (value >= 0.0 and value < float("inf")):
+        raise ValueError(f"{ENV_FLUSH_INTERVAL}={text!r}: expected a number of seconds >= 0")
+    return value
 COMPRESSION = "zstd"
 
 
@@ -124,12 +141,12 @@ class ParquetSink:
     of up to 65536 rows, streamed, then an atomic rename) and removes the stream."""
 
     def __init__(self, path: str | Path, units: Mapping[str, str] | None = None,
-                 buffer_rows: int = DEFAULT_BUFFER_ROWS, flush_interval_s: float = DEFAULT_FLUSH_INTERVAL_S) -> None:
+                 buffer_rows: int = DEFAULT_BUFFER_ROWS, flush_interval_s: float | None = None) -> None:
         self.path = Path(path)
         self.partial = self.path.with_name(self.path.name + PARTIAL_SUFFIX)
         self.units = dict(units or {})
         self.buffer_rows = int(buffer_rows)
-        self.flush_interval_s = float(flush_interval_s)
+        self.flush_interval_s = float(flush_interval_s if flush_interval_s is not None else default_flush_interval())
         self.rows_written = 0
         self._file = None
         self._stream = None
@@ -320,6 +337,133 @@ def read_series(path: str | Path) -> tuple[list[str], np.ndarray]:
     return header, data
 
 
+READ_CHUNK_ROWS = 65536
+"""Rows per chunk of :func:`iter_series` (65536 x 40 float64 columns = 21 MB)."""
+
+
+def iter_series(path: str | Path, columns: Sequence[str] | None = None, rows: int = READ_CHUNK_ROWS):
+    """Read a time series (either format, or a run's ``.partial`` stream) chunk by chunk:
+    yields ``(names, block)`` with ``block`` a float64 array of at most about ``rows`` rows
+    of ``columns`` (all when None, in the file's order otherwise in the order given).
+    Memory is bounded by the chunk, whatever the file's length."""
+    path = resolve_series(path)
+    if path.name.endswith(PARTIAL_SUFFIX) or path.suffix == ".parquet":
+        import pyarrow as pa
+
+        if path.suffix == ".parquet":
+            import pyarrow.parquet as pq
+
+            pf = pq.ParquetFile(path)
+            names = list(columns) if columns is not None else list(pf.schema_arrow.names)
+            batches = pf.iter_batches(batch_size=rows, columns=names)
+        else:
+            names, batches = _partial_batches(path, columns)
+        for batch in batches:
+            if isinstance(batch, pa.RecordBatch) and batch.num_rows:
+                cols = [batch.column(batch.schema.get_field_index(n)).to_numpy(zero_copy_only=False) for n in names]
+                yield names, np.column_stack([c.astype(float, copy=False) for c in cols])
+        return
+    with open(path, encoding="utf-8", newline="") as f:
+        header = next(csv.reader([f.readline()]))
+        take = [header.index(n) for n in columns] if columns is not None else list(range(len(header)))
+        names = [header[i] for i in take]
+        while True:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", UserWarning)  # "input contained no data" at the end
+                block = np.loadtxt(f, delimiter=",", max_rows=rows, ndmin=2)
+            if block.size == 0:
+                return
+            yield names, block[:, take]
+
+
+def _partial_batches(partial: Path, columns: Sequence[str] | None):
+    """(names, iterator of the complete batches) of an Arrow stream a sink writes or left behind."""
+    import pyarrow as pa
+
+    source = pa.OSFile(str(partial), "rb")
+    try:
+        reader = pa.ipc.open_stream(source)
+    except (pa.ArrowInvalid, OSError):
+        source.close()
+        return (list(columns or [])), iter(())
+    names = list(columns) if columns is not None else list(reader.schema.names)
+
+    def batches():
+        try:
+            while True:
+                yield reader.read_next_batch()
+        except (StopIteration, pa.ArrowInvalid, OSError):
+            return
+        finally:
+            source.close()
+    return names, batches()
+
+
+def series_columns(path: str | Path) -> list[str]:
+    """Column names of a time series (either format, or a ``.partial`` stream) without its rows."""
+    path = resolve_series(path)
+    if path.suffix == ".parquet":
+        import pyarrow.parquet as pq
+
+        return list(pq.read_schema(path).names)
+    if path.name.endswith(PARTIAL_SUFFIX):
+        import pyarrow as pa
+
+        with pa.OSFile(str(path), "rb") as source:
+            try:
+                return list(pa.ipc.open_stream(source).schema.names)
+            except (pa.ArrowInvalid, OSError):
+                return []
+    with open(path, encoding="utf-8", newline="") as f:
+        return next(csv.reader([f.readline()]))
+
+
+def series_rows(path: str | Path) -> int:
+    """Rows of a time series (Parquet: from its footer; otherwise counted chunk by chunk)."""
+    path = resolve_series(path)
+    if path.suffix == ".parquet":
+        import pyarrow.parquet as pq
+
+        return int(pq.ParquetFile(path).metadata.num_rows)
+    return sum(len(block) for _, block in iter_series(path, columns=None))
+
+
+def last_row(path: str | Path, columns: Sequence[str] | None = None) -> np.ndarray | None:
+    """The last row of a time series (``columns`` of it), None when it has no rows; reads the
+    last row group of a Parquet file, else the chunks in turn."""
+    path = resolve_series(path)
+    if path.suffix == ".parquet":
+        import pyarrow.parquet as pq
+
+        pf = pq.ParquetFile(path)
+        groups = pf.metadata.num_row_groups
+        for g in range(groups - 1, -1, -1):
+            table = pf.read_row_group(g, columns=list(columns) if columns is not None else None)
+            if table.num_rows:
+                return np.array([table.column(i)[-1].as_py() for i in range(table.num_columns)], dtype=float)
+        return None
+    last = None
+    for _, block in iter_series(path, columns):
+        last = block[-1].copy()
+    return last
+
+
+def tail(path: str | Path, seconds: float, columns: Sequence[str] | None = None) -> tuple[list[str], np.ndarray]:
+    """The rows of the last ``seconds`` of a time series (column 0 of ``columns`` is the time,
+    s): ``time >= last time - seconds``, read chunk by chunk, holding at most one chunk more."""
+    kept: list[np.ndarray] = []
+    names: list[str] = list(columns or [])
+    for names, block in iter_series(path, columns):
+        kept.append(block)
+        end = block[-1, 0]
+        while len(kept) > 1 and kept[-2][-1, 0] < end - seconds:
+            kept.pop(0)
+    if not kept:
+        return names, np.zeros((0, len(names)))
+    data = np.concatenate(kept)
+    return names, data[data[:, 0] >= data[-1, 0] - seconds]
+
+
 class SeriesFile:
     """A written time series read back on first use (``columns``, ``data``, ``column(name)``):
     what a run streamed to disk, for the evaluation after the loop, without a copy held in
@@ -336,6 +480,9 @@ class SeriesFile:
 
     @property
     def columns(self) -> list[str]:
+        """Column names (from the file's header or schema: the rows are not read)."""
+        if self._loaded is None and resolve_series(self.path).exists():
+            return series_columns(self.path)
         return self._load()[0]
 
     @property
@@ -344,6 +491,24 @@ class SeriesFile:
 
     def column(self, name: str) -> np.ndarray:
         return self.data[:, self.columns.index(name)]
+
+    def chunks(self, columns: Sequence[str] | None = None, rows: int = READ_CHUNK_ROWS):
+        """:func:`iter_series` of the file (bounded memory; nothing kept)."""
+        if self._loaded is not None:
+            names, data = self._loaded
+            take = [names.index(n) for n in columns] if columns is not None else list(range(len(names)))
+            for start in range(0, len(data), rows):
+                yield [names[i] for i in take], data[start:start + rows][:, take]
+            return
+        if resolve_series(self.path).exists():
+            yield from iter_series(self.path, columns, rows)
+
+    @property
+    def rows(self) -> int:
+        """Rows in the file (without reading them all when it is Parquet)."""
+        if self._loaded is not None:
+            return len(self._loaded[1])
+        return series_rows(self.path) if resolve_series(self.path).exists() else 0
 
 
 read_csv = read_series
@@ -362,4 +527,5 @@ def read_units(path: str | Path) -> dict[str, str]:
 
 
 __all__ = ["CsvSink", "DEFAULT_BUFFER_ROWS", "ENV_FORMAT", "FORMATS", "FileSink", "PARTIAL_SUFFIX", "ParquetSink", "SUFFIXES", "SeriesFile",
-           "default_format", "read_csv", "read_series", "read_units", "resolve_series", "sink_for", "write_columns"]
+           "default_format", "iter_series", "last_row", "read_csv", "read_series", "read_units", "resolve_series",
+           "series_columns", "series_rows", "sink_for", "tail", "write_columns"]

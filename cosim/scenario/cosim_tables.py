@@ -24,7 +24,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from cosim.master import Master, MasterConfigError, Recorder, load_model_description
-from cosim.master.component import SUPPORTED_FMUS, variables_of
+from fmus.fmu import SUPPORTED_FMUS, variables_of
 from cosim.master.master import COUPLINGS, ENGINES
 from cosim.master.variables import (MasterTypeUnsupported, bus_type, check_connection_ends, check_declared_range,
                                     check_start_value, is_pattern, matches_pattern, parse_connection, split_signal)

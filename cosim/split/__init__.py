@@ -8,7 +8,7 @@ loopback. The two sides run in lock-step in simulated time: the drive side waits
 the cycle marker, the SoC and the PReqs of cycle k before it applies set-points and
 steps its FMUs to t_k+1; the controller side waits for the PRes frames of cycle k
 before it computes the set-points for cycle k+1. Unpaced, a split run gives the same
-trajectory as the one-process run (tests/test_split_equivalence.py).
+trajectory as the one-process run (tests/cosim/split/test_equivalence.py).
 
 Modules: :mod:`~cosim.split.protocol` (cycle marker, per-side bus configuration),
 :mod:`~cosim.split.drive_side` (the drive process), :mod:`~cosim.split.cell`

@@ -25,7 +25,7 @@ import numpy as np
 
 from cosim.cell import wiring
 from cosim.cell.link import CellBus
-from cosim.jobs.laser_tracker import LaserTracker, TrackerConfig
+from cosim.tracking.laser_tracker import LaserTracker, TrackerConfig
 from cosim.master import EndSimulation, Master, SimulationError
 from cosim.realtime.pacer import no_cyclic_gc, realtime_scheduling
 from cosim.realtime.policy import OverrunFaultPlan

@@ -22,7 +22,7 @@ from typing import Any
 
 from lxml import etree
 
-from cosim.master.component import load_model_description, variables_of
+from fmus.fmu import load_model_description, variables_of
 from cosim.master.errors import MasterConfigError
 from cosim.master.variables import check_start_value
 from cosim.ssp.errors import SspError

@@ -11,7 +11,7 @@ from typing import Any
 
 from lxml import etree
 
-from cosim.master.component import load_model_description, variables_of
+from fmus.fmu import load_model_description, variables_of
 from cosim.master.variables import bus_type, parse_connection
 from cosim.ssp.errors import SspError
 from cosim.ssp.schema import NS, SSD_XSD, SSV_XSD, problems
@@ -31,7 +31,7 @@ def driven_by(signal: str) -> str:
                 "POWERLINK bus carrying CiA 402 telegrams (fieldbus/, cosim.cell.link.FieldbusLink); "
                 "not an FMU")
     if owner == "tracker":
-        return "the Python laser tracker model (cosim.jobs.laser_tracker); not an FMU"
+        return "the Python laser tracker model (cosim.tracking.laser_tracker); not an FMU"
     return f"a Python task of the job (master variable owner '{owner}'); not an FMU"
 
 

@@ -1,6 +1,6 @@
 """Run a sweep's variants as independent tasks on Dask (``dask.distributed``).
 
-By default an embedded ``LocalCluster`` of worker PROCESSES is started on this machine
+By default an embedded ``LocalCluster`` of worker PROCESSES is started on the local machine
 (``n_workers = workers`` (default: CPU count), one thread each, so an FMU instance never
 meets a second thread); with ``scheduler = "tcp://host:8786"`` the same tasks go to an
 existing cluster, whose workers need this project installed (``pip install -e .``) and

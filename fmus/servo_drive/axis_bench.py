@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from fmus.fast_fmu import FastFmu2Slave
+from fmus.fmu import Fmu
 from fmus.servo_drive.params import drive_start_values
 
 INPUTS = ("target_position", "torque_offset", "q_meas", "qd_meas")
@@ -50,8 +50,8 @@ def simulate_axis(fmu_path: str | Path, axis: int, inertia: float, target: Calla
     """
     start_values = dict(drive_start_values(axis))
     start_values.update(overrides or {})
-    drive = FastFmu2Slave(fmu_path, f"axis{axis}", start_values, real_inputs=INPUTS, real_outputs=OUTPUTS,
-                          integer_inputs=("controlword",), integer_outputs=("statusword",))
+    drive = Fmu(fmu_path, f"axis{axis}", start_values, real_inputs=INPUTS, real_outputs=OUTPUTS,
+                integer_inputs=("controlword",), integer_outputs=("statusword",)).start()
     n = int(round(duration / step))
     rows = np.zeros((n, 7))
     status = np.zeros(n, dtype=int)

@@ -1,7 +1,7 @@
 """Tuning rules of the drive's cascade: gains from sample times, motor data and inertia.
 
 The values in ``drive_params.toml`` are the output of these rules;
-``tests/test_fmu_drive_tuning.py`` checks that they agree, so the file stays the one
+``tests/fmus/test_drive_tuning.py`` checks that they agree, so the file stays the one
 place for the numbers while the derivation stays executable.
 
 Rules (Schroeder, *Elektrische Antriebe - Regelung von Antriebssystemen*; Preitl &

@@ -1,0 +1,219 @@
+"""``python -m cosim serve``: the cell side of a hardware-in-the-loop run, driven by the
+minimal external controller of examples/ (python-can + the documented telegrams only) in
+another process; its death makes the cell's counters trip and the drives stop the arm.
+
+The served cell runs on the wall clock. The test suite shares two cores with other
+tests, so these runs use a 2 ms bus cycle (the same code paths as 400 µs, more slack);
+the 400 µs figures are benchmarks (benchmarks/bench_hil.py, ``cosim bench``)."""
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import can
+import numpy as np
+import pytest
+
+from cosim.api import RunResult
+
+ROOT = Path(__file__).resolve().parents[3]
+EXAMPLE = ROOT / "examples" / "hil_external_controller.py"
+PORT = 46000 + (os.getpid() % 400) * 10
+
+
+def _scenario(tmp_path: Path, stop_time: str = "5 s") -> Path:
+    text = (ROOT / "scenarios" / "hil.toml").read_text()
+    text = text.replace('stop_time = "6 s"', f'stop_time = "{stop_time}"')
+    text = text.replace('period = "400 us"', 'period = "2 ms"').replace("cycle_time_us = 400", "cycle_time_us = 2000")
+    text = text.replace('builtin = "servo_drive"',
+                        'builtin = "servo_drive"\n[fmus.parameters]\nposition_sample_time = 0.002  # s, the bus cycle')
+    # a loaded test machine stalls a process by milliseconds now and then: the counters
+    # trip after 10 lost cycles here (20 ms) instead of 2, a stop of the controller still trips them
+    text = text.replace("[fieldbus.recording]", "[fieldbus.thresholds]\ncn_loss_of_soc = 80\ncn_loss_of_preq = 80\n"
+                        "[fieldbus.recording]")
+    path = tmp_path / "hil.toml"
+    path.write_text(text)
+    return path
+
+
+def _env() -> dict:
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join([str(ROOT), env.get("PYTHONPATH", "")])
+    env["MPLBACKEND"] = "Agg"
+    return env
+
+
+def _serve(scenario: Path, out: Path, port: int, *extra: str) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-m", "cosim", "serve", str(scenario), "--out", str(out), "--quiet",
+                             "--channel", f"127.0.0.1:{port}", "--scheduling", "normal", *extra],
+                            env=_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def _wait_endpoint(out: Path, serve: subprocess.Popen, timeout: float = 120.0) -> dict:
+    path = out / "hil_endpoint.json"
+    deadline = time.monotonic() + timeout
+    while not path.exists():
+        if serve.poll() is not None:
+            pytest.fail(f"cosim serve ended early: {serve.stderr.read()}")
+        assert time.monotonic() < deadline, "no hil_endpoint.json"
+        time.sleep(0.05)
+    return json.loads(path.read_text())
+
+
+def _controller(endpoint: Path, *extra: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, str(EXAMPLE), str(endpoint), *extra], env=_env(), capture_output=True,
+                          text=True, timeout=120)
+
+
+@pytest.fixture(scope="module")
+def served_then_killed(tmp_path_factory):
+    """One served run: the example controller enables the drives, moves, and goes silent
+    mid-motion (--stop-after), as if killed."""
+    tmp = tmp_path_factory.mktemp("hil")
+    out = tmp / "out"
+    serve = _serve(_scenario(tmp, "8 s"), out, PORT)
+    desc = _wait_endpoint(out, serve)
+    ctrl = _controller(out / "hil_endpoint.json", "--amplitude", "0.3", "--duration", "2.0", "--stop-after", "1.3")
+    _, err = serve.communicate(timeout=180)
+    return out, desc, ctrl, serve.returncode, err
+
+
+def test_endpoint_description_names_what_a_controller_needs(served_then_killed):
+    _, desc, _, _, _ = served_then_killed
+    assert desc["interface"] == "udpcycle" and desc["cell_channel"] == f"127.0.0.1:{PORT}"
+    assert desc["nodes"] == 6 and desc["cycle_time_s"] == pytest.approx(2e-3)
+    assert len(desc["counts_per_rad"]) == 6 and len(desc["q_start_rad"]) == 6
+
+
+def test_external_controller_enables_and_moves_the_arm(served_then_killed):
+    out, desc, ctrl, code, err = served_then_killed
+    assert ctrl.returncode == 0, ctrl.stderr
+    assert code == 0, err
+    result = RunResult(out)
+    assert result.summary.status == "ok"
+    hil = result.summary.raw["hil"]["model_based"]
+    assert hil["controller"]["first_cycle"] is not None and hil["controller"]["cycles_in_time"] > 200
+    ts = result.timeseries("timeseries_model_based", kind="numpy")
+    q1 = np.asarray(ts["plant.q[1]"])
+    # the cosine move out reached a good part of its 0.3 rad before the controller went silent
+    assert q1.max() - desc["q_start_rad"][0] > 0.1
+
+
+def test_a_killed_controller_trips_the_counters_and_the_drives_stop_the_arm(served_then_killed):
+    out, desc, _, _, _ = served_then_killed
+    result = RunResult(out)
+    hil = result.summary.raw["hil"]["model_based"]
+    reactions = [f for f in hil["fault_reactions"] if f["event"] == "fault_reaction"]
+    assert {f["node"] for f in reactions} == set(range(1, 7))
+    trip = max(f["time_s"] for f in reactions)
+    # within the threshold: 80 with +8 per lost cycle -> the tenth lost cycle in a row trips
+    lost = hil["frames_lost_per_node"]
+    assert all(v >= 10 for v in lost.values())
+    ts = result.timeseries("timeseries_model_based", kind="numpy")
+    t = np.asarray(ts["time"])
+    qd = np.column_stack([np.asarray(ts[f"plant.qd[{j}]"]) for j in range(1, 7)])
+    moving_before = np.abs(qd[(t > trip - 0.3) & (t < trip)]).max()
+    after = np.abs(qd[t >= trip + 0.5]).max()
+    assert moving_before > 1e-2  # it was stopped mid-motion
+    assert after < 1e-3  # all joints below 1e-3 rad/s within 0.5 s
+    # recorded in the CAN log: the EMCY frames of the reaction
+    log = [m for m in can.LogReader(str(out / "can_model_based.blf"))]
+    emcy = [m for m in log if 0x81 <= m.arbitration_id <= 0x86 and len(m.data) == 8]
+    assert {m.arbitration_id - 0x80 for m in emcy} == set(range(1, 7))
+    assert hil["figure"] and (out / hil["figure"]).exists()
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT], ids=["SIGTERM", "Ctrl-C"])
+def test_serve_stops_cleanly_on_sigterm_and_ctrl_c(tmp_path, sig):
+    out = tmp_path / "out"
+    serve = _serve(_scenario(tmp_path, "60 s"), out, PORT + 5 if sig == signal.SIGTERM else PORT + 6)
+    _wait_endpoint(out, serve)
+    time.sleep(1.0)
+    serve.send_signal(sig)
+    _, err = serve.communicate(timeout=120)
+    assert serve.returncode == 130, err
+    assert "Traceback" not in err
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["status"] == "interrupted"
+    assert (out / "timeseries_model_based.csv").exists() or (out / "timeseries_model_based.parquet").exists()
+
+
+def test_a_port_in_use_is_a_clear_error(tmp_path):
+    with can.Bus(interface="udpcycle", channel=f"127.0.0.1:{PORT + 7}"):
+        serve = _serve(_scenario(tmp_path), tmp_path / "out", PORT + 7)
+        _, err = serve.communicate(timeout=120)
+    assert serve.returncode == 2, err
+    assert "in use" in err and "Traceback" not in err
+
+
+def test_a_bad_channel_is_refused_before_anything_runs(tmp_path):
+    serve = subprocess.run([sys.executable, "-m", "cosim", "serve", str(_scenario(tmp_path)), "--out",
+                            str(tmp_path / "out"), "--channel", "localhost"], env=_env(), capture_output=True,
+                           text=True, timeout=60)
+    assert serve.returncode == 2
+    assert "--channel 'localhost': expected host:port" in serve.stderr
+    assert not (tmp_path / "out").exists()
+
+
+def test_split_realtime_runs_our_controller_against_the_served_cell(tmp_path):
+    """``cosim run --split --realtime``: our controller follows the served cell in another
+    process; the run completes and tracks the ISO path like the in-process run."""
+    text = (ROOT / "scenarios" / "iso9283.toml").read_text()
+    text = text.replace('stop_time = "12.6 s"', 'stop_time = "1 s"')
+    text = text.replace('modes = ["standard", "standard_speed_ff", "model_based"]', 'modes = ["model_based"]')
+    text = text.replace('period = "400 us"            # paper section 2.3.2', 'period = "2 ms"')
+    text = text.replace("cycle_time_us = 400", "cycle_time_us = 2000\n[fieldbus.thresholds]\ncn_loss_of_soc = 80\n"
+                        "cn_loss_of_preq = 80")
+    text = text.replace('builtin = "servo_drive"',
+                        'builtin = "servo_drive"\n[fmus.parameters]\nposition_sample_time = 0.002  # s, the bus cycle')
+    text = text.replace("figures = true", "figures = false").replace("can_log = true", "can_log = false")
+    path = tmp_path / "iso.toml"
+    path.write_text(text)
+    runs = {}
+    for name, flags in (("in_process", []), ("hil", ["--split", "--realtime"])):
+        done = subprocess.run([sys.executable, "-m", "cosim", "run", str(path), "--out", str(tmp_path / name),
+                               "--quiet", *flags], env=_env(), capture_output=True, text=True, timeout=600)
+        assert done.returncode == 0, done.stderr[-2000:]
+        runs[name] = json.loads((tmp_path / name / "summary.json").read_text())
+    hil = runs["hil"]["hil_split"]["model_based"]
+    assert hil["controller_side"]["cycles"] >= 490 and hil["cell_side"]["controller"]["first_cycle"] == 0
+    assert hil["round_trip"]["p50_us"] is not None
+    assert (tmp_path / "hil" / hil["cell_results"] / "summary.json").exists()
+    assert hil["cell_side"]["controller"]["cycles_in_time"] >= 0.9 * hil["cell_side"]["cycles"]
+    e_in = runs["in_process"]["modes"]["model_based"]["tcp_error_max_mm"]
+    e_hil = runs["hil"]["modes"]["model_based"]["tcp_error_max_mm"]
+    # it follows the path (the standard cascade is ~18 mm off); each lost cycle holds the set-point and the
+    # feed-forward for a cycle, so on a shared test machine the split run is not the in-process figure
+    # (docs/hil.md, Measured: 0.70 mm vs 0.0102 mm at 400 us on the idle machine)
+    assert e_in < 0.05 and e_hil < 5.0
+
+
+def test_a_controller_at_another_cycle_time_is_a_counted_logged_mismatch(tmp_path):
+    """A controller on its own 6 ms clock against the cell's 2 ms cycle: no hang, no traceback;
+    the run ends normally, the mismatch is counted in summary.json and named on stderr."""
+    out = tmp_path / "out"
+    serve = _serve(_scenario(tmp_path, "3 s"), out, PORT + 3)
+    desc = _wait_endpoint(out, serve)
+    bus = can.Bus(interface="udpcycle", channel=desc["controller_channel"], peer=desc["cell_channel"])
+    try:
+        counter, next_at = 0, time.monotonic()
+        while serve.poll() is None and time.monotonic() < next_at + 60:
+            frames = [can.Message(arbitration_id=0x080, data=bytes([counter % 240 + 1]), is_extended_id=False)]
+            frames += [can.Message(arbitration_id=0x200 + i, data=bytes(8), is_extended_id=False) for i in range(1, 7)]
+            bus.send_many(frames)
+            counter += 1
+            next_at += 3 * desc["cycle_time_s"]
+            while bus.recv(max(next_at - time.monotonic(), 0.0)) is not None:
+                pass  # the PRes frames: this controller keeps its own time
+    finally:
+        bus.shutdown()
+    _, err = serve.communicate(timeout=120)
+    assert serve.returncode == 0, err
+    assert "Traceback" not in err and "cycle-time mismatch" in err
+    found = json.loads((out / "summary.json").read_text())["hil"]["model_based"]["cycle_time_mismatch"]
+    assert found["controller_cycle_time_s_estimate"] == pytest.approx(6e-3, rel=0.15)

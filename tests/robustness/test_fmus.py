@@ -1,0 +1,188 @@
+"""FMUs that crash, hang or end the simulation themselves.
+
+A C test FMU (tests/c_test_fmus.py, built here with the system compiler) segfaults, aborts,
+calls _exit or hangs in fmi2DoStep from 0.5 s on. Run out of process ([[fmus]]
+out_of_process = true), that becomes a clean ``failed`` naming the component, the time and
+the signal, with the other FMU's data up to that time on disk. An FMU that returns
+fmi2Discard with fmi2Terminated ends the run normally at its fmi2LastSuccessfulTime, in
+process and out of process, with both engines.
+"""
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from c_test_fmus import build_misbehave_fmu
+from cosim.cli import main
+from cosim.results import read_series
+
+ROOT = Path(__file__).resolve().parents[2]
+ENV = {**os.environ, "PYTHONPATH": str(ROOT), "MPLBACKEND": "Agg"}
+
+SCENARIO = """
+connections = ["clock.y -> bad.u"]
+
+[scenario]
+name = "misbehave"
+job = "fmus"
+
+[simulation]
+stop_time = {stop}
+macro_step = 0.001
+engine = "{engine}"
+
+[[fmus]]
+name = "clock"
+path = "Misbehave.fmu"
+
+[[fmus]]
+name = "bad"
+path = "Misbehave.fmu"
+{bad_options}
+[fmus.parameters]
+mode = {mode}
+fail_time = 0.5
+
+[record]
+period = 0.01
+signals = ["clock.y", "bad.y", "bad.echo"]
+"""
+
+
+@pytest.fixture(scope="module")
+def fmu_dir(tmp_path_factory) -> Path:
+    folder = tmp_path_factory.mktemp("misbehave")
+    build_misbehave_fmu(folder)
+    return folder
+
+
+def scenario(fmu_dir: Path, tmp_path: Path, mode: int, bad_options: str = "out_of_process = true",
+             stop: float = 1.0, engine: str = "auto") -> Path:
+    (tmp_path / "Misbehave.fmu").write_bytes((fmu_dir / "Misbehave.fmu").read_bytes())
+    path = tmp_path / "s.toml"
+    path.write_text(SCENARIO.format(mode=mode, bad_options=bad_options, stop=stop, engine=engine))
+    return path
+
+
+def read_csv(path: Path) -> tuple[list[str], np.ndarray]:
+    """The run's time series of ``path``'s stem (Parquet, the default format; while the run
+    goes, its stream ``.parquet.partial``)."""
+    return read_series(path)
+
+
+def test_the_test_fmu_is_valid(fmu_dir):
+    from fmpy.validation import validate_fmu
+
+    assert validate_fmu(str(fmu_dir / "Misbehave.fmu")) == []
+
+
+@pytest.mark.parametrize("mode, options, words", [
+    (2, "out_of_process = true", ["SIGSEGV", "signal 11"]),
+    (3, "out_of_process = true", ["SIGABRT"]),
+    (4, "out_of_process = true", ["exited with code 3"]),
+    (5, 'out_of_process = true\nstep_timeout = "1 s"', ["step timeout of 1 s", "hangs"]),
+])
+def test_crash_or_hang_out_of_process_fails_cleanly(fmu_dir, tmp_path, capsys, mode, options, words):
+    path = scenario(fmu_dir, tmp_path, mode, options)
+    out = tmp_path / "out"
+    if mode == 2:  # as a user runs it: one process, stderr without a traceback
+        done = subprocess.run([sys.executable, "-m", "cosim", "run", str(path), "--out", str(out), "--quiet"],
+                              env=ENV, capture_output=True, text=True, timeout=120)
+        code, err = done.returncode, done.stderr
+    else:
+        code, err = main(["run", str(path), "--out", str(out), "--quiet"]), capsys.readouterr().err
+    assert code == 3, err
+    assert "Traceback" not in err and "error: misbehave: run failed" in err
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["status"] == "failed" and summary["failed_component"] == "bad"
+    assert summary["stopped_at_s"] == pytest.approx(0.499)
+    for word in words:
+        assert word in summary["reason"], summary["reason"]
+    header, data = read_csv(out / "timeseries.parquet")
+    assert header == ["time", "clock.y", "bad.y", "bad.echo"]
+    assert data.shape[0] == 50 and data[-1, 0] == pytest.approx(0.49)  # every sample before the crash
+    assert np.allclose(data[:, 1], data[:, 0]) and np.allclose(data[:, 2], data[:, 0])
+
+
+def test_interrupt_while_an_isolated_fmu_hangs_is_an_interrupt(fmu_dir, tmp_path):
+    path = scenario(fmu_dir, tmp_path, 5)  # hangs at 0.5 s; default step timeout 60 s
+    out = tmp_path / "out"
+    proc = subprocess.Popen([sys.executable, "-m", "cosim", "run", str(path), "--out", str(out), "--quiet"],
+                            env=ENV, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True)
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline:  # initialized (the summary names the engine), then 0.5 s hangs
+        try:
+            if "engine" in json.loads((out / "summary.json").read_text()):
+                break
+        except (OSError, ValueError):
+            pass
+        time.sleep(0.1)
+    time.sleep(2.0)  # the 500 steps before the hang take well under a second
+    os.killpg(proc.pid, signal.SIGINT)  # Ctrl-C: the FMU's process ignores it, the run handles it
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["status"] == "interrupted" and summary["signal"] == "SIGINT"
+    assert summary["stopped_at_s"] == pytest.approx(0.499)
+    _, data = read_csv(out / "timeseries.csv")  # the rows buffered while it hung are flushed
+    assert data.shape[0] == 50 and data[-1, 0] == pytest.approx(0.49)
+
+
+@pytest.mark.parametrize("options, engine", [("", "auto"), ("", "python"), ("out_of_process = true", "auto")])
+def test_fmu_that_ends_the_simulation_ends_the_run_normally(fmu_dir, tmp_path, capsys, options, engine):
+    path = scenario(fmu_dir, tmp_path, 1, options, engine=engine)
+    out = tmp_path / "out"
+    assert main(["run", str(path), "--out", str(out), "--quiet"]) == 0, capsys.readouterr().err
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["status"] == "ok"
+    assert summary["ended_by"]["instance"] == "bad" and summary["ended_by"]["status"] == "fmi2Discard"
+    assert summary["ended_by"]["last_successful_time"] == pytest.approx(0.5)
+    _, data = read_csv(out / "timeseries.parquet")
+    assert data[-1, 0] == pytest.approx(0.5) and data[-1, 2] == pytest.approx(0.5)  # its last values, at 0.5 s
+    assert data[-2, 0] == pytest.approx(0.49)
+
+
+def test_out_of_process_gives_the_same_numbers(fmu_dir, tmp_path, capsys):
+    text = (ROOT / "scenarios" / "plant_drop.toml").read_text()
+    runs = {}
+    for isolation in ("none", "all"):
+        path = tmp_path / f"{isolation}.toml"
+        path.write_text(text.replace("stop_time = 0.5", f'stop_time = 0.05\nisolation = "{isolation}"'))
+        assert main(["run", str(path), "--out", str(tmp_path / isolation), "--quiet"]) == 0, capsys.readouterr().err
+        runs[isolation] = read_csv(tmp_path / isolation / "timeseries.parquet")
+    assert runs["none"][0] == runs["all"][0]
+    assert np.array_equal(runs["none"][1], runs["all"][1])  # bit for bit
+
+
+def test_step_timeout_needs_out_of_process(fmu_dir, tmp_path, capsys):
+    path = scenario(fmu_dir, tmp_path, 0, 'step_timeout = "1 s"')
+    code = main(["run", str(path), "--out", str(tmp_path / "o"), "--quiet"])
+    err = capsys.readouterr().err
+    assert code == 2 and "fmus[1].step_timeout" in err and "out_of_process = true" in err
+
+
+def test_in_process_crash_still_leaves_a_final_status(fmu_dir, tmp_path):
+    """Without isolation a segfault ends the process; the crash guard (cosim/results/crashguard.c)
+    still replaces the running summary with a failed one naming the signal."""
+    path = scenario(fmu_dir, tmp_path, 2, "", stop=2.0)
+    path.write_text(path.read_text().replace("fail_time = 0.5", "fail_time = 1.5"))
+    out = tmp_path / "out"
+    done = subprocess.run([sys.executable, "-m", "cosim", "run", str(path), "--out", str(out), "--quiet"],
+                          env=ENV, capture_output=True, text=True, timeout=120)
+    assert done.returncode == -signal.SIGSEGV
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["status"] == "failed" and summary["signal"] == "SIGSEGV"
+    assert "died from SIGSEGV" in summary["reason"] and "out of process" in summary["reason"]
+    assert 0.0 <= summary["stopped_at_s"] <= 1.5
+    header, _ = read_csv(out / "timeseries.csv")  # readable: rows up to the last flush
+    assert header == ["time", "clock.y", "bad.y", "bad.echo"]
+    assert not (out / "summary.json.tmp").exists()
