@@ -322,7 +322,10 @@ def run(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
         elif name == "measured":
             ctx.summary.update(phase="identifying", excitation_run=fields["data"].info)
 
-    truth_p = RobotDynamics(true_robot.dynamic_parameters, true_robot.payload).parameter_vector(include_payload=True)
+    # the plant's own model: the true parameters on the true geometry, the payload folded into link 6
+    # through the true flange (docs/fmus.md); compared in the regressor's base parameters
+    truth_p = RobotDynamics(true_robot.dynamic_parameters, true_robot.payload,
+                            model=true_robot.kinematic_model()).parameter_vector(include_payload=True)
     truth_k, truth_b = _true_gears(doc, true_robot, params) if elastic else (None, None)
     stiffness_model = {"rotor_inertia": params.rotor_inertia,
                        "motor_friction_share": params.motor_friction_share,
