@@ -112,6 +112,8 @@ class BaseParameters:
     """the RobotDynamics whose kinematic structure the regressor uses (None: the nominal arm)"""
     fixed_names: tuple[str, ...] | None = field(default=None, compare=False, repr=False)
     """base-parameter names kept from the grouping this one was regrouped from (:func:`regrouped_on`)"""
+    pattern: np.ndarray | None = field(default=None, compare=False, repr=False)
+    """which standard parameters each base parameter held in that grouping (bool, n_base x 78)"""
 
     def __post_init__(self) -> None:
         combination = np.zeros((self.independent.size, len(self.names)))
@@ -210,9 +212,18 @@ class BaseParameters:
         s = default_scale(ref) if scale is None else _vector(scale, len(self.names), "scale")
         if np.any(s <= 0.0):
             raise BaseParameterError("scale: expected 78 positive numbers")
-        k = self.combination * s  # K S
-        correction = np.linalg.lstsq(k, pb - self.combination @ ref, rcond=None)[0]
-        return ref + s * correction
+        if self.pattern is None:
+            k = self.combination * s  # K S
+            correction = np.linalg.lstsq(k, pb - self.combination @ ref, rcond=None)[0]
+            return ref + s * correction
+        # a regrouped grouping: its small geometric couplings (mx2 - 0.0009 m3) would let the
+        # minimum-norm step move a mass by kilograms to fit a first moment; correct along the
+        # original grouping and repeat (converges like the couplings, 1e-3 per pass)
+        k = self.combination * self.pattern * s
+        p = ref.copy()
+        for _ in range(6):
+            p = p + s * np.linalg.lstsq(k, pb - self.combination @ p, rcond=None)[0]
+        return p
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready description: names, definitions, terms, tolerances."""
@@ -394,8 +405,10 @@ def regrouped_on(base: BaseParameters, dynamics: RobotDynamics, *, n_states: int
     kappa[np.abs(kappa) < KAPPA_ZERO_TOLERANCE] = 0.0
     residual = float(np.abs(theta[:, dep] - theta[:, ind] @ kappa).max() / norms.max())
     kappa.setflags(write=False)
+    pattern = base.combination != 0.0
+    pattern.setflags(write=False)
     return dataclasses.replace(base, kappa=kappa, kappa_residual=residual, structure=dynamics,
-                               fixed_names=base.base_names)
+                               fixed_names=base.base_names, pattern=pattern)
 
 
 @lru_cache(maxsize=1)

@@ -219,3 +219,8 @@ def test_regrouped_on_a_calibrated_geometry():
         errors[label] = np.abs(b.base_regressor(theta) @ b.base_values(p) - tau).max() / np.abs(tau).max()
     print(errors)
     assert errors["regrouped"] < 1e-4 and errors["nominal"] > 10 * errors["regrouped"]
+    # a 78-vector with these base values stays physical (masses positive) and reproduces them
+    shifted = base.base_values(p) * (1 + 0.05 * rng.standard_normal(base.count))
+    full = base.full_parameters(shifted, nominal_parameter_vector())
+    assert np.allclose(base.base_values(full), shifted, rtol=1e-9, atol=1e-12)
+    assert np.all(full[0:60:10][1:] > 0)
