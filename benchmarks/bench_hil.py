@@ -32,6 +32,17 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 
+def steal_ms() -> float:
+    """CPU time the hypervisor took from this (virtual) machine so far, ms, all CPUs (/proc/stat
+    'steal'; 0 where not reported). A vCPU that is descheduled by the host stalls whatever runs
+    on it, SCHED_FIFO or not: the stalls no setting inside the machine can prevent."""
+    try:
+        fields = Path("/proc/stat").read_text().splitlines()[0].split()
+        return int(fields[8]) * 1000.0 / os.sysconf("SC_CLK_TCK")
+    except (OSError, IndexError, ValueError):
+        return 0.0
+
+
 def _config(channel: str, peer: str, poll: float) -> dict:
     return {"bus": {"interface": "udpcycle", "channel": channel, "receive_timeout_s": 0.05,
                     "options": {"peer": peer, "latency_samples": 1 << 20, "busy_poll_s": poll}}}
@@ -119,6 +130,7 @@ def run_once(seconds: float, base_port: int, window_s: float = 200e-6) -> dict:
     q_cell, q_ctrl = ctx.Queue(), ctx.Queue()
     ports = (base_port, base_port + 1)
     load_before = os.getloadavg()
+    steal0, wall0 = steal_ms(), time.monotonic()
     cell = ctx.Process(target=cell_side, args=(seconds, ports, window_s, q_cell))
     cell.start()
     assert q_cell.get(timeout=60) == "ready"
@@ -128,6 +140,7 @@ def run_once(seconds: float, base_port: int, window_s: float = 200e-6) -> dict:
     k = q_ctrl.get(timeout=30)
     cell.join(10)
     ctrl.join(10)
+    steal = (steal_ms() - steal0) / (time.monotonic() - wall0)
     lateness = np.asarray(c["lateness_us"])
     overrun = np.asarray(c["overrun"], dtype=bool)
     from cosim.hil.cell_side import longest_run
@@ -145,6 +158,7 @@ def run_once(seconds: float, base_port: int, window_s: float = 200e-6) -> dict:
                               "max": float(rtt.max())} if n else {"p50": None, "p99": None, "max": None},
             "lost_cycles": c["lost_cycles"], "frames_late": c["frames_late"],
             "controller_cycles_skipped": k["cycles_skipped"], "transport": c["stats"], "scheduling": c["scheduling"],
+            "steal_ms_per_s": steal,
             "load_average_before": load_before, "load_average_after": os.getloadavg()}
 
 
@@ -356,6 +370,133 @@ def print_late(r: dict) -> None:
           f"; late frames dropped {r['frames_late']}")
 
 
+# ------------------------------------------------------------------ ISO 9283, paced split vs in process
+#: Counters that do not trip on the lost cycles of a loaded machine, so the paced split run
+#: completes and its TCP error can be compared (the default 15 trips at two lost in a row).
+ISO_THRESHOLD = 200
+
+
+def iso_scenario(work: Path, stop_time_s: float | None = None, missing_setpoint: str = "hold",
+                 name: str = "iso") -> Path:
+    """scenarios/iso9283.toml, model_based mode only, no figures, thresholds ``ISO_THRESHOLD``,
+    the drives' reaction to a missing set-point ``missing_setpoint`` ('hold' or 'extrapolate')."""
+    text = (ROOT / "scenarios" / "iso9283.toml").read_text()
+    text = text.replace('modes = ["standard", "standard_speed_ff", "model_based"]', 'modes = ["model_based"]')
+    if stop_time_s is not None:
+        text = text.replace('stop_time = "12.6 s"', f'stop_time = "{stop_time_s} s"')
+    text = text.replace("figures = true", "figures = false")
+    text = text.replace("cycle_time_us = 400", f"cycle_time_us = 400\n[fieldbus.thresholds]\ncn_loss_of_soc = "
+                        f"{ISO_THRESHOLD}\ncn_loss_of_preq = {ISO_THRESHOLD}\n[fieldbus.reaction]\n"
+                        f'missing_setpoint = "{missing_setpoint}"')
+    work.mkdir(parents=True, exist_ok=True)
+    path = work / f"{name}.toml"
+    path.write_text(text)
+    return path
+
+
+def _run_cosim(args: list[str], timeout: float) -> int:
+    """Exit code of ``python -m cosim ARGS --quiet``: 0, or 3 (the run failed, its summary says
+    why); anything else raises."""
+    import subprocess
+
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]),
+           "MPLBACKEND": "Agg"}
+    done = subprocess.run([sys.executable, "-m", "cosim", *args, "--quiet"], env=env, capture_output=True,
+                          text=True, timeout=timeout)
+    if done.returncode not in (0, 3):
+        raise RuntimeError(f"cosim {' '.join(args)} exited with {done.returncode}: {done.stderr[-1500:]}")
+    return done.returncode
+
+
+def iso_split_run(scenario: Path, out: Path, split: bool) -> dict:
+    """One ISO 9283 model_based run, in process (unpaced) or paced split; its TCP errors and,
+    split, the timing of both sides and where the lost cycles came from."""
+    load_before = os.getloadavg()
+    steal0, wall0 = steal_ms(), time.monotonic()
+    _run_cosim(["run", str(scenario), "--out", str(out)] + (["--split", "--realtime"] if split else []), 900)
+    steal = (steal_ms() - steal0) / (time.monotonic() - wall0)
+    summary = json.loads((out / "summary.json").read_text())
+    mode = (summary.get("modes") or {}).get("model_based") or {}
+    ok = summary["status"] == "ok"  # a run whose counters tripped has no comparable TCP error
+    row = {"tcp_error_max_mm": mode.get("tcp_error_max_mm") if ok else None,
+           "tcp_error_rms_mm": mode.get("tcp_error_rms_mm") if ok else None,
+           "status": summary["status"], "reason": summary.get("reason"), "steal_ms_per_s": steal,
+           "load_average_before": load_before, "load_average_after": os.getloadavg()}
+    if split:
+        hil = summary["hil_split"]["model_based"]
+        cell = hil["cell_side"] or {}
+        if not cell:
+            return row
+        lost = cell.get("lost_cycles", [])
+        lost_cycles = [r["cycle"] for r in lost]
+        # a lost cycle the cell started late (its own stall) vs one it started in time (the controller was late)
+        overrun_cycles = set(summary.get("realtime", {}).get("overrun_cycles", []))
+        cell_side_stall = sum(1 for k in lost_cycles if k in overrun_cycles or k - 1 in overrun_cycles)
+        row.update({"cycles": cell["cycles"], "overrun_fraction": cell["overrun_fraction"],
+                    "overruns": cell["overruns"], "longest_overrun_run": cell["longest_overrun_run"],
+                    "lateness": cell["lateness"], "round_trip_us": hil["round_trip"],
+                    "lost_cycles": sum(cell["frames_lost_per_node"].values()) // 6,
+                    "lost_fraction": sum(cell["frames_lost_per_node"].values()) / 6 / max(cell["cycles"], 1),
+                    "lost_after_cell_overrun": cell_side_stall,
+                    "lost_with_cell_in_time": len(lost_cycles) - cell_side_stall,
+                    "controller_cycles_skipped": hil["controller_side"]["cycles_skipped"],
+                    "controller_stalls_over_one_cycle": hil["controller_side"].get("stalls_over_one_cycle"),
+                    "cell_overrun_causes": {k: v for k, v in cell.get("overrun_causes", {}).items()
+                                            if k in ("stalled", "own_work", "other")},
+                    "controller_compute_us": hil["controller_side"]["compute"],
+                    "frames_late": cell["frames_late"], "scheduling": hil["controller_side"]["scheduling"]})
+    return row
+
+
+def iso_split(work: Path, runs: int = 5, stop_time_s: float | None = None, missing_setpoint: str = "hold") -> dict:
+    """The issue's figure: ISO 9283 model-based TCP error of the paced split run (our controller
+    in this process, ``cosim serve``'s cell in another, 400 µs) against the in-process run;
+    ``runs`` split runs, medians."""
+    scenario = iso_scenario(work, stop_time_s, missing_setpoint)
+    reference = iso_split_run(scenario, work / "in_process", split=False)
+    split = [iso_split_run(scenario, work / f"split_{i}", split=True) for i in range(runs)]
+
+    def med(key):
+        values = [r[key] for r in split if r.get(key) is not None]
+        return statistics.median(values) if values else None
+
+    tcp = med("tcp_error_max_mm")
+    completed = sum(1 for r in split if r["status"] == "ok")
+    return {"runs": runs, "completed_runs": completed,"stop_time_s": stop_time_s, "missing_setpoint": missing_setpoint, "threshold": ISO_THRESHOLD,
+            "in_process": reference, "split_runs": split,
+            "tcp_error_max_mm_in_process": reference["tcp_error_max_mm"], "tcp_error_max_mm_split": tcp,
+            "tcp_error_rms_mm_in_process": reference["tcp_error_rms_mm"], "tcp_error_rms_mm_split": med("tcp_error_rms_mm"),
+            "tcp_error_ratio": tcp / reference["tcp_error_max_mm"] if tcp is not None else None,
+            "overrun_fraction": med("overrun_fraction"), "lost_fraction": med("lost_fraction"),
+            "steal_ms_per_s": med("steal_ms_per_s"),
+            "round_trip_p99_us": statistics.median([r["round_trip_us"]["p99_us"] for r in split
+                                                    if (r.get("round_trip_us") or {}).get("p99_us") is not None]
+                                                   or [float("nan")])}
+
+
+def print_iso(r: dict) -> None:
+    ref = r["in_process"]
+    print(f"ISO 9283 model_based, missing set-point '{r['missing_setpoint']}', thresholds {r['threshold']}: "
+          f"in process max/RMS TCP error {ref['tcp_error_max_mm']:.4f}/{ref['tcp_error_rms_mm']:.4f} mm")
+    for i, x in enumerate(r["split_runs"]):
+        if x["status"] != "ok" or "cycles" not in x:
+            print(f"  split {i}: {x['status']}: {x.get('reason')}")
+            continue
+        print(f"  split {i}: max/RMS {x['tcp_error_max_mm']:.4f}/{x['tcp_error_rms_mm']:.4f} mm, {x['cycles']} cycles, "
+              f"overruns {100 * x['overrun_fraction']:.3f} %, lost {x['lost_cycles']} ({100 * x['lost_fraction']:.3f} %: "
+              f"{x['lost_after_cell_overrun']} after a cell overrun, {x['lost_with_cell_in_time']} with the cell in "
+              f"time; controller stalls > 1 cycle {x['controller_stalls_over_one_cycle']}, cell overruns "
+              f"{x['cell_overrun_causes']}), round trip p50/p99 {x['round_trip_us']['p50_us']:.1f}/"
+              f"{x['round_trip_us']['p99_us']:.1f} us, steal {x['steal_ms_per_s']:.1f} ms/s, load "
+              f"{x['load_average_before'][0]:.2f} -> {x['load_average_after'][0]:.2f}")
+    if r["tcp_error_ratio"] is None:
+        print(f"  no split run completed of {r['runs']}")
+        return
+    print(f"  median of {r['completed_runs']} completed runs of {r['runs']}: split max TCP error "
+          f"{r['tcp_error_max_mm_split']:.4f} mm = {r['tcp_error_ratio']:.3g} x in process; "
+          f"overruns {100 * r['overrun_fraction']:.3f} %, lost {100 * r['lost_fraction']:.3f} %")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--seconds", type=float, default=10.0)
@@ -363,7 +504,21 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--json", type=Path, default=None)
     parser.add_argument("--late", action="store_true",
                         help="only the deliberately late controller against cosim serve (LATE_CYCLES)")
+    parser.add_argument("--iso", action="store_true",
+                        help="only the ISO 9283 model-based TCP error, paced split (--runs) vs in process")
+    parser.add_argument("--stop-time", type=float, default=None, help="--iso: seconds of the ISO path (default all)")
+    parser.add_argument("--missing-setpoint", choices=("hold", "extrapolate"), default="hold",
+                        help="--iso: the drives' reaction to a lost set-point")
     args = parser.parse_args(argv)
+    if args.iso:
+        import tempfile
+
+        with tempfile.TemporaryDirectory(prefix="bench-hil-iso-") as tmp:
+            iso = iso_split(Path(tmp), args.runs, args.stop_time, args.missing_setpoint)
+        print_iso(iso)
+        if args.json:
+            args.json.write_text(json.dumps(iso, indent=1))
+        return 0
     if args.late:
         import tempfile
 
@@ -380,7 +535,7 @@ def main(argv: list[str] | None = None) -> int:
               f"{r['lateness_us']['p50']:.1f}/{r['lateness_us']['p99']:.1f}/{r['lateness_us']['p99_9']:.1f}/"
               f"{r['lateness_us']['max']:.1f} us, round trip p50/p99/max {r['round_trip_us'].get('p50', 0):.1f}/"
               f"{r['round_trip_us'].get('p99', 0):.1f}/{r['round_trip_us'].get('max', 0):.1f} us, "
-              f"lost cycles {r['lost_cycles']}, late frames {r['frames_late']}, "
+              f"lost cycles {r['lost_cycles']}, late frames {r['frames_late']}, steal {r['steal_ms_per_s']:.1f} ms/s, "
               f"load {r['load_average_before'][0]:.2f} -> {r['load_average_after'][0]:.2f}")
     m = out["median"]
     print(f"median over {len(out['runs'])} runs: overrun {100 * m['overrun_fraction']:.3f} %, lateness p99 "

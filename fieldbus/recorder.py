@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any
 
 import can
+import numpy as np
 
 from fieldbus.codec import load_codec
 from fieldbus.errors import FieldbusConfigError
@@ -37,6 +38,12 @@ class _LogSink:
         self.logger = can.Logger(path)
         self.pending: list[tuple[float, int, bool, bytes]] = []
         self.written = 0
+
+    @staticmethod
+    def open(path: str) -> "_LogSink | _BlfSink":
+        """The sink for ``path``: BLF through :class:`fieldbus.blf.BlfRecordWriter` (the same
+        bytes as python-can's writer, a batch at a time), any other format through can.Logger."""
+        return _BlfSink(path) if Path(path).suffix.lower() == ".blf" else _LogSink(path)
 
     def feed(self, records: bytes, watermark_s: float | None) -> None:
         self.pending.extend((t, i, bool(e), d[:n]) for t, i, e, n, d in RECORD.iter_unpack(records))
@@ -58,6 +65,32 @@ class _LogSink:
     def close(self) -> None:
         self.feed(b"", None)
         self.logger.stop()
+
+
+class _BlfSink:
+    """:class:`_LogSink` for ``.blf`` files with array operations: the records are sorted by
+    timestamp (stably, as ``list.sort``) and those older than the watermark written by
+    :class:`fieldbus.blf.BlfRecordWriter` (the bytes ``can.Logger`` would write)."""
+
+    def __init__(self, path: str) -> None:
+        from fieldbus.blf import RECORD_DTYPE, BlfRecordWriter
+
+        self._dtype = RECORD_DTYPE
+        self.writer = BlfRecordWriter(path)
+        self.pending = np.empty(0, dtype=RECORD_DTYPE)
+        self.written = 0
+
+    def feed(self, records: bytes, watermark_s: float | None) -> None:
+        new = np.frombuffer(records, dtype=self._dtype)
+        pending = np.concatenate([self.pending, new]) if self.pending.size else new
+        pending = pending[np.argsort(pending["t"], kind="stable")]
+        count = pending.size if watermark_s is None else int(np.searchsorted(pending["t"], watermark_s, "left"))
+        self.written += self.writer.write_records(pending[:count])
+        self.pending = pending[count:].copy()
+
+    def close(self) -> None:
+        self.feed(b"", None)
+        self.writer.close()
 
 
 def _send_whole(connection: Any, message: Any) -> None:
@@ -87,7 +120,7 @@ def _writer_process(path: str, connection: Any) -> None:
 
     for signum in (signal.SIGINT, signal.SIGTERM):
         signal.signal(signum, signal.SIG_IGN)
-    sink = _LogSink(path)
+    sink = _LogSink.open(path)
     connection.send("ready")  # imports done, file open: FrameRecorder.wait_ready
     try:
         while True:
@@ -130,7 +163,7 @@ class FrameRecorder(Closeable):
         self._pack_records = getattr(load_codec(), "pack_records", None)  # compiled, or None
         self.frames_recorded = 0
         self.frames_written = 0
-        self._sink: _LogSink | None = None
+        self._sink: _LogSink | _BlfSink | None = None
         if background:
             context = multiprocessing.get_context("spawn")
             receiver, self._conn = context.Pipe(duplex=True)
@@ -139,7 +172,7 @@ class FrameRecorder(Closeable):
             self._process.start()
             receiver.close()
         else:
-            self._sink = _LogSink(str(self.path))
+            self._sink = _LogSink.open(str(self.path))
         self._ready = not background
 
     def wait_ready(self, timeout_s: float = 60.0) -> bool:

@@ -246,7 +246,8 @@ class UdpCycleBus(BusABC):
         latency_samples: keep the one-way latency (ns) of the last this many received
             datagrams in :attr:`latency_ns`: the kernel's arrival time (SO_TIMESTAMPNS)
             minus the sender's send time from the header - meaningful on one host or
-            with synchronised clocks. 0 (default): not measured.
+            with synchronised clocks. 0 (default): not measured. With it,
+            :attr:`oldest_arrival_ns` is the kernel arrival time of the oldest datagram of the last read.
     """
 
     def __init__(self, channel: Any = None, can_filters: Any = None, *, peer: Any = None,
@@ -311,6 +312,10 @@ class UdpCycleBus(BusABC):
             raise UdpCycleError(f"udpcycle channel {channel!r}: the address {what}") from None
         self._sock.setblocking(False)
         self.latency_ns: deque[int] = deque(maxlen=int(latency_samples))
+        #: kernel arrival time (ns since the epoch) of the oldest datagram of the last read that
+        #: got any, 0 if not measured: ``time.time_ns() - oldest_arrival_ns`` right after a
+        #: ``recv`` is how long the datagram waited for this process
+        self.oldest_arrival_ns = 0
         self._kernel_stamps = bool(latency_samples) and _SO_TIMESTAMPNS is not None and bool(_CMSG_SPACE)
         if self._kernel_stamps:
             try:
@@ -414,10 +419,13 @@ class UdpCycleBus(BusABC):
                 continue
             if sender == self.sender_id and not self.receive_own_messages:
                 continue
-            if stamped and sent_ns:
+            if stamped:
                 arrived = _kernel_time_ns(ancillary)
                 if arrived:
-                    self.latency_ns.append(arrived - sent_ns)
+                    if not got:
+                        self.oldest_arrival_ns = arrived
+                    if sent_ns:
+                        self.latency_ns.append(arrived - sent_ns)
             key = (address, sender)
             tracker = self._trackers.get(key)
             if tracker is None:

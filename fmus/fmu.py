@@ -41,6 +41,7 @@ Typical hand loop (six drives and a plant)::
 from __future__ import annotations
 
 import ctypes
+import weakref
 from collections import deque
 from collections.abc import Callable, Mapping, Sequence
 from functools import lru_cache
@@ -60,8 +61,9 @@ from fmus.instance import (SET_T, STEP_T, FmuInstantiateError, bound_addresses, 
 VALUE_TYPES = ("Real", "Integer", "Boolean")
 #: FMI type -> value type it is exchanged as (FMI 2.0 Enumeration as Integer; FMI 3.0: ``fmi3.FMI3_BUS``).
 VALUE_TYPE_OF = {"Real": "Real", "Integer": "Integer", "Enumeration": "Integer", "Boolean": "Boolean", **FMI3_BUS}
-_CTYPE = {"Real": (np.float64, ctypes.c_double), "Integer": (np.intc, ctypes.c_int),
-          "Boolean": (np.intc, ctypes.c_int)}
+#: Value type -> numpy dtype and ctypes type of its values (Boolean as fmi2Boolean, an int).
+VALUE_DTYPE = {"Real": np.float64, "Integer": np.intc, "Boolean": np.intc}
+VALUE_CTYPE = {"Real": ctypes.c_double, "Integer": ctypes.c_int, "Boolean": ctypes.c_int}
 #: What an Fmu runs, in words (for error messages).
 SUPPORTED_FMUS = "an FMI 2.0 or FMI 3.0 co-simulation FMU"
 
@@ -187,7 +189,7 @@ class Fmu:
                                      f"{variable.type}, expected {value_type}")
             refs.append(variable.valueReference)
         vrs = np.array(refs or [0], dtype=np.uint32)
-        buffer = np.zeros(max(len(refs), 1), dtype=_CTYPE[value_type][0])[:len(refs)]
+        buffer = np.zeros(max(len(refs), 1), dtype=VALUE_DTYPE[value_type])[:len(refs)]
         return value_type, vrs, len(refs), buffer, vrs.ctypes.data, buffer.ctypes.data
 
     # ----------------------------------------------------------------- lifecycle
@@ -214,8 +216,10 @@ class Fmu:
     def _unbind(self, state: str) -> None:
         """Per-step functions that raise FmuConfigError saying the instance ``state`` (before
         instantiation, after close: no call may reach the FMU's code with a dead handle)."""
+        text = f"FMU '{self.name}' ({self.path.name}) {state}"  # no reference to self: no cycle
+
         def refuse(*_args):
-            raise FmuConfigError(f"FMU '{self.name}' ({self.path.name}) {state}")
+            raise FmuConfigError(text)
         self.fn_address = {}
         self.do_step_fn = refuse
         self.set_fn = {t: refuse for t in VALUE_TYPES}
@@ -244,9 +248,15 @@ class Fmu:
         if self.fmi3:
             self._instantiate3(stop_at_address)
             return
+        logger = weakref.WeakMethod(self._logger)  # the routing table must not keep a dropped instance alive
+
+        def log(status: int, category: str, text: str) -> None:
+            method = logger()
+            if method is not None:
+                method(status, category, text)
         try:
-            self.slave, self._environment = instantiate_fmi2(self.path, self.model_description, self.name,
-                                                             self._logger, self.debug_logging)
+            self.slave, self._environment = instantiate_fmi2(self.path, self.model_description, self.name, log,
+                                                             self.debug_logging)
         except FmuInstantiateError as exc:
             raise self.error(0.0, str(exc)) from exc
         self.component = self.slave.component
@@ -445,7 +455,7 @@ class Fmu:
                 raise FmuConfigError(f"FMU '{self.name}': {name} = {value!r}, expected a number")
         elif value_type == "Integer" and (isinstance(value, bool) or int(value) != value):
             raise FmuConfigError(f"FMU '{self.name}': {name} = {value!r}, expected an integer")
-        ctype = _CTYPE[value_type][1]
+        ctype = VALUE_CTYPE[value_type]
         vr = (ctypes.c_uint * 1)(variable.valueReference)
         converted = float(value) if value_type == "Real" else int(value)
         self.check(f"{self.api}Set{value_type}({name})", self.time,
@@ -454,7 +464,7 @@ class Fmu:
     def get_value(self, name: str) -> float | int | bool:
         """Get one variable by name (slower: for set-up and inspection)."""
         variable, value_type = self._value_type(name)
-        ctype = _CTYPE[value_type][1]
+        ctype = VALUE_CTYPE[value_type]
         out = (ctype * 1)()
         vr = (ctypes.c_uint * 1)(variable.valueReference)
         self.check(f"{self.api}Get{value_type}({name})", self.time,
@@ -462,5 +472,5 @@ class Fmu:
         return {"Real": float, "Integer": int, "Boolean": bool}[value_type](out[0])
 
 
-__all__ = ["Fmu", "SUPPORTED_FMUS", "VALUE_TYPES", "VALUE_TYPE_OF", "fmu_kind_problem", "load_model_description",
-           "status_name", "variables_of"]
+__all__ = ["Fmu", "SUPPORTED_FMUS", "VALUE_CTYPE", "VALUE_DTYPE", "VALUE_TYPES", "VALUE_TYPE_OF", "fmu_kind_problem",
+           "load_model_description", "status_name", "variables_of"]

@@ -33,7 +33,12 @@ from fieldbus import DriveActuals, DriveEndpoint, FieldbusConfig
 from fieldbus.telegrams import RPDO1_BASE, SYNC_ID, TPDO1_BASE, TPDO2_BASE
 
 
-#: cycles between hand-overs of the CAN log to its writer process (~12 kB each, well inside a pipe's buffer)
+#: bytes of one recorded frame in the CAN-log hand-over (fieldbus/recorder.py RECORD)
+RECORD_BYTES = 32
+#: runs whose CAN-log records fit this (bytes; 256 MB = 168 s at 400 µs with six nodes) keep them
+#: in memory until the end: no hand-over to the writer process inside the paced loop
+DEFERRED_RECORDING_BYTES = 256 * 2**20
+#: longer runs hand over every this many cycles (~12 kB each, well inside a pipe's buffer)
 SERVED_FLUSH_CYCLES = 20
 #: lost cycles listed one by one in the report (with every node's counter values); more are counted only
 MAX_LOST_CYCLES_LISTED = 1000
@@ -55,6 +60,12 @@ class CellSideLink:
         self.held = np.zeros(N_JOINTS, dtype=np.int64)  # cycles a drive held / extrapolated its set-point
         self.actuals = DriveActuals.zeros(N_JOINTS)
         self.bus = None
+        # per cycle, wall and CPU (this thread) time of the work after the bus exchange up to the
+        # next cycle's wait (FMU steps, tracker, recorder): tells a stall of the process (wall
+        # without CPU: it was not running) from its own slow work (CPU)
+        self.after_wall_ns = np.zeros(cycles + 1, dtype=np.int64)
+        self.after_cpu_ns = np.zeros(cycles + 1, dtype=np.int64)
+        self._after = (0, 0)
 
     def setup(self, master: Master) -> None:
         from cosim.cell.link import CellBus
@@ -65,6 +76,10 @@ class CellSideLink:
 
     def __call__(self, t: float) -> None:
         k = self.cycle
+        if k:
+            i = min(k - 1, self.after_wall_ns.size - 1)
+            self.after_wall_ns[i] = time.perf_counter_ns() - self._after[0]
+            self.after_cpu_ns[i] = time.thread_time_ns() - self._after[1]
         pacer = self.pacer
         pacer.wait(k)
         deadline = (pacer.deadline_ns(k) + self.window_ns) * 1e-9
@@ -77,6 +92,7 @@ class CellSideLink:
         if not fresh.all():
             self.held += ~fresh
         self.cycle = k + 1
+        self._after = (time.perf_counter_ns(), time.thread_time_ns())
 
 
 def endpoint_description(cell: CellDescription, settings: ServeSettings, config: FieldbusConfig,
@@ -130,6 +146,42 @@ def longest_run(flags: np.ndarray) -> int:
     return longest
 
 
+#: a cycle's work after the bus exchange counts as a stall of the process when less than this
+#: fraction of its wall time was CPU time of the cell's thread
+STALL_CPU_FRACTION = 0.5
+
+
+def overrun_causes(link: CellSideLink, pacer: Any) -> dict[str, Any]:
+    """Why the cell started cycles late: for each overrun cycle k, the work after the bus
+    exchange of cycle k-1 (FMU steps, tracker, recorder) in wall and CPU time. ``stalled``:
+    the wall time was mostly not CPU time of the cell (the process was not running: the OS or
+    the hypervisor); ``own_work``: it was (the cell's own computation was too slow); ``other``:
+    that work was short (the lateness came from the bus exchange or the wait itself)."""
+    log = pacer.log
+    over = log.cycles[:log.count][log.overrun[:log.count]]
+    period = pacer.period_ns
+    counts = {"stalled": 0, "own_work": 0, "other": 0}
+    examples = []
+    for k in over.tolist():
+        if k < 1 or k - 1 >= link.after_wall_ns.size:
+            counts["other"] += 1
+            continue
+        wall, cpu = int(link.after_wall_ns[k - 1]), int(link.after_cpu_ns[k - 1])
+        if wall < period // 2:
+            kind = "other"
+        elif cpu < STALL_CPU_FRACTION * wall:
+            kind = "stalled"
+        else:
+            kind = "own_work"
+        counts[kind] += 1
+        if len(examples) < 50:
+            examples.append({"cycle": k, "work_wall_us": wall * 1e-3, "work_cpu_us": cpu * 1e-3, "cause": kind})
+    n = min(link.cycle, link.after_wall_ns.size)
+    return {**counts, "work_after_bus_us": percentiles_us(link.after_wall_ns[:max(n - 1, 0)] * 1e-3),
+            "work_after_bus_cpu_us": percentiles_us(link.after_cpu_ns[:max(n - 1, 0)] * 1e-3),
+            "examples": examples}
+
+
 def timing_report(link: CellSideLink, endpoint: DriveEndpoint, pacer: Any) -> dict[str, Any]:
     """The served cell's side of the timing report (summary.json ``hil``)."""
     log = pacer.log
@@ -161,6 +213,7 @@ def timing_report(link: CellSideLink, endpoint: DriveEndpoint, pacer: Any) -> di
         "lateness": {**percentiles_us(lateness),
                      "max_at_cycle": int(log.cycles[int(np.argmax(lateness))]) if lateness.size else None},
         "missed_ticks": int(log.missed_ticks),
+        "overrun_causes": overrun_causes(link, pacer),
         "controller": {"first_cycle": first, "cycles_in_time": int(taken.sum()),
                        "cycles_missed_after_first": int((~taken[first:]).sum()) if first is not None else 0},
         "frames_lost_per_node": lost_by_node,
@@ -217,19 +270,27 @@ def run_served_cell(cell: CellDescription, ctx: Any, settings: ServeSettings, *,
     instead of starting at once (``cosim serve``)."""
     from cosim.cell.runner import CellRun, build_cell_master, write_recording
     from cosim.tracking.laser_tracker import LaserTracker
-    from cosim.realtime.pacer import Pacer, no_cyclic_gc, realtime_scheduling
+    from cosim.realtime.pacer import Pacer, locked_memory, no_cyclic_gc, realtime_scheduling
     from cosim.realtime.schedule import precompute_schedules
 
     base = cell.fieldbus
     options = {**dict(base.bus.options), **settings.bus_options()}
     bus = dataclasses.replace(base.bus, interface="udpcycle", channel=settings.channel, options=options)
+    period, stop_time = cell.period_s, cell.stop_time_s
     recording = base.recording
-    if recording.background and recording.flush_every_cycles > SERVED_FLUSH_CYCLES:
-        # small hand-overs to the CAN-log writer: one of 250 cycles (~150 kB) does not fit the pipe
-        # and blocks the cycle until the writer process has read it (a lost cycle every 0.1-0.2 s)
+    # The CAN log: a hand-over to the writer process blocks the cycle whenever the pipe is full,
+    # i.e. whenever that (normal-priority) process did not get a core in time - on a loaded
+    # machine a lost cycle every 0.1-0.2 s, measured. So the records of a run that fits
+    # DEFERRED_RECORDING_BYTES stay in memory until the run ends; a longer one hands over
+    # small batches (one of 250 cycles, ~150 kB, never fits the pipe).
+    frames_per_cycle = 3 * base.nodes + 1
+    if stop_time / period * frames_per_cycle * RECORD_BYTES <= DEFERRED_RECORDING_BYTES:
+        from cosim.realtime.network import DEFERRED_FLUSH_CYCLES
+
+        recording = dataclasses.replace(recording, flush_every_cycles=DEFERRED_FLUSH_CYCLES)
+    elif recording.background and recording.flush_every_cycles > SERVED_FLUSH_CYCLES:
         recording = dataclasses.replace(recording, flush_every_cycles=SERVED_FLUSH_CYCLES)
     config = dataclasses.replace(base, bus=bus, recording=recording)
-    period, stop_time = cell.period_s, cell.stop_time_s
     window_s = settings.window_fraction * period
     cycles = int(round(stop_time / period)) + 1
     laser = LaserTracker(cell.true_robot.kinematic_model(), cell.tracker)
@@ -271,7 +332,9 @@ def run_served_cell(cell: CellDescription, ctx: Any, settings: ServeSettings, *,
                     import select
 
                     select.select([endpoint.bus.fileno()], [], [], start_on_first_frame_s)
-                with realtime_scheduling(settings.scheduling, 10, settings.cpu) as granted, no_cyclic_gc():
+                with realtime_scheduling(settings.scheduling, 10, settings.cpu) as granted, no_cyclic_gc(), \
+                        locked_memory(settings.lock_memory) as memory_lock:
+                    granted = f"{granted}, memory {memory_lock}"
                     ctx.execute(master, stop_time)
             except SimulationError as exc:
                 failure = exc

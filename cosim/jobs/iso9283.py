@@ -38,7 +38,8 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from cosim.cell.mode_runs import prepare, run_mode, run_user
+from cosim.cell.mode_pool import run_modes
+from cosim.cell.mode_runs import prepare, run_user
 from cosim.cell.parts import CELL_FIELDS, check_cell_scenario
 from cosim.cell.user_controller import make_user_controller, user_controller_label
 from cosim.tracking.metrics import TrackingResult
@@ -60,13 +61,17 @@ def run(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
     ctx.summary.update(**setup.summary_fields(), modes={})
     modes: dict[str, Any] = {}
     results: dict[str, TrackingResult] = {}
-    for mode in setup.doc["controller"]["modes"]:
-        entry, result, cell, _ = run_mode(ctx, setup, mode)
-        modes[mode] = entry
-        results[mode] = result
-        ctx.summary.update(modes=modes)
-        if cell.failure is not None:
-            raise cell.failure
+    failed: list = []
+    for outcome in run_modes(ctx, setup, setup.doc["controller"]["modes"]):  # side by side: cosim.cell.mode_pool
+        if outcome.entry is not None:
+            modes[outcome.mode] = outcome.entry
+            results[outcome.mode] = outcome.result
+            ctx.summary.update(modes=modes)
+        if outcome.failure is not None:
+            failed.append(outcome)
+    if failed:  # every mode that could run has run and is in the summary: fail naming the first that failed
+        ctx.label = failed[0].mode
+        raise failed[0].failure
     ctrl_t = setup.doc["controller"]
     label = user_controller_label(ctrl_t)
     if label is not None:

@@ -22,10 +22,10 @@ import numpy as np
 from cosim.master.errors import FmuEnded, FmuTerminated, SimulationError
 from cosim.master.kernel import (FAIL_ENDED, FAIL_GET, FAIL_NONFINITE, FAIL_SET, FAIL_STEP, CFailure, CPlan, CSlave,
                                  load_kernel)
-from fmus.fmu import Fmu, status_name
+from fmus.fmu import VALUE_DTYPE, VALUE_TYPES, Fmu, status_name
 
-BUS_ORDER = ("Real", "Integer", "Boolean")
-BUS_DTYPE = {"Real": np.float64, "Integer": np.intc, "Boolean": np.intc}
+BUS_ORDER = VALUE_TYPES  # the value types an Fmu exchanges, one bus each
+BUS_DTYPE = VALUE_DTYPE
 
 
 @dataclass

@@ -35,7 +35,7 @@ import time
 from ctypes import c_double, c_int, c_void_p
 
 from cosim.master.errors import MasterConfigError, SimulationError
-from fmus.fmu import Fmu
+from fmus.fmu import VALUE_CTYPE, VALUE_TYPES, Fmu
 from fmus.instance import SET_T, STEP_T
 
 #: Default longest wall time one fmi2DoStep (and one Set/Get round trip) may take out of process, s.
@@ -48,9 +48,9 @@ SHUTDOWN_TIMEOUT_S = 5.0
 
 _FATAL = 4
 _ERROR = 3
-_DTYPES = {"Real": ctypes.c_double, "Integer": ctypes.c_int, "Boolean": ctypes.c_int}
-_TYPE_CODE = {"Real": 0, "Integer": 1, "Boolean": 2}
-_TYPE_NAME = ("Real", "Integer", "Boolean")
+_DTYPES = VALUE_CTYPE
+_TYPE_NAME = VALUE_TYPES
+_TYPE_CODE = {name: code for code, name in enumerate(_TYPE_NAME)}
 
 
 class ChildGone(RuntimeError):

@@ -17,12 +17,12 @@ from fnmatch import fnmatchcase
 from fmpy.model_description import ModelDescription, ScalarVariable
 
 from fmus.fmi3 import READ_ONLY_TYPES, Fmi3Element, check_fmi3_start
-from fmus.fmu import VALUE_TYPE_OF
+from fmus import fmu
 
 #: FMI 2.0 scalar types a start value may have.
 VALUE_TYPES: tuple[str, ...] = ("Real", "Integer", "Enumeration", "Boolean", "String")
 #: Types that can travel on the master's signal buses (connections, tasks, recorders).
-BUS_TYPES: tuple[str, ...] = ("Real", "Integer", "Boolean")
+BUS_TYPES: tuple[str, ...] = fmu.VALUE_TYPES
 
 _EXPECTED_PYTHON = {
     "Real": "a finite number (float or int)",
@@ -37,7 +37,7 @@ def bus_type(fmi_type: str) -> str:
     """Return the bus a variable of FMI type ``fmi_type`` travels on: the value type an
     :class:`fmus.fmu.Fmu` exchanges it as (Enumeration uses Integer; FMI 3.0 types: see fmus/fmi3.py)."""
     try:
-        return VALUE_TYPE_OF[fmi_type]
+        return fmu.VALUE_TYPE_OF[fmi_type]
     except KeyError:
         raise MasterTypeUnsupported(fmi_type) from None
 

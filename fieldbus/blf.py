@@ -1,0 +1,181 @@
+"""The CAN log as a BLF file, encoded with numpy a batch at a time: the same bytes python-can's
+``can.io.blf.BLFWriter`` writes for the same frames, at a small part of its cost.
+
+python-can's writer packs every frame with ``struct`` into a ``CAN_MESSAGE`` (classic frame),
+``CAN_FD_MESSAGE`` (more than 8 data bytes) or ``CAN_ERROR_EXT`` object (a 32-byte object
+header with the time since the log's start in ns, then the frame), joins them into a stream
+that is cut into 128 KiB pieces, each deflated with zlib into a ``LOG_CONTAINER`` object, and
+writes a file header with sizes, the object count and the start/stop times at the end. At
+about 4 µs per frame, for the 19 frames of each 400 µs POWERLINK cycle that is more than the
+whole closed loop costs. :class:`BlfRecordWriter` builds the objects of a whole batch of
+frames with array operations and cuts and deflates the stream the same way, so the file is
+byte for byte the one ``BLFWriter`` makes (``tests/fieldbus/test_blf.py`` compares them) and
+``can.LogReader``, ``python -m can.player`` and Vector's tools read it.
+
+The frames come as the :class:`fieldbus.recorder.FrameRecorder`'s 32-byte records
+(timestamp, id, error flag, length, 20 data bytes), the way the recorder hands them over; the
+frames python-can writes for them are those :class:`fieldbus.telegrams.FastMessage` makes:
+standard 11-bit id, received (no ``DIR`` flag), channel 1, no bit-rate switch.
+"""
+from __future__ import annotations
+
+import zlib
+from pathlib import Path
+
+import numpy as np
+from can.io.blf import (CAN_ERROR_EXT, CAN_FD_MESSAGE, CAN_MESSAGE, EDL, FILE_HEADER_SIZE, FILE_HEADER_STRUCT,
+                        LOG_CONTAINER, LOG_CONTAINER_STRUCT, NO_COMPRESSION, OBJ_HEADER_BASE_STRUCT, TIME_ONE_NANS,
+                        ZLIB_DEFLATE, BLFWriter, timestamp_to_systemtime)
+from can.util import len2dlc
+
+#: The recorder's record (``fieldbus.recorder.RECORD``, ``"<dHBB20s"``) as a numpy type.
+RECORD_DTYPE = np.dtype([("t", "<f8"), ("id", "<u2"), ("error", "u1"), ("length", "u1"), ("data", "u1", (20,))])
+MAX_DATA = 20
+#: python-can's defaults: uncompressed bytes per container, zlib level, application id, channel.
+CONTAINER_SIZE = BLFWriter.max_container_size
+DEFAULT_COMPRESSION = -1
+CHANNEL = 1
+
+_HEADER = [("signature", "S4"), ("header_size", "<u2"), ("header_version", "<u2"), ("object_size", "<u4"),
+           ("object_type", "<u4"), ("flags", "<u4"), ("client_index", "<u2"), ("object_version", "<u2"),
+           ("timestamp", "<u8")]
+#: One whole object (32-byte header + frame) per kind, laid out as python-can's structs pack them.
+_CAN = np.dtype(_HEADER + [("channel", "<u2"), ("msg_flags", "u1"), ("dlc", "u1"), ("id", "<u4"),
+                           ("data", "u1", (8,))])                                     # CAN_MSG_STRUCT
+_FD = np.dtype(_HEADER + [("channel", "<u2"), ("msg_flags", "u1"), ("dlc", "u1"), ("id", "<u4"),
+                          ("frame_length", "<u4"), ("bit_count", "u1"), ("fd_flags", "u1"),
+                          ("valid_bytes", "u1"), ("reserved", "V5"), ("data", "u1", (64,))])  # CAN_FD_MSG_STRUCT
+_ERROR = np.dtype(_HEADER + [("channel", "<u2"), ("length", "<u2"), ("err_flags", "<u4"), ("ecc", "u1"),
+                             ("position", "u1"), ("dlc", "u1"), ("reserved1", "V1"), ("frame_length", "<u4"),
+                             ("id", "<u4"), ("ext_flags", "<u2"), ("reserved2", "V2"),
+                             ("data", "u1", (8,))])                                   # CAN_ERROR_EXT_STRUCT
+_HEADER_SIZE = 32
+_DLC = np.array([len2dlc(n) for n in range(MAX_DATA + 1)], dtype=np.uint8)
+
+
+def _objects(kind: np.dtype, object_type: int, records: np.ndarray, nanoseconds: np.ndarray) -> np.ndarray:
+    """The objects of ``records`` (all of one kind) as rows of bytes, the header filled in."""
+    out = np.zeros(records.size, dtype=kind)
+    out["signature"] = b"LOBJ"
+    out["header_size"] = _HEADER_SIZE
+    out["header_version"] = 1
+    out["object_size"] = kind.itemsize
+    out["object_type"] = object_type
+    out["flags"] = TIME_ONE_NANS
+    out["timestamp"] = nanoseconds
+    out["channel"] = CHANNEL
+    out["id"] = records["id"]
+    return out
+
+
+class BlfRecordWriter:
+    """Writes recorder records to a BLF file (``.blf``), the bytes python-can's ``BLFWriter``
+    would write for the same frames, and with its defaults (128 KiB containers, zlib's default
+    level, application id 5, channel 1).
+
+    Args:
+        path: the file (created or replaced).
+        compression_level: zlib level of the containers, -1 (zlib's default, python-can's) to 9;
+            0 stores them uncompressed.
+    """
+
+    def __init__(self, path: str | Path, compression_level: int = DEFAULT_COMPRESSION) -> None:
+        self.path = Path(path)
+        self.compression_level = compression_level
+        self._file = open(self.path, "wb")  # noqa: SIM115 - closed by close()
+        self._pending = bytearray()
+        self.object_count = 0
+        self.uncompressed_size = FILE_HEADER_SIZE
+        self.start_timestamp: float | None = None
+        self.stop_timestamp: float | None = None
+        self._write_header(FILE_HEADER_SIZE)
+
+    # ------------------------------------------------------------------ frames
+    def write_records(self, records: bytes | np.ndarray) -> int:
+        """Append frames given as recorder records, in the order given; returns their number."""
+        rec = np.frombuffer(records, dtype=RECORD_DTYPE) if not isinstance(records, np.ndarray) else records
+        count = rec.size
+        if count == 0:
+            return 0
+        t = rec["t"]
+        if self.start_timestamp is None:  # python-can: the first frame's time, truncated to ms
+            self.start_timestamp = int(float(t[0]) * 1000) / 1000
+        self.stop_timestamp = float(t[-1])
+        # python-can: int((timestamp - start) * 1e9), at least 0 (int() truncates towards zero)
+        nanoseconds = np.maximum(np.trunc((t - self.start_timestamp) * 1e9), 0.0).astype(np.uint64)
+        length = np.minimum(rec["length"], MAX_DATA)
+        error = rec["error"] != 0
+        fd = ~error & (length > 8)
+        classic = ~error & ~fd
+        sizes = np.where(error, _ERROR.itemsize, np.where(fd, _FD.itemsize, _CAN.itemsize))
+        offsets = np.zeros(count, dtype=np.int64)
+        np.cumsum(sizes[:-1], out=offsets[1:])
+        stream = np.empty(int(offsets[-1] + sizes[-1]), dtype=np.uint8)
+        for mask, kind, object_type in ((classic, _CAN, CAN_MESSAGE), (fd, _FD, CAN_FD_MESSAGE),
+                                        (error, _ERROR, CAN_ERROR_EXT)):
+            if not mask.any():
+                continue
+            sub = rec[mask]
+            n = length[mask]
+            objects = _objects(kind, object_type, sub, nanoseconds[mask])
+            keep = np.arange(MAX_DATA) < n[:, None]  # data beyond the frame's length are zero
+            data = np.where(keep, sub["data"], 0).astype(np.uint8)
+            width = objects["data"].shape[1]
+            objects["data"][:, :min(width, MAX_DATA)] = data[:, :width]
+            if kind is _CAN:
+                objects["dlc"] = n  # CAN_MSG_STRUCT: msg.dlc
+            elif kind is _FD:
+                objects["dlc"] = _DLC[n]
+                objects["fd_flags"] = EDL
+                objects["valid_bytes"] = n
+            else:
+                objects["dlc"] = _DLC[n]  # CAN_ERROR_EXT_STRUCT: len2dlc(msg.dlc)
+            rows = objects.view(np.uint8).reshape(sub.size, kind.itemsize)
+            index = offsets[mask][:, None] + np.arange(kind.itemsize)
+            stream[index] = rows
+        self._pending += stream.tobytes()
+        self.object_count += count
+        while len(self._pending) >= CONTAINER_SIZE:
+            self._write_container(CONTAINER_SIZE)
+        return count
+
+    # ------------------------------------------------------------------ file
+    def _write_container(self, size: int) -> None:
+        """Deflate the first ``size`` pending bytes into one LOG_CONTAINER (python-can's ``_flush``)."""
+        chunk = memoryview(self._pending)[:size]
+        if self.compression_level:
+            data = zlib.compress(chunk, self.compression_level)
+            method = ZLIB_DEFLATE
+        else:
+            data = bytes(chunk)
+            method = NO_COMPRESSION
+        chunk.release()
+        object_size = OBJ_HEADER_BASE_STRUCT.size + LOG_CONTAINER_STRUCT.size + len(data)
+        self._file.write(OBJ_HEADER_BASE_STRUCT.pack(b"LOBJ", OBJ_HEADER_BASE_STRUCT.size, 1, object_size,
+                                                     LOG_CONTAINER))
+        self._file.write(LOG_CONTAINER_STRUCT.pack(method, size))
+        self._file.write(data)
+        self._file.write(b"\x00" * (object_size % 4))  # python-can's padding
+        self.uncompressed_size += OBJ_HEADER_BASE_STRUCT.size + LOG_CONTAINER_STRUCT.size + size
+        del self._pending[:size]
+
+    def _write_header(self, file_size: int) -> None:
+        header = [b"LOGG", FILE_HEADER_SIZE, BLFWriter.application_id, 0, 0, 0, 2, 6, 8, 1,
+                  file_size, self.uncompressed_size, self.object_count, 0]
+        header.extend(timestamp_to_systemtime(self.start_timestamp))
+        header.extend(timestamp_to_systemtime(self.stop_timestamp))
+        self._file.write(FILE_HEADER_STRUCT.pack(*header))
+        self._file.write(b"\x00" * (FILE_HEADER_SIZE - FILE_HEADER_STRUCT.size))
+
+    def close(self) -> None:
+        """Write the last container and the final header; close the file (again: no-op)."""
+        if self._file.closed:
+            return
+        try:
+            if self._pending:
+                self._write_container(len(self._pending))
+            size = self._file.tell()
+            self._file.seek(0)
+            self._write_header(size)
+        finally:
+            self._file.close()
