@@ -242,7 +242,7 @@ def late_controller(endpoint_file: str, late: tuple[int, ...], seconds: float, q
     endpoint.send_following(setpoints)  # the cell takes it as the first group
     with realtime_scheduling(SCHEDULING, 10), no_cyclic_gc():
         while True:
-            got = endpoint.follow(0.5)
+            got = endpoint.follow(0.5 if first is not None else 120.0)  # the cell may take a while to start
             arrived = time.perf_counter_ns()
             if got is None:
                 break
@@ -350,7 +350,7 @@ def late_run(work: Path, seconds: float = LATE_SECONDS, late: tuple[int, ...] = 
     return {"seconds": seconds, "cycles": cycles, "first_cycle": first, "late_controller_cycles": list(late),
             "late_cell_cycles": planned, "per_cycle": per_cycle, "observed_lost_cycles": sorted(observed),
             "missing_soc_in_can_log": missing_soc, "unplanned_lost_cycles": unplanned,
-            "planned_exact": exact, "planned_exact_fraction": exact / len(per_cycle) if per_cycle else 0.0,
+            "planned_exact": exact, "planned_exact_fraction": exact / len(per_cycle) if per_cycle else None,
             "frames_late": hil["frames_late"], "overruns": hil["overruns"],
             "serve_exit": serve.returncode, "serve_stderr_tail": err[-500:] if serve.returncode else "",
             "load_average_before": load_before, "load_average_after": os.getloadavg()}
@@ -371,9 +371,10 @@ def print_late(r: dict) -> None:
 
 
 # ------------------------------------------------------------------ ISO 9283, paced split vs in process
-#: Counters that do not trip on the lost cycles of a loaded machine, so the paced split run
-#: completes and its TCP error can be compared (the default 15 trips at two lost in a row).
-ISO_THRESHOLD = 200
+#: The loss-of-SoC/PReq counters off (threshold 0: errors are still counted and logged), so the
+#: paced split run completes whatever it loses and its TCP error can be compared (the default
+#: 15 trips at two lost cycles in a row; on the loaded machine even 200 tripped on a stall).
+ISO_THRESHOLD = 0
 
 
 def iso_scenario(work: Path, stop_time_s: float | None = None, missing_setpoint: str = "hold",

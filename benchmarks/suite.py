@@ -29,6 +29,9 @@ calibration            selecting 32 of the campaign's visible candidates (min ei
 identification         base regressor + weighted least squares on a record
 hil                    the paced cell side and a following controller in two processes over
                        udpcycle at 400 µs: overruns, lateness, frame round trip, lost cycles
+memory                 peak RSS of a short and a 10x longer run, each in a fresh process:
+                       the plain-FMU job and the robot cell (ISO path, then holding;
+                       benchmarks/bench_memory.py): ratio long/short (target <= 1.10)
 =====================  ==================================================================
 
 ``ratios``: own CP / TOPP-RA solve time and duration, own PtP / ruckig_feasible
@@ -84,6 +87,8 @@ class Sizes:
     hil_late_cycles: tuple[int, ...] = (1500, 2500, 3500, 4500, 4501)
     hil_iso_runs: int = 5
     hil_iso_stop_time_s: float | None = None  # the whole ISO 9283 path (12.6 s)
+    memory_short_s: float = 60.0
+    memory_long_s: float = 600.0
 
 
 FULL = Sizes(repeats=3, closed_loop_sim_s=2.0, split_sim_s=0.4, paced_sim_s=10.0, bus_cycles=5000, fmu_batches=60,
@@ -92,7 +97,8 @@ FULL = Sizes(repeats=3, closed_loop_sim_s=2.0, split_sim_s=0.4, paced_sim_s=10.0
 QUICK = Sizes(repeats=1, closed_loop_sim_s=0.1, split_sim_s=0.04, paced_sim_s=0.1, bus_cycles=300, fmu_batches=3,
               cp_intervals=30, ptp_intervals=20, calibration_candidates=300, calibration_grid=7, calibration_restarts=1,
               identification_samples=300, hil_seconds=0.3, hil_runs=1, hil_late_seconds=1.2,
-              hil_late_cycles=(500, 1200, 1201), hil_iso_runs=1, hil_iso_stop_time_s=0.6)
+              hil_late_cycles=(500, 1200, 1201), hil_iso_runs=1, hil_iso_stop_time_s=0.6, memory_short_s=1.0,
+              memory_long_s=3.0)
 
 
 def _median(values: list[float]) -> float:
@@ -356,11 +362,29 @@ def hil(sizes: Sizes, work: Path) -> dict[str, Any]:
             "iso_round_trip_p99_us": iso["round_trip_p99_us"], "iso_steal_ms_per_s": iso["steal_ms_per_s"], "iso_completed_runs": iso["completed_runs"], "iso": iso}
 
 
+def memory(sizes: Sizes, work: Path) -> dict[str, Any]:
+    """bench_memory.measure: peak RSS (MiB) of the plain-FMU job and of the robot cell at
+    ``memory_short_s`` and ``memory_long_s`` simulated seconds, each run in a fresh
+    interpreter, and the ratios long/short (everything streams: they should stay <= 1.10)."""
+    import bench_memory
+
+    work.mkdir(parents=True, exist_ok=True)
+    out: dict[str, Any] = {"short_s": sizes.memory_short_s, "long_s": sizes.memory_long_s}
+    # --quick: the cell only (each run is a fresh interpreter; the plain-FMU figure is the full suite's)
+    for job in ("fmus", "cell") if sizes.repeats > 1 else ("cell",):
+        r = bench_memory.measure(sizes.memory_short_s, sizes.memory_long_s, job=job, folder=work)
+        out.update({f"{job}_short_peak_rss_mib": r["short_peak_rss_mib"],
+                    f"{job}_long_peak_rss_mib": r["long_peak_rss_mib"], f"{job}_ratio": r["ratio"],
+                    f"{job}_long_wall_s": r["long_wall_s"]})
+    return out
+
+
 SECTIONS: dict[str, Callable[[Sizes, Path], dict[str, Any]]] = {
     "closed_loop": closed_loop, "closed_loop_elastic": closed_loop_elastic, "closed_loop_split": closed_loop_split,
     "paced": paced,
     "controller_port": controller_port, "bus": bus, "fmu": fmu,
     "planners": planners, "calibration": calibration, "identification": identification, "hil": hil,
+    "memory": memory,
 }
 
 #: The figures bench.json must hold (section -> keys), checked by the test and by run_suite.
@@ -381,6 +405,7 @@ REQUIRED: dict[str, tuple[str, ...]] = {
     "identification": ("identification_s",),
     "hil": ("overrun_fraction", "lateness_p99_us", "round_trip_p99_us", "late_exact_fraction",
             "iso_tcp_error_ratio"),
+    "memory": ("cell_ratio", "cell_short_peak_rss_mib", "cell_long_peak_rss_mib"),
 }
 RATIOS = ("own_cp_vs_toppra_solve_time", "own_cp_vs_toppra_duration", "own_ptp_vs_ruckig_feasible_duration",
           "own_ptp_vs_ruckig_feasible_solve_time", "in_process_vs_split_realtime_factor")
@@ -489,6 +514,9 @@ ROWS: tuple[tuple[str, str, str, str], ...] = (
     ("planners", "ruckig_feasible_duration_s", "Ruckig torque-feasible duration", "s"),
     ("calibration", "selection_s", "calibration: select 32 configurations", "s"),
     ("identification", "identification_s", "identification: regressor + WLS", "s"),
+    ("memory", "fmus_ratio", "peak RSS long/short run, plain-FMU job", "x"),
+    ("memory", "cell_ratio", "peak RSS long/short run, robot cell", "x"),
+    ("memory", "cell_long_peak_rss_mib", "peak RSS of the long robot-cell run", "MiB"),
     ("hil", "overrun_fraction", "hil: paced split 400 us, cell overrun fraction", ""),
     ("hil", "lateness_p99_us", "hil: cell cycle lateness p99", "us"),
     ("hil", "round_trip_p50_us", "hil: frame round trip p50", "us"),
