@@ -139,6 +139,27 @@ COSIM_FIELDS: dict[str, Field] = {
 }
 
 
+def _check_platform(fmu: dict, md, where: Where) -> None:
+    """An FMU given by path must carry a binary for this platform (fmpy would fail only when the run
+    instantiates it, as an internal error)."""
+    if "path" not in fmu:
+        return
+    from fmpy import platform, platform_tuple, supported_platforms
+
+    try:
+        platforms = supported_platforms(str(fmu["path"]))
+    except Exception:  # noqa: BLE001 - an unreadable archive was reported by load_model_description already
+        return
+    if platform in platforms or platform_tuple in platforms:
+        return
+    has = [p for p in platforms if p != "c-code"]
+    raise (where / "path").error(
+        f"an FMU with a binary for this platform (binaries/{platform if str(md.fmiVersion) == '2.0' else platform_tuple}/)",
+        str(fmu["path"]), problem=f"it has binaries for {', '.join(has) if has else 'no platform'}"
+        + (" and C sources (give it as [[fmus]] source = <folder with the sources> to build it here)"
+           if "c-code" in platforms else ""))
+
+
 def check_cosim_tables(doc: dict, where: Where, master_variables: Mapping[str, str] | None = None) -> None:
     """Check the co-simulation tables of a validated document against the FMUs themselves.
 
@@ -185,6 +206,7 @@ def check_cosim_tables(doc: dict, where: Where, master_variables: Mapping[str, s
         except MasterConfigError as exc:
             raise (w[i] / next(k for k in ("builtin", "source", "path") if k in fmu)).error(
                 SUPPORTED_FMUS, str(fmu["path"]), problem=getattr(exc, "problem", str(exc))) from None
+        _check_platform(fmu, md, w[i])
         descriptions[fmu["name"]] = variables_of(md)
         isolated = out_of_process(fmu, sim)
         if "step_timeout" in fmu and not isolated:
