@@ -26,6 +26,9 @@ calibration            selecting 32 of the campaign's visible candidates (min ei
 identification         base regressor + weighted least squares on a record
 hil                    the paced cell side and a following controller in two processes over
                        udpcycle at 400 µs: overruns, lateness, frame round trip, lost cycles
+main_job               ``python -m cosim run scenarios/iso9283.toml`` end to end, fresh
+                       processes (benchmarks/bench_main_job.py): summary.json's real-time
+                       factor (from the process start), the whole process's, its CPU time
 =====================  ==================================================================
 
 ``ratios``: own CP / TOPP-RA solve time and duration, own PtP / ruckig_feasible
@@ -78,6 +81,8 @@ class Sizes:
     hil_seconds: float = 10.0
     hil_runs: int = 5
     hil_late_seconds: float = 2.5
+    main_job_runs: int = 3
+    main_job_stop_time: str | None = None  # None: the scenario's own (12.6 s per mode)
     hil_late_cycles: tuple[int, ...] = (1500, 2500, 3500, 4500, 4501)
     hil_iso_runs: int = 5
     hil_iso_stop_time_s: float | None = None  # the whole ISO 9283 path (12.6 s)
@@ -89,7 +94,8 @@ FULL = Sizes(repeats=3, closed_loop_sim_s=2.0, split_sim_s=0.4, paced_sim_s=10.0
 QUICK = Sizes(repeats=1, closed_loop_sim_s=0.1, split_sim_s=0.04, paced_sim_s=0.1, bus_cycles=300, fmu_batches=3,
               cp_intervals=30, ptp_intervals=20, calibration_candidates=300, calibration_grid=7, calibration_restarts=1,
               identification_samples=300, hil_seconds=0.3, hil_runs=1, hil_late_seconds=1.2,
-              hil_late_cycles=(500, 1200, 1201), hil_iso_runs=1, hil_iso_stop_time_s=0.6)
+              hil_late_cycles=(500, 1200, 1201), hil_iso_runs=1, hil_iso_stop_time_s=0.6, main_job_runs=1,
+              main_job_stop_time="0.3 s")
 
 
 def _median(values: list[float]) -> float:
@@ -331,10 +337,33 @@ def hil(sizes: Sizes, work: Path) -> dict[str, Any]:
             "iso_round_trip_p99_us": iso["round_trip_p99_us"], "iso_completed_runs": iso["completed_runs"], "iso": iso}
 
 
+def main_job(sizes: Sizes, work: Path) -> dict[str, Any]:
+    """bench_main_job.run: the main job end to end in fresh processes, medians over runs."""
+    import bench_main_job
+
+    scenario = bench_main_job.SCENARIO
+    if sizes.main_job_stop_time is not None:
+        text = scenario.read_text(encoding="utf-8")
+        old = 'stop_time = "12.6 s"'
+        if old not in text:
+            raise RuntimeError(f"{scenario}: no {old!r} to shorten")
+        work.mkdir(parents=True, exist_ok=True)
+        scenario = work / "iso9283_short.toml"
+        scenario.write_text(text.replace(old, f'stop_time = "{sizes.main_job_stop_time}"', 1), encoding="utf-8")
+    out = bench_main_job.run(sizes.main_job_runs, None, scenario)
+    m = out["median"]
+    return {"runs": sizes.main_job_runs, "sim_time_s": out["sim_time_s"], "realtime_factor": m["realtime_factor"],
+            "process_realtime_factor": m["process_realtime_factor"], "wall_time_s": m["wall_time_s"],
+            "process_wall_s": m["process_wall_s"], "cpu_s": m["cpu_s"], "mode_processes": out["mode_processes"],
+            "tcp_error_max_mm": out["tcp_error_max_mm"], "load_before": m["load_before"],
+            "load_after": m["load_after"]}
+
+
 SECTIONS: dict[str, Callable[[Sizes, Path], dict[str, Any]]] = {
     "closed_loop": closed_loop, "closed_loop_split": closed_loop_split, "paced": paced,
     "controller_port": controller_port, "bus": bus, "fmu": fmu,
     "planners": planners, "calibration": calibration, "identification": identification, "hil": hil,
+    "main_job": main_job,
 }
 
 #: The figures bench.json must hold (section -> keys), checked by the test and by run_suite.
@@ -352,6 +381,7 @@ REQUIRED: dict[str, tuple[str, ...]] = {
     "identification": ("identification_s",),
     "hil": ("overrun_fraction", "lateness_p99_us", "round_trip_p99_us", "late_exact_fraction",
             "iso_tcp_error_ratio"),
+    "main_job": ("realtime_factor", "process_realtime_factor", "cpu_s"),
 }
 RATIOS = ("own_cp_vs_toppra_solve_time", "own_cp_vs_toppra_duration", "own_ptp_vs_ruckig_feasible_duration",
           "own_ptp_vs_ruckig_feasible_solve_time", "in_process_vs_split_realtime_factor")
