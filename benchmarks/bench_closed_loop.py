@@ -5,7 +5,9 @@ Target: at least 3x faster than real time on one core (median of 5 runs of
 2 simulated seconds of the ISO 9283 path, model-based mode); controller compute p99
 <= 100 us.
 
-Each run builds the cell of ``scenarios/iso9283.toml`` (true robot, macro step, plant
+Each run builds the cell of ``scenarios/iso9283_rigid.toml`` (the main job on the rigid plant,
+where the figures of docs/main_job.md "Speed" were taken; ``--scenario scenarios/iso9283.toml``:
+the main job itself, elastic plant) (true robot, macro step, plant
 parameters, drive gains and the mode's drive speed feed-forward, fieldbus defaults)
 exactly as ``python -m cosim run`` does (``cosim.cell.mode_runs.prepare`` and ``mode_cell``
 as ``run_mode`` uses them, ``cosim.cell.run_cell``), with ``stop_time`` = 2 s, into a
@@ -34,7 +36,7 @@ in it (the recorder's flush inside its sample). Shown per 400 us controller cycl
 Usage::
 
     python benchmarks/bench_closed_loop.py [--runs 5] [--sim-time 2.0] [--mode model_based] [--can-log] [--breakdown]
-        [--scenario scenarios/iso9283_elastic.toml]   # the elastic plant (modes incl. model_based_elastic)
+        [--scenario scenarios/iso9283.toml]   # the main job: elastic plant (modes incl. model_based_elastic)
 """
 from __future__ import annotations
 
@@ -51,18 +53,23 @@ TARGET_REALTIME = 3.0
 TARGET_P99_US = 100.0
 
 
-SCENARIO = ROOT / "scenarios" / "iso9283.toml"
+SCENARIO = ROOT / "scenarios" / "iso9283_rigid.toml"
+"""The default cell: the main job's path, robot and drives on the rigid plant (the figures of
+docs/main_job.md "Speed" and of the suite's closed_loop, closed_loop_split and paced sections)."""
+ELASTIC_SCENARIO = ROOT / "scenarios" / "iso9283.toml"
+"""The main job: the elastic plant (the suite's closed_loop_elastic section)."""
 
 
-def build(sim_time: float, mode: str, can_log: Path | None = None):
+def build(sim_time: float, mode: str, can_log: Path | None = None, scenario_path: Path | None = None):
     """Scenario, cell description and built-in controller of one run:
-    ``cosim.cell.mode_runs.prepare`` and ``mode_cell`` (as ``run_mode``)."""
+    ``cosim.cell.mode_runs.prepare`` and ``mode_cell`` (as ``run_mode``); ``scenario_path``
+    defaults to :data:`SCENARIO`."""
     import dataclasses
 
     from cosim.cell.mode_runs import mode_cell, prepare
     from cosim.scenario import load_scenario
 
-    scenario = load_scenario(SCENARIO)
+    scenario = load_scenario(scenario_path or SCENARIO)
     doc = scenario.data
     doc["simulation"]["stop_time"] = sim_time
     doc["controller"]["modes"] = [mode]
@@ -71,12 +78,13 @@ def build(sim_time: float, mode: str, can_log: Path | None = None):
     return scenario, dataclasses.replace(cell, can_log=can_log), controller
 
 
-def one_run(sim_time: float, mode: str, can_log: bool, out_dir: Path) -> dict[str, float]:
+def one_run(sim_time: float, mode: str, can_log: bool, out_dir: Path,
+            scenario_path: Path | None = None) -> dict[str, float]:
     """One closed-loop run; real-time factors, controller timing, load average."""
     from cosim.cell import run_cell
     from cosim.scenario import RunContext
 
-    scenario, cell, controller = build(sim_time, mode, out_dir / "can.blf" if can_log else None)
+    scenario, cell, controller = build(sim_time, mode, out_dir / "can.blf" if can_log else None, scenario_path)
     ctx = RunContext(scenario, out_dir, quiet=True)
     load_before = os.getloadavg()[0]
     cell = run_cell(cell, controller, ctx, mode="in_process")
@@ -162,7 +170,8 @@ def main() -> None:
     parser.add_argument("--mode", default="model_based",
                         choices=("standard", "standard_speed_ff", "model_based", "model_based_elastic"))
     parser.add_argument("--scenario", type=Path, default=SCENARIO,
-                        help="an iso9283-job scenario (e.g. scenarios/iso9283_elastic.toml: the elastic plant)")
+                        help="an iso9283-job scenario (default: scenarios/iso9283_rigid.toml, the rigid plant; "
+                             "scenarios/iso9283.toml: the main job, elastic plant)")
     parser.add_argument("--can-log", action="store_true", help="also write the CAN log (BLF)")
     parser.add_argument("--breakdown", action="store_true", help="one more run with a CPU-time breakdown per part")
     args = parser.parse_args()

@@ -73,9 +73,18 @@ class Clock:
         return t
 
 
-def bench_plant(path, repeats: int) -> list[tuple[str, float, float]]:
-    slow, vr = fmpy_slave(path, "plant_fmpy", {})
-    fast = Fmu(path, "plant_fast", real_inputs=TAU, real_outputs=PLANT_OUT).start()
+ELASTIC_PLANT = {"elastic_joints": 1, "integration_step": 1e-4, **{f"q0[{k}]": q for k, q in enumerate(
+    (0.3, -0.6, 1.2, 0.4, 0.8, -0.2), start=1)}}
+"""Start values of the elastic plant as the main job runs it (elastic joints, one RK4 step per
+100 us) at a bent pose (the gears pre-loaded by gravity)."""
+
+
+def bench_plant(path, repeats: int, start: dict | None = None) -> list[tuple[str, float, float]]:
+    """Plant calls; ``start``: start values (default: the FMU's defaults, rigid joints, 50 us sub-steps;
+    :data:`ELASTIC_PLANT`: the elastic plant of the main job)."""
+    start = dict(start or {})
+    slow, vr = fmpy_slave(path, "plant_fmpy", start)
+    fast = Fmu(path, "plant_fast", start, real_inputs=TAU, real_outputs=PLANT_OUT).start()
     tau_vr, out_vr = [vr[n] for n in TAU], [vr[n] for n in PLANT_OUT]
     tau_list, tau_array = [0.0] * 6, np.zeros(6)
     rows = [("plant set 6 tau", *paired_medians(lambda: slow.setReal(tau_vr, tau_list),
@@ -128,6 +137,8 @@ def main() -> None:
     args = parser.parse_args()
     paths = ensure_fmus()
     rows = bench_plant(paths["rx130l_plant"], args.repeats) + bench_drive(paths["servo_drive"], args.repeats)
+    rows += [(f"elastic {name}", slow, fast) for name, slow, fast in bench_plant(paths["rx130l_plant"], args.repeats,
+                                                                                 ELASTIC_PLANT) if "doStep" in name]
     print(f"{'call (median us per call)':<28} {'fmpy':>8} {'fast':>8} {'ratio':>6}")
     for name, slow, fast in rows:
         print(f"{name:<28} {slow:8.2f} {fast:8.2f} {slow / fast:6.1f}")

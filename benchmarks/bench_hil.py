@@ -32,6 +32,17 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 
+def steal_ms() -> float:
+    """CPU time the hypervisor took from this (virtual) machine so far, ms, all CPUs (/proc/stat
+    'steal'; 0 where not reported). A vCPU that is descheduled by the host stalls whatever runs
+    on it, SCHED_FIFO or not: the stalls no setting inside the machine can prevent."""
+    try:
+        fields = Path("/proc/stat").read_text().splitlines()[0].split()
+        return int(fields[8]) * 1000.0 / os.sysconf("SC_CLK_TCK")
+    except (OSError, IndexError, ValueError):
+        return 0.0
+
+
 def _config(channel: str, peer: str, poll: float) -> dict:
     return {"bus": {"interface": "udpcycle", "channel": channel, "receive_timeout_s": 0.05,
                     "options": {"peer": peer, "latency_samples": 1 << 20, "busy_poll_s": poll}}}
@@ -119,6 +130,7 @@ def run_once(seconds: float, base_port: int, window_s: float = 200e-6) -> dict:
     q_cell, q_ctrl = ctx.Queue(), ctx.Queue()
     ports = (base_port, base_port + 1)
     load_before = os.getloadavg()
+    steal0, wall0 = steal_ms(), time.monotonic()
     cell = ctx.Process(target=cell_side, args=(seconds, ports, window_s, q_cell))
     cell.start()
     assert q_cell.get(timeout=60) == "ready"
@@ -128,6 +140,7 @@ def run_once(seconds: float, base_port: int, window_s: float = 200e-6) -> dict:
     k = q_ctrl.get(timeout=30)
     cell.join(10)
     ctrl.join(10)
+    steal = (steal_ms() - steal0) / (time.monotonic() - wall0)
     lateness = np.asarray(c["lateness_us"])
     overrun = np.asarray(c["overrun"], dtype=bool)
     from cosim.hil.cell_side import longest_run
@@ -145,6 +158,7 @@ def run_once(seconds: float, base_port: int, window_s: float = 200e-6) -> dict:
                               "max": float(rtt.max())} if n else {"p50": None, "p99": None, "max": None},
             "lost_cycles": c["lost_cycles"], "frames_late": c["frames_late"],
             "controller_cycles_skipped": k["cycles_skipped"], "transport": c["stats"], "scheduling": c["scheduling"],
+            "steal_ms_per_s": steal,
             "load_average_before": load_before, "load_average_after": os.getloadavg()}
 
 
@@ -228,7 +242,7 @@ def late_controller(endpoint_file: str, late: tuple[int, ...], seconds: float, q
     endpoint.send_following(setpoints)  # the cell takes it as the first group
     with realtime_scheduling(SCHEDULING, 10), no_cyclic_gc():
         while True:
-            got = endpoint.follow(0.5)
+            got = endpoint.follow(0.5 if first is not None else 120.0)  # the cell may take a while to start
             arrived = time.perf_counter_ns()
             if got is None:
                 break
@@ -336,7 +350,7 @@ def late_run(work: Path, seconds: float = LATE_SECONDS, late: tuple[int, ...] = 
     return {"seconds": seconds, "cycles": cycles, "first_cycle": first, "late_controller_cycles": list(late),
             "late_cell_cycles": planned, "per_cycle": per_cycle, "observed_lost_cycles": sorted(observed),
             "missing_soc_in_can_log": missing_soc, "unplanned_lost_cycles": unplanned,
-            "planned_exact": exact, "planned_exact_fraction": exact / len(per_cycle) if per_cycle else 0.0,
+            "planned_exact": exact, "planned_exact_fraction": exact / len(per_cycle) if per_cycle else None,
             "frames_late": hil["frames_late"], "overruns": hil["overruns"],
             "serve_exit": serve.returncode, "serve_stderr_tail": err[-500:] if serve.returncode else "",
             "load_average_before": load_before, "load_average_after": os.getloadavg()}
@@ -357,23 +371,39 @@ def print_late(r: dict) -> None:
 
 
 # ------------------------------------------------------------------ ISO 9283, paced split vs in process
-#: Counters that do not trip on the lost cycles of a loaded machine, so the paced split run
-#: completes and its TCP error can be compared (the default 15 trips at two lost in a row).
-ISO_THRESHOLD = 200
+#: The loss-of-SoC/PReq counters off (threshold 0: errors are still counted and logged), so the
+#: paced split run completes whatever it loses and its TCP error can be compared (the default
+#: 15 trips at two lost cycles in a row; on the loaded machine even 200 tripped on a stall).
+ISO_THRESHOLD = 0
+
+
+#: The ISO 9283 job compared: the rigid-plant variant, whose model_based mode the issue's figure
+#: is about (0.0103 mm in process); the main job's elastic plant is scenarios/iso9283.toml.
+ISO_SCENARIO = "iso9283_rigid.toml"
 
 
 def iso_scenario(work: Path, stop_time_s: float | None = None, missing_setpoint: str = "hold",
                  name: str = "iso") -> Path:
-    """scenarios/iso9283.toml, model_based mode only, no figures, thresholds ``ISO_THRESHOLD``,
-    the drives' reaction to a missing set-point ``missing_setpoint`` ('hold' or 'extrapolate')."""
-    text = (ROOT / "scenarios" / "iso9283.toml").read_text()
-    text = text.replace('modes = ["standard", "standard_speed_ff", "model_based"]', 'modes = ["model_based"]')
+    """scenarios/``ISO_SCENARIO``, model_based mode only, no figures, loss counters at
+    ``ISO_THRESHOLD``, the drives' reaction to a missing set-point ``missing_setpoint``
+    ('hold' or 'extrapolate')."""
+    text = (ROOT / "scenarios" / ISO_SCENARIO).read_text()
+
+    def replace(text: str, pattern: str, new: str) -> str:
+        import re
+
+        out, count = re.subn(pattern, new, text, count=1, flags=re.MULTILINE)
+        if count != 1:
+            raise RuntimeError(f"scenarios/{ISO_SCENARIO}: no line matching {pattern!r} to change")
+        return out
+
+    text = replace(text, r"^modes = \[.*$", 'modes = ["model_based"]')
     if stop_time_s is not None:
-        text = text.replace('stop_time = "12.6 s"', f'stop_time = "{stop_time_s} s"')
-    text = text.replace("figures = true", "figures = false")
-    text = text.replace("cycle_time_us = 400", f"cycle_time_us = 400\n[fieldbus.thresholds]\ncn_loss_of_soc = "
-                        f"{ISO_THRESHOLD}\ncn_loss_of_preq = {ISO_THRESHOLD}\n[fieldbus.reaction]\n"
-                        f'missing_setpoint = "{missing_setpoint}"')
+        text = replace(text, r'^stop_time = ".*"', f'stop_time = "{stop_time_s} s"')
+    text = replace(text, r"^figures = true", "figures = false")
+    text = replace(text, r"^cycle_time_us = 400.*$",
+                   f"cycle_time_us = 400\n[fieldbus.thresholds]\ncn_loss_of_soc = {ISO_THRESHOLD}\n"
+                   f'cn_loss_of_preq = {ISO_THRESHOLD}\n[fieldbus.reaction]\nmissing_setpoint = "{missing_setpoint}"')
     work.mkdir(parents=True, exist_ok=True)
     path = work / f"{name}.toml"
     path.write_text(text)
@@ -398,13 +428,15 @@ def iso_split_run(scenario: Path, out: Path, split: bool) -> dict:
     """One ISO 9283 model_based run, in process (unpaced) or paced split; its TCP errors and,
     split, the timing of both sides and where the lost cycles came from."""
     load_before = os.getloadavg()
+    steal0, wall0 = steal_ms(), time.monotonic()
     _run_cosim(["run", str(scenario), "--out", str(out)] + (["--split", "--realtime"] if split else []), 900)
+    steal = (steal_ms() - steal0) / (time.monotonic() - wall0)
     summary = json.loads((out / "summary.json").read_text())
     mode = (summary.get("modes") or {}).get("model_based") or {}
     ok = summary["status"] == "ok"  # a run whose counters tripped has no comparable TCP error
     row = {"tcp_error_max_mm": mode.get("tcp_error_max_mm") if ok else None,
            "tcp_error_rms_mm": mode.get("tcp_error_rms_mm") if ok else None,
-           "status": summary["status"], "reason": summary.get("reason"),
+           "status": summary["status"], "reason": summary.get("reason"), "steal_ms_per_s": steal,
            "load_average_before": load_before, "load_average_after": os.getloadavg()}
     if split:
         hil = summary["hil_split"]["model_based"]
@@ -452,6 +484,7 @@ def iso_split(work: Path, runs: int = 5, stop_time_s: float | None = None, missi
             "tcp_error_rms_mm_in_process": reference["tcp_error_rms_mm"], "tcp_error_rms_mm_split": med("tcp_error_rms_mm"),
             "tcp_error_ratio": tcp / reference["tcp_error_max_mm"] if tcp is not None else None,
             "overrun_fraction": med("overrun_fraction"), "lost_fraction": med("lost_fraction"),
+            "steal_ms_per_s": med("steal_ms_per_s"),
             "round_trip_p99_us": statistics.median([r["round_trip_us"]["p99_us"] for r in split
                                                     if (r.get("round_trip_us") or {}).get("p99_us") is not None]
                                                    or [float("nan")])}
@@ -468,7 +501,9 @@ def print_iso(r: dict) -> None:
         print(f"  split {i}: max/RMS {x['tcp_error_max_mm']:.4f}/{x['tcp_error_rms_mm']:.4f} mm, {x['cycles']} cycles, "
               f"overruns {100 * x['overrun_fraction']:.3f} %, lost {x['lost_cycles']} ({100 * x['lost_fraction']:.3f} %: "
               f"{x['lost_after_cell_overrun']} after a cell overrun, {x['lost_with_cell_in_time']} with the cell in "
-              f"time), round trip p50/p99 {x['round_trip_us']['p50_us']}/{x['round_trip_us']['p99_us']} us, load "
+              f"time; controller stalls > 1 cycle {x['controller_stalls_over_one_cycle']}, cell overruns "
+              f"{x['cell_overrun_causes']}), round trip p50/p99 {x['round_trip_us']['p50_us']:.1f}/"
+              f"{x['round_trip_us']['p99_us']:.1f} us, steal {x['steal_ms_per_s']:.1f} ms/s, load "
               f"{x['load_average_before'][0]:.2f} -> {x['load_average_after'][0]:.2f}")
     if r["tcp_error_ratio"] is None:
         print(f"  no split run completed of {r['runs']}")
@@ -516,7 +551,7 @@ def main(argv: list[str] | None = None) -> int:
               f"{r['lateness_us']['p50']:.1f}/{r['lateness_us']['p99']:.1f}/{r['lateness_us']['p99_9']:.1f}/"
               f"{r['lateness_us']['max']:.1f} us, round trip p50/p99/max {r['round_trip_us'].get('p50', 0):.1f}/"
               f"{r['round_trip_us'].get('p99', 0):.1f}/{r['round_trip_us'].get('max', 0):.1f} us, "
-              f"lost cycles {r['lost_cycles']}, late frames {r['frames_late']}, "
+              f"lost cycles {r['lost_cycles']}, late frames {r['frames_late']}, steal {r['steal_ms_per_s']:.1f} ms/s, "
               f"load {r['load_average_before'][0]:.2f} -> {r['load_average_after'][0]:.2f}")
     m = out["median"]
     print(f"median over {len(out['runs'])} runs: overrun {100 * m['overrun_fraction']:.3f} %, lateness p99 "

@@ -5,7 +5,7 @@ Two jobs (``--job``):
 ``fmus`` (default)
     the plain-FMU job (the plant FMU, 18 signals recorded every 1 ms, 1 ms macro step);
 ``cell``
-    the robot cell of the main job (scenarios/iso9283.toml, one mode - ``model_based`` -
+    the robot cell (scenarios/iso9283_rigid.toml, the main job on the rigid plant, one mode - ``model_based`` -
     through controller, POWERLINK-timed fieldbus, six drive FMUs and the plant FMU, laser
     tracker at 1 ms): the ISO 9283 path (12.2 s), then the arm holds its end pose under
     control until the stop time. Every series streams to disk (recording, controller log at
@@ -53,15 +53,15 @@ signals = ["plant.q[*]", "plant.qd[*]", "plant.qdd[*]"]
 
 def cell_scenario(seconds: float, can_log: bool = False) -> str:
     """The main job's scenario with one mode (model_based), ``seconds`` of simulated time, no figures."""
-    text = (ROOT / "scenarios" / "iso9283.toml").read_text(encoding="utf-8")
+    text = (ROOT / "scenarios" / "iso9283_rigid.toml").read_text(encoding="utf-8")
     replace = {'stop_time = "12.6 s"': f"stop_time = {seconds!r}",
                'modes = ["standard", "standard_speed_ff", "model_based"]': 'modes = ["model_based"]',
-               "figures = true": "figures = false", 'name = "iso9283"': f'name = "cell_memory_{seconds:g}"'}
+               "figures = true": "figures = false", 'name = "iso9283_rigid"': f'name = "cell_memory_{seconds:g}"'}
     if not can_log:
         replace["can_log = true"] = "can_log = false"
     for old, new in replace.items():
         if old not in text:
-            raise SystemExit(f"scenarios/iso9283.toml: {old!r} not found (the benchmark edits it)")
+            raise SystemExit(f"scenarios/iso9283_rigid.toml: {old!r} not found (the benchmark edits it)")
         text = text.replace(old, new)
     return text
 

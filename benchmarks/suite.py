@@ -11,14 +11,17 @@ and prints a table.
 Sections (keys of ``bench.json["figures"]``):
 
 =====================  ==================================================================
-closed_loop            in-process cell (ISO 9283 path, model-based): wall/CPU real-time
-                       factor, controller compute p50/p99 (wall, µs)
+closed_loop            in-process cell (ISO 9283 path, model-based, rigid plant): wall/CPU
+                       real-time factor, controller compute p50/p99 (wall, µs)
+closed_loop_elastic    the main job's cell (elastic plant, true geometry), modes model_based
+                       and model_based_elastic: the same figures per mode
 closed_loop_split      the same cell split over two processes (udp_multicast): RTF of the
                        cycles (without process start-up), start-up time
 paced                  the in-process cell paced at 400 µs (10 s runs): overrun fraction,
                        lateness p99
 bus                    one POWERLINK cycle with six nodes (simbus, no recording): µs
-fmu                    plant and drive doStep (fast path, 100 µs and 400 µs steps): µs
+fmu                    plant and drive doStep (fast path, 100 µs and 400 µs steps): µs; the
+                       plant also as the main job runs it (elastic joints, 100 µs sub-steps)
 planners               own CP vs TOPP-RA (paper line, 200 intervals), own PtP vs Ruckig
                        (plain and torque-feasible) between the line's end poses: solve
                        times and trajectory durations
@@ -26,6 +29,9 @@ calibration            selecting 32 of the campaign's visible candidates (min ei
 identification         base regressor + weighted least squares on a record
 hil                    the paced cell side and a following controller in two processes over
                        udpcycle at 400 µs: overruns, lateness, frame round trip, lost cycles
+memory                 peak RSS of a short and a 10x longer run, each in a fresh process:
+                       the plain-FMU job and the robot cell (ISO path, then holding;
+                       benchmarks/bench_memory.py): ratio long/short (target <= 1.10)
 main_job               ``python -m cosim run scenarios/iso9283.toml`` end to end, fresh
                        processes (benchmarks/bench_main_job.py): summary.json's real-time
                        factor (from the process start), the whole process's, its CPU time
@@ -86,6 +92,8 @@ class Sizes:
     hil_late_cycles: tuple[int, ...] = (1500, 2500, 3500, 4500, 4501)
     hil_iso_runs: int = 5
     hil_iso_stop_time_s: float | None = None  # the whole ISO 9283 path (12.6 s)
+    memory_short_s: float = 60.0
+    memory_long_s: float = 600.0
 
 
 FULL = Sizes(repeats=3, closed_loop_sim_s=2.0, split_sim_s=0.4, paced_sim_s=10.0, bus_cycles=5000, fmu_batches=60,
@@ -94,7 +102,8 @@ FULL = Sizes(repeats=3, closed_loop_sim_s=2.0, split_sim_s=0.4, paced_sim_s=10.0
 QUICK = Sizes(repeats=1, closed_loop_sim_s=0.1, split_sim_s=0.04, paced_sim_s=0.1, bus_cycles=300, fmu_batches=3,
               cp_intervals=30, ptp_intervals=20, calibration_candidates=300, calibration_grid=7, calibration_restarts=1,
               identification_samples=300, hil_seconds=0.3, hil_runs=1, hil_late_seconds=1.2,
-              hil_late_cycles=(500, 1200, 1201), hil_iso_runs=1, hil_iso_stop_time_s=0.6, main_job_runs=1,
+              hil_late_cycles=(500, 1200, 1201), hil_iso_runs=1, hil_iso_stop_time_s=0.6, memory_short_s=1.0,
+              memory_long_s=3.0, main_job_runs=1,
               main_job_stop_time="0.3 s")
 
 
@@ -142,6 +151,23 @@ def closed_loop(sizes: Sizes, work: Path) -> dict[str, Any]:
             "controller_compute_p99_us": _median([r["p99"] for r in runs]),
             "controller_cpu_p99_us": _median([r["cpu_p99"] for r in runs]),
             "engine": runs[0]["engine"]}
+
+
+def closed_loop_elastic(sizes: Sizes, work: Path) -> dict[str, Any]:
+    """bench_closed_loop.one_run on the main job's cell (scenarios/iso9283.toml: elastic plant),
+    modes model_based and model_based_elastic, median over runs each."""
+    import bench_closed_loop
+
+    out: dict[str, Any] = {"sim_time_s": sizes.closed_loop_sim_s, "runs": sizes.repeats,
+                           "scenario": bench_closed_loop.ELASTIC_SCENARIO.name}
+    for mode in ("model_based", "model_based_elastic"):
+        runs = [bench_closed_loop.one_run(sizes.closed_loop_sim_s, mode, False, work / f"{mode}{k}",
+                                          bench_closed_loop.ELASTIC_SCENARIO) for k in range(sizes.repeats)]
+        out[f"{mode}_realtime_factor"] = _median([r["realtime"] for r in runs])
+        out[f"{mode}_cpu_realtime_factor"] = _median([r["cpu_realtime"] for r in runs])
+        out[f"{mode}_controller_compute_p50_us"] = _median([r["p50"] for r in runs])
+        out[f"{mode}_controller_compute_p99_us"] = _median([r["p99"] for r in runs])
+    return out
 
 
 def closed_loop_split(sizes: Sizes, work: Path) -> dict[str, Any]:
@@ -243,6 +269,11 @@ def fmu(sizes: Sizes, work: Path) -> dict[str, Any]:
             slow = _median([dict((r[0], r[1]) for r in run)[label] for run in rows])
             out[f"{name}_step_{h}us_us"] = fast
             out[f"{name}_step_{h}us_fmpy_us"] = slow
+    rows = [bench_fmu.bench_plant(paths["rx130l_plant"], sizes.fmu_batches, bench_fmu.ELASTIC_PLANT)
+            for _ in range(sizes.repeats)]
+    for h in (100, 400):  # the main job's plant: elastic joints, 100 us RK4 sub-steps
+        out[f"plant_elastic_step_{h}us_us"] = _median([dict((r[0], r[2]) for r in run)[f"plant doStep {h} us"]
+                                                       for run in rows])
     return out
 
 
@@ -334,7 +365,24 @@ def hil(sizes: Sizes, work: Path) -> dict[str, Any]:
             "iso_tcp_error_max_mm_in_process": iso["tcp_error_max_mm_in_process"],
             "iso_tcp_error_max_mm_split": iso["tcp_error_max_mm_split"], "iso_tcp_error_ratio": iso["tcp_error_ratio"],
             "iso_overrun_fraction": iso["overrun_fraction"], "iso_lost_fraction": iso["lost_fraction"],
-            "iso_round_trip_p99_us": iso["round_trip_p99_us"], "iso_completed_runs": iso["completed_runs"], "iso": iso}
+            "iso_round_trip_p99_us": iso["round_trip_p99_us"], "iso_steal_ms_per_s": iso["steal_ms_per_s"], "iso_completed_runs": iso["completed_runs"], "iso": iso}
+
+
+def memory(sizes: Sizes, work: Path) -> dict[str, Any]:
+    """bench_memory.measure: peak RSS (MiB) of the plain-FMU job and of the robot cell at
+    ``memory_short_s`` and ``memory_long_s`` simulated seconds, each run in a fresh
+    interpreter, and the ratios long/short (everything streams: they should stay <= 1.10)."""
+    import bench_memory
+
+    work.mkdir(parents=True, exist_ok=True)
+    out: dict[str, Any] = {"short_s": sizes.memory_short_s, "long_s": sizes.memory_long_s}
+    # --quick: the cell only (each run is a fresh interpreter; the plain-FMU figure is the full suite's)
+    for job in ("fmus", "cell") if sizes.repeats > 1 else ("cell",):
+        r = bench_memory.measure(sizes.memory_short_s, sizes.memory_long_s, job=job, folder=work)
+        out.update({f"{job}_short_peak_rss_mib": r["short_peak_rss_mib"],
+                    f"{job}_long_peak_rss_mib": r["long_peak_rss_mib"], f"{job}_ratio": r["ratio"],
+                    f"{job}_long_wall_s": r["long_wall_s"]})
+    return out
 
 
 def main_job(sizes: Sizes, work: Path) -> dict[str, Any]:
@@ -360,9 +408,11 @@ def main_job(sizes: Sizes, work: Path) -> dict[str, Any]:
 
 
 SECTIONS: dict[str, Callable[[Sizes, Path], dict[str, Any]]] = {
-    "closed_loop": closed_loop, "closed_loop_split": closed_loop_split, "paced": paced,
+    "closed_loop": closed_loop, "closed_loop_elastic": closed_loop_elastic, "closed_loop_split": closed_loop_split,
+    "paced": paced,
     "controller_port": controller_port, "bus": bus, "fmu": fmu,
     "planners": planners, "calibration": calibration, "identification": identification, "hil": hil,
+    "memory": memory,
     "main_job": main_job,
 }
 
@@ -370,17 +420,21 @@ SECTIONS: dict[str, Callable[[Sizes, Path], dict[str, Any]]] = {
 REQUIRED: dict[str, tuple[str, ...]] = {
     "closed_loop": ("realtime_factor", "cpu_realtime_factor", "controller_compute_p50_us",
                     "controller_compute_p99_us"),
+    "closed_loop_elastic": ("model_based_realtime_factor", "model_based_cpu_realtime_factor",
+                            "model_based_elastic_realtime_factor", "model_based_elastic_cpu_realtime_factor"),
     "closed_loop_split": ("realtime_factor", "startup_s"),
     "paced": ("overrun_fraction", "lateness_p99_us"),
     "controller_port": ("overhead_p50_us", "builtin_realtime_factor", "user_realtime_factor"),
     "bus": ("cycle_median_us",),
-    "fmu": ("plant_step_100us_us", "plant_step_400us_us", "drive_step_100us_us", "drive_step_400us_us"),
+    "fmu": ("plant_step_100us_us", "plant_step_400us_us", "plant_elastic_step_100us_us", "drive_step_100us_us",
+            "drive_step_400us_us"),
     "planners": ("own_cp_solve_s", "toppra_solve_s", "own_cp_duration_s", "toppra_duration_s", "own_ptp_solve_s",
                  "ruckig_solve_s", "ruckig_feasible_solve_s", "own_ptp_duration_s", "ruckig_feasible_duration_s"),
     "calibration": ("selection_s",),
     "identification": ("identification_s",),
     "hil": ("overrun_fraction", "lateness_p99_us", "round_trip_p99_us", "late_exact_fraction",
             "iso_tcp_error_ratio"),
+    "memory": ("cell_ratio", "cell_short_peak_rss_mib", "cell_long_peak_rss_mib"),
     "main_job": ("realtime_factor", "process_realtime_factor", "cpu_s"),
 }
 RATIOS = ("own_cp_vs_toppra_solve_time", "own_cp_vs_toppra_duration", "own_ptp_vs_ruckig_feasible_duration",
@@ -461,6 +515,12 @@ def run_suite(out_dir: str | Path, quick: bool = False, sections: list[str] | No
 ROWS: tuple[tuple[str, str, str, str], ...] = (
     ("closed_loop", "realtime_factor", "closed-loop real-time factor, in-process (wall)", "x"),
     ("closed_loop", "cpu_realtime_factor", "closed-loop real-time factor, in-process (CPU time)", "x"),
+    ("closed_loop_elastic", "model_based_realtime_factor", "elastic plant, model_based: real-time factor (wall)", "x"),
+    ("closed_loop_elastic", "model_based_cpu_realtime_factor", "elastic plant, model_based: (CPU time)", "x"),
+    ("closed_loop_elastic", "model_based_elastic_realtime_factor",
+     "elastic plant, model_based_elastic: real-time factor (wall)", "x"),
+    ("closed_loop_elastic", "model_based_elastic_cpu_realtime_factor", "elastic plant, model_based_elastic: (CPU time)",
+     "x"),
     ("closed_loop_split", "realtime_factor", "closed-loop real-time factor, split (cycles only)", "x"),
     ("closed_loop_split", "startup_s", "split: drive process start-up", "s"),
     ("closed_loop", "controller_compute_p50_us", "controller compute p50 (wall)", "us"),
@@ -470,6 +530,7 @@ ROWS: tuple[tuple[str, str, str, str], ...] = (
     ("bus", "cycle_median_us", "POWERLINK cycle, 6 nodes (simbus)", "us"),
     ("fmu", "plant_step_100us_us", "plant FMU doStep 100 us", "us"),
     ("fmu", "plant_step_400us_us", "plant FMU doStep 400 us", "us"),
+    ("fmu", "plant_elastic_step_100us_us", "plant FMU doStep 100 us, elastic (main job)", "us"),
     ("fmu", "drive_step_100us_us", "drive FMU doStep 100 us", "us"),
     ("fmu", "drive_step_400us_us", "drive FMU doStep 400 us", "us"),
     ("planners", "own_cp_solve_s", "own CP solve (paper line)", "s"),
@@ -483,6 +544,12 @@ ROWS: tuple[tuple[str, str, str, str], ...] = (
     ("planners", "ruckig_feasible_duration_s", "Ruckig torque-feasible duration", "s"),
     ("calibration", "selection_s", "calibration: select 32 configurations", "s"),
     ("identification", "identification_s", "identification: regressor + WLS", "s"),
+    ("memory", "fmus_ratio", "peak RSS long/short run, plain-FMU job", "x"),
+    ("memory", "cell_ratio", "peak RSS long/short run, robot cell", "x"),
+    ("memory", "cell_long_peak_rss_mib", "peak RSS of the long robot-cell run", "MiB"),
+    ("main_job", "realtime_factor", "main job end to end (summary.json, from process start)", "x"),
+    ("main_job", "process_realtime_factor", "main job, whole process wall time", "x"),
+    ("main_job", "cpu_s", "main job CPU time (all processes)", "s"),
     ("hil", "overrun_fraction", "hil: paced split 400 us, cell overrun fraction", ""),
     ("hil", "lateness_p99_us", "hil: cell cycle lateness p99", "us"),
     ("hil", "round_trip_p50_us", "hil: frame round trip p50", "us"),
@@ -493,6 +560,7 @@ ROWS: tuple[tuple[str, str, str, str], ...] = (
     ("hil", "iso_overrun_fraction", "hil: ISO 9283 paced split, cell overrun fraction", ""),
     ("hil", "iso_lost_fraction", "hil: ISO 9283 paced split, lost cycles fraction", ""),
     ("hil", "iso_round_trip_p99_us", "hil: ISO 9283 paced split, frame round trip p99", "us"),
+    ("hil", "iso_steal_ms_per_s", "hil: ISO 9283 paced split, CPU time stolen by the hypervisor", "ms/s"),
     ("hil", "iso_tcp_error_max_mm_in_process", "hil: ISO 9283 model-based max TCP error, in process", "mm"),
     ("hil", "iso_tcp_error_max_mm_split", "hil: ISO 9283 model-based max TCP error, paced split", "mm"),
     ("hil", "iso_tcp_error_ratio", "hil: ISO 9283 max TCP error, split / in process", "x"),

@@ -9,7 +9,7 @@ writes a file header with sizes, the object count and the start/stop times at th
 about 4 µs per frame, for the 19 frames of each 400 µs POWERLINK cycle that is more than the
 whole closed loop costs. :class:`BlfRecordWriter` builds the objects of a whole batch of
 frames with array operations and cuts and deflates the stream the same way, so the file is
-byte for byte the one ``BLFWriter`` makes (``tests/test_fieldbus_blf.py`` compares them) and
+byte for byte the one ``BLFWriter`` makes (``tests/fieldbus/test_blf.py`` compares them) and
 ``can.LogReader``, ``python -m can.player`` and Vector's tools read it.
 
 The frames come as the :class:`fieldbus.recorder.FrameRecorder`'s 32-byte records

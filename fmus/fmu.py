@@ -41,6 +41,7 @@ Typical hand loop (six drives and a plant)::
 from __future__ import annotations
 
 import ctypes
+import weakref
 from collections import deque
 from collections.abc import Callable, Mapping, Sequence
 from functools import lru_cache
@@ -215,8 +216,10 @@ class Fmu:
     def _unbind(self, state: str) -> None:
         """Per-step functions that raise FmuConfigError saying the instance ``state`` (before
         instantiation, after close: no call may reach the FMU's code with a dead handle)."""
+        text = f"FMU '{self.name}' ({self.path.name}) {state}"  # no reference to self: no cycle
+
         def refuse(*_args):
-            raise FmuConfigError(f"FMU '{self.name}' ({self.path.name}) {state}")
+            raise FmuConfigError(text)
         self.fn_address = {}
         self.do_step_fn = refuse
         self.set_fn = {t: refuse for t in VALUE_TYPES}
@@ -245,9 +248,15 @@ class Fmu:
         if self.fmi3:
             self._instantiate3(stop_at_address)
             return
+        logger = weakref.WeakMethod(self._logger)  # the routing table must not keep a dropped instance alive
+
+        def log(status: int, category: str, text: str) -> None:
+            method = logger()
+            if method is not None:
+                method(status, category, text)
         try:
-            self.slave, self._environment = instantiate_fmi2(self.path, self.model_description, self.name,
-                                                             self._logger, self.debug_logging)
+            self.slave, self._environment = instantiate_fmi2(self.path, self.model_description, self.name, log,
+                                                             self.debug_logging)
         except FmuInstantiateError as exc:
             raise self.error(0.0, str(exc)) from exc
         self.component = self.slave.component

@@ -270,7 +270,7 @@ def run_served_cell(cell: CellDescription, ctx: Any, settings: ServeSettings, *,
     instead of starting at once (``cosim serve``)."""
     from cosim.cell.runner import CellRun, build_cell_master, write_recording
     from cosim.tracking.laser_tracker import LaserTracker
-    from cosim.realtime.pacer import Pacer, no_cyclic_gc, realtime_scheduling
+    from cosim.realtime.pacer import Pacer, locked_memory, no_cyclic_gc, realtime_scheduling
     from cosim.realtime.schedule import precompute_schedules
 
     base = cell.fieldbus
@@ -332,7 +332,9 @@ def run_served_cell(cell: CellDescription, ctx: Any, settings: ServeSettings, *,
                     import select
 
                     select.select([endpoint.bus.fileno()], [], [], start_on_first_frame_s)
-                with realtime_scheduling(settings.scheduling, 10, settings.cpu) as granted, no_cyclic_gc():
+                with realtime_scheduling(settings.scheduling, 10, settings.cpu) as granted, no_cyclic_gc(), \
+                        locked_memory(settings.lock_memory) as memory_lock:
+                    granted = f"{granted}, memory {memory_lock}"
                     ctx.execute(master, stop_time)
             except SimulationError as exc:
                 failure = exc

@@ -35,6 +35,7 @@ class ServeSettings:
     spin_s: busy-wait before each cycle's deadline, s.
     busy_poll_s: the cell's socket polling while it waits, s (0: sleep in select).
     scheduling: 'fifo' (SCHED_FIFO when granted) or 'normal'; cpu: pin to a CPU or None.
+    lock_memory: mlockall the cell's process for the paced loop (no page faults from disk).
     """
 
     channel: str = DEFAULT_CHANNEL
@@ -45,6 +46,7 @@ class ServeSettings:
     busy_poll_s: float = 0.0
     scheduling: str = "fifo"
     cpu: str | None = None
+    lock_memory: bool = True
 
     def __post_init__(self) -> None:
         for name in ("channel",) + (("peer",) if self.peer is not None else ()):
@@ -75,4 +77,5 @@ class ServeSettings:
         return {"channel": self.channel, "peer": self.peer,
                 "accept_from": None if self.accept_from is None else list(self.accept_from),
                 "window_fraction": self.window_fraction, "spin_us": self.spin_s * 1e6,
-                "busy_poll_us": self.busy_poll_s * 1e6, "scheduling": self.scheduling, "cpu": self.cpu}
+                "busy_poll_us": self.busy_poll_s * 1e6, "scheduling": self.scheduling, "cpu": self.cpu,
+                "lock_memory": self.lock_memory}

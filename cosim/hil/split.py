@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 import multiprocessing
+import os
 import time
 import traceback
 from dataclasses import dataclass
@@ -37,6 +38,25 @@ START_TIMEOUT_S = 180.0
 SILENCE_TIMEOUT_S = 5.0
 #: The percentiles of the controller side's figures.
 POINTS = (50.0, 99.0)
+
+
+def split_cpus(cpu: Any) -> tuple[str | None, str | None]:
+    """(cell CPU, controller CPU) for a paced split run: with the realtime setting ``cpu = "auto"``
+    and two or more usable CPUs, the cell on the highest-numbered one and the controller on
+    the next lower, so neither waits for the other's core; otherwise no pinning.
+    ``COSIM_HIL_CPUS=none`` turns the placement off, ``COSIM_HIL_CPUS=A,B`` chooses it."""
+    import os
+
+    override = os.environ.get("COSIM_HIL_CPUS")
+    if override:
+        if override == "none":
+            return None, None
+        a, _, b = override.partition(",")
+        return a.strip() or None, b.strip() or None
+    usable = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else []
+    if cpu != "auto" or len(usable) < 2:
+        return None, None
+    return str(usable[-1]), str(usable[-2])
 
 
 def picklable_cell(cell: CellDescription) -> CellDescription:
@@ -124,7 +144,7 @@ def run_hil_split(cell: CellDescription, controller: Any, ctx: Any, *, options: 
     from cosim.cell.runner import CellRun, write_recording
     from cosim.cell.wiring import N_JOINTS, joint_scaling
     from cosim.master import MemorySink, SimulationError
-    from cosim.realtime.pacer import no_cyclic_gc, realtime_scheduling
+    from cosim.realtime.pacer import locked_memory, no_cyclic_gc, realtime_scheduling
     from cosim.realtime.schedule import precompute_schedules
     from fieldbus import ManagingNodeEndpoint
 
@@ -132,8 +152,10 @@ def run_hil_split(cell: CellDescription, controller: Any, ctx: Any, *, options: 
     cell_port, ctrl_port = free_udp_port(), free_udp_port()
     while ctrl_port == cell_port:
         ctrl_port = free_udp_port()
+    cell_cpu, controller_cpu = split_cpus(options.settings.cpu)
+    lock = os.environ.get("COSIM_HIL_MLOCK", "1") != "0"
     settings = ServeSettings(channel=f"127.0.0.1:{cell_port}", peer=f"127.0.0.1:{ctrl_port}",
-                             scheduling=options.settings.scheduling)
+                             scheduling=options.settings.scheduling, cpu=cell_cpu, lock_memory=lock)
     side_dir = Path(ctx.path(f"cell_side_{label}"))
     context = multiprocessing.get_context("spawn")
     conn, child_conn = context.Pipe(duplex=True)
@@ -170,8 +192,9 @@ def run_hil_split(cell: CellDescription, controller: Any, ctx: Any, *, options: 
         setpoints = port.setpoints
         last = -1
         ctx.label = label
-        with realtime_scheduling(options.settings.scheduling, options.settings.fifo_priority) as granted, \
-                no_cyclic_gc():
+        with realtime_scheduling(options.settings.scheduling, options.settings.fifo_priority,
+                                 controller_cpu) as granted, no_cyclic_gc(), locked_memory(lock) as memory_lock:
+            granted = f"{granted}, memory {memory_lock}"
             endpoint.send_following(setpoints)  # the cell's cycle 0 starts with this datagram
             while True:
                 waited = time.perf_counter_ns()

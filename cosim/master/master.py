@@ -181,7 +181,8 @@ class Master:
     def add_fmu(self, name: str, path: str | Path, step: float | None = None,
                 start_values: dict[str, object] | None = None, debug_logging: bool = False,
                 out_of_process: bool = False, step_timeout: float | None = None) -> Fmu:
-        """Add an FMI 2.0 co-simulation FMU instance.
+        """Add an FMI 2.0 or 3.0 co-simulation FMU instance; return its :class:`fmus.fmu.Fmu`
+        (instantiated by :meth:`initialize`).
 
         Args:
             name: instance name (unique, no dots).

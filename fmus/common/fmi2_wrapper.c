@@ -139,6 +139,7 @@ fmi2Status fmi2GetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nv
     if (!check_instance(inst, "fmi2GetReal")) return fmi2Error;
     if (!check_vr_args(inst, "fmi2GetReal", vr, nvr, value, N_REALS)) return fmi2Error;
     if (!initial_outputs(inst, "fmi2GetReal")) return fmi2Error;
+    if (!lazy_outputs(inst, "fmi2GetReal", vr, nvr)) return fmi2Error;
     for (k = 0; k < nvr; k++) value[k] = inst->d.r[vr[k]];
     return fmi2OK;
 }

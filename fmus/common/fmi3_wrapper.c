@@ -194,6 +194,7 @@ fmi3Status fmi3GetFloat64(fmi3Instance instance, const fmi3ValueReference vr[], 
     if (inst->d.mode == MODE_INSTANTIATED) return reject_mode(inst, "fmi3GetFloat64");
     if (!check_refs(inst, "fmi3GetFloat64", vr, nvr, values, nValues, 0)) return fmi3Error;
     if (!initial_outputs(inst, "fmi3GetFloat64")) return fmi3Error;
+    if (!lazy_outputs(inst, "fmi3GetFloat64", NULL, 0)) return fmi3Error;
     for (k = 0; k < nvr; k++) {
         int j = variable_of(inst, "fmi3GetFloat64", vr[k], 0), e;
         if (j < 0) { values[n++] = inst->d.time; continue; }

@@ -84,6 +84,16 @@ int model_initialize(Instance *inst);
 int model_initial_outputs(Instance *inst);
 #endif
 
+#ifdef MODEL_LAZY_OUTPUTS
+/* Optional (a model defines MODEL_LAZY_OUTPUTS in its model_state.h): outputs that are
+ * costly and seldom read may be left stale by model_do_step; the wrapper calls this before
+ * a get outside Initialization Mode with the value references asked for (vr = NULL: any
+ * output, e.g. an FMI 3.0 get, whose references number variables, not scalars). The model
+ * computes what is stale among them. Return 0 on success; otherwise log the reason and
+ * return nonzero (the get fails with an error, the instance goes to its error mode). */
+int model_lazy_outputs(Instance *inst, const unsigned int *vr, size_t nvr);
+#endif
+
 /* Advance from time t by h > 0 (both already checked). Return 0 on success. Otherwise
  * log the reason and return MODEL_STEP_REJECTED (bad argument, nothing changed, the
  * instance stays usable) or MODEL_STEP_FAILED (numerical failure: error mode). */

@@ -148,6 +148,25 @@ static int initial_outputs(Instance *inst, const char *fn)
     return 1;
 }
 
+/* Outside Initialization Mode, outputs a model leaves stale after a step are computed when
+ * they are read (a model that defines MODEL_LAZY_OUTPUTS; vr = NULL: whatever is stale). */
+static int lazy_outputs(Instance *inst, const char *fn, const unsigned int *vr, size_t nvr)
+{
+#ifdef MODEL_LAZY_OUTPUTS
+    if ((inst->d.mode == MODE_STEP || inst->d.mode == MODE_TERMINATED) && model_lazy_outputs(inst, vr, nvr) != 0) {
+        LOG_ERROR(inst, "%s: the outputs cannot be computed at t=%.9g (see the message before)", fn, inst->d.time);
+        inst->d.mode = MODE_ERROR;
+        return 0;
+    }
+#else
+    (void)inst;
+    (void)fn;
+    (void)vr;
+    (void)nvr;
+#endif
+    return 1;
+}
+
 /* May a variable of this kind be set in the current mode? */
 static int settable(const Instance *inst, int kind)
 {

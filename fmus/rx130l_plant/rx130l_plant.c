@@ -18,7 +18,11 @@
  *     f_m(v) = s (fv v + fc tanh(v/vs)) + fs exp(-(v/vst)^2) tanh(v/vs),  s = motor_friction_share
  *     f_l(v) = (1 - s) (fv v + fc tanh(v/vs))
  * Outputs at the end of the step: q, qd, qdd (with the step's inputs), q_motor = th,
- * qd_motor = thd (rigid: q, qd), tau_gear. In Initialization Mode the outputs are
+ * qd_motor = thd (rigid: q, qd), tau_gear. qdd (and the rigid model's tau_gear), one more
+ * forward dynamics, are computed only when they are read (model_lazy_outputs). With elastic
+ * joints the links' accelerations do not depend on the drive torque, so the qdd output at the
+ * end of a step is the first RK4 stage's link part of the next step (same tau_ext): computed
+ * once, used twice - 4 instead of 5 ABA calls per step whether or not qdd is read. In Initialization Mode the outputs are
  * computed from the parameters (the wrapper calls model_initial_outputs before a get). The elastic
  * model starts with the motor where the gear holds the link at rest (static deflection
  * under gravity, Coriolis at qd0, link friction and tau_ext).
@@ -125,8 +129,12 @@ static double gear_torque(const Instance *inst, const double x[24], int j)
 }
 
 /* dx = f(x) with inputs tau (drive) and tau_ext (external, on the link) */
+/* dx = f(x) with inputs tau (drive) and tau_ext (external, on the link). Elastic joints: the
+ * links' accelerations do not depend on tau (only the motors' do), so a known link_qdd (the
+ * links at this x with this tau_ext, e.g. the qdd output of the step that ended at x) replaces
+ * the forward dynamics when given (NULL: computed). */
 static int derivative(const Instance *inst, const double *x, const double tau[6], const double tau_ext[6],
-                      double *dx)
+                      double *dx, const double *link_qdd)
 {
     double t[6];
     int j;
@@ -137,44 +145,96 @@ static int derivative(const Instance *inst, const double *x, const double tau[6]
     }
     for (j = 0; j < NJ; j++) {
         double tau_g = gear_torque(inst, x, j);
-        t[j] = tau_g + tau_ext[j] - link_friction(inst, j, x[6 + j]);
+        if (link_qdd == NULL) t[j] = tau_g + tau_ext[j] - link_friction(inst, j, x[6 + j]);
         dx[j] = x[6 + j];
         dx[12 + j] = x[18 + j];
         dx[18 + j] = (tau[j] - tau_g - motor_friction(inst, j, x[18 + j])) / inst->d.r[VR_P + P_IA + j];
     }
+    if (link_qdd != NULL) {
+        memcpy(dx + 6, link_qdd, 6 * sizeof(double));
+        return 0;
+    }
     return fd_link(inst, x, x + 6, t, dx + 6);
 }
 
-static int rk4_step(const Instance *inst, double *x, int n, const double tau[6], const double tau_ext[6], double dt)
+/* One RK4 step; k1_link: the links' accelerations at x (elastic joints, see derivative) or NULL */
+static int rk4_step(const Instance *inst, double *x, int n, const double tau[6], const double tau_ext[6], double dt,
+                    const double *k1_link)
 {
     double k1[24], k2[24], k3[24], k4[24], tmp[24];
     int j, status = 0;
-    status |= derivative(inst, x, tau, tau_ext, k1);
+    status |= derivative(inst, x, tau, tau_ext, k1, k1_link);
     for (j = 0; j < n; j++) tmp[j] = x[j] + 0.5 * dt * k1[j];
-    status |= derivative(inst, tmp, tau, tau_ext, k2);
+    status |= derivative(inst, tmp, tau, tau_ext, k2, NULL);
     for (j = 0; j < n; j++) tmp[j] = x[j] + 0.5 * dt * k2[j];
-    status |= derivative(inst, tmp, tau, tau_ext, k3);
+    status |= derivative(inst, tmp, tau, tau_ext, k3, NULL);
     for (j = 0; j < n; j++) tmp[j] = x[j] + dt * k3[j];
-    status |= derivative(inst, tmp, tau, tau_ext, k4);
+    status |= derivative(inst, tmp, tau, tau_ext, k4, NULL);
     for (j = 0; j < n; j++) x[j] += dt / 6.0 * (k1[j] + 2.0 * k2[j] + 2.0 * k3[j] + k4[j]);
+    return status;
+}
+
+/* The outputs that cost no dynamics (q, qd, the motors, the elastic gear torque); qdd and the
+ * rigid model's tau_gear (one more forward dynamics with the step's inputs) are left to
+ * finish_outputs, which runs when they are read (model_lazy_outputs) */
+static void write_state_outputs(Instance *inst)
+{
+    const double *x = inst->d.s.x;
+    int j, elastic = is_elastic(inst);
+    for (j = 0; j < NJ; j++) {
+        inst->d.r[VR_Q + j] = x[j];
+        inst->d.r[VR_QD + j] = x[6 + j];
+        inst->d.r[VR_Q_MOTOR + j] = elastic ? x[12 + j] : x[j];
+        inst->d.r[VR_QD_MOTOR + j] = elastic ? x[18 + j] : x[6 + j];
+        if (elastic) inst->d.r[VR_TAU_GEAR + j] = gear_torque(inst, x, j);
+    }
+    memcpy(inst->d.s.step_inputs, &inst->d.r[VR_TAU], 6 * sizeof(double));
+    memcpy(inst->d.s.step_inputs + 6, &inst->d.r[VR_TAU_EXT], 6 * sizeof(double));
+    inst->d.s.outputs_stale = 1;
+}
+
+static int finish_outputs(Instance *inst)
+{
+    double dx[24];
+    const double *x = inst->d.s.x, *tau = inst->d.s.step_inputs;
+    int j, elastic = is_elastic(inst);
+    int status = derivative(inst, x, tau, tau + 6, dx, NULL);
+    inst->d.s.link_qdd_valid = elastic && status == 0; /* the next step's first stage reuses it */
+    for (j = 0; j < NJ; j++) {
+        inst->d.r[VR_QDD + j] = dx[6 + j];
+        if (!elastic)
+            inst->d.r[VR_TAU_GEAR + j] = tau[j] - inst->d.r[VR_P + P_IA + j] * dx[6 + j]
+                                       - coulomb_viscous(inst, j, x[6 + j]);
+    }
+    inst->d.s.outputs_stale = 0;
     return status;
 }
 
 static int write_outputs(Instance *inst)
 {
-    double dx[24];
-    const double *x = inst->d.s.x;
-    int j, elastic = is_elastic(inst);
-    int status = derivative(inst, x, &inst->d.r[VR_TAU], &inst->d.r[VR_TAU_EXT], dx);
-    for (j = 0; j < NJ; j++) {
-        inst->d.r[VR_Q + j] = x[j];
-        inst->d.r[VR_QD + j] = x[6 + j];
-        inst->d.r[VR_QDD + j] = dx[6 + j];
-        inst->d.r[VR_Q_MOTOR + j] = elastic ? x[12 + j] : x[j];
-        inst->d.r[VR_QD_MOTOR + j] = elastic ? x[18 + j] : x[6 + j];
-        inst->d.r[VR_TAU_GEAR + j] = elastic ? gear_torque(inst, x, j)
-            : inst->d.r[VR_TAU + j] - inst->d.r[VR_P + P_IA + j] * dx[6 + j] - coulomb_viscous(inst, j, x[6 + j]);
+    write_state_outputs(inst);
+    return finish_outputs(inst);
+}
+
+int model_lazy_outputs(Instance *inst, const unsigned int *vr, size_t nvr)
+{
+    size_t k;
+    int status;
+    if (!inst->d.s.outputs_stale) return 0;
+    for (k = 0; vr != NULL && k < nvr; k++) {
+        unsigned v = vr[k];
+        if ((v >= VR_QDD && v < VR_QDD + NJ) || (!is_elastic(inst) && v >= VR_TAU_GEAR && v < VR_TAU_GEAR + NJ))
+            break;
     }
+    if (vr != NULL && k == nvr) return 0; /* none of them is stale */
+    status = finish_outputs(inst);
+    for (k = 0; k < NJ && status == 0; k++)
+        if (!isfinite(inst->d.r[VR_QDD + k]) || !isfinite(inst->d.r[VR_TAU_GEAR + k])) status = 1;
+    if (status != 0)
+        fmu_log(inst, fmi2Error, "logStatusError", "the accelerations qdd are not defined at the state of "
+                "t=%.9g s (tau = %g %g %g %g %g %g N m)", inst->d.time, inst->d.s.step_inputs[0],
+                inst->d.s.step_inputs[1], inst->d.s.step_inputs[2], inst->d.s.step_inputs[3],
+                inst->d.s.step_inputs[4], inst->d.s.step_inputs[5]);
     return status;
 }
 
@@ -374,7 +434,7 @@ int model_do_step(Instance *inst, double t, double h)
 {
     double tau[6], tau_ext[6], x[24], n_real, dt;
     long n, k;
-    int status = 0, ns = n_states(inst);
+    int status = 0, ns = n_states(inst), reuse;
     n_real = ceil(h / inst->d.r[VR_INTEGRATION_STEP] - 1e-9);
     if (n_real > MAX_SUBSTEPS) {
         fmu_log(inst, fmi2Error, "logStatusError",
@@ -387,7 +447,13 @@ int model_do_step(Instance *inst, double t, double h)
     memcpy(tau, &inst->d.r[VR_TAU], sizeof tau);
     memcpy(tau_ext, &inst->d.r[VR_TAU_EXT], sizeof tau_ext);
     memcpy(x, inst->d.s.x, sizeof x);
-    for (k = 0; k < n; k++) status |= rk4_step(inst, x, ns, tau, tau_ext, dt);
+    /* elastic: the links' accelerations at the start state are the qdd output of the last step
+     * when it was computed (read) with the same tau_ext: reuse them for the first stage */
+    reuse = inst->d.s.link_qdd_valid && !inst->d.s.outputs_stale
+        && memcmp(tau_ext, inst->d.s.step_inputs + 6, sizeof tau_ext) == 0;
+    for (k = 0; k < n; k++)
+        status |= rk4_step(inst, x, ns, tau, tau_ext, dt, k == 0 && reuse ? &inst->d.r[VR_QDD] : NULL);
+    inst->d.s.link_qdd_valid = 0;
     memcpy(inst->d.s.x, x, sizeof x);
     if (status != 0 || !state_is_finite(inst)) {
         fmu_log(inst, fmi2Error, "logStatusError",
@@ -395,5 +461,6 @@ int model_do_step(Instance *inst, double t, double h)
                 "(tau = %g %g %g %g %g %g N m)", t, t + h, tau[0], tau[1], tau[2], tau[3], tau[4], tau[5]);
         return MODEL_STEP_FAILED;
     }
-    return write_outputs(inst) == 0 ? 0 : MODEL_STEP_FAILED;
+    write_state_outputs(inst); /* qdd: when it is read */
+    return 0;
 }

@@ -37,7 +37,7 @@ def test_study_script_matches_cosim_sweep(tmp_path):
     (tmp_path / "study.toml").write_text(textwrap.dedent(f"""
         [sweep]
         name = "payload_deadtime_cli"
-        base = "{ROOT / 'scenarios' / 'iso9283.toml'}"
+        base = "{ROOT / 'scenarios' / 'iso9283_rigid.toml'}"
         metrics = ["modes.*.tcp_error_max_mm", "modes.*.tcp_error_rms_mm", "modes.*.path_accuracy_AT_mm"]
 
         [overrides]

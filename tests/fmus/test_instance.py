@@ -4,10 +4,13 @@ that logged them, also with several instances of one FMU (fmpy's logging proxy k
 process-wide Python callback)."""
 from __future__ import annotations
 
+import gc
+
 import numpy as np
 import pytest
 
 from cosim.master import Master
+from fmus import instance
 from fmus.build import ensure_fmus
 from fmus.errors import FmuConfigError, SimulationError
 from fmus.fmu import Fmu
@@ -61,6 +64,10 @@ def test_hand_loop_life_cycle():
         fmu.do_step(1.001, 1e-3)
     with pytest.raises(FmuConfigError, match="is not instantiated yet"):
         Fmu(path, "later").get_value("q[1]")
+    routed = len(instance._SINKS)
+    Fmu(path, "dropped").start()  # neither kept nor closed: freed (and its log route released) when collected
+    gc.collect()
+    assert len(instance._SINKS) == routed
 
 
 def test_fmi3_build_in_a_hand_loop_equals_the_fmi2_build():

@@ -87,14 +87,15 @@ def test_plant_matches_pinocchio_solve_ivp(plant, profile):
 
 
 def main_job_integration_step() -> float:
-    scenario = Path(__file__).resolve().parents[2] / "scenarios" / "iso9283.toml"
+    scenario = Path(__file__).resolve().parents[2] / "scenarios" / "iso9283_rigid.toml"
     plant = next(f for f in tomllib.loads(scenario.read_text())["fmus"] if f["name"] == "plant")
     return float(plant.get("parameters", {}).get("integration_step", 50e-6))
 
 
 @pytest.mark.parametrize("profile", sorted(PROFILES))
 def test_plant_at_the_main_jobs_integration_step(plant, profile):
-    """The RK4 sub-step scenarios/iso9283.toml chooses (100 us) keeps the 1e-8 rad bound."""
+    """The RK4 sub-step the rigid-plant main job (scenarios/iso9283_rigid.toml) chooses (100 us)
+    keeps the 1e-8 rad bound (the elastic main job's step: tests/test_fmu_plant_elastic.py)."""
     step = main_job_integration_step()
     assert step >= 50e-6
     fmu = run_fmu(plant, PROFILES[profile], start={"integration_step": step})

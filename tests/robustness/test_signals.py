@@ -94,7 +94,7 @@ def test_main_job_ctrl_c_to_the_process_group(tmp_path):
     text = (ROOT / "scenarios" / "iso9283.toml").read_text()
     # 60 s: the path and then a long standstill, so a fast machine is still simulating when Ctrl-C comes
     path = write_variant(text, tmp_path / "iso.toml",
-                         [('modes = ["standard", "standard_speed_ff", "model_based"]', 'modes = ["standard"]'),
+                         [('modes = ["standard", "model_based", "model_based_elastic"]', 'modes = ["standard"]'),
                           ('stop_time = "12.6 s"', 'stop_time = "60 s"')])
     out = tmp_path / "out"
     proc = start(path, out)
@@ -120,7 +120,7 @@ def test_split_run_ctrl_c_ends_the_drive_process_in_order(tmp_path):
     drive process ignores it, gets the end marker, writes its rows; the mode's time series is kept."""
     text = (ROOT / "scenarios" / "iso9283.toml").read_text()
     path = write_variant(text, tmp_path / "iso.toml",
-                         [('modes = ["standard", "standard_speed_ff", "model_based"]', 'modes = ["standard"]')])
+                         [('modes = ["standard", "model_based", "model_based_elastic"]', 'modes = ["standard"]')])
     out = tmp_path / "out"
     proc = start(path, out, "--split")
     log = out / "can_standard.blf"

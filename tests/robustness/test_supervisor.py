@@ -112,7 +112,7 @@ def test_in_process_fmu_that_calls_exit_leaves_failed(tmp_path):
 
 def test_sigkill_of_the_run_process_leaves_failed_with_where(tmp_path):
     """What the out-of-memory killer does: SIGKILL to the run's process during the ISO job's first mode."""
-    text = (ROOT / "scenarios" / "iso9283.toml").read_text()
+    text = (ROOT / "scenarios" / "iso9283_rigid.toml").read_text()
     path = write_variant(text, tmp_path / "iso.toml",
                          [('modes = ["standard", "standard_speed_ff", "model_based"]', 'modes = ["standard"]'),
                           ('stop_time = "12.6 s"', 'stop_time = "60 s"')])

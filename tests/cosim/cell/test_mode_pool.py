@@ -21,7 +21,7 @@ from cosim.results import read_series
 from scenario_files import write_variant
 
 ROOT = Path(__file__).resolve().parents[3]
-SCENARIO = (ROOT / "scenarios" / "iso9283.toml").read_text(encoding="utf-8")
+SCENARIO = (ROOT / "scenarios" / "iso9283_rigid.toml").read_text(encoding="utf-8")
 MODES_LINE = 'modes = ["standard", "standard_speed_ff", "model_based"]'
 ENV = {**os.environ, "PYTHONPATH": str(ROOT), "MPLBACKEND": "Agg"}
 #: Summary fields that are wall-clock measurements (or name the folder), not results.

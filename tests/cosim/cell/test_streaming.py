@@ -23,7 +23,7 @@ ROOT = Path(__file__).resolve().parents[3]
 
 
 def _scenario(tmp_path: Path, stop_time: str) -> Path:
-    text = (ROOT / "scenarios" / "iso9283.toml").read_text(encoding="utf-8")
+    text = (ROOT / "scenarios" / "iso9283_rigid.toml").read_text(encoding="utf-8")
     text = text.replace('stop_time = "12.6 s"', f'stop_time = "{stop_time}"')
     text = text.replace('modes = ["standard", "standard_speed_ff", "model_based"]', 'modes = ["standard"]')
     text = text.replace("can_log = true", "can_log = false").replace("figures = true", "figures = false")

@@ -18,7 +18,7 @@ from cosim.scenario import ScenarioError, load_scenario
 from scenario_files import run_scenario, write_variant
 
 ROOT = Path(__file__).resolve().parents[3]
-ISO_TEXT = (ROOT / "scenarios" / "iso9283.toml").read_text(encoding="utf-8")
+ISO_TEXT = (ROOT / "scenarios" / "iso9283_rigid.toml").read_text(encoding="utf-8")  # the rigid plant, as the compare example
 SHORT = [('stop_time = "12.6 s"', 'stop_time = "0.6 s"'), ("can_log = true", "can_log = false"),
          ('settle_time = "0.2 s"', 'settle_time = "0.1 s"')]
 Q0 = np.array([0.0, 0.4, 1.8, 0.0, 0.9, math.pi])
@@ -58,7 +58,7 @@ def runs(tmp_path_factory):
     finally:
         path.unlink()
     assert code == 0 and summary["status"] == "ok", summary.get("reason")
-    # the main job, scenarios/iso9283.toml, with the same two edits (ISO path cut at 0.6 s, settle 0.1 s)
+    # the main job on the rigid plant, scenarios/iso9283_rigid.toml, with the same two edits (ISO path cut at 0.6 s, settle 0.1 s)
     main = write_variant(ISO_TEXT, tmp / "main.toml", [
         *EXAMPLE_SHORT, ('modes = ["standard", "standard_speed_ff", "model_based"]', 'modes = ["model_based"]'),
         ("can_log = true", "can_log = false"), ("figures = true", "figures = false")])
