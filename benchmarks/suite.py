@@ -35,6 +35,9 @@ hil                    the paced cell side and a following controller in two pro
 memory                 peak RSS of a short and a 10x longer run, each in a fresh process:
                        the plain-FMU job and the robot cell (ISO path, then holding;
                        benchmarks/bench_memory.py): ratio long/short (target <= 1.10)
+main_job               ``python -m cosim run scenarios/iso9283.toml`` end to end, fresh
+                       processes (benchmarks/bench_main_job.py): summary.json's real-time
+                       factor (from the process start), the whole process's, its CPU time
 =====================  ==================================================================
 
 ``ratios``: own CP / TOPP-RA solve time and duration, own PtP / ruckig_feasible
@@ -87,6 +90,8 @@ class Sizes:
     hil_seconds: float = 10.0
     hil_runs: int = 5
     hil_late_seconds: float = 2.5
+    main_job_runs: int = 3
+    main_job_stop_time: str | None = None  # None: the scenario's own (12.6 s per mode)
     hil_late_cycles: tuple[int, ...] = (1500, 2500, 3500, 4500, 4501)
     hil_iso_runs: int = 5
     hil_iso_stop_time_s: float | None = None  # the whole ISO 9283 path (12.6 s)
@@ -102,7 +107,8 @@ QUICK = Sizes(repeats=1, closed_loop_sim_s=0.1, split_sim_s=0.04, paced_sim_s=0.
               cp_intervals=30, ptp_intervals=20, calibration_candidates=300, calibration_grid=7, calibration_restarts=1,
               identification_samples=300, hil_seconds=0.3, hil_runs=1, hil_late_seconds=1.2,
               hil_late_cycles=(500, 1200, 1201), hil_iso_runs=1, hil_iso_stop_time_s=0.6, memory_short_s=1.0,
-              memory_long_s=3.0)
+              memory_long_s=3.0, main_job_runs=1,
+              main_job_stop_time="0.3 s")
 
 
 def _median(values: list[float]) -> float:
@@ -396,12 +402,35 @@ def memory(sizes: Sizes, work: Path) -> dict[str, Any]:
     return out
 
 
+def main_job(sizes: Sizes, work: Path) -> dict[str, Any]:
+    """bench_main_job.run: the main job end to end in fresh processes, medians over runs."""
+    import bench_main_job
+
+    scenario = bench_main_job.SCENARIO
+    if sizes.main_job_stop_time is not None:
+        text = scenario.read_text(encoding="utf-8")
+        old = 'stop_time = "12.6 s"'
+        if old not in text:
+            raise RuntimeError(f"{scenario}: no {old!r} to shorten")
+        work.mkdir(parents=True, exist_ok=True)
+        scenario = work / "iso9283_short.toml"
+        scenario.write_text(text.replace(old, f'stop_time = "{sizes.main_job_stop_time}"', 1), encoding="utf-8")
+    out = bench_main_job.run(sizes.main_job_runs, None, scenario)
+    m = out["median"]
+    return {"runs": sizes.main_job_runs, "sim_time_s": out["sim_time_s"], "realtime_factor": m["realtime_factor"],
+            "process_realtime_factor": m["process_realtime_factor"], "wall_time_s": m["wall_time_s"],
+            "process_wall_s": m["process_wall_s"], "cpu_s": m["cpu_s"], "mode_processes": out["mode_processes"],
+            "tcp_error_max_mm": out["tcp_error_max_mm"], "load_before": m["load_before"],
+            "load_after": m["load_after"]}
+
+
 SECTIONS: dict[str, Callable[[Sizes, Path], dict[str, Any]]] = {
     "closed_loop": closed_loop, "closed_loop_elastic": closed_loop_elastic, "closed_loop_split": closed_loop_split,
     "paced": paced,
     "controller_port": controller_port, "bus": bus, "fmu": fmu,
     "planners": planners, "calibration": calibration, "identification": identification, "hil": hil,
     "memory": memory,
+    "main_job": main_job,
 }
 
 #: The figures bench.json must hold (section -> keys), checked by the test and by run_suite.
@@ -423,6 +452,7 @@ REQUIRED: dict[str, tuple[str, ...]] = {
     "hil": ("overrun_fraction", "lateness_p99_us", "round_trip_p99_us", "late_exact_fraction",
             "iso_tcp_error_ratio"),
     "memory": ("cell_ratio", "cell_short_peak_rss_mib", "cell_long_peak_rss_mib"),
+    "main_job": ("realtime_factor", "process_realtime_factor", "cpu_s"),
 }
 RATIOS = ("own_cp_vs_toppra_solve_time", "own_cp_vs_toppra_duration", "own_ptp_vs_ruckig_feasible_duration",
           "own_ptp_vs_ruckig_feasible_solve_time", "in_process_vs_split_realtime_factor")
@@ -534,6 +564,9 @@ ROWS: tuple[tuple[str, str, str, str], ...] = (
     ("memory", "fmus_ratio", "peak RSS long/short run, plain-FMU job", "x"),
     ("memory", "cell_ratio", "peak RSS long/short run, robot cell", "x"),
     ("memory", "cell_long_peak_rss_mib", "peak RSS of the long robot-cell run", "MiB"),
+    ("main_job", "realtime_factor", "main job end to end (summary.json, from process start)", "x"),
+    ("main_job", "process_realtime_factor", "main job, whole process wall time", "x"),
+    ("main_job", "cpu_s", "main job CPU time (all processes)", "s"),
     ("hil", "overrun_fraction", "hil: paced split 400 us, cell overrun fraction", ""),
     ("hil", "lateness_p99_us", "hil: cell cycle lateness p99", "us"),
     ("hil", "round_trip_p50_us", "hil: frame round trip p50", "us"),
