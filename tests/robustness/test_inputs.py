@@ -466,7 +466,7 @@ def test_broken_fmu_files_refused_at_validation(tmp_path, capsys, kind, fragment
     (("payload_com = [0.0, 0.0, 0.08]", "payload_com = [0.0, 0.0, 80.0]"), "true_robot.payload_com"),  # mm
     (("payload_com = [0.0, 0.0, 0.08]", "payload_com = [0.0, 0.08]"), "true_robot.payload_com"),
     (('stop_time = "12.6 s"', 'stop_time = "-1 s"'), "simulation.stop_time"),
-    (('modes = ["standard", "standard_speed_ff", "model_based"]', 'modes = ["nosuch"]'), "controller.modes"),
+    (('modes = ["standard", "model_based", "model_based_elastic"]', 'modes = ["nosuch"]'), "controller.modes"),
     (("cycle_time_us = 400", 'cycle_time_us = 400\n[fieldbus.faults]\n'
                              'bursts = [{ node = 9, start_cycle = 5, cycles = 4, frames = "preq" }]'),
      "fieldbus.faults.bursts[0]"),
