@@ -355,6 +355,7 @@ def hil(sizes: Sizes, work: Path) -> dict[str, Any]:
     cycle the expected and observed lost frames and threshold counters."""
     import bench_hil
 
+    probe = bench_hil.stall_probe(min(sizes.hil_seconds, 8.0))  # the machine's own stalls, for context
     out = bench_hil.run(sizes.hil_seconds, sizes.hil_runs)
     m = out["median"]
     late = bench_hil.late_run(work / "late", sizes.hil_late_seconds, sizes.hil_late_cycles)
@@ -382,7 +383,9 @@ def hil(sizes: Sizes, work: Path) -> dict[str, Any]:
             "iso_tcp_error_max_mm_split": iso["tcp_error_max_mm_split"], "iso_tcp_error_ratio": iso["tcp_error_ratio"],
             "iso_overrun_fraction": iso["overrun_fraction"], "iso_lost_fraction": iso["lost_fraction"],
             "iso_round_trip_p99_us": iso["round_trip_p99_us"], "iso_steal_ms_per_s": iso["steal_ms_per_s"],
-            "issue_targets_met": targets, **extra, "iso_completed_runs": iso["completed_runs"], "iso": iso}
+            "issue_targets_met": targets, **extra,
+            "probe_gaps_over_1ms_per_s": probe["gaps_over_1ms"] / probe["seconds"],
+            "probe_gap_ms_per_s": probe["gap_total_ms"] / probe["seconds"], "stall_probe": probe, "iso_completed_runs": iso["completed_runs"], "iso": iso}
 
 
 def memory(sizes: Sizes, work: Path) -> dict[str, Any]:
@@ -567,6 +570,8 @@ ROWS: tuple[tuple[str, str, str, str], ...] = (
     ("main_job", "realtime_factor", "main job end to end (summary.json, from process start)", "x"),
     ("main_job", "process_realtime_factor", "main job, whole process wall time", "x"),
     ("main_job", "cpu_s", "main job CPU time (all processes)", "s"),
+    ("hil", "probe_gap_ms_per_s", "hil: machine stalls of a bare SCHED_FIFO loop (probe)", "ms/s"),
+    ("hil", "probe_gaps_over_1ms_per_s", "hil: probe gaps over 1 ms", "1/s"),
     ("hil", "overrun_fraction", "hil: paced split 400 us, cell overrun fraction", ""),
     ("hil", "lateness_p99_us", "hil: cell cycle lateness p99", "us"),
     ("hil", "round_trip_p50_us", "hil: frame round trip p50", "us"),
