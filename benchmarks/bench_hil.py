@@ -43,6 +43,56 @@ def steal_ms() -> float:
         return 0.0
 
 
+def stall_probe(seconds: float = 8.0, period_s: float = 400e-6, work_s: float = 80e-6) -> dict:
+    """The machine's own stalls, without our code: a SCHED_FIFO loop paced like the cell (sleep,
+    spin to each 400 µs deadline, 80 µs of busy work) that watches the clock for gaps > 100 µs
+    while spinning and working. A gap there is time the loop did not run although it was
+    runnable at real-time priority: the OS or the hypervisor (compare ``steal_ms_per_s``). Run in
+    a child process (its scheduling and affinity are its own)."""
+    ctx = mp.get_context("spawn")
+    queue = ctx.Queue()
+    process = ctx.Process(target=_stall_probe_child, args=(seconds, period_s, work_s, queue))
+    process.start()
+    out = queue.get(timeout=seconds + 60)
+    process.join(10)
+    return out
+
+
+def _stall_probe_child(seconds: float, period_s: float, work_s: float, queue) -> None:
+    from cosim.realtime.pacer import realtime_scheduling
+
+    period, work, limit = int(period_s * 1e9), int(work_s * 1e9), 100_000
+    gaps = []
+    steal0 = steal_ms()
+    with realtime_scheduling(SCHEDULING, 10) as granted:
+        clock = time.perf_counter_ns
+        origin = clock()
+        end = origin + int(seconds * 1e9)
+        k = 0
+        while True:
+            k += 1
+            deadline = origin + k * period
+            now = clock()
+            if now >= end:
+                break
+            if deadline - now > 150_000:
+                time.sleep((deadline - now - 150_000) * 1e-9)
+            previous = clock()
+            stop = max(deadline, previous) + work
+            while previous < stop:  # spin to the deadline, then work; a gap is time not run
+                now = clock()
+                if now - previous > limit:
+                    gaps.append(now - previous)
+                previous = now
+            if previous - deadline > period:
+                origin += (previous - deadline) // period * period
+    steal = (steal_ms() - steal0) / seconds
+    g = np.asarray(gaps, dtype=float) * 1e-3
+    queue.put({"seconds": seconds, "scheduling": granted, "gaps_over_100us": int(g.size),
+               "gaps_over_1ms": int((g > 1000).sum()), "gap_total_ms": float(g.sum() * 1e-3),
+               "gap_max_us": float(g.max()) if g.size else 0.0, "steal_ms_per_s": steal})
+
+
 def _config(channel: str, peer: str, poll: float) -> dict:
     return {"bus": {"interface": "udpcycle", "channel": channel, "receive_timeout_s": 0.05,
                     "options": {"peer": peer, "latency_samples": 1 << 20, "busy_poll_s": poll}}}
@@ -242,7 +292,7 @@ def late_controller(endpoint_file: str, late: tuple[int, ...], seconds: float, q
     endpoint.send_following(setpoints)  # the cell takes it as the first group
     with realtime_scheduling(SCHEDULING, 10), no_cyclic_gc():
         while True:
-            got = endpoint.follow(0.5)
+            got = endpoint.follow(0.5 if first is not None else 120.0)  # the cell may take a while to start
             arrived = time.perf_counter_ns()
             if got is None:
                 break
@@ -350,7 +400,7 @@ def late_run(work: Path, seconds: float = LATE_SECONDS, late: tuple[int, ...] = 
     return {"seconds": seconds, "cycles": cycles, "first_cycle": first, "late_controller_cycles": list(late),
             "late_cell_cycles": planned, "per_cycle": per_cycle, "observed_lost_cycles": sorted(observed),
             "missing_soc_in_can_log": missing_soc, "unplanned_lost_cycles": unplanned,
-            "planned_exact": exact, "planned_exact_fraction": exact / len(per_cycle) if per_cycle else 0.0,
+            "planned_exact": exact, "planned_exact_fraction": exact / len(per_cycle) if per_cycle else None,
             "frames_late": hil["frames_late"], "overruns": hil["overruns"],
             "serve_exit": serve.returncode, "serve_stderr_tail": err[-500:] if serve.returncode else "",
             "load_average_before": load_before, "load_average_after": os.getloadavg()}
@@ -371,23 +421,39 @@ def print_late(r: dict) -> None:
 
 
 # ------------------------------------------------------------------ ISO 9283, paced split vs in process
-#: Counters that do not trip on the lost cycles of a loaded machine, so the paced split run
-#: completes and its TCP error can be compared (the default 15 trips at two lost in a row).
-ISO_THRESHOLD = 200
+#: The loss-of-SoC/PReq counters off (threshold 0: errors are still counted and logged), so the
+#: paced split run completes whatever it loses and its TCP error can be compared (the default
+#: 15 trips at two lost cycles in a row; on the loaded machine even 200 tripped on a stall).
+ISO_THRESHOLD = 0
+
+
+#: The ISO 9283 job compared: the rigid-plant variant, whose model_based mode the issue's figure
+#: is about (0.0103 mm in process); the main job's elastic plant is scenarios/iso9283.toml.
+ISO_SCENARIO = "iso9283_rigid.toml"
 
 
 def iso_scenario(work: Path, stop_time_s: float | None = None, missing_setpoint: str = "hold",
                  name: str = "iso") -> Path:
-    """scenarios/iso9283.toml, model_based mode only, no figures, thresholds ``ISO_THRESHOLD``,
-    the drives' reaction to a missing set-point ``missing_setpoint`` ('hold' or 'extrapolate')."""
-    text = (ROOT / "scenarios" / "iso9283.toml").read_text()
-    text = text.replace('modes = ["standard", "standard_speed_ff", "model_based"]', 'modes = ["model_based"]')
+    """scenarios/``ISO_SCENARIO``, model_based mode only, no figures, loss counters at
+    ``ISO_THRESHOLD``, the drives' reaction to a missing set-point ``missing_setpoint``
+    ('hold' or 'extrapolate')."""
+    text = (ROOT / "scenarios" / ISO_SCENARIO).read_text()
+
+    def replace(text: str, pattern: str, new: str) -> str:
+        import re
+
+        out, count = re.subn(pattern, new, text, count=1, flags=re.MULTILINE)
+        if count != 1:
+            raise RuntimeError(f"scenarios/{ISO_SCENARIO}: no line matching {pattern!r} to change")
+        return out
+
+    text = replace(text, r"^modes = \[.*$", 'modes = ["model_based"]')
     if stop_time_s is not None:
-        text = text.replace('stop_time = "12.6 s"', f'stop_time = "{stop_time_s} s"')
-    text = text.replace("figures = true", "figures = false")
-    text = text.replace("cycle_time_us = 400", f"cycle_time_us = 400\n[fieldbus.thresholds]\ncn_loss_of_soc = "
-                        f"{ISO_THRESHOLD}\ncn_loss_of_preq = {ISO_THRESHOLD}\n[fieldbus.reaction]\n"
-                        f'missing_setpoint = "{missing_setpoint}"')
+        text = replace(text, r'^stop_time = ".*"', f'stop_time = "{stop_time_s} s"')
+    text = replace(text, r"^figures = true", "figures = false")
+    text = replace(text, r"^cycle_time_us = 400.*$",
+                   f"cycle_time_us = 400\n[fieldbus.thresholds]\ncn_loss_of_soc = {ISO_THRESHOLD}\n"
+                   f'cn_loss_of_preq = {ISO_THRESHOLD}\n[fieldbus.reaction]\nmissing_setpoint = "{missing_setpoint}"')
     work.mkdir(parents=True, exist_ok=True)
     path = work / f"{name}.toml"
     path.write_text(text)
@@ -441,6 +507,7 @@ def iso_split_run(scenario: Path, out: Path, split: bool) -> dict:
                     "lost_with_cell_in_time": len(lost_cycles) - cell_side_stall,
                     "controller_cycles_skipped": hil["controller_side"]["cycles_skipped"],
                     "controller_stalls_over_one_cycle": hil["controller_side"].get("stalls_over_one_cycle"),
+                    "controller_compute_over_one_cycle": hil["controller_side"].get("compute_over_one_cycle"),
                     "cell_overrun_causes": {k: v for k, v in cell.get("overrun_causes", {}).items()
                                             if k in ("stalled", "own_work", "other")},
                     "controller_compute_us": hil["controller_side"]["compute"],
@@ -485,7 +552,8 @@ def print_iso(r: dict) -> None:
         print(f"  split {i}: max/RMS {x['tcp_error_max_mm']:.4f}/{x['tcp_error_rms_mm']:.4f} mm, {x['cycles']} cycles, "
               f"overruns {100 * x['overrun_fraction']:.3f} %, lost {x['lost_cycles']} ({100 * x['lost_fraction']:.3f} %: "
               f"{x['lost_after_cell_overrun']} after a cell overrun, {x['lost_with_cell_in_time']} with the cell in "
-              f"time; controller stalls > 1 cycle {x['controller_stalls_over_one_cycle']}, cell overruns "
+              f"time; controller: PRes waiting > 1 cycle {x['controller_stalls_over_one_cycle']}, steps > 1 cycle "
+              f"{x['controller_compute_over_one_cycle']}; cell overruns "
               f"{x['cell_overrun_causes']}), round trip p50/p99 {x['round_trip_us']['p50_us']:.1f}/"
               f"{x['round_trip_us']['p99_us']:.1f} us, steal {x['steal_ms_per_s']:.1f} ms/s, load "
               f"{x['load_average_before'][0]:.2f} -> {x['load_average_after'][0]:.2f}")
@@ -504,6 +572,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--json", type=Path, default=None)
     parser.add_argument("--late", action="store_true",
                         help="only the deliberately late controller against cosim serve (LATE_CYCLES)")
+    parser.add_argument("--probe", action="store_true",
+                        help="only the stall probe: a bare SCHED_FIFO loop's gaps for --seconds (the machine's own stalls)")
     parser.add_argument("--iso", action="store_true",
                         help="only the ISO 9283 model-based TCP error, paced split (--runs) vs in process")
     parser.add_argument("--stop-time", type=float, default=None, help="--iso: seconds of the ISO path (default all)")
@@ -518,6 +588,9 @@ def main(argv: list[str] | None = None) -> int:
         print_iso(iso)
         if args.json:
             args.json.write_text(json.dumps(iso, indent=1))
+        return 0
+    if args.probe:
+        print(json.dumps(stall_probe(args.seconds)))
         return 0
     if args.late:
         import tempfile

@@ -28,10 +28,16 @@ planners               own CP vs TOPP-RA (paper line, 200 intervals), own PtP vs
 calibration            selecting 32 of the campaign's visible candidates (min eigenvalue)
 identification         base regressor + weighted least squares on a record
 hil                    the paced cell side and a following controller in two processes over
-                       udpcycle at 400 µs: overruns, lateness, frame round trip, lost cycles
+                       udpcycle at 400 µs: overruns, lateness, frame round trip, lost cycles;
+                       a deliberately late controller against cosim serve (expected vs
+                       observed counters); ISO 9283 model-based TCP error, paced split vs
+                       in process (drives holding / extrapolating a missing set-point)
 memory                 peak RSS of a short and a 10x longer run, each in a fresh process:
                        the plain-FMU job and the robot cell (ISO path, then holding;
                        benchmarks/bench_memory.py): ratio long/short (target <= 1.10)
+main_job               ``python -m cosim run scenarios/iso9283.toml`` end to end, fresh
+                       processes (benchmarks/bench_main_job.py): summary.json's real-time
+                       factor (from the process start), the whole process's, its CPU time
 =====================  ==================================================================
 
 ``ratios``: own CP / TOPP-RA solve time and duration, own PtP / ruckig_feasible
@@ -84,9 +90,12 @@ class Sizes:
     hil_seconds: float = 10.0
     hil_runs: int = 5
     hil_late_seconds: float = 2.5
+    main_job_runs: int = 3
+    main_job_stop_time: str | None = None  # None: the scenario's own (12.6 s per mode)
     hil_late_cycles: tuple[int, ...] = (1500, 2500, 3500, 4500, 4501)
     hil_iso_runs: int = 5
     hil_iso_stop_time_s: float | None = None  # the whole ISO 9283 path (12.6 s)
+    hil_iso_extrapolate: bool = True  # also the runs with the drives extrapolating a missing set-point
     memory_short_s: float = 60.0
     memory_long_s: float = 600.0
 
@@ -98,7 +107,8 @@ QUICK = Sizes(repeats=1, closed_loop_sim_s=0.1, split_sim_s=0.04, paced_sim_s=0.
               cp_intervals=30, ptp_intervals=20, calibration_candidates=300, calibration_grid=7, calibration_restarts=1,
               identification_samples=300, hil_seconds=0.3, hil_runs=1, hil_late_seconds=1.2,
               hil_late_cycles=(500, 1200, 1201), hil_iso_runs=1, hil_iso_stop_time_s=0.6, memory_short_s=1.0,
-              memory_long_s=3.0)
+              memory_long_s=3.0, main_job_runs=1,
+              main_job_stop_time="0.3 s")
 
 
 def _median(values: list[float]) -> float:
@@ -345,10 +355,23 @@ def hil(sizes: Sizes, work: Path) -> dict[str, Any]:
     cycle the expected and observed lost frames and threshold counters."""
     import bench_hil
 
+    probe = bench_hil.stall_probe(min(sizes.hil_seconds, 8.0))  # the machine's own stalls, for context
     out = bench_hil.run(sizes.hil_seconds, sizes.hil_runs)
     m = out["median"]
     late = bench_hil.late_run(work / "late", sizes.hil_late_seconds, sizes.hil_late_cycles)
     iso = bench_hil.iso_split(work / "iso", sizes.hil_iso_runs, sizes.hil_iso_stop_time_s)
+    extra: dict[str, Any] = {}
+    if sizes.hil_iso_extrapolate:
+        ext = bench_hil.iso_split(work / "iso_extrapolate", sizes.hil_iso_runs, sizes.hil_iso_stop_time_s,
+                                  "extrapolate")
+        extra = {"iso_extrapolate_tcp_error_max_mm_split": ext["tcp_error_max_mm_split"],
+                 "iso_extrapolate_tcp_error_ratio": ext["tcp_error_ratio"],
+                 "iso_extrapolate_lost_fraction": ext["lost_fraction"], "iso_extrapolate": ext}
+    m_iso = iso["tcp_error_ratio"]
+    # the issue's targets (quiet machine): <= 1 % overruns, round trip p99 <= 100 us, ISO error within 10 %
+    targets = {"overruns_at_most_1_percent": m["overrun_fraction"] is not None and m["overrun_fraction"] <= 0.01,
+               "round_trip_p99_at_most_100_us": m["round_trip_p99_us"] is not None and m["round_trip_p99_us"] <= 100.0,
+               "iso_tcp_error_within_10_percent": m_iso is not None and abs(m_iso - 1.0) <= 0.10}
     return {"seconds": sizes.hil_seconds, "runs": out["runs"], "overrun_fraction": m["overrun_fraction"],
             "longest_overrun_run": m["longest_overrun_run"], "lateness_p99_us": m["lateness_p99_us"],
             "round_trip_p50_us": m["round_trip_p50_us"], "round_trip_p99_us": m["round_trip_p99_us"],
@@ -359,7 +382,10 @@ def hil(sizes: Sizes, work: Path) -> dict[str, Any]:
             "iso_tcp_error_max_mm_in_process": iso["tcp_error_max_mm_in_process"],
             "iso_tcp_error_max_mm_split": iso["tcp_error_max_mm_split"], "iso_tcp_error_ratio": iso["tcp_error_ratio"],
             "iso_overrun_fraction": iso["overrun_fraction"], "iso_lost_fraction": iso["lost_fraction"],
-            "iso_round_trip_p99_us": iso["round_trip_p99_us"], "iso_steal_ms_per_s": iso["steal_ms_per_s"], "iso_completed_runs": iso["completed_runs"], "iso": iso}
+            "iso_round_trip_p99_us": iso["round_trip_p99_us"], "iso_steal_ms_per_s": iso["steal_ms_per_s"],
+            "issue_targets_met": targets, **extra,
+            "probe_gaps_over_1ms_per_s": probe["gaps_over_1ms"] / probe["seconds"],
+            "probe_gap_ms_per_s": probe["gap_total_ms"] / probe["seconds"], "stall_probe": probe, "iso_completed_runs": iso["completed_runs"], "iso": iso}
 
 
 def memory(sizes: Sizes, work: Path) -> dict[str, Any]:
@@ -379,12 +405,35 @@ def memory(sizes: Sizes, work: Path) -> dict[str, Any]:
     return out
 
 
+def main_job(sizes: Sizes, work: Path) -> dict[str, Any]:
+    """bench_main_job.run: the main job end to end in fresh processes, medians over runs."""
+    import bench_main_job
+
+    scenario = bench_main_job.SCENARIO
+    if sizes.main_job_stop_time is not None:
+        text = scenario.read_text(encoding="utf-8")
+        old = 'stop_time = "12.6 s"'
+        if old not in text:
+            raise RuntimeError(f"{scenario}: no {old!r} to shorten")
+        work.mkdir(parents=True, exist_ok=True)
+        scenario = work / "iso9283_short.toml"
+        scenario.write_text(text.replace(old, f'stop_time = "{sizes.main_job_stop_time}"', 1), encoding="utf-8")
+    out = bench_main_job.run(sizes.main_job_runs, None, scenario)
+    m = out["median"]
+    return {"runs": sizes.main_job_runs, "sim_time_s": out["sim_time_s"], "realtime_factor": m["realtime_factor"],
+            "process_realtime_factor": m["process_realtime_factor"], "wall_time_s": m["wall_time_s"],
+            "process_wall_s": m["process_wall_s"], "cpu_s": m["cpu_s"], "mode_processes": out["mode_processes"],
+            "tcp_error_max_mm": out["tcp_error_max_mm"], "load_before": m["load_before"],
+            "load_after": m["load_after"]}
+
+
 SECTIONS: dict[str, Callable[[Sizes, Path], dict[str, Any]]] = {
     "closed_loop": closed_loop, "closed_loop_elastic": closed_loop_elastic, "closed_loop_split": closed_loop_split,
     "paced": paced,
     "controller_port": controller_port, "bus": bus, "fmu": fmu,
     "planners": planners, "calibration": calibration, "identification": identification, "hil": hil,
     "memory": memory,
+    "main_job": main_job,
 }
 
 #: The figures bench.json must hold (section -> keys), checked by the test and by run_suite.
@@ -406,6 +455,7 @@ REQUIRED: dict[str, tuple[str, ...]] = {
     "hil": ("overrun_fraction", "lateness_p99_us", "round_trip_p99_us", "late_exact_fraction",
             "iso_tcp_error_ratio"),
     "memory": ("cell_ratio", "cell_short_peak_rss_mib", "cell_long_peak_rss_mib"),
+    "main_job": ("realtime_factor", "process_realtime_factor", "cpu_s"),
 }
 RATIOS = ("own_cp_vs_toppra_solve_time", "own_cp_vs_toppra_duration", "own_ptp_vs_ruckig_feasible_duration",
           "own_ptp_vs_ruckig_feasible_solve_time", "in_process_vs_split_realtime_factor")
@@ -517,6 +567,11 @@ ROWS: tuple[tuple[str, str, str, str], ...] = (
     ("memory", "fmus_ratio", "peak RSS long/short run, plain-FMU job", "x"),
     ("memory", "cell_ratio", "peak RSS long/short run, robot cell", "x"),
     ("memory", "cell_long_peak_rss_mib", "peak RSS of the long robot-cell run", "MiB"),
+    ("main_job", "realtime_factor", "main job end to end (summary.json, from process start)", "x"),
+    ("main_job", "process_realtime_factor", "main job, whole process wall time", "x"),
+    ("main_job", "cpu_s", "main job CPU time (all processes)", "s"),
+    ("hil", "probe_gap_ms_per_s", "hil: machine stalls of a bare SCHED_FIFO loop (probe)", "ms/s"),
+    ("hil", "probe_gaps_over_1ms_per_s", "hil: probe gaps over 1 ms", "1/s"),
     ("hil", "overrun_fraction", "hil: paced split 400 us, cell overrun fraction", ""),
     ("hil", "lateness_p99_us", "hil: cell cycle lateness p99", "us"),
     ("hil", "round_trip_p50_us", "hil: frame round trip p50", "us"),
@@ -531,6 +586,7 @@ ROWS: tuple[tuple[str, str, str, str], ...] = (
     ("hil", "iso_tcp_error_max_mm_in_process", "hil: ISO 9283 model-based max TCP error, in process", "mm"),
     ("hil", "iso_tcp_error_max_mm_split", "hil: ISO 9283 model-based max TCP error, paced split", "mm"),
     ("hil", "iso_tcp_error_ratio", "hil: ISO 9283 max TCP error, split / in process", "x"),
+    ("hil", "iso_extrapolate_tcp_error_ratio", "hil: the same, drives extrapolating a missing set-point", "x"),
 )
 
 
@@ -552,6 +608,10 @@ def format_table(result: dict[str, Any]) -> str:
     lines.append("ratios (same run):")
     for key, value in result["ratios"].items():
         lines.append(f"  {key:56s} {_fmt(value):>12s}")
+    targets = result["figures"].get("hil", {}).get("issue_targets_met")
+    if targets:
+        lines.append("hil targets (issue 15, meant for a quiet machine): " + ", ".join(
+            f"{key} {'yes' if ok else 'NO'}" for key, ok in targets.items()))
     for name, error in result["errors"].items():
         lines.append(f"ERROR in {name}: {error.splitlines()[0]}")
     lines.append(f"suite wall time {result['wall_time_s']:.1f} s ({'quick' if result['quick'] else 'full'}); "

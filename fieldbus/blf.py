@@ -19,7 +19,10 @@ standard 11-bit id, received (no ``DIR`` flag), channel 1, no bit-rate switch.
 """
 from __future__ import annotations
 
+import contextlib
+import signal
 import zlib
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -51,6 +54,20 @@ _ERROR = np.dtype(_HEADER + [("channel", "<u2"), ("length", "<u2"), ("err_flags"
                              ("data", "u1", (8,))])                                   # CAN_ERROR_EXT_STRUCT
 _HEADER_SIZE = 32
 _DLC = np.array([len2dlc(n) for n in range(MAX_DATA + 1)], dtype=np.uint8)
+
+
+@contextlib.contextmanager
+def _signals_held() -> Iterator[None]:
+    """SIGINT and SIGTERM wait (they are delivered when the block ends); as is where unavailable."""
+    mask = getattr(signal, "pthread_sigmask", None)
+    if mask is None:
+        yield
+        return
+    previous = mask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
+    try:
+        yield
+    finally:
+        mask(signal.SIG_SETMASK, previous)
 
 
 def _objects(kind: np.dtype, object_type: int, records: np.ndarray, nanoseconds: np.ndarray) -> np.ndarray:
@@ -141,23 +158,23 @@ class BlfRecordWriter:
 
     # ------------------------------------------------------------------ file
     def _write_container(self, size: int) -> None:
-        """Deflate the first ``size`` pending bytes into one LOG_CONTAINER (python-can's ``_flush``)."""
-        chunk = memoryview(self._pending)[:size]
-        if self.compression_level:
-            data = zlib.compress(chunk, self.compression_level)
-            method = ZLIB_DEFLATE
-        else:
-            data = bytes(chunk)
-            method = NO_COMPRESSION
-        chunk.release()
-        object_size = OBJ_HEADER_BASE_STRUCT.size + LOG_CONTAINER_STRUCT.size + len(data)
-        self._file.write(OBJ_HEADER_BASE_STRUCT.pack(b"LOBJ", OBJ_HEADER_BASE_STRUCT.size, 1, object_size,
-                                                     LOG_CONTAINER))
-        self._file.write(LOG_CONTAINER_STRUCT.pack(method, size))
-        self._file.write(data)
-        self._file.write(b"\x00" * (object_size % 4))  # python-can's padding
-        self.uncompressed_size += OBJ_HEADER_BASE_STRUCT.size + LOG_CONTAINER_STRUCT.size + size
-        del self._pending[:size]
+        """Deflate the first ``size`` pending bytes into one LOG_CONTAINER (python-can's ``_flush``),
+        written in one piece with SIGINT/SIGTERM held back: a Ctrl-C can neither leave half a
+        container in the file nor write one twice (the file stays readable up to the stop)."""
+        with _signals_held():
+            with memoryview(self._pending)[:size] as chunk:
+                if self.compression_level:
+                    data = zlib.compress(chunk, self.compression_level)
+                    method = ZLIB_DEFLATE
+                else:
+                    data = bytes(chunk)
+                    method = NO_COMPRESSION
+            object_size = OBJ_HEADER_BASE_STRUCT.size + LOG_CONTAINER_STRUCT.size + len(data)
+            self._file.write(b"".join([
+                OBJ_HEADER_BASE_STRUCT.pack(b"LOBJ", OBJ_HEADER_BASE_STRUCT.size, 1, object_size, LOG_CONTAINER),
+                LOG_CONTAINER_STRUCT.pack(method, size), data, b"\x00" * (object_size % 4)]))  # python-can's padding
+            self.uncompressed_size += OBJ_HEADER_BASE_STRUCT.size + LOG_CONTAINER_STRUCT.size + size
+            del self._pending[:size]
 
     def _write_header(self, file_size: int) -> None:
         header = [b"LOGG", FILE_HEADER_SIZE, BLFWriter.application_id, 0, 0, 0, 2, 6, 8, 1,

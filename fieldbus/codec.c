@@ -479,8 +479,9 @@ static PyObject *apply_due(PyObject *self, PyObject *const *args, Py_ssize_t nar
                 PyObject *next = PyNumber_Add(last, diff);
                 Py_DECREF(diff);
                 if (next == NULL) return NULL;
-                Py_INCREF(last);
-                list_replace(prev, i, last);
+                /* one cycle extrapolated, then held: prev = poss makes the next step zero */
+                Py_INCREF(next);
+                list_replace(prev, i, next);
                 list_replace(poss, i, next);
             }
         }

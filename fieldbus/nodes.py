@@ -8,7 +8,7 @@ Synchronous semantics (one cycle k, SoC at t_k):
 
 * At the SoC (the CN's cycle timer, nominally t_k) each controlled node latches its drive's actual values (sent in this
   cycle's PRes) and applies the set-point that arrived in the PReq of cycle
-  k - dead_time_cycles (held or extrapolated if it never arrived).
+  k - dead_time_cycles (held, or extrapolated for one cycle and then held, if it never arrived).
 * The PReq of cycle k carries the set-point the controller computed after cycle
   k - 1; it takes effect at the SoC of cycle k + dead_time_cycles.
 
@@ -590,8 +590,9 @@ class ControlledNodes:
                 if last is None:
                     poss[i] = a_pos[i]  # nothing received yet: hold where the drive is
                 elif not self._hold and prev[i] is not None:
-                    poss[i] = last + (last - prev[i])
-                    prev[i] = last
+                    # one cycle extrapolated, then held (prev = poss: the next step is zero); a
+                    # drive does not run on blind along a straight line
+                    poss[i] = prev[i] = last + (last - prev[i])
         app = self.applied
         if self._any_fault or self._fault_shown:
             forced = list(cws)

@@ -50,7 +50,8 @@ from numpy.typing import ArrayLike
 from threadpoolctl import threadpool_limits
 
 from identification.errors import IdentificationError
-from robot.dynamics import N_PARAMETERS, PARAMETER_NAMES, PARAMETER_UNITS, RobotDynamics
+from robot.dynamics import (COULOMB_SLICE, N_PARAMETERS, PARAMETER_NAMES, PARAMETER_UNITS, ROTOR_INERTIA_SLICE,
+                            RobotDynamics)
 from robot.parameters import RobotParameters, load_parameters
 
 DEFAULT_STATES = 200
@@ -109,6 +110,10 @@ class BaseParameters:
     combination: np.ndarray = field(init=False, repr=False)
     structure: Any = field(default=None, compare=False, repr=False)
     """the RobotDynamics whose kinematic structure the regressor uses (None: the nominal arm)"""
+    fixed_names: tuple[str, ...] | None = field(default=None, compare=False, repr=False)
+    """base-parameter names kept from the grouping this one was regrouped from (:func:`regrouped_on`)"""
+    pattern: np.ndarray | None = field(default=None, compare=False, repr=False)
+    """which standard parameters each base parameter held in that grouping (bool, n_base x 78)"""
 
     def __post_init__(self) -> None:
         combination = np.zeros((self.independent.size, len(self.names)))
@@ -126,7 +131,10 @@ class BaseParameters:
     @property
     def base_names(self) -> tuple[str, ...]:
         """Name of each base parameter: its leading standard parameter, with an ``R``
-        suffix (``regrouped``) when others are merged into it (``Izz1R``)."""
+        suffix (``regrouped``) when others are merged into it (``Izz1R``); a grouping carried over
+        to another geometry (:func:`regrouped_on`) keeps the original names."""
+        if self.fixed_names is not None:
+            return self.fixed_names
         return tuple(self.names[j] + ("R" if len(terms) > 1 else "")
                      for j, terms in zip(self.independent, self.terms()))
 
@@ -204,9 +212,18 @@ class BaseParameters:
         s = default_scale(ref) if scale is None else _vector(scale, len(self.names), "scale")
         if np.any(s <= 0.0):
             raise BaseParameterError("scale: expected 78 positive numbers")
-        k = self.combination * s  # K S
-        correction = np.linalg.lstsq(k, pb - self.combination @ ref, rcond=None)[0]
-        return ref + s * correction
+        if self.pattern is None:
+            k = self.combination * s  # K S
+            correction = np.linalg.lstsq(k, pb - self.combination @ ref, rcond=None)[0]
+            return ref + s * correction
+        # a regrouped grouping: its small geometric couplings (mx2 - 0.0009 m3) would let the
+        # minimum-norm step move a mass by kilograms to fit a first moment; correct along the
+        # original grouping and repeat (converges like the couplings, 1e-3 per pass)
+        k = self.combination * self.pattern * s
+        p = ref.copy()
+        for _ in range(6):
+            p = p + s * np.linalg.lstsq(k, pb - self.combination @ p, rcond=None)[0]
+        return p
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready description: names, definitions, terms, tolerances."""
@@ -336,6 +353,62 @@ def _natural_order_independent(scaled: np.ndarray, candidates: np.ndarray, toler
             kept.append(j)
             basis = np.column_stack((basis, v / norm))
     return np.array(kept, dtype=int)
+
+
+REGROUP_SPAN_TOLERANCE = 1e-5
+"""Relative least-squares residual (unit-norm columns) below which a dependent column counts as
+in the span of the independent ones in :func:`regrouped_on` (measured on a true robot: in the span
+1e-7 and below, out of it 6e-4 and more)."""
+
+
+REGROUP_ZERO_TOLERANCE = 1e-6
+"""Regrouping coefficients of unit-norm columns below this are round-off of the least squares in
+:func:`regrouped_on` (the geometric errors' couplings are 1e-4 and larger)."""
+
+
+def regrouped_on(base: BaseParameters, dynamics: RobotDynamics, *, n_states: int = DEFAULT_STATES,
+                 seed: int = DEFAULT_SEED) -> BaseParameters:
+    """``base``'s grouping (the same independent, dependent and zero columns, names and
+    definitions) with the regrouping coefficients kappa of another kinematic structure
+    (``dynamics``, e.g. a calibrated arm whose link lengths differ from the nominal ones by
+    mm): kappa = the least-squares fit over random states of each dependent column by the
+    independent columns it is grouped with nominally; ``kappa_residual`` says how far the grouping is from exact on that
+    structure (the calibrated geometry breaks some of the nominal symmetries slightly). The
+    result's regressor is that structure's (``structure``)."""
+    q, qd, qdd = random_states(dynamics.parameters, n_states, seed)
+    theta = dynamics.regressor_batch(q, qd, qdd).reshape(-1, len(base.names))
+    norms = np.linalg.norm(theta, axis=0)
+    scale = np.where(norms > 0.0, norms, 1.0)
+    ind, dep = np.asarray(base.independent), np.asarray(base.dependent)
+    kappa = np.zeros_like(np.asarray(base.kappa))
+    independent = theta[:, ind] / scale[ind]
+    # velocity-only columns (rotor inertia, friction) cannot stand in for a link column: only
+    # round-off would put a link parameter into them
+    drive_train = np.isin(ind, np.arange(ROTOR_INERTIA_SLICE.start, COULOMB_SLICE.stop))
+    for k, column in enumerate(dep):
+        target = theta[:, column] / scale[column]
+        nominal_rows = np.flatnonzero(np.asarray(base.kappa)[:, k])
+        allowed = np.flatnonzero(~drive_train | np.isin(np.arange(ind.size), nominal_rows))
+        # a dependent column still in the span of the independent ones (m3..m6: the geometric errors
+        # add couplings such as mx2 - 0.0009 m3) is regrouped on all of them; one that the calibrated
+        # geometry moves out of the span (my3, Ia2: relative residual 6e-4, 5e-3) only on the columns
+        # it is grouped with nominally - a fit on all would smear it over unrelated parameters
+        coef = np.zeros(ind.size)
+        coef[allowed], *_ = np.linalg.lstsq(independent[:, allowed], target, rcond=None)
+        if np.linalg.norm(independent @ coef - target) > REGROUP_SPAN_TOLERANCE:
+            coef = np.zeros(ind.size)
+            if nominal_rows.size:
+                coef[nominal_rows], *_ = np.linalg.lstsq(independent[:, nominal_rows], target, rcond=None)
+        coef[np.abs(coef) < REGROUP_ZERO_TOLERANCE] = 0.0  # least-squares round-off, not a coupling
+        kappa[:, k] = coef / scale[ind] * scale[column]
+    kappa[:, np.isin(dep, base.zero_columns)] = 0.0
+    kappa[np.abs(kappa) < KAPPA_ZERO_TOLERANCE] = 0.0
+    residual = float(np.abs(theta[:, dep] - theta[:, ind] @ kappa).max() / norms.max())
+    kappa.setflags(write=False)
+    pattern = base.combination != 0.0
+    pattern.setflags(write=False)
+    return dataclasses.replace(base, kappa=kappa, kappa_residual=residual, structure=dynamics,
+                               fixed_names=base.base_names, pattern=pattern)
 
 
 @lru_cache(maxsize=1)

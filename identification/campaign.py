@@ -168,20 +168,18 @@ def design(settings: CampaignSettings, payload: ArrayLike = (0.0, 0.0, 0.0, 0.0)
 def estimate(data: ExperimentData, settings: CampaignSettings, samples_per_period: int, kinematic_model=None):
     """The base parameters from the averaged periods (see module docstring); ``kinematic_model``:
     the arm's calibrated kinematics (a pinocchio model) for the regressor, None: the nominal arm."""
-    import dataclasses
-
-    from identification.base_parameters import nominal_base_parameters
+    from identification.base_parameters import nominal_base_parameters, regrouped_on
     from identification.identify import identify_periodic
     from robot.dynamics import RobotDynamics
 
     if abs(data.sample_time - settings.sample_time) > 1e-12:
         raise ValueError(f"the experiment sampled every {data.sample_time} s, the design every "
                          f"{settings.sample_time} s")
-    # the nominal arm's base parameters (grouping, names, kappa) with the regressor of the calibrated
-    # geometry: a base set computed on the calibrated geometry itself would split groups whose
-    # columns differ only by the mm-level geometric errors (Ia2 from Iyy2R: cond 2e4, not identifiable)
-    base = None if kinematic_model is None else dataclasses.replace(
-        nominal_base_parameters(), structure=RobotDynamics(model=kinematic_model))
+    # the nominal arm's grouping (names, which columns) with the calibrated geometry's regressor and
+    # regrouping coefficients: a base set computed afresh on the calibrated geometry would split groups
+    # whose columns differ only by the mm-level geometric errors (Ia2 from Iyy2R: cond 2e4)
+    base = None if kinematic_model is None else regrouped_on(nominal_base_parameters(),
+                                                             RobotDynamics(model=kinematic_model))
     return identify_periodic(data.q, data.tau, data.sample_time, samples_per_period, base=base,
                              skip_periods=settings.skip_periods, cutoff_hz=settings.cutoff_hz,
                              method=settings.method, consistent=settings.consistent,

@@ -35,7 +35,6 @@ from typing import Sequence
 import numpy as np
 import pinocchio as pin
 from numpy.typing import ArrayLike
-from scipy.interpolate import CubicHermiteSpline, CubicSpline
 from scipy.spatial.transform import Rotation
 
 from robot.inverse_kinematics import AnalyticIK, UnreachablePoseError
@@ -253,6 +252,8 @@ class SplinePath(CartesianPath):
         knots = np.concatenate([[0.0], np.cumsum(chords)])
         self.waypoints = pts
         self.knots = knots / knots[-1]
+        from scipy.interpolate import CubicSpline  # imported where used: the line and circle paths need none
+
         self._spline = CubicSpline(self.knots, pts, bc_type=bc_type)
         fine = np.linspace(0.0, 1.0, 2001)
         speed = np.linalg.norm(self._spline(fine, 1), axis=1)
@@ -414,6 +415,8 @@ class JointPath:
             raise PathError("JointPath.from_samples sigma: expected increasing values from 0 to 1")
         if qq.shape != (s.size, N_JOINTS) or not np.all(np.isfinite(qq)):
             raise PathError(f"JointPath.from_samples q: expected shape ({s.size}, 6) finite, got {qq.shape}")
+        from scipy.interpolate import CubicSpline
+
         spline = CubicSpline(s, qq, bc_type="not-a-knot" if s.size > 3 else "natural")
         return cls(s, qq, spline(s, 1), spline(s, 2), spline(s, 3))
 
@@ -529,6 +532,8 @@ def joint_path(path: CartesianPath, q_start: ArrayLike, n_grid: int = DEFAULT_GR
     sigma = np.linspace(0.0, 1.0, int(n_grid))
     pts = path.evaluate(sigma)
     targets = pts.transforms
+    from scipy.interpolate import CubicHermiteSpline  # imported where used (not by the Cartesian paths)
+
     guess = CubicHermiteSpline(coarse, qc, dqc)(sigma)
     q = guess.copy()
     for _ in range(10):

@@ -10,7 +10,7 @@ Every problem is a ``ScenarioError`` (a ValueError) at the key that holds it.
 from __future__ import annotations
 
 import math
-
+import re
 from collections.abc import Iterable, Mapping
 from typing import Any
 
@@ -103,7 +103,10 @@ def check_cell(doc: dict[str, Any], where: Where, job_set_drive_parameters: Mapp
     try:
         fb = FieldbusConfig.from_dict(doc["fieldbus"], source=str(where.file) if where.file else "<scenario>")
     except FieldbusConfigError as exc:
-        raise (where / "fieldbus" / exc.key).error(exc.expected, exc.given) from None
+        at = where / "fieldbus"
+        for part in re.findall(r"\[\d+\]|[^.\[\]]+", str(exc.key)):  # "faults.bursts[0].node" -> its keys
+            at = at[int(part[1:-1])] if part.startswith("[") else at / part
+        raise at.error(exc.expected, exc.given) from None
     check_cell_fieldbus(fb, doc["fieldbus"], where / "fieldbus", len(wiring.DRIVES), run_length_s)
     ctrl, base = doc["controller"], doc["simulation"]["macro_step"]
     if abs(fb.cycle_time_s - ctrl["period"]) > 1e-12:

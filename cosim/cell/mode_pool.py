@@ -406,6 +406,10 @@ class _Pool:
                 if message[0] == "stopped":
                     stopped_at[mode] = message[2]
                     self.progress[mode] = message[3] or self.progress.get(mode, 0.0)
+                elif message[0] == "error":  # the stop met an error while the worker closed its files
+                    stopped_at[mode] = message[3]
+                    self.progress[mode] = message[4] or self.progress.get(mode, 0.0)
+                    self.ctx.summary.data.setdefault("stop_errors", {})[mode] = message[2]
                 elif message[0] == "done":
                     self.progress[mode] = message[5]
                 break

@@ -27,7 +27,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="one repetition of tiny problems (checks that every figure is produced; not for numbers)")
     parser.add_argument("--section", action="append", default=None, metavar="NAME",
                         help="run only this section (repeatable); names: closed_loop, closed_loop_elastic, "
-                             "closed_loop_split, paced, bus, fmu, planners, calibration, identification")
+                             "closed_loop_split, paced, bus, fmu, planners, calibration, identification, hil, "
+                             "memory, main_job")
 
 
 def load_suite():

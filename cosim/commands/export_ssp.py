@@ -29,12 +29,17 @@ def run(args: argparse.Namespace) -> int:
     if args.out.suffix != ".ssp":
         print(f"error: OUT: expected a file name ending in .ssp, got {str(args.out)!r}", file=sys.stderr)
         return EXIT_INVALID
+    from cosim.commands.exits import InvalidInput
+
     try:
         out = export_ssp(args.scenario, args.out)
         system = load_ssp(out)
     except (ScenarioError, SspError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return EXIT_INVALID
+    except OSError as exc:  # the archive cannot be written there (named by the user's path, not a temporary one)
+        raise InvalidInput(f"OUT {str(args.out)!r}: cannot write the archive ({exc.strerror or type(exc).__name__}); expected a "
+                           f"writable file path") from None
     print(f"{out}: system {system.name!r}: {len(system.fmus)} FMUs, {len(system.connections)} connections between "
           f"them, {len(system.system_inputs)} system inputs driven by the Python side, "
           f"{sum(len(f['parameters']) for f in system.fmus)} parameter values; valid against the SSP 1.0 schema")

@@ -49,6 +49,7 @@ def run(args: argparse.Namespace) -> int:
     except ServeSettingsError as exc:
         raise InvalidInput(str(exc)) from None
     _check_address_free(settings.channel)
+    _check_cpu_and_hosts(args.cpu, settings.accept_from)
     try:
         scenario = load_scenario(args.scenario)
     except ScenarioError as exc:
@@ -97,3 +98,25 @@ def _warn_cycle_time_mismatch(hil: dict) -> None:
                   f"{'?' if estimate is None else f'{estimate * 1e3:.4g}'} ms, the cell's "
                   f"{found['cell_cycle_time_s'] * 1e3:.4g} ms (hil_endpoint.json cycle_time_s); its frames were "
                   f"lost cycles for the threshold counters (summary.json hil.{label})", file=sys.stderr)
+
+
+def _check_cpu_and_hosts(cpu: str | None, accept_from) -> None:
+    """--cpu names a CPU this process may use, --accept-from hosts that resolve (exit 2 before anything
+    runs; at run time the first would be ignored and the second would fail the run)."""
+    import os
+    import socket
+
+    from cosim.commands.exits import InvalidInput
+
+    if cpu not in (None, "auto", "none") and hasattr(os, "sched_getaffinity"):
+        usable = sorted(os.sched_getaffinity(0))
+        if not (cpu.strip().isdigit() and int(cpu) in usable):
+            raise InvalidInput(f"--cpu: expected 'auto', 'none' or a CPU this process may use {usable}, got {cpu!r}")
+    for item in accept_from or ():
+        host, sep, port = str(item).rpartition(":")
+        host = host if sep and port.isdigit() else str(item)
+        try:
+            socket.gethostbyname(host)
+        except OSError as exc:
+            raise InvalidInput(f"--accept-from: cannot resolve {host!r} ({exc}); expected hosts or host:port of "
+                               f"this network") from None

@@ -21,7 +21,9 @@ exactly once: the parent forwards SIGINT, SIGTERM, SIGHUP, SIGQUIT, SIGUSR1, SIG
 SIGWINCH to the child (Ctrl-C in a terminal goes to the parent's process group only; ``kill
 PID`` and ``kill -- -PGID`` reach the parent), and Ctrl-Z (SIGTSTP) stops the child's group and
 then the parent, SIGCONT continues both. If the parent itself is killed, the child gets SIGHUP
-(``PR_SET_PDEATHSIG``) and ends ``interrupted``. The child's own children (CAN-log writer,
+(``PR_SET_PDEATHSIG``) and ends ``interrupted``. The third SIGINT/SIGTERM/SIGHUP is not forwarded: the
+parent kills the child's process group (a child stuck in native code, e.g. an FMU hanging in
+``fmi2DoStep`` in process, runs no Python signal handler) and writes ``interrupted`` (exit 130). The child's own children (CAN-log writer,
 drive process, out-of-process FMUs, Dask workers) are in the child's group: after the child died
 without a status they get ``GRACE_S`` to finish (they see their pipes close) and are then killed.
 
@@ -44,6 +46,10 @@ ENV_SUPERVISE = "COSIM_SUPERVISE"
 GRACE_S = 5.0
 """Wall time the dead child's own children get to finish before they are killed, s."""
 FORWARDED = ("SIGINT", "SIGTERM", "SIGHUP", "SIGQUIT", "SIGUSR1", "SIGUSR2", "SIGWINCH")
+INTERRUPTS = ("SIGINT", "SIGTERM", "SIGHUP")
+INSIST = 3
+"""The third interrupt (SIGINT/SIGTERM/SIGHUP) kills the run's process group instead of being forwarded."""
+EXIT_INTERRUPTED = 130
 EXIT_FAILED = 3
 _PR_SET_PDEATHSIG = 1
 
@@ -72,7 +78,9 @@ def supervise(run: Callable[[], int]) -> int:
     pid = os.fork()
     if pid == 0:
         _become_child(parent)
-        return run()
+        code = run()
+        lastwords.farewell(code)
+        return code
     return _parent(pid, table, oom_before)
 
 
@@ -102,11 +110,20 @@ class _Forwarder:
     def __init__(self, pid: int) -> None:
         self.pid = pid
         self.received: list[str] = []
+        self.forced: str | None = None
 
     def forward(self, signum: int, frame) -> None:
-        self.received.append(signal.Signals(signum).name)
+        name = signal.Signals(signum).name
+        self.received.append(name)
+        interrupts = [n for n in self.received if n in INTERRUPTS]
         try:
-            os.kill(self.pid, signum)
+            if name in INTERRUPTS and len(interrupts) >= INSIST:
+                # the user insists: the run may be stuck in native code (an FMU hanging in process), where no
+                # Python handler runs; end its whole group now, the final status is written below
+                self.forced = name
+                os.killpg(self.pid, signal.SIGKILL)
+            else:
+                os.kill(self.pid, signum)
         except ProcessLookupError:
             pass
 
@@ -155,6 +172,22 @@ def _parent(pid: int, table, oom_before: int | None) -> int:
     left_running = [e for e in entries if _still_running(Path(e["path"]))]
     if left_running or signum is not None:
         _wait_for_group(pid)
+    returned = table.farewell()
+    if left_running and signum is None and returned == code:  # the command returned: an oversight, not a death
+        how = {"ended": f"ended (exit code {code})", "fields": {"exit_code": code}, "status": "failed",
+               "cause": "the command returned without finishing this file"}
+        _write_last_words(left_running, how)
+        return code
+    if forwarder.forced and signum == signal.SIGKILL:  # killed on the user's insistence: an interrupt
+        how = {"ended": f"did not end after {INSIST} interrupts and was killed", "status": "interrupted",
+               "fields": {"signal": forwarder.forced},
+               "cause": "stuck in native code, e.g. an FMU hanging in fmi2DoStep in process: run it out of process "
+                        "with a step_timeout, docs/robustness.md"}
+        written = [str(path) for path in _write_last_words(left_running, how)]
+        print(f"interrupted by {forwarder.forced}: the run's process {how['ended']}"
+              f"{_where(left_running[0]['data']) if left_running else ''}"
+              f"{'; ' + ', '.join(written) + ': interrupted' if written else ''}", file=sys.stderr, flush=True)
+        return EXIT_INTERRUPTED
     if left_running:
         how = _how_it_ended(signum, code, oom_before, forwarder.received)
         written = [str(path) for path in _write_last_words(left_running, how)]

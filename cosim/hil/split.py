@@ -40,6 +40,15 @@ SILENCE_TIMEOUT_S = 5.0
 POINTS = (50.0, 99.0)
 
 
+def _compute_causes(wall_ns: list, cpu_ns: list, period_s: float) -> dict[str, int]:
+    """Controller steps longer than a cycle: 'stalled' (less than half of it CPU time of this
+    thread: the process was not running) or 'own_work'."""
+    wall, cpu = np.asarray(wall_ns, dtype=float), np.asarray(cpu_ns, dtype=float)
+    long = wall > period_s * 1e9
+    stalled = long & (cpu < 0.5 * wall)
+    return {"stalled": int(stalled.sum()), "own_work": int((long & ~stalled).sum())}
+
+
 def split_cpus(cpu: Any) -> tuple[str | None, str | None]:
     """(cell CPU, controller CPU) for a paced split run: with the realtime setting ``cpu = "auto"``
     and two or more usable CPUs, the cell on the highest-numbered one and the controller on
@@ -171,7 +180,7 @@ def run_hil_split(cell: CellDescription, controller: Any, ctx: Any, *, options: 
     stop_cycle = int(round(stop_time / period))
     failure: SimulationError | None = None
     child: dict[str, Any] | None = None
-    wait_ns, compute_ns, wakeup_ns, skipped = [], [], [], 0
+    wait_ns, compute_ns, compute_cpu_ns, wakeup_ns, skipped = [], [], [], [], 0
     granted = "normal"
     wall0, cpu0 = time.perf_counter(), time.process_time()
     endpoint = None
@@ -200,6 +209,7 @@ def run_hil_split(cell: CellDescription, controller: Any, ctx: Any, *, options: 
                 waited = time.perf_counter_ns()
                 got = endpoint.follow(SILENCE_TIMEOUT_S)
                 got_at = time.perf_counter_ns()
+                got_cpu = time.thread_time_ns()
                 if got is None:
                     if process.is_alive() and last < stop_cycle - 1:
                         failure = SimulationError("served cell", last * period,
@@ -222,6 +232,7 @@ def run_hil_split(cell: CellDescription, controller: Any, ctx: Any, *, options: 
                 endpoint.send_following(setpoints)
                 wait_ns.append(got_at - waited)
                 compute_ns.append(time.perf_counter_ns() - got_at)
+                compute_cpu_ns.append(time.thread_time_ns() - got_cpu)
                 stopped_at = port.stopped_at_s
                 if stopped_at is not None and cycle * period - stopped_at >= cell.stop_grace_s - 1e-12:
                     failure = SimulationError("controller", stopped_at, f"motion stopped: {port.stop_reason}")
@@ -260,6 +271,9 @@ def run_hil_split(cell: CellDescription, controller: Any, ctx: Any, *, options: 
         "controller_side": {"cycles": last + 1, "cycles_skipped": skipped,
                             "wait_for_pres": percentiles_us(np.asarray(wait_ns, dtype=float) * 1e-3, POINTS),
                             "compute": percentiles_us(np.asarray(compute_ns, dtype=float) * 1e-3, POINTS),
+                            "compute_cpu": percentiles_us(np.asarray(compute_cpu_ns, dtype=float) * 1e-3, POINTS),
+                            # computations longer than a cycle: mostly CPU (own work) or not (stalled)
+                            "compute_over_one_cycle": _compute_causes(compute_ns, compute_cpu_ns, period),
                             "pres_one_way_latency": percentiles_us(controller_latency, POINTS),
                             # from the PRes datagram's kernel arrival to this process having read it: long
                             # when the process was not running (a stall of the OS or the hypervisor)

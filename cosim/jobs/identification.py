@@ -108,6 +108,10 @@ CONTROLLER_TABLE = Table({
     "settle_time": Field(Number(unit="s", min=0), default=0.2),
     "compare_models": Field(List(String(choices=MODEL_LABELS), min_len=1, unique=True), default=list(MODEL_LABELS),
                             doc="feed-forward models run on the ISO 9283 path"),
+    "iso_mode": Field(String(choices=("model_based", "model_based_elastic")), default="model_based",
+                      doc="controller mode of the ISO 9283 runs: the rigid eq. 7 feed-forward, or (elastic plant) "
+                          "the flatness-based feed-forward for elastic gears with each model's gear stiffness "
+                          "(nominal: the catalogue's, identified: the campaign's, true: the plant's)"),
 }, doc="the [controller] table")
 
 STIFFNESS_TABLE = Table({
@@ -169,6 +173,14 @@ def check(doc: dict[str, Any], where: Where) -> None:
     if any(lo >= hi for lo, hi in zip(exc_t["tcp_box_min"], exc_t["tcp_box_max"])):
         raise (where / "excitation" / "tcp_box_max").error(f"above tcp_box_min = {exc_t['tcp_box_min']}",
                                                            exc_t["tcp_box_max"])
+    if ctrl["iso_mode"] == "model_based_elastic" and not elastic_plant(doc):
+        raise (where / "controller" / "iso_mode").error("'model_based' on a rigid plant (elastic_joints = 0)",
+                                                        ctrl["iso_mode"])
+    record = doc.get("record") or {}
+    if elastic_plant(doc) and abs(record.get("period", -1.0) - doc["tracker"]["period"]) > 1e-12:
+        raise (where / "record" / "period").error(
+            f"[tracker] period = {doc['tracker']['period']:g} s on the elastic plant (the gear-stiffness fit needs "
+            "every tracker reading)", record.get("period"))
     if elastic_plant(doc) and doc["measurement"]["kinematics"] != "calibrated":
         raise (where / "measurement" / "kinematics").error(
             "'calibrated' on the elastic plant (the gear-stiffness fit needs the arm's true geometry)",
@@ -253,6 +265,7 @@ def _noise_sigma(doc: dict[str, Any]) -> np.ndarray:
 # ---------------------------------------------------------------------------------------- running
 def run(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
     """Design, excite on the cell, identify (identification.campaign), validate, compare."""
+    from controller.elastic import make_controller
     from fieldbus import FieldbusConfig
     from identification.campaign import CampaignSettings, Truth, run_campaign
     from identification.data import motion_record, write_motion_csv
@@ -314,7 +327,10 @@ def run(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
         elif name == "measured":
             ctx.summary.update(phase="identifying", excitation_run=fields["data"].info)
 
-    truth_p = RobotDynamics(true_robot.dynamic_parameters, true_robot.payload).parameter_vector(include_payload=True)
+    # the plant's own model: the true parameters on the true geometry, the payload folded into link 6
+    # through the true flange (docs/fmus.md); compared in the regressor's base parameters
+    truth_p = RobotDynamics(true_robot.dynamic_parameters, true_robot.payload,
+                            model=true_robot.kinematic_model()).parameter_vector(include_payload=True)
     truth_k, truth_b = _true_gears(doc, true_robot, params) if elastic else (None, None)
     stiffness_model = {"rotor_inertia": params.rotor_inertia,
                        "motor_friction_share": params.motor_friction_share,
@@ -346,17 +362,22 @@ def run(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
     # 4-5. ISO 9283 with the three models ----------------------------------------------------
     path = iso9283_test_path(speed=doc["path"]["speed"], acceleration=doc["path"]["acceleration"])
     tcp_ref = TcpTrajectory.from_reference(path.reference, path.duration, period)
-    # "true": the true robot's dynamic parameters and payload on the nominal geometry - exactly the
-    # plant FMU's model (the plant takes p and the payload; its kinematic structure is the URDF's)
+    # the controller's models all live on its own (nominal) geometry, which it also uses for the IK;
+    # "true": the true robot's dynamic parameters and payload (the plant adds the true geometry)
     models = {"nominal": nominal, "identified": RobotDynamics(ident.full_parameters, np.zeros(4), model=kin),
               "true": RobotDynamics(true_robot.dynamic_parameters, true_robot.payload, model=kin)}
+    # the torque predictions of the validation on the regressor's geometry (calibrated or nominal)
+    predictors = dict(models, true=RobotDynamics(true_robot.dynamic_parameters, true_robot.payload,
+                                                 model=calibrated if calibrated is not None else kin))
+    gears = _gear_models(campaign, truth_k, truth_b) if ctrl["iso_mode"] == "model_based_elastic" else {}
     runs: dict[str, Any] = {}
     validation_fields: dict[str, Any] = {}
     iso_stop = doc["simulation"]["stop_time"]
     for label in ctrl["compare_models"]:
         iso_capacity = int(iso_stop / period) + 16
-        ctl = Controller(tcp_ref, _config(doc, "model_based", lead), kinematic_model=kin, dynamics=models[label],
-                         q_hint=np.array(ISO_Q_HINT), drive_model=drive_model, capacity=iso_capacity)
+        ctl = make_controller(tcp_ref, _config(doc, ctrl["iso_mode"], lead), kinematic_model=kin,
+                              dynamics=models[label], q_hint=np.array(ISO_Q_HINT), drive_model=drive_model,
+                              capacity=iso_capacity, **({"gear": gears[label]} if gears else {}))
         rec = FieldbusRecorder(ctl, iso_capacity, sigma, meas["noise_seed"] + 1)
         iso_cell = run_on_cell(rec, f"iso9283_{label}", iso_stop, label)
         entry, _ = evaluate_run(ctx, label, iso_cell, ctl, tcp_ref, path, true_robot)
@@ -368,7 +389,7 @@ def run(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
         if iso_cell.failure is not None:
             raise iso_cell.failure
         if label == "nominal" or "nominal" not in ctrl["compare_models"] and not validation_fields:
-            validation_fields = _validate(ctx, doc, rec, ctl, path, ident, models, true_robot, validate,
+            validation_fields = _validate(ctx, doc, rec, ctl, path, ident, predictors, true_robot, validate,
                                           motion_record, write_motion_csv, label)
             ctx.summary.update(validation=validation_fields)
 
@@ -382,10 +403,12 @@ def run(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
         fields["tcp_error_max_ratio_identified_over_true"] = _ratio(runs["identified"]["tcp_error_max_mm"],
                                                                     runs["true"]["tcp_error_max_mm"])
     if doc["results"]["figures"]:
-        from cosim.jobs.identification_figures import figure_excitation_path, figure_torques
+        from cosim.jobs.identification_figures import (figure_excitation_path, figure_parameter_errors,
+                                                       figure_torques)
 
         figures = [figure_excitation_path(ctx.path("figure5a_excitation_path.png"), excitation),
-                   figure_torques(ctx.path("figure5b_torques.png"), ctx.path("validation_torques.csv"))]
+                   figure_torques(ctx.path("figure5b_torques.png"), ctx.path("validation_torques.csv")),
+                   figure_parameter_errors(ctx.path("figure_parameter_errors.png"), ident_summary)]
         fields["figures"] = [p.name for p in figures]
     return fields
 
@@ -395,6 +418,23 @@ STIFFNESS_ASSUMPTIONS = (
     "parameters minus the rotor inertias (Ia1, Ia2 regrouped with link inertias: their catalogue values, "
     "robot/rx130l_params.toml) and the motor share of the friction ([elastic] motor_friction_share); "
     "quasi-static deflection below the cut-off {cutoff:g} Hz; linear gears")
+
+
+def _gear_models(campaign, true_k, true_b) -> dict[str, Any]:
+    """The elastic feed-forward's gear model per compared model: the catalogue's (nominal), the
+    campaign's identified stiffness (catalogue value where an axis was not identifiable; catalogue
+    damping: the identified damping is not reliable, docs/identification.md) and the plant's (true)."""
+    from controller.feedforward import GearModel
+
+    nominal = GearModel.from_parameters()
+    est = campaign.stiffness
+    identified = nominal
+    if est is not None:
+        k = np.where(est.identifiable, est.stiffness, nominal.stiffness)
+        identified = dataclasses.replace(nominal, stiffness=k)
+    true = dataclasses.replace(nominal, stiffness=np.asarray(true_k, dtype=float),
+                               damping=np.asarray(true_b, dtype=float))
+    return {"nominal": nominal, "identified": identified, "true": true}
 
 
 def _true_gears(doc: dict[str, Any], true_robot, params) -> tuple[np.ndarray, np.ndarray]:

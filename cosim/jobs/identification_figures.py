@@ -80,3 +80,50 @@ def figure_torques(path: Path, csv_path: Path) -> Path:
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
+
+
+def figure_parameter_errors(path: Path, identification: dict[str, Any]) -> Path:
+    """Every identified parameter against the true robot: the rotor inertias and (elastic plant)
+    the gear stiffness and damping per axis in % with the +-10 % band of issue 16, and every
+    base parameter's error in standard deviations with the +-3 sigma band."""
+    plt = _pyplot()
+    gears = identification.get("gear_stiffness")
+    fig, (top, bottom) = plt.subplots(2, 1, figsize=(13, 8.5), gridspec_kw={"height_ratios": [1, 1.2]})
+    axes = np.arange(1, 7)
+    rotors = identification["rotor_inertias"]
+    width = 0.27 if gears else 0.5
+    top.bar(axes - (width if gears else 0), [rotors[f"Ia{j}"]["error_percent"] for j in axes], width,
+            label="rotor inertia (Ia1 in Izz1R, Ia2 in Iyy2R)", color="C0")
+    if gears:
+        k_err = [np.nan if e is None else e for e in gears["stiffness_error_percent"]]
+        top.bar(axes, k_err, width, label="gear stiffness", color="C1")
+        for x, e in zip(axes, k_err):
+            top.annotate("k: not identifiable" if not np.isfinite(e) else f"k {e:+.2f} %", (x, 0), xytext=(0, -14),
+                         textcoords="offset points", ha="center", fontsize=7, color="C1")
+        prior = gears.get("nominal_stiffness_error_percent")
+        if prior is not None:
+            top.plot(axes, prior, "o", mfc="none", color="C1", label="catalogue stiffness (the prior)")
+        b_err = [np.nan if e is None else e for e in (gears.get("damping_error_percent") or [None] * 6)]
+        top.bar(axes + width, np.clip(b_err, -60, 60), width, label="gear damping (clipped at +-60 %)", color="C2",
+                alpha=0.6)
+    top.axhspan(-10, 10, color="0.9", zorder=0, label="+-10 % (issue 16)")
+    top.axhline(0, color="0.3", lw=0.6)
+    top.set_xticks(axes, [f"axis {j}" for j in axes])
+    top.set_ylabel("identified / true - 1 in %")
+    top.legend(fontsize=8, ncol=3)
+    top.set_title("rotor inertias" + (", gear stiffness and damping" if gears else "") + " against the true robot",
+                  fontsize=10)
+    rows = identification["parameter_errors"]
+    sigma = [r["error_in_std"] if r["error_in_std"] is not None else np.nan for r in rows]
+    k = np.arange(len(rows))
+    bottom.bar(k, sigma, color=["C3" if abs(s) > 3 else "C0" for s in sigma])
+    bottom.axhspan(-3, 3, color="0.9", zorder=0)
+    bottom.set_xticks(k, [r["name"] for r in rows], rotation=90, fontsize=7)
+    bottom.set_ylabel("(identified - true) / std")
+    within = sum(abs(s) <= 3 for s in sigma)
+    bottom.set_title(f"{len(rows)} base parameters: {within} within 3 std of the true value; median relative "
+                     f"error {100 * identification.get('median_relative_error_vs_true', np.nan):.2f} %", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path

@@ -158,16 +158,18 @@ def check_budget(estimate: Estimate, out_dir: Path, max_output: str | float | No
     """BudgetError when ``estimate`` exceeds the budget (options, else the environment, else
     :func:`default_limits`)."""
     free, ram = default_limits(out_dir)
+    out_what = "--max-output" if max_output is not None else "$COSIM_MAX_OUTPUT"
+    mem_what = "--max-memory" if max_memory is not None else "$COSIM_MAX_MEMORY"
     max_output = max_output if max_output is not None else os.environ.get("COSIM_MAX_OUTPUT")
     max_memory = max_memory if max_memory is not None else os.environ.get("COSIM_MAX_MEMORY")
-    out_limit = parse_size(max_output, "--max-output") if max_output not in (None, "") else free
-    mem_limit = parse_size(max_memory, "--max-memory") if max_memory not in (None, "") else ram
+    out_limit = parse_size(max_output, out_what) if max_output not in (None, "") else free
+    mem_limit = parse_size(max_memory, mem_what) if max_memory not in (None, "") else ram
     problems = []
     if estimate.output_bytes > out_limit:
-        source = "--max-output" if max_output not in (None, "") else f"free space in {out_dir}"
+        source = out_what if max_output not in (None, "") else f"free space in {out_dir}"
         problems.append(f"output {human(estimate.output_bytes)} > {human(out_limit)} ({source})")
     if estimate.memory_bytes > mem_limit:
-        source = "--max-memory" if max_memory not in (None, "") else "half the physical memory"
+        source = mem_what if max_memory not in (None, "") else "half the physical memory"
         problems.append(f"memory {human(estimate.memory_bytes)} > {human(mem_limit)} ({source})")
     if problems:
         raise BudgetError(f"the run would need {estimate.describe()}: {'; '.join(problems)}. Shorten "

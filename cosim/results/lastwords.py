@@ -34,6 +34,7 @@ HALF_BYTES = 1 << 17
 _HEADER = struct.Struct("<BBxxII4x")  # used, current half, length of half 0, length of half 1
 _CLOCK = struct.Struct("<dd")  # after the header: sim_time_s, stopped_at_s of the latest progress
 _HEAD_BYTES = _HEADER.size + _CLOCK.size
+_FAREWELL = struct.Struct("<Bxxxi")  # the command returned (1), its exit code
 _SLOT_BYTES = _HEAD_BYTES + 2 * HALF_BYTES
 
 _table: "Table | None" = None
@@ -47,7 +48,8 @@ class Table:
 
     def __init__(self, slots: int = SLOTS) -> None:
         self.slots = int(slots)
-        self.memory = mmap.mmap(-1, self.slots * _SLOT_BYTES)  # MAP_SHARED | MAP_ANONYMOUS, zero-filled
+        # MAP_SHARED | MAP_ANONYMOUS, zero-filled; after the slots, the command's farewell (flag, exit code)
+        self.memory = mmap.mmap(-1, self.slots * _SLOT_BYTES + _FAREWELL.size)
 
     def _header(self, slot: int) -> tuple[int, int, int, int]:
         return _HEADER.unpack_from(self.memory, slot * _SLOT_BYTES)
@@ -65,6 +67,14 @@ class Table:
     def clock(self, slot: int, sim_time_s: float, stopped_at_s: float) -> None:
         """The latest progress of ``slot`` (two doubles: cheap enough for every heartbeat)."""
         _CLOCK.pack_into(self.memory, slot * _SLOT_BYTES + _HEADER.size, sim_time_s, stopped_at_s)
+
+    def say_farewell(self, code: int) -> None:
+        _FAREWELL.pack_into(self.memory, self.slots * _SLOT_BYTES, 1, int(code))
+
+    def farewell(self) -> int | None:
+        """The exit code the command returned, if it returned (None: it never got there)."""
+        said, code = _FAREWELL.unpack_from(self.memory, self.slots * _SLOT_BYTES)
+        return code if said else None
 
     def clear(self, slot: int) -> None:
         self.memory[slot * _SLOT_BYTES] = 0
@@ -169,6 +179,12 @@ def note_time(path: str | Path, sim_time_s: float, stopped_at_s: float) -> None:
         _table.clock(slot, sim_time_s, stopped_at_s)
 
 
+def farewell(code: int) -> None:
+    """The command returned ``code`` normally (what is left ``running`` now is an oversight, not a death)."""
+    if active():
+        _table.say_farewell(code)
+
+
 def retract(path: str | Path) -> None:
     """``path`` holds its final status: nothing to write for it any more."""
     if not active():
@@ -178,4 +194,4 @@ def retract(path: str | Path) -> None:
         _table.clear(slot)
 
 
-__all__ = ["HALF_BYTES", "SLOTS", "Table", "active", "adopt", "create", "note_time", "publish", "retract"]
+__all__ = ["HALF_BYTES", "SLOTS", "Table", "active", "adopt", "create", "farewell", "note_time", "publish", "retract"]

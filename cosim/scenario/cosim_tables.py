@@ -139,6 +139,52 @@ COSIM_FIELDS: dict[str, Field] = {
 }
 
 
+def _isolate_if_only_once(fmu: dict, md, where: Where, sim: dict, in_process_once: dict[str, str]) -> None:
+    """An FMU whose modelDescription says ``canBeInstantiatedOnlyOncePerProcess="true"`` keeps global state:
+    a second instance in the master's process would share it (silently wrong results). Every further
+    in-process instance of it runs out of process automatically (its own process, docs/robustness.md);
+    ``out_of_process = false`` on one, or an FMI 3.0 FMU (in process only), is refused."""
+    if not getattr(md.coSimulation, "canBeInstantiatedOnlyOncePerProcess", False):
+        return
+    key = str(Path(fmu["path"]).resolve())
+    if out_of_process(fmu, sim):
+        return
+    first = in_process_once.get(key)
+    if first is None:
+        in_process_once[key] = fmu["name"]
+        return
+    problem = (f"{Path(fmu['path']).name} declares canBeInstantiatedOnlyOncePerProcess and instance {first!r} of it "
+               f"runs in the master's process already")
+    if fmu.get("out_of_process") is False:
+        raise (where / "out_of_process").error("true or unset (this instance then runs in its own process)", False,
+                                               problem=problem)
+    if str(md.fmiVersion) != "2.0":
+        raise (where / "name").error("one instance of this FMI 3.0 FMU (it runs in process only)", fmu["name"],
+                                     problem=problem)
+    fmu["_only_once_per_process"] = True
+
+
+def _check_platform(fmu: dict, md, where: Where) -> None:
+    """An FMU given by path must carry a binary for this platform (fmpy would fail only when the run
+    instantiates it, as an internal error)."""
+    if "path" not in fmu:
+        return
+    from fmpy import platform, platform_tuple, supported_platforms
+
+    try:
+        platforms = supported_platforms(str(fmu["path"]))
+    except Exception:  # noqa: BLE001 - an unreadable archive was reported by load_model_description already
+        return
+    if platform in platforms or platform_tuple in platforms:
+        return
+    has = [p for p in platforms if p != "c-code"]
+    raise (where / "path").error(
+        f"an FMU with a binary for this platform (binaries/{platform if str(md.fmiVersion) == '2.0' else platform_tuple}/)",
+        str(fmu["path"]), problem=f"it has binaries for {', '.join(has) if has else 'no platform'}"
+        + (" and C sources (give it as [[fmus]] source = <folder with the sources> to build it here)"
+           if "c-code" in platforms else ""))
+
+
 def check_cosim_tables(doc: dict, where: Where, master_variables: Mapping[str, str] | None = None) -> None:
     """Check the co-simulation tables of a validated document against the FMUs themselves.
 
@@ -169,6 +215,7 @@ def check_cosim_tables(doc: dict, where: Where, master_variables: Mapping[str, s
         raise (where / "simulation" / "stop_time").error(
             f"a positive integer multiple of macro_step = {base!r} s", sim["stop_time"])
     descriptions = {}
+    in_process_once: dict[str, str] = {}  # FMUs that may be instantiated once per process -> their in-process instance
     for i, fmu in enumerate(doc["fmus"]):
         w = where / "fmus"
         if fmu["name"] in descriptions or fmu["name"] in {v.split(".", 1)[0] for v in master_variables}:
@@ -185,7 +232,9 @@ def check_cosim_tables(doc: dict, where: Where, master_variables: Mapping[str, s
         except MasterConfigError as exc:
             raise (w[i] / next(k for k in ("builtin", "source", "path") if k in fmu)).error(
                 SUPPORTED_FMUS, str(fmu["path"]), problem=getattr(exc, "problem", str(exc))) from None
+        _check_platform(fmu, md, w[i])
         descriptions[fmu["name"]] = variables_of(md)
+        _isolate_if_only_once(fmu, md, w[i], sim, in_process_once)
         isolated = out_of_process(fmu, sim)
         if "step_timeout" in fmu and not isolated:
             raise (w[i] / "step_timeout").error("out_of_process = true (or [simulation] isolation covering this FMU): "
@@ -303,10 +352,13 @@ def _short(names: list[str], limit: int = 12) -> str:
 
 
 def out_of_process(fmu: dict, sim: dict) -> bool:
-    """Whether the [[fmus]] table ``fmu`` runs in a child process: its own ``out_of_process``, else
+    """Whether the [[fmus]] table ``fmu`` runs in a child process: its own ``out_of_process``, else a
+    further instance of an FMU that can be instantiated only once per process (set by validation), else
     ``[simulation] isolation`` ('all'; 'third_party': FMUs given by ``path`` or ``source``, not ``builtin``)."""
     if fmu.get("out_of_process") is not None:
         return bool(fmu["out_of_process"])
+    if fmu.get("_only_once_per_process"):  # a second instance of an FMU that allows one per process
+        return True
     isolation = sim.get("isolation", "none")
     return isolation == "all" or (isolation == "third_party" and "builtin" not in fmu)
 

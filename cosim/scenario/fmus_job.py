@@ -10,7 +10,7 @@ from __future__ import annotations
 from typing import Any
 
 from cosim.scenario.context import RunContext
-from cosim.scenario.cosim_tables import COSIM_FIELDS, add_record, build_master, check_cosim_tables
+from cosim.scenario.cosim_tables import COSIM_FIELDS, add_record, build_master, check_cosim_tables, out_of_process
 from cosim.scenario.loader import SCENARIO_FIELD, Scenario
 from cosim.scenario.registry import register_job
 from cosim.scenario.schema import Table
@@ -28,6 +28,7 @@ def run_fmus_job(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
     with master:
         master.initialize(stop_time)
         ctx.summary.update(engine=master.engine.name, fmus={f["name"]: str(f["path"]) for f in doc["fmus"]},
+                           out_of_process=[f["name"] for f in doc["fmus"] if out_of_process(f, doc["simulation"])],
                            timeseries=None if recorder is None else recorder.sink.path.name)
         ctx.execute(master)
     fields: dict[str, Any] = {"rows_recorded": 0 if recorder is None else recorder.rows_written}

@@ -348,6 +348,11 @@ def run_sweep(sweep: Sweep, out_dir: str | Path | None = None, *, workers: int |
                                                "signal": getattr(exc, "signal_name", "SIGINT"),
                                                "finished": len(rows)})
             raise
+        except Exception as exc:  # the scheduler did not answer, the cluster failed: sweep.json must not stay running
+            reason = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+            _write_definition(sweep, out_dir, {"status": "failed", "reason": reason, "started_at": started_at,
+                                               "reused": reused, "finished": len(rows)})
+            raise
     ordered = [rows[t.index] for t in tasks]
     write_table(table_path, ordered, sweep.parameters)
     figure = None

@@ -42,6 +42,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
 
 from controller import quintic_hermite
 from robot.joints import N_JOINTS
@@ -142,6 +143,10 @@ def _pair_distance2(points: np.ndarray, a: np.ndarray, ab: np.ndarray, ab2: np.n
     return np.einsum("ij,ij->i", d, d)
 
 
+#: Elements per block of candidate offsets in :func:`distance_to_polyline` (128 KB a coordinate: in cache).
+_BLOCK_ELEMENTS = 1 << 14
+
+
 def distance_to_polyline(points: np.ndarray, polyline: np.ndarray, window: int = AT_WINDOW_SAMPLES) -> np.ndarray:
     """Distance (m,) of each point to the polyline (n, 3), searching the segments within
     ``window`` samples of the point's own index (points and polyline are sampled at the
@@ -150,7 +155,9 @@ def distance_to_polyline(points: np.ndarray, polyline: np.ndarray, window: int =
     Exact and pruned: the distance to the point's own segment bounds the answer, so only
     segments of the window whose midpoint lies within that bound plus half their length
     can be closer; only those are evaluated (a handful instead of 2 window + 1), each with
-    the same arithmetic, so the minimum is the same number as over the whole window."""
+    the same arithmetic, so the minimum is the same number as over the whole window. The
+    candidate test runs over blocks of offsets at once (strided views of the padded segment
+    arrays), the same arithmetic per element as one offset at a time."""
     n = polyline.shape[0]
     if n == 1:
         return np.linalg.norm(points - polyline[0], axis=1)
@@ -167,18 +174,22 @@ def distance_to_polyline(points: np.ndarray, polyline: np.ndarray, window: int =
     mid = np.pad(a + 0.5 * ab, (pad, (0, 0)), mode="edge")
     half = np.pad(0.5 * np.sqrt(ab2) * (1.0 + 1e-9), pad, mode="edge")
     px, py, pz = (np.ascontiguousarray(points[:, k]) for k in range(3))
-    mx, my, mz = (np.ascontiguousarray(mid[:, k]) for k in range(3))
+    # row lo of each (2 window + 1, m) view is offset k = lo - window: the slice [lo, lo + m)
+    count = 2 * window + 1
+    wx, wy, wz, wh = (sliding_window_view(np.ascontiguousarray(c), m)[:count]
+                      for c in (mid[:, 0], mid[:, 1], mid[:, 2], half))
     rows, segs = [], []
-    for k in range(-window, window + 1):
-        lo = k + window
-        dx = px - mx[lo:lo + m]
-        dy = py - my[lo:lo + m]
-        dz = pz - mz[lo:lo + m]
-        limit = reach + half[lo:lo + m]
-        near = np.flatnonzero(dx * dx + dy * dy + dz * dz <= limit * limit)
+    step = max(1, min(count, _BLOCK_ELEMENTS // max(m, 1)))  # offsets per block: bounded memory
+    for lo in range(0, count, step):
+        hi = min(count, lo + step)
+        dx = px - wx[lo:hi]
+        dy = py - wy[lo:hi]
+        dz = pz - wz[lo:hi]
+        limit = reach + wh[lo:hi]
+        offset, near = np.nonzero(dx * dx + dy * dy + dz * dz <= limit * limit)
         if near.size:
             rows.append(near)
-            segs.append(np.clip(near + k, 0, n - 2))
+            segs.append(np.clip(near + (offset + (lo - window)), 0, n - 2))
     if rows:
         i, j = np.concatenate(rows), np.concatenate(segs)
         np.minimum.at(best, i, _pair_distance2(points, a, ab, ab2, i, j))

@@ -64,6 +64,10 @@ CONFIGS = {
                                       "kind": "corrupt"},
                                      {"node": 1, "start_cycle": 200, "cycles": 3, "frames": "soc", "kind": "late"}]}},
     "virtual": {"bus": {"interface": "virtual"}, "seed": 2, "faults": {"loss_probability": 5e-3}},
+    "extrapolate": {"reaction": {"missing_setpoint": "extrapolate"},
+                    "faults": {"bursts": [{"node": 3, "start_cycle": 50, "cycles": 1, "frames": "preq", "kind": "loss"},
+                                          {"node": 4, "start_cycle": 90, "cycles": 5, "frames": "preq",
+                                           "kind": "loss"}]}},
 }
 
 

@@ -302,3 +302,21 @@ def test_extrapolating_policy_continues_the_ramp_over_a_lost_setpoint():
     assert not applied[11].fresh[0] and applied[12].fresh[0]
     assert counts[11] - counts[10] == counts[10] - counts[9]  # the PReq of cycle 10 never arrived
     assert counts[12] == int(sc.position_to_counts(np.full(6, 11e-3))[0])
+
+
+def test_extrapolation_lasts_one_cycle_then_holds():
+    """A run of missing set-points: the first is extrapolated, the next ones hold it (a drive does not
+    run on blind along a straight line while its controller is gone); fresh ones take over again."""
+    config = burst(1, 10, 4) | {"reaction": {"missing_setpoint": "extrapolate"}}
+    sc = scaling()
+    with PowerlinkNetwork(config, sc) as network:
+        setpoints, actuals = Setpoints.zeros(6), DriveActuals.zeros(6)
+        applied = []
+        for k in range(18):
+            setpoints.position[:] = 1e-3 * k
+            applied.append(network.run_cycle(k, setpoints, actuals).applied.copy())
+    counts = [int(sc.position_to_counts(a.position)[0]) for a in applied]
+    assert [bool(a.fresh[0]) for a in applied[10:17]] == [True, False, False, False, False, True, True]
+    assert counts[11] - counts[10] == counts[10] - counts[9]  # extrapolated
+    assert counts[12] == counts[13] == counts[14] == counts[11]  # then held
+    assert counts[15] == int(sc.position_to_counts(np.full(6, 14e-3))[0])

@@ -95,7 +95,7 @@ def main_job_integration_step() -> float:
 @pytest.mark.parametrize("profile", sorted(PROFILES))
 def test_plant_at_the_main_jobs_integration_step(plant, profile):
     """The RK4 sub-step the rigid-plant main job (scenarios/iso9283_rigid.toml) chooses (100 us)
-    keeps the 1e-8 rad bound (the elastic main job's step: tests/test_fmu_plant_elastic.py)."""
+    keeps the 1e-8 rad bound (the elastic main job's step: tests/fmus/test_plant_elastic.py)."""
     step = main_job_integration_step()
     assert step >= 50e-6
     fmu = run_fmu(plant, PROFILES[profile], start={"integration_step": step})

@@ -186,3 +186,29 @@ def test_in_process_crash_still_leaves_a_final_status(fmu_dir, tmp_path):
     header, _ = read_csv(out / "timeseries.csv")  # readable: rows up to the last flush
     assert header == ["time", "clock.y", "bad.y", "bad.echo"]
     assert not (out / "summary.json.tmp").exists()
+
+
+def test_second_instance_of_a_once_per_process_fmu_runs_out_of_process(fmu_dir, tmp_path, capsys):
+    """canBeInstantiatedOnlyOncePerProcess="true": a second instance in the master's process would share the
+    first one's global state; it runs in its own process automatically, and out_of_process = false is refused."""
+    import zipfile
+
+    with zipfile.ZipFile(fmu_dir / "Misbehave.fmu") as source, zipfile.ZipFile(tmp_path / "Misbehave.fmu", "w") as out:
+        for item in source.infolist():
+            data = source.read(item)
+            if item.filename == "modelDescription.xml":
+                data = data.replace(b'canHandleVariableCommunicationStepSize="true"',
+                                    b'canHandleVariableCommunicationStepSize="true" '
+                                    b'canBeInstantiatedOnlyOncePerProcess="true"')
+            out.writestr(item, data)
+    path = tmp_path / "s.toml"
+    path.write_text(SCENARIO.format(mode=0, bad_options="", stop=0.2, engine="auto"))
+    assert main(["run", str(path), "--out", str(tmp_path / "o"), "--quiet"]) == 0, capsys.readouterr().err
+    summary = json.loads((tmp_path / "o" / "summary.json").read_text())
+    assert summary["status"] == "ok" and summary["out_of_process"] == ["bad"]  # "clock" stays in process
+    _, data = read_csv(tmp_path / "o" / "timeseries.parquet")
+    assert np.allclose(data[:, 2], data[:, 0])  # bad.y follows the clock as in process
+    path.write_text(SCENARIO.format(mode=0, bad_options="out_of_process = false", stop=0.2, engine="auto"))
+    code = main(["run", str(path), "--out", str(tmp_path / "o2"), "--quiet"])
+    err = capsys.readouterr().err
+    assert code == 2 and "fmus[1].out_of_process" in err and "canBeInstantiatedOnlyOncePerProcess" in err

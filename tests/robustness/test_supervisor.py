@@ -210,3 +210,25 @@ def test_the_table_keeps_the_last_complete_entry():
     finally:
         lastwords._table = lastwords._owner = None
         lastwords._slots.clear()
+
+
+def test_third_interrupt_ends_a_run_stuck_in_an_in_process_fmu(tmp_path):
+    """An FMU hanging in fmi2DoStep in process: no Python handler runs, so Ctrl-C cannot stop the run
+    itself; the third interrupt makes the supervisor kill it and write interrupted (exit 130)."""
+    build_misbehave_fmu(tmp_path)
+    path = tmp_path / "s.toml"
+    path.write_text(MISBEHAVE.replace("mode = 4", "mode = 5"))  # hangs from 1.5 s on
+    out = tmp_path / "out"
+    proc = cosim("run", str(path), "--out", str(out), "--quiet")
+    wait_for(lambda: summary_of(out / "summary.json")["status"] == "running", proc, what="the run to start")
+    time.sleep(3.0)  # 1.5 s simulated take well under a second: it hangs now
+    for _ in range(3):
+        os.killpg(proc.pid, signal.SIGINT)  # Ctrl-C, three times
+        time.sleep(0.5)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err
+    assert "Traceback" not in err and "did not end after 3 interrupts" in err
+    summary = summary_of(out / "summary.json")
+    assert summary["status"] == "interrupted" and summary["signal"] == "SIGINT"
+    assert "stuck in native code" in summary["reason"] and 1.4 <= summary["stopped_at_s"] <= 1.5
+    assert gone(run_process(out))
