@@ -52,8 +52,8 @@ def series_units(columns) -> dict[str, str]:
     return units
 
 
-EVAL_CHUNK_ROWS = 16384
-"""Recorded rows evaluated at once (16 s at 1 ms): the evaluation's memory is this chunk, the
+EVAL_CHUNK_ROWS = 8192
+"""Recorded rows evaluated at once (8 s at 1 ms): the evaluation's memory is this chunk, the
 motion window's rows (bounded by the path's duration, not by the run's length) and
 :data:`RESIDUAL_FIGURE_S` of residual-vibration samples."""
 RESIDUAL_FIGURE_S = 10.0

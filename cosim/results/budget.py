@@ -36,7 +36,7 @@ CELL_DEFAULT_COLUMNS = 40
 CONTROLLER_LOG_COLUMNS = 42
 TCP_COLUMNS = 33
 CAN_BYTES_PER_CYCLE = 14 * 11
-EVAL_CHUNK_ROWS = 16384
+EVAL_CHUNK_ROWS = 8192
 """Rows the cell's evaluation reads at once (cosim.cell.evaluation.EVAL_CHUNK_ROWS)."""
 ISO_PATH_S_AT_1_M_S = 12.3
 """Duration (s) of the ISO 9283 test path at 1 m/s (planners.iso9283): its window is held whole."""

@@ -144,6 +144,11 @@ def release_memory() -> None:
             libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
             trim = libc.malloc_trim
             trim.argtypes, trim.restype = [ctypes.c_size_t], ctypes.c_int
+            # a fixed mmap threshold (M_MMAP_THRESHOLD = -3): blocks above 256 KiB always go to
+            # mmap and back to the system when freed (glibc otherwise raises the threshold after
+            # each freed large block and keeps the next ones in its heap)
+            libc.mallopt.argtypes, libc.mallopt.restype = [ctypes.c_int, ctypes.c_int], ctypes.c_int
+            libc.mallopt(-3, 256 * 1024)
         except (OSError, AttributeError):
             trim = None
         _LIBC.append(trim)
