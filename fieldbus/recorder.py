@@ -85,12 +85,28 @@ class _BlfSink:
         pending = np.concatenate([self.pending, new]) if self.pending.size else new
         pending = pending[np.argsort(pending["t"], kind="stable")]
         count = pending.size if watermark_s is None else int(np.searchsorted(pending["t"], watermark_s, "left"))
-        self.written += self.writer.write_records(pending[:count])
+        self.written += _whole(self.writer.write_records, pending[:count])
         self.pending = pending[count:].copy()
 
     def close(self) -> None:
         self.feed(b"", None)
         self.writer.close()
+
+
+def _whole(function: Any, *args: Any) -> Any:
+    """``function(*args)`` with SIGINT and SIGTERM held back until it returns (delivered right
+    after): a KeyboardInterrupt between the writes of one BLF object would leave half of it in
+    the file, and every object written after it (at close) unreadable."""
+    import signal
+
+    mask = getattr(signal, "pthread_sigmask", None)
+    if mask is None:
+        return function(*args)
+    previous = mask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
+    try:
+        return function(*args)
+    finally:
+        mask(signal.SIG_SETMASK, previous)
 
 
 def _send_whole(connection: Any, message: Any) -> None:

@@ -291,6 +291,7 @@ def evaluate_run(ctx: RunContext, mode: str, cell: CellRun, controller: Any, ref
     reference's IK with ``kinematic_model`` from ``q_start``, aligned at the controller's
     ``motion_start_s``; its compute times are ``port_timing`` (the cell's
     :meth:`controller.port.ControllerPort.timing`)."""
+    from cosim.results.timeseries import release_memory
     from cosim.tracking.metrics import VIBRATION_BAND_M
     from robot.kinematics import FlangeKinematics
 
@@ -350,6 +351,7 @@ def evaluate_run(ctx: RunContext, mode: str, cell: CellRun, controller: Any, ref
                     parts[key].append(arr[inside])
             residual.add(t, actual - commanded)
             rows += t.size
+            release_memory()
     finally:
         tcp_sink.close()
         residual_fields = residual.result()

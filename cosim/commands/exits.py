@@ -11,8 +11,13 @@ traceback only with ``--debug``):
       folder (read-only, no permission, a file, locked by another run)
 3     failed run: a simulation, a fit or an evaluation failed, or the disk
       filled up; ``summary.json`` says ``failed`` and why
-130   interrupted by SIGINT (Ctrl-C) or SIGTERM; ``summary.json`` says
+130   interrupted by SIGINT (Ctrl-C), SIGTERM or SIGHUP; ``summary.json`` says
       ``interrupted`` with the signal and where the run stopped
+128+n the run's process was killed by signal n (137 SIGKILL: a user or the
+      out-of-memory killer; 139 SIGSEGV); ``python -m cosim`` ends by the same
+      signal after its supervisor wrote ``failed`` with the signal and where
+      (cosim/commands/supervisor.py); an exit without a status (``_exit()``
+      in an in-process FMU) is 3
 ====  =========================================================================
 """
 from __future__ import annotations

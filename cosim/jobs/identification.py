@@ -176,6 +176,11 @@ def check(doc: dict[str, Any], where: Where) -> None:
     if ctrl["iso_mode"] == "model_based_elastic" and not elastic_plant(doc):
         raise (where / "controller" / "iso_mode").error("'model_based' on a rigid plant (elastic_joints = 0)",
                                                         ctrl["iso_mode"])
+    record = doc.get("record") or {}
+    if elastic_plant(doc) and abs(record.get("period", -1.0) - doc["tracker"]["period"]) > 1e-12:
+        raise (where / "record" / "period").error(
+            f"[tracker] period = {doc['tracker']['period']:g} s on the elastic plant (the gear-stiffness fit needs "
+            "every tracker reading)", record.get("period"))
     if elastic_plant(doc) and doc["measurement"]["kinematics"] != "calibrated":
         raise (where / "measurement" / "kinematics").error(
             "'calibrated' on the elastic plant (the gear-stiffness fit needs the arm's true geometry)",

@@ -22,6 +22,7 @@ time). The figures are drawn on matplotlib's object API with the Agg canvas (no 
 from __future__ import annotations
 
 import os
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -85,15 +86,64 @@ def _figure(**kwargs: Any) -> tuple[Any, Any]:
     return fig, fig.subplots(**kwargs)
 
 
-def write_figures(out_dir: Path, results: dict[str, Any], path: Any) -> list[Path]:
-    """Write the figures for the modes in ``results`` (mode -> TrackingResult); return the files."""
+def write_figures(out_dir: Path, results: dict[str, Any], path: Any, processes: int = 2) -> list[Path]:
+    """Write the figures for the modes in ``results`` (mode -> TrackingResult); return the files.
+
+    With ``processes`` > 1, more than one usable core and no other thread in this process, the
+    vibration figure is drawn by a forked process while this one draws the other three
+    (:func:`_draw_all`); the files are the same either way."""
     os.environ.setdefault("MPLBACKEND", "Agg")
-    written: list[Path] = []
     # the built-in modes in their order, then any other run (a user's controller)
     modes = [m for m in [*COLOURS, *(r for r in results if r not in COLOURS)] if m in results and results[m].t.size]
     if not modes:
-        return written
+        return []
+    jobs = [(_lag_figure, out_dir / "figure2a_lag_errors.png"), (_tcp_error_figure, out_dir / "figure2b_tcp_error.png"),
+            (_path_error_figure, out_dir / "tcp_error_vs_desired_path.png"), (_vibration_figure, out_dir / "vibration.png")]
+    return _draw_all([(draw, file, results, modes, path) for draw, file in jobs], fork=processes > 1)
 
+
+def _draw_all(jobs: list[tuple], fork: bool = True) -> list[Path]:
+    """Draw ``jobs`` (``(draw, file, results, modes, path)``); the last one (the vibration
+    figure, about as long as the other three together) in a forked process when two cores
+    are there to use. A child that fails leaves its figure to this process (drawn here after
+    all); SIGINT/SIGTERM here end the child first."""
+    import threading
+
+    from matplotlib.backends.backend_agg import FigureCanvasAgg  # noqa: F401 - imported once, before the fork
+
+    half = len(jobs) - 1
+    forked = (fork and len(jobs) > 1 and hasattr(os, "fork") and threading.active_count() == 1
+              and len(os.sched_getaffinity(0)) > 1)
+    if not forked:
+        return [draw(file, results, modes, path) for draw, file, results, modes, path in jobs]
+    import signal
+
+    for stream in (sys.stdout, sys.stderr):
+        stream.flush()
+    pid = os.fork()
+    if pid == 0:  # the child: draw the second half, exit without Python's shutdown
+        code = 1
+        try:
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
+            signal.signal(signal.SIGTERM, signal.SIG_DFL)
+            for draw, file, results, modes, path in jobs[half:]:
+                draw(file, results, modes, path)
+            code = 0
+        finally:
+            os._exit(code)
+    try:
+        written = [draw(file, results, modes, path) for draw, file, results, modes, path in jobs[:half]]
+        _, status = os.waitpid(pid, 0)
+    except BaseException:
+        os.kill(pid, signal.SIGKILL)
+        os.waitpid(pid, 0)
+        raise
+    if os.waitstatus_to_exitcode(status) == 0:
+        return written + [file for _, file, *_ in jobs[half:]]
+    return written + [draw(file, results, modes, path) for draw, file, results, modes, path in jobs[half:]]
+
+
+def _lag_figure(file: Path, results: dict[str, Any], modes: list[str], path: Any) -> Path:
     fig, axes = _figure(nrows=3, ncols=1, figsize=(9, 7.5), sharex=True)
     for j, ax in enumerate(axes):
         for mode in modes:
@@ -106,8 +156,10 @@ def write_figures(out_dir: Path, results: dict[str, Any], path: Any) -> list[Pat
     axes[-1].set_xlabel("path time [s]")
     fig.suptitle("Lag errors q_d - q of axes 1-3 on the ISO 9283 path (cf. paper Fig. 2a)")
     fig.subplots_adjust(**MARGINS_TALL, hspace=0.13)
-    written.append(_save(fig, out_dir / "figure2a_lag_errors.png"))
+    return _save(fig, file)
 
+
+def _tcp_error_figure(file: Path, results: dict[str, Any], modes: list[str], path: Any) -> Path:
     fig, ax = _figure(figsize=(9, 4.5))
     for mode in modes:
         r = results[mode]
@@ -121,8 +173,10 @@ def write_figures(out_dir: Path, results: dict[str, Any], path: Any) -> list[Pat
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize=8, loc="lower center")
     fig.subplots_adjust(**MARGINS_WIDE)
-    written.append(_save(fig, out_dir / "figure2b_tcp_error.png"))
+    return _save(fig, file)
 
+
+def _path_error_figure(file: Path, results: dict[str, Any], modes: list[str], path: Any) -> Path:
     fig, ax = _figure(figsize=(9, 4.5))
     for mode in modes:
         r = results[mode]
@@ -135,17 +189,21 @@ def write_figures(out_dir: Path, results: dict[str, Any], path: Any) -> list[Pat
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize=8, loc="lower right")
     fig.subplots_adjust(**MARGINS_WIDE)
-    written.append(_save(fig, out_dir / "tcp_error_vs_desired_path.png"))
+    return _save(fig, file)
 
+
+def _vibration_figure(file: Path, results: dict[str, Any], modes: list[str], path: Any) -> Path:
     fig, (ax_f, ax_r) = _figure(nrows=2, ncols=1, figsize=(9, 7.5))
     for mode in sorted(modes, key=lambda m: -float(results[m].tcp_error.max())):  # largest first: none hidden
         r = results[mode]
         if r.spectrum_hz.size > 1:
-            ax_f.loglog(*envelope(r.spectrum_hz[1:], r.spectrum_m[1:] * 1e3, log_x=True), color=COLOURS[mode], lw=0.8, label=LABELS[mode])
+            ax_f.loglog(*envelope(r.spectrum_hz[1:], r.spectrum_m[1:] * 1e3, log_x=True),
+                        color=COLOURS.get(mode, "tab:green"), lw=0.8, label=LABELS.get(mode, mode))
         if r.residual_t.size:
             res = r.residual
-            ax_r.semilogy(r.residual_t * 1e3, np.maximum(r.residual_error * 1e3, 1e-6), color=COLOURS[mode], lw=0.9,
-                          label=f"{LABELS[mode]}: peak {res.get('peak_mm', float('nan')):.4f} mm, settled "
+            ax_r.semilogy(r.residual_t * 1e3, np.maximum(r.residual_error * 1e3, 1e-6),
+                          color=COLOURS.get(mode, "tab:green"), lw=0.9,
+                          label=f"{LABELS.get(mode, mode)}: peak {res.get('peak_mm', float('nan')):.4f} mm, settled "
                                 f"{_ms(res.get('settling_time_s'))}, static offset "
                                 f"{res.get('static_offset_mm', float('nan')):.3f} mm")
     band = next((results[m].residual.get("band_mm") for m in modes if results[m].residual), None)
@@ -162,8 +220,7 @@ def write_figures(out_dir: Path, results: dict[str, Any], path: Any) -> list[Pat
     ax_r.grid(True, which="both", alpha=0.3)
     ax_r.legend(fontsize=8, loc="upper right")
     fig.subplots_adjust(**MARGINS_TALL, hspace=0.3)
-    written.append(_save(fig, out_dir / "vibration.png"))
-    return written
+    return _save(fig, file)
 
 
 def _ms(seconds: float | None) -> str:

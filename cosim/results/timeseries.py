@@ -128,6 +128,29 @@ def _memory_pool() -> None:
     pa.set_memory_pool(pa.system_memory_pool())
 
 
+_LIBC: list = []
+
+
+def release_memory() -> None:
+    """Give the C heap's free memory back to the system (glibc ``malloc_trim``; elsewhere a
+    no-op). Called between the chunks of long rewrites and evaluations: glibc serves large
+    blocks freed and allocated again from its heap and keeps them, so the resident memory of
+    a long run's evaluation otherwise grew with the number of chunks (+20 MB at 300 s)."""
+    if not _LIBC:
+        import ctypes
+        import ctypes.util
+
+        try:
+            libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
+            trim = libc.malloc_trim
+            trim.argtypes, trim.restype = [ctypes.c_size_t], ctypes.c_int
+        except (OSError, AttributeError):
+            trim = None
+        _LIBC.append(trim)
+    if _LIBC[0] is not None:
+        _LIBC[0](0)
+
+
 def _schema(columns: Sequence[str], integer: Sequence[bool], units: Mapping[str, str]):
     import pyarrow as pa
 
@@ -258,6 +281,7 @@ def _partial_to_parquet(partial: Path, path: Path, schema) -> None:
                 if rows >= ROW_GROUP_ROWS:
                     writer.write_table(pa.Table.from_batches(pending, schema=schema))
                     pending, rows = [], 0
+                    release_memory()
             if pending:
                 writer.write_table(pa.Table.from_batches(pending, schema=schema))
     finally:

@@ -144,7 +144,7 @@ def test_snapped_omega_and_recorder():
     assert np.allclose(t, [4e-4, 8e-4]) and np.allclose(q[:, 0], [2.0, 3.0])
 
 
-def test_elastic_campaign_scenario_loads():
+def test_elastic_campaign_scenario_loads(tmp_path):
     from cosim.jobs.identification import elastic_plant
 
     scenario = load_scenario("scenarios/identification_elastic.toml")
@@ -152,3 +152,18 @@ def test_elastic_campaign_scenario_loads():
     assert not elastic_plant(load_scenario(SCENARIO).data)
     assert len(scenario.data["stiffness"]["reflector"]) == 3
     assert scenario.data["measurement"]["cutoff"] < 14.0  # below the first gear resonance
+    text = open("scenarios/identification_elastic.toml").read()
+    bad = tmp_path / "bad.toml"
+    bad.write_text(text.replace('period = "1 ms"              # besides', 'period = "2 ms"              # besides'))
+    with pytest.raises(ScenarioError, match=r"record.period"):
+        load_scenario(bad)
+    bad.write_text(text.replace('method = "wls"', 'kinematics = "nominal"\nmethod = "wls"'))
+    with pytest.raises(ScenarioError, match=r"measurement.kinematics"):
+        load_scenario(bad)
+    bad.write_text(text.replace('iso_mode = "model_based_elastic"', 'iso_mode = "bogus"'))
+    with pytest.raises(ScenarioError, match=r"controller.iso_mode"):
+        load_scenario(bad)
+    rigid = open(SCENARIO).read()  # the elastic feed-forward on a rigid plant is refused
+    bad.write_text(rigid.replace('compare_models = [', 'iso_mode = "model_based_elastic"\ncompare_models = ['))
+    with pytest.raises(ScenarioError, match=r"controller.iso_mode"):
+        load_scenario(bad)

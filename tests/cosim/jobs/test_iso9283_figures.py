@@ -76,3 +76,51 @@ def test_the_drawn_picture_is_the_whole_lines_picture(log):
     # measured: 98 / 339 differing pixels and 70 / 278 inked in one picture only, of 16 773 / 38 103 inked
     assert differ.sum() < 0.015 * inked_whole.sum()
     assert np.logical_xor(inked_whole, inked_drawn).sum() < 0.01 * inked_whole.sum()
+
+
+FORKED = """
+import sys, types
+from pathlib import Path
+import numpy as np
+from cosim.jobs.iso9283_figures import write_figures
+
+rng = np.random.default_rng(2)
+n = 12600
+t = np.arange(n) * 1e-3
+def result(scale):
+    err = scale * (1 + np.abs(rng.normal(0, 1, n)))
+    hz = np.linspace(0, 500, 6301)
+    return types.SimpleNamespace(t=t, lag=scale * rng.normal(0, 1, (n, 6)), arc_length=np.linspace(0, 8, n),
+                                 tcp_error=err, path_error=2 * err, spectrum_hz=hz, spectrum_m=scale / (1 + hz),
+                                 residual_t=np.arange(190) * 1e-3, residual_error=scale * np.exp(-np.arange(190) / 40),
+                                 residual={"peak_mm": 1.0, "settling_time_s": 0.06, "static_offset_mm": 0.001,
+                                           "band_mm": 0.02})
+results = {"standard": result(1e-2), "model_based": result(1e-5)}
+path = types.SimpleNamespace(segments=[types.SimpleNamespace(arc_start=a) for a in (0.0, 2.0, 5.0)])
+out = Path(sys.argv[1])
+(out / "one").mkdir()
+(out / "two").mkdir()
+one = write_figures(out / "one", results, path, processes=1)
+two = write_figures(out / "two", results, path)
+assert [p.name for p in one] == [p.name for p in two], (one, two)
+"""
+
+
+def test_figures_drawn_in_two_processes_are_the_same_files(tmp_path):
+    """The vibration figure drawn by the forked process is byte for byte the one drawn in the job's own."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[3]
+    script = tmp_path / "forked.py"
+    script.write_text(FORKED)
+    done = subprocess.run([sys.executable, str(script), str(tmp_path)], capture_output=True, text=True, timeout=300,
+                          env={**os.environ, "PYTHONPATH": str(root), "MPLBACKEND": "Agg"})
+    assert done.returncode == 0, done.stderr
+    names = sorted(p.name for p in (tmp_path / "one").iterdir())
+    assert names == ["figure2a_lag_errors.png", "figure2b_tcp_error.png", "tcp_error_vs_desired_path.png",
+                     "vibration.png"]
+    for name in names:
+        assert (tmp_path / "one" / name).read_bytes() == (tmp_path / "two" / name).read_bytes(), name

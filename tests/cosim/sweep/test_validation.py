@@ -219,5 +219,6 @@ def test_example_sweeps_are_valid():
     assert len(cal.variants) == 4 * 20 and cal.job == "calibration"
     assert sorted({v.values["tracker.noise_seed"] for v in cal.variants}) == list(range(20))
     iso = load_sweep(ROOT / "scenarios" / "iso9283_payload_sweep.toml")
-    assert iso.job == "iso9283" and len(iso.variants) == 8
-    assert {tuple(v.values["controller.modes"]) for v in iso.variants} == {("standard",), ("model_based",)}
+    assert iso.job == "iso9283" and len(iso.variants) == 12
+    assert {tuple(v.values["controller.modes"]) for v in iso.variants} == {("standard",), ("model_based",),
+                                                                            ("model_based_elastic",)}
