@@ -427,8 +427,8 @@ def print_late(r: dict) -> None:
 ISO_THRESHOLD = 0
 
 
-#: The ISO 9283 job compared: the rigid-plant variant, whose model_based mode the issue's figure
-#: is about (0.0103 mm in process); the main job's elastic plant is scenarios/iso9283.toml.
+#: The ISO 9283 job compared: the rigid-plant variant, whose model_based mode the split-vs-in-process
+#: comparison is about (0.0103 mm in process); the main job's elastic plant is scenarios/iso9283.toml.
 ISO_SCENARIO = "iso9283_rigid.toml"
 
 
@@ -516,7 +516,7 @@ def iso_split_run(scenario: Path, out: Path, split: bool) -> dict:
 
 
 def iso_split(work: Path, runs: int = 5, stop_time_s: float | None = None, missing_setpoint: str = "hold") -> dict:
-    """The issue's figure: ISO 9283 model-based TCP error of the paced split run (our controller
+    """The HIL comparison figure: ISO 9283 model-based TCP error of the paced split run (our controller
     in this process, ``cosim serve``'s cell in another, 400 µs) against the in-process run;
     ``runs`` split runs, medians."""
     scenario = iso_scenario(work, stop_time_s, missing_setpoint)

@@ -1,7 +1,7 @@
 """The main job end to end: ``python -m cosim run scenarios/iso9283.toml``, the README's first
 command after the install, as a user runs it.
 
-Target (issue 18): at least 6x faster than real time end to end on a quiet machine with two
+Target: at least 6x faster than real time end to end on a quiet machine with two
 cores, the tracking figures unchanged to the last digit.
 
 Each run is a fresh ``python -m cosim run`` process (``sys.executable``) into a temporary

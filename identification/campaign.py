@@ -34,7 +34,8 @@ ROTOR_TERMS = {"Izz1R": "Ia1", "Iyy2R": "Ia2", "Ia3": "Ia3", "Ia4": "Ia4", "Ia5"
 about the same axis: only the sums are identifiable; Ia3-Ia6 are base parameters alone)."""
 
 WITHIN_PERCENT = 10.0
-"""The acceptance band of issue 16 for stiffness and rotor inertias, % of the true value."""
+"""The acceptance band for the identified gear stiffness and rotor inertias, % of the true value
+(docs/identification.md)."""
 
 
 # ------------------------------------------------------------------------------------------ settings

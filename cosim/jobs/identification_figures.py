@@ -84,8 +84,9 @@ def figure_torques(path: Path, csv_path: Path) -> Path:
 
 def figure_parameter_errors(path: Path, identification: dict[str, Any]) -> Path:
     """Every identified parameter against the true robot: the rotor inertias and (elastic plant)
-    the gear stiffness and damping per axis in % with the +-10 % band of issue 16, and every
-    base parameter's error in standard deviations with the +-3 sigma band."""
+    the gear stiffness and damping per axis in % with the +-10 % acceptance band
+    (identification.campaign.WITHIN_PERCENT), and every base parameter's error in standard
+    deviations with the +-3 sigma band."""
     plt = _pyplot()
     gears = identification.get("gear_stiffness")
     fig, (top, bottom) = plt.subplots(2, 1, figsize=(13, 8.5), gridspec_kw={"height_ratios": [1, 1.2]})
@@ -106,7 +107,7 @@ def figure_parameter_errors(path: Path, identification: dict[str, Any]) -> Path:
         b_err = [np.nan if e is None else e for e in (gears.get("damping_error_percent") or [None] * 6)]
         top.bar(axes + width, np.clip(b_err, -60, 60), width, label="gear damping (clipped at +-60 %)", color="C2",
                 alpha=0.6)
-    top.axhspan(-10, 10, color="0.9", zorder=0, label="+-10 % (issue 16)")
+    top.axhspan(-10, 10, color="0.9", zorder=0, label="+-10 % acceptance band")
     top.axhline(0, color="0.3", lw=0.6)
     top.set_xticks(axes, [f"axis {j}" for j in axes])
     top.set_ylabel("identified / true - 1 in %")

@@ -384,8 +384,8 @@ def test_identify_refuses_physically_impossible_parameters():
     assert "unexplained" in check_fit(SimpleNamespace(estimate=estimate), record, "rec.csv")
 
 
-# ------------------------------------------------------------------------------------------ second pass (#17)
-# Neighbours of the cases, found by a fresh pass over its five lists on the CLI: each is
+# ------------------------------------------------------------------------------------------ second pass
+# Neighbours of the bad-input cases above (docs/robustness.md), found by a fresh pass on the CLI: each is
 # refused before anything runs, exit 2, one line naming the file and key (or option).
 @pytest.mark.parametrize("old, new, fragments", [
     ("stop_time = 0.5", "stop_time = nan", ["simulation.stop_time"]),

@@ -8,7 +8,7 @@ connections (model_based 0.010246121224081707 / 0.003713130149533058 / 0.0016932
 the full main job was then checked identical to the run before the move); re-pinned when the
 plant's dynamics took the true robot's 39 geometric errors (0.010329932221425054 /
 0.003713373148548148 / 0.0017588669033020041, now scenarios/iso9283_rigid.toml); re-pinned
-when the main job moved to the elastic plant (issue 16)."""
+when the main job moved to the elastic plant."""
 from __future__ import annotations
 
 import json
