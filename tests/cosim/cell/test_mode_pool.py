@@ -166,6 +166,7 @@ def test_a_killed_worker_fails_the_run_naming_its_mode(tmp_path):
     assert proc.returncode == 3, err
     summary = json.loads((out / "summary.json").read_text())
     assert summary["status"] == "failed" and summary["mode"] == "model_based"
-    assert "died from SIGKILL" in summary["reason"] and 0.0 <= summary["stopped_at_s"] < 4.0
+    # killed while simulating, or already evaluating at its end time (a quiet machine is quick)
+    assert "died from SIGKILL" in summary["reason"] and 0.0 <= summary["stopped_at_s"] <= 4.0
     assert summary["modes"]["standard"]["status"] == "ok"  # the other mode ran to its end and is evaluated
     assert summary["modes"]["standard"]["sim_time_s"] == pytest.approx(4.0)
