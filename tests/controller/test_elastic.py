@@ -174,3 +174,29 @@ def test_joint_reference_on_grid_is_the_knot_by_knot_ik_exactly():
     got = joint_reference_on_grid(ref, model, q0)
     for x, y in zip(got, expected):
         np.testing.assert_array_equal(x, y)
+
+
+def test_compiled_link_torque_is_the_casadi_expression_bit_for_bit(monkeypatch):
+    """The compiled link torque (native layer) gives the CasADi virtual machine's numbers
+    exactly; with COSIM_NATIVE=off the virtual machine runs (same numbers)."""
+    from controller.feedforward import _compiled_link_torque_function, _link_torque_function
+    from robot.symbolic import chain_structure
+
+    structure = chain_structure(DYN.model)
+    compiled = _compiled_link_torque_function(structure)
+    assert compiled is not None and compiled.class_name() != "SXFunction"
+    rng = np.random.default_rng(7)
+    n = 200
+    args = [rng.standard_normal((6, n)) for _ in range(5)]
+    p = DYN.parameter_vector()
+    rest = [p, np.asarray(DYN.payload, dtype=float), 0.4 * p[VISCOUS_SLICE], 0.4 * p[COULOMB_SLICE]]
+    vm = _link_torque_function(structure).map(n)(*args, *rest)
+    for a, b in zip(vm, compiled.map(n)(*args, *rest)):
+        np.testing.assert_array_equal(np.array(a), np.array(b))
+    t = np.linspace(0.0, 0.5, 50)
+    d = [np.array([motion(s, k) for s in t]) for k in range(5)]
+    fast = link_torque_derivatives(DYN, GEAR, *d)
+    monkeypatch.setenv("COSIM_NATIVE", "off")
+    assert _compiled_link_torque_function(structure) is None
+    for a, b in zip(fast, link_torque_derivatives(DYN, GEAR, *d)):
+        np.testing.assert_array_equal(a, b)
