@@ -21,7 +21,7 @@ def test_every_job_that_runs_the_cell_honours_the_execution_options():
         calls = {n.func.id for n in ast.walk(tree) if isinstance(n, ast.Call) and isinstance(n.func, ast.Name)}
         names = [n.value.value for n in ast.walk(tree) if isinstance(n, ast.Assign)
                  and any(isinstance(t, ast.Name) and t.id == "JOB_NAME" for t in n.targets)]
-        if "run_cell" in calls or "run_mode" in calls:
+        if {"run_cell", "run_mode", "run_modes"} & calls:  # run_modes: cosim.cell.mode_pool
             runs_cell.update(names)
     assert runs_cell == {"iso9283", "fieldbus_fault", "identification", "planners", "compare"}
     assert runs_cell <= CELL_JOBS
