@@ -43,12 +43,14 @@ def joint_reference_on_grid(reference: TcpTrajectory | JointTrajectory, model: p
     ik.reset(q_start)
     n, h = reference.grid.n, reference.grid.dt
     out = np.empty((3, n, 6))
+    # the stored knot samples (what reference.sample returns at a knot time, without the
+    # lookup); solve() leaves its result as the next seed's state (set_state is a no-op copy)
+    solve, targets, twist, acc = ik.solve, reference._placements, reference.twist, reference.acceleration
+    q_out, qd_out, qdd_out = out[0], out[1], out[2]
     for k in range(n):
-        sample = reference.sample(reference.grid.times[k])
-        q, qd, qdd = ik.solve(sample.target, sample.twist, sample.acceleration, h)
-        ik.set_state(q, qd, qdd)
-        out[0, k], out[1, k], out[2, k] = q, qd, qdd
-    return out[0], out[1], out[2]
+        q, qd, qdd = solve(targets[k], twist[k], acc[k], h)
+        q_out[k], qd_out[k], qdd_out[k] = q, qd, qdd
+    return q_out, qd_out, qdd_out
 
 
 class ElasticController(Controller):

@@ -146,3 +146,57 @@ def test_the_plain_controller_refuses_the_elastic_mode():
         Controller(_joint_reference(), ControllerConfig(mode=ELASTIC_MODE))
     with pytest.raises(ControllerConfigError, match="expected 'model_based_elastic'"):
         ElasticController(_joint_reference(), ControllerConfig(mode="model_based"))
+
+
+def test_joint_reference_on_grid_is_the_knot_by_knot_ik_exactly():
+    """The grid loop (stored knot samples, no lookup) gives bit for bit what solving each
+    knot through ``reference.sample`` and ``CartesianToJoint`` gives (the main job's figures
+    depend on it)."""
+    from controller.controller import start_configuration
+    from controller.elastic import joint_reference_on_grid
+    from controller.joint_reference import CartesianToJoint
+    from controller.reference import TcpTrajectory
+    from planners.iso9283 import ISO_Q_HINT, iso9283_test_path
+    from robot.kinematics import FlangeKinematics
+
+    path = iso9283_test_path()
+    ref = TcpTrajectory.from_reference(path.reference, 0.3, 400e-6)  # start and first corner
+    model = FlangeKinematics().model
+    q0 = start_configuration(ref, model, np.array(ISO_Q_HINT))
+    ik = CartesianToJoint(model)
+    ik.reset(q0)
+    expected = np.empty((3, ref.grid.n, 6))
+    for k, t in enumerate(ref.grid.times):
+        sample = ref.sample(t)
+        q, qd, qdd = ik.solve(sample.target, sample.twist, sample.acceleration, ref.grid.dt)
+        ik.set_state(q, qd, qdd)
+        expected[:, k] = q, qd, qdd
+    got = joint_reference_on_grid(ref, model, q0)
+    for x, y in zip(got, expected):
+        np.testing.assert_array_equal(x, y)
+
+
+def test_compiled_link_torque_is_the_casadi_expression_bit_for_bit(monkeypatch):
+    """The compiled link torque (native layer) gives the CasADi virtual machine's numbers
+    exactly; with COSIM_NATIVE=off the virtual machine runs (same numbers)."""
+    from controller.feedforward import _compiled_link_torque_function, _link_torque_function
+    from robot.symbolic import chain_structure
+
+    structure = chain_structure(DYN.model)
+    compiled = _compiled_link_torque_function(structure)
+    assert compiled is not None and compiled.class_name() != "SXFunction"
+    rng = np.random.default_rng(7)
+    n = 200
+    args = [rng.standard_normal((6, n)) for _ in range(5)]
+    p = DYN.parameter_vector()
+    rest = [p, np.asarray(DYN.payload, dtype=float), 0.4 * p[VISCOUS_SLICE], 0.4 * p[COULOMB_SLICE]]
+    vm = _link_torque_function(structure).map(n)(*args, *rest)
+    for a, b in zip(vm, compiled.map(n)(*args, *rest)):
+        np.testing.assert_array_equal(np.array(a), np.array(b))
+    t = np.linspace(0.0, 0.5, 50)
+    d = [np.array([motion(s, k) for s in t]) for k in range(5)]
+    fast = link_torque_derivatives(DYN, GEAR, *d)
+    monkeypatch.setenv("COSIM_NATIVE", "off")
+    assert _compiled_link_torque_function(structure) is None
+    for a, b in zip(fast, link_torque_derivatives(DYN, GEAR, *d)):
+        np.testing.assert_array_equal(a, b)

@@ -1,5 +1,7 @@
 """--realtime and --split apply to every job that runs the robot cell: each such job runs its
-cells through cosim.cell.run_cell (which hands them to the execution), and a job other than
+cells through cosim.cell.run_cell (which hands them to the execution) - directly, through
+cosim.cell.mode_runs.run_mode, or through cosim.cell.mode_pool.run_modes (which runs run_mode
+in its workers, or in this process under --realtime/--split) - and a job other than
 the main one - the fieldbus fault job - runs split over two processes with the same reaction."""
 from __future__ import annotations
 
@@ -21,7 +23,7 @@ def test_every_job_that_runs_the_cell_honours_the_execution_options():
         calls = {n.func.id for n in ast.walk(tree) if isinstance(n, ast.Call) and isinstance(n.func, ast.Name)}
         names = [n.value.value for n in ast.walk(tree) if isinstance(n, ast.Assign)
                  and any(isinstance(t, ast.Name) and t.id == "JOB_NAME" for t in n.targets)]
-        if {"run_cell", "run_mode", "run_modes"} & calls:  # run_modes: cosim.cell.mode_pool
+        if calls & {"run_cell", "run_mode", "run_modes"}:
             runs_cell.update(names)
     assert runs_cell == {"iso9283", "fieldbus_fault", "identification", "planners", "compare"}
     assert runs_cell <= CELL_JOBS
