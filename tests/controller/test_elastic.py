@@ -200,3 +200,21 @@ def test_compiled_link_torque_is_the_casadi_expression_bit_for_bit(monkeypatch):
     assert _compiled_link_torque_function(structure) is None
     for a, b in zip(fast, link_torque_derivatives(DYN, GEAR, *d)):
         np.testing.assert_array_equal(a, b)
+
+
+def test_link_torque_in_blocks_is_the_one_wide_map_exactly():
+    """link_torque_derivatives evaluates MAP_BLOCK knots per CasADi call: the same numbers as
+    one map over all knots (a length that is not a multiple of the block)."""
+    from controller import feedforward
+    from robot.symbolic import chain_structure
+
+    t = np.linspace(0.0, 0.5, 2 * feedforward.MAP_BLOCK + 37)
+    d = [np.array([motion(s, k) for s in t]) for k in range(5)]
+    got = link_torque_derivatives(DYN, GEAR, *d)
+    p = DYN.parameter_vector()
+    share = GEAR.motor_friction_share
+    wide = feedforward._link_torque_function(chain_structure(DYN.model)).map(t.size)(
+        *(a.T for a in d), p, np.asarray(DYN.payload, dtype=float), (1 - share) * p[VISCOUS_SLICE],
+        (1 - share) * p[COULOMB_SLICE])
+    for a, b in zip(got, wide):
+        np.testing.assert_array_equal(a, np.array(b).T)
