@@ -181,6 +181,7 @@ def run_hil_split(cell: CellDescription, controller: Any, ctx: Any, *, options: 
     failure: SimulationError | None = None
     child: dict[str, Any] | None = None
     wait_ns, compute_ns, compute_cpu_ns, wakeup_ns, skipped = [], [], [], [], 0
+    step_ns, send_ns = [], []  # compute = the controller port's step + send_following (encode, sendto)
     granted = "normal"
     wall0, cpu0 = time.perf_counter(), time.process_time()
     endpoint = None
@@ -229,9 +230,13 @@ def run_hil_split(cell: CellDescription, controller: Any, ctx: Any, *, options: 
                 except ControllerFailure as exc:
                     failure = SimulationError("controller", exc.time_s, exc.reason)
                     break
+                stepped_at = time.perf_counter_ns()
                 endpoint.send_following(setpoints)
+                sent_at = time.perf_counter_ns()
                 wait_ns.append(got_at - waited)
-                compute_ns.append(time.perf_counter_ns() - got_at)
+                step_ns.append(stepped_at - got_at)
+                send_ns.append(sent_at - stepped_at)
+                compute_ns.append(sent_at - got_at)
                 compute_cpu_ns.append(time.thread_time_ns() - got_cpu)
                 stopped_at = port.stopped_at_s
                 if stopped_at is not None and cycle * period - stopped_at >= cell.stop_grace_s - 1e-12:
@@ -272,6 +277,10 @@ def run_hil_split(cell: CellDescription, controller: Any, ctx: Any, *, options: 
                             "wait_for_pres": percentiles_us(np.asarray(wait_ns, dtype=float) * 1e-3, POINTS),
                             "compute": percentiles_us(np.asarray(compute_ns, dtype=float) * 1e-3, POINTS),
                             "compute_cpu": percentiles_us(np.asarray(compute_cpu_ns, dtype=float) * 1e-3, POINTS),
+                            # compute split in two: the controller through its port, then the next
+                            # cycle's frames encoded and sent (one sendto to the cell)
+                            "compute_step": percentiles_us(np.asarray(step_ns, dtype=float) * 1e-3, POINTS),
+                            "compute_send": percentiles_us(np.asarray(send_ns, dtype=float) * 1e-3, POINTS),
                             # computations longer than a cycle: mostly CPU (own work) or not (stalled)
                             "compute_over_one_cycle": _compute_causes(compute_ns, compute_cpu_ns, period),
                             "pres_one_way_latency": percentiles_us(controller_latency, POINTS),
