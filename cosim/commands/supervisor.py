@@ -333,19 +333,9 @@ def _final(data: dict[str, Any], how: dict[str, Any], entry: dict[str, Any], rea
 
 
 def _write_json(path: Path, data: dict[str, Any]) -> bool:
-    tmp = path.with_name(path.name + ".tmp")
-    try:
-        tmp.write_text(json.dumps(data, indent=2, default=str) + "\n", encoding="utf-8")
-        os.replace(tmp, path)
-        return True
-    except OSError:
-        try:
-            tmp.unlink(missing_ok=True)
-            with open(path, "w", encoding="utf-8") as handle:  # a full disk: in place, as summary.py does
-                handle.write(json.dumps(data, default=str) + "\n")
-            return True
-        except OSError:
-            return False
+    from cosim.results.summary import write_final_json  # light: json, os, time
+
+    return write_final_json(path, data, default=str)
 
 
 def _write_last_words(entries: list[dict[str, Any]], how: dict[str, Any]) -> list[Path]:

@@ -26,6 +26,38 @@ from typing import Any
 _SIGNAL_MARK = "@@SIGNAL@@"
 
 
+def replace_text(path: Path, text: str) -> None:
+    """Write ``text`` to ``path`` atomically (temporary file + rename); no ``.tmp`` is left when it
+    fails (the error is raised)."""
+    tmp = path.with_name(path.name + ".tmp")
+    try:
+        tmp.write_text(text, encoding="utf-8")
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            tmp.unlink(missing_ok=True)
+        except OSError:
+            pass
+        raise
+
+
+def write_final_json(path: Path, data: Any, **dumps: Any) -> bool:
+    """Write a final status file however full the disk: atomically if possible, else in place (the
+    old file's blocks are freed first, compact JSON); False when neither worked. Never raises
+    OSError. ``dumps``: further :func:`json.dumps` arguments."""
+    try:
+        replace_text(path, json.dumps(data, indent=2, **dumps) + "\n")
+        return True
+    except OSError:
+        pass
+    try:
+        with open(path, "w", encoding="utf-8") as handle:
+            handle.write(json.dumps(data, indent=None, **dumps) + "\n")
+        return True
+    except OSError:
+        return False
+
+
 def process_started_perf_counter() -> float | None:
     """The :func:`time.perf_counter` reading at which this process (under the supervisor: the
     supervisor, where the command started) started (from its start time
@@ -151,34 +183,13 @@ class SummaryWriter:
     def write(self) -> None:
         """Rewrite the file atomically (temporary file + rename); no ``.tmp`` is left when it fails."""
         self._guard()
-        text = json.dumps(_json_safe(self.data), indent=2, allow_nan=False) + "\n"
-        tmp = self.path.with_name(self.path.name + ".tmp")
-        try:
-            tmp.write_text(text, encoding="utf-8")
-            os.replace(tmp, self.path)
-        except BaseException:
-            try:
-                tmp.unlink(missing_ok=True)
-            except OSError:
-                pass
-            raise
+        replace_text(self.path, json.dumps(_json_safe(self.data), indent=2, allow_nan=False) + "\n")
 
     def write_final(self) -> None:
-        """Write the final status, however full the disk: atomically if possible, else in place
-        (the old summary.json's blocks are freed first), else give up quietly (the caller has
-        already told the user). Never raises OSError."""
-        try:
-            self.write()
-            return
-        except OSError:
-            pass
+        """Write the final status, however full the disk (:func:`write_final_json`); give up quietly
+        when even that fails (the caller has already told the user). Never raises OSError."""
         self._guard()
-        text = json.dumps(_json_safe(self.data), indent=None, allow_nan=False) + "\n"
-        try:
-            with open(self.path, "w", encoding="utf-8") as handle:
-                handle.write(text)
-        except OSError:
-            pass
+        write_final_json(self.path, _json_safe(self.data), allow_nan=False)
 
     def progress(self, sim_time_s: float, at_s: float | None = None) -> None:
         """Record how far the run got (simulated s; ``at_s``: the running part's own time, see

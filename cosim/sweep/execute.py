@@ -38,6 +38,7 @@ from typing import Any
 
 from tqdm import tqdm
 
+from cosim.results.summary import replace_text
 from cosim.sweep.keypath import referenced_files
 from cosim.sweep.loader import Sweep
 from cosim.sweep.table import write_table
@@ -254,9 +255,7 @@ def _write_definition(sweep: Sweep, out_dir: Path, state: dict[str, Any]) -> Non
         "variants": len(sweep.variants),
         **state,
     }
-    tmp = out_dir / (SWEEP_FILE + ".tmp")
-    tmp.write_text(json.dumps(data, indent=2, default=str) + "\n", encoding="utf-8")
-    os.replace(tmp, out_dir / SWEEP_FILE)
+    replace_text(out_dir / SWEEP_FILE, json.dumps(data, indent=2, default=str) + "\n")
     # what the supervisor writes if this process dies now (cosim/commands/supervisor.py): sweep.json and the
     # variants still running failed, with how the process ended
     from cosim.results import lastwords
@@ -285,9 +284,7 @@ def _mark_interrupted(todo: list[VariantTask], rows: dict[int, dict[str, Any]], 
         data.update(status="interrupted", signal=name, reason=f"sweep interrupted by {name}",
                     stopped_at_s=data.get("sim_time_s"))
         try:
-            tmp = path.with_name(path.name + ".tmp")
-            tmp.write_text(json.dumps(data, indent=2) + "\n", encoding="utf-8")
-            os.replace(tmp, path)
+            replace_text(path, json.dumps(data, indent=2) + "\n")
         except OSError:
             pass
 
