@@ -48,6 +48,18 @@ def plant(tmp_path: Path, *edits: tuple[str, str], name: str = "s.toml") -> Path
     return write_variant(PLANT_DROP, tmp_path / name, list(edits))
 
 
+def refused_before_running(tmp_path: Path, capsys, path: Path, fragments, prefix: str | None = None) -> None:
+    """``cosim run path`` exits 2 with one error line naming ``path`` (``prefix``: followed by
+    this key) and every fragment, and makes no results folder (nothing ran)."""
+    code, err = cli(capsys, "run", path, "--out", tmp_path / "out", "--quiet")
+    assert code == 2
+    line = one_error_line(err)
+    assert (f"{path}: {prefix}" if prefix is not None else str(path)) in line, line
+    for fragment in fragments:
+        assert fragment in line, (fragment, line)
+    assert not (tmp_path / "out").exists()  # nothing ran, no folder made
+
+
 def iso(tmp_path: Path, *edits: tuple[str, str]) -> Path:
     return write_variant(ISO, tmp_path / "iso.toml", list(edits))
 
@@ -63,14 +75,7 @@ def iso(tmp_path: Path, *edits: tuple[str, str]) -> Path:
     ((('"q0[5]" = 0.6', '"q0[5]" = 0.6\nintegration_step = 1e6'),), ["integration_step", "<= 0.01", "1000000.0"]),
 ])
 def test_scenario_values_refused_before_running(tmp_path, capsys, edits, fragments):
-    path = plant(tmp_path, *edits)
-    code, err = cli(capsys, "run", path, "--out", tmp_path / "out", "--quiet")
-    assert code == 2
-    line = one_error_line(err)
-    assert str(path) in line
-    for fragment in fragments:
-        assert fragment in line, (fragment, line)
-    assert not (tmp_path / "out").exists()  # nothing ran, no folder made
+    refused_before_running(tmp_path, capsys, plant(tmp_path, *edits), fragments)
 
 
 def test_max_base_steps_can_be_raised(tmp_path, capsys):
@@ -125,14 +130,7 @@ def test_python_m_cosim_prints_one_line_and_no_traceback(tmp_path):
      "record.file", ["does not use", "timeseries_<mode>"]),
 ])
 def test_robot_cell_scenarios_refused_at_validation(tmp_path, capsys, edits, key, fragments):
-    path = iso(tmp_path, *edits)
-    code, err = cli(capsys, "run", path, "--out", tmp_path / "out", "--quiet")
-    assert code == 2
-    line = one_error_line(err)
-    assert f"{path}: {key}" in line, line
-    for fragment in fragments:
-        assert fragment in line, (fragment, line)
-    assert not (tmp_path / "out").exists()
+    refused_before_running(tmp_path, capsys, iso(tmp_path, *edits), fragments, prefix=key)
 
 
 # ------------------------------------------------------------------------------------------ --out
@@ -408,14 +406,7 @@ def test_identify_refuses_physically_impossible_parameters():
     ('job = "fmus"', 'job = "nosuch"', ["nosuch"]),
 ])
 def test_more_scenario_values_refused(tmp_path, capsys, old, new, fragments):
-    path = plant(tmp_path, (old, new))
-    code, err = cli(capsys, "run", path, "--out", tmp_path / "out", "--quiet")
-    assert code == 2
-    line = one_error_line(err)
-    assert str(path) in line
-    for fragment in fragments:
-        assert fragment in line, (fragment, line)
-    assert not (tmp_path / "out").exists()
+    refused_before_running(tmp_path, capsys, plant(tmp_path, (old, new)), fragments)
 
 
 def _fmu_like(tmp_path: Path, kind: str) -> Path:
