@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import os
+import select
 import signal
 import subprocess
 import sys
@@ -217,3 +218,41 @@ def test_a_controller_at_another_cycle_time_is_a_counted_logged_mismatch(tmp_pat
     assert "Traceback" not in err and "cycle-time mismatch" in err
     found = json.loads((out / "summary.json").read_text())["hil"]["model_based"]["cycle_time_mismatch"]
     assert found["controller_cycle_time_s_estimate"] == pytest.approx(6e-3, rel=0.15)
+
+
+def test_a_controller_killed_mid_motion_stops_the_arm(tmp_path):
+    """The example controller really killed (SIGKILL, its socket gone: the cell's datagrams to
+    it bounce) in the middle of its motion: the cell's counters trip, every drive reacts, all
+    joints are below 1e-3 rad/s 0.5 s after the trip, the reaction is in the CAN log and the
+    summary, and the served run ends normally."""
+    out = tmp_path / "out"
+    serve = _serve(_scenario(tmp_path, "6 s"), out, PORT + 8)
+    _wait_endpoint(out, serve)
+    ctrl = subprocess.Popen([sys.executable, str(EXAMPLE), str(out / "hil_endpoint.json"), "--amplitude", "0.3",
+                             "--duration", "3.0"], env=_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
+    ready, _, _ = select.select([ctrl.stdout], [], [], 60.0)
+    assert ready, "the example controller did not enable the drives within 60 s"
+    assert "drives enabled" in ctrl.stdout.readline(), ctrl.communicate()
+    time.sleep(1.0)  # about a third into the 3 s cosine out and back
+    assert ctrl.poll() is None, ctrl.communicate()
+    ctrl.kill()
+    ctrl.communicate(timeout=30)
+    _, err = serve.communicate(timeout=180)
+    assert serve.returncode == 0, err
+    assert "Traceback" not in err
+    result = RunResult(out)
+    assert result.summary.status == "ok"
+    hil = result.summary.raw["hil"]["model_based"]
+    reactions = [f for f in hil["fault_reactions"] if f["event"] == "fault_reaction"]
+    assert {f["node"] for f in reactions} == set(range(1, 7))
+    trip = max(f["time_s"] for f in reactions)
+    assert all(v >= 10 for v in hil["frames_lost_per_node"].values())  # threshold 80, +8 per lost cycle
+    ts = result.timeseries("timeseries_model_based", kind="numpy")
+    t = np.asarray(ts["time"])
+    qd = np.column_stack([np.asarray(ts[f"plant.qd[{j}]"]) for j in range(1, 7)])
+    assert np.abs(qd[(t > trip - 0.3) & (t < trip)]).max() > 1e-2  # it was moving
+    assert np.abs(qd[t >= trip + 0.5]).max() < 1e-3
+    emcy = [m for m in can.LogReader(str(out / "can_model_based.blf"))
+            if 0x81 <= m.arbitration_id <= 0x86 and len(m.data) == 8]
+    assert {m.arbitration_id - 0x80 for m in emcy} == set(range(1, 7))
