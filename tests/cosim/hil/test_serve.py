@@ -11,6 +11,8 @@ import json
 import os
 import select
 import signal
+import socket
+import struct
 import subprocess
 import sys
 import time
@@ -220,30 +222,51 @@ def test_a_controller_at_another_cycle_time_is_a_counted_logged_mismatch(tmp_pat
     assert found["controller_cycle_time_s_estimate"] == pytest.approx(6e-3, rel=0.15)
 
 
+def _stranger_datagram(sequence: int) -> bytes:
+    """A valid udpcycle datagram (fieldbus/README.md) with a SoC and six PReqs that would
+    disable every drive (controlword 0), from a program that is not the cell's controller."""
+    frames = [(0x080, bytes([sequence % 240 + 1]))] + [(0x200 + n, struct.pack("<Hih", 0, 0, 0)) for n in range(1, 7)]
+    body = b"".join(struct.pack(">IBBHd", can_id, len(data), 0, 0, 0.0) + data for can_id, data in frames)
+    return struct.pack(">4sBBHIIQ", b"RXCB", 1, 0, len(frames), 0xBAD, sequence, time.time_ns()) + body
+
+
 def test_a_controller_killed_mid_motion_stops_the_arm(tmp_path):
     """The example controller really killed (SIGKILL, its socket gone: the cell's datagrams to
     it bounce) in the middle of its motion: the cell's counters trip, every drive reacts, all
     joints are below 1e-3 rad/s 0.5 s after the trip, the reaction is in the CAN log and the
-    summary, and the served run ends normally."""
+    summary, and the served run ends normally. On the way, bad input on the cell's port:
+    garbage and a truncated datagram before the controller comes (malformed), and another
+    program sending valid PReqs while the arm moves (foreign): counted, named on stderr,
+    never obeyed."""
     out = tmp_path / "out"
     serve = _serve(_scenario(tmp_path, "6 s"), out, PORT + 8)
-    _wait_endpoint(out, serve)
+    desc = _wait_endpoint(out, serve)
+    host, port = desc["cell_channel"].rsplit(":", 1)
+    stranger = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    stranger.sendto(b"garbage", (host, int(port)))
+    stranger.sendto(_stranger_datagram(0)[:30], (host, int(port)))
     ctrl = subprocess.Popen([sys.executable, str(EXAMPLE), str(out / "hil_endpoint.json"), "--amplitude", "0.3",
                              "--duration", "3.0"], env=_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True)
     ready, _, _ = select.select([ctrl.stdout], [], [], 60.0)
     assert ready, "the example controller did not enable the drives within 60 s"
     assert "drives enabled" in ctrl.stdout.readline(), ctrl.communicate()
-    time.sleep(1.0)  # about a third into the 3 s cosine out and back
+    for sequence in range(1, 51):  # 0.1 s of a stranger's PReqs, then about a third into the 3 s cosine
+        stranger.sendto(_stranger_datagram(sequence), (host, int(port)))
+        time.sleep(0.002)
+    stranger.close()
+    time.sleep(0.9)
     assert ctrl.poll() is None, ctrl.communicate()
     ctrl.kill()
     ctrl.communicate(timeout=30)
     _, err = serve.communicate(timeout=180)
     assert serve.returncode == 0, err
     assert "Traceback" not in err
+    assert "datagrams dropped by the cell: 2 malformed, 50 foreign" in err
     result = RunResult(out)
     assert result.summary.status == "ok"
     hil = result.summary.raw["hil"]["model_based"]
+    assert hil["transport"]["malformed"] == 2 and hil["transport"]["foreign"] == 50
     reactions = [f for f in hil["fault_reactions"] if f["event"] == "fault_reaction"]
     assert {f["node"] for f in reactions} == set(range(1, 7))
     trip = max(f["time_s"] for f in reactions)
