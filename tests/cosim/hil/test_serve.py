@@ -239,7 +239,11 @@ def test_a_controller_killed_mid_motion_stops_the_arm(tmp_path):
     program sending valid PReqs while the arm moves (foreign): counted, named on stderr,
     never obeyed."""
     out = tmp_path / "out"
-    serve = _serve(_scenario(tmp_path, "6 s"), out, PORT + 8)
+    scenario = _scenario(tmp_path, "6 s")  # and seeded transport faults from the scenario: duplicated PRes
+    scenario.write_text(scenario.read_text().replace(
+        "[fieldbus.recording]", '[fieldbus.bus]\ninterface = "udpcycle"\nchannel = "127.0.0.1:47400"\n'
+        "[fieldbus.bus.options]\nduplicate_probability = 0.05\nfault_seed = 7\n[fieldbus.recording]"))
+    serve = _serve(scenario, out, PORT + 8)
     desc = _wait_endpoint(out, serve)
     host, port = desc["cell_channel"].rsplit(":", 1)
     stranger = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -267,6 +271,8 @@ def test_a_controller_killed_mid_motion_stops_the_arm(tmp_path):
     assert result.summary.status == "ok"
     hil = result.summary.raw["hil"]["model_based"]
     assert hil["transport"]["malformed"] == 2 and hil["transport"]["foreign"] == 50
+    sent = hil["transport"]["sent"]
+    assert 0.02 * sent < hil["transport"]["injected_duplicates"] < 0.08 * sent  # 5 %, seeded
     reactions = [f for f in hil["fault_reactions"] if f["event"] == "fault_reaction"]
     assert {f["node"] for f in reactions} == set(range(1, 7))
     trip = max(f["time_s"] for f in reactions)
