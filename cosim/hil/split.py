@@ -190,6 +190,9 @@ def run_hil_split(cell: CellDescription, controller: Any, ctx: Any, *, options: 
             port.setup(cell.controller)
         except ControllerFailure as exc:
             raise SimulationError("controller", 0.0, exc.reason) from exc
+        warm_up = getattr(controller, "warm_up", None)
+        if callable(warm_up):  # the built-in controller: its Python path's first call, here, not in a cycle
+            warm_up()
         process.start()
         child_conn.close()
         if not conn.poll(START_TIMEOUT_S):
