@@ -28,7 +28,7 @@ def test_help_imports_nothing_heavy():
     benchmarks, docs/main_job.md)."""
     program = ("import contextlib, io, runpy, sys\n"
                "for command in ([], ['run'], ['serve'], ['sweep'], ['bench'], ['identify'], ['calibrate'],\n"
-               "                ['build-fmus'], ['export-ssp'], ['robot-info']):\n"
+               "                ['build'], ['build-fmus'], ['export-ssp'], ['robot-info']):\n"
                "    sys.argv = ['cosim', *command, '--help']\n"
                "    with contextlib.redirect_stdout(io.StringIO()) as text:\n"
                "        try:\n"
