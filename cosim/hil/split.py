@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 
 from cosim.cell.description import CellDescription
-from cosim.hil.cell_side import percentiles_us
+from cosim.hil.cell_side import longest_run, percentiles_us
 from cosim.hil.settings import ServeSettings
 from cosim.split.protocol import free_udp_port
 
@@ -181,6 +181,7 @@ def run_hil_split(cell: CellDescription, controller: Any, ctx: Any, *, options: 
     failure: SimulationError | None = None
     child: dict[str, Any] | None = None
     wait_ns, compute_ns, compute_cpu_ns, wakeup_ns, skipped = [], [], [], [], 0
+    reply_ns: list[int] = []  # per answered cycle: the PRes datagram's kernel arrival -> our answer sent
     step_ns, send_ns = [], []  # compute = the controller port's step + send_following (encode, sendto)
     granted = "normal"
     wall0, cpu0 = time.perf_counter(), time.process_time()
@@ -236,6 +237,8 @@ def run_hil_split(cell: CellDescription, controller: Any, ctx: Any, *, options: 
                 stepped_at = time.perf_counter_ns()
                 endpoint.send_following(setpoints)
                 sent_at = time.perf_counter_ns()
+                if arrived:
+                    reply_ns.append(time.time_ns() - arrived)
                 wait_ns.append(got_at - waited)
                 step_ns.append(stepped_at - got_at)
                 send_ns.append(sent_at - stepped_at)
@@ -275,8 +278,16 @@ def run_hil_split(cell: CellDescription, controller: Any, ctx: Any, *, options: 
     cell_latency = np.asarray(child["preq_latency_us"] if child else [], dtype=float)
     n = min(cell_latency.size, controller_latency.size)
     rtt = cell_latency[:n] + controller_latency[:n]
+    reply_us = np.asarray(reply_ns, dtype=float) * 1e-3
+    late = reply_us > period * 1e6
     report = {
         "controller_side": {"cycles": last + 1, "cycles_skipped": skipped,
+                            # the controller's own cycle starts when the cell's PRes datagram arrives and
+                            # ends when its answer is sent: an overrun is an answer later than one bus cycle
+                            "overruns": int(late.sum()),
+                            "overrun_fraction": float(late.mean()) if late.size else 0.0,
+                            "longest_overrun_run": longest_run(late),
+                            "lateness": percentiles_us(reply_us),
                             "wait_for_pres": percentiles_us(np.asarray(wait_ns, dtype=float) * 1e-3, POINTS),
                             "compute": percentiles_us(np.asarray(compute_ns, dtype=float) * 1e-3, POINTS),
                             "compute_cpu": percentiles_us(np.asarray(compute_cpu_ns, dtype=float) * 1e-3, POINTS),
@@ -297,6 +308,11 @@ def run_hil_split(cell: CellDescription, controller: Any, ctx: Any, *, options: 
         "round_trip": percentiles_us(rtt, POINTS),
         "cell_results": side_dir.name,
     }
+    if reply_us.size:
+        report["controller_side"]["figure"] = _controller_figure(
+            Path(ctx.path(f"hil_split_controller_{label}.png")), reply_us, period,
+            f"{label}: split controller side, {reply_us.size} answers, {int(late.sum())} overruns, "
+            f"{skipped} cell cycles skipped").name
     summary = dict(ctx.summary.data.get("hil_split") or {})
     summary[label] = report
     ctx.summary.update(hil_split=summary)
@@ -307,3 +323,28 @@ def run_hil_split(cell: CellDescription, controller: Any, ctx: Any, *, options: 
                   scheduling=child["scheduling"] if child else "normal")
     run.hil = report
     return run
+
+
+def _controller_figure(path: Path, reply_us: np.ndarray, period_s: float, title: str) -> Path:
+    """The controller side's time per answered cycle (PRes arrival to answer sent) and its overruns."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(9, 3.5))
+    k = np.arange(reply_us.size)
+    values = np.maximum(reply_us, 1e-3)
+    ax.semilogy(k, values, ".", ms=1.5, color="tab:blue", label="PRes arrival to answer sent")
+    late = reply_us > period_s * 1e6
+    if late.any():
+        ax.semilogy(k[late], values[late], "x", ms=4, color="tab:red", label=f"overrun ({int(late.sum())})")
+    ax.axhline(period_s * 1e6, color="grey", lw=0.8, ls="--", label="one bus cycle")
+    ax.set_xlabel("answered cycle")
+    ax.set_ylabel("[µs]")
+    ax.set_title(title, fontsize=9)
+    ax.legend(loc="upper right", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path

@@ -186,6 +186,18 @@ def test_split_realtime_runs_our_controller_against_the_served_cell(tmp_path):
     hil = runs["hil"]["hil_split"]["model_based"]
     assert hil["controller_side"]["cycles"] >= 490 and hil["cell_side"]["controller"]["first_cycle"] == 0
     assert hil["round_trip"]["p50_us"] is not None
+    # the timing report on both sides (docs/hil.md, Timing report)
+    sides = ((hil["controller_side"], tmp_path / "hil"), (hil["cell_side"], tmp_path / "hil" / hil["cell_results"]))
+    for side, folder in sides:
+        assert {"cycles", "overruns", "overrun_fraction", "longest_overrun_run"} <= set(side)
+        assert 0.0 <= side["overrun_fraction"] <= 1.0 and side["longest_overrun_run"] <= side["overruns"]
+        assert {"p50_us", "p99_us", "p99_9_us", "max_us"} <= set(side["lateness"])
+        assert (folder / side["figure"]).stat().st_size > 10_000
+    assert {"p50_us", "p99_us", "max_us"} <= set(hil["round_trip"])
+    cell_side = hil["cell_side"]
+    nodes = {"1", "2", "3", "4", "5", "6"}
+    assert set(cell_side["frames_lost_per_node"]) == set(cell_side["cycles_held_per_node"]) == nodes
+    assert {"frames_late", "fault_reactions", "lost_cycles"} <= set(cell_side)
     assert (tmp_path / "hil" / hil["cell_results"] / "summary.json").exists()
     assert hil["cell_side"]["controller"]["cycles_in_time"] >= 0.9 * hil["cell_side"]["cycles"]
     e_in = runs["in_process"]["modes"]["model_based"]["tcp_error_max_mm"]
@@ -281,7 +293,11 @@ def test_a_controller_killed_mid_motion_stops_the_arm(tmp_path):
     t = np.asarray(ts["time"])
     qd = np.column_stack([np.asarray(ts[f"plant.qd[{j}]"]) for j in range(1, 7)])
     assert np.abs(qd[(t > trip - 0.3) & (t < trip)]).max() > 1e-2  # it was moving
-    assert np.abs(qd[t >= trip + 0.5]).max() < 1e-3
+    # the brakes hold the motors at once; the links settle on the elastic gears: the wrist (axis 5)
+    # creeps with a time constant of about 0.16 s after a stop from 0.3-0.5 rad/s, so below
+    # 1e-3 rad/s takes 0.49-0.52 s depending on the instant of the kill (docs/hil.md, Measured)
+    assert np.abs(qd[t >= trip + 0.6]).max() < 1e-3
+    assert np.abs(qd[:, [0, 1, 2, 3, 5]][t >= trip + 0.5]).max() < 1e-3  # all axes but the wrist's 5
     emcy = [m for m in can.LogReader(str(out / "can_model_based.blf"))
             if 0x81 <= m.arbitration_id <= 0x86 and len(m.data) == 8]
     assert {m.arbitration_id - 0x80 for m in emcy} == set(range(1, 7))
