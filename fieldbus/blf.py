@@ -31,8 +31,13 @@ from can.io.blf import (CAN_ERROR_EXT, CAN_FD_MESSAGE, CAN_MESSAGE, EDL, FILE_HE
                         ZLIB_DEFLATE, BLFWriter, timestamp_to_systemtime)
 from can.util import len2dlc
 
+def record_dtype(data_bytes: int = 20) -> np.dtype:
+    """The recorder's record (``fieldbus.recorder.record_struct(data_bytes)``) as a numpy type."""
+    return np.dtype([("t", "<f8"), ("id", "<u2"), ("error", "u1"), ("length", "u1"), ("data", "u1", (data_bytes,))])
+
+
 #: The recorder's record (``fieldbus.recorder.RECORD``, ``"<dHBB20s"``) as a numpy type.
-RECORD_DTYPE = np.dtype([("t", "<f8"), ("id", "<u2"), ("error", "u1"), ("length", "u1"), ("data", "u1", (20,))])
+RECORD_DTYPE = record_dtype(20)
 MAX_DATA = 20
 #: python-can's defaults: uncompressed bytes per container, zlib level, application id, channel.
 CONTAINER_SIZE = BLFWriter.max_container_size
@@ -53,7 +58,7 @@ _ERROR = np.dtype(_HEADER + [("channel", "<u2"), ("length", "<u2"), ("err_flags"
                              ("id", "<u4"), ("ext_flags", "<u2"), ("reserved2", "V2"),
                              ("data", "u1", (8,))])                                   # CAN_ERROR_EXT_STRUCT
 _HEADER_SIZE = 32
-_DLC = np.array([len2dlc(n) for n in range(MAX_DATA + 1)], dtype=np.uint8)
+_DLC = np.array([len2dlc(n) for n in range(64 + 1)], dtype=np.uint8)
 
 
 @contextlib.contextmanager
@@ -111,6 +116,7 @@ class BlfRecordWriter:
     def write_records(self, records: bytes | np.ndarray) -> int:
         """Append frames given as recorder records, in the order given; returns their number."""
         rec = np.frombuffer(records, dtype=RECORD_DTYPE) if not isinstance(records, np.ndarray) else records
+        width = rec.dtype["data"].shape[0]  # 20 data bytes, 64 with a set-point look-ahead
         count = rec.size
         if count == 0:
             return 0
@@ -120,7 +126,7 @@ class BlfRecordWriter:
         self.stop_timestamp = float(t[-1])
         # python-can: int((timestamp - start) * 1e9), at least 0 (int() truncates towards zero)
         nanoseconds = np.maximum(np.trunc((t - self.start_timestamp) * 1e9), 0.0).astype(np.uint64)
-        length = np.minimum(rec["length"], MAX_DATA)
+        length = np.minimum(rec["length"], width)
         error = rec["error"] != 0
         fd = ~error & (length > 8)
         classic = ~error & ~fd
@@ -135,10 +141,10 @@ class BlfRecordWriter:
             sub = rec[mask]
             n = length[mask]
             objects = _objects(kind, object_type, sub, nanoseconds[mask])
-            keep = np.arange(MAX_DATA) < n[:, None]  # data beyond the frame's length are zero
+            keep = np.arange(width) < n[:, None]  # data beyond the frame's length are zero
             data = np.where(keep, sub["data"], 0).astype(np.uint8)
-            width = objects["data"].shape[1]
-            objects["data"][:, :min(width, MAX_DATA)] = data[:, :width]
+            room = objects["data"].shape[1]
+            objects["data"][:, :min(room, width)] = data[:, :room]
             if kind is _CAN:
                 objects["dlc"] = n  # CAN_MSG_STRUCT: msg.dlc
             elif kind is _FD:
