@@ -511,6 +511,12 @@ def iso_split_run(scenario: Path, out: Path, split: bool) -> dict:
                     "cell_overrun_causes": {k: v for k, v in cell.get("overrun_causes", {}).items()
                                             if k in ("stalled", "own_work", "other")},
                     "controller_compute_us": hil["controller_side"]["compute"],
+                    "controller_compute_step_us": hil["controller_side"].get("compute_step"),
+                    "controller_compute_send_us": hil["controller_side"].get("compute_send"),
+                    "controller_wakeup_after_pres_us": hil["controller_side"].get("wakeup_after_pres"),
+                    # each lost cycle's cause as the controller side attributes it (cosim.hil.split)
+                    "lost_cycle_causes": {k: v for k, v in (hil.get("lost_cycle_causes") or {}).items()
+                                          if k != "examples"},
                     "frames_late": cell["frames_late"], "scheduling": hil["controller_side"]["scheduling"],
                     # lost PReqs whose set-point the drives took from the look-ahead, and cycles held
                     "cycles_covered": (cell.get("setpoint_lookahead") or {}).get("cycles_covered", 0),
@@ -553,6 +559,12 @@ def iso_split(work: Path, runs: int = 5, stop_time_s: float | None = None, missi
             "tcp_error_ratio": tcp / reference["tcp_error_max_mm"] if tcp is not None else None,
             "overrun_fraction": med("overrun_fraction"), "lost_fraction": med("lost_fraction"),
             "steal_ms_per_s": med("steal_ms_per_s"),
+            "controller_compute_p99_us": statistics.median([r["controller_compute_us"]["p99_us"] for r in split
+                                                            if (r.get("controller_compute_us") or {}).get("p99_us")
+                                                            is not None] or [float("nan")]),
+            "lost_cycle_causes_total": {k: sum((r.get("lost_cycle_causes") or {}).get(k, 0) for r in split)
+                                        for k in ("cell_late", "controller_stalled", "controller_compute",
+                                                  "transport")},
             "round_trip_p99_us": statistics.median([r["round_trip_us"]["p99_us"] for r in split
                                                     if (r.get("round_trip_us") or {}).get("p99_us") is not None]
                                                    or [float("nan")])}
@@ -571,17 +583,20 @@ def print_iso(r: dict) -> None:
               f"overruns {100 * x['overrun_fraction']:.3f} %, lost {x['lost_cycles']} ({100 * x['lost_fraction']:.3f} %: "
               f"{x['lost_after_cell_overrun']} after a cell overrun, {x['lost_with_cell_in_time']} with the cell in "
               f"time; controller: PRes waiting > 1 cycle {x['controller_stalls_over_one_cycle']}, steps > 1 cycle "
-              f"{x['controller_compute_over_one_cycle']}; cell overruns "
+              f"{x['controller_compute_over_one_cycle']}; causes {x.get('lost_cycle_causes')}; cell overruns "
               f"{x['cell_overrun_causes']}; covered from the look-ahead {x.get('cycles_covered')} node-cycles, "
-              f"held {x.get('cycles_held')}; runs of lost cycles by length {x.get('lost_runs')}), round trip p50/p99 {x['round_trip_us']['p50_us']:.1f}/"
-              f"{x['round_trip_us']['p99_us']:.1f} us, steal {x['steal_ms_per_s']:.1f} ms/s, load "
+              f"held {x.get('cycles_held')}; runs of lost cycles by length {x.get('lost_runs')}), round trip p50/p99 "
+              f"{x['round_trip_us']['p50_us']:.1f}/{x['round_trip_us']['p99_us']:.1f} us, controller compute p50/p99/max "
+              f"{x['controller_compute_us']['p50_us']:.1f}/{x['controller_compute_us']['p99_us']:.1f}/"
+              f"{x['controller_compute_us']['max_us']:.0f} us, steal {x['steal_ms_per_s']:.1f} ms/s, load "
               f"{x['load_average_before'][0]:.2f} -> {x['load_average_after'][0]:.2f}")
     if r["tcp_error_ratio"] is None:
         print(f"  no split run completed of {r['runs']}")
         return
     print(f"  median of {r['completed_runs']} completed runs of {r['runs']}: split max TCP error "
           f"{r['tcp_error_max_mm_split']:.4f} mm = {r['tcp_error_ratio']:.3g} x in process; "
-          f"overruns {100 * r['overrun_fraction']:.3f} %, lost {100 * r['lost_fraction']:.3f} %")
+          f"overruns {100 * r['overrun_fraction']:.3f} %, lost {100 * r['lost_fraction']:.3f} %, controller compute "
+          f"p99 {r['controller_compute_p99_us']:.1f} us; lost cycles by cause (all runs) {r['lost_cycle_causes_total']}")
 
 
 def main(argv: list[str] | None = None) -> int:
