@@ -60,6 +60,17 @@ def _fmi3_adapter(monkeypatch, folder):
         fmi3.load_fmi3_adapter.cache_clear()
 
 
+def _elastic_cycle(monkeypatch, folder):
+    from controller import elastic
+
+    monkeypatch.setattr(elastic, "ELASTIC_CYCLE_SOURCE", _broken_copy(elastic.ELASTIC_CYCLE_SOURCE, folder))
+    elastic.load_elastic_cycle.cache_clear()
+    try:
+        return elastic.load_elastic_cycle()
+    finally:
+        elastic.load_elastic_cycle.cache_clear()
+
+
 def _tracker(monkeypatch, folder):
     from cosim.tracking import laser_tracker
 
@@ -111,6 +122,7 @@ COMPONENTS = [
     ("tracker_kernel", "laser tracker kernel", _tracker),
     ("crash_guard", "crash guard", _crash_guard),
     ("controller_cycle", "controller cycle kernel", _controller_cycle),
+    ("elastic_cycle", "elastic controller cycle", _elastic_cycle),
 ]
 
 
@@ -129,7 +141,7 @@ def test_every_hand_written_c_source_is_covered():
                                                               "robot", "calibration", "identification")
                for p in (root / package).rglob("*.c")}
     covered = {"cosim/master/kernel.c", "fieldbus/codec.c", "cosim/tracking/tracker_kernel.c",
-               "cosim/results/crashguard.c", "controller/fast_cycle.c"}
+               "cosim/results/crashguard.c", "controller/fast_cycle.c", "controller/elastic_cycle.c"}
     assert sources == covered  # fmus/: fmi3_adapter.c here, the FMU sources below
 
 
