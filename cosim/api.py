@@ -59,6 +59,31 @@ DICT_LABEL, STRING_LABEL, PYTHON_LABEL = "<dict>", "<string>", "<python>"
 TIMESERIES_SUFFIXES = (".parquet", ".csv")
 FIGURE_SUFFIXES = (".png", ".svg", ".pdf")
 CAN_LOG_SUFFIXES = (".blf", ".asc", ".trc", ".mf4")
+CAN_LOG_PREFIX = "can_"
+"""``can_<mode>.parquet`` is the columnar CAN log (fieldbus.canlog), not a time series."""
+
+
+def _is_can_log(path: Path) -> bool:
+    return path.suffix.lower() in CAN_LOG_SUFFIXES or (path.name.startswith(CAN_LOG_PREFIX)
+                                                       and path.suffix.lower() == ".parquet")
+
+
+def read_can_log(path: str | Path):
+    """The frames of a CAN log a run wrote, as ``can.Message`` objects (an iterable reader, also a
+    context manager): the columnar ``can_<mode>.parquet`` (``fieldbus.canlog``; the Messages
+    ``can.BLFReader`` gives for the same log as BLF) or a BLF/ASC file (``can.LogReader``)."""
+    from fieldbus.canlog import open_log
+
+    return open_log(path)
+
+
+def export_blf(path: str | Path, out: str | Path | None = None) -> Path:
+    """Write the columnar CAN log ``path`` as BLF (``out``, default: the same name with ``.blf``),
+    byte for byte the file python-can's ``BLFWriter`` writes for the same frames."""
+    from fieldbus.canlog import to_blf
+
+    path = Path(path)
+    return to_blf(path, Path(out) if out is not None else path.with_suffix(".blf"))
 
 
 def __getattr__(name: str) -> Any:
@@ -549,8 +574,10 @@ class RunResult:
 
     @property
     def can_log(self) -> list[Path]:
-        """The CAN log files (``can_<mode>.blf``, ...), sorted (empty with ``[results] can_log = false``)."""
-        return self._files(CAN_LOG_SUFFIXES)
+        """The CAN log files (``can_<mode>.parquet``, ``.blf``, ...; read them with :func:`read_can_log`), sorted (empty with ``[results] can_log = false``)."""
+        if not self.out.is_dir():
+            return []
+        return sorted(p for p in self.out.rglob("*") if p.is_file() and _is_can_log(p))
 
     @property
     def timeseries_files(self) -> dict[str, Path]:
@@ -558,6 +585,8 @@ class RunResult:
         out: dict[str, Path] = {}
         for suffix in reversed(TIMESERIES_SUFFIXES):   # csv first, parquet replaces it
             for path in self._files((suffix,)):
+                if _is_can_log(path):
+                    continue
                 out[path.relative_to(self.out).with_suffix("").as_posix()] = path
         return dict(sorted(out.items()))
 
@@ -861,4 +890,5 @@ def run_sweep(sweep: "Sweep | str | Path | Mapping[str, Any]", out: str | Path |
 
 __all__ = ["CAN_LOG_SUFFIXES", "DICT_LABEL", "FIGURE_SUFFIXES", "OutputFolderError", "PYTHON_LABEL", "RunFailed",
            "RunResult", "STRING_LABEL", "Scenario", "ScenarioError", "Summary", "TIMESERIES_SUFFIXES", "TimeSeries",
-           "build_sweep", "execute", "load_scenario", "load_sweep", "read_timeseries", "run", "run_sweep"]
+           "build_sweep", "execute", "export_blf", "load_scenario", "load_sweep", "read_can_log", "read_timeseries", "run",
+           "run_sweep"]

@@ -31,9 +31,7 @@ from can.io.blf import (CAN_ERROR_EXT, CAN_FD_MESSAGE, CAN_MESSAGE, EDL, FILE_HE
                         ZLIB_DEFLATE, BLFWriter, timestamp_to_systemtime)
 from can.util import len2dlc
 
-#: The recorder's record (``fieldbus.recorder.RECORD``, ``"<dHBB20s"``) as a numpy type.
-RECORD_DTYPE = np.dtype([("t", "<f8"), ("id", "<u2"), ("error", "u1"), ("length", "u1"), ("data", "u1", (20,))])
-MAX_DATA = 20
+from fieldbus.canlog import MAX_DATA, RECORD_DTYPE  # noqa: E402  (the recorder's records, ``"<dHBB20s"``)
 #: python-can's defaults: uncompressed bytes per container, zlib level, application id, channel.
 CONTAINER_SIZE = BLFWriter.max_container_size
 DEFAULT_COMPRESSION = -1
@@ -70,9 +68,9 @@ def _signals_held() -> Iterator[None]:
         mask(signal.SIG_SETMASK, previous)
 
 
-def _objects(kind: np.dtype, object_type: int, records: np.ndarray, nanoseconds: np.ndarray) -> np.ndarray:
-    """The objects of ``records`` (all of one kind) as rows of bytes, the header filled in."""
-    out = np.zeros(records.size, dtype=kind)
+def _objects(kind: np.dtype, object_type: int, ids: np.ndarray, nanoseconds: np.ndarray) -> np.ndarray:
+    """The objects of frames with ``ids`` (all of one kind) as rows of bytes, the header filled in."""
+    out = np.zeros(ids.size, dtype=kind)
     out["signature"] = b"LOBJ"
     out["header_size"] = _HEADER_SIZE
     out["header_version"] = 1
@@ -81,7 +79,7 @@ def _objects(kind: np.dtype, object_type: int, records: np.ndarray, nanoseconds:
     out["flags"] = TIME_ONE_NANS
     out["timestamp"] = nanoseconds
     out["channel"] = CHANNEL
-    out["id"] = records["id"]
+    out["id"] = ids
     return out
 
 
@@ -120,8 +118,21 @@ class BlfRecordWriter:
         self.stop_timestamp = float(t[-1])
         # python-can: int((timestamp - start) * 1e9), at least 0 (int() truncates towards zero)
         nanoseconds = np.maximum(np.trunc((t - self.start_timestamp) * 1e9), 0.0).astype(np.uint64)
-        length = np.minimum(rec["length"], MAX_DATA)
-        error = rec["error"] != 0
+        return self.write_frames(nanoseconds, rec["id"], rec["error"], rec["length"], rec["data"])
+
+    def write_frames(self, nanoseconds: np.ndarray, ids: np.ndarray, error: np.ndarray, length: np.ndarray,
+                     data: np.ndarray) -> int:
+        """Append frames given as columns: BLF object time (ns since :attr:`start_timestamp`,
+        which the caller sets, and :attr:`stop_timestamp`, before the first frame), arbitration
+        id, error flag, data length and (n, 20) data bytes; returns their number."""
+        count = int(np.size(ids))
+        if count == 0:
+            return 0
+        nanoseconds = np.asarray(nanoseconds, dtype=np.uint64)
+        ids = np.asarray(ids)
+        data = np.asarray(data, dtype=np.uint8)
+        length = np.minimum(np.asarray(length), MAX_DATA)
+        error = np.asarray(error) != 0
         fd = ~error & (length > 8)
         classic = ~error & ~fd
         sizes = np.where(error, _ERROR.itemsize, np.where(fd, _FD.itemsize, _CAN.itemsize))
@@ -132,13 +143,12 @@ class BlfRecordWriter:
                                         (error, _ERROR, CAN_ERROR_EXT)):
             if not mask.any():
                 continue
-            sub = rec[mask]
             n = length[mask]
-            objects = _objects(kind, object_type, sub, nanoseconds[mask])
+            objects = _objects(kind, object_type, ids[mask], nanoseconds[mask])
             keep = np.arange(MAX_DATA) < n[:, None]  # data beyond the frame's length are zero
-            data = np.where(keep, sub["data"], 0).astype(np.uint8)
+            payload = np.where(keep, data[mask], 0).astype(np.uint8)
             width = objects["data"].shape[1]
-            objects["data"][:, :min(width, MAX_DATA)] = data[:, :width]
+            objects["data"][:, :min(width, MAX_DATA)] = payload[:, :width]
             if kind is _CAN:
                 objects["dlc"] = n  # CAN_MSG_STRUCT: msg.dlc
             elif kind is _FD:
@@ -147,7 +157,7 @@ class BlfRecordWriter:
                 objects["valid_bytes"] = n
             else:
                 objects["dlc"] = _DLC[n]  # CAN_ERROR_EXT_STRUCT: len2dlc(msg.dlc)
-            rows = objects.view(np.uint8).reshape(sub.size, kind.itemsize)
+            rows = objects.view(np.uint8).reshape(n.size, kind.itemsize)
             index = offsets[mask][:, None] + np.arange(kind.itemsize)
             stream[index] = rows
         self._pending += stream.tobytes()

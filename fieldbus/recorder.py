@@ -28,7 +28,7 @@ from fieldbus.lifecycle import Closeable
 from fieldbus.telegrams import FastMessage
 
 RECORD = struct.Struct("<dHBB20s")  # timestamp, id, is_error_frame, dlc, data (padded; at most 20 bytes)
-LOG_SUFFIXES = (".blf", ".asc", ".log", ".csv", ".trc", ".txt", ".mf4")
+LOG_SUFFIXES = (".parquet", ".blf", ".asc", ".log", ".csv", ".trc", ".txt", ".mf4")
 
 
 class _LogSink:
@@ -41,9 +41,13 @@ class _LogSink:
 
     @staticmethod
     def open(path: str) -> "_LogSink | _BlfSink":
-        """The sink for ``path``: BLF through :class:`fieldbus.blf.BlfRecordWriter` (the same
-        bytes as python-can's writer, a batch at a time), any other format through can.Logger."""
-        return _BlfSink(path) if Path(path).suffix.lower() == ".blf" else _LogSink(path)
+        """The sink for ``path``: the columnar CAN log (``.parquet``) through
+        :class:`fieldbus.canlog.CanLogWriter`, BLF through :class:`fieldbus.blf.BlfRecordWriter`
+        (the same bytes as python-can's writer, a batch at a time), any other format through
+        can.Logger."""
+        suffix = Path(path).suffix.lower()
+        return _BlfSink(path, columnar=True) if suffix == ".parquet" else _BlfSink(path) if suffix == ".blf" \
+            else _LogSink(path)
 
     def feed(self, records: bytes, watermark_s: float | None) -> None:
         self.pending.extend((t, i, bool(e), d[:n]) for t, i, e, n, d in RECORD.iter_unpack(records))
@@ -68,15 +72,21 @@ class _LogSink:
 
 
 class _BlfSink:
-    """:class:`_LogSink` for ``.blf`` files with array operations: the records are sorted by
-    timestamp (stably, as ``list.sort``) and those older than the watermark written by
-    :class:`fieldbus.blf.BlfRecordWriter` (the bytes ``can.Logger`` would write)."""
+    """:class:`_LogSink` for ``.blf`` and columnar ``.parquet`` logs with array operations: the
+    records are sorted by timestamp (stably, as ``list.sort``) and those older than the
+    watermark written by :class:`fieldbus.blf.BlfRecordWriter` (the bytes ``can.Logger`` would
+    write) or, ``columnar``, :class:`fieldbus.canlog.CanLogWriter` (the same frames)."""
 
-    def __init__(self, path: str) -> None:
-        from fieldbus.blf import RECORD_DTYPE, BlfRecordWriter
+    def __init__(self, path: str, columnar: bool = False) -> None:
+        from fieldbus.canlog import RECORD_DTYPE, CanLogWriter
 
         self._dtype = RECORD_DTYPE
-        self.writer = BlfRecordWriter(path)
+        if columnar:
+            self.writer = CanLogWriter(path)
+        else:
+            from fieldbus.blf import BlfRecordWriter
+
+            self.writer = BlfRecordWriter(path)
         self.pending = np.empty(0, dtype=RECORD_DTYPE)
         self.written = 0
 
@@ -169,7 +179,7 @@ class FrameRecorder(Closeable):
         self.path = Path(path)
         if self.path.suffix.lower() not in LOG_SUFFIXES:
             raise FieldbusConfigError(str(self.path), "log_path", str(self.path),
-                                      "a log file ending in .blf or .asc (or another python-can Logger format: "
+                                      "a log file ending in .parquet (columnar), .blf or .asc (or another python-can Logger format: "
                                       + ", ".join(LOG_SUFFIXES) + ")")
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self.flush_every_cycles = flush_every_cycles
