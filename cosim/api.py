@@ -484,6 +484,23 @@ def read_timeseries(path: str | Path, kind: str = "auto"):
     if path.suffix == ".parquet":
         import pyarrow.parquet as pq
 
+        import numpy as np
+
+        from cosim.results.timeseries import is_encoded, read_series
+
+        if is_encoded(pq.read_schema(path)):  # compact columns: decoded to the float64 values written
+            names, values = read_series(path)
+            schema = pq.read_schema(path)
+            columns = {}
+            for i, n in enumerate(names):  # plain integer columns stay integers
+                f = schema.field(n) if schema.get_field_index(n) >= 0 else None  # None: a derived column
+                plain_int = f is not None and str(f.type).startswith("int") and b"cosim.encoding" not in (f.metadata or {})
+                columns[n] = values[:, i].astype(np.int64) if plain_int else values[:, i]
+            if kind == "pandas":
+                import pandas as pd
+
+                return pd.DataFrame(columns)
+            return TimeSeries(names, columns, path)
         table = pq.read_table(path)
         if kind == "pandas":
             return table.to_pandas()

@@ -67,6 +67,8 @@ ROW_GROUP_ROWS = 1 << 17
 """Frames per row group (about 6900 cycles of 19 frames): memory while converting and reading
 is one group (~6 MB); smaller groups cost more (4750: +60 %, 65536: +8 %)."""
 PARTIAL_SUFFIX = ".partial"
+COMPRESSION_LEVEL = 6
+"""zstd level of the Parquet file (the partial stream: level 1)."""
 MAX_DATA = 20
 #: The recorder's records (``fieldbus.recorder.RECORD``): time s, id, error flag, length, data.
 RECORD_DTYPE = np.dtype([("t", "<f8"), ("id", "<u2"), ("error", "u1"), ("length", "u1"), ("data", "u1", (MAX_DATA,))])
@@ -278,7 +280,8 @@ def _parquet_writer(path: Path, schema):
     import pyarrow.parquet as pq
 
     ints = [f.name for f in schema if f.name in INT_COLUMNS]
-    return pq.ParquetWriter(path, schema, compression="zstd", use_dictionary=False, write_statistics=False,
+    return pq.ParquetWriter(path, schema, compression="zstd", compression_level=COMPRESSION_LEVEL,
+                            use_dictionary=False, write_statistics=False,
                             column_encoding={name: "DELTA_BINARY_PACKED" for name in ints})
 
 
