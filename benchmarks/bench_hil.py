@@ -433,10 +433,10 @@ ISO_SCENARIO = "iso9283_rigid.toml"
 
 
 def iso_scenario(work: Path, stop_time_s: float | None = None, missing_setpoint: str = "hold",
-                 name: str = "iso") -> Path:
+                 name: str = "iso", lookahead: int = 0) -> Path:
     """scenarios/``ISO_SCENARIO``, model_based mode only, no figures, loss counters at
     ``ISO_THRESHOLD``, the drives' reaction to a missing set-point ``missing_setpoint``
-    ('hold' or 'extrapolate')."""
+    ('hold' or 'extrapolate'), ``lookahead`` cycles of set-point look-ahead in each PReq."""
     text = (ROOT / "scenarios" / ISO_SCENARIO).read_text()
 
     def replace(text: str, pattern: str, new: str) -> str:
@@ -452,7 +452,7 @@ def iso_scenario(work: Path, stop_time_s: float | None = None, missing_setpoint:
         text = replace(text, r'^stop_time = ".*"', f'stop_time = "{stop_time_s} s"')
     text = replace(text, r"^figures = true", "figures = false")
     text = replace(text, r"^cycle_time_us = 400.*$",
-                   f"cycle_time_us = 400\n[fieldbus.thresholds]\ncn_loss_of_soc = {ISO_THRESHOLD}\n"
+                   f"cycle_time_us = 400\nsetpoint_lookahead = {lookahead}\n[fieldbus.thresholds]\ncn_loss_of_soc = {ISO_THRESHOLD}\n"
                    f'cn_loss_of_preq = {ISO_THRESHOLD}\n[fieldbus.reaction]\nmissing_setpoint = "{missing_setpoint}"')
     work.mkdir(parents=True, exist_ok=True)
     path = work / f"{name}.toml"
@@ -511,15 +511,37 @@ def iso_split_run(scenario: Path, out: Path, split: bool) -> dict:
                     "cell_overrun_causes": {k: v for k, v in cell.get("overrun_causes", {}).items()
                                             if k in ("stalled", "own_work", "other")},
                     "controller_compute_us": hil["controller_side"]["compute"],
-                    "frames_late": cell["frames_late"], "scheduling": hil["controller_side"]["scheduling"]})
+                    "controller_compute_step_us": hil["controller_side"].get("compute_step"),
+                    "controller_compute_send_us": hil["controller_side"].get("compute_send"),
+                    "controller_wakeup_after_pres_us": hil["controller_side"].get("wakeup_after_pres"),
+                    # each lost cycle's cause as the controller side attributes it (cosim.hil.split)
+                    "lost_cycle_causes": {k: v for k, v in (hil.get("lost_cycle_causes") or {}).items()
+                                          if k != "examples"},
+                    "frames_late": cell["frames_late"], "scheduling": hil["controller_side"]["scheduling"],
+                    # lost PReqs whose set-point the drives took from the look-ahead, and cycles held
+                    "cycles_covered": (cell.get("setpoint_lookahead") or {}).get("cycles_covered", 0),
+                    "cycles_held": sum(cell.get("cycles_held_per_node", {}).values()),
+                    "lost_runs": _run_lengths(lost_cycles)})
     return row
 
 
-def iso_split(work: Path, runs: int = 5, stop_time_s: float | None = None, missing_setpoint: str = "hold") -> dict:
+def _run_lengths(cycles: list[int]) -> dict[str, int]:
+    """{length: how many runs of consecutive lost cycles of that length} (the first 1000 listed)."""
+    runs: dict[int, int] = {}
+    length = 0
+    for i, cycle in enumerate(cycles):
+        length = length + 1 if i and cycle == cycles[i - 1] + 1 else 1
+        if i + 1 == len(cycles) or cycles[i + 1] != cycle + 1:
+            runs[length] = runs.get(length, 0) + 1
+    return {str(k): v for k, v in sorted(runs.items())}
+
+
+def iso_split(work: Path, runs: int = 5, stop_time_s: float | None = None, missing_setpoint: str = "hold",
+              lookahead: int = 0) -> dict:
     """The HIL comparison figure: ISO 9283 model-based TCP error of the paced split run (our controller
     in this process, ``cosim serve``'s cell in another, 400 µs) against the in-process run;
     ``runs`` split runs, medians."""
-    scenario = iso_scenario(work, stop_time_s, missing_setpoint)
+    scenario = iso_scenario(work, stop_time_s, missing_setpoint, lookahead=lookahead)
     reference = iso_split_run(scenario, work / "in_process", split=False)
     split = [iso_split_run(scenario, work / f"split_{i}", split=True) for i in range(runs)]
 
@@ -529,13 +551,20 @@ def iso_split(work: Path, runs: int = 5, stop_time_s: float | None = None, missi
 
     tcp = med("tcp_error_max_mm")
     completed = sum(1 for r in split if r["status"] == "ok")
-    return {"runs": runs, "completed_runs": completed,"stop_time_s": stop_time_s, "missing_setpoint": missing_setpoint, "threshold": ISO_THRESHOLD,
+    return {"runs": runs, "completed_runs": completed,"stop_time_s": stop_time_s, "missing_setpoint": missing_setpoint, "setpoint_lookahead": lookahead,
+            "threshold": ISO_THRESHOLD,
             "in_process": reference, "split_runs": split,
             "tcp_error_max_mm_in_process": reference["tcp_error_max_mm"], "tcp_error_max_mm_split": tcp,
             "tcp_error_rms_mm_in_process": reference["tcp_error_rms_mm"], "tcp_error_rms_mm_split": med("tcp_error_rms_mm"),
             "tcp_error_ratio": tcp / reference["tcp_error_max_mm"] if tcp is not None else None,
             "overrun_fraction": med("overrun_fraction"), "lost_fraction": med("lost_fraction"),
             "steal_ms_per_s": med("steal_ms_per_s"),
+            "controller_compute_p99_us": statistics.median([r["controller_compute_us"]["p99_us"] for r in split
+                                                            if (r.get("controller_compute_us") or {}).get("p99_us")
+                                                            is not None] or [float("nan")]),
+            "lost_cycle_causes_total": {k: sum((r.get("lost_cycle_causes") or {}).get(k, 0) for r in split)
+                                        for k in ("cell_late", "controller_stalled", "controller_compute",
+                                                  "transport")},
             "round_trip_p99_us": statistics.median([r["round_trip_us"]["p99_us"] for r in split
                                                     if (r.get("round_trip_us") or {}).get("p99_us") is not None]
                                                    or [float("nan")])}
@@ -543,7 +572,8 @@ def iso_split(work: Path, runs: int = 5, stop_time_s: float | None = None, missi
 
 def print_iso(r: dict) -> None:
     ref = r["in_process"]
-    print(f"ISO 9283 model_based, missing set-point '{r['missing_setpoint']}', thresholds {r['threshold']}: "
+    print(f"ISO 9283 model_based, missing set-point '{r['missing_setpoint']}', look-ahead "
+          f"{r.get('setpoint_lookahead', 0)} cycles, thresholds {r['threshold']}: "
           f"in process max/RMS TCP error {ref['tcp_error_max_mm']:.4f}/{ref['tcp_error_rms_mm']:.4f} mm")
     for i, x in enumerate(r["split_runs"]):
         if x["status"] != "ok" or "cycles" not in x:
@@ -553,16 +583,20 @@ def print_iso(r: dict) -> None:
               f"overruns {100 * x['overrun_fraction']:.3f} %, lost {x['lost_cycles']} ({100 * x['lost_fraction']:.3f} %: "
               f"{x['lost_after_cell_overrun']} after a cell overrun, {x['lost_with_cell_in_time']} with the cell in "
               f"time; controller: PRes waiting > 1 cycle {x['controller_stalls_over_one_cycle']}, steps > 1 cycle "
-              f"{x['controller_compute_over_one_cycle']}; cell overruns "
-              f"{x['cell_overrun_causes']}), round trip p50/p99 {x['round_trip_us']['p50_us']:.1f}/"
-              f"{x['round_trip_us']['p99_us']:.1f} us, steal {x['steal_ms_per_s']:.1f} ms/s, load "
+              f"{x['controller_compute_over_one_cycle']}; causes {x.get('lost_cycle_causes')}; cell overruns "
+              f"{x['cell_overrun_causes']}; covered from the look-ahead {x.get('cycles_covered')} node-cycles, "
+              f"held {x.get('cycles_held')}; runs of lost cycles by length {x.get('lost_runs')}), round trip p50/p99 "
+              f"{x['round_trip_us']['p50_us']:.1f}/{x['round_trip_us']['p99_us']:.1f} us, controller compute p50/p99/max "
+              f"{x['controller_compute_us']['p50_us']:.1f}/{x['controller_compute_us']['p99_us']:.1f}/"
+              f"{x['controller_compute_us']['max_us']:.0f} us, steal {x['steal_ms_per_s']:.1f} ms/s, load "
               f"{x['load_average_before'][0]:.2f} -> {x['load_average_after'][0]:.2f}")
     if r["tcp_error_ratio"] is None:
         print(f"  no split run completed of {r['runs']}")
         return
     print(f"  median of {r['completed_runs']} completed runs of {r['runs']}: split max TCP error "
           f"{r['tcp_error_max_mm_split']:.4f} mm = {r['tcp_error_ratio']:.3g} x in process; "
-          f"overruns {100 * r['overrun_fraction']:.3f} %, lost {100 * r['lost_fraction']:.3f} %")
+          f"overruns {100 * r['overrun_fraction']:.3f} %, lost {100 * r['lost_fraction']:.3f} %, controller compute "
+          f"p99 {r['controller_compute_p99_us']:.1f} us; lost cycles by cause (all runs) {r['lost_cycle_causes_total']}")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -579,12 +613,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--stop-time", type=float, default=None, help="--iso: seconds of the ISO path (default all)")
     parser.add_argument("--missing-setpoint", choices=("hold", "extrapolate"), default="hold",
                         help="--iso: the drives' reaction to a lost set-point")
+    parser.add_argument("--lookahead", type=int, default=0,
+                        help="--iso: [fieldbus] setpoint_lookahead, cycles of set-points each PReq carries ahead")
     args = parser.parse_args(argv)
     if args.iso:
         import tempfile
 
         with tempfile.TemporaryDirectory(prefix="bench-hil-iso-") as tmp:
-            iso = iso_split(Path(tmp), args.runs, args.stop_time, args.missing_setpoint)
+            iso = iso_split(Path(tmp), args.runs, args.stop_time, args.missing_setpoint, args.lookahead)
         print_iso(iso)
         if args.json:
             args.json.write_text(json.dumps(iso, indent=1))

@@ -387,6 +387,8 @@ def hil(sizes: Sizes, work: Path) -> dict[str, Any]:
             "iso_tcp_error_max_mm_split": iso["tcp_error_max_mm_split"], "iso_tcp_error_ratio": iso["tcp_error_ratio"],
             "iso_overrun_fraction": iso["overrun_fraction"], "iso_lost_fraction": iso["lost_fraction"],
             "iso_round_trip_p99_us": iso["round_trip_p99_us"], "iso_steal_ms_per_s": iso["steal_ms_per_s"],
+            "iso_controller_compute_p99_us": iso.get("controller_compute_p99_us"),
+            "iso_lost_cycle_causes": iso.get("lost_cycle_causes_total"),
             "issue_targets_met": targets, **extra,
             "probe_gaps_over_1ms_per_s": probe["gaps_over_1ms"] / probe["seconds"],
             "probe_gap_ms_per_s": probe["gap_total_ms"] / probe["seconds"], "stall_probe": probe, "iso_completed_runs": iso["completed_runs"], "iso": iso}

@@ -22,7 +22,8 @@ latched at ``t_k`` as the bus delivered them (quantised by the CiA 402 scaling; 
 a node whose PRes was lost are held with ``fresh`` False). What ``step`` returns
 (:class:`ControllerOutput`) goes into the PReqs of cycle ``k + 1`` and the drives apply it
 from ``t_{k+1+d}`` where ``d = info.dead_time_cycles``; so an output computed in cycle ``k``
-acts ``info.lead_cycles = 1 + d`` cycles after ``t_k``: evaluate your reference there.
+acts ``info.lead_cycles = 1 + d`` cycles after ``t_k`` (``1 + d + lookahead`` with a set-point
+look-ahead on the bus): evaluate your reference there.
 
 What "late" means
 -----------------
@@ -80,8 +81,13 @@ class ControllerInfo:
 
     period_s: the bus cycle T, s. n_joints: number of drives (6).
     dead_time_cycles: cycles between the PReq carrying an output and the drive applying it.
-    lead_cycles: ``1 + dead_time_cycles``: an output computed at ``t_k`` acts from
-        ``t_k + lead_cycles * period_s``.
+    lookahead_cycles: the bus's set-point look-ahead (``[fieldbus] setpoint_lookahead``, 0 by
+        default): each output goes out that many cycles later as the set-point due next,
+        and before that in as many PReqs as a look-ahead entry the drives keep for a lost
+        PReq. A new controlword or mode of operation goes out at once (the drives' look-ahead
+        is replaced), so the enable sequence and a stop are not delayed.
+    lead_cycles: ``1 + dead_time_cycles + lookahead_cycles``: an output computed at ``t_k``
+        acts from ``t_k + lead_cycles * period_s``.
     compute_budget_s: the controller's share of the cycle, s (compute above it is a
         deadline miss; under ``--realtime`` it makes the next cycle late).
     position_min/position_max: joint position limits, rad; velocity_max: rad/s;
@@ -103,6 +109,7 @@ class ControllerInfo:
     period_s: float
     n_joints: int = 6
     dead_time_cycles: int = 1
+    lookahead_cycles: int = 0
     compute_budget_s: float = 100e-6
     position_min: np.ndarray | None = None
     position_max: np.ndarray | None = None
@@ -119,7 +126,7 @@ class ControllerInfo:
 
     @property
     def lead_cycles(self) -> int:
-        return 1 + self.dead_time_cycles
+        return 1 + self.dead_time_cycles + self.lookahead_cycles
 
 
 @dataclass(slots=True)

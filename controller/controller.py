@@ -404,6 +404,7 @@ class Controller:
                 self._upper = (ik.upper + LIMIT_TOLERANCE).tolist()
         self.kernel_cycles = 0
         self.fallback_cycles = 0
+        self._h = self.config.period_s  # time since the state the IK seed is predicted from (s)
         self._shaper = SetpointShaper(drive_model) if (drive_model is not None and self.model_based) else None
         if self._shaper is not None:
             if abs(drive_model.period_s - self.config.period_s) > 1e-12:
@@ -518,12 +519,39 @@ class Controller:
     def close(self) -> None:
         """Nothing to release (the log stays readable)."""
 
+    def warm_up(self) -> None:
+        """Run the Python-path cycle's numerics once (reference sample, IK, derivatives,
+        feed-forward) at the start of the reference and put everything back: its first call
+        in a fresh process pays for lazy set-up and cold caches, which a paced controller
+        must not pay inside a cycle. Changes nothing the cycles compute."""
+        ik = self._ik
+        ref = self.reference
+        sample = ref.sample(ref.t_start)
+        if ik is not None:
+            saved = (ik.q.copy(), ik.qd.copy(), ik.qdd.copy(), ik._have_seed, ik.last_iterations,
+                     ik.ik.last_iterations)
+            try:
+                ik.set_state(self.q_start, 0.0, 0.0)
+                q, qd, qdd = ik.solve(sample.target, sample.twist, sample.acceleration, self.config.period_s)
+                ik.ik.solve(sample.target, self.q_start)
+            finally:
+                ik.q[:], ik.qd[:], ik.qdd[:] = saved[0], saved[1], saved[2]
+                ik._have_seed, ik.last_iterations, ik.ik.last_iterations = saved[3], saved[4], saved[5]
+        else:
+            q, qd, qdd = sample.q, sample.qd, sample.qdd
+        if self.feedforward is not None:
+            self.feedforward.torque(np.array(q), np.array(qd), np.array(qdd))
+
     # ------------------------------------------------------------------ the cycle
     def run_cycle(self, cycle: int, t: float, observed: ObservedActuals | ControllerInput) -> Setpoints:
         """One controller cycle at time ``t`` (s) of cycle number ``cycle``: read the actual
         values, return the set-points for the next cycle (a reused object)."""
         started = time.perf_counter_ns()
         cpu_started = time.thread_time_ns()
+        last = self._last_cycle
+        # the time since the state the next IK seed is predicted from: one period, or more
+        # after cycles this controller did not run (a split controller that fell behind)
+        self._h = self.config.period_s if (last is None or cycle - last <= 1) else (cycle - last) * self.config.period_s
         if self._fast is not None and self.phase in _COMPUTING:
             done = self._fast_step(cycle, t, observed, started, cpu_started)
             if done:
@@ -605,7 +633,13 @@ class Controller:
             ref.packed_sample(self._ref_t_start + tau, self._scratch)
             address = self._scratch_address
         log = self.log
-        status = self._fast.fast_cycle(address, log.next_joints_address())
+        h = self._h
+        if h != self.config.period_s:  # a jumped cycle: predict the seed over the cycles not run
+            self._fast.h[0] = h
+            status = self._fast.fast_cycle(address, log.next_joints_address())
+            self._fast.h[0] = self.config.period_s
+        else:
+            status = self._fast.fast_cycle(address, log.next_joints_address())
         if status == FAST_STOP_CHECK or status == FAST_REJECTED:
             return False
         self._last_cycle = cycle
@@ -641,11 +675,15 @@ class Controller:
             else:
                 ref.packed_sample(t, self._scratch)
                 address = self._scratch_address
-            kernel.run(address, self.config.period_s)
-            e2, s2, hadamard = kernel.info.tolist()
-            if (e2 <= self._accept2 and s2 <= self._accept2 and hadamard >= SINGULARITY_TOLERANCE
-                    and all(lo <= x <= hi for lo, x, hi in zip(self._lower, kernel.result[:6].tolist(),
-                                                                 self._upper))):
+            h = self._h
+            kernel.run(address, h)
+            accepted = self._kernel_accepts()
+            if not accepted and h != self.config.period_s:
+                accepted = self._kernel_newton(address)
+            if h != self.config.period_s:
+                kernel.h[0] = self.config.period_s  # the whole-cycle path reads h from there
+            if accepted:
+                e2 = kernel.info.tolist()[0]
                 kernel.accept()
                 self.kernel_cycles += 1
                 state = kernel.state
@@ -656,14 +694,14 @@ class Controller:
             self.fallback_cycles += 1
             self._ik.set_state(kernel.state[:6], kernel.state[6:12], kernel.state[12:])
             sample = ref.sample(t)
-            q, qd, qdd = self._ik.solve(sample.target, sample.twist, sample.acceleration, self.config.period_s)
+            q, qd, qdd = self._ik.solve(sample.target, sample.twist, sample.acceleration, h)
             kernel.set_state(q, qd, qdd)
             torque = self.feedforward.torque(q, qd, qdd) if self.model_based else None
             self._set_outputs(sp, q, qd, qdd, torque)
             return self._ik.last_iterations
         if self._ik is not None:
             sample = ref.sample(ref.t_start + tau)
-            q, qd, qdd = self._ik.solve(sample.target, sample.twist, sample.acceleration, self.config.period_s)
+            q, qd, qdd = self._ik.solve(sample.target, sample.twist, sample.acceleration, self._h)
             iterations = self._ik.last_iterations
         else:
             sample = ref.sample(ref.t_start + tau)
@@ -671,6 +709,35 @@ class Controller:
             iterations = 0
         self._set_outputs(sp, q, qd, qdd, self.feedforward.torque(q, qd, qdd) if self.model_based else None)
         return iterations
+
+    def _kernel_accepts(self) -> bool:
+        """The kernel's last result passes the acceptance checks (converged Newton step,
+        not singular, inside the joint limits)."""
+        kernel = self.kernel
+        e2, s2, hadamard = kernel.info.tolist()
+        return (e2 <= self._accept2 and s2 <= self._accept2 and hadamard >= SINGULARITY_TOLERANCE
+                and all(lo <= x <= hi for lo, x, hi in zip(self._lower, kernel.result[:6].tolist(), self._upper)))
+
+    def _kernel_newton(self, address: int) -> bool:
+        """After a jumped cycle whose one Newton step did not converge: further Newton steps
+        through the kernel (``h = 0``: the seed is the last result; qd, qdd follow at each
+        new q), at most NumericIK's ``newton_iterations``, each a few µs, instead of the
+        Python-path IK. True with an accepted result in the kernel; False with the state
+        untouched (the Python path decides)."""
+        kernel = self.kernel
+        saved = kernel.state.copy()
+        result = kernel.result
+        for _ in range(self._ik.ik.newton_iterations):
+            e2, s2, _ = kernel.info.tolist()
+            if not (math.isfinite(e2) and math.isfinite(s2)) or s2 > self._ik.ik._max_step2:
+                break
+            kernel.state[:] = result
+            kernel.run(address, 0.0)
+            if self._kernel_accepts():
+                kernel.state[:] = saved
+                return True
+        kernel.state[:] = saved
+        return False
 
     def _set_outputs(self, sp: Setpoints, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray,
                      torque: np.ndarray | None) -> None:

@@ -30,6 +30,7 @@ from cosim.commands.exits import (EXIT_FAILED, EXIT_INTERRUPTED, EXIT_INVALID, C
 
 COMMAND_MODULES: tuple[str, ...] = (
     "cosim.commands.robot_info",
+    "cosim.commands.build",
     "cosim.commands.build_fmus",
     "cosim.commands.export_ssp",
     "cosim.commands.export_blf",

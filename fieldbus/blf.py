@@ -31,7 +31,7 @@ from can.io.blf import (CAN_ERROR_EXT, CAN_FD_MESSAGE, CAN_MESSAGE, EDL, FILE_HE
                         ZLIB_DEFLATE, BLFWriter, timestamp_to_systemtime)
 from can.util import len2dlc
 
-from fieldbus.canlog import MAX_DATA, RECORD_DTYPE  # noqa: E402  (the recorder's records, ``"<dHBB20s"``)
+from fieldbus.canlog import MAX_DATA, RECORD_DTYPE, record_dtype  # noqa: E402,F401  (the recorder's records)
 #: python-can's defaults: uncompressed bytes per container, zlib level, application id, channel.
 CONTAINER_SIZE = BLFWriter.max_container_size
 DEFAULT_COMPRESSION = -1
@@ -51,7 +51,7 @@ _ERROR = np.dtype(_HEADER + [("channel", "<u2"), ("length", "<u2"), ("err_flags"
                              ("id", "<u4"), ("ext_flags", "<u2"), ("reserved2", "V2"),
                              ("data", "u1", (8,))])                                   # CAN_ERROR_EXT_STRUCT
 _HEADER_SIZE = 32
-_DLC = np.array([len2dlc(n) for n in range(MAX_DATA + 1)], dtype=np.uint8)
+_DLC = np.array([len2dlc(n) for n in range(64 + 1)], dtype=np.uint8)
 
 
 @contextlib.contextmanager
@@ -124,14 +124,15 @@ class BlfRecordWriter:
                      data: np.ndarray) -> int:
         """Append frames given as columns: BLF object time (ns since :attr:`start_timestamp`,
         which the caller sets, and :attr:`stop_timestamp`, before the first frame), arbitration
-        id, error flag, data length and (n, 20) data bytes; returns their number."""
+        id, error flag, data length and (n, 20 or 64) data bytes; returns their number."""
         count = int(np.size(ids))
         if count == 0:
             return 0
         nanoseconds = np.asarray(nanoseconds, dtype=np.uint64)
         ids = np.asarray(ids)
         data = np.asarray(data, dtype=np.uint8)
-        length = np.minimum(np.asarray(length), MAX_DATA)
+        width = data.shape[1]  # 20 data bytes, 64 with a set-point look-ahead
+        length = np.minimum(np.asarray(length), width)
         error = np.asarray(error) != 0
         fd = ~error & (length > 8)
         classic = ~error & ~fd
@@ -145,10 +146,10 @@ class BlfRecordWriter:
                 continue
             n = length[mask]
             objects = _objects(kind, object_type, ids[mask], nanoseconds[mask])
-            keep = np.arange(MAX_DATA) < n[:, None]  # data beyond the frame's length are zero
+            keep = np.arange(width) < n[:, None]  # data beyond the frame's length are zero
             payload = np.where(keep, data[mask], 0).astype(np.uint8)
-            width = objects["data"].shape[1]
-            objects["data"][:, :min(width, MAX_DATA)] = payload[:, :width]
+            room = objects["data"].shape[1]
+            objects["data"][:, :min(room, width)] = payload[:, :room]
             if kind is _CAN:
                 objects["dlc"] = n  # CAN_MSG_STRUCT: msg.dlc
             elif kind is _FD:

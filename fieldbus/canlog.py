@@ -15,7 +15,8 @@ form long smooth runs that delta-encode to a few bits. Columns:
 ``id``                     uint16   arbitration id (11-bit, standard frames)
 ``error``                  bool     error frame
 ``length``                 uint8    data bytes (0..20; more than 8: a CAN FD frame)
-``data``                   binary   the payload, only for frames no layout below decodes (else null)
+``data``                   binary   the payload, only for frames no layout below decodes (else null;
+                                    e.g. RPDO1s of 32-64 bytes carrying a set-point look-ahead)
 telegram fields            int      the payload decoded by the layout of the frame's id and length
                                     (null in rows of other telegrams), fieldbus.telegrams:
 =========================  =======  ============================================================
@@ -70,10 +71,21 @@ PARTIAL_SUFFIX = ".partial"
 COMPRESSION_LEVEL = 6
 """zstd level of the Parquet file (the partial stream: level 1)."""
 MAX_DATA = 20
-#: The recorder's records (``fieldbus.recorder.RECORD``): time s, id, error flag, length, data.
-RECORD_DTYPE = np.dtype([("t", "<f8"), ("id", "<u2"), ("error", "u1"), ("length", "u1"), ("data", "u1", (MAX_DATA,))])
-#: Frames as :func:`read_frames` returns them: BLF time (ns since ``start_s``), id, error, length, data.
-FRAME_DTYPE = np.dtype([("t_ns", "<i8"), ("id", "<u2"), ("error", "u1"), ("length", "u1"), ("data", "u1", (MAX_DATA,))])
+
+
+def record_dtype(data_bytes: int = MAX_DATA) -> np.dtype:
+    """The recorder's records (``fieldbus.recorder.record_struct``): time s, id, error flag,
+    length, data (20 bytes; 64 where PReqs carry a set-point look-ahead)."""
+    return np.dtype([("t", "<f8"), ("id", "<u2"), ("error", "u1"), ("length", "u1"), ("data", "u1", (data_bytes,))])
+
+
+def frame_dtype(data_bytes: int = MAX_DATA) -> np.dtype:
+    """Frames as :func:`read_frames` returns them: BLF time (ns since ``start_s``), id, error, length, data."""
+    return np.dtype([("t_ns", "<i8"), ("id", "<u2"), ("error", "u1"), ("length", "u1"), ("data", "u1", (data_bytes,))])
+
+
+RECORD_DTYPE = record_dtype()
+FRAME_DTYPE = frame_dtype()
 
 # (first id, last id, length) -> fields; from fieldbus.telegrams' structs
 _RPDO1 = [("controlword", "<u2"), ("target_position", "<i4"), ("torque_offset", "<i2"), ("modes_of_operation", "i1"),
@@ -114,12 +126,12 @@ def _schema():
     return pa.schema(fields)
 
 
-def _partial_schema():
+def _partial_schema(data_bytes: int = MAX_DATA):
     import pyarrow as pa
 
     return pa.schema([pa.field("t", pa.float64(), metadata={b"unit": b"s"}), pa.field("id", pa.uint16()),
                       pa.field("error", pa.uint8()), pa.field("length", pa.uint8()),
-                      pa.field("data", pa.binary(MAX_DATA))], metadata={b"format": (FORMAT + " partial").encode()})
+                      pa.field("data", pa.binary(data_bytes))], metadata={b"format": (FORMAT + " partial").encode()})
 
 
 def _layout_masks(ids: np.ndarray, error: np.ndarray, length: np.ndarray):
@@ -135,16 +147,17 @@ class CanLogWriter:
     ``path``: streamed to ``<path>.partial`` as they come, turned into Parquet by :meth:`close`.
     The same interface as :class:`fieldbus.blf.BlfRecordWriter` (``write_records``, ``close``)."""
 
-    def __init__(self, path: str | Path, row_group_rows: int = ROW_GROUP_ROWS) -> None:
+    def __init__(self, path: str | Path, row_group_rows: int = ROW_GROUP_ROWS, data_bytes: int = MAX_DATA) -> None:
         import pyarrow as pa
 
         self.path = Path(path)
+        self.data_bytes = int(data_bytes)
         self.partial = self.path.with_name(self.path.name + PARTIAL_SUFFIX)
         self.row_group_rows = int(row_group_rows)
         self.object_count = 0
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self.path.unlink(missing_ok=True)
-        self._schema = _partial_schema()
+        self._schema = _partial_schema(self.data_bytes)
         self._file = pa.OSFile(str(self.partial), "wb")
         self._stream = pa.ipc.new_stream(self._file, self._schema,
                                          options=pa.ipc.IpcWriteOptions(compression="zstd"))
@@ -154,10 +167,11 @@ class CanLogWriter:
         """Append frames given as recorder records (in log order); returns their number."""
         import pyarrow as pa
 
-        rec = np.frombuffer(records, dtype=RECORD_DTYPE) if not isinstance(records, np.ndarray) else records
+        rec = (np.frombuffer(records, dtype=record_dtype(self.data_bytes)) if not isinstance(records, np.ndarray)
+               else records)
         if rec.size == 0:
             return 0
-        data = pa.FixedSizeBinaryArray.from_buffers(pa.binary(MAX_DATA), rec.size,
+        data = pa.FixedSizeBinaryArray.from_buffers(pa.binary(self.data_bytes), rec.size,
                                                     [None, pa.py_buffer(np.ascontiguousarray(rec["data"]).tobytes())])
         batch = pa.RecordBatch.from_arrays([pa.array(np.ascontiguousarray(rec["t"])),
                                             pa.array(np.ascontiguousarray(rec["id"])),
@@ -191,12 +205,13 @@ def _partial_records(partial: Path) -> Iterator[np.ndarray]:
                 batch = reader.read_next_batch()
                 if not batch.num_rows:
                     continue
-                rec = np.empty(batch.num_rows, dtype=RECORD_DTYPE)
+                data = batch.column("data")
+                width = data.type.byte_width
+                rec = np.empty(batch.num_rows, dtype=record_dtype(width))
                 for name in ("t", "id", "error", "length"):
                     rec[name] = batch.column(name).to_numpy()
-                data = batch.column("data")
                 raw = np.frombuffer(data.buffers()[1], dtype=np.uint8)
-                rec["data"] = raw[data.offset * MAX_DATA:(data.offset + len(data)) * MAX_DATA].reshape(-1, MAX_DATA)
+                rec["data"] = raw[data.offset * width:(data.offset + len(data)) * width].reshape(-1, width)
                 yield rec
         except (StopIteration, pa.ArrowInvalid, OSError):
             return
@@ -234,6 +249,7 @@ def partial_to_parquet(partial: Path, path: Path, row_group_rows: int = ROW_GROU
     """Rewrite the partial stream ``partial`` as the columnar CAN log ``path`` (bounded memory)."""
     tmp = path.with_name(path.name + ".tmp")
     start = stop = None
+    width = MAX_DATA
     previous = 0
     writer = None
     pending: list[np.ndarray] = []
@@ -257,6 +273,7 @@ def partial_to_parquet(partial: Path, path: Path, row_group_rows: int = ROW_GROU
             if start is None:
                 start = blf_start(rec["t"][0])
             stop = float(rec["t"][-1])
+            width = rec.dtype["data"].shape[0]
             while rec.size:
                 take = min(rec.size, row_group_rows - rows)
                 pending.append(rec[:take])
@@ -268,7 +285,7 @@ def partial_to_parquet(partial: Path, path: Path, row_group_rows: int = ROW_GROU
         if writer is None:
             writer = _parquet_writer(tmp, _schema())
         writer.add_key_value_metadata({"format": FORMAT, "start_s": repr(start if start is not None else 0.0),
-                                       "stop_s": repr(stop if stop is not None else 0.0)})
+                                       "stop_s": repr(stop if stop is not None else 0.0), "data_bytes": str(width)})
     finally:
         if writer is not None:
             writer.close()
@@ -286,11 +303,12 @@ def _parquet_writer(path: Path, schema):
 
 
 def _frames_of(rec: np.ndarray, start: float) -> np.ndarray:
-    frames = np.zeros(rec.size, dtype=FRAME_DTYPE)
+    width = rec.dtype["data"].shape[0]
+    frames = np.zeros(rec.size, dtype=frame_dtype(width))
     frames["t_ns"] = blf_nanoseconds(rec["t"], start)
     for name in ("id", "error", "length"):
         frames[name] = rec[name]
-    keep = np.arange(MAX_DATA) < np.minimum(rec["length"], MAX_DATA)[:, None]
+    keep = np.arange(width) < np.minimum(rec["length"], width)[:, None]
     frames["data"] = np.where(keep, rec["data"], 0)
     return frames
 
@@ -344,11 +362,12 @@ def _read_parquet(path: Path) -> tuple[np.ndarray, float, float]:
                          f"expected {FORMAT!r})")
     parts = []
     previous = 0
+    width = int(meta.get("data_bytes", MAX_DATA))
     for g in range(pf.metadata.num_row_groups):
         table = pf.read_row_group(g)
         n = table.num_rows
         seq = table.column("seq").to_numpy()
-        grouped = np.zeros(n, dtype=FRAME_DTYPE)
+        grouped = np.zeros(n, dtype=frame_dtype(width))
         grouped["id"] = table.column("id").to_numpy()
         grouped["error"] = table.column("error").to_numpy(zero_copy_only=False)
         grouped["length"] = table.column("length").to_numpy()
@@ -364,7 +383,7 @@ def _read_parquet(path: Path) -> tuple[np.ndarray, float, float]:
             for i in np.flatnonzero(~decoded):
                 payload = raw[i] or b""
                 grouped["data"][i, :len(payload)] = np.frombuffer(payload, dtype=np.uint8)
-        frames = np.empty(n, dtype=FRAME_DTYPE)
+        frames = np.empty(n, dtype=frame_dtype(width))
         frames[seq] = grouped
         dt = np.empty(n, dtype=np.int64)
         dt[seq] = table.column("dt_ns").to_numpy()
@@ -372,7 +391,7 @@ def _read_parquet(path: Path) -> tuple[np.ndarray, float, float]:
         if n:
             previous = int(frames["t_ns"][-1])
         parts.append(frames)
-    frames = np.concatenate(parts) if parts else np.zeros(0, dtype=FRAME_DTYPE)
+    frames = np.concatenate(parts) if parts else np.zeros(0, dtype=frame_dtype(width))
     return frames, float(meta["start_s"]), float(meta["stop_s"])
 
 
@@ -461,5 +480,6 @@ def to_blf(path: str | Path, out: str | Path, chunk: int = 1 << 16) -> Path:
 
 
 __all__ = ["CanLog", "CanLogReader", "CanLogWriter", "FIELDS", "FORMAT", "FRAME_DTYPE", "LAYOUTS", "RECORD_DTYPE",
+           "frame_dtype", "record_dtype",
            "ROW_GROUP_ROWS", "blf_nanoseconds", "blf_start", "is_columnar", "iter_messages", "open_log",
            "partial_to_parquet", "read_frames", "resolve", "to_blf"]

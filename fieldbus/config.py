@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from fieldbus.errors import FieldbusConfigError
+from fieldbus.telegrams import MAX_LOOKAHEAD, RPDO1_LOOKAHEAD_ENTRY, RPDO1_MAX_BYTES, RPDO1_SIGNED
 from fieldbus.timing import check_cycle_budget
 
 DEFAULTS_PATH = Path(__file__).with_name("powerlink_defaults.toml")
@@ -243,6 +244,14 @@ class FieldbusConfig:
     faults: FaultConfig
     recording: RecordingConfig
     source: str = "<dict>"
+    setpoint_lookahead: int = 0
+
+    @property
+    def lead_cycles(self) -> int:
+        """Cycles from a controller computing a set-point to the drive applying it:
+        1 (into the next cycle's PReq) + ``dead_time_cycles`` + ``setpoint_lookahead`` (a
+        controller sending set-points ahead computes each that many cycles early)."""
+        return 1 + self.dead_time_cycles + self.setpoint_lookahead
 
     @property
     def node_ids(self) -> range:
@@ -396,9 +405,18 @@ def _build(v: dict[str, Any], source: str) -> FieldbusConfig:
         dead_time_cycles=r.integer("dead_time_cycles", v["dead_time_cycles"], 1, 10_000),
         start_time_s=r.number("start_time_s", v["start_time_s"]),
         seed=r.integer("seed", v["seed"], 0),
+        setpoint_lookahead=_lookahead(r, v["setpoint_lookahead"]),
         bus=bus, timing=timing, thresholds=thresholds, reaction=reaction,
         scaling=scaling, faults=faults, recording=recording, source=source,
     )
+
+
+def _lookahead(r: _Rules, value: object) -> int:
+    if not _is_int(value) or not 0 <= value <= MAX_LOOKAHEAD:  # type: ignore[operator]
+        r.fail("setpoint_lookahead", value,
+               f"an integer number of cycles in [0, {MAX_LOOKAHEAD}] (the RPDO1 carries {RPDO1_SIGNED.size} bytes "
+               f"+ {RPDO1_LOOKAHEAD_ENTRY.size} per look-ahead cycle in at most {RPDO1_MAX_BYTES} bytes of CAN FD)")
+    return int(value)  # type: ignore[arg-type]
 
 
 def _list(r: _Rules, key: str, value: object) -> list[Any]:

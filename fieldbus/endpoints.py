@@ -38,7 +38,7 @@ from fieldbus.scaling import JointScaling
 from fieldbus.simbus import register as register_simbus
 from fieldbus.simbus import unique_channel
 from fieldbus.udpcycle import register as register_udpcycle
-from fieldbus.telegrams import EMCY_BASE, RPDO1_BASE, SYNC_ID, TPDO1_BASE, TPDO2_BASE, FastMessage
+from fieldbus.telegrams import EMCY_BASE, RPDO1_BASE, SYNC_ID, TPDO1_BASE, TPDO2_BASE, FastMessage, rpdo1_length
 from fieldbus.timing import CycleLayout, CycleSchedule, check_cycle_budget
 
 # Setpoints fields in the order of ManagingNode.frames' arguments
@@ -192,7 +192,7 @@ class _Endpoint(Closeable):
     def __init__(self, config: FieldbusConfig | dict | None, scaling: JointScaling, *,
                  channel: str | int | None = None, events: EventLog | None = None,
                  log_path: str | Path | None = None, recorder: FrameRecorder | None = None,
-                 record_received: bool = True) -> None:
+                 record_received: bool = True, record_data_bytes: int | None = None) -> None:
         if not isinstance(config, FieldbusConfig):
             config = FieldbusConfig.from_dict(config)
         if scaling.joints != config.nodes:
@@ -211,7 +211,9 @@ class _Endpoint(Closeable):
         self._drain = getattr(self.bus, "drain", None)  # simbus: all queued frames at once
         self._send_many = getattr(self.bus, "send_many", None)  # simbus: a cycle's frames at once
         if recorder is None and log_path is not None:
-            recorder = FrameRecorder(log_path, config.recording.flush_every_cycles, config.recording.background)
+            # the longest frame: the RPDO1 with this configuration's look-ahead (64: any CAN FD frame)
+            recorder = FrameRecorder(log_path, config.recording.flush_every_cycles, config.recording.background,
+                                     record_data_bytes or rpdo1_length(config.setpoint_lookahead))
             self._owns_recorder = True
         else:
             self._owns_recorder = False

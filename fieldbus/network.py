@@ -37,6 +37,7 @@ from fieldbus.lifecycle import Closeable
 from fieldbus.process_data import AppliedSetpoints, CycleResult, DriveActuals, ObservedActuals, Setpoints
 from fieldbus.recorder import FrameRecorder
 from fieldbus.scaling import JointScaling
+from fieldbus.telegrams import rpdo1_length
 
 
 class PowerlinkNetwork(Closeable):
@@ -57,7 +58,8 @@ class PowerlinkNetwork(Closeable):
         self.scaling = scaling
         self.events = EventLog()
         self.channel = default_channel(config)
-        self.recorder = (FrameRecorder(log_path, config.recording.flush_every_cycles, config.recording.background)
+        self.recorder = (FrameRecorder(log_path, config.recording.flush_every_cycles, config.recording.background,
+                                       rpdo1_length(config.setpoint_lookahead))
                          if log_path is not None else None)
         shared = {"channel": self.channel, "events": self.events, "recorder": self.recorder,
                   "record_received": False}
@@ -169,6 +171,10 @@ def network_summary(config: FieldbusConfig, events: EventLog, mn_side: ManagingN
         "node_fault": [bool(x) for x in mn_side.node.node_fault] if mn_side is not None else None,
         "comm_fault": [bool(x) for x in drive_side.nodes.comm_fault] if drive_side is not None else None,
         "counters": counters,
+        "setpoint_lookahead": {
+            "cycles": config.setpoint_lookahead,
+            "cycles_covered_per_node": ({str(i + 1): int(v) for i, v in enumerate(drive_side.nodes.cycles_covered)}
+                                        if drive_side is not None else None)},
         "event_tally": events.tally(),
         "faults": faults,
     }

@@ -30,6 +30,7 @@ Fault reactions:
 from __future__ import annotations
 
 import struct
+from collections import deque
 from collections.abc import Callable
 from functools import partial
 from math import floor
@@ -45,8 +46,9 @@ from fieldbus.events import CounterBank, EventLog, FieldbusEvent, ThresholdCount
 from fieldbus.process_data import AppliedSetpoints, DriveActuals, ObservedActuals
 from fieldbus.telegrams import (
     CLASSIC_RPDO1_DEFAULTS, EMCY, EMCY_BASE, EMCY_COMMUNICATION, EMCY_ERROR_REGISTER_COMMUNICATION,
-    MODES_OF_OPERATION, RPDO1_BASE, RPDO1_CLASSIC, RPDO1_SIGNED, SYNC_ID, TPDO1, TPDO1_BASE, TPDO2,
-    TPDO2_BASE, FastMessage, check_frame, check_mode_of_operation, classify,
+    MODES_OF_OPERATION, RPDO1_BASE, RPDO1_CLASSIC, RPDO1_LOOKAHEAD_ENTRY, RPDO1_LOOKAHEAD_LENGTHS, RPDO1_SIGNED,
+    SYNC_ID, TPDO1, TPDO1_BASE, TPDO2,
+    TPDO2_BASE, FastMessage, check_frame, check_mode_of_operation, classify, rpdo1_length,
 )
 
 if TYPE_CHECKING:
@@ -66,6 +68,45 @@ _PACK_TPDO2_INTO = TPDO2.pack_into
 _UNPACK_RPDO1 = RPDO1_SIGNED.unpack
 _UNPACK_TPDO1 = TPDO1.unpack
 _UNPACK_TPDO2 = TPDO2.unpack
+
+def _lookahead_entry(raw: bytes) -> bytes:
+    """The 10-byte look-ahead entry of a packed 20-byte RPDO1: the set-point of its mode
+    (target position / velocity INT32, target torque INT16 widened), torque offset,
+    velocity offset (fieldbus/README.md, Frames)."""
+    mode = raw[8]
+    if mode == 9:
+        target = raw[12:16]
+    elif mode == 10:
+        target = _I32.pack(_I16.unpack_from(raw, 10)[0])
+    else:
+        target = raw[2:6]
+    return target + raw[6:8] + raw[16:20]
+
+
+def _interpolated(old: bytes, new: bytes, gap: int, keep: int) -> list[bytes]:
+    """The last (at most ``keep``) of the ``gap - 1`` packed RPDO1s between ``old`` and ``new``
+    (``gap`` cycles apart, both exclusive), their set-points (target position, torque offset,
+    target torque, target velocity, velocity offset) interpolated linearly and rounded;
+    controlword and mode those of ``new``."""
+    a, b = _RPDO1_FIELDS.unpack(old), _RPDO1_FIELDS.unpack(new)
+    out = []
+    for i in range(max(1, gap - keep), gap):
+        s = i / gap
+        values = [round(x + (y - x) * s) for x, y in zip(a, b)]
+        data = bytearray(new)
+        _RPDO1_FIELDS.pack_into(data, 0, *values)
+        data[:2] = new[:2]
+        data[8:10] = new[8:10]
+        out.append(bytes(data))
+    return out
+
+
+# the RPDO1's 16-bit words and integers as one struct (controlword and mode/reserved kept apart)
+_RPDO1_FIELDS = struct.Struct("<2xih2xhii")
+_I16 = struct.Struct("<h")
+_I32 = struct.Struct("<i")
+_UNPACK_ENTRY = RPDO1_LOOKAHEAD_ENTRY.unpack_from
+_ENTRY_LEN = RPDO1_LOOKAHEAD_ENTRY.size
 
 COUNTER_IDS = {"cn_loss_of_soc": 1, "cn_loss_of_preq": 2, "cn_crc_error": 3, "cn_soc_jitter": 4}
 
@@ -183,6 +224,15 @@ class ManagingNode:
         self._sync_msg = FastMessage(0.0, SYNC_ID, bytearray(1))
         self._preq_msgs = [FastMessage(0.0, RPDO1_BASE + i + 1, bytearray(_RPDO1_LEN)) for i in range(n)]
         self._frames = [self._sync_msg] + self._preq_msgs
+        # set-point look-ahead: the controller's outputs go out setpoint_lookahead cycles late
+        # as the PReq's set-point due next, each first in that many PReqs before as a
+        # look-ahead entry (the controller computes them that much earlier: its lead_cycles)
+        self._k = k = config.setpoint_lookahead
+        if k:
+            self._ring = [deque(maxlen=k + 1) for _ in range(n)]
+            self._la_msgs = [FastMessage(0.0, RPDO1_BASE + i + 1, bytearray(rpdo1_length(k))) for i in range(n)]
+            self._frames_sent = [self._sync_msg] + self._la_msgs
+            self._la_cycle = -1  # cycle of the last PReqs sent
         th = config.thresholds
         self._c_loss = _counters_per_node(self, "loss_of_pres", th.mn_loss_of_pres)
         self._c_late = _counters_per_node(self, "late_pres", th.mn_late_pres)
@@ -215,7 +265,38 @@ class ManagingNode:
         sync = self._sync_msg
         sync.timestamp = times[0]
         sync.data[0] = (cycle % self._sync_overflow) + 1
-        return self._frames
+        return self._lookahead_frames(cycle) if self._k else self._frames
+
+    def _lookahead_frames(self, cycle: int) -> list[FastMessage]:
+        """The PReqs of ``cycle`` with the set-point look-ahead, from this cycle's packed
+        20-byte RPDO1s (the controller's newest output, for the SoC of cycle + d + k): per
+        node a ring of the planned set-points for the SoCs of cycles cycle + d .. cycle + d + k;
+        the first is the set-point due next, the others the k look-ahead entries.
+
+        A new controlword or mode of operation replaces the node's ring with the new output
+        (the controller changed its plan: enabling, a quick stop, a fault reset go out at
+        once). A controller that skipped cycles (it fell behind and jumped to the cell's
+        cycle) left no set-points for the cycles in between: they are interpolated linearly
+        between its last output and the new one, in telegram units."""
+        k = self._k
+        gap = cycle - self._la_cycle
+        self._la_cycle = cycle
+        entry = _lookahead_entry
+        for staged, ring, msg in zip(self._preq_msgs, self._ring, self._la_msgs):
+            raw = bytes(staged.data)
+            if not ring or gap < 1 or raw[:2] != ring[-1][:2] or raw[8] != ring[-1][8]:
+                ring.clear()
+                ring.extend((raw,) * (k + 1))
+            else:
+                if gap > 1:
+                    ring.extend(_interpolated(ring[-1], raw, gap, k))
+                ring.append(raw)
+            data = msg.data
+            data[:20] = ring[0]
+            data[9] = k
+            data[20:20 + 10 * k] = b"".join([entry(ring[j]) for j in range(1, k + 1)])
+            msg.timestamp = staged.timestamp
+        return self._frames_sent
 
     def frames(self, cycle: int, times: list, controlword: list, position: list, torque_offset: list,
                modes: list | None = None, target_torque: list | None = None, target_velocity: list | None = None,
@@ -272,7 +353,7 @@ class ManagingNode:
                 self._pack_saturated(msg, i, cw, position[i], torque_offset[i], mode, target_torque[i],
                                      target_velocity[i], velocity_offset[i])
         self._last_cw = controlword
-        return self._frames
+        return self._lookahead_frames(cycle) if self._k else self._frames
 
     def _pack_saturated(self, msg: FastMessage, i: int, cw: int, position: float, torque: float, mode: int,
                         target_torque: float, target_velocity: float, velocity_offset: float) -> None:
@@ -451,6 +532,13 @@ class ControlledNodes:
         self._sync_seen = False
         self._sync_ts = 0.0
         self._next_soc = 0.0
+        # set-point look-ahead buffer, per node: (cycle whose SoC applies the newest PReq's own
+        # set-point, [the set-points of the following cycles as pipe tuples]) or None
+        self._ahead: list[tuple[int, list[tuple[int, ...]]] | None] = [None] * n
+        self._ahead_any = False
+        self._ahead_new = [False] * n  # the buffer was refilled by this cycle's PReq
+        self.cycles_covered = [0] * n  # cycles whose set-point came from the buffer (PReq lost or late)
+        self.covered_now: list[int] = []  # nodes (index) covered from the buffer at this cycle's SoC
         # latched actuals (telegram units), index = node - 1
         self._a_sw = [0] * n
         self._a_pos = [0] * n
@@ -559,6 +647,9 @@ class ControlledNodes:
             self._a_si = (pos, vel, tq)
         # apply the set-points due at this SoC
         slot = cycle % self._d
+        covered = self._cover_from_buffer(cycle, slot) if self._ahead_any else None
+        if covered is None and self.covered_now:
+            self.covered_now = []
         cws, poss, prev, tqs, fresh = self._cw, self._pos, self._prev_pos, self._tq, self._fresh
         modes, tts, tvs, vos = self._mode, self._tt, self._tv, self._vo
         done = -1
@@ -593,6 +684,10 @@ class ControlledNodes:
                     # one cycle extrapolated, then held (prev = poss: the next step is zero); a
                     # drive does not run on blind along a straight line
                     poss[i] = prev[i] = last + (last - prev[i])
+        if covered:
+            for i in covered:  # applied exactly as planned, but no PReq arrived for it
+                fresh[i] = False
+            all_fresh = False
         app = self.applied
         if self._any_fault or self._fault_shown:
             forced = list(cws)
@@ -632,6 +727,39 @@ class ControlledNodes:
         self._all_fresh = all_fresh
         return app
 
+    def _cover_from_buffer(self, cycle: int, slot: int) -> list[int]:
+        """Put the buffered look-ahead set-point for ``cycle`` where a node's due set-point is
+        missing (its PReq was lost or late); returns the nodes covered. A node whose buffer
+        has nothing for this cycle stays missing: ``missing_setpoint`` applies."""
+        covered = []
+        for i, ahead in enumerate(self._ahead):
+            if ahead is not None and self._pipe[i][slot] is None:
+                j = cycle - ahead[0]
+                entries = ahead[1]
+                if 1 <= j <= len(entries):
+                    self._pipe[i][slot] = entries[j - 1]
+                    self.cycles_covered[i] += 1
+                    covered.append(i)
+        self.covered_now = covered
+        return covered
+
+    def _buffer_lookahead(self, i: int, due: tuple[int, ...], data: bytearray | bytes, entries: int) -> None:
+        """Keep the look-ahead entries of node ``i``'s PReq received in this cycle (``due``:
+        its own set-point, from which the entries take controlword and mode)."""
+        cw, pos, tq, mode, _, tt, tv, vo = due
+        out = []
+        for j in range(entries):
+            target, offset, velocity = _UNPACK_ENTRY(data, 20 + _ENTRY_LEN * j)
+            if mode == 9:
+                out.append((cw, pos, offset, mode, 0, tt, target, velocity))
+            elif mode == 10:
+                out.append((cw, pos, offset, mode, 0, target, tv, velocity))
+            else:
+                out.append((cw, target, offset, mode, 0, tt, tv, velocity))
+        self._ahead[i] = (self.cycle + self._d, out)
+        self._ahead_new[i] = True
+        self._ahead_any = True
+
     # ------------------------------------------------------------------ receiving
     def receive(self, msg: can.Message) -> None:
         """Digest one received frame; never raises (bad frames are counted and recorded)."""
@@ -661,10 +789,20 @@ class ControlledNodes:
             i = ids.get(msg.arbitration_id)
             size = len(msg.data)
             if i is None or msg.is_error_frame or msg.is_remote_frame or msg.is_extended_id \
-                    or (size != _RPDO1_LEN and size != _RPDO1_CLASSIC_LEN):
+                    or (size != _RPDO1_LEN and size != _RPDO1_CLASSIC_LEN and size not in RPDO1_LOOKAHEAD_LENGTHS):
                 self._other_frame(msg)
             elif msg.timestamp + arrival[i] > next_soc:
                 late[i] = True
+            elif size > _RPDO1_LEN:  # with a set-point look-ahead
+                data = msg.data
+                entries = data[9]
+                if _RPDO1_LEN + _ENTRY_LEN * entries > size:
+                    self._bad_frame(msg)
+                    continue
+                pipe[i][slot] = due = _UNPACK_RPDO1(data[:_RPDO1_LEN])
+                ok[i] = True
+                if entries:
+                    self._buffer_lookahead(i, due, data, entries)
             else:
                 pipe[i][slot] = (_UNPACK_RPDO1(msg.data) if size == _RPDO1_LEN
                                  else _UNPACK_RPDO1_CLASSIC(msg.data) + CLASSIC_RPDO1_DEFAULTS)
@@ -769,6 +907,13 @@ class ControlledNodes:
         counted as lost, counters only decrement."""
         n = self.nodes
         t = self._t0 + cycle * self._cycle_time
+        if self._ahead_any:  # a PReq without look-ahead empties the node's buffer
+            ok, new = self._preq_ok, self._ahead_new
+            for i in range(n):
+                if ok[i] and not new[i]:
+                    self._ahead[i] = None
+            self._ahead_new = [False] * n
+            self._ahead_any = any(a is not None for a in self._ahead)
         if not judge:
             self._sync_seen = False
             self._preq_ok = [False] * n

@@ -28,29 +28,38 @@ from fieldbus.lifecycle import Closeable
 from fieldbus.telegrams import FastMessage
 
 RECORD = struct.Struct("<dHBB20s")  # timestamp, id, is_error_frame, dlc, data (padded; at most 20 bytes)
+
+
+def record_struct(data_bytes: int = 20) -> struct.Struct:
+    """The record for frames of up to ``data_bytes`` (20; 64 where PReqs carry a set-point look-ahead)."""
+    return RECORD if data_bytes == 20 else struct.Struct(f"<dHBB{data_bytes}s")
+
+
 LOG_SUFFIXES = (".parquet", ".blf", ".asc", ".log", ".csv", ".trc", ".txt", ".mf4")
 
 
 class _LogSink:
     """Sorts records and writes them with can.Logger up to a watermark time."""
 
-    def __init__(self, path: str) -> None:
+    def __init__(self, path: str, data_bytes: int = 20) -> None:
         self.logger = can.Logger(path)
         self.pending: list[tuple[float, int, bool, bytes]] = []
         self.written = 0
+        self._record = record_struct(data_bytes)
 
     @staticmethod
-    def open(path: str) -> "_LogSink | _BlfSink":
+    def open(path: str, data_bytes: int = 20) -> "_LogSink | _BlfSink":
         """The sink for ``path``: the columnar CAN log (``.parquet``) through
         :class:`fieldbus.canlog.CanLogWriter`, BLF through :class:`fieldbus.blf.BlfRecordWriter`
         (the same bytes as python-can's writer, a batch at a time), any other format through
         can.Logger."""
         suffix = Path(path).suffix.lower()
-        return _BlfSink(path, columnar=True) if suffix == ".parquet" else _BlfSink(path) if suffix == ".blf" \
-            else _LogSink(path)
+        if suffix in (".parquet", ".blf"):
+            return _BlfSink(path, data_bytes, columnar=suffix == ".parquet")
+        return _LogSink(path, data_bytes)
 
     def feed(self, records: bytes, watermark_s: float | None) -> None:
-        self.pending.extend((t, i, bool(e), d[:n]) for t, i, e, n, d in RECORD.iter_unpack(records))
+        self.pending.extend((t, i, bool(e), d[:n]) for t, i, e, n, d in self._record.iter_unpack(records))
         pending = self.pending
         pending.sort(key=lambda r: r[0])
         count = len(pending)
@@ -77,17 +86,17 @@ class _BlfSink:
     watermark written by :class:`fieldbus.blf.BlfRecordWriter` (the bytes ``can.Logger`` would
     write) or, ``columnar``, :class:`fieldbus.canlog.CanLogWriter` (the same frames)."""
 
-    def __init__(self, path: str, columnar: bool = False) -> None:
-        from fieldbus.canlog import RECORD_DTYPE, CanLogWriter
+    def __init__(self, path: str, data_bytes: int = 20, columnar: bool = False) -> None:
+        from fieldbus.canlog import CanLogWriter, record_dtype
 
-        self._dtype = RECORD_DTYPE
+        self._dtype = record_dtype(data_bytes)
         if columnar:
-            self.writer = CanLogWriter(path)
+            self.writer = CanLogWriter(path, data_bytes=data_bytes)
         else:
             from fieldbus.blf import BlfRecordWriter
 
             self.writer = BlfRecordWriter(path)
-        self.pending = np.empty(0, dtype=RECORD_DTYPE)
+        self.pending = np.empty(0, dtype=self._dtype)
         self.written = 0
 
     def feed(self, records: bytes, watermark_s: float | None) -> None:
@@ -136,7 +145,7 @@ def _send_whole(connection: Any, message: Any) -> None:
         mask(signal.SIG_SETMASK, previous)
 
 
-def _writer_process(path: str, connection: Any) -> None:
+def _writer_process(path: str, connection: Any, data_bytes: int = 20) -> None:
     """Child process: feed (records, watermark) batches to a sink until None arrives.
 
     It ignores SIGINT and SIGTERM: Ctrl-C in a terminal reaches the whole process group, and
@@ -146,7 +155,7 @@ def _writer_process(path: str, connection: Any) -> None:
 
     for signum in (signal.SIGINT, signal.SIGTERM):
         signal.signal(signum, signal.SIG_IGN)
-    sink = _LogSink.open(path)
+    sink = _LogSink.open(path, data_bytes)
     connection.send("ready")  # imports done, file open: FrameRecorder.wait_ready
     try:
         while True:
@@ -175,7 +184,8 @@ class FrameRecorder(Closeable):
         background: run the Logger in a child process.
     """
 
-    def __init__(self, path: str | Path, flush_every_cycles: int = 250, background: bool = False) -> None:
+    def __init__(self, path: str | Path, flush_every_cycles: int = 250, background: bool = False,
+                 data_bytes: int = 20) -> None:
         self.path = Path(path)
         if self.path.suffix.lower() not in LOG_SUFFIXES:
             raise FieldbusConfigError(str(self.path), "log_path", str(self.path),
@@ -186,19 +196,23 @@ class FrameRecorder(Closeable):
         self.background = background
         self._records: list[bytes] = []
         self._pending_frames = 0
-        self._pack_records = getattr(load_codec(), "pack_records", None)  # compiled, or None
+        # records hold frames of up to data_bytes (20: the plain RPDO1; 64 with a set-point look-ahead)
+        self.data_bytes = data_bytes
+        self._record_struct = record_struct(data_bytes)
+        self._pack_records = (getattr(load_codec(), "pack_records", None)  # compiled (20-byte records), or None
+                              if data_bytes == 20 else None)
         self.frames_recorded = 0
         self.frames_written = 0
         self._sink: _LogSink | _BlfSink | None = None
         if background:
             context = multiprocessing.get_context("spawn")
             receiver, self._conn = context.Pipe(duplex=True)
-            self._process = context.Process(target=_writer_process, args=(str(self.path), receiver),
+            self._process = context.Process(target=_writer_process, args=(str(self.path), receiver, data_bytes),
                                             name="fieldbus-recorder", daemon=True)
             self._process.start()
             receiver.close()
         else:
-            self._sink = _LogSink.open(str(self.path))
+            self._sink = _LogSink.open(str(self.path), data_bytes)
         self._ready = not background
 
     def wait_ready(self, timeout_s: float = 60.0) -> bool:
@@ -217,7 +231,7 @@ class FrameRecorder(Closeable):
             if records is not None:
                 self._records.append(records)
                 return
-        pack = RECORD.pack
+        pack = self._record_struct.pack
         self._records.append(b"".join([pack(m.timestamp, m.arbitration_id, m.is_error_frame, len(m.data), m.data)
                                        for m in frames]))
 

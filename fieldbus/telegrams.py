@@ -59,6 +59,25 @@ TPDO2 = struct.Struct("<iHb")  # velocity actual, error code, modes of operation
 EMCY = struct.Struct("<HBBHH")  # error code, error register, counter id, counter value, threshold
 
 PREQ_PAYLOAD_BYTES = RPDO1_SIGNED.size
+
+# Set-point look-ahead: an RPDO1 longer than 20 bytes carries, after the 20 bytes above,
+# byte 9 (the reserved byte) = k look-ahead entries, then k entries of 10 bytes, one per
+# following cycle: the active mode's set-point INT32 (target position 0x607A [counts] in
+# mode 8, target velocity 0x60FF [counts/s] in mode 9, target torque 0x6071 [0.1 %] in
+# mode 10), torque offset 0x60B2 INT16 [0.1 %], velocity offset 0x60B1 INT32 [counts/s];
+# zero padding up to the next CAN FD data length (32, 48 or 64 bytes).
+RPDO1_LOOKAHEAD_ENTRY = struct.Struct("<ihi")
+RPDO1_MAX_BYTES = 64  # the longest CAN FD data field
+MAX_LOOKAHEAD = (RPDO1_MAX_BYTES - RPDO1_SIGNED.size) // RPDO1_LOOKAHEAD_ENTRY.size
+CAN_FD_LENGTHS = (0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 16, 20, 24, 32, 48, 64)
+RPDO1_LOOKAHEAD_LENGTHS = (32, 48, 64)  # the CAN FD lengths that hold 1..MAX_LOOKAHEAD entries
+
+
+def rpdo1_length(lookahead: int) -> int:
+    """Data bytes of an RPDO1 carrying ``lookahead`` entries (20 without any): 20 + 10 k
+    rounded up to a CAN FD data length."""
+    need = RPDO1_SIGNED.size + lookahead * RPDO1_LOOKAHEAD_ENTRY.size
+    return next(size for size in CAN_FD_LENGTHS if size >= need)
 PRES_PAYLOAD_BYTES = TPDO1.size + TPDO2.size
 
 # CANopen emergency error code for communication faults (CiA 301: 0x81xx communication)
@@ -88,6 +107,7 @@ class RxPdo1(NamedTuple):
     target_torque: int = 0
     target_velocity: int = 0
     velocity_offset: int = 0
+    lookahead: tuple = ()  # (set-point of the active mode, torque offset, velocity offset) per following cycle
 
 
 class TxPdo1(NamedTuple):
@@ -140,7 +160,8 @@ def classify(arbitration_id: int) -> tuple[str, int]:
     return (kind, node) if kind else ("unknown", 0)
 
 
-_LENGTHS = {"sync": (0, 1), "emcy": (EMCY.size,), "rpdo1": (RPDO1_SIGNED.size, RPDO1_CLASSIC.size),
+_LENGTHS = {"sync": (0, 1), "emcy": (EMCY.size,),
+            "rpdo1": (RPDO1_SIGNED.size, RPDO1_CLASSIC.size) + RPDO1_LOOKAHEAD_LENGTHS,
             "tpdo1": (TPDO1.size,), "tpdo2": (TPDO2.size,)}
 
 
@@ -163,6 +184,11 @@ def check_frame(msg: can.Message, kind: str, node: int) -> None:
         reason = "short_frame" if length < min(allowed) else "long_frame"
         raise FrameDecodeError(reason, msg.arbitration_id, node,
                                f"{length} data bytes, {kind.upper()} needs {' or '.join(map(str, allowed))}")
+    if kind == "rpdo1" and length > RPDO1_SIGNED.size:
+        entries = msg.data[9]
+        if RPDO1_SIGNED.size + entries * RPDO1_LOOKAHEAD_ENTRY.size > length:
+            raise FrameDecodeError("bad_lookahead", msg.arbitration_id, node,
+                                   f"{entries} look-ahead entries (byte 9) do not fit {length} data bytes")
 
 
 def decode(msg: can.Message) -> Telegram:
@@ -174,8 +200,12 @@ def decode(msg: can.Message) -> Telegram:
     if kind == "rpdo1":
         if len(data) == RPDO1_CLASSIC.size:
             return RxPdo1(node, *RPDO1_CLASSIC.unpack(data))
-        cw, pos, tq, mode, _, target_torque, target_velocity, velocity_offset = RPDO1_SIGNED.unpack(data)
-        return RxPdo1(node, cw, pos, tq, mode, target_torque, target_velocity, velocity_offset)
+        cw, pos, tq, mode, _, target_torque, target_velocity, velocity_offset = RPDO1_SIGNED.unpack_from(data)
+        ahead = ()
+        if len(data) > RPDO1_SIGNED.size:
+            ahead = tuple(RPDO1_LOOKAHEAD_ENTRY.unpack_from(data, RPDO1_SIGNED.size + j * RPDO1_LOOKAHEAD_ENTRY.size)
+                          for j in range(data[9]))
+        return RxPdo1(node, cw, pos, tq, mode, target_torque, target_velocity, velocity_offset, ahead)
     if kind == "tpdo1":
         return TxPdo1(node, *TPDO1.unpack(data))
     if kind == "tpdo2":
@@ -200,8 +230,29 @@ def check_mode_of_operation(mode: int, name: str = "modes_of_operation") -> int:
 
 
 def encode_rpdo1(controlword: int, target_position: int, torque_offset: int, modes_of_operation: int = 8,
-                 target_torque: int = 0, target_velocity: int = 0, velocity_offset: int = 0) -> bytes:
-    """RPDO1 payload (20 bytes); raises ValueError naming the field if a value is out of range."""
+                 target_torque: int = 0, target_velocity: int = 0, velocity_offset: int = 0,
+                 lookahead: tuple | list = ()) -> bytes:
+    """RPDO1 payload (20 bytes, or with ``lookahead`` = up to 4 tuples (set-point of the active
+    mode, torque offset, velocity offset) for the following cycles: 32, 48 or 64 bytes);
+    raises ValueError naming the field if a value is out of range."""
+    if len(lookahead) > MAX_LOOKAHEAD:
+        raise ValueError(f"lookahead: {len(lookahead)} entries, expected at most {MAX_LOOKAHEAD}")
+    base = _encode_base(controlword, target_position, torque_offset, modes_of_operation, target_torque,
+                        target_velocity, velocity_offset)
+    if not lookahead:
+        return base
+    data = bytearray(base)
+    data[9] = len(lookahead)
+    target_range = (INT16_MIN, INT16_MAX) if modes_of_operation == 10 else (INT32_MIN, INT32_MAX)
+    for j, (target, offset, velocity) in enumerate(lookahead):
+        data += RPDO1_LOOKAHEAD_ENTRY.pack(_checked(target, *target_range, f"lookahead[{j}] set-point"),
+                                           _checked(offset, INT16_MIN, INT16_MAX, f"lookahead[{j}] torque offset"),
+                                           _checked(velocity, INT32_MIN, INT32_MAX, f"lookahead[{j}] velocity offset"))
+    return bytes(data.ljust(rpdo1_length(len(lookahead)), b"\0"))
+
+
+def _encode_base(controlword: int, target_position: int, torque_offset: int, modes_of_operation: int,
+                 target_torque: int, target_velocity: int, velocity_offset: int) -> bytes:
     return RPDO1_SIGNED.pack(_checked(controlword, 0, 0xFFFF, "controlword"),
                              _checked(target_position, INT32_MIN, INT32_MAX, "target_position"),
                              _checked(torque_offset, INT16_MIN, INT16_MAX, "torque_offset"),

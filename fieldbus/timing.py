@@ -30,7 +30,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from fieldbus.errors import FieldbusConfigError
-from fieldbus.telegrams import PRES_PAYLOAD_BYTES, PREQ_PAYLOAD_BYTES
+from fieldbus.telegrams import PRES_PAYLOAD_BYTES, rpdo1_length
 
 if TYPE_CHECKING:  # annotations only: fieldbus.config imports this module for its cycle-budget check
     from fieldbus.config import FieldbusConfig, TimingConfig
@@ -81,7 +81,8 @@ class CycleLayout:
         t = config.timing
         nodes = config.nodes
         wire_soc = wire_time(t, t.soc_frame_bytes)
-        wire_preq = wire_time(t, t.preq_header_bytes + PREQ_PAYLOAD_BYTES)
+        # the PReq's PDO payload: the RPDO1, longer with a set-point look-ahead
+        wire_preq = wire_time(t, t.preq_header_bytes + rpdo1_length(getattr(config, "setpoint_lookahead", 0)))
         wire_pres = wire_time(t, t.pres_header_bytes + PRES_PAYLOAD_BYTES)
         wire_soa = wire_time(t, t.soa_frame_bytes)
         wire_async = wire_time(t, t.async_frame_bytes)

@@ -111,7 +111,7 @@ def mode_cell(setup: CellSetup, mode: str, ctx: RunContext | None = None,
     drive_model = (wiring.drive_loop_model(mode_doc["fmus"], period)
                    if ctrl_t["drive_compensation"] and settings["torque_feedforward"] else None)
     config = ControllerConfig(mode=settings["controller_mode"], period_s=period,
-                              lead_cycles=1 + setup.fieldbus.dead_time_cycles,
+                              lead_cycles=setup.fieldbus.lead_cycles,
                               compute_budget_s=ctrl_t["compute_budget"], settle_time_s=ctrl_t["settle_time"])
     controller = make_controller(setup.reference, config, kinematic_model=setup.kinematics, dynamics=setup.dynamics,
                                  q_hint=np.array(ISO_Q_HINT), drive_model=drive_model, capacity=setup.capacity)

@@ -150,7 +150,8 @@ def controller_info(controller: Any, fb_config: FieldbusConfig, *, label: str = 
         return given if given is not None else getattr(controller, name, None)
 
     return ControllerInfo(period_s=fb_config.cycle_time_s, n_joints=N_JOINTS,
-                          dead_time_cycles=fb_config.dead_time_cycles, compute_budget_s=budget,
+                          dead_time_cycles=fb_config.dead_time_cycles,
+                          lookahead_cycles=fb_config.setpoint_lookahead, compute_budget_s=budget,
                           position_min=p.position_lower.copy(), position_max=p.position_upper.copy(),
                           velocity_max=p.velocity_limit.copy(), torque_max=p.effort_limit.copy(),
                           rated_torque=p.rated_torque.copy(), q_start=pick(q_start, "q_start"),

@@ -30,11 +30,14 @@ from cosim.cell.wiring import N_JOINTS, joint_scaling
 from cosim.hil.settings import ENDPOINT_FILE, ServeSettings
 from cosim.master import Master, MemorySink, SimulationError
 from fieldbus import DriveActuals, DriveEndpoint, FieldbusConfig
-from fieldbus.telegrams import RPDO1_BASE, SYNC_ID, TPDO1_BASE, TPDO2_BASE
+from fieldbus.telegrams import RPDO1_BASE, RPDO1_MAX_BYTES, SYNC_ID, TPDO1_BASE, TPDO2_BASE
 
 
-#: bytes of one recorded frame in the CAN-log hand-over (fieldbus/recorder.py RECORD)
-RECORD_BYTES = 32
+#: bytes of one recorded frame in the CAN-log hand-over (fieldbus/recorder.py record_struct(64)): the
+#: served cell records frames of up to 64 data bytes, so an RPDO1 with a set-point look-ahead from any
+#: controller is logged whole
+RECORD_DATA_BYTES = RPDO1_MAX_BYTES
+RECORD_BYTES = 12 + RECORD_DATA_BYTES
 #: runs whose CAN-log records fit this (bytes; 256 MB = 168 s at 400 µs with six nodes) keep them
 #: in memory until the end: no hand-over to the writer process inside the paced loop
 DEFERRED_RECORDING_BYTES = 256 * 2**20
@@ -91,6 +94,9 @@ class CellSideLink:
         fresh = applied.fresh
         if not fresh.all():
             self.held += ~fresh
+            covered = endpoint.nodes.covered_now  # applied exactly from the set-point look-ahead: not held
+            if covered:
+                self.held[covered] -= 1
         self.cycle = k + 1
         self._after = (time.perf_counter_ns(), time.thread_time_ns())
 
@@ -110,6 +116,7 @@ def endpoint_description(cell: CellDescription, settings: ServeSettings, config:
         "cycle_time_s": config.cycle_time_s,
         "window_s": window_s,
         "dead_time_cycles": config.dead_time_cycles,
+        "setpoint_lookahead": config.setpoint_lookahead,
         "nodes": config.nodes,
         "sync_counter_overflow": config.scaling.sync_counter_overflow,
         "counts_per_rad": scaling.counts_per_rad.tolist(),
@@ -119,7 +126,8 @@ def endpoint_description(cell: CellDescription, settings: ServeSettings, config:
         "stop_time_s": cell.stop_time_s,
         "label": cell.label,
         "frames": {"soc": f"0x{SYNC_ID:03X} UINT8 counter 1..overflow",
-                   "preq": f"0x{RPDO1_BASE:03X}+node, 8 bytes (CSP) or 20 bytes CAN FD (all modes): "
+                   "preq": f"0x{RPDO1_BASE:03X}+node, 8 bytes (CSP) or 20 bytes CAN FD (all modes), or 32/48/64 "
+                           f"bytes with a set-point look-ahead (byte 9 = entries, 10 bytes each): "
                            f"fieldbus/README.md, Frames",
                    "pres": f"0x{TPDO1_BASE:03X}+node <H statusword, <i position actual [counts], <h torque actual; "
                            f"0x{TPDO2_BASE:03X}+node: fieldbus/README.md, Frames"},
@@ -220,6 +228,9 @@ def timing_report(link: CellSideLink, endpoint: DriveEndpoint, pacer: Any) -> di
         "frames_late": endpoint.frames_late,
         "lost_cycles": [{"cycle": c, "counters": row} for c, row in sorted(losses.items())],
         "cycles_held_per_node": {str(i + 1): int(v) for i, v in enumerate(link.held)},
+        "setpoint_lookahead": {"cycles_covered_per_node": {str(i + 1): int(v) for i, v in
+                                                           enumerate(endpoint.nodes.cycles_covered)},
+                               "cycles_covered": int(sum(endpoint.nodes.cycles_covered))},
         "fault_reactions": faults[:200],
         "cycle_time_mismatch": endpoint.cadence.report(),
         "preq_one_way_latency": percentiles_us(latency, (50.0, 99.0)),
@@ -296,7 +307,7 @@ def run_served_cell(cell: CellDescription, ctx: Any, settings: ServeSettings, *,
     laser = LaserTracker(cell.true_robot.kinematic_model(), cell.tracker)
     master = build_cell_master(cell)
     memory = MemorySink()
-    endpoint = DriveEndpoint(config, joint_scaling(), log_path=cell.can_log)
+    endpoint = DriveEndpoint(config, joint_scaling(), log_path=cell.can_log, record_data_bytes=RECORD_DATA_BYTES)
     # the frame timestamps of the whole run now: the schedule draws its jitter 1024 cycles at a
     # time, 0.4-10 ms per block on the loaded 2-core development VM (0.41 ms median, 34 ms worst
     # over 39 blocks at load average 15) - a lost cycle every 0.4 s inside the loop

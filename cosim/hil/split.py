@@ -40,13 +40,141 @@ SILENCE_TIMEOUT_S = 5.0
 POINTS = (50.0, 99.0)
 
 
-def _compute_causes(wall_ns: list, cpu_ns: list, period_s: float) -> dict[str, int]:
+#: Seconds before each expected PRes (the last one's kernel arrival + one cycle) at which the split
+#: controller stops sleeping and spins on its socket. A sleeper is woken 40-160 µs late on these
+#: VMs, more under load (and the kernel does not preempt another task's kernel code for it:
+#: PREEMPT_NONE), a spinner reads the PRes at once; 250 µs keeps the controller's CPU below
+#: ~65 % of its core, far from the real-time throttling limit (95 %).
+CONTROLLER_SPIN_S = 250e-6
+#: Nanoseconds the controller keeps polling past its spin before it sleeps in ``select``: a PRes
+#: later than that (a stalled cell) is waited for without a core.
+SPIN_GRACE_NS = 250_000
+
+
+def controller_spin_s() -> float:
+    """The split controller's spin before each expected PRes, s: :data:`CONTROLLER_SPIN_S`, or
+    ``COSIM_HIL_CONTROLLER_SPIN`` in µs (0: sleep in ``select`` until the PRes is there)."""
+    override = os.environ.get("COSIM_HIL_CONTROLLER_SPIN")
+    if override is not None and override.strip():
+        try:
+            value = float(override) * 1e-6
+        except ValueError:
+            raise ValueError(f"COSIM_HIL_CONTROLLER_SPIN={override!r}: expected microseconds >= 0") from None
+        if not 0.0 <= value < 0.01:
+            raise ValueError(f"COSIM_HIL_CONTROLLER_SPIN={override!r}: expected microseconds 0 .. 10000")
+        return value
+    return CONTROLLER_SPIN_S
+
+
+class ControllerTimes:
+    """The split controller's timing per answered cycle, preallocated for the run (ns; one
+    row per PRes answered): the cell's cycle, the wait for the PRes, the controller port's
+    step, encoding + sending the next cycle's frames, the step + send in thread CPU time,
+    and how long the PRes had waited in the socket (kernel arrival -> read; -1 unknown)."""
+
+    FIELDS = ("cycle", "wait", "step", "send", "cpu", "woke")
+
+    def __init__(self, capacity: int) -> None:
+        self.data = np.zeros((max(int(capacity), 1), len(self.FIELDS)), dtype=np.int64)
+        self._flat = memoryview(self.data).cast("B").cast("q")
+        self.count = 0
+
+    def add(self, cycle: int, wait: int, step: int, send: int, cpu: int, woke: int) -> None:
+        i = self.count
+        if i >= self.data.shape[0]:
+            return  # more PRes than cycles planned (the cell ran on): the figures cover the planned run
+        flat, j = self._flat, 6 * i
+        flat[j], flat[j + 1], flat[j + 2], flat[j + 3], flat[j + 4], flat[j + 5] = cycle, wait, step, send, cpu, woke
+        self.count = i + 1
+
+    def column(self, name: str) -> np.ndarray:
+        return self.data[:self.count, self.FIELDS.index(name)]
+
+    def report(self, period_s: float) -> dict:
+        """The controller side's timing figures (µs percentiles, counts) for summary.json."""
+        us = {name: self.column(name).astype(float) * 1e-3 for name in self.FIELDS[1:]}
+        compute = us["step"] + us["send"]
+        woke = us["woke"][us["woke"] >= 0]
+        cycles = self.column("cycle")
+        out = {"wait_for_pres": percentiles_us(us["wait"], POINTS),
+               "compute": percentiles_us(compute, POINTS),
+               "compute_cpu": percentiles_us(us["cpu"], POINTS),
+               # compute split in two: the controller through its port, then the next cycle's
+               # frames encoded and sent (one sendto to the cell)
+               "compute_step": percentiles_us(us["step"], POINTS),
+               "compute_send": percentiles_us(us["send"], POINTS),
+               # computations longer than a cycle: mostly CPU (own work) or not (stalled)
+               "compute_over_one_cycle": _compute_causes(compute, us["cpu"], period_s),
+               # from the PRes datagram's kernel arrival to this process having read it: long
+               # when the process was not running (a stall of the OS or the hypervisor)
+               "wakeup_after_pres": percentiles_us(woke, POINTS),
+               "stalls_over_one_cycle": int(np.count_nonzero(woke > period_s * 1e6))}
+        if compute.size:
+            out["compute"]["max_at_cycle"] = int(cycles[int(np.argmax(compute))])
+        return out
+
+
+def _compute_causes(wall_us: np.ndarray, cpu_us: np.ndarray, period_s: float) -> dict[str, int]:
     """Controller steps longer than a cycle: 'stalled' (less than half of it CPU time of this
     thread: the process was not running) or 'own_work'."""
-    wall, cpu = np.asarray(wall_ns, dtype=float), np.asarray(cpu_ns, dtype=float)
-    long = wall > period_s * 1e9
-    stalled = long & (cpu < 0.5 * wall)
+    long = wall_us > period_s * 1e6
+    stalled = long & (cpu_us < 0.5 * wall_us)
     return {"stalled": int(stalled.sum()), "own_work": int((long & ~stalled).sum())}
+
+
+def _overrun_cycles(pacer: dict) -> set[int]:
+    """The cell's cycles that started late (its pacer's overruns)."""
+    cycles, overrun = np.asarray(pacer["cycles"]), np.asarray(pacer["overrun"], dtype=bool)
+    return set(cycles[overrun].tolist()) if cycles.size else set()
+
+
+#: Why a cycle was lost in a paced split run (summary ``hil_split.<run>.lost_cycle_causes``).
+LOST_CAUSES = ("cell_late", "controller_stalled", "controller_compute", "transport")
+
+
+def lost_cycle_causes(lost: list[dict], overrun_cycles: set[int], times: ControllerTimes,
+                      period_s: float) -> dict:
+    """Attribute each cycle the cell lost (``hil.lost_cycles``: its group of SoC + PReqs,
+    the controller's answer to the PRes of the cycle before, missed its window) to one cause:
+
+    * ``cell_late``: the cell started that cycle or the one before late (its pacer overran);
+    * ``controller_stalled``: the controller was not running: the PRes waited in its socket
+      longer than half a cycle, or it never answered that PRes (read it together with a
+      later one) after a step whose wall time was not its CPU time;
+    * ``controller_compute``: its own work: the step + send before the answer (or, for an
+      unanswered PRes, the step before it) took over half a cycle, mostly CPU time;
+    * ``transport``: answered within half a cycle of the PRes's arrival: the datagram was
+      late or lost on the way, or the cell did not take it.
+    Counts per cause and the first cycles of each (``examples``)."""
+    counts = dict.fromkeys(LOST_CAUSES, 0)
+    examples: dict[str, list[int]] = {k: [] for k in LOST_CAUSES}
+    cycles = times.column("cycle")
+    half_ns = 0.5 * period_s * 1e9
+    step, send, cpu, woke = (times.column(n) for n in ("step", "send", "cpu", "woke"))
+    for entry in lost:
+        k = int(entry["cycle"])
+        answered = k - 1  # the group of cycle k answers the PRes of cycle k - 1
+        if k in overrun_cycles or answered in overrun_cycles:
+            cause = "cell_late"
+        else:
+            i = int(np.searchsorted(cycles, answered))
+            if i < cycles.size and cycles[i] == answered:
+                compute = int(step[i] + send[i])
+                if woke[i] > half_ns and woke[i] >= compute:
+                    cause = "controller_stalled"
+                elif compute > half_ns:
+                    cause = "controller_compute" if cpu[i] >= 0.5 * compute else "controller_stalled"
+                else:
+                    cause = "transport"
+            else:  # that PRes was never answered: the controller was busy or not running
+                j = i - 1
+                compute = int(step[j] + send[j]) if j >= 0 else 0
+                cause = ("controller_compute" if compute > half_ns and cpu[j] >= 0.5 * compute
+                         else "controller_stalled")
+        counts[cause] += 1
+        if len(examples[cause]) < 20:
+            examples[cause].append(k)
+    return {**counts, "examples": {k: v for k, v in examples.items() if v}}
 
 
 def split_cpus(cpu: Any) -> tuple[str | None, str | None]:
@@ -180,8 +308,13 @@ def run_hil_split(cell: CellDescription, controller: Any, ctx: Any, *, options: 
     stop_cycle = int(round(stop_time / period))
     failure: SimulationError | None = None
     child: dict[str, Any] | None = None
-    wait_ns, compute_ns, compute_cpu_ns, wakeup_ns, skipped = [], [], [], [], 0
-    step_ns, send_ns = [], []  # compute = the controller port's step + send_following (encode, sendto)
+    # per answered cycle, preallocated (nothing allocated per cycle in the loop): the cell's cycle,
+    # waiting for its PRes, compute = the controller port's step + send_following (encode, sendto)
+    # in wall and thread CPU time, and the PRes's wait in the socket (kernel arrival -> read)
+    times = ControllerTimes(stop_cycle + 2)
+    skipped = 0
+    spin_ns = int(controller_spin_s() * 1e9)
+    period_ns = int(round(period * 1e9))
     granted = "normal"
     wall0, cpu0 = time.perf_counter(), time.process_time()
     endpoint = None
@@ -190,6 +323,9 @@ def run_hil_split(cell: CellDescription, controller: Any, ctx: Any, *, options: 
             port.setup(cell.controller)
         except ControllerFailure as exc:
             raise SimulationError("controller", 0.0, exc.reason) from exc
+        warm_up = getattr(controller, "warm_up", None)
+        if callable(warm_up):  # the built-in controller: its Python path's first call, here, not in a cycle
+            warm_up()
         process.start()
         child_conn.close()
         if not conn.poll(START_TIMEOUT_S):
@@ -199,8 +335,12 @@ def run_hil_split(cell: CellDescription, controller: Any, ctx: Any, *, options: 
             raise SimulationError("served cell", 0.0, f"the cell process failed to start: {payload}")
         endpoint = ManagingNodeEndpoint(config, joint_scaling(), log_path=cell.can_log)
         precompute_schedules((endpoint,), stop_cycle + 2, False, compact=True)  # no jitter blocks drawn in the loop
+        bus = endpoint.bus
+        if spin_ns:
+            bus._busy_poll_s = (spin_ns + SPIN_GRACE_NS) * 1e-9  # spin on the socket from the wake-up, then select
         setpoints = port.setpoints
         last = -1
+        expected_ns = 0  # wall time (time.time_ns) the next PRes is due: the last one's arrival + a cycle
         ctx.label = label
         with realtime_scheduling(options.settings.scheduling, options.settings.fifo_priority,
                                  controller_cpu) as granted, no_cyclic_gc(), locked_memory(lock) as memory_lock:
@@ -208,6 +348,10 @@ def run_hil_split(cell: CellDescription, controller: Any, ctx: Any, *, options: 
             endpoint.send_following(setpoints)  # the cell's cycle 0 starts with this datagram
             while True:
                 waited = time.perf_counter_ns()
+                if expected_ns:  # sleep, then spin: a sleeper is woken 40-160 us late, a spinner at once
+                    rest = expected_ns - spin_ns - time.time_ns()
+                    if rest > 0:
+                        time.sleep(rest * 1e-9)
                 got = endpoint.follow(SILENCE_TIMEOUT_S)
                 got_at = time.perf_counter_ns()
                 got_cpu = time.thread_time_ns()
@@ -217,9 +361,8 @@ def run_hil_split(cell: CellDescription, controller: Any, ctx: Any, *, options: 
                                                   f"no PRes from the cell process for {SILENCE_TIMEOUT_S} s")
                     break
                 cycle, observed = got
-                arrived = endpoint.bus.oldest_arrival_ns
-                if arrived:
-                    wakeup_ns.append(time.time_ns() - arrived)
+                arrived = bus.oldest_arrival_ns
+                woke = time.time_ns() - arrived if arrived else -1
                 if cycle >= stop_cycle:
                     break
                 jumped = cycle - last > 1
@@ -233,11 +376,10 @@ def run_hil_split(cell: CellDescription, controller: Any, ctx: Any, *, options: 
                 stepped_at = time.perf_counter_ns()
                 endpoint.send_following(setpoints)
                 sent_at = time.perf_counter_ns()
-                wait_ns.append(got_at - waited)
-                step_ns.append(stepped_at - got_at)
-                send_ns.append(sent_at - stepped_at)
-                compute_ns.append(sent_at - got_at)
-                compute_cpu_ns.append(time.thread_time_ns() - got_cpu)
+                times.add(cycle, got_at - waited, stepped_at - got_at, sent_at - stepped_at,
+                          time.thread_time_ns() - got_cpu, woke)
+                if spin_ns and arrived:
+                    expected_ns = arrived + period_ns
                 stopped_at = port.stopped_at_s
                 if stopped_at is not None and cycle * period - stopped_at >= cell.stop_grace_s - 1e-12:
                     failure = SimulationError("controller", stopped_at, f"motion stopped: {port.stop_reason}")
@@ -272,25 +414,14 @@ def run_hil_split(cell: CellDescription, controller: Any, ctx: Any, *, options: 
     cell_latency = np.asarray(child["preq_latency_us"] if child else [], dtype=float)
     n = min(cell_latency.size, controller_latency.size)
     rtt = cell_latency[:n] + controller_latency[:n]
+    cell_hil = child["hil"] if child else {}
+    overrun_cycles = _overrun_cycles(child["pacer"]) if child else set()
     report = {
-        "controller_side": {"cycles": last + 1, "cycles_skipped": skipped,
-                            "wait_for_pres": percentiles_us(np.asarray(wait_ns, dtype=float) * 1e-3, POINTS),
-                            "compute": percentiles_us(np.asarray(compute_ns, dtype=float) * 1e-3, POINTS),
-                            "compute_cpu": percentiles_us(np.asarray(compute_cpu_ns, dtype=float) * 1e-3, POINTS),
-                            # compute split in two: the controller through its port, then the next
-                            # cycle's frames encoded and sent (one sendto to the cell)
-                            "compute_step": percentiles_us(np.asarray(step_ns, dtype=float) * 1e-3, POINTS),
-                            "compute_send": percentiles_us(np.asarray(send_ns, dtype=float) * 1e-3, POINTS),
-                            # computations longer than a cycle: mostly CPU (own work) or not (stalled)
-                            "compute_over_one_cycle": _compute_causes(compute_ns, compute_cpu_ns, period),
+        "controller_side": {"cycles": last + 1, "cycles_skipped": skipped, **times.report(period),
                             "pres_one_way_latency": percentiles_us(controller_latency, POINTS),
-                            # from the PRes datagram's kernel arrival to this process having read it: long
-                            # when the process was not running (a stall of the OS or the hypervisor)
-                            "wakeup_after_pres": percentiles_us(np.asarray(wakeup_ns, dtype=float) * 1e-3,
-                                                                POINTS),
-                            "stalls_over_one_cycle": int(np.count_nonzero(np.asarray(wakeup_ns) > period * 1e9)),
-                            "scheduling": granted},
-        "cell_side": child["hil"] if child else {},
+                            "spin_us": spin_ns * 1e-3, "scheduling": granted},
+        "lost_cycle_causes": lost_cycle_causes(cell_hil.get("lost_cycles") or [], overrun_cycles, times, period),
+        "cell_side": cell_hil,
         "round_trip": percentiles_us(rtt, POINTS),
         "cell_results": side_dir.name,
     }

@@ -418,7 +418,7 @@ def _controller_for(setup: CellSetup, ctrl: dict[str, Any], motion: _Motion, sto
                    if ctrl_t["drive_compensation"] and settings["torque_feedforward"] else None)
     reference = JointTrajectory.from_planner_trajectory(motion.trajectory, period)
     config = ControllerConfig(mode=settings["controller_mode"], period_s=period,
-                              lead_cycles=1 + setup.fieldbus.dead_time_cycles,
+                              lead_cycles=setup.fieldbus.lead_cycles,
                               compute_budget_s=ctrl_t["compute_budget"], settle_time_s=ctrl_t["settle_time"])
     controller = Controller(reference, config, kinematic_model=setup.kinematics, dynamics=setup.dynamics,
                             drive_model=drive_model, capacity=int(stop_time / period) + 16)

@@ -281,7 +281,7 @@ def run(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
     ctrl, exc_t, meas = doc["controller"], doc["excitation"], doc["measurement"]
     period = ctrl["period"]
     fb = FieldbusConfig.from_dict(doc["fieldbus"], source=str(scenario.path))
-    lead = 1 + fb.dead_time_cycles
+    lead = fb.lead_cycles
     true_robot = make_true_robot(doc["true_robot"])
     params = load_parameters()
     known_payload = true_robot.payload.copy() if ctrl["payload_known"] else np.zeros(4)

@@ -264,7 +264,7 @@ def _execute(ctx: RunContext, doc: dict[str, Any], name: str, traj: Any, true_ro
     drive_model = wiring.drive_loop_model(run_doc["fmus"], period) if ctrl_t["drive_compensation"] else None
     reference = JointTrajectory.from_planner_trajectory(traj, period)
     stop_time = 0.02 + ctrl_t["settle_time"] + reference.duration + 0.2
-    config = ControllerConfig(mode=settings.controller_mode, period_s=period, lead_cycles=1 + fieldbus.dead_time_cycles,
+    config = ControllerConfig(mode=settings.controller_mode, period_s=period, lead_cycles=fieldbus.lead_cycles,
                               compute_budget_s=ctrl_t["compute_budget"], settle_time_s=ctrl_t["settle_time"])
     controller = Controller(reference, config, kinematic_model=kin, dynamics=dyn, drive_model=drive_model,
                             capacity=int(stop_time / period) + 16)

@@ -109,3 +109,19 @@ def test_network_run_logged_as_parquet_equals_blf(tmp_path):
             drive(network, 300)
         logs[suffix] = tmp_path / f"run{suffix}"
     assert to_blf(logs[".parquet"], tmp_path / "back.blf").read_bytes() == logs[".blf"].read_bytes()
+
+
+def test_lookahead_frames_of_64_bytes_round_trip(tmp_path):
+    """PReqs carrying a set-point look-ahead are 32-64 byte frames (records of 64 data bytes):
+    kept whole in the raw ``data`` column, the BLF the same bytes as logged directly."""
+    from fieldbus import PowerlinkNetwork
+    from tests.fieldbus.test_network import drive, scaling
+
+    logs = {}
+    for suffix in (".blf", ".parquet"):
+        with PowerlinkNetwork({"setpoint_lookahead": 4}, scaling(), log_path=tmp_path / f"k{suffix}") as network:
+            drive(network, 120)
+        logs[suffix] = tmp_path / f"k{suffix}"
+    assert to_blf(logs[".parquet"], tmp_path / "back.blf").read_bytes() == logs[".blf"].read_bytes()
+    frames = read_frames(logs[".parquet"]).frames
+    assert frames["length"].max() > 20 and frames.dtype["data"].shape[0] == 64

@@ -1,0 +1,118 @@
+"""A controller that skips cycles (a split controller that fell behind the cell) solves the
+jumped cycle on the compiled path: the IK seed is predicted over the time since its last
+state, further Newton steps go through the kernel, and the Python-path IK (milliseconds
+when cold) is not used; the result is the IK solution of the reference at that time."""
+from __future__ import annotations
+
+import numpy as np
+import pinocchio as pin
+import pytest
+
+from controller import Controller, ControllerConfig, DriveLoopModel, Phase, TcpTrajectory, speed_comparison_lead
+from fieldbus import Cia402DriveModel, ObservedActuals
+from planners.iso9283 import ISO_Q_HINT, iso9283_test_path
+from robot.dynamics import RobotDynamics
+from robot.inverse_kinematics import NumericIK
+
+PERIOD = 400e-6
+
+
+@pytest.fixture(scope="module")
+def tcp_ref():
+    path = iso9283_test_path()
+    return TcpTrajectory.from_reference(path.reference, path.duration, PERIOD)
+
+
+def drive_model() -> DriveLoopModel:
+    lead = speed_comparison_lead(PERIOD, 200e-6, 0.25e-3)
+    return DriveLoopModel(position_kv=np.array([54.6, 168.7, 311.3, 306.7, 317.7, 317.7]),
+                          speed_feedforward_gain=np.ones(6), lead_s=np.full(6, lead), period_s=PERIOD)
+
+
+def make(ref, fast: bool = True) -> Controller:
+    return Controller(ref, ControllerConfig(mode="model_based", settle_time_s=0.002, fast_cycle=fast),
+                      dynamics=RobotDynamics(), q_hint=np.array(ISO_Q_HINT), drive_model=drive_model())
+
+
+def drive(ctrl: Controller, cycles: list[int], check=None) -> None:
+    """Run ``ctrl`` on the given cycle numbers (CiA 402 state machines, positions following
+    the targets); ``check(ctrl, cycle)`` after each."""
+    drives = [Cia402DriveModel() for _ in range(6)]
+    obs = ObservedActuals.zeros(6)
+    obs.fresh[:] = True
+    obs.position[:] = ctrl.q_start
+    obs.statusword[:] = [d.statusword for d in drives]
+    for k in cycles:
+        sp = ctrl.run_cycle(k, k * PERIOD, obs)
+        if check is not None:
+            check(ctrl, k)
+        for i, d in enumerate(drives):
+            d.step(int(sp.controlword[i]))
+        obs.statusword[:] = [d.statusword for d in drives]
+        obs.position[:] = sp.position
+
+
+def cycles_with_jumps(total: int, jumps: dict[int, int]) -> list[int]:
+    out, k = [], 0
+    while k < total:
+        out.append(k)
+        k += jumps.get(k, 1)
+    return out
+
+
+@pytest.mark.parametrize("fast", [True, False])
+@pytest.mark.parametrize("gap", [2, 6, 40, 400])
+def test_jumped_cycle_stays_on_the_compiled_path_and_solves_the_ik(tcp_ref, fast, gap):
+    ctrl = make(tcp_ref, fast)
+    ik = NumericIK(ctrl.kinematic_model, tolerance=1e-12)
+    jumps = {1500: gap, 2200: gap}
+    checked = []
+
+    def check(c: Controller, k: int) -> None:
+        if k - gap in jumps:  # the cycle after a jump: q_d is the IK solution of the reference there
+            tau = (k - c.motion_start_cycle) * PERIOD
+            sample = tcp_ref.sample(tcp_ref.t_start + tau)
+            q = ik.solve(sample.target, c._q_d)
+            assert np.max(np.abs(c._q_d - q)) < 1e-9
+            # qd_d consistent with the flange twist at q_d
+            jac = pin.computeFrameJacobian(c.kinematic_model, c.kinematic_model.createData(), c._q_d,
+                                           ik.frame_id, pin.LOCAL_WORLD_ALIGNED)
+            np.testing.assert_allclose(jac @ c._qd_d, sample.twist, atol=1e-9)
+            checked.append(k)
+
+    drive(ctrl, cycles_with_jumps(3200, jumps), check)
+    assert ctrl.phase is Phase.TRACKING
+    assert len(checked) == 2
+    assert ctrl.fallback_cycles == 0  # never the Python-path IK
+    assert ctrl.kernel is not None and ctrl.kernel_cycles > 2300
+    assert ctrl.kernel.h[0] == PERIOD  # the whole-cycle path's step is restored
+
+
+def test_without_jumps_the_cycle_is_unchanged(tcp_ref):
+    """Consecutive cycles: set-points and log bit-identical between the two compiled paths
+    (the seed step is the period, as before)."""
+    logs = []
+    for fast in (True, False):
+        ctrl = make(tcp_ref, fast)
+        drive(ctrl, list(range(300)))
+        log = ctrl.log.columns()
+        log.pop("compute_us")
+        logs.append(log)
+        assert ctrl.fallback_cycles == 0
+    for name, column in logs[0].items():
+        np.testing.assert_array_equal(logs[1][name], column, err_msg=name)
+
+
+def test_warm_up_leaves_the_controller_as_it_was(tcp_ref):
+    """``warm_up`` runs the Python-path cycle once at set-up (its first call in a process costs
+    milliseconds) and changes nothing the cycles compute."""
+    plain, warmed = make(tcp_ref), make(tcp_ref)
+    warmed.warm_up()
+    assert warmed.fallback_cycles == 0 and warmed.kernel_cycles == 0
+    for ctrl in (plain, warmed):
+        drive(ctrl, list(range(400)))
+    a, b = plain.log.columns(), warmed.log.columns()
+    a.pop("compute_us"), b.pop("compute_us")
+    for name, column in a.items():
+        np.testing.assert_array_equal(b[name], column, err_msg=name)
+    np.testing.assert_array_equal(plain.setpoints.position, warmed.setpoints.position)
