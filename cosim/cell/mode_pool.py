@@ -43,7 +43,7 @@ import signal
 import sys
 import threading
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -99,12 +99,16 @@ def worker_count(modes: int, ctx: Any = None) -> int:
 
 
 def run_modes(ctx: Any, setup: Any, modes: Sequence[str], extra_signals: Sequence[str] = (),
-              processes: int | None = None) -> Iterator[ModeOutcome]:
+              processes: int | None = None, while_waiting: Callable[[], Any] | None = None
+              ) -> Iterator[ModeOutcome]:
     """Run ``modes`` of ``setup`` (:func:`cosim.cell.mode_runs.prepare`) and yield their
     :class:`ModeOutcome` in the order of ``modes``. ``processes``: worker processes (default
     :func:`worker_count`; 0: one after another in this process, where a failed mode ends the
     sequence as before). A failure before a mode's first sample raises as
-    :func:`cosim.cell.mode_runs.run_mode` does."""
+    :func:`cosim.cell.mode_runs.run_mode` does. ``while_waiting``: called once in this process
+    after the workers have started (this process then only waits for them), e.g. to import
+    what comes after the modes; an exception from it is ignored (the work is redone later).
+    Not called when the modes run in this process."""
     from cosim.cell.mode_runs import run_mode
 
     modes = list(modes)
@@ -119,7 +123,7 @@ def run_modes(ctx: Any, setup: Any, modes: Sequence[str], extra_signals: Sequenc
             if cell.failure is not None:
                 return
         return
-    yield from _Pool(ctx, setup, modes, extra_signals, count).outcomes()
+    yield from _Pool(ctx, setup, modes, extra_signals, count, while_waiting).outcomes()
 
 
 # ------------------------------------------------------------------------------------------ worker side
@@ -248,8 +252,10 @@ def _worker(connection: Any, ctx: Any, setup: Any, mode: str, extra_signals: Seq
 class _Pool:
     """The parent's side: start the workers, relay progress, collect outcomes, stop them."""
 
-    def __init__(self, ctx: Any, setup: Any, modes: list[str], extra_signals: Sequence[str], count: int) -> None:
+    def __init__(self, ctx: Any, setup: Any, modes: list[str], extra_signals: Sequence[str], count: int,
+                 while_waiting: Callable[[], Any] | None = None) -> None:
         self.ctx, self.setup, self.modes, self.extra_signals = ctx, setup, modes, tuple(extra_signals)
+        self.while_waiting = while_waiting
         self.count = count
         self.total_s = float(setup.doc["simulation"]["stop_time"]) * len(modes)
         self.progress: dict[str, float] = {}
@@ -285,6 +291,11 @@ class _Pool:
         last_summary = time.perf_counter()
         next_yield = 0
         try:
+            if self.while_waiting is not None:
+                try:
+                    self.while_waiting()
+                except Exception:  # noqa: BLE001 - only a head start: the caller does the work again later
+                    pass
             while next_yield < len(self.modes):
                 while waiting and len(self.running) < self.count:
                     self._start(waiting.pop(0))

@@ -84,6 +84,12 @@ def _tracker_kernel() -> Any:
     return load_library(KERNEL_SOURCE)
 
 
+def _elastic_cycle() -> Any:
+    from controller.elastic import load_elastic_cycle
+
+    return load_elastic_cycle()
+
+
 def _crash_guard() -> Any:
     import native
     from cosim.results import crashguard
@@ -130,6 +136,7 @@ PARTS: tuple[tuple[str, Callable[[], Any], bool], ...] = (
     ("co-simulation master kernel", _master_kernel, True),
     ("fieldbus codec", _fieldbus_codec, True),
     ("laser tracker kernel", _tracker_kernel, True),
+    ("elastic controller cycle", _elastic_cycle, True),
     ("crash guard", _crash_guard, True),
     ("FMI 3.0 adapter", _fmi3_adapter, True),
     ("plant and drive FMUs (FMI 2.0)", _fmus(2), False),

@@ -62,7 +62,11 @@ def run(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
     modes: dict[str, Any] = {}
     results: dict[str, TrackingResult] = {}
     failed: list = []
-    for outcome in run_modes(ctx, setup, setup.doc["controller"]["modes"]):  # side by side: cosim.cell.mode_pool
+    warm_up = None
+    if setup.doc["results"]["figures"]:
+        from cosim.jobs.iso9283_figures import warm_up  # matplotlib's import while the workers run
+    for outcome in run_modes(ctx, setup, setup.doc["controller"]["modes"],  # side by side: cosim.cell.mode_pool
+                             while_waiting=warm_up):
         if outcome.entry is not None:
             modes[outcome.mode] = outcome.entry
             results[outcome.mode] = outcome.result

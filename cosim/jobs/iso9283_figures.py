@@ -86,6 +86,25 @@ def _figure(**kwargs: Any) -> tuple[Any, Any]:
     return fig, fig.subplots(**kwargs)
 
 
+def warm_up() -> None:
+    """Import matplotlib's figure and Agg canvas and draw one small figure into memory (fonts
+    loaded, text layout, log-scale tick machinery, PNG writer), so that :func:`write_figures`
+    does not pay for them. The job calls this while the modes' worker processes run and this
+    process only waits for them (:func:`cosim.cell.mode_pool.run_modes` ``while_waiting``):
+    about 0.35 CPU-s moved out of the serial end of the run. Nothing is written."""
+    import io
+
+    os.environ.setdefault("MPLBACKEND", "Agg")
+    fig, ax = _figure(figsize=(2, 2))
+    ax.plot([0.0, 1.0], [1.0, 2.0], lw=0.8, label="warm-up")
+    ax.set_yscale("log")
+    ax.set_xlabel("x")
+    ax.set_title("warm-up")
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=8, loc="upper right")
+    fig.savefig(io.BytesIO(), dpi=110)
+
+
 def write_figures(out_dir: Path, results: dict[str, Any], path: Any, processes: int = 2) -> list[Path]:
     """Write the figures for the modes in ``results`` (mode -> TrackingResult); return the files.
 

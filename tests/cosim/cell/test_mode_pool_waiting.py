@@ -1,0 +1,72 @@
+"""``run_modes(..., while_waiting=f)``: ``f`` runs once in the job's process after the mode
+workers have started (the main job imports matplotlib there while the modes run); an exception
+from it does not disturb the modes; it is not called when the modes run in this process."""
+from __future__ import annotations
+
+import multiprocessing
+from types import SimpleNamespace
+
+from cosim.cell import mode_pool
+
+
+class _Summary:
+    def __init__(self) -> None:
+        self.data: dict = {}
+
+    def update(self, **fields) -> None:
+        self.data.update(fields)
+
+    def __getattr__(self, name):
+        if name.startswith("_"):
+            raise AttributeError(name)
+        return lambda *args, **kwargs: None
+
+
+def _fake_worker(connection, ctx, setup, mode, extra_signals):
+    mode_pool._send_whole(connection, ("done", mode, {"mode": mode}, f"result {mode}", None, 1.0))
+    connection.close()
+
+
+def _context() -> SimpleNamespace:
+    return SimpleNamespace(summary=_Summary(), quiet=True, sim_time_s=0.0, scenario=SimpleNamespace(name="x"),
+                           label=None, execution=None)
+
+
+def test_while_waiting_runs_once_after_the_workers_started(monkeypatch):
+    monkeypatch.setattr(mode_pool, "_worker", _fake_worker)
+    setup = SimpleNamespace(doc={"simulation": {"stop_time": 1.0}})
+    seen = []
+
+    def waiting():
+        seen.append(sorted(p.name for p in multiprocessing.active_children()))
+
+    outcomes = list(mode_pool.run_modes(_context(), setup, ["a", "b"], processes=2, while_waiting=waiting))
+    assert [(o.mode, o.entry, o.result, o.failure) for o in outcomes] == [
+        ("a", {"mode": "a"}, "result a", None), ("b", {"mode": "b"}, "result b", None)]
+    assert len(seen) == 1
+    assert set(seen[0]) <= {"cosim-mode-a", "cosim-mode-b"}  # started (a fast worker may have ended already)
+
+
+def test_an_error_in_while_waiting_leaves_the_modes_alone(monkeypatch):
+    monkeypatch.setattr(mode_pool, "_worker", _fake_worker)
+    setup = SimpleNamespace(doc={"simulation": {"stop_time": 1.0}})
+
+    def broken():
+        raise ImportError("no matplotlib here")
+
+    outcomes = list(mode_pool.run_modes(_context(), setup, ["a", "b"], processes=2, while_waiting=broken))
+    assert [o.mode for o in outcomes] == ["a", "b"] and all(o.failure is None for o in outcomes)
+
+
+def test_not_called_when_the_modes_run_in_this_process(monkeypatch):
+    calls = []
+
+    def run_mode(ctx, setup, mode, extra_signals):
+        return {"mode": mode}, None, SimpleNamespace(failure=None), None
+
+    import cosim.cell.mode_runs as mode_runs
+
+    monkeypatch.setattr(mode_runs, "run_mode", run_mode)
+    outcomes = list(mode_pool.run_modes(_context(), SimpleNamespace(doc={}), ["a", "b"], processes=0,
+                                        while_waiting=lambda: calls.append(1)))
+    assert [o.mode for o in outcomes] == ["a", "b"] and calls == []
