@@ -132,10 +132,26 @@ PATH_TABLE = Table({
     "acceleration": Field(Number(unit="m/s^2", gt=0, max=20.0), default=5.0),
 }, doc="the [path] table")
 
+CAN_LOG_FORMATS = {"parquet": ".parquet", "blf": ".blf"}
+"""``[results] can_log_format`` -> suffix of ``can_<mode>``: the columnar CAN log (default,
+``fieldbus.canlog``; ``cosim export-blf`` turns it into the BLF file byte for byte) or BLF."""
+CAN_LOG_FORMAT_FIELD = Field(String(choices=tuple(CAN_LOG_FORMATS)), default="parquet",
+                             doc="the CAN log's format: 'parquet' (columnar, every frame, fieldbus.canlog; "
+                                 "'cosim export-blf' writes the same frames as BLF) or 'blf' (python-can's BLF)")
+
 RESULTS_TABLE = Table({
-    "can_log": Field(Boolean(), default=True, doc="write the CAN log can_<mode>.blf"),
+    "can_log": Field(Boolean(), default=True, doc="write the CAN log can_<mode>.parquet (or .blf)"),
+    "can_log_format": CAN_LOG_FORMAT_FIELD,
     "figures": Field(Boolean(), default=True, doc="write the PNG figures"),
 }, doc="the [results] table")
+
+
+def can_log_path(ctx: Any, results: dict[str, Any], name: str) -> Any:
+    """The CAN log file ``can_<name>`` in the results folder, in ``[results] can_log_format``
+    (None without a context or with ``can_log = false``)."""
+    if ctx is None or not results.get("can_log"):
+        return None
+    return ctx.path(f"can_{name}{CAN_LOG_FORMATS[results.get('can_log_format', 'parquet')]}")
 
 CELL_FIELDS: dict[str, Field] = {
     "true_robot": Field(TRUE_ROBOT_TABLE, default={}),

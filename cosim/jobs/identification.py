@@ -44,7 +44,7 @@ from cosim.cell import wiring
 from cosim.cell.checks import check_cell, fill_defaults
 from cosim.cell.description import describe_cell
 from cosim.cell.evaluation import evaluate_run
-from cosim.cell.parts import TRACKER_TABLE, TRUE_ROBOT_TABLE, make_true_robot, tracker_config
+from cosim.cell.parts import CAN_LOG_FORMAT_FIELD, TRACKER_TABLE, TRUE_ROBOT_TABLE, can_log_path, make_true_robot, tracker_config
 from cosim.cell.runner import controller_info, run_cell
 from cosim.scenario.context import RunContext
 from cosim.scenario.cosim_tables import COSIM_FIELDS
@@ -130,7 +130,8 @@ PATH_TABLE = Table({
 }, doc="the [path] table")
 
 RESULTS_TABLE = Table({
-    "can_log": Field(Boolean(), default=False, doc="write can_<run>.blf for every run"),
+    "can_log": Field(Boolean(), default=False, doc="write can_<run>.parquet (or .blf) for every run"),
+    "can_log_format": CAN_LOG_FORMAT_FIELD,
     "figures": Field(Boolean(), default=True),
     "records": Field(Boolean(), default=True, doc="write the measured records as CSV"),
 }, doc="the [results] table")
@@ -295,7 +296,7 @@ def run(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
         cell = describe_cell(doc, true_robot, controller_info(ctl, fb, label=label, source=str(scenario.path)),
                              label=label, stop_time=stop, fieldbus=fb, tracker=tracker,
                              record_file=f"timeseries_{name}.csv",
-                             can_log=ctx.path(f"can_{name}.blf") if doc["results"]["can_log"] else None)
+                             can_log=can_log_path(ctx, doc["results"], name))
         return run_cell(cell, ctl, ctx)
     sigma = _noise_sigma(doc)
     ctx.summary.update(

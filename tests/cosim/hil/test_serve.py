@@ -16,6 +16,8 @@ import time
 from pathlib import Path
 
 import can
+
+from fieldbus.canlog import open_log
 import numpy as np
 import pytest
 
@@ -122,7 +124,7 @@ def test_a_killed_controller_trips_the_counters_and_the_drives_stop_the_arm(serv
     assert moving_before > 1e-2  # it was stopped mid-motion
     assert after < 1e-3  # all joints below 1e-3 rad/s within 0.5 s
     # recorded in the CAN log: the EMCY frames of the reaction
-    log = [m for m in can.LogReader(str(out / "can_model_based.blf"))]
+    log = list(open_log(out / "can_model_based.parquet"))
     emcy = [m for m in log if 0x81 <= m.arbitration_id <= 0x86 and len(m.data) == 8]
     assert {m.arbitration_id - 0x80 for m in emcy} == set(range(1, 7))
     assert hil["figure"] and (out / hil["figure"]).exists()
