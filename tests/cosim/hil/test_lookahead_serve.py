@@ -12,7 +12,7 @@ import sys
 import time
 from pathlib import Path
 
-import can
+from fieldbus.canlog import open_log
 from fieldbus.telegrams import rpdo1_length
 
 ROOT = Path(__file__).resolve().parents[3]
@@ -115,11 +115,11 @@ def test_served_cell_covers_unanswered_cycles_from_the_lookahead(tmp_path):
     assert expected >= 1 + 2 + 3  # the planned runs alone
     assert set(hil["frames_lost_per_node"].values()) == {len(lost)}
     # the cell's CAN log: the whole RPDO1 with its 3 entries, none in the lost cycles
-    logs = sorted(out.rglob("*.blf"))
+    logs = sorted(out.rglob("can_*.parquet"))  # the columnar CAN log (fieldbus/canlog.py)
     assert logs
     period = 2e-3
     preq_cycles = set()
-    for msg in can.LogReader(str(logs[0])):
+    for msg in open_log(logs[0]):
         if msg.arbitration_id == 0x201:
             assert len(msg.data) == rpdo1_length(K) == 64 and msg.data[9] == K
             preq_cycles.add(round(msg.timestamp / period))
@@ -148,10 +148,11 @@ def test_split_realtime_sends_the_lookahead_and_both_can_logs_are_whole(tmp_path
     assert done.returncode == 0, done.stderr[-2000:]
     summary = json.loads((out / "summary.json").read_text())
     cell = summary["hil_split"]["model_based"]["cell_side"]
-    controller_log, cell_log = out / "can_model_based.blf", out / "cell_side_model_based" / "can_model_based.blf"
+    controller_log = out / "can_model_based.parquet"
+    cell_log = out / "cell_side_model_based" / "can_model_based.parquet"
     lengths = {}
     for name, log in (("controller", controller_log), ("cell", cell_log)):
-        frames = list(can.LogReader(str(log)))  # readable to the end
+        frames = list(open_log(log))  # readable to the end
         assert len(frames) > 250 * 13
         lengths[name] = {len(m.data) for m in frames if 0x201 <= m.arbitration_id <= 0x206}
     assert lengths == {"controller": {64}, "cell": {64}}
