@@ -300,6 +300,6 @@ def test_a_controller_killed_mid_motion_stops_the_arm(tmp_path):
     # 1e-3 rad/s takes 0.49-0.52 s depending on the instant of the kill (docs/hil.md, Measured)
     assert np.abs(qd[t >= trip + 0.6]).max() < 1e-3
     assert np.abs(qd[:, [0, 1, 2, 3, 5]][t >= trip + 0.5]).max() < 1e-3  # all axes but the wrist's 5
-    emcy = [m for m in can.LogReader(str(out / "can_model_based.blf"))
+    emcy = [m for m in open_log(out / "can_model_based.parquet")  # the columnar CAN log (fieldbus.canlog)
             if 0x81 <= m.arbitration_id <= 0x86 and len(m.data) == 8]
     assert {m.arbitration_id - 0x80 for m in emcy} == set(range(1, 7))
