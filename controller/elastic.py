@@ -17,12 +17,18 @@ split; default the nominal ``[elastic]`` table of the parameter file).
 """
 from __future__ import annotations
 
+import ctypes
 import dataclasses
+import time
+from functools import lru_cache
+from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
 
-from controller.controller import Controller, ControllerConfig, ControllerConfigError
+import native
+from controller.compiled_cycle import _address
+from controller.controller import _HOOKS, Command, Controller, ControllerConfig, ControllerConfigError, Phase
 from controller.drive_compensation import DriveLoopModel, SetpointShaper
 from controller.feedforward import ElasticReference, GearModel, elastic_feedforward
 from controller.joint_reference import CartesianToJoint
@@ -31,6 +37,100 @@ from fieldbus import Setpoints
 from robot.dynamics import RobotDynamics
 
 ELASTIC_MODE = "model_based_elastic"
+
+ELASTIC_CYCLE_SOURCE = Path(__file__).with_name("elastic_cycle.c")
+_ELASTIC_CYCLE_CFLAGS = ("-O2", "-shared", "-fPIC", "-std=c99", "-ffp-contract=off")
+_ELASTIC_PYTHON = 2  # elastic_cycle_run: the Python path takes this cycle
+#: the cycle methods the compiled elastic cycle replaces: a subclass that overrides one runs the Python path
+_ELASTIC_HOOKS = (*_HOOKS, "_shape")
+
+
+class _ElasticPlan(ctypes.Structure):
+    """Mirror of ``elastic_plan`` in elastic_cycle.c."""
+
+    _fields_ = [("n_knots", ctypes.c_longlong),
+                *((name, ctypes.c_void_p) for name in ("link_q", "link_qd", "link_qdd", "motor_q", "motor_qd",
+                                                       "motor_qdd", "motor_torque")),
+                ("shape", ctypes.c_longlong),
+                ("lead", ctypes.c_double * 6), ("g_over_t", ctypes.c_double * 6),
+                ("denominator", ctypes.c_double * 6),
+                *((name, ctypes.c_void_p) for name in ("shaper_delta", "shaper_q_prev", "shaper_target", "q_d",
+                                                       "qd_d", "qdd_d", "sp_position", "sp_torque",
+                                                       "sp_controlword")),
+                ("enable_operation", ctypes.c_longlong),
+                *((name, ctypes.c_void_p) for name in ("statusword", "node_fault", "q_obs"))]
+
+
+@lru_cache(maxsize=1)
+def load_elastic_cycle() -> ctypes.CDLL | None:
+    """The compiled elastic cycle (``elastic_cycle.c``, built by :mod:`native`), or None (no compiler:
+    the Python path runs every cycle, bit for bit the same)."""
+    lib = native.load_library(ELASTIC_CYCLE_SOURCE, _ELASTIC_CYCLE_CFLAGS, what="elastic controller cycle")
+    if lib is not None:
+        lib.elastic_cycle_run.restype = ctypes.c_int
+        lib.elastic_cycle_run.argtypes = [ctypes.c_void_p, ctypes.c_longlong, ctypes.c_void_p]
+    return lib
+
+
+def _rows(array: np.ndarray, n: int, what: str) -> np.ndarray:
+    """``array`` as a C-contiguous (n, 6) float64 array (the same values; a copy only when needed)."""
+    out = np.ascontiguousarray(array, dtype=np.float64)
+    if out.shape != (n, 6):
+        raise ValueError(f"elastic cycle: {what} has shape {out.shape}, expected ({n}, 6)")
+    return out
+
+
+class ElasticCycle:
+    """The compiled computing cycle of an :class:`ElasticController` (``elastic_cycle.c``): bound
+    once to the controller's references, shaper, desired-motion arrays and set-points."""
+
+    def __init__(self, lib: ctypes.CDLL, ctrl: "ElasticController") -> None:
+        link, m = ctrl.link_reference, ctrl.motor_reference
+        n = len(link[0])
+        self._keep = [_rows(a, n, name) for a, name in ((link[0], "link q"), (link[1], "link qd"),
+                                                        (link[2], "link qdd"), (m.q, "motor q"),
+                                                        (m.qd, "motor qd"), (m.qdd, "motor qdd"),
+                                                        (m.torque, "motor torque"))]
+        plan = _ElasticPlan()
+        plan.n_knots = n
+        (plan.link_q, plan.link_qd, plan.link_qdd, plan.motor_q, plan.motor_qd, plan.motor_qdd,
+         plan.motor_torque) = (a.ctypes.data for a in self._keep)
+        sh = ctrl._shaper
+        plan.shape = int(sh is not None)
+        if sh is not None:
+            plan.lead[:] = np.broadcast_to(sh._lead, (6,)).tolist()
+            plan.g_over_t[:] = np.broadcast_to(sh._g_over_t, (6,)).tolist()
+            plan.denominator[:] = np.broadcast_to(sh._denominator, (6,)).tolist()
+            plan.shaper_delta = _address(sh._delta, np.float64, "shaper delta")
+            plan.shaper_q_prev = _address(sh._q_prev, np.float64, "shaper q_prev")
+            plan.shaper_target = _address(sh.target, np.float64, "shaper target")
+        plan.q_d = _address(ctrl._q_d, np.float64, "q_d")
+        plan.qd_d = _address(ctrl._qd_d, np.float64, "qd_d")
+        plan.qdd_d = _address(ctrl._qdd_d, np.float64, "qdd_d")
+        sp = ctrl.setpoints
+        plan.sp_position = _address(sp.position, np.float64, "setpoints.position")
+        plan.sp_torque = _address(sp.torque_offset, np.float64, "setpoints.torque_offset")
+        plan.sp_controlword = _address(sp.controlword, np.int64, "setpoints.controlword")
+        plan.enable_operation = int(Command.ENABLE_OPERATION)
+        self._keep += [sh, ctrl._q_d, ctrl._qd_d, ctrl._qdd_d, sp.position, sp.torque_offset, sp.controlword]
+        self.plan = plan
+        self._plan_ref = ctypes.byref(plan)
+        self._run = lib.elastic_cycle_run
+        self._observed: tuple = ()
+
+    def bind_observed(self, statusword: np.ndarray, node_fault: np.ndarray, position: np.ndarray) -> None:
+        """Point the cycle at the arrays it reads (int64 statuswords, bool node faults, float64
+        positions, (6,) each); ValueError when they do not have that layout."""
+        plan = self.plan
+        plan.statusword = _address(statusword, np.int64, "observed.statusword")
+        plan.node_fault = _address(node_fault, np.bool_, "observed.node_fault")
+        plan.q_obs = _address(position, np.float64, "observed.position")
+        self._observed = (statusword, node_fault, position)
+
+    def run(self, knot: int, log_row_address: int) -> int:
+        """The cycle at ``knot``, writing the log row (36 doubles) at ``log_row_address`` (0: none);
+        0 done, 2: the Python path must take the cycle (nothing changed)."""
+        return self._run(self._plan_ref, knot, log_row_address)
 
 
 def joint_reference_on_grid(reference: TcpTrajectory | JointTrajectory, model: pin.Model,
@@ -102,6 +202,49 @@ class ElasticController(Controller):
             self._in_order = self._shaping_in_order()
             self._scratch = np.empty((2, 6))
         self.setpoints.position[:] = self._motor_start
+        # the computing cycle in one C call (elastic_cycle.c), bit for bit the Python path below
+        self._fast = None
+        if config.compiled and config.fast_cycle and not any(
+                getattr(type(self), name) is not getattr(ElasticController, name) for name in _ELASTIC_HOOKS):
+            lib = load_elastic_cycle()
+            if lib is not None:
+                self._fast = ElasticCycle(lib, self)
+                self._observed_bound = None
+                self.kernel_note = f"elastic cycle {lib._name}"
+
+    def _fast_step(self, cycle: int, t: float, observed, started: int, cpu_started: int) -> bool:
+        """A settling/tracking/finished cycle through the compiled elastic cycle: the same
+        set-points, shaper state, log row and timing as :meth:`Controller.run_cycle` with
+        :meth:`_compute`. False when the Python path must take this cycle (a drive not in
+        Operation enabled or a node fault, unusual observed arrays); nothing has changed then."""
+        fast = self._fast
+        bound = self._observed_bound
+        if bound is None or observed.position is not bound[0] or observed.statusword is not bound[1] \
+                or observed.node_fault is not bound[2]:
+            try:
+                fast.bind_observed(observed.statusword, observed.node_fault, observed.position)
+            except ValueError:
+                return False
+            self._observed_bound = (observed.position, observed.statusword, observed.node_fault)
+        phase = self.phase
+        tau = 0.0 if phase is Phase.SETTLING else (cycle - self.motion_start_cycle) * self.config.period_s
+        ref = self.reference
+        k, _ = ref.grid.locate(ref.t_start + tau)
+        log = self.log
+        if fast.run(k, log.next_joints_address()) != 0:
+            return False
+        self._last_knot = k
+        self._last_cycle = cycle
+        self.kernel_cycles += 1
+        if phase is Phase.SETTLING and cycle >= self._settle_until:
+            phase = self.phase = Phase.TRACKING
+            self.motion_start_cycle = cycle
+        if phase is Phase.TRACKING and tau >= ref.duration:
+            phase = self.phase = Phase.FINISHED
+        elapsed = time.perf_counter_ns() - started
+        self.timer.record(elapsed, time.thread_time_ns() - cpu_started)
+        log.commit(t, t + self.config.lead_time_s, int(phase), tau, elapsed * 1e-3, 0)
+        return True
 
     def _enable(self, observed, sp: Setpoints) -> None:
         super()._enable(observed, sp)

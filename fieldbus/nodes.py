@@ -83,6 +83,26 @@ def _lookahead_entry(raw: bytes) -> bytes:
     return target + raw[6:8] + raw[16:20]
 
 
+def _interpolated(old: bytes, new: bytes, gap: int, keep: int) -> list[bytes]:
+    """The last (at most ``keep``) of the ``gap - 1`` packed RPDO1s between ``old`` and ``new``
+    (``gap`` cycles apart, both exclusive), their set-points (target position, torque offset,
+    target torque, target velocity, velocity offset) interpolated linearly and rounded;
+    controlword and mode those of ``new``."""
+    a, b = _RPDO1_FIELDS.unpack(old), _RPDO1_FIELDS.unpack(new)
+    out = []
+    for i in range(max(1, gap - keep), gap):
+        s = i / gap
+        values = [round(x + (y - x) * s) for x, y in zip(a, b)]
+        data = bytearray(new)
+        _RPDO1_FIELDS.pack_into(data, 0, *values)
+        data[:2] = new[:2]
+        data[8:10] = new[8:10]
+        out.append(bytes(data))
+    return out
+
+
+# the RPDO1's 16-bit words and integers as one struct (controlword and mode/reserved kept apart)
+_RPDO1_FIELDS = struct.Struct("<2xih2xhii")
 _I16 = struct.Struct("<h")
 _I32 = struct.Struct("<i")
 _UNPACK_ENTRY = RPDO1_LOOKAHEAD_ENTRY.unpack_from
@@ -212,6 +232,7 @@ class ManagingNode:
             self._ring = [deque(maxlen=k + 1) for _ in range(n)]
             self._la_msgs = [FastMessage(0.0, RPDO1_BASE + i + 1, bytearray(rpdo1_length(k))) for i in range(n)]
             self._frames_sent = [self._sync_msg] + self._la_msgs
+            self._la_cycle = -1  # cycle of the last PReqs sent
         th = config.thresholds
         self._c_loss = _counters_per_node(self, "loss_of_pres", th.mn_loss_of_pres)
         self._c_late = _counters_per_node(self, "late_pres", th.mn_late_pres)
@@ -244,22 +265,31 @@ class ManagingNode:
         sync = self._sync_msg
         sync.timestamp = times[0]
         sync.data[0] = (cycle % self._sync_overflow) + 1
-        return self._lookahead_frames() if self._k else self._frames
+        return self._lookahead_frames(cycle) if self._k else self._frames
 
-    def _lookahead_frames(self) -> list[FastMessage]:
-        """The PReqs with the set-point look-ahead, from this cycle's packed 20-byte RPDO1s
-        (the controller's newest output): per node a ring of the last k + 1 outputs; the
-        oldest is the set-point due next, the others the k look-ahead entries. A new
-        controlword or mode of operation replaces the node's ring with the new output (the
-        controller changed its plan: enabling, a quick stop, a fault reset go out at once)."""
+    def _lookahead_frames(self, cycle: int) -> list[FastMessage]:
+        """The PReqs of ``cycle`` with the set-point look-ahead, from this cycle's packed
+        20-byte RPDO1s (the controller's newest output, for the SoC of cycle + d + k): per
+        node a ring of the planned set-points for the SoCs of cycles cycle + d .. cycle + d + k;
+        the first is the set-point due next, the others the k look-ahead entries.
+
+        A new controlword or mode of operation replaces the node's ring with the new output
+        (the controller changed its plan: enabling, a quick stop, a fault reset go out at
+        once). A controller that skipped cycles (it fell behind and jumped to the cell's
+        cycle) left no set-points for the cycles in between: they are interpolated linearly
+        between its last output and the new one, in telegram units."""
         k = self._k
+        gap = cycle - self._la_cycle
+        self._la_cycle = cycle
         entry = _lookahead_entry
         for staged, ring, msg in zip(self._preq_msgs, self._ring, self._la_msgs):
             raw = bytes(staged.data)
-            if not ring or raw[:2] != ring[-1][:2] or raw[8] != ring[-1][8]:
+            if not ring or gap < 1 or raw[:2] != ring[-1][:2] or raw[8] != ring[-1][8]:
                 ring.clear()
                 ring.extend((raw,) * (k + 1))
             else:
+                if gap > 1:
+                    ring.extend(_interpolated(ring[-1], raw, gap, k))
                 ring.append(raw)
             data = msg.data
             data[:20] = ring[0]
@@ -323,7 +353,7 @@ class ManagingNode:
                 self._pack_saturated(msg, i, cw, position[i], torque_offset[i], mode, target_torque[i],
                                      target_velocity[i], velocity_offset[i])
         self._last_cw = controlword
-        return self._lookahead_frames() if self._k else self._frames
+        return self._lookahead_frames(cycle) if self._k else self._frames
 
     def _pack_saturated(self, msg: FastMessage, i: int, cw: int, position: float, torque: float, mode: int,
                         target_torque: float, target_velocity: float, velocity_offset: float) -> None:

@@ -85,6 +85,12 @@ def _tracker_kernel() -> Any:
     return load_library(KERNEL_SOURCE)
 
 
+def _elastic_cycle() -> Any:
+    from controller.elastic import load_elastic_cycle
+
+    return load_elastic_cycle()
+
+
 def _crash_guard() -> Any:
     import native
     from cosim.results import crashguard
@@ -137,6 +143,7 @@ PARTS: tuple[tuple[str, Callable[[], Any], bool], ...] = (
     ("co-simulation master kernel", _master_kernel, True),
     ("fieldbus codec", _fieldbus_codec, True),
     ("laser tracker kernel", _tracker_kernel, True),
+    ("elastic controller cycle", _elastic_cycle, True),
     ("crash guard", _crash_guard, True),
     ("FMI 3.0 adapter", _fmi3_adapter, True),
     ("compiled IK table (C++, pinocchio)", _ik_table, True),

@@ -183,3 +183,93 @@ def test_python_path_and_compiled_codec_apply_the_same(tmp_path, monkeypatch):
         assert np.array_equal(stack(compiled, field), stack(plain, field))
     assert s1["setpoint_lookahead"] == s2["setpoint_lookahead"]
     assert _covered(s1) == 6 * 3 + 3
+
+
+# ---------------------------------------------------------------------------------------
+# the paced cell side (virtual clock): a controller late in chosen cycles
+
+
+class Clock:
+    def __init__(self) -> None:
+        self.t = 0.0
+
+    def __call__(self) -> float:
+        return self.t
+
+
+PACED_SCALING = JointScaling([100.0] * 6, 2**20, [10.0] * 6)
+
+
+def _paced(lookahead, late=(), cycles=60, log_path=None):
+    from fieldbus import DriveEndpoint, ManagingNodeEndpoint
+    from fieldbus.simbus import unique_channel
+
+    config = {"seed": 1, "setpoint_lookahead": lookahead,  # counters: +8 per loss, no trip at two in a row
+              "thresholds": {"cn_loss_of_soc": 40, "cn_loss_of_preq": 40}}
+    channel = unique_channel("hil")
+    mn = ManagingNodeEndpoint(config, PACED_SCALING, channel=channel)
+    cn = DriveEndpoint(config, PACED_SCALING, channel=channel, log_path=log_path)
+    clock = Clock()
+    sp, act = Setpoints.zeros(6), DriveActuals.zeros(6)
+    applied = []
+    for k in range(cycles):
+        sp.controlword[:] = 0x0F
+        sp.position[:] = 1e-3 * k * k
+        sp.torque_offset[:] = 0.1 * k
+        act.statusword[:] = 0x27
+        if k not in late:
+            mn.send_setpoints(k, sp)
+        clock.t = k * 4e-4 + 2e-4
+        a = cn.run_cycle_paced(k, act, deadline=clock.t, clock=clock)
+        applied.append((a.position.copy(), a.torque_offset.copy(), a.fresh.copy()))
+        if k in late:
+            mn.send_setpoints(k, sp)  # after the window: dropped as late in the next one
+        mn.collect_actuals(k)
+    cn.close()
+    mn.close()
+    return cn, applied
+
+
+def test_paced_cell_covers_late_cycles_exactly_with_the_same_counters(tmp_path):
+    late = {10, 20, 21, 40, 41}
+    on_time, ref = _paced(2)
+    cell, got = _paced(2, late, log_path=tmp_path / "cell.blf")
+    for (p0, t0, _), (p1, t1, _) in zip(ref, got):
+        assert np.array_equal(p0, p1) and np.array_equal(t0, t1)
+    # the same POWERLINK consequences as without the look-ahead
+    plain, held = _paced(0, late)
+    errors = lambda cn: sorted((e.cycle, e.node, e.counter) for e in cn.events.events  # noqa: E731
+                               if e.event == "error" and e.kind in ("loss_of_preq", "loss_of_soc"))
+    assert errors(cell) == errors(plain) and {c for c, _, _ in errors(cell)} == late
+    assert {c: v for c, n, v in errors(cell) if n == 1} == {10: 8, 20: 8, 21: 16, 40: 8, 41: 16}
+    assert cell.frames_late == plain.frames_late == 5 * 7
+    assert sum(cell.nodes.cycles_covered) == 6 * 5 and sum(plain.nodes.cycles_covered) == 0
+    assert not np.array_equal(held[11][0], ref[11][0])  # without it the drives held
+    frames = list(can.LogReader(str(tmp_path / "cell.blf")))
+    assert {len(m.data) for m in frames if m.arbitration_id in PREQ_IDS} == {48}
+    assert sorted(round(m.timestamp / 4e-4) for m in frames if m.arbitration_id == 0x080) == \
+        [k for k in range(60) if k not in late]
+
+
+def test_a_controller_that_jumped_cycles_gets_interpolated_lookahead():
+    from fieldbus.events import EventLog
+    from fieldbus.nodes import ManagingNode
+    from fieldbus.timing import CycleLayout
+
+    config = FieldbusConfig.from_dict({"setpoint_lookahead": 3})
+    mn = ManagingNode(config, PACED_SCALING, CycleLayout.from_config(config), EventLog())
+    times = [0.0] * 13
+    cpr = PACED_SCALING.counts_per_rad[0]
+    sent = {}
+    for cycle in list(range(0, 10)) + [16, 17]:  # cycles 10..15 skipped: the controller fell behind
+        frames = mn.frames(cycle, times, [0x0F] * 6, [cycle * 100 / cpr] * 6, [0.0] * 6)
+        t = decode(can.Message(arbitration_id=0x201, data=frames[1].data, is_fd=True, is_extended_id=False))
+        sent[cycle] = [t.target_position] + [e[0] for e in t.lookahead]
+    assert sent[9] == [600, 700, 800, 900]  # each output 3 cycles late, and ahead in the 3 PReqs before
+    # the new output (1600) goes last; the set-points between 900 and 1600 are interpolated
+    assert sent[16] == [1300, 1400, 1500, 1600]
+    assert sent[17] == [1400, 1500, 1600, 1700]
+    # a new controlword replaces the plan at once
+    frames = mn.frames(18, times, [0x07] * 6, [5.0 / cpr] * 6, [0.0] * 6)
+    t = decode(can.Message(arbitration_id=0x201, data=frames[1].data, is_fd=True, is_extended_id=False))
+    assert (t.controlword, t.target_position, [e[0] for e in t.lookahead]) == (0x07, 5, [5, 5, 5])
