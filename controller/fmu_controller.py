@@ -28,13 +28,20 @@ enabling and settling (``settle_time_s``: the scenario's ``[controller] settle_t
 Checked before the run (:func:`check_controller_fmu`): the FMU is FMI 2.0 co-simulation,
 every mapped variable exists with the right causality (input / output / parameter) and
 type, every mapped field is known.
+
+The FMU instance itself is opened by whoever composes the cell (``controller/`` imports no FMU
+code): :class:`FmuController` takes ``open_fmu``, a callable returning a started instance that
+satisfies :class:`ControllerFmu` - ``cosim.cell.user_controller`` passes ``fmus.fmu.Fmu``,
+whose per-step calls go straight to the FMU's ``fmi2Set*``/``fmi2DoStep``/``fmi2Get*`` with
+preallocated value-reference and value arrays. Each cycle the mapped inputs are gathered into
+those arrays with one indexed copy per source field (``benchmarks/bench_controller_fmu.py``).
 """
 from __future__ import annotations
 
 import re
-import shutil
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -138,24 +145,105 @@ def check_controller_fmu(path: Any, inputs: dict[str, str], outputs: dict[str, s
             raise fail(key, "a number", value)
 
 
+@runtime_checkable
+class ControllerFmu(Protocol):
+    """A started FMU instance as :class:`FmuController` steps it (``fmus.fmu.Fmu`` is one).
+
+    The value arrays are in the order of the names the instance was opened with
+    (``real_inputs`` ... ``boolean_outputs``, see :data:`FmuOpener`); Booleans as 0/1 ints.
+    The getters may return a reused buffer. A failing call raises."""
+
+    @property
+    def inputs(self) -> np.ndarray: ...  # the Real input array: written in place, then push_inputs()
+
+    def push_inputs(self) -> None: ...
+
+    def set_integer_inputs(self, values: np.ndarray) -> None: ...
+
+    def set_boolean_inputs(self, values: np.ndarray) -> None: ...
+
+    def get_outputs(self) -> np.ndarray: ...  # Real outputs
+
+    def get_integer_outputs(self) -> np.ndarray: ...
+
+    def get_boolean_outputs(self) -> np.ndarray: ...
+
+    def do_step(self, t: float, h: float) -> None: ...
+
+    def close(self) -> None: ...
+
+
+FmuOpener = Callable[..., ControllerFmu]
+"""``open_fmu(path, name, start_values, *, real_inputs, real_outputs, integer_inputs, integer_outputs,
+boolean_inputs, boolean_outputs) -> ControllerFmu``: instantiate the FMU at ``path``, set the
+``start_values`` (the parameters) and initialize it; the name lists fix the order of the arrays."""
+
+_VALUE_TYPE = {"Real": "Real", "Integer": "Integer", "Enumeration": "Integer", "Boolean": "Boolean"}
+
+
+class _Gather:
+    """Copies mapped fields into one value array: per source field, ``dest[at] = source[joints]``."""
+
+    def __init__(self, entries: Sequence[tuple[str, int | None]], references: dict[str, int]) -> None:
+        self.n = len(entries)
+        groups: dict[str, tuple[list[int], list[int]]] = {}
+        self.scalars: list[tuple[int, str]] = []
+        for at, (name, joint) in enumerate(entries):
+            if joint is None:
+                self.scalars.append((at, name))
+            else:
+                dest, joints = groups.setdefault(name, ([], []))
+                dest.append(at)
+                joints.append(joint)
+        # (index into the reference triple or -1, input field name, destination indices, joints)
+        self.groups = [(references.get(name, -1), name, np.array(dest), np.array(joints))
+                       for name, (dest, joints) in groups.items()]
+
+    def into(self, dest: np.ndarray, inputs: ControllerInput, reference: tuple) -> None:
+        for which, name, at, joints in self.groups:
+            dest[at] = (reference[which] if which >= 0 else getattr(inputs, name))[joints]
+        for at, name in self.scalars:
+            dest[at] = getattr(inputs, name)
+
+
+class _Scatter:
+    """Copies one value array into the mapped output fields: ``out.field[joints] = values[at]``."""
+
+    def __init__(self, entries: Sequence[tuple[str, int]]) -> None:
+        groups: dict[str, tuple[list[int], list[int]]] = {}
+        for at, (name, joint) in enumerate(entries):
+            src, joints = groups.setdefault(name, ([], []))
+            src.append(at)
+            joints.append(joint)
+        self.groups = [(name, np.array(src), np.array(joints)) for name, (src, joints) in groups.items()]
+
+    def into(self, out: ControllerOutput, values: np.ndarray) -> None:
+        for name, at, joints in self.groups:
+            getattr(out, name)[joints] = values[at]
+
+
 class FmuController:
     """An FMI 2.0 co-simulation controller FMU behind the controller contract (module docstring).
 
     Args:
         path: the .fmu file. inputs / outputs: FMU variable -> field (``"position[1]"``).
         parameters: FMU parameter -> value (start values). settle_time_s: hold after enabling, s.
+        open_fmu: opens the instance (:data:`FmuOpener`; the cell passes ``fmus.fmu.Fmu``'s).
     """
 
+    _REFERENCES = {"reference_position": 0, "reference_velocity": 1, "reference_acceleration": 2}
+
     def __init__(self, path: Any, inputs: dict[str, str], outputs: dict[str, str],
-                 parameters: dict[str, Any] | None = None, settle_time_s: float = 0.2) -> None:
+                 parameters: dict[str, Any] | None = None, settle_time_s: float = 0.2, *,
+                 open_fmu: FmuOpener) -> None:
         self.path = Path(path)
         self.inputs_map = dict(inputs)
         self.outputs_map = dict(outputs)
         self.parameters = dict(parameters or {})
         self.settle_time_s = settle_time_s
+        self.open_fmu = open_fmu
         check_controller_fmu(self.path, self.inputs_map, self.outputs_map, self.parameters)
-        self._fmu = None
-        self._unzipped: str | None = None
+        self._fmu: ControllerFmu | None = None
         self.clock: TrackingClock | None = None
         self.time = 0.0
 
@@ -173,80 +261,60 @@ class FmuController:
         return self.clock.stopped_at_s if self.clock is not None else None
 
     def setup(self, info: ControllerInfo) -> None:
-        from fmpy import extract
-        from fmpy.fmi2 import FMU2Slave
-
-        md, variables = _variables(self.path)
+        _, variables = _variables(self.path)
         self.info = info
         self.period_s = info.period_s
         self.clock = TrackingClock(info, settle_time_s=self.settle_time_s)
         self.out = ControllerOutput.zeros(info.n_joints)
-        self._unzipped = extract(str(self.path))
-        fmu = FMU2Slave(guid=md.guid, unzipDirectory=self._unzipped,
-                        modelIdentifier=md.coSimulation.modelIdentifier, instanceName="controller")
-        fmu.instantiate()
-        fmu.setupExperiment(startTime=0.0)
-        fmu.enterInitializationMode()
-        for var, value in self.parameters.items():
-            self._set(fmu, variables[var], value)
-        fmu.exitInitializationMode()
-        self._fmu = fmu
 
-        def groups(mapping: dict[str, str], fields: tuple) -> dict[str, list]:
+        def split(mapping: dict[str, str], fields: tuple) -> dict[str, list[tuple[str, tuple]]]:
+            """Value type -> [(FMU variable, (field, joint))] in mapping order."""
             out: dict[str, list] = {"Real": [], "Integer": [], "Boolean": []}
             for var, field in mapping.items():
-                v = variables[var]
-                kind = "Integer" if v.type == "Enumeration" else v.type
-                out[kind].append((v.valueReference, *parse_field(field, *fields)))
+                out[_VALUE_TYPE[variables[var].type]].append((var, parse_field(field, *fields)))
             return out
 
-        self._in = groups(self.inputs_map, (INPUT_JOINT_FIELDS, INPUT_SCALAR_FIELDS))
-        self._out = groups(self.outputs_map, (OUTPUT_FIELDS, ()))
+        ins = split(self.inputs_map, (INPUT_JOINT_FIELDS, INPUT_SCALAR_FIELDS))
+        outs = split(self.outputs_map, (OUTPUT_FIELDS, ()))
+        names = {f"{kind}_{way}": [var for var, _ in table[value_type]]
+                 for way, table in (("inputs", ins), ("outputs", outs))
+                 for kind, value_type in (("real", "Real"), ("integer", "Integer"), ("boolean", "Boolean"))}
+        self._fmu = self.open_fmu(self.path, "controller", self.parameters, **names)
+        self._gather = {t: _Gather([f for _, f in ins[t]], self._REFERENCES) for t in ins}
+        self._scatter = {t: _Scatter([f for _, f in outs[t]]) for t in outs}
+        self._int_in = np.zeros(len(ins["Integer"]), dtype=np.int64)
+        self._bool_in = np.zeros(len(ins["Boolean"]), dtype=np.int64)
+        self._bool_flags = np.zeros(len(ins["Boolean"]), dtype=bool)
         self._mapped_out = {parse_field(f, OUTPUT_FIELDS)[0] for f in self.outputs_map.values()}
         self.time = 0.0
-
-    @staticmethod
-    def _set(fmu: Any, v: Any, value: Any) -> None:
-        if v.type == "Real":
-            fmu.setReal([v.valueReference], [float(value)])
-        elif v.type == "Boolean":
-            fmu.setBoolean([v.valueReference], [bool(value)])
-        else:
-            fmu.setInteger([v.valueReference], [int(value)])
 
     def step(self, inputs: ControllerInput) -> ControllerOutput:
         out = self.out
         tau = self.clock.update(inputs, out.controlword)
-        q_d, qd_d, qdd_d = self.clock.reference(tau)
-        values = {"reference_position": q_d, "reference_velocity": qd_d, "reference_acceleration": qdd_d}
+        reference = self.clock.reference(tau)
         fmu = self._fmu
-        for kind, entries in self._in.items():
-            if not entries:
-                continue
-            data = [float(self._input_value(inputs, values, name, joint)) if kind == "Real"
-                    else int(self._input_value(inputs, values, name, joint)) for _, name, joint in entries]
-            refs = [vr for vr, _, _ in entries]
-            if kind == "Real":
-                fmu.setReal(refs, data)
-            elif kind == "Integer":
-                fmu.setInteger(refs, data)
-            else:
-                fmu.setBoolean(refs, [bool(x) for x in data])
-        status = fmu.doStep(currentCommunicationPoint=inputs.time_s, communicationStepSize=self.period_s)
-        if status not in (None, 0):
-            raise RuntimeError(f"{self.path.name}: doStep returned status {status}")
+        gather = self._gather
+        if gather["Real"].n:
+            gather["Real"].into(fmu.inputs, inputs, reference)
+            fmu.push_inputs()
+        if gather["Integer"].n:
+            gather["Integer"].into(self._int_in, inputs, reference)
+            fmu.set_integer_inputs(self._int_in)
+        if gather["Boolean"].n:
+            gather["Boolean"].into(self._bool_in, inputs, reference)
+            fmu.set_boolean_inputs(np.not_equal(self._bool_in, 0, out=self._bool_flags))
+        fmu.do_step(inputs.time_s, self.period_s)
         self.time = inputs.time_s + self.period_s
         # what the FMU does not map: as the built-in controller (CSP, reference position)
         if "target_position" not in self._mapped_out:
-            out.target_position[:] = q_d
-        for kind, entries in self._out.items():
-            if not entries:
-                continue
-            refs = [vr for vr, _, _ in entries]
-            got = fmu.getReal(refs) if kind == "Real" else fmu.getInteger(refs) if kind == "Integer" \
-                else fmu.getBoolean(refs)
-            for (_, name, joint), value in zip(entries, got):
-                getattr(out, name)[joint] = value
+            out.target_position[:] = reference[0]
+        scatter = self._scatter
+        if scatter["Real"].groups:
+            scatter["Real"].into(out, fmu.get_outputs())
+        if scatter["Integer"].groups:
+            scatter["Integer"].into(out, fmu.get_integer_outputs())
+        if scatter["Boolean"].groups:
+            scatter["Boolean"].into(out, fmu.get_boolean_outputs())
         if self.clock.stop_reason is not None:  # stopped: quick stop, hold where the drives are
             out.controlword[:] = 0x0002
             out.modes_of_operation[:] = 8
@@ -254,22 +322,7 @@ class FmuController:
             out.torque_offset[:] = 0.0
         return out
 
-    @staticmethod
-    def _input_value(inputs: ControllerInput, values: dict[str, np.ndarray], name: str, joint: int | None) -> Any:
-        if joint is None:
-            return getattr(inputs, name)
-        source = values.get(name)
-        if source is None:
-            source = getattr(inputs, name)
-        return source[joint]
-
     def close(self) -> None:
         fmu, self._fmu = self._fmu, None
         if fmu is not None:
-            try:
-                fmu.terminate()
-            finally:
-                fmu.freeInstance()
-        if self._unzipped is not None:
-            shutil.rmtree(self._unzipped, ignore_errors=True)
-            self._unzipped = None
+            fmu.close()

@@ -20,9 +20,11 @@ FMU tests), which use the named, prepared I/O arrays.
   which offers the same call shapes. No per-call allocation (fmpy's ``setReal``/``getReal``
   build ctypes arrays and go through a logging wrapper on every call).
 - Hand loops: ``real_inputs``/``real_outputs``/``integer_inputs``/``integer_outputs``
-  fix the order of the arrays exchanged by :meth:`set_inputs`, :meth:`get_outputs`,
-  :meth:`set_integer_inputs`, :meth:`get_integer_outputs`; :meth:`do_step` steps; every
-  call checks the returned status.
+  (and the Boolean pair) fix the order of the arrays exchanged by :meth:`set_inputs`,
+  :meth:`get_outputs`, :meth:`set_integer_inputs`, :meth:`get_integer_outputs`,
+  :meth:`set_boolean_inputs`, :meth:`get_boolean_outputs`; :meth:`do_step` steps; every
+  call checks the returned status. A user's controller FMU runs through this path too
+  (``controller.fmu_controller.ControllerFmu``, opened by ``cosim.cell.user_controller``).
 - Log: the FMU's messages go to a bounded buffer (``messages``) that a
   ``SimulationError`` quotes when the FMU fails.
 
@@ -120,8 +122,9 @@ class Fmu:
         path: the .fmu file.
         name: instance name (passed to fmi2Instantiate / fmi3InstantiateCoSimulation).
         start_values: variable name -> value, set in initialization mode.
-        real_inputs, real_outputs, integer_inputs, integer_outputs: variable names fixing the
-            order of the hand-loop arrays (:meth:`set_inputs` ...).
+        real_inputs, real_outputs, integer_inputs, integer_outputs, boolean_inputs, boolean_outputs:
+            variable names fixing the order of the hand-loop arrays (:meth:`set_inputs` ...;
+            Booleans as fmi2Boolean ints, 0 or 1).
         debug_logging: ``loggingOn`` of the instantiation.
         log_capacity: how many log messages ``messages`` keeps.
         on_message: also called with each formatted log message as it is logged.
@@ -135,6 +138,7 @@ class Fmu:
     def __init__(self, path: str | Path, name: str, start_values: Mapping[str, object] | None = None, *,
                  real_inputs: Sequence[str] = (), real_outputs: Sequence[str] = (),
                  integer_inputs: Sequence[str] = (), integer_outputs: Sequence[str] = (),
+                 boolean_inputs: Sequence[str] = (), boolean_outputs: Sequence[str] = (),
                  debug_logging: bool = False, log_capacity: int = 50,
                  on_message: Callable[[str], None] | None = None) -> None:
         self.name = name
@@ -156,7 +160,8 @@ class Fmu:
         self._unbind("is not instantiated yet (start() or the master instantiates it)")
         self._io = {key: self._prepare(names, value_type) for key, names, value_type in (
             ("real_in", real_inputs, "Real"), ("real_out", real_outputs, "Real"),
-            ("int_in", integer_inputs, "Integer"), ("int_out", integer_outputs, "Integer"))}
+            ("int_in", integer_inputs, "Integer"), ("int_out", integer_outputs, "Integer"),
+            ("bool_in", boolean_inputs, "Boolean"), ("bool_out", boolean_outputs, "Boolean"))}
 
     # ----------------------------------------------------------------- variables
     def variable(self, name: str) -> ScalarVariable:
@@ -439,6 +444,15 @@ class Fmu:
     def get_integer_outputs(self) -> np.ndarray:
         """The Integer outputs (order of ``integer_outputs``): a reused buffer."""
         return self._exchange("int_out", self.get_fn, "Get")
+
+    def set_boolean_inputs(self, values: np.ndarray | Sequence[int]) -> None:
+        """Set the Boolean inputs (order of ``boolean_inputs``; 0/1 or bools)."""
+        self._io["bool_in"][3][:] = values
+        self._exchange("bool_in", self.set_fn, "Set")
+
+    def get_boolean_outputs(self) -> np.ndarray:
+        """The Boolean outputs (order of ``boolean_outputs``) as 0/1 ints: a reused buffer."""
+        return self._exchange("bool_out", self.get_fn, "Get")
 
     def do_step(self, t: float, h: float) -> None:
         """Advance from communication point ``t`` by ``h`` seconds (SimulationError when the step fails)."""

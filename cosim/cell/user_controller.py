@@ -71,7 +71,23 @@ def make_user_controller(ctrl: dict[str, Any], where: Where) -> Any:
     if ctrl.get("class"):
         cls = load_controller_class(ctrl, where)
         return instantiate(cls, dict(ctrl.get("parameters", {})), where / "parameters", what="controller class")
+    return make_controller_fmu(ctrl["fmu"], ctrl.get("fmu_inputs", {}), ctrl.get("fmu_outputs", {}),
+                               ctrl.get("parameters", {}), settle_time_s=ctrl.get("settle_time", 0.2))
+
+
+def open_controller_fmu(path: Any, name: str, start_values: dict[str, Any], **arrays: Any) -> Any:
+    """A user's controller FMU as :class:`controller.fmu_controller.FmuController` steps it: the
+    project's :class:`fmus.fmu.Fmu` (per-step calls bound to the FMU's own functions, preallocated
+    value arrays in the order of ``arrays``' names), instantiated and initialized with ``start_values``."""
+    from fmus.fmu import Fmu
+
+    return Fmu(path, name, start_values, **arrays).start()
+
+
+def make_controller_fmu(path: Any, inputs: dict[str, str], outputs: dict[str, str], parameters: dict[str, Any],
+                        settle_time_s: float = 0.2) -> Any:
+    """A :class:`controller.fmu_controller.FmuController` on ``path`` opened through :func:`open_controller_fmu`."""
     from controller.fmu_controller import FmuController
 
-    return FmuController(ctrl["fmu"], inputs=ctrl.get("fmu_inputs", {}), outputs=ctrl.get("fmu_outputs", {}),
-                         parameters=ctrl.get("parameters", {}), settle_time_s=ctrl.get("settle_time", 0.2))
+    return FmuController(path, inputs=inputs, outputs=outputs, parameters=parameters, settle_time_s=settle_time_s,
+                         open_fmu=open_controller_fmu)

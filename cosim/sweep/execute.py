@@ -231,7 +231,12 @@ def dask_client(workers: int | None = None, scheduler: str | None = None, retrie
         cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1, processes=True,
                                dashboard_address=":0", silence_logs=logging.ERROR)
     with cluster, Client(cluster) as client:
+        from cosim.sweep.worker_plugin import QuietHeartbeatAtClose
+
+        client.register_plugin(QuietHeartbeatAtClose(), name="cosim-quiet-heartbeat-at-close")
         yield client
+
+
 
 
 def _failure_reason(exc: BaseException, retries: int) -> str:

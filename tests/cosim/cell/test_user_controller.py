@@ -182,7 +182,8 @@ def test_a_failing_controller_fmu_stops_the_run_cleanly(tmp_path, pd_fmu):
     lines, mapping = fmu_lines(pd_fmu)
     path = scenario(tmp_path, lines, extra=mapping + "[controller.parameters]\nfail_after = 0.02\n")
     code, summary = run(path, tmp_path / "out")
-    assert code != 0 and summary["status"] == "failed" and "fmi2DoStep failed" in summary["reason"]
+    assert code != 0 and summary["status"] == "failed"
+    assert "fmi2DoStep(t=0.0204 s, h=0.0004 s) returned fmi2Discard" in summary["reason"]
     assert summary["stopped_at_s"] == pytest.approx(0.02, abs=1e-3)
     assert (tmp_path / "out" / "timeseries_pd_fmu.parquet").is_file()
 
@@ -217,3 +218,58 @@ def test_a_user_controller_in_cyclic_synchronous_torque_mode_holds_the_arm(tmp_p
     first = rows[0]
     drift = max(abs(float(last[f"plant.q[{i}]"]) - float(first[f"plant.q[{i}]"])) for i in range(1, 7))
     assert drift < 2e-3, drift   # rad, held by the user's torque alone
+
+
+def test_controller_table_defaults_are_the_controllers_own():
+    """The ``[controller]`` keys shared by the cell jobs and identification are defined once,
+    with the defaults of :class:`controller.ControllerConfig` / :class:`controller.ControllerInfo`."""
+    import dataclasses
+
+    from controller import ControllerConfig, ControllerInfo
+    from cosim.cell.parts import CONTROLLER_CONFIG_FIELDS, CONTROLLER_TABLE
+    from cosim.jobs.identification import CONTROLLER_TABLE as IDENTIFICATION_CONTROLLER_TABLE
+
+    config = {f.name: f.default for f in dataclasses.fields(ControllerConfig)}
+    info = {f.name: f.default for f in dataclasses.fields(ControllerInfo)}
+    assert CONTROLLER_CONFIG_FIELDS["period"].default == config["period_s"]
+    assert CONTROLLER_CONFIG_FIELDS["compute_budget"].default == config["compute_budget_s"] == info["compute_budget_s"]
+    assert CONTROLLER_CONFIG_FIELDS["settle_time"].default == config["settle_time_s"]
+    for table in (CONTROLLER_TABLE, IDENTIFICATION_CONTROLLER_TABLE):
+        for key, field in CONTROLLER_CONFIG_FIELDS.items():
+            assert table.fields[key] is field, key
+
+
+def test_a_controller_fmu_exchanges_integers_and_booleans_through_the_fmu_class(tmp_path):
+    """The cell opens a controller FMU as fmus.fmu.Fmu (preallocated arrays, no fmpy per-cycle calls):
+    Integer, Boolean and Real inputs gathered from their fields, outputs scattered to theirs, the
+    parameters set as start values; what the FMU does not map is the built-in controller's."""
+    import numpy as np
+
+    from controller import ControllerInfo, ControllerInput
+    from controller.fmu_controller import ControllerFmu
+    from cosim.cell.user_controller import make_controller_fmu
+    from cosim_fmu_models import build_test_fmu
+    from fmus.fmu import Fmu
+
+    fmu = build_test_fmu("word_controller", tmp_path)
+    ctl = make_controller_fmu(fmu, {"status": "statusword[2]", "ready": "fresh[3]", "t": "time_s"},
+                              {"mode": "modes_of_operation[4]", "offset": "torque_offset[1]",
+                               "flag": "controlword[6]"}, {"gain": 2.0}, settle_time_s=0.0)
+    ctl.setup(ControllerInfo(period_s=4e-4, q_start=np.full(6, 0.1)))
+    try:
+        assert isinstance(ctl._fmu, Fmu) and isinstance(ctl._fmu, ControllerFmu)
+        inputs = ControllerInput.zeros(6)
+        inputs.statusword[:] = [0x21, 0x40, 0x21, 0x21, 0x21, 0x21]
+        inputs.fresh[:] = [True, True, False, True, True, True]
+        inputs.time_s = 0.5
+        out = ctl.step(inputs)
+        assert out.modes_of_operation.tolist() == [8, 8, 8, -1, 8, 8]  # not ready: -1
+        assert out.torque_offset.tolist() == [1.0, 0, 0, 0, 0, 0] and out.controlword[5] == 0
+        assert np.allclose(out.target_position, 0.1)  # unmapped: the start pose while enabling
+        inputs.fresh[2] = True
+        inputs.time_s = 0.5004
+        out = ctl.step(inputs)
+        assert out.modes_of_operation[3] == 0x40 + 1 and out.controlword[5] == 1
+        assert out.torque_offset[0] == pytest.approx(1.0008, abs=1e-15) and ctl.time == pytest.approx(0.5008)
+    finally:
+        ctl.close()

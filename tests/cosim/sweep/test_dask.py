@@ -285,3 +285,29 @@ def test_user_planner_file_relative_to_the_base_scenario(tmp_path, client):
     assert [r["metrics"] for r in shared.rows] == [r["metrics"] for r in shipped.rows]
     slow, fast = (r["metrics"]["planners.quintic_ptp.duration_s"] for r in shared.rows)
     assert slow > fast
+
+
+def test_embedded_workers_drop_only_the_heartbeat_failure_of_a_closing_worker(client):
+    """The embedded cluster's workers carry QuietHeartbeatAtClose: the heartbeat that fails while a
+    worker closes (a Dask race, dask/distributed#7891) is not printed with its traceback; the same
+    failure while the worker runs, and every other record, still is."""
+    import logging
+    from types import SimpleNamespace
+
+    from distributed.core import Status
+
+    from cosim.sweep.worker_plugin import HEARTBEAT_FAILED, QuietHeartbeatAtClose, _HeartbeatAtCloseFilter
+
+    def installed(dask_worker):
+        return [type(p).__name__ for p in dask_worker.plugins.values()]
+
+    assert all("QuietHeartbeatAtClose" in names for names in client.run(installed).values())
+    worker = SimpleNamespace(status=Status.running)
+    keep = _HeartbeatAtCloseFilter(worker)
+    record = logging.LogRecord("distributed.worker", logging.ERROR, __file__, 1, HEARTBEAT_FAILED + ".", None, None)
+    other = logging.LogRecord("distributed.worker", logging.ERROR, __file__, 1, "Unexpected exception", None, None)
+    assert keep.filter(record) and keep.filter(other)
+    for status in (Status.closing, Status.closing_gracefully, Status.closed):
+        worker.status = status
+        assert not keep.filter(record) and keep.filter(other)
+    assert QuietHeartbeatAtClose.idempotent
