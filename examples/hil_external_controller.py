@@ -137,6 +137,7 @@ def main(argv: list[str] | None = None) -> int:
             all_enabled = all(state(s) == "operation_enabled" for s in status)
             if all_enabled and enabled_at is None:
                 enabled_at = cycles_seen
+                print(f"all {n} drives enabled at cycle {cycles_seen}: moving", flush=True)
             if enabled_at is None:
                 if time.monotonic() - started > args.enable_timeout:
                     print(f"drives not enabled after {args.enable_timeout} s: statuswords "

@@ -37,6 +37,7 @@ from dataclasses import dataclass, field
 from typing import Any, Callable
 
 from controller import CellController, ControllerInfo
+from controller.contract import DEFAULT_COMPUTE_BUDGET_S
 from cosim.cell.description import CellDescription
 from cosim.cell.link import FieldbusLink
 from cosim.cell.wiring import N_JOINTS, cell_variables, joint_scaling
@@ -144,7 +145,7 @@ def controller_info(controller: Any, fb_config: FieldbusConfig, *, label: str = 
     where ``controller`` has them)."""
     p = load_parameters()
     config = getattr(controller, "config", None)
-    budget = compute_budget_s if compute_budget_s is not None else getattr(config, "compute_budget_s", 100e-6)
+    budget = compute_budget_s if compute_budget_s is not None else getattr(config, "compute_budget_s", DEFAULT_COMPUTE_BUDGET_S)
 
     def pick(given: Any, name: str) -> Any:
         return given if given is not None else getattr(controller, name, None)
