@@ -308,7 +308,11 @@ def run_hil_split(cell: CellDescription, controller: Any, ctx: Any, *, options: 
     side_dir = Path(ctx.path(f"cell_side_{label}"))
     context = multiprocessing.get_context("spawn")
     conn, child_conn = context.Pipe(duplex=True)
-    process = context.Process(target=cell_side_main, args=(picklable_cell(cell), settings, str(side_dir), child_conn),
+    # the cell's CAN log goes to its own folder: both processes writing the one file made it unreadable
+    served = picklable_cell(cell)
+    if served.can_log is not None:
+        served = dataclasses.replace(served, can_log=side_dir / Path(served.can_log).name)
+    process = context.Process(target=cell_side_main, args=(served, settings, str(side_dir), child_conn),
                               name=f"cosim-served-cell-{label}", daemon=False)  # it has a CAN-log writer child
     bus = dataclasses.replace(cell.fieldbus.bus, interface="udpcycle", channel=f"127.0.0.1:{ctrl_port}",
                               options={**dict(cell.fieldbus.bus.options), "peer": f"127.0.0.1:{cell_port}",
