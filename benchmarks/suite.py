@@ -450,6 +450,25 @@ def output(sizes: Sizes, work: Path) -> dict[str, Any]:
             "files": out["files"], "load_average": list(out["load_average"])}
 
 
+def cli(sizes: Sizes, work: Path) -> dict[str, Any]:
+    """``python -m cosim --help`` in fresh processes (the interpreter itself, no PATH shim): the
+    median wall and CPU time of the whole process over 10 runs per repeat, and the load average."""
+    import resource
+    import subprocess
+
+    walls, cpus = [], []
+    load_before = os.getloadavg()[0]
+    for _ in range(10 * sizes.repeats):
+        before = resource.getrusage(resource.RUSAGE_CHILDREN)
+        t0 = time.perf_counter()
+        subprocess.run([sys.executable, "-m", "cosim", "--help"], check=True, capture_output=True)
+        walls.append(time.perf_counter() - t0)
+        after = resource.getrusage(resource.RUSAGE_CHILDREN)
+        cpus.append(after.ru_utime - before.ru_utime + after.ru_stime - before.ru_stime)
+    return {"help_wall_s": _median(walls), "help_wall_max_s": max(walls), "help_cpu_s": _median(cpus),
+            "runs": len(walls), "load_before": load_before, "load_after": os.getloadavg()[0]}
+
+
 SECTIONS: dict[str, Callable[[Sizes, Path], dict[str, Any]]] = {
     "closed_loop": closed_loop, "closed_loop_elastic": closed_loop_elastic, "closed_loop_split": closed_loop_split,
     "paced": paced,
@@ -457,6 +476,7 @@ SECTIONS: dict[str, Callable[[Sizes, Path], dict[str, Any]]] = {
     "planners": planners, "calibration": calibration, "identification": identification, "hil": hil,
     "memory": memory,
     "main_job": main_job,
+    "cli": cli,
     "output": output,
 }
 
@@ -480,6 +500,7 @@ REQUIRED: dict[str, tuple[str, ...]] = {
             "iso_tcp_error_ratio"),
     "memory": ("cell_ratio", "cell_short_peak_rss_mib", "cell_long_peak_rss_mib"),
     "main_job": ("realtime_factor", "process_realtime_factor", "cpu_s"),
+    "cli": ("help_wall_s", "help_cpu_s"),
     "output": ("total_mb", "ratio_to_csv_128mb", "can_columnar_cpu_s", "can_blf_cpu_s", "series_compact_cpu_s",
                "series_plain_cpu_s"),
 }
@@ -596,6 +617,8 @@ ROWS: tuple[tuple[str, str, str, str], ...] = (
     ("main_job", "realtime_factor", "main job end to end (summary.json, from process start)", "x"),
     ("main_job", "process_realtime_factor", "main job, whole process wall time", "x"),
     ("main_job", "cpu_s", "main job CPU time (all processes)", "s"),
+    ("cli", "help_wall_s", "python -m cosim --help, whole process (median)", "s"),
+    ("cli", "help_cpu_s", "python -m cosim --help, CPU time (median)", "s"),
     ("output", "total_mb", "main job output, all files", "MB"),
     ("output", "ratio_to_csv_128mb", "main job output: 128 MB CSV / total", "x"),
     ("output", "can_columnar_cpu_s", "CAN log write CPU per mode, columnar", "s"),

@@ -12,7 +12,7 @@ HELP = ("Write a run's columnar CAN log (can_<mode>.parquet, or a results folder
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("log", help="a can_<mode>.parquet file or a results folder (every can_*.parquet in it)")
     parser.add_argument("-o", "--out", default=None,
-                        help="the BLF file (one log) or folder (default: beside each log, suffix .blf)")
+                        help="the BLF file (for one log) or folder (for a results folder; default: beside each log, suffix .blf)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -32,7 +32,7 @@ def run(args: argparse.Namespace) -> int:
     for log in logs:
         if out is None:
             target = log.with_suffix(".blf")
-        elif len(logs) > 1 or out.is_dir():
+        elif source.is_dir() or out.is_dir():
             out.mkdir(parents=True, exist_ok=True)
             target = out / log.with_suffix(".blf").name
         else:

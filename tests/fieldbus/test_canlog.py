@@ -125,3 +125,22 @@ def test_lookahead_frames_of_64_bytes_round_trip(tmp_path):
     assert to_blf(logs[".parquet"], tmp_path / "back.blf").read_bytes() == logs[".blf"].read_bytes()
     frames = read_frames(logs[".parquet"]).frames
     assert frames["length"].max() > 20 and frames.dtype["data"].shape[0] == 64
+
+
+def test_export_blf_command(tmp_path, capsys):
+    from cosim.cli import main
+
+    ref, log = _log_both(tmp_path, [(_telegram_records(200), None)])
+    assert main(["export-blf", str(tmp_path)]) == 2  # a folder without can_*.parquet
+    assert main(["export-blf", str(log), "-o", str(tmp_path / "x.blf")]) == 0
+    assert (tmp_path / "x.blf").read_bytes() == ref.read_bytes()
+    (tmp_path / "can_a.parquet").write_bytes(log.read_bytes())
+    assert main(["export-blf", str(tmp_path), "-o", str(tmp_path / "blf")]) == 0
+    assert (tmp_path / "blf" / "can_a.blf").read_bytes() == ref.read_bytes()
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    pq.write_table(pa.table({"x": [1.0]}), tmp_path / "not_a_log.parquet")
+    assert main(["export-blf", str(tmp_path / "not_a_log.parquet")]) == 2
+    assert main(["export-blf", str(tmp_path / "missing.parquet")]) == 2
+    assert "not a CAN log" in capsys.readouterr().err

@@ -156,6 +156,23 @@ def test_a_port_in_use_is_a_clear_error(tmp_path):
     assert "in use" in err and "Traceback" not in err
 
 
+@pytest.mark.parametrize("option, value, message", [
+    ("--channel", "localhost", "--channel 'localhost': expected host:port"),
+    ("--channel", "10.255.255.1:47000", "the address cannot be used"),  # not an address of this machine
+    ("--channel", "nosuchhost.invalid:47000", "cannot resolve 'nosuchhost.invalid'"),
+    ("--peer", "nosuchhost.invalid:47000", "--peer 'nosuchhost.invalid:47000': cannot resolve"),
+    ("--accept-from", "nosuchhost.invalid", "--accept-from: cannot resolve"),
+], ids=["no-port", "not-local", "channel-unresolvable", "peer-unresolvable", "accept-from-unresolvable"])
+def test_bad_addresses_are_refused_before_anything_runs(tmp_path, option, value, message):
+    serve = subprocess.run([sys.executable, "-m", "cosim", "serve", str(_scenario(tmp_path)), "--out",
+                            str(tmp_path / "out"), option, value], env=_env(), capture_output=True, text=True,
+                           timeout=60)
+    assert serve.returncode == 2, serve.stderr
+    assert message in serve.stderr and "Traceback" not in serve.stderr
+    assert len(serve.stderr.strip().splitlines()) == 1
+    assert not (tmp_path / "out").exists()
+
+
 def test_a_bad_channel_is_refused_before_anything_runs(tmp_path):
     serve = subprocess.run([sys.executable, "-m", "cosim", "serve", str(_scenario(tmp_path)), "--out",
                             str(tmp_path / "out"), "--channel", "localhost"], env=_env(), capture_output=True,
@@ -248,12 +265,13 @@ def test_a_controller_killed_mid_motion_stops_the_arm(tmp_path):
     """The example controller really killed (SIGKILL, its socket gone: the cell's datagrams to
     it bounce) in the middle of its motion: the cell's counters trip, every drive reacts, all
     joints are below 1e-3 rad/s 0.5 s after the trip, the reaction is in the CAN log and the
-    summary, and the served run ends normally. On the way, bad input on the cell's port:
+    summary. The controller started again resets the faults and re-enables the drives through
+    CiA 402, moves the arm and stops; the served run ends normally. On the way, bad input on the cell's port:
     garbage and a truncated datagram before the controller comes (malformed), and another
     program sending valid PReqs while the arm moves (foreign): counted, named on stderr,
     never obeyed."""
     out = tmp_path / "out"
-    scenario = _scenario(tmp_path, "6 s")  # and seeded transport faults from the scenario: duplicated PRes
+    scenario = _scenario(tmp_path, "10 s")  # and seeded transport faults from the scenario: duplicated PRes
     scenario.write_text(scenario.read_text().replace(
         "[fieldbus.recording]", '[fieldbus.bus]\ninterface = "udpcycle"\nchannel = "127.0.0.1:47400"\n'
         "[fieldbus.bus.options]\nduplicate_probability = 0.05\nfault_seed = 7\n[fieldbus.recording]"))
@@ -277,6 +295,11 @@ def test_a_controller_killed_mid_motion_stops_the_arm(tmp_path):
     assert ctrl.poll() is None, ctrl.communicate()
     ctrl.kill()
     ctrl.communicate(timeout=30)
+    time.sleep(1.5)  # the trip and the stop
+    again = subprocess.run([sys.executable, str(EXAMPLE), str(out / "hil_endpoint.json"), "--amplitude", "0.1",
+                            "--duration", "1.0"], env=_env(), capture_output=True, text=True, timeout=120)
+    assert again.returncode == 0, again.stderr
+    assert "drives enabled" in again.stdout
     _, err = serve.communicate(timeout=180)
     assert serve.returncode == 0, err
     assert "Traceback" not in err
@@ -289,7 +312,8 @@ def test_a_controller_killed_mid_motion_stops_the_arm(tmp_path):
     assert 0.02 * sent < hil["transport"]["injected_duplicates"] < 0.08 * sent  # 5 %, seeded
     reactions = [f for f in hil["fault_reactions"] if f["event"] == "fault_reaction"]
     assert {f["node"] for f in reactions} == set(range(1, 7))
-    trip = max(f["time_s"] for f in reactions)
+    # the kill: each node's first reaction (the controller started again trips them once more when it ends)
+    trip = max(min(f["time_s"] for f in reactions if f["node"] == node) for node in range(1, 7))
     assert all(v >= 10 for v in hil["frames_lost_per_node"].values())  # threshold 80, +8 per lost cycle
     ts = result.timeseries("timeseries_model_based", kind="numpy")
     t = np.asarray(ts["time"])
@@ -298,8 +322,14 @@ def test_a_controller_killed_mid_motion_stops_the_arm(tmp_path):
     # the brakes hold the motors at once; the links settle on the elastic gears: the wrist (axis 5)
     # creeps with a time constant of about 0.16 s after a stop from 0.3-0.5 rad/s, so below
     # 1e-3 rad/s takes 0.49-0.52 s depending on the instant of the kill (docs/hil.md, Measured)
-    assert np.abs(qd[t >= trip + 0.6]).max() < 1e-3
-    assert np.abs(qd[:, [0, 1, 2, 3, 5]][t >= trip + 0.5]).max() < 1e-3  # all axes but the wrist's 5
-    emcy = [m for m in can.LogReader(str(out / "can_model_based.blf"))
+    cleared = [f for f in hil["fault_reactions"] if f["event"] == "fault_cleared" and f["time_s"] > trip]
+    assert {f["node"] for f in cleared} == set(range(1, 7)), hil["fault_reactions"]
+    back = min(f["time_s"] for f in cleared)
+    stopped = (t >= trip + 0.6) & (t < back)
+    assert np.abs(qd[stopped]).max() < 1e-3
+    assert np.abs(qd[:, [0, 1, 2, 3, 5]][(t >= trip + 0.5) & (t < back)]).max() < 1e-3  # all but the wrist's 5
+    emcy = [m for m in open_log(out / "can_model_based.parquet")
             if 0x81 <= m.arbitration_id <= 0x86 and len(m.data) == 8]
     assert {m.arbitration_id - 0x80 for m in emcy} == set(range(1, 7))
+    # the controller came back: every node's fault cleared, the arm moved again
+    assert np.abs(qd[t > back]).max() > 1e-2
