@@ -41,11 +41,14 @@ POINTS = (50.0, 99.0)
 
 
 #: Seconds before each expected PRes (the last one's kernel arrival + one cycle) at which the split
-#: controller stops sleeping and spins on its socket. A sleeper is woken 40-160 µs late on these
-#: VMs, more under load (and the kernel does not preempt another task's kernel code for it:
-#: PREEMPT_NONE), a spinner reads the PRes at once; 250 µs keeps the controller's CPU below
-#: ~65 % of its core, far from the real-time throttling limit (95 %).
-CONTROLLER_SPIN_S = 250e-6
+#: controller stops sleeping and spins on its socket, as the served cell spins before its cycles
+#: (150 µs). A sleeper is woken 40-160 µs late on these VMs, more under load (the kernel does not
+#: preempt another task's kernel code for it: PREEMPT_NONE), a spinner reads the PRes at once.
+#: Every µs spun is real-time CPU time: with 150 µs the paced loop used 65 % of its core at load 15
+#: (``loop_cpu_fraction``; 100 µs: 62 %, the same wake-up p50/p99 as 250 µs), below the kernel's
+#: real-time limit (95 % per CPU; above it every SCHED_FIFO task on that CPU is paused for the rest
+#: of the second).
+CONTROLLER_SPIN_S = 150e-6
 #: Nanoseconds the controller keeps polling past its spin before it sleeps in ``select``: a PRes
 #: later than that (a stalled cell) is waited for without a core.
 SPIN_GRACE_NS = 250_000
@@ -343,6 +346,7 @@ def run_hil_split(cell: CellDescription, controller: Any, ctx: Any, *, options: 
     granted = "normal"
     wall0, cpu0 = time.perf_counter(), time.process_time()
     endpoint = None
+    loop_cpu_fraction = None
     try:
         try:
             port.setup(cell.controller)
@@ -371,6 +375,7 @@ def run_hil_split(cell: CellDescription, controller: Any, ctx: Any, *, options: 
                                  controller_cpu) as granted, no_cyclic_gc(), locked_memory(lock) as memory_lock:
             granted = f"{granted}, memory {memory_lock}"
             endpoint.send_following(setpoints)  # the cell's cycle 0 starts with this datagram
+            loop_wall0, loop_cpu0 = time.perf_counter_ns(), time.thread_time_ns()
             while True:
                 waited = time.perf_counter_ns()
                 if expected_ns:  # sleep, then spin: a sleeper is woken 40-160 us late, a spinner at once
@@ -409,6 +414,8 @@ def run_hil_split(cell: CellDescription, controller: Any, ctx: Any, *, options: 
                 if stopped_at is not None and cycle * period - stopped_at >= cell.stop_grace_s - 1e-12:
                     failure = SimulationError("controller", stopped_at, f"motion stopped: {port.stop_reason}")
                     break
+            # the share of its CPU the paced loop used (spin included): real-time CPU time
+            loop_cpu_fraction = (time.thread_time_ns() - loop_cpu0) / max(time.perf_counter_ns() - loop_wall0, 1)
         if conn.poll(stop_time + START_TIMEOUT_S):
             kind, payload = conn.recv()
             if kind == "done":
@@ -444,7 +451,8 @@ def run_hil_split(cell: CellDescription, controller: Any, ctx: Any, *, options: 
     report = {
         "controller_side": {"cycles": last + 1, "cycles_skipped": skipped, **times.report(period),
                             "pres_one_way_latency": percentiles_us(controller_latency, POINTS),
-                            "spin_us": spin_ns * 1e-3, "scheduling": granted},
+                            "spin_us": spin_ns * 1e-3, "loop_cpu_fraction": loop_cpu_fraction,
+                            "scheduling": granted},
         "lost_cycle_causes": lost_cycle_causes(cell_hil.get("lost_cycles") or [], overrun_cycles, times, period),
         "cell_side": cell_hil,
         "round_trip": percentiles_us(rtt, POINTS),
