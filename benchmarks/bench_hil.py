@@ -323,10 +323,10 @@ def _late_scenario(work: Path, seconds: float) -> Path:
 
 def _cell_cycles_in_can_log(path: Path, period: float) -> tuple[set[int], set[int]]:
     """Cycles with the cell's SoC taken, cycles with a PRes sent, from the cell's CAN log."""
-    import can
+    from fieldbus.canlog import open_log
 
     soc, pres = set(), set()
-    for msg in can.LogReader(str(path)):
+    for msg in open_log(path):
         k = int(msg.timestamp // period + 1e-9) if msg.arbitration_id != 0x080 else round(msg.timestamp / period)
         if msg.arbitration_id == 0x080:
             soc.add(k)
@@ -379,7 +379,7 @@ def late_run(work: Path, seconds: float = LATE_SECONDS, late: tuple[int, ...] = 
     for f in hil["fault_reactions"]:
         if f["event"] == "fault_reaction" and f["kind"] in ("loss_of_soc", "loss_of_preq"):
             trips.setdefault(f["cycle"], set()).add(f["node"])
-    soc, pres = _cell_cycles_in_can_log(out / "can_model_based.blf", period)
+    soc, pres = _cell_cycles_in_can_log(out / "can_model_based.parquet", period)
     judged = range(first, min(first + ctrl["cycles_followed"], cycles))
     missing_soc = sorted(k for k in judged if k not in soc)
     per_cycle = []

@@ -38,6 +38,9 @@ memory                 peak RSS of a short and a 10x longer run, each in a fresh
 main_job               ``python -m cosim run scenarios/iso9283.toml`` end to end, fresh
                        processes (benchmarks/bench_main_job.py): summary.json's real-time
                        factor (from the process start), the whole process's, its CPU time
+output                 the main job's files (benchmarks/bench_output.py): size of each, the
+                       total and its ratio to the 128 MB CSV output; write CPU per mode
+                       (CAN log columnar vs BLF, time series compact vs plain)
 =====================  ==================================================================
 
 ``ratios``: own CP / TOPP-RA solve time and duration, own PtP / ruckig_feasible
@@ -430,6 +433,42 @@ def main_job(sizes: Sizes, work: Path) -> dict[str, Any]:
             "load_after": m["load_after"]}
 
 
+def output(sizes: Sizes, work: Path) -> dict[str, Any]:
+    """bench_output.measure: the main job's files, their total against the 128 MB CSV output,
+    the write CPU per mode (medians over the modes)."""
+    import bench_output
+
+    work.mkdir(parents=True, exist_ok=True)
+    out = bench_output.measure(repeats=sizes.repeats, stop_time=sizes.main_job_stop_time)
+    modes = out["modes"].values()
+
+    def med(group: str, key: str) -> float:
+        return _median([m[group][key] for m in modes])
+    return {"total_mb": out["total_mb"], "ratio_to_csv_128mb": out["ratio_to_csv_128mb"],
+            "can_columnar_cpu_s": med("can", "columnar_cpu_s"), "can_blf_cpu_s": med("can", "blf_cpu_s"),
+            "series_compact_cpu_s": med("series", "compact_cpu_s"), "series_plain_cpu_s": med("series", "plain_cpu_s"),
+            "files": out["files"], "load_average": list(out["load_average"])}
+
+
+def cli(sizes: Sizes, work: Path) -> dict[str, Any]:
+    """``python -m cosim --help`` in fresh processes (the interpreter itself, no PATH shim): the
+    median wall and CPU time of the whole process over 10 runs per repeat, and the load average."""
+    import resource
+    import subprocess
+
+    walls, cpus = [], []
+    load_before = os.getloadavg()[0]
+    for _ in range(10 * sizes.repeats):
+        before = resource.getrusage(resource.RUSAGE_CHILDREN)
+        t0 = time.perf_counter()
+        subprocess.run([sys.executable, "-m", "cosim", "--help"], check=True, capture_output=True)
+        walls.append(time.perf_counter() - t0)
+        after = resource.getrusage(resource.RUSAGE_CHILDREN)
+        cpus.append(after.ru_utime - before.ru_utime + after.ru_stime - before.ru_stime)
+    return {"help_wall_s": _median(walls), "help_wall_max_s": max(walls), "help_cpu_s": _median(cpus),
+            "runs": len(walls), "load_before": load_before, "load_after": os.getloadavg()[0]}
+
+
 SECTIONS: dict[str, Callable[[Sizes, Path], dict[str, Any]]] = {
     "closed_loop": closed_loop, "closed_loop_elastic": closed_loop_elastic, "closed_loop_split": closed_loop_split,
     "paced": paced,
@@ -437,6 +476,8 @@ SECTIONS: dict[str, Callable[[Sizes, Path], dict[str, Any]]] = {
     "planners": planners, "calibration": calibration, "identification": identification, "hil": hil,
     "memory": memory,
     "main_job": main_job,
+    "cli": cli,
+    "output": output,
 }
 
 #: The figures bench.json must hold (section -> keys), checked by the test and by run_suite.
@@ -459,6 +500,9 @@ REQUIRED: dict[str, tuple[str, ...]] = {
             "iso_tcp_error_ratio"),
     "memory": ("cell_ratio", "cell_short_peak_rss_mib", "cell_long_peak_rss_mib"),
     "main_job": ("realtime_factor", "process_realtime_factor", "cpu_s"),
+    "cli": ("help_wall_s", "help_cpu_s"),
+    "output": ("total_mb", "ratio_to_csv_128mb", "can_columnar_cpu_s", "can_blf_cpu_s", "series_compact_cpu_s",
+               "series_plain_cpu_s"),
 }
 RATIOS = ("own_cp_vs_toppra_solve_time", "own_cp_vs_toppra_duration", "own_ptp_vs_ruckig_feasible_duration",
           "own_ptp_vs_ruckig_feasible_solve_time", "in_process_vs_split_realtime_factor")
@@ -573,6 +617,14 @@ ROWS: tuple[tuple[str, str, str, str], ...] = (
     ("main_job", "realtime_factor", "main job end to end (summary.json, from process start)", "x"),
     ("main_job", "process_realtime_factor", "main job, whole process wall time", "x"),
     ("main_job", "cpu_s", "main job CPU time (all processes)", "s"),
+    ("cli", "help_wall_s", "python -m cosim --help, whole process (median)", "s"),
+    ("cli", "help_cpu_s", "python -m cosim --help, CPU time (median)", "s"),
+    ("output", "total_mb", "main job output, all files", "MB"),
+    ("output", "ratio_to_csv_128mb", "main job output: 128 MB CSV / total", "x"),
+    ("output", "can_columnar_cpu_s", "CAN log write CPU per mode, columnar", "s"),
+    ("output", "can_blf_cpu_s", "CAN log write CPU per mode, BLF", "s"),
+    ("output", "series_compact_cpu_s", "time series write CPU per mode, compact", "s"),
+    ("output", "series_plain_cpu_s", "time series write CPU per mode, plain", "s"),
     ("hil", "probe_gap_ms_per_s", "hil: machine stalls of a bare SCHED_FIFO loop (probe)", "ms/s"),
     ("hil", "probe_gaps_over_1ms_per_s", "hil: probe gaps over 1 ms", "1/s"),
     ("hil", "overrun_fraction", "hil: paced split 400 us, cell overrun fraction", ""),

@@ -66,7 +66,7 @@ import native
 from controller.cycle_timer import CycleTimer, TimingSummary
 from controller.drive_compensation import DriveLoopModel, SetpointShaper
 from controller.feedforward import FeedForward
-from controller.contract import ControllerInfo, ControllerInput, ControllerOutput
+from controller.contract import DEFAULT_COMPUTE_BUDGET_S, ControllerInfo, ControllerInput, ControllerOutput
 from controller.compiled_cycle import FAST_REJECTED, FAST_STOP_CHECK, CompiledCycle, CompiledCycleError
 from controller.joint_reference import SINGULARITY_TOLERANCE, CartesianToJoint, SingularConfigurationError
 from controller.reference import JointTrajectory, TcpTrajectory
@@ -120,7 +120,7 @@ class ControllerConfig:
     mode: str = "model_based"
     period_s: float = 400e-6
     lead_cycles: int = 2
-    compute_budget_s: float = 100e-6
+    compute_budget_s: float = DEFAULT_COMPUTE_BUDGET_S
     settle_time_s: float = 0.2
     enable_timeout_s: float = 0.5
     compiled: bool = True

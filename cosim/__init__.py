@@ -14,7 +14,8 @@ from typing import Any
 
 #: Names re-exported from cosim.api.
 _API_NAMES = ("OutputFolderError", "RunFailed", "RunResult", "Scenario", "ScenarioError", "Summary", "TimeSeries",
-              "build_sweep", "execute", "load_scenario", "load_sweep", "read_timeseries", "run", "run_sweep")
+              "build_sweep", "execute", "export_blf", "load_scenario", "load_sweep", "read_can_log", "read_timeseries", "run",
+              "run_sweep")
 
 __all__ = list(_API_NAMES)
 

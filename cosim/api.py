@@ -59,6 +59,31 @@ DICT_LABEL, STRING_LABEL, PYTHON_LABEL = "<dict>", "<string>", "<python>"
 TIMESERIES_SUFFIXES = (".parquet", ".csv")
 FIGURE_SUFFIXES = (".png", ".svg", ".pdf")
 CAN_LOG_SUFFIXES = (".blf", ".asc", ".trc", ".mf4")
+CAN_LOG_PREFIX = "can_"
+"""``can_<mode>.parquet`` is the columnar CAN log (fieldbus.canlog), not a time series."""
+
+
+def _is_can_log(path: Path) -> bool:
+    return path.suffix.lower() in CAN_LOG_SUFFIXES or (path.name.startswith(CAN_LOG_PREFIX)
+                                                       and path.suffix.lower() == ".parquet")
+
+
+def read_can_log(path: str | Path):
+    """The frames of a CAN log a run wrote, as ``can.Message`` objects (an iterable reader, also a
+    context manager): the columnar ``can_<mode>.parquet`` (``fieldbus.canlog``; the Messages
+    ``can.BLFReader`` gives for the same log as BLF) or a BLF/ASC file (``can.LogReader``)."""
+    from fieldbus.canlog import open_log
+
+    return open_log(path)
+
+
+def export_blf(path: str | Path, out: str | Path | None = None) -> Path:
+    """Write the columnar CAN log ``path`` as BLF (``out``, default: the same name with ``.blf``),
+    byte for byte the file python-can's ``BLFWriter`` writes for the same frames."""
+    from fieldbus.canlog import to_blf
+
+    path = Path(path)
+    return to_blf(path, Path(out) if out is not None else path.with_suffix(".blf"))
 
 
 def __getattr__(name: str) -> Any:
@@ -459,6 +484,23 @@ def read_timeseries(path: str | Path, kind: str = "auto"):
     if path.suffix == ".parquet":
         import pyarrow.parquet as pq
 
+        import numpy as np
+
+        from cosim.results.timeseries import is_encoded, read_series
+
+        if is_encoded(pq.read_schema(path)):  # compact columns: decoded to the float64 values written
+            names, values = read_series(path)
+            schema = pq.read_schema(path)
+            columns = {}
+            for i, n in enumerate(names):  # plain integer columns stay integers
+                f = schema.field(n) if schema.get_field_index(n) >= 0 else None  # None: a derived column
+                plain_int = f is not None and str(f.type).startswith("int") and b"cosim.encoding" not in (f.metadata or {})
+                columns[n] = values[:, i].astype(np.int64) if plain_int else values[:, i]
+            if kind == "pandas":
+                import pandas as pd
+
+                return pd.DataFrame(columns)
+            return TimeSeries(names, columns, path)
         table = pq.read_table(path)
         if kind == "pandas":
             return table.to_pandas()
@@ -549,8 +591,10 @@ class RunResult:
 
     @property
     def can_log(self) -> list[Path]:
-        """The CAN log files (``can_<mode>.blf``, ...), sorted (empty with ``[results] can_log = false``)."""
-        return self._files(CAN_LOG_SUFFIXES)
+        """The CAN log files (``can_<mode>.parquet``, ``.blf``, ...; read them with :func:`read_can_log`), sorted (empty with ``[results] can_log = false``)."""
+        if not self.out.is_dir():
+            return []
+        return sorted(p for p in self.out.rglob("*") if p.is_file() and _is_can_log(p))
 
     @property
     def timeseries_files(self) -> dict[str, Path]:
@@ -558,6 +602,8 @@ class RunResult:
         out: dict[str, Path] = {}
         for suffix in reversed(TIMESERIES_SUFFIXES):   # csv first, parquet replaces it
             for path in self._files((suffix,)):
+                if _is_can_log(path):
+                    continue
                 out[path.relative_to(self.out).with_suffix("").as_posix()] = path
         return dict(sorted(out.items()))
 
@@ -861,4 +907,5 @@ def run_sweep(sweep: "Sweep | str | Path | Mapping[str, Any]", out: str | Path |
 
 __all__ = ["CAN_LOG_SUFFIXES", "DICT_LABEL", "FIGURE_SUFFIXES", "OutputFolderError", "PYTHON_LABEL", "RunFailed",
            "RunResult", "STRING_LABEL", "Scenario", "ScenarioError", "Summary", "TIMESERIES_SUFFIXES", "TimeSeries",
-           "build_sweep", "execute", "load_scenario", "load_sweep", "read_timeseries", "run", "run_sweep"]
+           "build_sweep", "execute", "export_blf", "load_scenario", "load_sweep", "read_can_log", "read_timeseries", "run",
+           "run_sweep"]

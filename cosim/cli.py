@@ -33,6 +33,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "cosim.commands.build",
     "cosim.commands.build_fmus",
     "cosim.commands.export_ssp",
+    "cosim.commands.export_blf",
     "cosim.commands.run",
     "cosim.commands.serve",
     "cosim.commands.calibrate",

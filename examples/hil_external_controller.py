@@ -3,9 +3,12 @@ documented telegram layout only (no import of the project's packages).
 
 It reads the cell's endpoint description (``hil_endpoint.json``, written by ``cosim
 serve`` before its first cycle), joins the bus through python-can's ``udpcycle``
-interface, enables the six drives through CiA 402 (shutdown 0x06 -> switch on 0x07 ->
-enable operation 0x0F, each when the statusword shows the state before it), moves every
-joint along a smooth cosine out and back in cyclic synchronous position mode, and stops.
+interface, enables the six drives through CiA 402 (a fault first reset by a rising edge of
+bit 7, 0x80; then shutdown 0x06 -> switch on 0x07 -> enable operation 0x0F, each when the
+statusword shows the state before it) holding each drive at its position actual, moves every
+joint from there along a smooth cosine out and back in cyclic synchronous position mode, and
+stops. Started again after the cell's drives reacted to its silence, it resets their faults
+and does the same from where the arm stopped.
 
 Timing: the cell keeps the time; this program follows it. Every cycle the cell sends
 its PRes frames (TPDO1 0x180+n, TPDO2 0x280+n); after each batch of them this program
@@ -80,8 +83,9 @@ def main(argv: list[str] | None = None) -> int:
     bus = can.Bus(interface="udpcycle", channel=desc["controller_channel"], peer=desc["cell_channel"],
                   busy_poll_s=desc.get("busy_poll_s", 0.0))
     status = [0] * n
-    position = [0] * n
+    position = [round(q * c) for q, c in zip(q_start, cpr)]  # counts, until the drives report theirs
     controlword = [0] * n
+    target = base = list(position)
     counter = 0
     cycles_seen = 0
     enabled_at = None
@@ -137,13 +141,17 @@ def main(argv: list[str] | None = None) -> int:
             all_enabled = all(state(s) == "operation_enabled" for s in status)
             if all_enabled and enabled_at is None:
                 enabled_at = cycles_seen
+                base = list(target)  # the motion starts where the drives were enabled
+                print(f"all {n} drives enabled at cycle {cycles_seen}: moving", flush=True)
             if enabled_at is None:
                 if time.monotonic() - started > args.enable_timeout:
                     print(f"drives not enabled after {args.enable_timeout} s: statuswords "
                           f"{[hex(s) for s in status]}", file=sys.stderr)
                     return 3
                 controlword = [next_controlword(s, c) for s, c in zip(status, controlword)]
-                target = [round(q * c) for q, c in zip(q_start, cpr)]  # hold where the arm starts
+                # hold where each drive is (its position actual): after a stop mid-motion that is not
+                # where the run started, and a jump would be a following-error fault on enabling
+                target = list(position)
             else:
                 k = cycles_seen - enabled_at
                 if k > motion_cycles + int(0.5 / cycle_s):  # motion done and 0.5 s of rest
@@ -151,7 +159,7 @@ def main(argv: list[str] | None = None) -> int:
                 phase = min(k / motion_cycles, 1.0)
                 offset = args.amplitude * 0.5 * (1.0 - math.cos(2.0 * math.pi * phase))
                 controlword = [ENABLE_OPERATION] * n
-                target = [round((q + offset) * c) for q, c in zip(q_start, cpr)]
+                target = [b + round(offset * c) for b, c in zip(base, cpr)]
             frames = [can.Message(arbitration_id=SYNC_ID, data=bytes([counter]), is_extended_id=False)]
             frames += [can.Message(arbitration_id=RPDO1_BASE + i + 1, is_extended_id=False,
                                    data=RPDO1.pack(controlword[i], target[i], 0)) for i in range(n)]

@@ -31,14 +31,7 @@ from can.io.blf import (CAN_ERROR_EXT, CAN_FD_MESSAGE, CAN_MESSAGE, EDL, FILE_HE
                         ZLIB_DEFLATE, BLFWriter, timestamp_to_systemtime)
 from can.util import len2dlc
 
-def record_dtype(data_bytes: int = 20) -> np.dtype:
-    """The recorder's record (``fieldbus.recorder.record_struct(data_bytes)``) as a numpy type."""
-    return np.dtype([("t", "<f8"), ("id", "<u2"), ("error", "u1"), ("length", "u1"), ("data", "u1", (data_bytes,))])
-
-
-#: The recorder's record (``fieldbus.recorder.RECORD``, ``"<dHBB20s"``) as a numpy type.
-RECORD_DTYPE = record_dtype(20)
-MAX_DATA = 20
+from fieldbus.canlog import MAX_DATA, RECORD_DTYPE, record_dtype  # noqa: E402,F401  (the recorder's records)
 #: python-can's defaults: uncompressed bytes per container, zlib level, application id, channel.
 CONTAINER_SIZE = BLFWriter.max_container_size
 DEFAULT_COMPRESSION = -1
@@ -75,9 +68,9 @@ def _signals_held() -> Iterator[None]:
         mask(signal.SIG_SETMASK, previous)
 
 
-def _objects(kind: np.dtype, object_type: int, records: np.ndarray, nanoseconds: np.ndarray) -> np.ndarray:
-    """The objects of ``records`` (all of one kind) as rows of bytes, the header filled in."""
-    out = np.zeros(records.size, dtype=kind)
+def _objects(kind: np.dtype, object_type: int, ids: np.ndarray, nanoseconds: np.ndarray) -> np.ndarray:
+    """The objects of frames with ``ids`` (all of one kind) as rows of bytes, the header filled in."""
+    out = np.zeros(ids.size, dtype=kind)
     out["signature"] = b"LOBJ"
     out["header_size"] = _HEADER_SIZE
     out["header_version"] = 1
@@ -86,7 +79,7 @@ def _objects(kind: np.dtype, object_type: int, records: np.ndarray, nanoseconds:
     out["flags"] = TIME_ONE_NANS
     out["timestamp"] = nanoseconds
     out["channel"] = CHANNEL
-    out["id"] = records["id"]
+    out["id"] = ids
     return out
 
 
@@ -116,7 +109,6 @@ class BlfRecordWriter:
     def write_records(self, records: bytes | np.ndarray) -> int:
         """Append frames given as recorder records, in the order given; returns their number."""
         rec = np.frombuffer(records, dtype=RECORD_DTYPE) if not isinstance(records, np.ndarray) else records
-        width = rec.dtype["data"].shape[0]  # 20 data bytes, 64 with a set-point look-ahead
         count = rec.size
         if count == 0:
             return 0
@@ -126,8 +118,22 @@ class BlfRecordWriter:
         self.stop_timestamp = float(t[-1])
         # python-can: int((timestamp - start) * 1e9), at least 0 (int() truncates towards zero)
         nanoseconds = np.maximum(np.trunc((t - self.start_timestamp) * 1e9), 0.0).astype(np.uint64)
-        length = np.minimum(rec["length"], width)
-        error = rec["error"] != 0
+        return self.write_frames(nanoseconds, rec["id"], rec["error"], rec["length"], rec["data"])
+
+    def write_frames(self, nanoseconds: np.ndarray, ids: np.ndarray, error: np.ndarray, length: np.ndarray,
+                     data: np.ndarray) -> int:
+        """Append frames given as columns: BLF object time (ns since :attr:`start_timestamp`,
+        which the caller sets, and :attr:`stop_timestamp`, before the first frame), arbitration
+        id, error flag, data length and (n, 20 or 64) data bytes; returns their number."""
+        count = int(np.size(ids))
+        if count == 0:
+            return 0
+        nanoseconds = np.asarray(nanoseconds, dtype=np.uint64)
+        ids = np.asarray(ids)
+        data = np.asarray(data, dtype=np.uint8)
+        width = data.shape[1]  # 20 data bytes, 64 with a set-point look-ahead
+        length = np.minimum(np.asarray(length), width)
+        error = np.asarray(error) != 0
         fd = ~error & (length > 8)
         classic = ~error & ~fd
         sizes = np.where(error, _ERROR.itemsize, np.where(fd, _FD.itemsize, _CAN.itemsize))
@@ -138,13 +144,12 @@ class BlfRecordWriter:
                                         (error, _ERROR, CAN_ERROR_EXT)):
             if not mask.any():
                 continue
-            sub = rec[mask]
             n = length[mask]
-            objects = _objects(kind, object_type, sub, nanoseconds[mask])
+            objects = _objects(kind, object_type, ids[mask], nanoseconds[mask])
             keep = np.arange(width) < n[:, None]  # data beyond the frame's length are zero
-            data = np.where(keep, sub["data"], 0).astype(np.uint8)
+            payload = np.where(keep, data[mask], 0).astype(np.uint8)
             room = objects["data"].shape[1]
-            objects["data"][:, :min(room, width)] = data[:, :room]
+            objects["data"][:, :min(room, width)] = payload[:, :room]
             if kind is _CAN:
                 objects["dlc"] = n  # CAN_MSG_STRUCT: msg.dlc
             elif kind is _FD:
@@ -153,7 +158,7 @@ class BlfRecordWriter:
                 objects["valid_bytes"] = n
             else:
                 objects["dlc"] = _DLC[n]  # CAN_ERROR_EXT_STRUCT: len2dlc(msg.dlc)
-            rows = objects.view(np.uint8).reshape(sub.size, kind.itemsize)
+            rows = objects.view(np.uint8).reshape(n.size, kind.itemsize)
             index = offsets[mask][:, None] + np.arange(kind.itemsize)
             stream[index] = rows
         self._pending += stream.tobytes()

@@ -33,7 +33,9 @@ RECORD = struct.Struct("<dHBB20s")  # timestamp, id, is_error_frame, dlc, data (
 def record_struct(data_bytes: int = 20) -> struct.Struct:
     """The record for frames of up to ``data_bytes`` (20; 64 where PReqs carry a set-point look-ahead)."""
     return RECORD if data_bytes == 20 else struct.Struct(f"<dHBB{data_bytes}s")
-LOG_SUFFIXES = (".blf", ".asc", ".log", ".csv", ".trc", ".txt", ".mf4")
+
+
+LOG_SUFFIXES = (".parquet", ".blf", ".asc", ".log", ".csv", ".trc", ".txt", ".mf4")
 
 
 class _LogSink:
@@ -47,9 +49,14 @@ class _LogSink:
 
     @staticmethod
     def open(path: str, data_bytes: int = 20) -> "_LogSink | _BlfSink":
-        """The sink for ``path``: BLF through :class:`fieldbus.blf.BlfRecordWriter` (the same
-        bytes as python-can's writer, a batch at a time), any other format through can.Logger."""
-        return _BlfSink(path, data_bytes) if Path(path).suffix.lower() == ".blf" else _LogSink(path, data_bytes)
+        """The sink for ``path``: the columnar CAN log (``.parquet``) through
+        :class:`fieldbus.canlog.CanLogWriter`, BLF through :class:`fieldbus.blf.BlfRecordWriter`
+        (the same bytes as python-can's writer, a batch at a time), any other format through
+        can.Logger."""
+        suffix = Path(path).suffix.lower()
+        if suffix in (".parquet", ".blf"):
+            return _BlfSink(path, data_bytes, columnar=suffix == ".parquet")
+        return _LogSink(path, data_bytes)
 
     def feed(self, records: bytes, watermark_s: float | None) -> None:
         self.pending.extend((t, i, bool(e), d[:n]) for t, i, e, n, d in self._record.iter_unpack(records))
@@ -74,15 +81,21 @@ class _LogSink:
 
 
 class _BlfSink:
-    """:class:`_LogSink` for ``.blf`` files with array operations: the records are sorted by
-    timestamp (stably, as ``list.sort``) and those older than the watermark written by
-    :class:`fieldbus.blf.BlfRecordWriter` (the bytes ``can.Logger`` would write)."""
+    """:class:`_LogSink` for ``.blf`` and columnar ``.parquet`` logs with array operations: the
+    records are sorted by timestamp (stably, as ``list.sort``) and those older than the
+    watermark written by :class:`fieldbus.blf.BlfRecordWriter` (the bytes ``can.Logger`` would
+    write) or, ``columnar``, :class:`fieldbus.canlog.CanLogWriter` (the same frames)."""
 
-    def __init__(self, path: str, data_bytes: int = 20) -> None:
-        from fieldbus.blf import BlfRecordWriter, record_dtype
+    def __init__(self, path: str, data_bytes: int = 20, columnar: bool = False) -> None:
+        from fieldbus.canlog import CanLogWriter, record_dtype
 
         self._dtype = record_dtype(data_bytes)
-        self.writer = BlfRecordWriter(path)
+        if columnar:
+            self.writer = CanLogWriter(path, data_bytes=data_bytes)
+        else:
+            from fieldbus.blf import BlfRecordWriter
+
+            self.writer = BlfRecordWriter(path)
         self.pending = np.empty(0, dtype=self._dtype)
         self.written = 0
 
@@ -176,7 +189,7 @@ class FrameRecorder(Closeable):
         self.path = Path(path)
         if self.path.suffix.lower() not in LOG_SUFFIXES:
             raise FieldbusConfigError(str(self.path), "log_path", str(self.path),
-                                      "a log file ending in .blf or .asc (or another python-can Logger format: "
+                                      "a log file ending in .parquet (columnar), .blf or .asc (or another python-can Logger format: "
                                       + ", ".join(LOG_SUFFIXES) + ")")
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self.flush_every_cycles = flush_every_cycles

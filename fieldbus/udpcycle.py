@@ -13,8 +13,10 @@ Addressing (``channel`` = ``"host:port"``):
 * a multicast group (224.0.0.0/4): every bus on the group and port sees every datagram
   (loopback included); a bus ignores its own datagrams by their sender id;
 * a unicast address: the bus binds there and sends to ``peer="host:port"``; without
-  ``peer`` it answers the address of the last accepted datagram (before the first one,
-  what it sends goes nowhere and is counted in ``stats.no_peer``).
+  ``peer`` it answers the address of the first accepted datagram (before it, what it
+  sends goes nowhere and is counted in ``stats.no_peer``). With ``peer_only=True``
+  (what ``cosim serve`` uses) it accepts datagrams only from that peer, given or learned:
+  a second program sending to the port is counted as *foreign* and cannot inject frames.
 
 Wire format (version 1, all integers big-endian = network order) — documented in
 ``fieldbus/README.md`` so a controller in any language can speak it::
@@ -35,7 +37,8 @@ Wire format (version 1, all integers big-endian = network order) — documented 
 
 Reception checks every datagram: a wrong magic or version, a frame count that does not
 match the length, or a length above 64 is *malformed* (counted, dropped); a datagram
-from an address not in ``accept_from`` is *foreign* (counted, dropped). Sequence
+from an address not in ``accept_from`` (or, with ``peer_only``, not the peer) is
+*foreign* (counted, dropped). Sequence
 numbers per (address, sender id) count *lost* datagrams (gaps), *reordered* ones (older
 than the newest seen, not seen before) and *duplicates* (seen before, window of 1024).
 :attr:`UdpCycleBus.stats` holds the counters.
@@ -234,6 +237,9 @@ class UdpCycleBus(BusABC):
         peer: unicast destination ``"host:port"`` (unicast channels only).
         accept_from: addresses (``"host"`` or ``"host:port"``) whose datagrams are
             accepted; others are counted as foreign and dropped. Default: all.
+        peer_only: unicast, without ``accept_from``: accept datagrams only from the peer
+            (``peer``, or the first sender of a valid datagram when none is given); others
+            are counted as foreign and dropped.
         sender_id: this bus's id on the wire (default: random).
         busy_poll_s: in ``recv(timeout)``, spin on the non-blocking socket for up to this
             long before sleeping in ``select`` (lower latency, one core busy).
@@ -251,7 +257,8 @@ class UdpCycleBus(BusABC):
     """
 
     def __init__(self, channel: Any = None, can_filters: Any = None, *, peer: Any = None,
-                 accept_from: Any = None, sender_id: int | None = None, busy_poll_s: float = 0.0,
+                 accept_from: Any = None, peer_only: bool = False, sender_id: int | None = None,
+                 busy_poll_s: float = 0.0,
                  interface_address: str = "127.0.0.1", ttl: int = 1,
                  drop_probability: float = 0.0, duplicate_probability: float = 0.0,
                  delay_probability: float = 0.0, delay_s: float = 0.0, fault_seed: int = 0,
@@ -289,6 +296,7 @@ class UdpCycleBus(BusABC):
         self._delay_s = float(delay_s)
         self._held: list[tuple[float, bytes]] = []
         self._accept = None if accept_from is None else self._accept_set(accept_from)
+        self._peer_only = bool(peer_only) and accept_from is None
         self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         try:
             self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, int(receive_buffer_bytes))
@@ -410,6 +418,9 @@ class UdpCycleBus(BusABC):
             except OSError:
                 return got
             if self._accept is not None and address[0] not in self._accept and address not in self._accept:
+                self.stats.foreign += 1
+                continue
+            if self._peer_only and self._dest is not None and address != self._dest:
                 self.stats.foreign += 1
                 continue
             try:

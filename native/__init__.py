@@ -221,9 +221,13 @@ def load_extension(module_name: str, library: Path) -> ModuleType:
     return module
 
 
-def fallback(what: str, error: BaseException) -> None:
+PYTHON_PATH = "the Python path runs (slower, same results)"
+
+
+def fallback(what: str, error: BaseException, instead: str = PYTHON_PATH) -> None:
     """Decide what a failed build of ``what`` means: raise under ``COSIM_NATIVE=require``,
-    otherwise say once (per component and process) that the Python path runs."""
+    otherwise say once (per component and process) what runs ``instead`` (default: the
+    Python path)."""
     if mode() == "require":
         if isinstance(error, NativeBuildError):
             raise error
@@ -231,11 +235,11 @@ def fallback(what: str, error: BaseException) -> None:
     if what not in _reported:
         _reported.add(what)
         reason = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
-        print(f"note: {what}: compiled code unavailable ({reason}); the Python path runs "
-              f"(slower, same results; {ENV_MODE}=require makes this an error)", file=sys.stderr)
+        print(f"note: {what}: compiled code unavailable ({reason}); {instead}; "
+              f"{ENV_MODE}=require makes this an error", file=sys.stderr)
 
 
-def optional(what: str, make: Callable[[], T]) -> T | None:
+def optional(what: str, make: Callable[[], T], instead: str = PYTHON_PATH) -> T | None:
     """``make()`` (a build and load), or None when compiled code is off or cannot be built
     (see :func:`fallback`)."""
     if mode() == "off":
@@ -243,7 +247,7 @@ def optional(what: str, make: Callable[[], T]) -> T | None:
     try:
         return make()
     except (NativeBuildError, OSError) as exc:
-        fallback(what, exc)
+        fallback(what, exc, instead)
         return None
 
 

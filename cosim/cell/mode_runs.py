@@ -20,7 +20,7 @@ from controller.elastic import make_controller
 from cosim.cell import wiring
 from cosim.cell.description import CellDescription, describe_cell
 from cosim.cell.evaluation import DEFINITIONS, evaluate_run
-from cosim.cell.parts import (BUILTIN_MODES, controller_models, drive_speed_feedforward, fill_cell_defaults,
+from cosim.cell.parts import (BUILTIN_MODES, can_log_path, controller_models, drive_speed_feedforward, fill_cell_defaults,
                               make_true_robot, mode_fmus, tracker_config)
 from cosim.cell.runner import CellRun, controller_info, run_cell
 from cosim.tracking.laser_tracker import TrackerConfig
@@ -115,7 +115,7 @@ def mode_cell(setup: CellSetup, mode: str, ctx: RunContext | None = None,
                               compute_budget_s=ctrl_t["compute_budget"], settle_time_s=ctrl_t["settle_time"])
     controller = make_controller(setup.reference, config, kinematic_model=setup.kinematics, dynamics=setup.dynamics,
                                  q_hint=np.array(ISO_Q_HINT), drive_model=drive_model, capacity=setup.capacity)
-    can_log = ctx.path(f"can_{mode}.blf") if (ctx is not None and doc["results"]["can_log"]) else None
+    can_log = can_log_path(ctx, doc["results"], mode)
     info = controller_info(controller, setup.fieldbus, label=mode, source=setup.source)
     cell = describe_cell(mode_doc, setup.true_robot, info, label=mode, fieldbus=setup.fieldbus,
                          tracker=setup.tracker, record_file=f"timeseries_{mode}.csv", can_log=can_log,
@@ -158,7 +158,7 @@ def user_cell(setup: CellSetup, controller: Any, label: str, ctx: RunContext | N
                            source=setup.source, reference=setup.reference, q_start=q_start,
                            kinematic_model=setup.kinematics, dynamics=setup.dynamics,
                            compute_budget_s=ctrl_t["compute_budget"])
-    can_log = ctx.path(f"can_{label}.blf") if (ctx is not None and doc["results"]["can_log"]) else None
+    can_log = can_log_path(ctx, doc["results"], label)
     user_doc = {**doc, "fmus": mode_fmus(doc["fmus"], False)}
     return describe_cell(user_doc, setup.true_robot, info, label=label, fieldbus=setup.fieldbus,
                          tracker=setup.tracker, record_file=f"timeseries_{label}.csv", can_log=can_log)

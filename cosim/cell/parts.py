@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from controller import ControllerConfig
 from cosim.cell import wiring
 from cosim.cell.checks import check_cell, fill_defaults
 from cosim.tracking.laser_tracker import DEFAULT_POSITION_SIGMA_M
@@ -88,10 +89,24 @@ TRUE_ROBOT_TABLE = Table({
     "geometric_errors": Field(Boolean(), default=True),
 }, doc="the [true_robot] table")
 
+CONTROLLER_CONFIG_FIELDS: dict[str, Field] = {
+    "period": Field(Number(unit="s", gt=0), default=ControllerConfig.period_s,
+                    doc="the controller cycle: a number in s > 0"),
+    "drive_compensation": Field(Boolean(), default=True,
+                                doc="model_based: shape the targets for the drives' speed feed-forward and filter"),
+    "compute_budget": Field(Number(unit="s", gt=0), default=ControllerConfig.compute_budget_s,
+                            doc="compute time above which a cycle counts as a deadline miss: a number in s > 0"),
+    "settle_time": Field(Number(unit="s", min=0), default=ControllerConfig.settle_time_s,
+                         doc="hold at the start configuration after all drives are enabled: a number in s >= 0"),
+}
+"""The ``[controller]`` keys of every job that runs :class:`controller.Controller` (the cell
+jobs here, identification with its own modes): their defaults are the controller's own
+(:class:`controller.ControllerConfig`), defined there once."""
+
 CONTROLLER_TABLE = Table({
     "modes": Field(List(String(choices=tuple(BUILTIN_MODES)), min_len=0, unique=True),
                    default=["standard", "model_based"]),
-    "period": Field(Number(unit="s", gt=0), default=400e-6, doc="the controller cycle: a number in s > 0"),
+    "period": CONTROLLER_CONFIG_FIELDS["period"],
     "kinematics": Field(String(choices=("nominal", "true")), default="nominal",
                         doc="the controller's IK model: 'nominal' (URDF) or 'true' (perfectly calibrated)"),
     "calibrated_urdf": Field(FilePath(must_exist=True, suffix=".urdf"),
@@ -100,10 +115,9 @@ CONTROLLER_TABLE = Table({
                       doc="the feed-forward model: 'nominal' (URDF + parameter file) or 'true' (ideal)"),
     "payload_known": Field(Boolean(), default=True,
                            doc="true: the controller's model includes the [true_robot] payload (declared tool load)"),
-    "drive_compensation": Field(Boolean(), default=True,
-                                doc="model_based: shape the targets for the drives' speed feed-forward and filter"),
-    "compute_budget": Field(Number(unit="s", gt=0), default=100e-6),
-    "settle_time": Field(Number(unit="s", min=0), default=0.2),
+    "drive_compensation": CONTROLLER_CONFIG_FIELDS["drive_compensation"],
+    "compute_budget": CONTROLLER_CONFIG_FIELDS["compute_budget"],
+    "settle_time": CONTROLLER_CONFIG_FIELDS["settle_time"],
     **{mode: Field(_mode_table(mode)) for mode in BUILTIN_MODES},
     "class": Field(String(pattern=r"^[^:]+:[A-Za-z_][A-Za-z0-9_.]*$",
                           pattern_doc="'path/to/file.py:ClassName' or 'package.module:ClassName'"),
@@ -132,10 +146,26 @@ PATH_TABLE = Table({
     "acceleration": Field(Number(unit="m/s^2", gt=0, max=20.0), default=5.0),
 }, doc="the [path] table")
 
+CAN_LOG_FORMATS = {"parquet": ".parquet", "blf": ".blf"}
+"""``[results] can_log_format`` -> suffix of ``can_<mode>``: the columnar CAN log (default,
+``fieldbus.canlog``; ``cosim export-blf`` turns it into the BLF file byte for byte) or BLF."""
+CAN_LOG_FORMAT_FIELD = Field(String(choices=tuple(CAN_LOG_FORMATS)), default="parquet",
+                             doc="the CAN log's format: 'parquet' (columnar, every frame, fieldbus.canlog; "
+                                 "'cosim export-blf' writes the same frames as BLF) or 'blf' (python-can's BLF)")
+
 RESULTS_TABLE = Table({
-    "can_log": Field(Boolean(), default=True, doc="write the CAN log can_<mode>.blf"),
+    "can_log": Field(Boolean(), default=True, doc="write the CAN log can_<mode>.parquet (or .blf)"),
+    "can_log_format": CAN_LOG_FORMAT_FIELD,
     "figures": Field(Boolean(), default=True, doc="write the PNG figures"),
 }, doc="the [results] table")
+
+
+def can_log_path(ctx: Any, results: dict[str, Any], name: str) -> Any:
+    """The CAN log file ``can_<name>`` in the results folder, in ``[results] can_log_format``
+    (None without a context or with ``can_log = false``)."""
+    if ctx is None or not results.get("can_log"):
+        return None
+    return ctx.path(f"can_{name}{CAN_LOG_FORMATS[results.get('can_log_format', 'parquet')]}")
 
 CELL_FIELDS: dict[str, Field] = {
     "true_robot": Field(TRUE_ROBOT_TABLE, default={}),

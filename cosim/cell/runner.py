@@ -37,6 +37,7 @@ from dataclasses import dataclass, field
 from typing import Any, Callable
 
 from controller import CellController, ControllerInfo
+from controller.contract import DEFAULT_COMPUTE_BUDGET_S
 from cosim.cell.description import CellDescription
 from cosim.cell.link import FieldbusLink
 from cosim.cell.wiring import N_JOINTS, cell_variables, joint_scaling
@@ -120,6 +121,14 @@ def controller_log_of(controller: Any) -> Any:
     return log if isinstance(log, ControllerLog) else None
 
 
+def controller_log_encodings() -> dict[str, Any]:
+    """The controller log's compact Parquet encodings: the observed positions ``q_obs<j>`` are
+    encoder counts times the joint's rad per count (stored as the counts when every value is
+    exactly that), the other float columns delta-coded where that is smaller (lossless)."""
+    rad_per_count = joint_scaling().rad_per_count
+    return {"scales": {f"q_obs{j + 1}": float(r) for j, r in enumerate(rad_per_count)}, "float_delta": True}
+
+
 def controller_record_name(cell: CellDescription) -> str:
     """``controller_<name>`` for the cell's ``timeseries_<name>`` record file (the label otherwise)."""
     stem = Path(cell.record_file).stem
@@ -136,7 +145,7 @@ def controller_info(controller: Any, fb_config: FieldbusConfig, *, label: str = 
     where ``controller`` has them)."""
     p = load_parameters()
     config = getattr(controller, "config", None)
-    budget = compute_budget_s if compute_budget_s is not None else getattr(config, "compute_budget_s", 100e-6)
+    budget = compute_budget_s if compute_budget_s is not None else getattr(config, "compute_budget_s", DEFAULT_COMPUTE_BUDGET_S)
 
     def pick(given: Any, name: str) -> Any:
         return given if given is not None else getattr(controller, name, None)
@@ -247,7 +256,7 @@ def _run_on_master(cell: CellDescription, controller: CellController, ctx: RunCo
             from controller.controller import LOG_COLUMNS
 
             controller_file = ctx.series_name(controller_record_name(cell))
-            log.stream_to(ctx.series_sink(controller_file, series_units(LOG_COLUMNS)))
+            log.stream_to(ctx.series_sink(controller_file, series_units(LOG_COLUMNS), **controller_log_encodings()))
         bus: Any = network
         scheduling: Any = contextlib.nullcontext("normal")
         if paced:

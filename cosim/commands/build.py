@@ -12,7 +12,8 @@ checkout all build the same way, into the same per-user cache, with the same err
 What it builds (:data:`PARTS`, then per scenario):
 
 * the fixed C parts: the master's stepping kernel, the fieldbus codec (CPython extension),
-  the laser tracker's kernel, the crash guard, the FMI 3.0 adapter;
+  the laser tracker's kernel, the crash guard, the FMI 3.0 adapter, and the elastic mode's
+  compiled IK table (C++ on pinocchio's headers, :mod:`controller.ik_table`);
 * the plant and servo-drive FMUs, FMI 2.0 (what the jobs run) and FMI 3.0;
 * the PtP planner's node functions (CasADi-generated C);
 * for each SCENARIO (default: the main job, ``scenarios/iso9283.toml``, in the working
@@ -106,6 +107,12 @@ def _fmi3_adapter() -> Any:
     return load_fmi3_adapter()
 
 
+def _ik_table() -> Any:
+    from controller.ik_table import load
+
+    return load()
+
+
 def _fmus(fmi: int) -> Callable[[], Any]:
     def build() -> Any:
         from fmus.build import build_fmus
@@ -139,6 +146,7 @@ PARTS: tuple[tuple[str, Callable[[], Any], bool], ...] = (
     ("elastic controller cycle", _elastic_cycle, True),
     ("crash guard", _crash_guard, True),
     ("FMI 3.0 adapter", _fmi3_adapter, True),
+    ("compiled IK table (C++, pinocchio)", _ik_table, True),
     ("plant and drive FMUs (FMI 2.0)", _fmus(2), False),
     ("plant and drive FMUs (FMI 3.0)", _fmus(3), False),
     ("PtP node functions", _ptp_nodes, True),

@@ -25,7 +25,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--realtime", action="store_true",
                         help="pace the run at the controller cycle (wall clock); see docs/timing.md")
     parser.add_argument("--split", action="store_true",
-                        help="controller in this process, drives and plant in another (python-can udp_multicast)")
+                        help="controller in this process, drives and plant in another: in lock-step over python-can "
+                             "udp_multicast; with --realtime both paced, the cell served over udpcycle (docs/hil.md)")
     parser.add_argument("--max-output", default=None, metavar="SIZE",
                         help="refuse a run estimated to write more (e.g. '5 GB'; default: $COSIM_MAX_OUTPUT, else the "
                              "free disk space)")

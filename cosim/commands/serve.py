@@ -67,6 +67,7 @@ def run(args: argparse.Namespace) -> int:
               f"{out_dir}/", file=sys.stderr)
         return 130
     _warn_cycle_time_mismatch(result.summary.raw.get("hil") or {})
+    _warn_transport_faults(result.summary.raw.get("hil") or {})
     if result.ok:
         if not args.quiet:
             print(f"{scenario.name}: served, results in {out_dir}/", file=sys.stderr)
@@ -98,6 +99,20 @@ def _warn_cycle_time_mismatch(hil: dict) -> None:
                   f"{'?' if estimate is None else f'{estimate * 1e3:.4g}'} ms, the cell's "
                   f"{found['cell_cycle_time_s'] * 1e3:.4g} ms (hil_endpoint.json cycle_time_s); its frames were "
                   f"lost cycles for the threshold counters (summary.json hil.{label})", file=sys.stderr)
+
+
+def _warn_transport_faults(hil: dict) -> None:
+    """One line per served run that dropped datagrams: malformed or truncated ones, foreign
+    ones (from a sender other than the controller) and duplicates."""
+    for label, report in hil.items():
+        transport = report.get("transport") if isinstance(report, dict) else None
+        if not transport:
+            continue
+        found = {k: transport.get(k, 0) for k in ("malformed", "foreign", "duplicates")}
+        if any(found.values()):
+            counts = ", ".join(f"{v} {k}" for k, v in found.items() if v)
+            print(f"warning: {label}: datagrams dropped by the cell: {counts} (summary.json "
+                  f"hil.{label}.transport; docs/hil.md)", file=sys.stderr)
 
 
 def _check_cpu_and_hosts(cpu: str | None, accept_from) -> None:

@@ -28,9 +28,10 @@ class ServeSettings:
     """How the cell side meets its controller.
 
     channel: the cell's ``host:port`` (a unicast address to bind, or a multicast group).
-    peer: the controller's ``host:port``; None = answer whoever sent the last valid datagram.
-    accept_from: hosts or ``host:port`` whose datagrams are accepted (None: all); others
-        are counted as foreign and dropped.
+    peer: the controller's ``host:port``; None = the sender of the first valid datagram.
+    accept_from: hosts or ``host:port`` whose datagrams are accepted; others are counted
+        as foreign and dropped. None: only the peer's (given or learned), so that another
+        program sending to the cell's port cannot inject frames.
     window_fraction: the part of the cycle the cell waits for the controller's frames.
     spin_s: busy-wait before each cycle's deadline, s.
     busy_poll_s: the cell's socket polling while it waits, s (0: sleep in select).
@@ -66,7 +67,8 @@ class ServeSettings:
 
     def bus_options(self) -> dict:
         """The ``udpcycle`` options of the cell's bus."""
-        options: dict = {"latency_samples": 1 << 20, "busy_poll_s": self.busy_poll_s}
+        options: dict = {"latency_samples": 1 << 20, "busy_poll_s": self.busy_poll_s,
+                         "peer_only": self.accept_from is None}
         if self.peer is not None:
             options["peer"] = self.peer
         if self.accept_from is not None:

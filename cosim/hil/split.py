@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 
 from cosim.cell.description import CellDescription
-from cosim.hil.cell_side import percentiles_us
+from cosim.hil.cell_side import longest_run, percentiles_us
 from cosim.hil.settings import ServeSettings
 from cosim.split.protocol import free_udp_port
 
@@ -90,13 +90,25 @@ class ControllerTimes:
     def column(self, name: str) -> np.ndarray:
         return self.data[:self.count, self.FIELDS.index(name)]
 
+    def reply_us(self) -> np.ndarray:
+        """Per answered cycle whose PRes arrival is known: from that arrival to the answer
+        sent (the PRes's wait in the socket + step + send), µs: the controller's own cycle."""
+        woke = self.column("woke")
+        known = woke >= 0
+        return (woke[known] + self.column("step")[known] + self.column("send")[known]).astype(float) * 1e-3
+
     def report(self, period_s: float) -> dict:
         """The controller side's timing figures (µs percentiles, counts) for summary.json."""
         us = {name: self.column(name).astype(float) * 1e-3 for name in self.FIELDS[1:]}
         compute = us["step"] + us["send"]
         woke = us["woke"][us["woke"] >= 0]
         cycles = self.column("cycle")
-        out = {"wait_for_pres": percentiles_us(us["wait"], POINTS),
+        reply = self.reply_us()
+        late = reply > period_s * 1e6  # an answer later than one bus cycle after the PRes arrived
+        out = {"overruns": int(late.sum()), "overrun_fraction": float(late.mean()) if late.size else 0.0,
+               "longest_overrun_run": longest_run(late),
+               "lateness": percentiles_us(reply),  # PRes arrival -> answer sent, p50/p99/p99.9/max
+               "wait_for_pres": percentiles_us(us["wait"], POINTS),
                "compute": percentiles_us(compute, POINTS),
                "compute_cpu": percentiles_us(us["cpu"], POINTS),
                # compute split in two: the controller through its port, then the next cycle's
@@ -296,7 +308,11 @@ def run_hil_split(cell: CellDescription, controller: Any, ctx: Any, *, options: 
     side_dir = Path(ctx.path(f"cell_side_{label}"))
     context = multiprocessing.get_context("spawn")
     conn, child_conn = context.Pipe(duplex=True)
-    process = context.Process(target=cell_side_main, args=(picklable_cell(cell), settings, str(side_dir), child_conn),
+    # the cell's CAN log goes to its own folder: both processes writing the one file made it unreadable
+    served = picklable_cell(cell)
+    if served.can_log is not None:
+        served = dataclasses.replace(served, can_log=side_dir / Path(served.can_log).name)
+    process = context.Process(target=cell_side_main, args=(served, settings, str(side_dir), child_conn),
                               name=f"cosim-served-cell-{label}", daemon=False)  # it has a CAN-log writer child
     bus = dataclasses.replace(cell.fieldbus.bus, interface="udpcycle", channel=f"127.0.0.1:{ctrl_port}",
                               options={**dict(cell.fieldbus.bus.options), "peer": f"127.0.0.1:{cell_port}",
@@ -425,6 +441,13 @@ def run_hil_split(cell: CellDescription, controller: Any, ctx: Any, *, options: 
         "round_trip": percentiles_us(rtt, POINTS),
         "cell_results": side_dir.name,
     }
+    reply = times.reply_us()
+    if reply.size:
+        side = report["controller_side"]
+        side["figure"] = _controller_figure(
+            Path(ctx.path(f"hil_split_controller_{label}.png")), reply, period,
+            f"{label}: split controller side, {reply.size} answers, {side['overruns']} overruns, "
+            f"{skipped} cell cycles skipped").name
     summary = dict(ctx.summary.data.get("hil_split") or {})
     summary[label] = report
     ctx.summary.update(hil_split=summary)
@@ -435,3 +458,28 @@ def run_hil_split(cell: CellDescription, controller: Any, ctx: Any, *, options: 
                   scheduling=child["scheduling"] if child else "normal")
     run.hil = report
     return run
+
+
+def _controller_figure(path: Path, reply_us: np.ndarray, period_s: float, title: str) -> Path:
+    """The controller side's time per answered cycle (PRes arrival to answer sent) and its overruns."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(9, 3.5))
+    k = np.arange(reply_us.size)
+    values = np.maximum(reply_us, 1e-3)
+    ax.semilogy(k, values, ".", ms=1.5, color="tab:blue", label="PRes arrival to answer sent")
+    late = reply_us > period_s * 1e6
+    if late.any():
+        ax.semilogy(k[late], values[late], "x", ms=4, color="tab:red", label=f"overrun ({int(late.sum())})")
+    ax.axhline(period_s * 1e6, color="grey", lw=0.8, ls="--", label="one bus cycle")
+    ax.set_xlabel("answered cycle")
+    ax.set_ylabel("[µs]")
+    ax.set_title(title, fontsize=9)
+    ax.legend(loc="upper right", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path

@@ -45,7 +45,7 @@ from cosim.cell import wiring
 from cosim.cell.description import describe_cell
 from cosim.cell.evaluation import controller_log_columns, evaluate_run, recording_chunks
 from cosim.cell.mode_runs import CellSetup, mode_cell, prepare
-from cosim.cell.parts import (BUILTIN_MODES, CELL_FIELDS, check_cell_scenario, drive_speed_feedforward,
+from cosim.cell.parts import (BUILTIN_MODES, CELL_FIELDS, can_log_path, check_cell_scenario, drive_speed_feedforward,
                               fill_cell_defaults, mode_fmus)
 from cosim.cell.runner import CellRun, controller_info, run_cell
 from cosim.jobs import planners as planners_job
@@ -549,7 +549,7 @@ def _user_description(ctx: RunContext, setup: CellSetup, ctrl: dict[str, Any], m
                            kinematic_model=setup.kinematics, dynamics=setup.dynamics,
                            compute_budget_s=ctrl_t["compute_budget"])
     run_doc = {**doc, "fmus": mode_fmus(doc["fmus"], bool(ctrl.get("drive_speed_feedforward", False)))}
-    can_log = ctx.path(f"can_{label}.blf") if doc["results"]["can_log"] else None
+    can_log = can_log_path(ctx, doc["results"], label)
     return run_doc, describe_cell(run_doc, setup.true_robot, info, label=label, stop_time=stop_time,
                                   fieldbus=setup.fieldbus, tracker=setup.tracker,
                                   record_file=f"timeseries_{label}.csv", can_log=can_log,
@@ -576,7 +576,7 @@ def run_entry(ctx: RunContext, setup: CellSetup, ctrl: dict[str, Any], motion: _
     demand = [f"{d}.current_demand" for d in wiring.DRIVES]
     if ctrl["kind"] == "mode":
         run_doc, controller = _controller_for(setup, ctrl, motion, stop_time)
-        can_log = ctx.path(f"can_{label}.blf") if doc["results"]["can_log"] else None
+        can_log = can_log_path(ctx, doc["results"], label)
         description = describe_cell(run_doc, setup.true_robot,
                                     controller_info(controller, setup.fieldbus, label=label), label=label,
                                     stop_time=stop_time, fieldbus=setup.fieldbus, tracker=setup.tracker,

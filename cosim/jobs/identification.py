@@ -44,7 +44,8 @@ from cosim.cell import wiring
 from cosim.cell.checks import check_cell, fill_defaults
 from cosim.cell.description import describe_cell
 from cosim.cell.evaluation import evaluate_run
-from cosim.cell.parts import TRACKER_TABLE, TRUE_ROBOT_TABLE, make_true_robot, tracker_config
+from cosim.cell.parts import (CAN_LOG_FORMAT_FIELD, CONTROLLER_CONFIG_FIELDS, TRACKER_TABLE, TRUE_ROBOT_TABLE,
+                              can_log_path, make_true_robot, tracker_config)
 from cosim.cell.runner import controller_info, run_cell
 from cosim.scenario.context import RunContext
 from cosim.scenario.cosim_tables import COSIM_FIELDS
@@ -98,14 +99,14 @@ MEASUREMENT_TABLE = Table({
 }, doc="the [measurement] table")
 
 CONTROLLER_TABLE = Table({
-    "period": Field(Number(unit="s", gt=0), default=400e-6, doc="the controller cycle: a number in s > 0"),
+    "period": CONTROLLER_CONFIG_FIELDS["period"],
     "excitation_mode": Field(String(choices=("standard", "model_based")), default="model_based",
                              doc="controller mode while the exciting trajectory runs (nominal model)"),
     "payload_known": Field(Boolean(), default=False,
                            doc="true: the nominal model includes the [true_robot] payload"),
-    "drive_compensation": Field(Boolean(), default=True),
-    "compute_budget": Field(Number(unit="s", gt=0), default=100e-6),
-    "settle_time": Field(Number(unit="s", min=0), default=0.2),
+    "drive_compensation": CONTROLLER_CONFIG_FIELDS["drive_compensation"],
+    "compute_budget": CONTROLLER_CONFIG_FIELDS["compute_budget"],
+    "settle_time": CONTROLLER_CONFIG_FIELDS["settle_time"],
     "compare_models": Field(List(String(choices=MODEL_LABELS), min_len=1, unique=True), default=list(MODEL_LABELS),
                             doc="feed-forward models run on the ISO 9283 path"),
     "iso_mode": Field(String(choices=("model_based", "model_based_elastic")), default="model_based",
@@ -130,7 +131,8 @@ PATH_TABLE = Table({
 }, doc="the [path] table")
 
 RESULTS_TABLE = Table({
-    "can_log": Field(Boolean(), default=False, doc="write can_<run>.blf for every run"),
+    "can_log": Field(Boolean(), default=False, doc="write can_<run>.parquet (or .blf) for every run"),
+    "can_log_format": CAN_LOG_FORMAT_FIELD,
     "figures": Field(Boolean(), default=True),
     "records": Field(Boolean(), default=True, doc="write the measured records as CSV"),
 }, doc="the [results] table")
@@ -339,7 +341,7 @@ class _Cell:
                              label=label, stop_time=stop, fieldbus=self.fieldbus,
                              tracker=self.tracker if tracker is None else tracker,
                              record_file=f"timeseries_{name}.csv",
-                             can_log=ctx.path(f"can_{name}.blf") if doc["results"]["can_log"] else None)
+                             can_log=can_log_path(ctx, doc["results"], name))
         return run_cell(cell, ctl, ctx)
 
     def iso_run(self, ctx: RunContext, label: str, dynamics: Any, path: Any, tcp_ref: Any, gear: Any = None):

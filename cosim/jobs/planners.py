@@ -31,7 +31,7 @@ import numpy as np
 
 from cosim.cell import wiring
 from cosim.cell.description import describe_cell
-from cosim.cell.parts import (BUILTIN_MODES, CELL_FIELDS, check_cell_scenario, controller_models,
+from cosim.cell.parts import (BUILTIN_MODES, CELL_FIELDS, can_log_path, check_cell_scenario, controller_models,
                               drive_speed_feedforward, fill_cell_defaults, make_true_robot, mode_fmus,
                               tracker_config)
 from cosim.cell.evaluation import controller_log_columns
@@ -271,7 +271,7 @@ def _execute(ctx: RunContext, doc: dict[str, Any], name: str, traj: Any, true_ro
     description = describe_cell(run_doc, true_robot, controller_info(controller, fieldbus, label=name), label=name,
                                 stop_time=stop_time, fieldbus=fieldbus, tracker=tracker_config(doc["tracker"]),
                                 record_file=f"timeseries_{name}.csv", extra_signals=demand,
-                                can_log=ctx.path(f"can_{name}.blf") if doc["results"]["can_log"] else None)
+                                can_log=can_log_path(ctx, doc["results"], name))
     cell = run_cell(description, controller, ctx)
     rec = cell.recording
     cols, data = rec.columns, rec.data

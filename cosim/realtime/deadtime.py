@@ -17,15 +17,14 @@ import math
 from collections import defaultdict
 from pathlib import Path
 
-import can
-
+from fieldbus.canlog import open_log
 from fieldbus.telegrams import RPDO1_BASE, TPDO1_BASE
 
 
 def _cycles_and_words(path: str | Path, base: int, nodes: int, cycle_time_s: float, start_time_s: float):
     """{node: [(cycle, first uint16 of the payload), ...]} of the frames with id base + node."""
     out: dict[int, list[tuple[int, int]]] = defaultdict(list)
-    for msg in can.LogReader(str(path)):
+    for msg in open_log(path):  # columnar (.parquet) or BLF/ASC
         node = msg.arbitration_id - base
         if 1 <= node <= nodes and not msg.is_error_frame and len(msg.data) >= 2:
             cycle = math.floor((msg.timestamp - start_time_s) / cycle_time_s + 1e-9)

@@ -11,10 +11,12 @@ from typing import Any
 _LAZY = {"ProgressBar": "cosim.results.progress", "SummaryWriter": "cosim.results.summary",
          "CsvSink": "cosim.results.timeseries", "ParquetSink": "cosim.results.timeseries",
          "read_csv": "cosim.results.timeseries", "read_series": "cosim.results.timeseries",
-         "read_units": "cosim.results.timeseries", "write_columns": "cosim.results.timeseries"}
+         "read_units": "cosim.results.timeseries", "write_columns": "cosim.results.timeseries",
+         "iter_series": "cosim.results.timeseries", "derived_spec": "cosim.results.timeseries",
+         "decode_column": "cosim.results.timeseries"}
 
-__all__ = ["CsvSink", "ParquetSink", "ProgressBar", "SummaryWriter", "read_csv", "read_series", "read_units",
-           "write_columns"]
+__all__ = ["CsvSink", "ParquetSink", "ProgressBar", "SummaryWriter", "decode_column", "derived_spec", "iter_series",
+           "read_csv", "read_series", "read_units", "write_columns"]
 
 
 def __getattr__(name: str) -> Any:

@@ -36,6 +36,9 @@ CELL_DEFAULT_COLUMNS = 40
 CONTROLLER_LOG_COLUMNS = 42
 TCP_COLUMNS = 33
 CAN_BYTES_PER_CYCLE = 14 * 11
+"""BLF CAN log bytes per cycle (19 frames; the main job: 172)."""
+COLUMNAR_CAN_BYTES_PER_CYCLE = 64
+"""Columnar CAN log (fieldbus.canlog) bytes per cycle (the main job: 45-50)."""
 EVAL_CHUNK_ROWS = 8192
 """Rows the cell's evaluation reads at once (cosim.cell.evaluation.EVAL_CHUNK_ROWS)."""
 ISO_PATH_S_AT_1_M_S = 12.3
@@ -124,7 +127,8 @@ def estimate_run(doc: dict[str, Any], timeseries_format: str = "parquet", in_mem
                 cycles * CONTROLLER_LOG_COLUMNS * MEMORY_BYTES_PER_VALUE if in_memory else 0.0)
         est.add("TCP series", modes * rows * TCP_COLUMNS * bpv, 0.0)
         if (doc.get("results") or {}).get("can_log", False):
-            est.add("CAN logs", modes * cycles * CAN_BYTES_PER_CYCLE)
+            blf = (doc.get("results") or {}).get("can_log_format", "parquet") == "blf"
+            est.add("CAN logs", modes * cycles * (CAN_BYTES_PER_CYCLE if blf else COLUMNAR_CAN_BYTES_PER_CYCLE))
         speed = float((doc.get("path") or {}).get("speed") or 1.0)
         window_rows = min(rows, ISO_PATH_S_AT_1_M_S / max(speed, 1e-3) / record_period)
         chunk = rows if in_memory else min(rows, EVAL_CHUNK_ROWS)

@@ -6,8 +6,9 @@ SIGFPE, SIGILL or SIGABRT (an in-process FMU's NULL dereference or ``abort()``);
 writes it (async-signal-safe) and lets the signal end the process. What it records is the
 last progress the run reported (summary.json is rewritten every 2 s of wall time), and the
 time series up to their last flush (about 1 s of wall time). ``_exit()`` cannot be caught:
-only running the FMU out of process (docs/robustness.md) reports that. Without a C compiler
-(``$COSIM_NATIVE`` off or no compiler) nothing is installed.
+only running the FMU out of process (docs/robustness.md) reports that. Without compiled code
+nothing is installed: ``COSIM_NATIVE=off`` silently, no compiler or a failed build with a note
+said once (``COSIM_NATIVE=require`` makes that an error, :mod:`native`).
 """
 from __future__ import annotations
 
@@ -21,19 +22,18 @@ _library: ctypes.CDLL | None | bool = None
 def _load() -> ctypes.CDLL | None:
     global _library
     if _library is None:
-        try:
-            import native
+        import native
 
-            if native.mode() == "off":
-                _library = False
-            else:
-                library = native.load_ctypes(native.build("cosim_crashguard", [_SOURCE]))
-                library.crashguard_install.argtypes = [ctypes.c_char_p]
-                library.crashguard_arm.argtypes = [ctypes.c_char_p, ctypes.c_size_t]
-                library.crashguard_disarm.argtypes = []
-                _library = library
-        except Exception:  # noqa: BLE001 - no compiler: run without the guard
-            _library = False
+        # COSIM_NATIVE=require: a failed build is an error; auto: said once, the run goes on
+        # without the guard (the supervisor still records a crash); off: silently without it
+        library = native.optional("crash guard",
+                                  lambda: native.load_ctypes(native.build("cosim_crashguard", [_SOURCE])),
+                                  instead="the run goes on without it (the supervisor still reports a crash)")
+        if library is not None:
+            library.crashguard_install.argtypes = [ctypes.c_char_p]
+            library.crashguard_arm.argtypes = [ctypes.c_char_p, ctypes.c_size_t]
+            library.crashguard_disarm.argtypes = []
+        _library = library if library is not None else False
     return _library or None
 
 

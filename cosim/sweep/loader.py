@@ -153,7 +153,7 @@ SWEEP_SCHEMA_GIVEN_BASE = Table({**SWEEP_SCHEMA.fields, "sweep": Field(SWEEP_TAB
 COLLECT_GROUPS: dict[str, tuple[str, ...]] = {
     "timeseries": ("*.csv", "*.parquet"),
     "figures": ("*.png", "*.svg", "*.pdf"),
-    "can_log": ("*.blf", "*.asc", "*.trc", "*.mf4"),
+    "can_log": ("can_*.parquet", "*.blf", "*.asc", "*.trc", "*.mf4"),
     "all": ("**/*",),
 }
 

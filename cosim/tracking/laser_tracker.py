@@ -157,7 +157,7 @@ class LaserTracker:
         """Bind to the master (called at the end of its initialize)."""
         self._q = master.reader(list(self.joint_signals))
         self._out = master.view(list(TRACKER_VARIABLES), writable=True)
-        library = load_library(KERNEL_SOURCE)
+        library = load_library(KERNEL_SOURCE, what="laser tracker kernel")
         plan = compiled_chain(self.model, self.frame_id, self.config.reflector)
         try:
             q_view = master.view(list(self.joint_signals))

@@ -114,6 +114,11 @@ fmi2Status fmi2Reset(fmi2Component c)
 
 /* Getting and setting variables ------------------------------------------------ */
 
+/* The common case of a set, tested inline before check_set (which accepts exactly the same
+ * values and says why it refuses the others): an input in Step Mode, finite, within its range. */
+#define SET_IS_PLAIN(inst, kind, value, lo, hi) \
+    ((kind) == KIND_INPUT && (inst)->d.mode == MODE_STEP && isfinite(value) && (value) >= (lo) && (value) <= (hi))
+
 static int check_vr_args(Instance *inst, const char *fn, const fmi2ValueReference vr[], size_t nvr,
                          const void *values, size_t n_max)
 {
@@ -178,7 +183,8 @@ fmi2Status fmi2SetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nv
     /* check everything first so that a rejected call changes nothing */
     for (k = 0; k < nvr; k++) {
         fmi2ValueReference v = vr[k];
-        if (!check_set(inst, "fmi2SetReal", REAL_NAME[v], REAL_KIND[v], value[k], REAL_MIN[v], REAL_MAX[v]))
+        if (!SET_IS_PLAIN(inst, REAL_KIND[v], value[k], REAL_MIN[v], REAL_MAX[v])
+            && !check_set(inst, "fmi2SetReal", REAL_NAME[v], REAL_KIND[v], value[k], REAL_MIN[v], REAL_MAX[v]))
             return fmi2Error;
     }
     for (k = 0; k < nvr; k++) inst->d.r[vr[k]] = value[k];
@@ -193,8 +199,9 @@ fmi2Status fmi2SetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t
     if (!check_vr_args(inst, "fmi2SetInteger", vr, nvr, value, N_INTEGERS)) return fmi2Error;
     for (k = 0; k < nvr; k++) {
         fmi2ValueReference v = vr[k];
-        if (!check_set(inst, "fmi2SetInteger", INTEGER_NAME[v], INTEGER_KIND[v], (double)value[k],
-                       INTEGER_MIN[v], INTEGER_MAX[v]))
+        if (!SET_IS_PLAIN(inst, INTEGER_KIND[v], (double)value[k], INTEGER_MIN[v], INTEGER_MAX[v])
+            && !check_set(inst, "fmi2SetInteger", INTEGER_NAME[v], INTEGER_KIND[v], (double)value[k],
+                          INTEGER_MIN[v], INTEGER_MAX[v]))
             return fmi2Error;
     }
     for (k = 0; k < nvr; k++) inst->d.i[vr[k]] = value[k];

@@ -124,6 +124,30 @@ def test_datagrams_from_an_unexpected_sender_are_dropped():
     friend.close()
 
 
+def test_peer_only_accepts_the_learned_peer_and_counts_everyone_else_as_foreign():
+    """What ``cosim serve`` uses: the first valid sender becomes the peer; a second program
+    sending to the port (valid or garbage) is foreign, counted, and injects nothing."""
+    first = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    first.bind(("127.0.0.1", _port(14)))
+    stranger = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    with can.Bus(interface="udpcycle", channel=f"127.0.0.1:{_port(15)}", peer_only=True) as bus:
+        first.sendto(_plain_datagram([(0x201, b"a", 0.0)]), ("127.0.0.1", _port(15)))
+        assert [m.arbitration_id for m in _wait_frames(bus, 1)] == [0x201]
+        stranger.sendto(_plain_datagram([(0x202, b"b", 0.0)], sender=9), ("127.0.0.1", _port(15)))
+        stranger.sendto(b"garbage", ("127.0.0.1", _port(15)))
+        first.sendto(_plain_datagram([(0x203, b"c", 0.0)], sequence=2), ("127.0.0.1", _port(15)))
+        got = _wait_frames(bus, 1)
+        time.sleep(0.05)
+        got += bus.drain()
+        assert [m.arbitration_id for m in got] == [0x203]
+        assert bus.stats.foreign == 2 and bus.stats.malformed == 0
+        bus.send(can.Message(arbitration_id=0x181, data=b"d", is_extended_id=False))
+        first.settimeout(2.0)
+        assert _plain_parse(first.recv(2048))[-1][0][0] == 0x181  # it answers the learned peer
+    first.close()
+    stranger.close()
+
+
 def test_seeded_transport_faults_are_reproducible():
     def run(seed):
         with can.Bus(interface="udpcycle", channel=f"127.0.0.1:{_port(7)}", peer=f"127.0.0.1:{_port(8)}",

@@ -220,6 +220,25 @@ def test_a_user_controller_in_cyclic_synchronous_torque_mode_holds_the_arm(tmp_p
     assert drift < 2e-3, drift   # rad, held by the user's torque alone
 
 
+def test_controller_table_defaults_are_the_controllers_own():
+    """The ``[controller]`` keys shared by the cell jobs and identification are defined once,
+    with the defaults of :class:`controller.ControllerConfig` / :class:`controller.ControllerInfo`."""
+    import dataclasses
+
+    from controller import ControllerConfig, ControllerInfo
+    from cosim.cell.parts import CONTROLLER_CONFIG_FIELDS, CONTROLLER_TABLE
+    from cosim.jobs.identification import CONTROLLER_TABLE as IDENTIFICATION_CONTROLLER_TABLE
+
+    config = {f.name: f.default for f in dataclasses.fields(ControllerConfig)}
+    info = {f.name: f.default for f in dataclasses.fields(ControllerInfo)}
+    assert CONTROLLER_CONFIG_FIELDS["period"].default == config["period_s"]
+    assert CONTROLLER_CONFIG_FIELDS["compute_budget"].default == config["compute_budget_s"] == info["compute_budget_s"]
+    assert CONTROLLER_CONFIG_FIELDS["settle_time"].default == config["settle_time_s"]
+    for table in (CONTROLLER_TABLE, IDENTIFICATION_CONTROLLER_TABLE):
+        for key, field in CONTROLLER_CONFIG_FIELDS.items():
+            assert table.fields[key] is field, key
+
+
 def test_a_controller_fmu_exchanges_integers_and_booleans_through_the_fmu_class(tmp_path):
     """The cell opens a controller FMU as fmus.fmu.Fmu (preallocated arrays, no fmpy per-cycle calls):
     Integer, Boolean and Real inputs gathered from their fields, outputs scattered to theirs, the

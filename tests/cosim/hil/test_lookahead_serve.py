@@ -12,7 +12,7 @@ import sys
 import time
 from pathlib import Path
 
-import can
+from fieldbus.canlog import open_log
 from fieldbus.telegrams import rpdo1_length
 
 ROOT = Path(__file__).resolve().parents[3]
@@ -115,12 +115,48 @@ def test_served_cell_covers_unanswered_cycles_from_the_lookahead(tmp_path):
     assert expected >= 1 + 2 + 3  # the planned runs alone
     assert set(hil["frames_lost_per_node"].values()) == {len(lost)}
     # the cell's CAN log: the whole RPDO1 with its 3 entries, none in the lost cycles
-    logs = sorted(out.rglob("*.blf"))
+    logs = sorted(out.rglob("can_*.parquet"))  # the columnar CAN log (fieldbus/canlog.py)
     assert logs
     period = 2e-3
     preq_cycles = set()
-    for msg in can.LogReader(str(logs[0])):
+    for msg in open_log(logs[0]):
         if msg.arbitration_id == 0x201:
             assert len(msg.data) == rpdo1_length(K) == 64 and msg.data[9] == K
             preq_cycles.add(round(msg.timestamp / period))
     assert not preq_cycles & set(lost)
+
+
+def test_split_realtime_sends_the_lookahead_and_both_can_logs_are_whole(tmp_path):
+    """``cosim run --split --realtime`` with ``setpoint_lookahead``: our controller's PReqs carry
+    it; the controller's and the served cell's CAN logs are separate files, both readable to
+    the end (they were one file written by both processes before)."""
+    text = (ROOT / "scenarios" / "iso9283_rigid.toml").read_text()
+    text = text.replace('stop_time = "12.6 s"', 'stop_time = "0.6 s"')
+    text = text.replace('modes = ["standard", "standard_speed_ff", "model_based"]', 'modes = ["model_based"]')
+    text = text.replace('period = "400 us"            # paper section 2.3.2', 'period = "2 ms"')
+    text = text.replace("cycle_time_us = 400", f"cycle_time_us = 2000\nsetpoint_lookahead = {K}\n"
+                        "[fieldbus.thresholds]\ncn_loss_of_soc = 0\ncn_loss_of_preq = 0")
+    text = text.replace('builtin = "servo_drive"',
+                        'builtin = "servo_drive"\n[fmus.parameters]\nposition_sample_time = 0.002  # s, the bus cycle')
+    text = text.replace("figures = true", "figures = false")
+    assert "can_log = true" in text
+    path = tmp_path / "iso.toml"
+    path.write_text(text)
+    out = tmp_path / "hil"
+    done = subprocess.run([sys.executable, "-m", "cosim", "run", str(path), "--out", str(out), "--quiet", "--split",
+                           "--realtime"], env=_env(), capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr[-2000:]
+    summary = json.loads((out / "summary.json").read_text())
+    cell = summary["hil_split"]["model_based"]["cell_side"]
+    controller_log = out / "can_model_based.parquet"
+    cell_log = out / "cell_side_model_based" / "can_model_based.parquet"
+    lengths = {}
+    for name, log in (("controller", controller_log), ("cell", cell_log)):
+        frames = list(open_log(log))  # readable to the end
+        assert len(frames) > 250 * 13
+        lengths[name] = {len(m.data) for m in frames if 0x201 <= m.arbitration_id <= 0x206}
+    assert lengths == {"controller": {64}, "cell": {64}}
+    lost = [row["cycle"] for row in cell["lost_cycles"]]
+    complete = sum(min(length, K) for start, length in _runs(lost) if start + length + K + 2 < cell["cycles"])
+    covered = cell["setpoint_lookahead"]["cycles_covered_per_node"]["1"]
+    assert complete <= covered <= complete + K

@@ -9,7 +9,7 @@ import math
 from collections import defaultdict
 from pathlib import Path
 
-import can
+from fieldbus.canlog import open_log
 import numpy as np
 import pytest
 
@@ -122,7 +122,7 @@ def test_nothing_is_lost_time_series_and_can_log(loss_run):
     assert np.all(np.isfinite(data))
     cycles: dict[int, list[int]] = defaultdict(list)
     n = 0
-    with can.LogReader(str(out / summary["files"]["can_log"])) as reader:
+    with open_log(out / summary["files"]["can_log"]) as reader:
         for msg in reader:
             cycles[int(msg.timestamp / PERIOD + 0.01)].append(msg.arbitration_id)  # SoC jitter 0.1 us
             n += 1

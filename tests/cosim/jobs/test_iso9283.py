@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import can
+from fieldbus.canlog import CanLogReader
 import numpy as np
 import pytest
 
@@ -103,7 +103,7 @@ def test_short_run_files(short_run):
         assert "tau_ff2" in header and data.shape[0] == 2001  # cycles at 0, 0.4 ms, ..., 0.8 s
         tau_ff = data[:, header.index("tau_ff2")]
         assert (np.abs(tau_ff).max() > 50.0) == (mode == "model_based")  # gravity of axis 2
-        frames = list(can.BLFReader(str(out / f"can_{mode}.blf")))
+        frames = list(CanLogReader(out / f"can_{mode}.parquet"))
         assert len(frames) >= 2000 * 19  # SYNC + 6 RPDO + 12 TPDO per cycle
         assert {0x080, 0x201, 0x181, 0x286} <= {f.arbitration_id for f in frames}
         assert summary["modes"][mode]["fieldbus"]["frames_recorded"] == len(frames)

@@ -48,6 +48,6 @@ def test_split_run_gives_the_same_trajectory_and_dead_time(tmp_path):
         assert fb["frames_dropped"] == 0 and fb["event_tally"] == {} and fb["dead_time_cycles"] == DEAD_TIME
     assert m1["fieldbus"]["frames_sent"] == m2["fieldbus"]["frames_sent"]
     for out in (one, two):
-        measured = handshake_dead_times(out / "can_model_based.blf", 400e-6)
+        measured = handshake_dead_times(out / "can_model_based.parquet", 400e-6)
         assert len(measured) >= 3 * 6                                  # the enable handshake of six drives
         assert {d for _, _, d in measured} == {DEAD_TIME}

@@ -1,0 +1,179 @@
+"""The main job's output: size of every file, the total against the 128 MB the job wrote as
+CSV (issue #18's baseline), and what writing it costs in CPU time per mode.
+
+Runs ``scenarios/iso9283.toml`` into a temporary folder (or takes ``--results DIR``), lists
+each file's size and the total, then replays one mode's data through the writers the job
+uses - in this process, CPU time (``time.process_time``), median of ``--repeats``:
+
+* CAN log: the recorder's sink (sorting, watermarks) into the columnar log
+  (``fieldbus.canlog``) vs the BLF writer (``fieldbus.blf``, python-can's bytes);
+* time series: ``cosim.results.ParquetSink`` streaming and closing each file with the job's
+  encodings (controller log: scaled counts + delta-coded floats; tcp: the stored columns,
+  delta-coded) vs the plain layout (``$COSIM_COMPACT=0``: every column float64).
+
+Run: python benchmarks/bench_output.py [--results results/iso9283] [--repeats 3]
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+SCENARIO = ROOT / "scenarios" / "iso9283.toml"
+CSV_BASELINE_MB = 128.0
+"""The main job's output when it wrote CSV (issue #18: 128 MB); the target is 5x below."""
+FLUSH_CYCLES = 250  # the recorder's hand-over period (fieldbus/powerlink_defaults.toml)
+
+
+def run_job(out: Path, scenario: Path = SCENARIO, stop_time: str | None = None) -> Path:
+    if stop_time is not None:
+        text = scenario.read_text(encoding="utf-8").replace('stop_time = "12.6 s"', f'stop_time = "{stop_time}"', 1)
+        scenario = out.parent / "iso_short.toml"
+        scenario.write_text(text, encoding="utf-8")
+    env = {**os.environ, "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    subprocess.run([sys.executable, "-m", "cosim", "run", str(scenario), "--out", str(out), "--quiet"], cwd=ROOT,
+                   env=env, check=True, stdout=subprocess.DEVNULL)
+    return out
+
+
+def file_sizes(folder: Path) -> dict[str, int]:
+    return {p.name: p.stat().st_size for p in sorted(folder.iterdir()) if p.is_file() and not p.name.startswith(".")}
+
+
+def _cpu(fn, repeats: int) -> float:
+    times = []
+    for _ in range(repeats):
+        t0 = time.process_time()
+        fn()
+        times.append(time.process_time() - t0)
+    return statistics.median(times)
+
+
+def can_write_cpu(log: Path, work: Path, repeats: int) -> dict[str, float]:
+    """CPU s to write one mode's frames as the columnar log and as BLF, through the recorder's sink."""
+    from fieldbus.canlog import RECORD_DTYPE, read_frames
+    from fieldbus.recorder import _BlfSink
+
+    frames = read_frames(log)
+    rec = np.zeros(frames.frames.size, dtype=RECORD_DTYPE)
+    rec["t"] = frames.timestamps
+    for name in ("id", "error", "length", "data"):
+        rec[name] = frames.frames[name]
+    sync = np.flatnonzero(rec["id"] == 0x080)
+    cuts = sync[::FLUSH_CYCLES][1:]
+    batches = np.split(rec, cuts)
+
+    def write(path: Path, columnar: bool) -> None:
+        sink = _BlfSink(str(path), columnar=columnar)
+        for b in batches:
+            sink.feed(b.tobytes(), float(b["t"][-1]) if b.size else None)
+        sink.close()
+
+    out = {"frames": int(rec.size)}
+    out["columnar_cpu_s"] = _cpu(lambda: write(work / "c.parquet", True), repeats)
+    out["blf_cpu_s"] = _cpu(lambda: write(work / "c.blf", False), repeats)
+    out["columnar_bytes"] = (work / "c.parquet").stat().st_size
+    out["blf_bytes"] = (work / "c.blf").stat().st_size
+    return out
+
+
+def series_write_cpu(folder: Path, mode: str, work: Path, repeats: int) -> dict[str, float]:
+    """CPU s to stream and close one mode's three time series, compact vs plain."""
+    from cosim.cell.runner import controller_log_encodings
+    from cosim.results.timeseries import ParquetSink, derived_spec, read_series, read_units
+
+    jobs = []
+    for stem in ("timeseries", "controller", "tcp"):
+        path = folder / f"{stem}_{mode}.parquet"
+        names, data = read_series(path)
+        units = read_units(path)
+        kinds = ["Integer" if n in ("phase", "ik_iterations", "segment") else "Real" for n in names]
+        compact: dict = {}
+        stored = list(range(len(names)))
+        if stem == "controller":
+            compact = controller_log_encodings()
+        elif stem == "tcp":
+            spec = derived_spec(path)
+            if spec is not None:
+                rebuilt = set(spec["copy"]) | set(spec["difference"]) | set(spec["distance_mm"])
+                stored = [i for i, n in enumerate(names) if n not in rebuilt]
+                compact = {"derived": spec, "float_delta": True}
+        jobs.append((stem, names, kinds, data, units, compact, stored))
+
+    def write(layout: str) -> None:
+        previous = os.environ.get("COSIM_COMPACT")
+        os.environ["COSIM_COMPACT"] = "1" if layout == "compact" else "0"
+        try:
+            for stem, names, kinds, data, units, compact, stored in jobs:
+                take = stored if layout == "compact" else list(range(len(names)))
+                sink = ParquetSink(work / f"{stem}.parquet", units, flush_interval_s=1e9,
+                                   **(compact if layout == "compact" else {}))
+                sink.open([names[i] for i in take], [kinds[i] for i in take])
+                block = data[:, take]
+                for start in range(0, len(block), 2048):  # the controller log's stream blocks
+                    sink.write(block[start:start + 2048])
+                sink.close()
+        finally:
+            if previous is None:
+                os.environ.pop("COSIM_COMPACT", None)
+            else:
+                os.environ["COSIM_COMPACT"] = previous
+
+    return {"compact_cpu_s": _cpu(lambda: write("compact"), repeats),
+            "plain_cpu_s": _cpu(lambda: write("plain"), repeats)}
+
+
+def measure(results: Path | None = None, repeats: int = 3, stop_time: str | None = None,
+            work: Path | None = None) -> dict:
+    with tempfile.TemporaryDirectory(prefix="bench-output-") as tmp:
+        tmp = Path(tmp)
+        folder = results if results is not None else run_job(tmp / "out", stop_time=stop_time)
+        sizes = file_sizes(folder)
+        total = sum(sizes.values())
+        modes = sorted(p.stem[len("can_"):] for p in folder.glob("can_*.parquet"))
+        per_mode = {}
+        for mode in modes:
+            per_mode[mode] = {"can": can_write_cpu(folder / f"can_{mode}.parquet", tmp, repeats),
+                              "series": series_write_cpu(folder, mode, tmp, repeats)}
+        return {"files": sizes, "total_bytes": total, "total_mb": total / 1e6,
+                "ratio_to_csv_128mb": CSV_BASELINE_MB * 1e6 / total if total else None, "modes": per_mode,
+                "load_average": os.getloadavg()}
+
+
+def report(out: dict) -> str:
+    lines = [f"{'file':42s} {'MB':>8s}"]
+    lines += [f"{name:42s} {size / 1e6:8.3f}" for name, size in out["files"].items()]
+    lines.append(f"{'total':42s} {out['total_mb']:8.3f}   ({out['ratio_to_csv_128mb']:.2f}x below the 128 MB CSV output)")
+    lines.append("write CPU per mode (s, median)   CAN columnar / BLF      series compact / plain")
+    for mode, m in out["modes"].items():
+        c, s = m["can"], m["series"]
+        lines.append(f"  {mode:28s} {c['columnar_cpu_s']:7.3f} / {c['blf_cpu_s']:7.3f}"
+                     f"   {s['compact_cpu_s']:7.3f} / {s['plain_cpu_s']:7.3f}")
+    lines.append("load average: " + " ".join(f"{x:.2f}" for x in out["load_average"]))
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--results", type=Path, default=None, help="a results folder of the main job (default: run it)")
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--json", type=Path, default=None, help="also write the figures as JSON")
+    args = parser.parse_args(argv)
+    out = measure(args.results, args.repeats)
+    print(report(out))
+    if args.json:
+        args.json.write_text(json.dumps(out, indent=2), encoding="utf-8")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
