@@ -43,6 +43,15 @@ def steal_ms() -> float:
         return 0.0
 
 
+def steal_ms_per_cpu() -> list[float]:
+    """:func:`steal_ms` of each CPU (``/proc/stat`` cpuN lines), ms; [] where not reported."""
+    try:
+        lines = [line.split() for line in Path("/proc/stat").read_text().splitlines() if line.startswith("cpu")]
+        return [int(f[8]) * 1000.0 / os.sysconf("SC_CLK_TCK") for f in lines[1:] if len(f) > 8]
+    except (OSError, IndexError, ValueError):
+        return []
+
+
 def stall_probe(seconds: float = 8.0, period_s: float = 400e-6, work_s: float = 80e-6) -> dict:
     """The machine's own stalls, without our code: a SCHED_FIFO loop paced like the cell (sleep,
     spin to each 400 µs deadline, 80 µs of busy work) that watches the clock for gaps > 100 µs
@@ -263,8 +272,9 @@ def expected_counters(lost: list[int], cycles: int, increment: int = 8, decremen
 
 def late_controller(endpoint_file: str, late: tuple[int, ...], seconds: float, queue) -> None:
     """Follow the served cell until it stops, enable the drives, hold the start pose, and answer the PRes of
-    the cycle before each ``late`` cycle only after that cycle's window has closed (mid-way
-    between the window's end and the next cycle): the group arrives in the next cycle's window,
+    the cycle before each ``late`` cycle only after that cycle's window has closed (a quarter of
+    the way from the window's end to the next cycle, timed from that PRes's kernel arrival): the
+    group arrives after its window,
     where the cell must drop it. Started before ``cosim serve``: it waits for ``endpoint_file``."""
     import logging
 
@@ -280,7 +290,11 @@ def late_controller(endpoint_file: str, late: tuple[int, ...], seconds: float, q
         time.sleep(0.001)
     desc = json.loads(path.read_text())
     period, window = desc["cycle_time_s"], desc["window_s"]
-    delay_ns = int((period + window + (period - window) / 2) * 1e9)  # from the PRes of the cycle before
+    # from the kernel arrival of the PRes of the cycle before (sent at the start of that cycle): a
+    # quarter of the way from the late cycle's window end to the next cycle, so the group surely
+    # misses its window and the next cycle's answer, sent right after, still has ~250 us to spare
+    # (measured from this process's own wake-up instead, a late wake-up also cost the next cycle)
+    delay_ns = int((period + window + (period - window) / 4) * 1e9)
     config = _config(desc["controller_channel"], desc["cell_channel"], 200e-6)
     config["cycle_time_us"] = round(period * 1e6, 6)
     endpoint = ManagingNodeEndpoint(config, joint_scaling())
@@ -293,7 +307,7 @@ def late_controller(endpoint_file: str, late: tuple[int, ...], seconds: float, q
     with realtime_scheduling(SCHEDULING, 10), no_cyclic_gc():
         while True:
             got = endpoint.follow(0.5 if first is not None else 120.0)  # the cell may take a while to start
-            arrived = time.perf_counter_ns()
+            arrived = endpoint.bus.oldest_arrival_ns or time.time_ns()  # the PRes's kernel arrival (wall ns)
             if got is None:
                 break
             cycle, observed = got
@@ -304,7 +318,7 @@ def late_controller(endpoint_file: str, late: tuple[int, ...], seconds: float, q
             for i, sequencer in enumerate(sequencers):
                 setpoints.controlword[i] = sequencer.next_controlword(int(observed.statusword[i]))
             if cell_cycle + 1 - first in late_set and cell_cycle + 1 not in sent_late:
-                while time.perf_counter_ns() - arrived < delay_ns:
+                while time.time_ns() - arrived < delay_ns:
                     pass
                 sent_late.append(cell_cycle + 1)
             endpoint.send_following(setpoints)
@@ -478,15 +492,18 @@ def iso_split_run(scenario: Path, out: Path, split: bool) -> dict:
     """One ISO 9283 model_based run, in process (unpaced) or paced split; its TCP errors and,
     split, the timing of both sides and where the lost cycles came from."""
     load_before = os.getloadavg()
-    steal0, wall0 = steal_ms(), time.monotonic()
+    steal0, wall0, per_cpu0 = steal_ms(), time.monotonic(), steal_ms_per_cpu()
     _run_cosim(["run", str(scenario), "--out", str(out)] + (["--split", "--realtime"] if split else []), 900)
-    steal = (steal_ms() - steal0) / (time.monotonic() - wall0)
+    elapsed = time.monotonic() - wall0
+    steal = (steal_ms() - steal0) / elapsed
+    per_cpu = [(b - a) / elapsed for a, b in zip(per_cpu0, steal_ms_per_cpu())]
     summary = json.loads((out / "summary.json").read_text())
     mode = (summary.get("modes") or {}).get("model_based") or {}
     ok = summary["status"] == "ok"  # a run whose counters tripped has no comparable TCP error
     row = {"tcp_error_max_mm": mode.get("tcp_error_max_mm") if ok else None,
            "tcp_error_rms_mm": mode.get("tcp_error_rms_mm") if ok else None,
            "status": summary["status"], "reason": summary.get("reason"), "steal_ms_per_s": steal,
+           "steal_ms_per_s_per_cpu": per_cpu,
            "load_average_before": load_before, "load_average_after": os.getloadavg()}
     if split:
         hil = summary["hil_split"]["model_based"]

@@ -137,8 +137,8 @@ def joint_reference_on_grid(reference: TcpTrajectory | JointTrajectory, model: p
                             q_start: np.ndarray, compiled: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """q, qd, qdd (each (n, 6)) of the reference on its own knots: the stored samples of a
     joint reference, or the model's IK with consistent derivatives along a flange reference
-    (``compiled``: by :mod:`controller.ik_table` when it is available, the same numbers bit
-    for bit; else, or with ``compiled=False``, knot by knot from Python)."""
+    (``compiled``: by :mod:`controller.ik_table` when it is built, the same numbers bit for
+    bit; else, or with ``compiled=False``, knot by knot from Python)."""
     if isinstance(reference, JointTrajectory):
         return reference.q.copy(), reference.qd.copy(), reference.qdd.copy()
     ik = CartesianToJoint(model)
@@ -148,7 +148,7 @@ def joint_reference_on_grid(reference: TcpTrajectory | JointTrajectory, model: p
     if compiled:
         from controller.ik_table import solve_table
 
-        if solve_table(ik, reference, out):
+        if solve_table(ik, reference, out, build=False):  # built by `cosim build`, not in a run
             return out[0], out[1], out[2]
     # the stored knot samples (what reference.sample returns at a knot time, without the
     # lookup); solve() leaves its result as the next seed's state (set_state is a no-op copy)

@@ -12,7 +12,6 @@ revolute about x, y or z): the Python loop then runs, with the same numbers.
 from __future__ import annotations
 
 import ctypes
-from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
@@ -64,8 +63,9 @@ def _capsule_pointer(capi: dict, name: str) -> int:
     return int(get_pointer(capsule, get_name(capsule)))
 
 
-def _build_and_load() -> ctypes.CDLL:
-    library = native.load_ctypes(native.build("ik_table", [SOURCE], cflags=CXXFLAGS, include_dirs=include_dirs()))
+def _build_and_load(cached_only: bool = False) -> ctypes.CDLL:
+    library = native.load_ctypes(native.build("ik_table", [SOURCE], cflags=CXXFLAGS, include_dirs=include_dirs(),
+                                              cached_only=cached_only))
     library.ik_table_new.restype = ctypes.c_void_p
     library.ik_table_new.argtypes = [ctypes.c_int, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_int,
                                      ctypes.c_void_p] + [ctypes.c_void_p] * 4
@@ -76,24 +76,46 @@ def _build_and_load() -> ctypes.CDLL:
     return library
 
 
-@lru_cache(maxsize=1)
-def load() -> ctypes.CDLL | None:
-    """The compiled table library (built if needed), or None (see the module docstring)."""
-    return native.optional("compiled IK table", _build_and_load)
+_loaded: list = []  # [library or None] once tried in this process
+
+
+def load(build: bool = True) -> ctypes.CDLL | None:
+    """The compiled table library, or None (see the module docstring). ``build=False`` (a run):
+    only when it is in the cache already - compiling pinocchio's templates takes about 40 CPU-s,
+    far more than the 0.8 CPU-s the table saves a run, so a run does not wait for it; ``python
+    -m cosim build`` builds it at install, and the Python loop gives the same numbers (said
+    once). Under ``COSIM_NATIVE=require`` it is built either way."""
+    if _loaded:
+        return _loaded[0]
+    if native.mode() == "off":
+        return None
+    if build or native.mode() == "require":
+        library = native.optional("compiled IK table", _build_and_load)
+    else:
+        try:
+            library = _build_and_load(cached_only=True)
+        except (native.NativeBuildError, OSError) as exc:
+            native.fallback("compiled IK table", exc)
+            library = None
+        if library is None:
+            return None  # not cached (yet): tried again by the next caller that may build
+    _loaded.append(library)
+    return library
 
 
 def _placement(M: Any) -> np.ndarray:
     return np.concatenate([np.asarray(M.rotation, dtype=float).reshape(9), np.asarray(M.translation, dtype=float)])
 
 
-def solve_table(ik: Any, reference: Any, out: np.ndarray) -> bool:
+def solve_table(ik: Any, reference: Any, out: np.ndarray, build: bool = True) -> bool:
     """Fill ``out`` (3, n, 6) with q, qd, qdd of ``reference`` (a TcpTrajectory) on its knots
     by ``ik`` (a reset :class:`controller.joint_reference.CartesianToJoint`), compiled; the
     knots the compiled fast path hands back are solved by ``ik.solve``. False (``out``
-    untouched) when the compiled table is not available for this model."""
+    untouched) when the compiled table is not available for this model (``build``: see
+    :func:`load`)."""
     from controller.joint_reference import SINGULARITY_TOLERANCE
 
-    library = load()
+    library = load(build)
     if library is None:
         return False
     model = ik.model

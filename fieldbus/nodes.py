@@ -83,6 +83,19 @@ def _lookahead_entry(raw: bytes) -> bytes:
     return target + raw[6:8] + raw[16:20]
 
 
+def _entry_setpoint(due: tuple[int, ...], data: bytes, j: int) -> tuple[int, ...]:
+    """The pipe tuple (cw, pos, tq, mode, 0, tt, tv, vo) of look-ahead entry ``j`` (1..k) of an
+    RPDO1 whose own set-point is ``due``: controlword and mode are the PReq's, the entry's
+    value is the set-point of that mode (fieldbus/README.md, Frames)."""
+    cw, pos, _, mode, _, tt, tv, _ = due
+    target, offset, velocity = _UNPACK_ENTRY(data, 20 + _ENTRY_LEN * (j - 1))
+    if mode == 9:
+        return (cw, pos, offset, mode, 0, tt, target, velocity)
+    if mode == 10:
+        return (cw, pos, offset, mode, 0, target, tv, velocity)
+    return (cw, target, offset, mode, 0, tt, tv, velocity)
+
+
 def _interpolated(old: bytes, new: bytes, gap: int, keep: int) -> list[bytes]:
     """The last (at most ``keep``) of the ``gap - 1`` packed RPDO1s between ``old`` and ``new``
     (``gap`` cycles apart, both exclusive), their set-points (target position, torque offset,
@@ -230,6 +243,7 @@ class ManagingNode:
         self._k = k = config.setpoint_lookahead
         if k:
             self._ring = [deque(maxlen=k + 1) for _ in range(n)]
+            self._entries = [deque(maxlen=k + 1) for _ in range(n)]  # the ring's look-ahead entries, packed
             self._la_msgs = [FastMessage(0.0, RPDO1_BASE + i + 1, bytearray(rpdo1_length(k))) for i in range(n)]
             self._frames_sent = [self._sync_msg] + self._la_msgs
             self._la_cycle = -1  # cycle of the last PReqs sent
@@ -282,19 +296,26 @@ class ManagingNode:
         gap = cycle - self._la_cycle
         self._la_cycle = cycle
         entry = _lookahead_entry
-        for staged, ring, msg in zip(self._preq_msgs, self._ring, self._la_msgs):
+        for staged, ring, entries, msg in zip(self._preq_msgs, self._ring, self._entries, self._la_msgs):
             raw = bytes(staged.data)
             if not ring or gap < 1 or raw[:2] != ring[-1][:2] or raw[8] != ring[-1][8]:
                 ring.clear()
                 ring.extend((raw,) * (k + 1))
+                entries.clear()
+                entries.extend((entry(raw),) * (k + 1))
             else:
                 if gap > 1:
-                    ring.extend(_interpolated(ring[-1], raw, gap, k))
+                    for between in _interpolated(ring[-1], raw, gap, k):
+                        ring.append(between)
+                        entries.append(entry(between))
                 ring.append(raw)
+                entries.append(entry(raw))
             data = msg.data
             data[:20] = ring[0]
             data[9] = k
-            data[20:20 + 10 * k] = b"".join([entry(ring[j]) for j in range(1, k + 1)])
+            entries.rotate(-1)  # the k newest, then the oldest (the set-point due next)
+            data[20:20 + 10 * k] = b"".join(entries)[:10 * k]
+            entries.rotate(1)
             msg.timestamp = staged.timestamp
         return self._frames_sent
 
@@ -533,8 +554,8 @@ class ControlledNodes:
         self._sync_ts = 0.0
         self._next_soc = 0.0
         # set-point look-ahead buffer, per node: (cycle whose SoC applies the newest PReq's own
-        # set-point, [the set-points of the following cycles as pipe tuples]) or None
-        self._ahead: list[tuple[int, list[tuple[int, ...]]] | None] = [None] * n
+        # set-point, that set-point as a pipe tuple, the PReq's data with its entries) or None
+        self._ahead: list[tuple[int, tuple[int, ...], bytes] | None] = [None] * n
         self._ahead_any = False
         self._ahead_new = [False] * n  # the buffer was refilled by this cycle's PReq
         self.cycles_covered = [0] * n  # cycles whose set-point came from the buffer (PReq lost or late)
@@ -734,31 +755,14 @@ class ControlledNodes:
         covered = []
         for i, ahead in enumerate(self._ahead):
             if ahead is not None and self._pipe[i][slot] is None:
-                j = cycle - ahead[0]
-                entries = ahead[1]
-                if 1 <= j <= len(entries):
-                    self._pipe[i][slot] = entries[j - 1]
+                base, due, data = ahead
+                j = cycle - base
+                if 1 <= j <= data[9]:
+                    self._pipe[i][slot] = _entry_setpoint(due, data, j)
                     self.cycles_covered[i] += 1
                     covered.append(i)
         self.covered_now = covered
         return covered
-
-    def _buffer_lookahead(self, i: int, due: tuple[int, ...], data: bytearray | bytes, entries: int) -> None:
-        """Keep the look-ahead entries of node ``i``'s PReq received in this cycle (``due``:
-        its own set-point, from which the entries take controlword and mode)."""
-        cw, pos, tq, mode, _, tt, tv, vo = due
-        out = []
-        for j in range(entries):
-            target, offset, velocity = _UNPACK_ENTRY(data, 20 + _ENTRY_LEN * j)
-            if mode == 9:
-                out.append((cw, pos, offset, mode, 0, tt, target, velocity))
-            elif mode == 10:
-                out.append((cw, pos, offset, mode, 0, target, tv, velocity))
-            else:
-                out.append((cw, target, offset, mode, 0, tt, tv, velocity))
-        self._ahead[i] = (self.cycle + self._d, out)
-        self._ahead_new[i] = True
-        self._ahead_any = True
 
     # ------------------------------------------------------------------ receiving
     def receive(self, msg: can.Message) -> None:
@@ -801,8 +805,10 @@ class ControlledNodes:
                     continue
                 pipe[i][slot] = due = _UNPACK_RPDO1(data[:_RPDO1_LEN])
                 ok[i] = True
-                if entries:
-                    self._buffer_lookahead(i, due, data, entries)
+                if entries:  # kept as received; an entry is decoded only when a cycle needs it
+                    self._ahead[i] = (self.cycle + self._d, due, bytes(data))
+                    self._ahead_new[i] = True
+                    self._ahead_any = True
             else:
                 pipe[i][slot] = (_UNPACK_RPDO1(msg.data) if size == _RPDO1_LEN
                                  else _UNPACK_RPDO1_CLASSIC(msg.data) + CLASSIC_RPDO1_DEFAULTS)

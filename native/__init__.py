@@ -64,6 +64,10 @@ class NativeBuildError(RuntimeError):
     the command and the compiler's output)."""
 
 
+class NotBuiltYet(NativeBuildError):
+    """``build(..., cached_only=True)``: the library is not in the cache yet."""
+
+
 def mode() -> str:
     """``$COSIM_NATIVE``: ``auto`` (default), ``require`` or ``off``."""
     value = os.environ.get(ENV_MODE, "").strip().lower() or "auto"
@@ -140,7 +144,7 @@ def run_compiler(command: Sequence[str], what: str, timeout: float = BUILD_TIMEO
 
 def build(name: str, sources: Sequence[Path] = (), *, generate: Callable[[Path], Sequence[Path]] | None = None,
           key: bytes = b"", cflags: Sequence[str] = DEFAULT_CFLAGS, include_dirs: Sequence[Path | str] = (),
-          python_extension: bool = False) -> Path:
+          python_extension: bool = False, cached_only: bool = False) -> Path:
     """Compile ``sources`` (C files) and the files ``generate(folder)`` writes into a shared
     library named ``name`` in the cache, once per cache key; return the library's path.
 
@@ -149,7 +153,9 @@ def build(name: str, sources: Sequence[Path] = (), *, generate: Callable[[Path],
     so a cached library is found without generating anything. Files ``generate`` writes
     that are not returned (e.g. sparsity patterns) are kept next to the library.
     ``python_extension``: build a CPython extension module against this interpreter's
-    headers (the file gets the interpreter's extension suffix).
+    headers (the file gets the interpreter's extension suffix). ``cached_only``: return the
+    library only when it is in the cache already, else raise :class:`NotBuiltYet` without
+    compiling (for a part so long to compile that a run should not wait for it).
     """
     cc = require_compiler()
     includes = [str(p) for p in include_dirs]
@@ -171,6 +177,8 @@ def build(name: str, sources: Sequence[Path] = (), *, generate: Callable[[Path],
     library = target / f"{name}{suffix}"
     if library.is_file():
         return library
+    if cached_only:
+        raise NotBuiltYet(f"{name} is not built yet (python -m cosim build builds it)")
     with open(root / f".{name}.lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
         if library.is_file():
@@ -257,6 +265,6 @@ def load_library(source: Path, cflags: Sequence[str] = DEFAULT_CFLAGS, what: str
     return optional(what or f"{source.name}", lambda: load_ctypes(build(source.stem, [source], cflags=cflags)))
 
 
-__all__ = ["BUILD_TIMEOUT_S", "DEFAULT_CFLAGS", "ENV_CACHE", "ENV_MODE", "MODES", "NativeBuildError", "build",
+__all__ = ["BUILD_TIMEOUT_S", "DEFAULT_CFLAGS", "ENV_CACHE", "ENV_MODE", "MODES", "NativeBuildError", "NotBuiltYet", "build",
            "cache_root", "check_private", "compiler", "fallback", "load_ctypes", "load_extension", "load_library", "mode", "optional",
            "require_compiler", "run_compiler"]

@@ -264,8 +264,21 @@ def _controller_file(ctx: RunContext, name: str, cell: CellRun, controller: Any)
     streamed = getattr(cell, "controller_record", None)
     if streamed is not None:
         return Path(streamed)
+    from controller.controller import LOG_COLUMNS, LOG_KINDS
+    from cosim.cell.runner import controller_log_encodings
+
     log = controller.log.columns()
-    return ctx.path(ctx.write_series(name, log, series_units(log)))
+    if list(log) != list(LOG_COLUMNS):  # not the built-in log's layout: as it is
+        return ctx.path(ctx.write_series(name, log, series_units(log)))
+    sink = ctx.series_sink(name, series_units(log), **controller_log_encodings())  # as the streamed log
+    sink.open(list(LOG_COLUMNS), list(LOG_KINDS))
+    try:
+        rows = len(log[LOG_COLUMNS[0]])
+        for start in range(0, rows, EVAL_CHUNK_ROWS):
+            sink.write(np.column_stack([log[c][start:start + EVAL_CHUNK_ROWS] for c in LOG_COLUMNS]))
+    finally:
+        sink.close()
+    return ctx.path(ctx.series_name(name))
 
 
 def _tcp_derived(ctx: RunContext, rec: Any, cols: list[str], tcp_columns: list[str]) -> dict[str, Any] | None:

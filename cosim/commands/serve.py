@@ -49,7 +49,7 @@ def run(args: argparse.Namespace) -> int:
     except ServeSettingsError as exc:
         raise InvalidInput(str(exc)) from None
     _check_address_free(settings.channel)
-    _check_cpu_and_hosts(args.cpu, settings.accept_from)
+    _check_cpu_and_hosts(args.cpu, settings.accept_from, settings.peer)
     try:
         scenario = load_scenario(args.scenario)
     except ScenarioError as exc:
@@ -115,9 +115,10 @@ def _warn_transport_faults(hil: dict) -> None:
                   f"hil.{label}.transport; docs/hil.md)", file=sys.stderr)
 
 
-def _check_cpu_and_hosts(cpu: str | None, accept_from) -> None:
-    """--cpu names a CPU this process may use, --accept-from hosts that resolve (exit 2 before anything
-    runs; at run time the first would be ignored and the second would fail the run)."""
+def _check_cpu_and_hosts(cpu: str | None, accept_from, peer: str | None = None) -> None:
+    """--cpu names a CPU this process may use, --accept-from and --peer hosts that resolve (exit 2
+    before anything runs; at run time the first would be ignored and the others would fail the run
+    after the set-up)."""
     import os
     import socket
 
@@ -135,3 +136,10 @@ def _check_cpu_and_hosts(cpu: str | None, accept_from) -> None:
         except OSError as exc:
             raise InvalidInput(f"--accept-from: cannot resolve {host!r} ({exc}); expected hosts or host:port of "
                                f"this network") from None
+    if peer is not None:
+        host = str(peer).rpartition(":")[0]
+        try:
+            socket.gethostbyname(host)
+        except OSError as exc:
+            raise InvalidInput(f"--peer {peer!r}: cannot resolve {host!r} ({exc}); expected the controller's "
+                               f"host:port") from None

@@ -41,11 +41,14 @@ POINTS = (50.0, 99.0)
 
 
 #: Seconds before each expected PRes (the last one's kernel arrival + one cycle) at which the split
-#: controller stops sleeping and spins on its socket. A sleeper is woken 40-160 µs late on these
-#: VMs, more under load (and the kernel does not preempt another task's kernel code for it:
-#: PREEMPT_NONE), a spinner reads the PRes at once; 250 µs keeps the controller's CPU below
-#: ~65 % of its core, far from the real-time throttling limit (95 %).
-CONTROLLER_SPIN_S = 250e-6
+#: controller stops sleeping and spins on its socket, as the served cell spins before its cycles
+#: (150 µs). A sleeper is woken 40-160 µs late on these VMs, more under load (the kernel does not
+#: preempt another task's kernel code for it: PREEMPT_NONE), a spinner reads the PRes at once.
+#: Every µs spun is real-time CPU time: with 150 µs the paced loop used 65 % of its core at load 15
+#: (``loop_cpu_fraction``; 100 µs: 62 %, the same wake-up p50/p99 as 250 µs), below the kernel's
+#: real-time limit (95 % per CPU; above it every SCHED_FIFO task on that CPU is paused for the rest
+#: of the second).
+CONTROLLER_SPIN_S = 150e-6
 #: Nanoseconds the controller keeps polling past its spin before it sleeps in ``select``: a PRes
 #: later than that (a stalled cell) is waited for without a core.
 SPIN_GRACE_NS = 250_000
@@ -70,21 +73,23 @@ class ControllerTimes:
     """The split controller's timing per answered cycle, preallocated for the run (ns; one
     row per PRes answered): the cell's cycle, the wait for the PRes, the controller port's
     step, encoding + sending the next cycle's frames, the step + send in thread CPU time,
-    and how long the PRes had waited in the socket (kernel arrival -> read; -1 unknown)."""
+    how long the PRes had waited in the socket (kernel arrival -> read; -1 unknown) and its
+    kernel arrival time (ns since the epoch; 0 unknown)."""
 
-    FIELDS = ("cycle", "wait", "step", "send", "cpu", "woke")
+    FIELDS = ("cycle", "wait", "step", "send", "cpu", "woke", "arrived")
 
     def __init__(self, capacity: int) -> None:
         self.data = np.zeros((max(int(capacity), 1), len(self.FIELDS)), dtype=np.int64)
         self._flat = memoryview(self.data).cast("B").cast("q")
         self.count = 0
 
-    def add(self, cycle: int, wait: int, step: int, send: int, cpu: int, woke: int) -> None:
+    def add(self, cycle: int, wait: int, step: int, send: int, cpu: int, woke: int, arrived: int = 0) -> None:
         i = self.count
         if i >= self.data.shape[0]:
             return  # more PRes than cycles planned (the cell ran on): the figures cover the planned run
-        flat, j = self._flat, 6 * i
-        flat[j], flat[j + 1], flat[j + 2], flat[j + 3], flat[j + 4], flat[j + 5] = cycle, wait, step, send, cpu, woke
+        flat, j = self._flat, 7 * i
+        flat[j], flat[j + 1], flat[j + 2], flat[j + 3] = cycle, wait, step, send
+        flat[j + 4], flat[j + 5], flat[j + 6] = cpu, woke, arrived
         self.count = i + 1
 
     def column(self, name: str) -> np.ndarray:
@@ -99,7 +104,7 @@ class ControllerTimes:
 
     def report(self, period_s: float) -> dict:
         """The controller side's timing figures (µs percentiles, counts) for summary.json."""
-        us = {name: self.column(name).astype(float) * 1e-3 for name in self.FIELDS[1:]}
+        us = {name: self.column(name).astype(float) * 1e-3 for name in self.FIELDS[1:6]}
         compute = us["step"] + us["send"]
         woke = us["woke"][us["woke"] >= 0]
         cycles = self.column("cycle")
@@ -149,20 +154,27 @@ def lost_cycle_causes(lost: list[dict], overrun_cycles: set[int], times: Control
     """Attribute each cycle the cell lost (``hil.lost_cycles``: its group of SoC + PReqs,
     the controller's answer to the PRes of the cycle before, missed its window) to one cause:
 
-    * ``cell_late``: the cell started that cycle or the one before late (its pacer overran);
+    * ``cell_late``: the cell started that cycle or the one before late (its pacer overran), or
+      sent the PRes being answered late: its arrival here, against the run's median arrival
+      relative to the cycle grid, took most of the time;
     * ``controller_stalled``: the controller was not running: the PRes waited in its socket
-      longer than half a cycle, or it never answered that PRes (read it together with a
-      later one) after a step whose wall time was not its CPU time;
-    * ``controller_compute``: its own work: the step + send before the answer (or, for an
-      unanswered PRes, the step before it) took over half a cycle, mostly CPU time;
-    * ``transport``: answered within half a cycle of the PRes's arrival: the datagram was
-      late or lost on the way, or the cell did not take it.
+      (to being read and digested) longer than anything else, or a step took wall time that
+      was not its CPU time, or it never answered that PRes (read it with a later one) after a
+      short step;
+    * ``controller_compute``: its own work: the step + send of the answer (for an unanswered
+      PRes, the step before it), mostly CPU time, took most of the time;
+    * ``transport``: none of these took over half a cycle: the datagram was late or lost
+      on the way.
     Counts per cause and the first cycles of each (``examples``)."""
     counts = dict.fromkeys(LOST_CAUSES, 0)
     examples: dict[str, list[int]] = {k: [] for k in LOST_CAUSES}
     cycles = times.column("cycle")
     half_ns = 0.5 * period_s * 1e9
-    step, send, cpu, woke = (times.column(n) for n in ("step", "send", "cpu", "woke"))
+    step, send, cpu, woke, arrived = (times.column(n) for n in ("step", "send", "cpu", "woke", "arrived"))
+    known = arrived > 0
+    # when each PRes arrived relative to the cycle grid, against the run's median (ns)
+    offset = arrived - cycles * int(round(period_s * 1e9))
+    base = int(np.median(offset[known])) if known.any() else 0
     for entry in lost:
         k = int(entry["cycle"])
         answered = k - 1  # the group of cycle k answers the PRes of cycle k - 1
@@ -172,12 +184,12 @@ def lost_cycle_causes(lost: list[dict], overrun_cycles: set[int], times: Control
             i = int(np.searchsorted(cycles, answered))
             if i < cycles.size and cycles[i] == answered:
                 compute = int(step[i] + send[i])
-                if woke[i] > half_ns and woke[i] >= compute:
-                    cause = "controller_stalled"
-                elif compute > half_ns:
-                    cause = "controller_compute" if cpu[i] >= 0.5 * compute else "controller_stalled"
-                else:
-                    cause = "transport"
+                own = compute if cpu[i] >= 0.5 * compute else 0
+                parts = {"cell_late": int(offset[i] - base) if known[i] else 0,
+                         "controller_stalled": max(int(woke[i]), compute - own),
+                         "controller_compute": own}
+                worst = max(parts, key=parts.get)
+                cause = worst if parts[worst] > half_ns else "transport"
             else:  # that PRes was never answered: the controller was busy or not running
                 j = i - 1
                 compute = int(step[j] + send[j]) if j >= 0 else 0
@@ -334,6 +346,7 @@ def run_hil_split(cell: CellDescription, controller: Any, ctx: Any, *, options: 
     granted = "normal"
     wall0, cpu0 = time.perf_counter(), time.process_time()
     endpoint = None
+    loop_cpu_fraction = None
     try:
         try:
             port.setup(cell.controller)
@@ -362,6 +375,7 @@ def run_hil_split(cell: CellDescription, controller: Any, ctx: Any, *, options: 
                                  controller_cpu) as granted, no_cyclic_gc(), locked_memory(lock) as memory_lock:
             granted = f"{granted}, memory {memory_lock}"
             endpoint.send_following(setpoints)  # the cell's cycle 0 starts with this datagram
+            loop_wall0, loop_cpu0 = time.perf_counter_ns(), time.thread_time_ns()
             while True:
                 waited = time.perf_counter_ns()
                 if expected_ns:  # sleep, then spin: a sleeper is woken 40-160 us late, a spinner at once
@@ -393,13 +407,15 @@ def run_hil_split(cell: CellDescription, controller: Any, ctx: Any, *, options: 
                 endpoint.send_following(setpoints)
                 sent_at = time.perf_counter_ns()
                 times.add(cycle, got_at - waited, stepped_at - got_at, sent_at - stepped_at,
-                          time.thread_time_ns() - got_cpu, woke)
+                          time.thread_time_ns() - got_cpu, woke, arrived)
                 if spin_ns and arrived:
                     expected_ns = arrived + period_ns
                 stopped_at = port.stopped_at_s
                 if stopped_at is not None and cycle * period - stopped_at >= cell.stop_grace_s - 1e-12:
                     failure = SimulationError("controller", stopped_at, f"motion stopped: {port.stop_reason}")
                     break
+            # the share of its CPU the paced loop used (spin included): real-time CPU time
+            loop_cpu_fraction = (time.thread_time_ns() - loop_cpu0) / max(time.perf_counter_ns() - loop_wall0, 1)
         if conn.poll(stop_time + START_TIMEOUT_S):
             kind, payload = conn.recv()
             if kind == "done":
@@ -435,7 +451,8 @@ def run_hil_split(cell: CellDescription, controller: Any, ctx: Any, *, options: 
     report = {
         "controller_side": {"cycles": last + 1, "cycles_skipped": skipped, **times.report(period),
                             "pres_one_way_latency": percentiles_us(controller_latency, POINTS),
-                            "spin_us": spin_ns * 1e-3, "scheduling": granted},
+                            "spin_us": spin_ns * 1e-3, "loop_cpu_fraction": loop_cpu_fraction,
+                            "scheduling": granted},
         "lost_cycle_causes": lost_cycle_causes(cell_hil.get("lost_cycles") or [], overrun_cycles, times, period),
         "cell_side": cell_hil,
         "round_trip": percentiles_us(rtt, POINTS),

@@ -178,7 +178,7 @@ def distance_to_polyline(points: np.ndarray, polyline: np.ndarray, window: int =
     count = 2 * window + 1
     wx, wy, wz, wh = (sliding_window_view(np.ascontiguousarray(c), m)[:count]
                       for c in (mid[:, 0], mid[:, 1], mid[:, 2], half))
-    rows, segs = [], []
+    rows, segs, mids = [], [], []
     step = max(1, min(count, _BLOCK_ELEMENTS // max(m, 1)))  # offsets per block: bounded memory
     for lo in range(0, count, step):
         hi = min(count, lo + step)
@@ -186,12 +186,25 @@ def distance_to_polyline(points: np.ndarray, polyline: np.ndarray, window: int =
         dy = py - wy[lo:hi]
         dz = pz - wz[lo:hi]
         limit = reach + wh[lo:hi]
-        offset, near = np.nonzero(dx * dx + dy * dy + dz * dz <= limit * limit)
+        d2 = dx * dx + dy * dy + dz * dz
+        offset, near = np.nonzero(d2 <= limit * limit)
         if near.size:
             rows.append(near)
             segs.append(np.clip(near + (offset + (lo - window)), 0, n - 2))
+            mids.append(d2[offset, near])
     if rows:
-        i, j = np.concatenate(rows), np.concatenate(segs)
+        i, j, mid2 = np.concatenate(rows), np.concatenate(segs), np.concatenate(mids)
+        # A second, tighter bound: a segment's midpoint lies on it, so the nearest candidate
+        # midpoint's distance bounds the answer too (far tighter than the own segment's when the
+        # measured point lags behind its commanded one). Only candidates whose midpoint lies
+        # within that bound plus half their length can be closer; the others are dropped before
+        # the exact distances are computed. The minimum is the same number.
+        nearest_mid2 = np.full(m, np.inf)
+        np.minimum.at(nearest_mid2, i, mid2)
+        reach2 = np.minimum(reach, np.sqrt(nearest_mid2) * (1.0 + 1e-9) + 1e-12)
+        limit = reach2[i] + half[j + window]
+        keep = mid2 <= limit * limit
+        i, j = i[keep], j[keep]
         np.minimum.at(best, i, _pair_distance2(points, a, ab, ab2, i, j))
     return np.sqrt(best)
 

@@ -61,6 +61,7 @@ def test_knots_the_fast_path_refuses_are_solved_by_python(main_job_setup, monkey
         pytest.skip("no compiled IK table here: Python path only")
     setup = main_job_setup
     q_start = start_configuration(setup.reference, setup.kinematics, np.array(ISO_Q_HINT)) + 0.05
+    assert ik_table.load() is not None  # built (a run itself only uses it once built)
     handed_back = []
     original = CartesianToJoint.solve
 
@@ -74,3 +75,17 @@ def test_knots_the_fast_path_refuses_are_solved_by_python(main_job_setup, monkey
     assert 1 <= len(handed_back) < 100
     for a, b in zip(python, compiled):
         assert np.array_equal(a, b)
+
+
+def test_a_run_does_not_wait_for_the_compile(tmp_path, monkeypatch, capsys):
+    """On a cache without the table, a run's load does not compile (about 40 CPU-s): None, and
+    the note says once that the Python loop runs; ``cosim build``'s load would build it."""
+    folder = tmp_path / "cache"
+    folder.mkdir(mode=0o700)
+    monkeypatch.setenv(native.ENV_CACHE, str(folder))
+    monkeypatch.setenv(native.ENV_MODE, "auto")
+    monkeypatch.setattr(ik_table, "_loaded", [])
+    monkeypatch.setattr(native, "_reported", set())
+    assert ik_table.load(build=False) is None
+    assert "not built yet" in capsys.readouterr().err
+    assert not [p for p in folder.iterdir() if p.name.startswith("ik_table")]

@@ -273,3 +273,39 @@ def test_a_controller_that_jumped_cycles_gets_interpolated_lookahead():
     frames = mn.frames(18, times, [0x07] * 6, [5.0 / cpr] * 6, [0.0] * 6)
     t = decode(can.Message(arbitration_id=0x201, data=frames[1].data, is_fd=True, is_extended_id=False))
     assert (t.controlword, t.target_position, [e[0] for e in t.lookahead]) == (0x07, 5, [5, 5, 5])
+
+
+def test_velocity_and_torque_modes_take_their_own_setpoint_from_the_lookahead(tmp_path):
+    """Modes 9 (CSV: target velocity) and 10 (CST: target torque) carry their own set-point in
+    the entries: a covered burst applies exactly the no-loss values of the active mode."""
+
+    def run_modes(name, bursts):
+        table = {"setpoint_lookahead": 3, "thresholds": {"cn_loss_of_preq": 0, "cn_loss_of_soc": 0},
+                 "faults": {"bursts": [{"node": n, "start_cycle": s, "cycles": c, "frames": "preq"}
+                                       for s, c in bursts for n in range(1, 7)]}}
+        sp, act = Setpoints.zeros(6), DriveActuals.zeros(6)
+        sp.controlword[:] = 0x0F
+        sp.modes_of_operation[:] = [8, 9, 10, 9, 10, 8]
+        act.statusword[:] = 0x1237
+        out = []
+        with PowerlinkNetwork(table, scaling(), log_path=tmp_path / f"{name}.blf") as network:
+            for k in range(90):
+                a = network.run_cycle(k, sp, act).applied
+                out.append(np.concatenate([a.position, a.target_velocity, a.target_torque, a.torque_offset,
+                                           a.velocity_offset, a.modes_of_operation]))
+                q, tau, qd = output(k)
+                sp.position[:], sp.torque_offset[:], sp.velocity_offset[:] = q, tau, qd
+                sp.target_velocity[:] = 2.0 * qd
+                sp.target_torque[:] = 10.0 * np.sin(3e-2 * k * np.arange(1, 7))
+            return np.array(out), network.summary()
+
+    clean, _ = run_modes("clean", [])
+    lossy, summary = run_modes("lossy", [(30, 3), (60, 2)])
+    for block, nodes in ((1, [1, 3]), (2, [2, 4])):  # target velocity of the CSV drives, target torque of the CST
+        cols = [block * 6 + i for i in nodes]
+        assert np.array_equal(clean[:, cols], lossy[:, cols])
+        assert np.abs(np.diff(clean[:, cols], axis=0)).max() > 0  # they do change every cycle
+    for block in (3, 4):  # torque and velocity offsets of every drive
+        assert np.array_equal(clean[:, block * 6:(block + 1) * 6], lossy[:, block * 6:(block + 1) * 6])
+    assert np.array_equal(clean[:, [0, 5]], lossy[:, [0, 5]])  # target position of the CSP drives
+    assert _covered(summary) == 6 * 5

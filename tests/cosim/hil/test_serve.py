@@ -156,6 +156,23 @@ def test_a_port_in_use_is_a_clear_error(tmp_path):
     assert "in use" in err and "Traceback" not in err
 
 
+@pytest.mark.parametrize("option, value, message", [
+    ("--channel", "localhost", "--channel 'localhost': expected host:port"),
+    ("--channel", "10.255.255.1:47000", "the address cannot be used"),  # not an address of this machine
+    ("--channel", "nosuchhost.invalid:47000", "cannot resolve 'nosuchhost.invalid'"),
+    ("--peer", "nosuchhost.invalid:47000", "--peer 'nosuchhost.invalid:47000': cannot resolve"),
+    ("--accept-from", "nosuchhost.invalid", "--accept-from: cannot resolve"),
+], ids=["no-port", "not-local", "channel-unresolvable", "peer-unresolvable", "accept-from-unresolvable"])
+def test_bad_addresses_are_refused_before_anything_runs(tmp_path, option, value, message):
+    serve = subprocess.run([sys.executable, "-m", "cosim", "serve", str(_scenario(tmp_path)), "--out",
+                            str(tmp_path / "out"), option, value], env=_env(), capture_output=True, text=True,
+                           timeout=60)
+    assert serve.returncode == 2, serve.stderr
+    assert message in serve.stderr and "Traceback" not in serve.stderr
+    assert len(serve.stderr.strip().splitlines()) == 1
+    assert not (tmp_path / "out").exists()
+
+
 def test_a_bad_channel_is_refused_before_anything_runs(tmp_path):
     serve = subprocess.run([sys.executable, "-m", "cosim", "serve", str(_scenario(tmp_path)), "--out",
                             str(tmp_path / "out"), "--channel", "localhost"], env=_env(), capture_output=True,

@@ -12,7 +12,7 @@ PERIOD = 400e-6
 US = 1000  # ns
 
 
-def times_of(rows: list[tuple[int, int, int, int, int, int]]) -> ControllerTimes:
+def times_of(rows: list[tuple[int, ...]]) -> ControllerTimes:
     t = ControllerTimes(len(rows) + 4)
     for row in rows:
         t.add(*row)
@@ -37,24 +37,31 @@ def test_times_are_preallocated_and_reported():
 
 
 def test_lost_cycles_are_attributed_to_one_cause_each():
+    grid = int(PERIOD * 1e9)
+
+    def row(cycle, step, cpu, woke, pres_late=0):
+        """Answered PRes of ``cycle`` (arrived 50 us into the cycle + ``pres_late``), 20 us send."""
+        return cycle, 0, step * US, 20 * US, cpu * US, woke * US, cycle * grid + (50 + pres_late) * US
+
     rows = [
-        (9, 0, 20 * US, 20 * US, 40 * US, 10 * US),  # answers PRes 9 promptly -> lost 10: transport
-        (19, 0, 20 * US, 20 * US, 40 * US, 900 * US),  # PRes 19 waited 900 us -> lost 20: stalled
-        (29, 0, 600 * US, 20 * US, 610 * US, 10 * US),  # 620 us of own CPU work -> lost 30: compute
-        (39, 0, 600 * US, 20 * US, 50 * US, 10 * US),  # 620 us wall, 50 us CPU -> lost 40: stalled
-        (48, 0, 700 * US, 20 * US, 710 * US, 10 * US),  # long CPU step, PRes 49 never answered -> lost 50
-        (50, 0, 20 * US, 20 * US, 40 * US, 500 * US),
-        (58, 0, 20 * US, 20 * US, 40 * US, 10 * US),  # PRes 59 never answered after a short step -> lost 60
-        (60, 0, 20 * US, 20 * US, 40 * US, 2000 * US),
-        (69, 0, 20 * US, 20 * US, 40 * US, 10 * US),
-    ]
-    lost = [{"cycle": k} for k in (10, 20, 30, 40, 50, 60, 70)]
+        row(9, 20, 40, 10),  # answers PRes 9 promptly -> lost 10: transport
+        row(19, 20, 40, 900),  # PRes 19 waited 900 us -> lost 20: stalled
+        row(29, 600, 610, 10),  # 620 us of own CPU work -> lost 30: compute
+        row(39, 600, 50, 10),  # 620 us wall, 50 us CPU -> lost 40: stalled
+        row(48, 700, 710, 10),  # long CPU step, PRes 49 never answered -> lost 50: compute
+        row(50, 20, 40, 500),
+        row(58, 20, 40, 10),  # PRes 59 never answered after a short step -> lost 60: stalled
+        row(60, 20, 40, 2000),
+        row(69, 20, 40, 10),  # -> lost 70, but the cell overran
+        row(79, 20, 40, 10, pres_late=700),  # the cell's PRes came 700 us late -> lost 80: cell late
+    ] + [row(k, 20, 40, 10) for k in range(100, 130)]  # the run's usual arrivals
+    lost = [{"cycle": k} for k in (10, 20, 30, 40, 50, 60, 70, 80)]
     causes = lost_cycle_causes(lost, {70}, times_of(rows), PERIOD)
     assert set(LOST_CAUSES) <= set(causes)
     assert causes["examples"] == {"transport": [10], "controller_stalled": [20, 40, 60],
-                                  "controller_compute": [30, 50], "cell_late": [70]}
+                                  "controller_compute": [30, 50], "cell_late": [70, 80]}
     assert (causes["transport"], causes["controller_stalled"], causes["controller_compute"],
-            causes["cell_late"]) == (1, 3, 2, 1)
+            causes["cell_late"]) == (1, 3, 2, 2)
     empty = lost_cycle_causes([], set(), ControllerTimes(1), PERIOD)
     assert all(empty[k] == 0 for k in LOST_CAUSES) and empty["examples"] == {}
 

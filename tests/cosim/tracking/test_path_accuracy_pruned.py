@@ -47,3 +47,16 @@ def test_iso_like_path_accuracy_per_segment():
     for k in (0, 1):
         mask = segment == k
         assert at[k] == float(full_window(measured[mask], commanded[mask]).max())
+
+
+@pytest.mark.parametrize("lag", [0, 3, 18, 60])
+def test_lagging_points_equal_full_window(lag):
+    """Measured points trailing their commanded ones by ``lag`` samples (the standard cascade's
+    case: the own segment is far, the nearest midpoint near): the second, tighter bound keeps
+    the minimum the same number."""
+    n = 3000
+    s = np.linspace(0.0, 3.0, n)
+    polyline = np.column_stack([0.5 * np.cos(s / 0.5), 0.5 * np.sin(s / 0.5), 0.05 * s])
+    rng = np.random.default_rng(lag)
+    points = np.vstack([polyline[:1].repeat(lag, 0), polyline[:n - lag]]) + 5e-5 * rng.normal(size=(n, 3))
+    assert np.array_equal(distance_to_polyline(points, polyline), full_window(points, polyline))
