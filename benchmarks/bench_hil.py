@@ -446,6 +446,15 @@ ISO_THRESHOLD = 0
 ISO_SCENARIO = "iso9283_rigid.toml"
 
 
+def hil_lookahead() -> int:
+    """``[fieldbus] setpoint_lookahead`` of scenarios/hil.toml: the set-point look-ahead of the HIL
+    configuration (0 when the scenario sets none)."""
+    import tomllib
+
+    document = tomllib.loads((ROOT / "scenarios" / "hil.toml").read_text())
+    return int(document.get("fieldbus", {}).get("setpoint_lookahead", 0))
+
+
 def iso_scenario(work: Path, stop_time_s: float | None = None, missing_setpoint: str = "hold",
                  name: str = "iso", lookahead: int = 0) -> Path:
     """scenarios/``ISO_SCENARIO``, model_based mode only, no figures, loss counters at

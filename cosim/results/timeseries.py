@@ -15,6 +15,14 @@ Two sinks implement ``cosim.master.recorder.Sink`` (``open(columns, kinds)``,
 * :class:`CsvSink`: header ``time,<signal>,...``, Reals with ``repr`` (shortest
   round-trip decimal), Integer/Boolean columns as integers, flushed on every ``flush()``.
 
+Compact lossless layout (docs/output_format.md): a ParquetSink given ``scales`` stores float
+columns that are exactly integer counts times a scale as the counts (``cosim.encoding =
+scaled``), with ``float_delta`` smooth float columns as k-th differences of their float64 bit
+patterns (``delta<k>``, per row group) and columns equal to an earlier one not at all
+(``same``), with ``derived`` columns rebuilt from another file or from its own columns
+(``cosim.derived`` schema metadata); :func:`decode_column` / :func:`derived_spec` and every
+reader below undo it bit for bit. ``$COSIM_COMPACT=0`` writes plain columns.
+
 :func:`write_columns` writes named columns of equal length at once (format by suffix),
 :func:`read_series` reads either format back (column names, float64 array),
 :func:`read_units` the units. ``COSIM_TIMESERIES=csv`` in the environment (or ``cosim run
