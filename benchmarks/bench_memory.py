@@ -12,12 +12,17 @@ Two jobs (``--job``):
     400 us, TCP series) with bounded buffers and the evaluation reads them back in chunks
     (cosim.cell.evaluation). ``--can-log`` adds the BLF CAN log (its writer is another process,
     whose memory is not in the figure).
+``identification``
+    the identification job's ISO 9283 validation run (scenarios/identification.toml, nominal
+    model, no campaign: ``cosim.jobs.identification.run_validation_path``): the cell run as
+    above plus the controller PC's fieldbus recording of the validation (position and torque
+    actual every 400 us), which holds the path's duration only, however long the stop time.
 
 Each length runs once for ``--short`` and once for ``--long`` simulated seconds (default
 60 s and 600 s) in a fresh interpreter (``python -m cosim run``); the figure is each run's
 peak resident memory (``ru_maxrss`` of the child), with the rows written and the ratio
 long/short, which should stay within 1.10.
-Run: python benchmarks/bench_memory.py [--job fmus|cell] [--short 60] [--long 600] [--timeseries parquet|csv]
+Run: python benchmarks/bench_memory.py [--job fmus|cell|identification] [--short 60] [--long 600] [--timeseries parquet|csv]
 """
 from __future__ import annotations
 
@@ -28,6 +33,7 @@ import resource
 import subprocess
 import sys
 import tempfile
+import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -66,19 +72,51 @@ def cell_scenario(seconds: float, can_log: bool = False) -> str:
     return text
 
 
+def identification_scenario(seconds: float) -> str:
+    """scenarios/identification.toml with ``seconds`` of stop time for each ISO run, no figures."""
+    text = (ROOT / "scenarios" / "identification.toml").read_text(encoding="utf-8")
+    for old, new in {'stop_time = "12.6 s"': f"stop_time = {seconds!r}", "figures = true": "figures = false"}.items():
+        if old not in text:
+            raise SystemExit(f"scenarios/identification.toml: {old!r} not found (the benchmark edits it)")
+        text = text.replace(old, new)
+    return text
+
+
+def identification_child(path: str, out: str) -> None:
+    """In the child: the identification job's validation run only; its figures to ``out``/validation.json."""
+    from cosim.jobs.identification import run_validation_path
+    from cosim.scenario import load_scenario
+    from cosim.scenario.context import RunContext
+
+    scenario = load_scenario(path)
+    ctx = RunContext(scenario, out, quiet=True)
+    start = time.perf_counter()
+    fields = run_validation_path(scenario, ctx)
+    fields["wall_time_s"] = time.perf_counter() - start
+    (Path(out) / "validation.json").write_text(json.dumps(fields, indent=2) + "\n")
+
+
 def peak_rss_mib(seconds: float, folder: Path, fmt: str, job: str = "fmus", can_log: bool = False
                  ) -> tuple[float, int, float]:
     """Run the scenario for ``seconds`` in a child; (peak RSS MiB, rows, wall s)."""
     path = folder / f"memory_{job}_{seconds:g}.toml"
-    text = SCENARIO.format(seconds=seconds) if job == "fmus" else cell_scenario(seconds, can_log)
+    text = {"fmus": lambda: SCENARIO.format(seconds=seconds), "cell": lambda: cell_scenario(seconds, can_log),
+            "identification": lambda: identification_scenario(seconds)}[job]()
     path.write_text(text, encoding="utf-8")
     out = folder / f"out_{job}_{seconds:g}"
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]))
-    child = subprocess.Popen([sys.executable, "-m", "cosim", "run", str(path), "--out", str(out), "--quiet",
-                              "--timeseries", fmt, "--ignore-budget"], env=env, cwd=folder)
+    if job == "identification":
+        command = [sys.executable, str(Path(__file__).resolve()), "--child", str(path), str(out)]
+    else:
+        command = [sys.executable, "-m", "cosim", "run", str(path), "--out", str(out), "--quiet",
+                   "--timeseries", fmt, "--ignore-budget"]
+    child = subprocess.Popen(command, env=env, cwd=folder)
     _, status, usage = os.wait4(child.pid, 0)
     if status != 0:
         raise SystemExit(f"run of {seconds} s failed (status {status})")
+    if job == "identification":
+        fields = json.loads((out / "validation.json").read_text())
+        return usage.ru_maxrss / 1024.0, int(fields["recorder_rows"]), float(fields["wall_time_s"])
     summary = json.loads((out / "summary.json").read_text())
     if job == "fmus":
         rows = int(summary["rows_recorded"])
@@ -90,12 +128,16 @@ def peak_rss_mib(seconds: float, folder: Path, fmt: str, job: str = "fmus", can_
     return usage.ru_maxrss / 1024.0, rows, float(summary.get("wall_time_s") or 0.0)
 
 
-def main(argv: list[str] | None = None) -> dict:
+def main(argv: list[str] | None = None) -> dict | None:
+    argv = sys.argv[1:] if argv is None else argv
+    if argv[:1] == ["--child"]:
+        identification_child(*argv[1:3])
+        return None
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--short", type=float, default=60.0)
     parser.add_argument("--long", type=float, default=600.0)
     parser.add_argument("--timeseries", choices=("parquet", "csv"), default="parquet")
-    parser.add_argument("--job", choices=("fmus", "cell"), default="fmus")
+    parser.add_argument("--job", choices=("fmus", "cell", "identification"), default="fmus")
     parser.add_argument("--can-log", action="store_true", help="cell: write the BLF CAN log too")
     args = parser.parse_args(argv)
     return measure(args.short, args.long, args.timeseries, args.job, args.can_log)

@@ -98,6 +98,16 @@ def _kernel_time_ns(ancillary: list) -> int:
     return 0
 
 
+class _SelectPoller:
+    """``select.poll``'s ``poll(0)`` for one socket where the OS has no poll (Windows)."""
+
+    def __init__(self, sock: socket.socket) -> None:
+        self._sock = sock
+
+    def poll(self, timeout: float = 0) -> list:
+        return select.select([self._sock], [], [], 0)[0]
+
+
 class UdpCycleError(can.CanInitializationError):
     """A udpcycle bus could not be opened (bad address, port in use, bad option)."""
 
@@ -319,6 +329,11 @@ class UdpCycleBus(BusABC):
             what = "is in use" if error.errno in (98, 48) else f"cannot be used ({error.strerror or error})"
             raise UdpCycleError(f"udpcycle channel {channel!r}: the address {what}") from None
         self._sock.setblocking(False)
+        if hasattr(select, "poll"):  # readiness check of the busy poll (recv_internal)
+            self._poller: Any = select.poll()
+            self._poller.register(self._sock, select.POLLIN)
+        else:
+            self._poller = _SelectPoller(self._sock)
         self.latency_ns: deque[int] = deque(maxlen=int(latency_samples))
         #: kernel arrival time (ns since the epoch) of the oldest datagram of the last read that
         #: got any, 0 if not measured: ``time.time_ns() - oldest_arrival_ns`` right after a
@@ -465,7 +480,9 @@ class UdpCycleBus(BusABC):
         while True:
             now = time.monotonic()
             if now < spin_until and (deadline is None or now < deadline):
-                if self._read_available():
+                # readiness first: a read of an empty non-blocking socket raises, and building that
+                # exception (strerror decoded through the locale) costs several µs per turn
+                if self._poller.poll(0) and self._read_available():
                     return queue.popleft(), False
                 continue
             wait = None if deadline is None else max(deadline - now, 0.0)

@@ -25,7 +25,7 @@ def test_every_c_header_and_data_file_of_a_package_is_package_data():
     packages = [p.rstrip("*") for p in include]
     assert "native" in packages
     missing = [str(p.relative_to(ROOT)) for package in packages for p in (ROOT / package).rglob("*")
-               if p.suffix in (".c", ".cpp", ".h", ".toml", ".urdf") and "__pycache__" not in p.parts and not _packaged(p)]
+               if p.suffix in (".c", ".cpp", ".h", ".hpp", ".toml", ".urdf") and "__pycache__" not in p.parts and not _packaged(p)]
     assert not missing, f"not shipped by a non-editable install: {missing}"
 
 

@@ -200,17 +200,28 @@ class FieldbusRecorder:
     actual in N m joint side, both quantised by the drive and the CiA 402 scaling), plus
     optional Gaussian current-measurement noise on the torque (sigma in N m per joint).
 
+    ``keep_after_start_s``: keep only the rows from the wrapped controller's ``motion_start_s``
+    (when the drives apply trajectory time 0) to that many seconds after it - what
+    :meth:`window` reads for a motion of that duration - so memory is bounded by the motion,
+    not by the run's stop time (a 600 s validation run holds the 12.2 s ISO path's rows). None
+    keeps every row. Rows are held in arrays that grow as needed (nothing is preallocated
+    for the run); the noise is drawn every cycle either way, so the kept rows are the same.
+
     Everything else is delegated to the wrapped controller, so the robot cell's
     :class:`~cosim.cell.link.FieldbusLink` drives it like the controller itself.
     """
 
-    def __init__(self, controller: Controller, capacity: int, torque_noise_sigma: np.ndarray,
-                 seed: int) -> None:
+    #: Rows of the first allocation; the arrays double when full.
+    FIRST_ROWS = 4096
+
+    def __init__(self, controller: Controller, torque_noise_sigma: np.ndarray, seed: int,
+                 keep_after_start_s: float | None = None) -> None:
         self._controller = controller
-        self.t = np.full(capacity, np.nan)
-        self.position = np.full((capacity, 6), np.nan)
-        self.torque = np.full((capacity, 6), np.nan)
-        self.fresh = np.zeros((capacity, 6), dtype=bool)
+        self._keep_s = keep_after_start_s
+        self.t = np.empty(0)
+        self.position = np.empty((0, 6))
+        self.torque = np.empty((0, 6))
+        self.fresh = np.empty((0, 6), dtype=bool)
         self.rows = 0
         self._sigma = np.asarray(torque_noise_sigma, dtype=float)
         self._rng = np.random.default_rng(seed)
@@ -218,16 +229,39 @@ class FieldbusRecorder:
     def __getattr__(self, name: str) -> Any:
         return getattr(self._controller, name)
 
+    def _keeps(self, t: float) -> bool:
+        if self._keep_s is None:
+            return True
+        start = getattr(self._controller, "motion_start_s", None)
+        return start is not None and start - 1e-9 <= t < start + self._keep_s - 1e-9
+
+    def _grow(self) -> None:
+        n = max(self.FIRST_ROWS, 2 * self.t.size)
+        for name in ("t", "position", "torque", "fresh"):
+            old = getattr(self, name)
+            new = np.empty((n, *old.shape[1:]), dtype=old.dtype)
+            new[:self.rows] = old[:self.rows]
+            setattr(self, name, new)
+
     def step(self, inputs: Any) -> Any:
         """Keep this cycle's :class:`controller.ControllerInput` values, then the controller's step."""
-        k = self.rows
-        if k < self.t.size:
+        noise = self._sigma * self._rng.standard_normal(6)
+        if self._keeps(inputs.time_s):
+            k = self.rows
+            if k == self.t.size:
+                self._grow()
             self.t[k] = inputs.time_s
             self.position[k] = inputs.position
-            self.torque[k] = inputs.torque + self._sigma * self._rng.standard_normal(6)
+            self.torque[k] = inputs.torque + noise
             self.fresh[k] = inputs.fresh
             self.rows = k + 1
         return self._controller.step(inputs)
+
+    @staticmethod
+    def keep_for(duration_s: float, period_s: float, position_lag_cycles: int = 0) -> float:
+        """``keep_after_start_s`` that holds every row :meth:`window` reads for a motion of
+        ``duration_s`` from its start with ``position_lag_cycles`` (and one cycle to spare)."""
+        return duration_s + (position_lag_cycles + 2) * period_s
 
     def window(self, start_s: float, duration_s: float, period_s: float,
                position_lag_cycles: int = 0) -> tuple[np.ndarray, ...]:
@@ -265,41 +299,111 @@ def _noise_sigma(doc: dict[str, Any]) -> np.ndarray:
 
 
 # ---------------------------------------------------------------------------------------- running
-def run(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
-    """Design, excite on the cell, identify (identification.campaign), validate, compare."""
-    from controller.elastic import make_controller
-    from fieldbus import FieldbusConfig
-    from identification.campaign import CampaignSettings, Truth, run_campaign
-    from identification.data import motion_record, write_motion_csv
-    from identification.identify import validate
-    from planners.iso9283 import ISO_Q_HINT, iso9283_test_path
-    from robot.description import load_model
-    from robot.dynamics import RobotDynamics
-    from robot.parameters import load_parameters
+@dataclasses.dataclass
+class _Cell:
+    """What every run of the campaign on the robot cell shares (built once from the scenario)."""
 
-    doc = scenario.data
-    _fill_table_defaults(doc)
-    ctrl, exc_t, meas = doc["controller"], doc["excitation"], doc["measurement"]
-    period = ctrl["period"]
-    fb = FieldbusConfig.from_dict(doc["fieldbus"], source=str(scenario.path))
-    lead = fb.lead_cycles
-    true_robot = make_true_robot(doc["true_robot"])
-    params = load_parameters()
-    known_payload = true_robot.payload.copy() if ctrl["payload_known"] else np.zeros(4)
-    kin = load_model()
-    nominal = RobotDynamics(payload=known_payload, model=kin)
-    drive_model = wiring.drive_loop_model(doc["fmus"], period) if ctrl["drive_compensation"] else None
-    tracker = tracker_config(doc["tracker"])
-    elastic = elastic_plant(doc)
+    scenario: Scenario
+    fieldbus: Any
+    true_robot: Any
+    kinematics: Any
+    nominal: Any  # the controller's nominal RobotDynamics (payload only if [controller] payload_known)
+    drive_model: Any
+    tracker: Any
+    sigma: np.ndarray  # N m, the added current-measurement noise per joint
 
-    def run_on_cell(ctl: Any, label: str, stop: float, name: str, tracker=tracker):
+    @classmethod
+    def from_scenario(cls, scenario: Scenario) -> "_Cell":
+        from fieldbus import FieldbusConfig
+        from robot.description import load_model
+        from robot.dynamics import RobotDynamics
+
+        doc = scenario.data
+        _fill_table_defaults(doc)
+        ctrl = doc["controller"]
+        true_robot = make_true_robot(doc["true_robot"])
+        known_payload = true_robot.payload.copy() if ctrl["payload_known"] else np.zeros(4)
+        kin = load_model()
+        return cls(scenario, FieldbusConfig.from_dict(doc["fieldbus"], source=str(scenario.path)), true_robot, kin,
+                   RobotDynamics(payload=known_payload, model=kin),
+                   wiring.drive_loop_model(doc["fmus"], ctrl["period"]) if ctrl["drive_compensation"] else None,
+                   tracker_config(doc["tracker"]), _noise_sigma(doc))
+
+    @property
+    def lead(self) -> int:
+        return self.fieldbus.lead_cycles
+
+    def run(self, ctx: RunContext, ctl: Any, label: str, stop: float, name: str, tracker: Any = None):
         """Run the cell with ``ctl`` (a controller or its FieldbusRecorder) for ``stop`` s."""
-        cell = describe_cell(doc, true_robot, controller_info(ctl, fb, label=label, source=str(scenario.path)),
-                             label=label, stop_time=stop, fieldbus=fb, tracker=tracker,
+        doc = self.scenario.data
+        cell = describe_cell(doc, self.true_robot,
+                             controller_info(ctl, self.fieldbus, label=label, source=str(self.scenario.path)),
+                             label=label, stop_time=stop, fieldbus=self.fieldbus,
+                             tracker=self.tracker if tracker is None else tracker,
                              record_file=f"timeseries_{name}.csv",
                              can_log=can_log_path(ctx, doc["results"], name))
         return run_cell(cell, ctl, ctx)
-    sigma = _noise_sigma(doc)
+
+    def iso_run(self, ctx: RunContext, label: str, dynamics: Any, path: Any, tcp_ref: Any, gear: Any = None):
+        """The ISO 9283 path in ``[controller] iso_mode`` with ``dynamics`` (and ``gear``), recorded at
+        the fieldbus for the validation over the path's duration only, evaluated:
+        (summary entry, recorder, controller, cell run)."""
+        from controller.elastic import make_controller
+        from planners.iso9283 import ISO_Q_HINT
+
+        doc = self.scenario.data
+        ctrl, meas = doc["controller"], doc["measurement"]
+        period, stop = ctrl["period"], doc["simulation"]["stop_time"]
+        ctl = make_controller(tcp_ref, _config(doc, ctrl["iso_mode"], self.lead), kinematic_model=self.kinematics,
+                              dynamics=dynamics, q_hint=np.array(ISO_Q_HINT), drive_model=self.drive_model,
+                              capacity=int(stop / period) + 16, **({"gear": gear} if gear is not None else {}))
+        rec = FieldbusRecorder(ctl, self.sigma, meas["noise_seed"] + 1,
+                               keep_after_start_s=FieldbusRecorder.keep_for(path.duration, period,
+                                                                            meas["position_lag_cycles"]))
+        cell = self.run(ctx, rec, f"iso9283_{label}", stop, label)
+        entry, _ = evaluate_run(ctx, label, cell, ctl, tcp_ref, path, self.true_robot)
+        return entry, rec, ctl, cell
+
+
+def iso_path(doc: dict[str, Any]) -> tuple[Any, Any]:
+    """The validation's EN ISO 9283 test path (``[path]``) and the controller's TCP trajectory of it."""
+    from planners.iso9283 import iso9283_test_path
+
+    path = iso9283_test_path(speed=doc["path"]["speed"], acceleration=doc["path"]["acceleration"])
+    return path, TcpTrajectory.from_reference(path.reference, path.duration, doc["controller"]["period"])
+
+
+def run_validation_path(scenario: Scenario, ctx: RunContext, label: str = "nominal") -> dict[str, Any]:
+    """Only the ISO 9283 validation run with the nominal model, recorded at the fieldbus as the job
+    does (no campaign): what ``benchmarks/bench_memory.py --job identification`` measures."""
+    cell = _Cell.from_scenario(scenario)
+    path, tcp_ref = iso_path(scenario.data)
+    entry, rec, ctl, run = cell.iso_run(ctx, label, cell.nominal, path, tcp_ref)
+    if run.failure is not None:
+        raise run.failure
+    meas = scenario.data["measurement"]
+    t, _, _ = rec.window(ctl.motion_start_s, path.duration, scenario.data["controller"]["period"],
+                         meas["position_lag_cycles"])
+    return {"tcp_error_max_mm": entry["tcp_error_max_mm"], "validation_samples": int(t.size),
+            "recorder_rows": rec.rows, "sim_time_s": run.reached_s}
+
+
+def run(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
+    """Design, excite on the cell, identify (identification.campaign), validate, compare."""
+    from identification.campaign import CampaignSettings, Truth, run_campaign
+    from identification.data import motion_record, write_motion_csv
+    from identification.identify import validate
+    from robot.dynamics import RobotDynamics
+    from robot.parameters import load_parameters
+
+    cell = _Cell.from_scenario(scenario)
+    doc = scenario.data
+    ctrl, exc_t, meas = doc["controller"], doc["excitation"], doc["measurement"]
+    period = ctrl["period"]
+    true_robot, kin, nominal, sigma = cell.true_robot, cell.kinematics, cell.nominal, cell.sigma
+    params = load_parameters()
+    known_payload = true_robot.payload.copy() if ctrl["payload_known"] else np.zeros(4)
+    elastic = elastic_plant(doc)
     ctx.summary.update(
         phase="designing the exciting trajectory",
         true_robot={"seed": true_robot.seed, "payload_mass_kg": float(true_robot.payload[0]),
@@ -307,15 +411,14 @@ def run(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
                     "dynamic_deviations": doc["true_robot"]["dynamic_deviations"],
                     "geometric_errors": doc["true_robot"]["geometric_errors"]},
         plant="elastic" if elastic else "rigid",
-        noise_assumptions=_noise_assumptions(params, fb, sigma, meas))
+        noise_assumptions=_noise_assumptions(params, cell.fieldbus, sigma, meas))
     settings = CampaignSettings.from_tables(period, exc_t, meas, doc["stiffness"] if elastic else None)
     state: dict[str, Any] = {}
 
     def experiment(trajectory, duration: float):
         """The cell-specific step: the trajectory closed loop on the robot cell, measured as a user
         would (fieldbus actual values, the tracker on the reflector, the drives' sampling term)."""
-        return _cell_experiment(doc, ctx, trajectory, duration, run_on_cell, kin, nominal, drive_model, lead, sigma,
-                                params, elastic, tracker, state)
+        return _cell_experiment(doc, ctx, trajectory, duration, cell, params, elastic, state)
 
     def on_step(name: str, fields: dict[str, Any]) -> None:
         if name == "designed":
@@ -362,8 +465,7 @@ def run(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
 
 
     # 4-5. ISO 9283 with the three models ----------------------------------------------------
-    path = iso9283_test_path(speed=doc["path"]["speed"], acceleration=doc["path"]["acceleration"])
-    tcp_ref = TcpTrajectory.from_reference(path.reference, path.duration, period)
+    path, tcp_ref = iso_path(doc)
     # the controller's models all live on its own (nominal) geometry, which it also uses for the IK;
     # "true": the true robot's dynamic parameters and payload (the plant adds the true geometry)
     models = {"nominal": nominal, "identified": RobotDynamics(ident.full_parameters, np.zeros(4), model=kin),
@@ -374,15 +476,8 @@ def run(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
     gears = _gear_models(campaign, truth_k, truth_b) if ctrl["iso_mode"] == "model_based_elastic" else {}
     runs: dict[str, Any] = {}
     validation_fields: dict[str, Any] = {}
-    iso_stop = doc["simulation"]["stop_time"]
     for label in ctrl["compare_models"]:
-        iso_capacity = int(iso_stop / period) + 16
-        ctl = make_controller(tcp_ref, _config(doc, ctrl["iso_mode"], lead), kinematic_model=kin,
-                              dynamics=models[label], q_hint=np.array(ISO_Q_HINT), drive_model=drive_model,
-                              capacity=iso_capacity, **({"gear": gears[label]} if gears else {}))
-        rec = FieldbusRecorder(ctl, iso_capacity, sigma, meas["noise_seed"] + 1)
-        iso_cell = run_on_cell(rec, f"iso9283_{label}", iso_stop, label)
-        entry, _ = evaluate_run(ctx, label, iso_cell, ctl, tcp_ref, path, true_robot)
+        entry, rec, ctl, iso_cell = cell.iso_run(ctx, label, models[label], path, tcp_ref, gears.get(label))
         runs[label] = {k: entry[k] for k in ("status", "tcp_error_max_mm", "tcp_error_rms_mm",
                                              "tcp_error_max_noise_free_mm", "tcp_error_rms_noise_free_mm",
                                              "path_accuracy_AT_mm", "joint_lag_max_rad", "path_completed",
@@ -449,8 +544,7 @@ def _true_gears(doc: dict[str, Any], true_robot, params) -> tuple[np.ndarray, np
     return k, b
 
 
-def _cell_experiment(doc, ctx, trajectory, duration, run_on_cell, kin, nominal, drive_model, lead, sigma, params,
-                     elastic, tracker, state):
+def _cell_experiment(doc, ctx, trajectory, duration, cell: _Cell, params, elastic, state):
     """Run ``trajectory`` for ``duration`` s closed loop on the cell (controller in the scenario's
     excitation mode with the nominal model) and return the :class:`identification.campaign.ExperimentData`
     a user gets: the fieldbus actual values every cycle (positions aligned with the torques), the
@@ -460,24 +554,27 @@ def _cell_experiment(doc, ctx, trajectory, duration, run_on_cell, kin, nominal, 
     from identification.data import motion_record, write_motion_csv
 
     ctrl, meas = doc["controller"], doc["measurement"]
-    period = ctrl["period"]
+    period, tracker = ctrl["period"], cell.tracker
     reference = JointTrajectory.from_sampler(trajectory.sample, duration, period)
     stop_time = 0.02 + ctrl["settle_time"] + duration + 0.3
     capacity = int(stop_time / period) + 16
-    controller = Controller(reference, _config(doc, ctrl["excitation_mode"], lead), kinematic_model=kin,
-                            dynamics=nominal, drive_model=drive_model, capacity=capacity)
-    recorder = FieldbusRecorder(controller, capacity, sigma, meas["noise_seed"])
+    controller = Controller(reference, _config(doc, ctrl["excitation_mode"], cell.lead),
+                            kinematic_model=cell.kinematics, dynamics=cell.nominal, drive_model=cell.drive_model,
+                            capacity=capacity)
+    recorder = FieldbusRecorder(controller, cell.sigma, meas["noise_seed"],
+                                keep_after_start_s=FieldbusRecorder.keep_for(duration, period,
+                                                                             meas["position_lag_cycles"]))
     reflector = tuple(doc["stiffness"]["reflector"]) if elastic else (0.0, 0.0, 0.0)
-    cell = run_on_cell(recorder, "excitation", stop_time, "excitation",
-                       tracker=dataclasses.replace(tracker, reflector=reflector))
-    if cell.failure is not None:
-        raise cell.failure
+    run = cell.run(ctx, recorder, "excitation", stop_time, "excitation",
+                   tracker=dataclasses.replace(tracker, reflector=reflector))
+    if run.failure is not None:
+        raise run.failure
     start = controller.motion_start_s
     if start is None:
         raise RuntimeError("the controller never started the exciting trajectory")
     t_x, q_x, tau_x = recorder.window(start, duration, period, meas["position_lag_cycles"])
-    info = {"motion_start_s": start, "duration_s": duration, "samples": int(t_x.size), "sim_time_s": cell.reached_s,
-            "loop_wall_time_s": cell.loop_wall_time_s, "controller_mode": ctrl["excitation_mode"],
+    info = {"motion_start_s": start, "duration_s": duration, "samples": int(t_x.size), "sim_time_s": run.reached_s,
+            "loop_wall_time_s": run.loop_wall_time_s, "controller_mode": ctrl["excitation_mode"],
             "max_abs_torque_Nm": np.abs(tau_x).max(axis=0).tolist(),
             "max_torque_ratio_of_effort": float(np.max(np.abs(tau_x) / params.effort_limit))}
     if doc["results"]["records"]:
@@ -490,7 +587,7 @@ def _cell_experiment(doc, ctx, trajectory, duration, run_on_cell, kin, nominal, 
         sampling = sampled_torque_bias(doc["fmus"], period)
     readings = None
     if elastic:
-        rec = cell.recording
+        rec = run.recording
         cols = list(rec.columns)
         t = rec.data[:, 0]
         step = float(np.median(np.diff(t[:100]))) if t.size > 1 else float("nan")

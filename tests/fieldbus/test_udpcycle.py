@@ -229,3 +229,26 @@ def test_an_unreachable_peer_is_counted_not_raised():
         for _ in range(3):
             bus.send(can.Message(arbitration_id=0x201, data=b"\x00", is_extended_id=False))
         assert bus.stats.sent + bus.stats.send_errors == 3
+
+
+def test_busy_poll_receives_what_arrives_while_spinning_and_times_out_otherwise():
+    """``busy_poll_s``: recv spins (readiness checks, no exception per turn) and returns a datagram
+    that arrives while it spins; with nothing sent it returns None after its timeout."""
+    import threading
+
+    rx = can.Bus(interface="udpcycle", channel=f"127.0.0.1:{_port(40)}", busy_poll_s=0.2)
+    tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        started = time.monotonic()
+        assert rx.recv(0.05) is None
+        assert 0.04 <= time.monotonic() - started < 1.0
+        timer = threading.Timer(0.02, tx.sendto, (_plain_datagram([(0x181, b"\x01\x02", 0.5)]),
+                                                  ("127.0.0.1", _port(40))))
+        timer.start()
+        msg = rx.recv(1.0)
+        timer.join()
+        assert msg is not None and msg.arbitration_id == 0x181 and bytes(msg.data) == b"\x01\x02"
+        assert rx.stats.received == 1
+    finally:
+        tx.close()
+        rx.shutdown()

@@ -130,7 +130,7 @@ def test_snapped_omega_and_recorder():
         def step(self, inputs):
             return ("setpoints", inputs.cycle)
 
-    rec = FieldbusRecorder(Inner(), capacity=10, torque_noise_sigma=np.zeros(6), seed=0)
+    rec = FieldbusRecorder(Inner(), torque_noise_sigma=np.zeros(6), seed=0)
     for k in range(4):
         inputs = ControllerInput.zeros(6)
         inputs.cycle, inputs.time_s = k, k * 4e-4
@@ -142,6 +142,42 @@ def test_snapped_omega_and_recorder():
     assert np.allclose(t, [4e-4, 8e-4]) and np.allclose(q[:, 0], [1.0, 2.0]) and np.allclose(tau, 1.0)
     t, q, tau = rec.window(4e-4, 2 * 4e-4, 4e-4, position_lag_cycles=1)  # position of t_k arrives at t_k+1
     assert np.allclose(t, [4e-4, 8e-4]) and np.allclose(q[:, 0], [2.0, 3.0])
+
+
+def test_recorder_keeps_only_the_motion_window_and_the_same_rows():
+    """keep_after_start_s: only the rows window() reads (from the controller's motion start for the
+    motion's duration plus the position lag) are held, however long the run; they equal a
+    recorder keeping every row, noise included; the arrays grow, nothing sized by the run."""
+    from controller import ControllerInput
+
+    period, start_cycle, duration, lag = 4e-4, 300, 1000 * 4e-4, 1
+
+    class Inner:
+        motion_start_s = None
+
+        def step(self, inputs):
+            if inputs.cycle == start_cycle - 2:  # the clock sets the start ahead of time (lead cycles)
+                self.motion_start_s = start_cycle * period
+            return None
+
+    inner = Inner()
+    sigma = np.full(6, 0.5)
+    every = FieldbusRecorder(inner, sigma, seed=3)
+    kept = FieldbusRecorder(inner, sigma, seed=3, keep_after_start_s=FieldbusRecorder.keep_for(duration, period, lag))
+    cycles = 20_000  # 8 s of a run whose motion lasts 0.4 s
+    inputs = ControllerInput.zeros(6)
+    for k in range(cycles):
+        inputs.cycle, inputs.time_s = k, k * period
+        inputs.position = np.full(6, 1e-3 * k)
+        inputs.torque = np.full(6, -2e-3 * k)
+        every.step(inputs)
+        kept.step(inputs)
+    assert every.rows == cycles and kept.rows == 1000 + lag + 2
+    assert kept.t.size == FieldbusRecorder.FIRST_ROWS and every.t.size < 2 * cycles
+    assert kept.t[0] == pytest.approx(start_cycle * period)
+    for a, b in zip(every.window(inner.motion_start_s, duration, period, lag),
+                    kept.window(inner.motion_start_s, duration, period, lag)):
+        assert a.shape[0] == 1000 and np.array_equal(a, b)
 
 
 def test_elastic_campaign_scenario_loads(tmp_path):

@@ -189,8 +189,15 @@ def test_split_realtime_runs_our_controller_against_the_served_cell(tmp_path):
     text = text.replace('stop_time = "12.6 s"', 'stop_time = "1 s"')
     text = text.replace('modes = ["standard", "standard_speed_ff", "model_based"]', 'modes = ["model_based"]')
     text = text.replace('period = "400 us"            # paper section 2.3.2', 'period = "2 ms"')
-    text = text.replace("cycle_time_us = 400", "cycle_time_us = 2000\n[fieldbus.thresholds]\ncn_loss_of_soc = 80\n"
-                        "cn_loss_of_preq = 80")
+    # a loaded 2-core test machine deschedules the controller process for up to ~10 ms now and then
+    # (wakeup after PRes 5 ms p99, 10 ms max, at SCHED_FIFO: other real-time processes, hypervisor
+    # steal), in bursts of 2-4 lost cycles that add up: at +8 per lost cycle and -1 per good one, 20
+    # lost cycles in 230 tripped the drives at 80 (0x8100) and the arm stopped 33 mm off the path.
+    # Here the controller sends 4 cycles of set-points ahead (as scenarios/hil.toml), so a stall of
+    # up to 4 cycles costs no set-point, and the counters trip only beyond what the test tolerates
+    # anyway (10 % of the 500 cycles lost: 50 x 8 = 400)
+    text = text.replace("cycle_time_us = 400", "cycle_time_us = 2000\nsetpoint_lookahead = 4\n"
+                        "[fieldbus.thresholds]\ncn_loss_of_soc = 400\ncn_loss_of_preq = 400")
     text = text.replace('builtin = "servo_drive"',
                         'builtin = "servo_drive"\n[fmus.parameters]\nposition_sample_time = 0.002  # s, the bus cycle')
     text = text.replace("figures = true", "figures = false").replace("can_log = true", "can_log = false")
