@@ -418,7 +418,8 @@ class ManagingNodeEndpoint(_Endpoint):
         :meth:`DriveEndpoint.run_cycle_paced`): wait up to ``timeout_s`` (wall) for the
         cell's next PRes frames, digest everything that has arrived, and return
         ``(cycle, observed)``: the cell's cycle as counted here (+1 per batch of PRes
-        frames, and per datagram the transport reports lost) and the newest actual
+        frames - a TPDO1 of a node not above the one before starts a batch -, and per
+        datagram the transport reports lost) and the newest actual
         values. None when nothing arrived in time. Then call :meth:`send_following`
         with the set-points for the next cycle."""
         bus = self.bus
@@ -428,7 +429,17 @@ class ManagingNodeEndpoint(_Endpoint):
         batch = [first] + self._read_now()
         n = self.config.nodes
         head = TPDO1_BASE + 1
-        batches = sum(1 for m in batch if m.arbitration_id == head) or 1
+        # a batch of PRes frames is one cycle: the nodes answer in ascending order, so a TPDO1 of a
+        # node not above the one before starts the next cycle (node 1's PRes may be missing: a
+        # fault burst, a silent node; counting node 1's alone let this side fall behind the cell)
+        batches, previous = 0, n + 1
+        for m in batch:
+            if m.arbitration_id & ~0x7F == TPDO1_BASE:
+                node = m.arbitration_id & 0x7F
+                if node <= previous:
+                    batches += 1
+                previous = node
+        batches = batches or 1
         stats = getattr(bus, "stats", None)
         lost = getattr(stats, "lost", 0)
         batches += lost - self._follow_lost

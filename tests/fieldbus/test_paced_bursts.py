@@ -94,3 +94,29 @@ def test_split_controller_keeps_no_fault_plan():
     faults = controller_faults(config)
     assert not faults.random_enabled and faults.bursts == () and faults.silent_nodes == ()
     assert faults.late_delay_s == config.faults.late_delay_s
+
+
+def test_controller_counts_cell_cycles_without_node_1_pres():
+    """A burst that silences node 1's PRes (its PReqs lost) while the controller reads several
+    cycles' PRes at once (it was late): it still counts every cell cycle, so it ends with the
+    cell instead of waiting for PRes that never come."""
+    bursts = [{"node": 1, "start_cycle": 30, "cycles": 3, "frames": "preq", "kind": "loss"}]
+    config, channel = FieldbusConfig.from_dict({"seed": 1, "faults": {"bursts": bursts}}), unique_channel("burst")
+    mn = ManagingNodeEndpoint(dataclasses.replace(config, faults=controller_faults(config)), SCALING, channel=channel)
+    cn = DriveEndpoint(config, SCALING, channel=channel)
+    sp, act = Setpoints.zeros(6), DriveActuals.zeros(6)
+    _setpoints(0, sp, act)
+    mn.send_following(sp)
+    followed = []
+    for k in range(50):
+        t = k * 4e-4 + 2e-4
+        cn.run_cycle_paced(k, act, deadline=t, clock=lambda: t)
+        if k in (30, 31, 32, 40):  # the controller is late: reads these with the next cycle's PRes
+            continue
+        got = mn.follow(1.0)
+        assert got is not None
+        followed.append(got[0])
+        mn.send_following(sp)
+    mn.close()
+    cn.close()
+    assert followed == list(range(30)) + list(range(33, 40)) + list(range(41, 50))
