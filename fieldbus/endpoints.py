@@ -585,6 +585,16 @@ class DriveEndpoint(_Endpoint):
             on_time = base == RPDO1_BASE and 1 <= node <= n and times[node] is not None
             msg.timestamp = times[node] if on_time else times[0]
             out.append(msg)
+        if self._kinds:
+            # the scenario's injected SoC/PReq faults of THIS cell cycle act here, as the medium
+            # between a controller that keeps no fault plan (any program on the bus) and the drives
+            # (a controller numbering its cycles otherwise would misplace them)
+            out = [m for m in (self._through_medium(m, self._kinds) for m in out) if m is not None]
+            t = self._t0 + cycle * self._cycle_time
+            for frame, node, kind in CycleFaults(cycle, self._kinds).describe(n):
+                if frame != "pres":
+                    self.events.add(FieldbusEvent(t, cycle, "medium", node, f"{frame}_{kind}", "injected",
+                                                  -1, -1, -1, f"fault injection: {frame.upper()} {kind}"))
         if self._record is not None and (self._record_received or self._owns_recorder):
             self._record(out)  # what the cell took, with the cycle's timestamps
         return out

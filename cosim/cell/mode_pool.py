@@ -105,10 +105,12 @@ def run_modes(ctx: Any, setup: Any, modes: Sequence[str], extra_signals: Sequenc
     :class:`ModeOutcome` in the order of ``modes``. ``processes``: worker processes (default
     :func:`worker_count`; 0: one after another in this process, where a failed mode ends the
     sequence as before). A failure before a mode's first sample raises as
-    :func:`cosim.cell.mode_runs.run_mode` does. ``while_waiting``: called once in this process
-    after the workers have started (this process then only waits for them), e.g. to import
-    what comes after the modes; an exception from it is ignored (the work is redone later).
-    Not called when the modes run in this process."""
+    :func:`cosim.cell.mode_runs.run_mode` does. ``while_waiting``: called once in a thread of
+    this process once every worker has been forked (this process then only relays their
+    progress), e.g. to import what comes after the modes; joined when the outcomes run out
+    (before the caller's loop over them ends); an exception from it is ignored (the work is redone later). Not called when the
+    modes run in this process or when there are more modes than workers (a later fork must not
+    happen while another thread runs)."""
     from cosim.cell.mode_runs import run_mode
 
     modes = list(modes)
@@ -183,6 +185,14 @@ def _recv_whole(connection: Any) -> Any:
         return connection.recv()
     finally:
         signal.pthread_sigmask(signal.SIG_SETMASK, previous)
+
+
+def _quietly(work: Callable[[], Any]) -> None:
+    """``work()``; an exception is ignored (only a head start: the caller does the work again)."""
+    try:
+        work()
+    except Exception:  # noqa: BLE001
+        pass
 
 
 class _Stop(KeyboardInterrupt):
@@ -290,12 +300,12 @@ class _Pool:
         bar = ProgressBar(self.total_s, label, enabled=not ctx.quiet)
         last_summary = time.perf_counter()
         next_yield = 0
+        helper = None
         try:
-            if self.while_waiting is not None:
-                try:
-                    self.while_waiting()
-                except Exception:  # noqa: BLE001 - only a head start: the caller does the work again later
-                    pass
+            if self.while_waiting is not None and not waiting:  # every worker forked: no fork while it runs
+                helper = threading.Thread(target=_quietly, args=(self.while_waiting,), name="cosim-while-waiting",
+                                          daemon=True)
+                helper.start()
             while next_yield < len(self.modes):
                 while waiting and len(self.running) < self.count:
                     self._start(waiting.pop(0))
@@ -324,6 +334,8 @@ class _Pool:
             bar.close()
             self._stop_all(quiet=True)
             ctx.sim_time_s = self._covered()
+            if helper is not None:  # done before the caller goes on (it may fork, e.g. for a figure)
+                helper.join()
 
     def _note_where(self) -> None:
         """Tell the summary writer (for a crash guard or supervisor writing on this process's

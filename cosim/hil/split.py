@@ -201,6 +201,14 @@ def lost_cycle_causes(lost: list[dict], overrun_cycles: set[int], times: Control
     return {**counts, "examples": {k: v for k, v in examples.items() if v}}
 
 
+def controller_faults(fieldbus: Any) -> Any:
+    """The paced split controller's fault configuration: the scenario's with no bursts, no silent
+    nodes and no random faults. The served cell applies them all on its cycle numbers (the
+    SoC/PReq faults to the group it takes, :meth:`fieldbus.DriveEndpoint.run_cycle_paced`)."""
+    return dataclasses.replace(fieldbus.faults, loss_probability=0.0, late_probability=0.0,
+                               corrupt_probability=0.0, bursts=(), silent_nodes=())
+
+
 def split_cpus(cpu: Any) -> tuple[str | None, str | None]:
     """(cell CPU, controller CPU) for a paced split run: with the realtime setting ``cpu = "auto"``
     and two or more usable CPUs, the cell on the highest-numbered one and the controller on
@@ -331,7 +339,9 @@ def run_hil_split(cell: CellDescription, controller: Any, ctx: Any, *, options: 
                                        "latency_samples": 1 << 20, "busy_poll_s": 0.0})
     from cosim.realtime.network import deferred_recording
 
-    config = deferred_recording(dataclasses.replace(cell.fieldbus, bus=bus))  # no CAN-log hand-over in the loop
+    # no CAN-log hand-over in the loop; no injected faults: the cell applies the scenario's faults
+    # by its own cycle numbers (a controller counting cycles otherwise would misplace them)
+    config = deferred_recording(dataclasses.replace(cell.fieldbus, bus=bus, faults=controller_faults(cell.fieldbus)))
     port = ControllerPort(controller, N_JOINTS, q_start=cell.controller.q_start)
     stop_cycle = int(round(stop_time / period))
     failure: SimulationError | None = None

@@ -1,6 +1,7 @@
-"""``run_modes(..., while_waiting=f)``: ``f`` runs once in the job's process after the mode
-workers have started (the main job imports matplotlib there while the modes run); an exception
-from it does not disturb the modes; it is not called when the modes run in this process."""
+"""``run_modes(..., while_waiting=f)``: ``f`` runs once, in a thread of the job's process, after
+every mode worker has been forked (the main job imports matplotlib there while the modes run),
+and is done when the outcomes run out; an exception from it does not disturb the modes; it is
+not called when the modes run in this process or when a worker is still to be forked later."""
 from __future__ import annotations
 
 import multiprocessing
@@ -70,3 +71,35 @@ def test_not_called_when_the_modes_run_in_this_process(monkeypatch):
     outcomes = list(mode_pool.run_modes(_context(), SimpleNamespace(doc={}), ["a", "b"], processes=0,
                                         while_waiting=lambda: calls.append(1)))
     assert [o.mode for o in outcomes] == ["a", "b"] and calls == []
+
+
+def test_not_called_when_a_worker_is_forked_later(monkeypatch):
+    monkeypatch.setattr(mode_pool, "_worker", _fake_worker)
+    setup = SimpleNamespace(doc={"simulation": {"stop_time": 1.0}})
+    calls = []
+    outcomes = list(mode_pool.run_modes(_context(), setup, ["a", "b", "c"], processes=2,
+                                        while_waiting=lambda: calls.append(1)))
+    assert [o.mode for o in outcomes] == ["a", "b", "c"] and calls == []
+
+
+def test_the_job_process_relays_progress_while_it_waits(monkeypatch):
+    """The helper runs beside the relay loop, not before it: a slow ``while_waiting`` does not hold
+    back the outcomes."""
+    import threading
+    import time
+
+    monkeypatch.setattr(mode_pool, "_worker", _fake_worker)
+    setup = SimpleNamespace(doc={"simulation": {"stop_time": 1.0}})
+    release = threading.Event()
+    got = []
+
+    def slow():
+        release.wait(10.0)
+
+    started = time.monotonic()
+    for outcome in mode_pool.run_modes(_context(), setup, ["a", "b"], processes=2, while_waiting=slow):
+        got.append(outcome.mode)
+        if len(got) == 1:
+            assert time.monotonic() - started < 8.0  # the first outcome came while slow() still ran
+            release.set()
+    assert got == ["a", "b"]
