@@ -398,15 +398,17 @@ def hil(sizes: Sizes, work: Path) -> dict[str, Any]:
 
 
 def memory(sizes: Sizes, work: Path) -> dict[str, Any]:
-    """bench_memory.measure: peak RSS (MiB) of the plain-FMU job and of the robot cell at
+    """bench_memory.measure: peak RSS (MiB) of the plain-FMU job, of the robot cell and of the
+    identification job's ISO validation run (its fieldbus recording included) at
     ``memory_short_s`` and ``memory_long_s`` simulated seconds, each run in a fresh
     interpreter, and the ratios long/short (everything streams: they should stay <= 1.10)."""
     import bench_memory
 
     work.mkdir(parents=True, exist_ok=True)
     out: dict[str, Any] = {"short_s": sizes.memory_short_s, "long_s": sizes.memory_long_s}
-    # --quick: the cell only (each run is a fresh interpreter; the plain-FMU figure is the full suite's)
-    for job in ("fmus", "cell") if sizes.repeats > 1 else ("cell",):
+    # --quick: the cell only (each run is a fresh interpreter; the plain-FMU and identification figures
+    # are the full suite's)
+    for job in ("fmus", "cell", "identification") if sizes.repeats > 1 else ("cell",):
         r = bench_memory.measure(sizes.memory_short_s, sizes.memory_long_s, job=job, folder=work)
         out.update({f"{job}_short_peak_rss_mib": r["short_peak_rss_mib"],
                     f"{job}_long_peak_rss_mib": r["long_peak_rss_mib"], f"{job}_ratio": r["ratio"],

@@ -20,7 +20,7 @@ def true_model():
 
 def run_tracker(true_model, compiled: bool, monkeypatch) -> tuple[np.ndarray, bool]:
     if not compiled:
-        monkeypatch.setattr(laser_tracker, "load_library", lambda source: None)
+        monkeypatch.setattr(laser_tracker, "load_library", lambda source, **kwargs: None)
     master = Master(base_step=1e-3)
     master.add_fmu("plant", ensure_fmus()["rx130l_plant"], start_values={"q0[2]": -0.4, "q0[3]": 0.9, "q0[5]": 0.6})
     for name in TRACKER_VARIABLES:
