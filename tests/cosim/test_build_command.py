@@ -31,13 +31,16 @@ def _args(*scenarios: Path, no_bytecode: bool = True) -> argparse.Namespace:
     return argparse.Namespace(scenarios=list(scenarios), no_bytecode=no_bytecode)
 
 
-def test_build_compiles_each_part_into_the_cache_once(cache, monkeypatch, capsys):
+def test_build_compiles_each_part_into_the_cache_once(cache, monkeypatch, capsys, request):
     monkeypatch.delenv(native.ENV_MODE, raising=False)
     cheap = [part for part in build_command.PARTS
              if part[0] in ("co-simulation master kernel", "laser tracker kernel", "crash guard")]
     assert len(cheap) == 3
     monkeypatch.setattr(build_command, "PARTS", tuple(cheap))
     monkeypatch.setattr(build_command, "MAIN_SCENARIO", Path("no-such-scenario.toml"))  # the fixed parts only
+    from cosim.master import kernel
+    kernel.load_kernel.cache_clear()  # loaded by an earlier test in this process: from the other cache
+    request.addfinalizer(kernel.load_kernel.cache_clear)
     assert build_command.run(_args()) == 0
     first = capsys.readouterr().out.splitlines()
     assert [line.split(":")[0] for line in first] == [what for what, _, _ in cheap]
