@@ -405,6 +405,11 @@ class Controller:
         self.kernel_cycles = 0
         self.fallback_cycles = 0
         self._h = self.config.period_s  # time since the state the IK seed is predicted from (s)
+        # samples between this cycle's target and the last one sent, as the drives see them: > 1
+        # after a jump only when the bus interpolates the cycles skipped (set-point look-ahead;
+        # controller.drive_compensation, "After a jump"); set by setup(info)
+        self._shape_gap = 1
+        self._bus_interpolates_jumps = False
         self._shaper = SetpointShaper(drive_model) if (drive_model is not None and self.model_based) else None
         if self._shaper is not None:
             if abs(drive_model.period_s - self.config.period_s) > 1e-12:
@@ -507,6 +512,8 @@ class Controller:
         if info.lead_cycles != self.config.lead_cycles:
             raise ControllerConfigError(f"controller lead_cycles = {self.config.lead_cycles}: expected the cell's "
                                         f"1 + dead_time_cycles = {info.lead_cycles}")
+        # with a set-point look-ahead the managing node interpolates the cycles a jump skips
+        self._bus_interpolates_jumps = getattr(info, "lookahead_cycles", 0) > 0
 
     def step(self, inputs: ControllerInput) -> ControllerOutput:
         """One cycle through the contract (:class:`controller.contract.CellController`):
@@ -552,6 +559,8 @@ class Controller:
         # the time since the state the next IK seed is predicted from: one period, or more
         # after cycles this controller did not run (a split controller that fell behind)
         self._h = self.config.period_s if (last is None or cycle - last <= 1) else (cycle - last) * self.config.period_s
+        self._shape_gap = cycle - last if (self._bus_interpolates_jumps and last is not None and cycle - last > 1) \
+            else 1
         if self._fast is not None and self.phase in _COMPUTING:
             done = self._fast_step(cycle, t, observed, started, cpu_started)
             if done:
@@ -634,7 +643,17 @@ class Controller:
             address = self._scratch_address
         log = self.log
         h = self._h
-        if h != self.config.period_s:  # a jumped cycle: predict the seed over the cycles not run
+        if self._shape_gap != 1 and self._shaper is not None:
+            # a jump the bus interpolates: shape over the samples in between (drive_compensation)
+            plan = self._fast.plan
+            g_over_t, denominator = self._shaper.gains(self._shape_gap)
+            plan.g_over_t[:], plan.denominator[:] = g_over_t.tolist(), denominator.tolist()
+            self._fast.h[0] = h
+            status = self._fast.fast_cycle(address, log.next_joints_address())
+            self._fast.h[0] = self.config.period_s
+            plan.g_over_t[:] = self._shaper._g_over_t.tolist()
+            plan.denominator[:] = self._shaper._denominator.tolist()
+        elif h != self.config.period_s:  # a jumped cycle: predict the seed over the cycles not run
             self._fast.h[0] = h
             status = self._fast.fast_cycle(address, log.next_joints_address())
             self._fast.h[0] = self.config.period_s
@@ -747,7 +766,7 @@ class Controller:
         self._qdd_d[:] = qdd
         if self.model_based:
             sp.torque_offset[:] = torque
-            sp.position[:] = q if self._shaper is None else self._shaper.shape(q, qd, qdd)
+            sp.position[:] = q if self._shaper is None else self._shaper.shape(q, qd, qdd, self._shape_gap)
         else:
             sp.torque_offset[:] = 0.0
             sp.position[:] = q

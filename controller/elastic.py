@@ -231,7 +231,18 @@ class ElasticController(Controller):
         ref = self.reference
         k, _ = ref.grid.locate(ref.t_start + tau)
         log = self.log
-        if fast.run(k, log.next_joints_address()) != 0:
+        if self._shape_gap != 1 and self._shaper is not None:
+            # a jump the bus interpolates: shape over the samples in between (drive_compensation)
+            sh, plan = self._shaper, fast.plan
+            g_over_t, denominator = sh.gains(self._shape_gap)
+            plan.g_over_t[:] = np.broadcast_to(g_over_t, (6,)).tolist()
+            plan.denominator[:] = np.broadcast_to(denominator, (6,)).tolist()
+            status = fast.run(k, log.next_joints_address())
+            plan.g_over_t[:] = np.broadcast_to(sh._g_over_t, (6,)).tolist()
+            plan.denominator[:] = np.broadcast_to(sh._denominator, (6,)).tolist()
+        else:
+            status = fast.run(k, log.next_joints_address())
+        if status != 0:
             return False
         self._last_knot = k
         self._last_cycle = cycle
@@ -277,7 +288,7 @@ class ElasticController(Controller):
             sh._q_prev[:] = q_d
             target = np.add(q_d, sh._delta, out=sh.target)
         else:
-            target = sh.shape(m.q[k], m.qd[k], m.qdd[k])
+            target = sh.shape(m.q[k], m.qd[k], m.qdd[k], self._shape_gap)
         self._last_knot = k
         return target
 
