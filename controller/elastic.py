@@ -27,7 +27,8 @@ import numpy as np
 import pinocchio as pin
 
 import native
-from controller.compiled_cycle import _address
+from controller import compiled_cycle
+from controller.compiled_cycle import CycleOutputs, bind_observed, bind_outputs
 from controller.controller import _HOOKS, Command, Controller, ControllerConfig, ControllerConfigError, Phase
 from controller.drive_compensation import DriveLoopModel, SetpointShaper
 from controller.feedforward import ElasticReference, GearModel, elastic_feedforward
@@ -51,21 +52,15 @@ class _ElasticPlan(ctypes.Structure):
     _fields_ = [("n_knots", ctypes.c_longlong),
                 *((name, ctypes.c_void_p) for name in ("link_q", "link_qd", "link_qdd", "motor_q", "motor_qd",
                                                        "motor_qdd", "motor_torque")),
-                ("shape", ctypes.c_longlong),
-                ("lead", ctypes.c_double * 6), ("g_over_t", ctypes.c_double * 6),
-                ("denominator", ctypes.c_double * 6),
-                *((name, ctypes.c_void_p) for name in ("shaper_delta", "shaper_q_prev", "shaper_target", "q_d",
-                                                       "qd_d", "qdd_d", "sp_position", "sp_torque",
-                                                       "sp_controlword")),
-                ("enable_operation", ctypes.c_longlong),
-                *((name, ctypes.c_void_p) for name in ("statusword", "node_fault", "q_obs"))]
+                ("out", CycleOutputs)]
 
 
 @lru_cache(maxsize=1)
 def load_elastic_cycle() -> ctypes.CDLL | None:
     """The compiled elastic cycle (``elastic_cycle.c``, built by :mod:`native`), or None (no compiler:
     the Python path runs every cycle, bit for bit the same)."""
-    lib = native.load_library(ELASTIC_CYCLE_SOURCE, _ELASTIC_CYCLE_CFLAGS, what="elastic controller cycle")
+    lib = native.load_library(ELASTIC_CYCLE_SOURCE, _ELASTIC_CYCLE_CFLAGS, what="elastic controller cycle",
+                              headers=[compiled_cycle.CYCLE_OUTPUTS_HEADER])
     if lib is not None:
         lib.elastic_cycle_run.restype = ctypes.c_int
         lib.elastic_cycle_run.argtypes = [ctypes.c_void_p, ctypes.c_longlong, ctypes.c_void_p]
@@ -95,24 +90,8 @@ class ElasticCycle:
         plan.n_knots = n
         (plan.link_q, plan.link_qd, plan.link_qdd, plan.motor_q, plan.motor_qd, plan.motor_qdd,
          plan.motor_torque) = (a.ctypes.data for a in self._keep)
-        sh = ctrl._shaper
-        plan.shape = int(sh is not None)
-        if sh is not None:
-            plan.lead[:] = np.broadcast_to(sh._lead, (6,)).tolist()
-            plan.g_over_t[:] = np.broadcast_to(sh._g_over_t, (6,)).tolist()
-            plan.denominator[:] = np.broadcast_to(sh._denominator, (6,)).tolist()
-            plan.shaper_delta = _address(sh._delta, np.float64, "shaper delta")
-            plan.shaper_q_prev = _address(sh._q_prev, np.float64, "shaper q_prev")
-            plan.shaper_target = _address(sh.target, np.float64, "shaper target")
-        plan.q_d = _address(ctrl._q_d, np.float64, "q_d")
-        plan.qd_d = _address(ctrl._qd_d, np.float64, "qd_d")
-        plan.qdd_d = _address(ctrl._qdd_d, np.float64, "qdd_d")
-        sp = ctrl.setpoints
-        plan.sp_position = _address(sp.position, np.float64, "setpoints.position")
-        plan.sp_torque = _address(sp.torque_offset, np.float64, "setpoints.torque_offset")
-        plan.sp_controlword = _address(sp.controlword, np.int64, "setpoints.controlword")
-        plan.enable_operation = int(Command.ENABLE_OPERATION)
-        self._keep += [sh, ctrl._q_d, ctrl._qd_d, ctrl._qdd_d, sp.position, sp.torque_offset, sp.controlword]
+        self._keep += bind_outputs(plan.out, ctrl._shaper, (ctrl._q_d, ctrl._qd_d, ctrl._qdd_d), ctrl.setpoints,
+                                   Command.ENABLE_OPERATION)
         self.plan = plan
         self._plan_ref = ctypes.byref(plan)
         self._run = lib.elastic_cycle_run
@@ -121,11 +100,7 @@ class ElasticCycle:
     def bind_observed(self, statusword: np.ndarray, node_fault: np.ndarray, position: np.ndarray) -> None:
         """Point the cycle at the arrays it reads (int64 statuswords, bool node faults, float64
         positions, (6,) each); ValueError when they do not have that layout."""
-        plan = self.plan
-        plan.statusword = _address(statusword, np.int64, "observed.statusword")
-        plan.node_fault = _address(node_fault, np.bool_, "observed.node_fault")
-        plan.q_obs = _address(position, np.float64, "observed.position")
-        self._observed = (statusword, node_fault, position)
+        self._observed = bind_observed(self.plan.out, statusword, node_fault, position)
 
     def run(self, knot: int, log_row_address: int) -> int:
         """The cycle at ``knot``, writing the log row (36 doubles) at ``log_row_address`` (0: none);
