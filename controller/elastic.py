@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import ctypes
 import dataclasses
-import time
 from functools import lru_cache
 from pathlib import Path
 
@@ -192,33 +191,16 @@ class ElasticController(Controller):
         set-points, shaper state, log row and timing as :meth:`Controller.run_cycle` with
         :meth:`_compute`. False when the Python path must take this cycle (a drive not in
         Operation enabled or a node fault, unusual observed arrays); nothing has changed then."""
-        fast = self._fast
-        bound = self._observed_bound
-        if bound is None or observed.position is not bound[0] or observed.statusword is not bound[1] \
-                or observed.node_fault is not bound[2]:
-            try:
-                fast.bind_observed(observed.statusword, observed.node_fault, observed.position)
-            except ValueError:
-                return False
-            self._observed_bound = (observed.position, observed.statusword, observed.node_fault)
+        if not self._bind_fast_observed(observed):
+            return False
         phase = self.phase
         tau = 0.0 if phase is Phase.SETTLING else (cycle - self.motion_start_cycle) * self.config.period_s
         ref = self.reference
         k, _ = ref.grid.locate(ref.t_start + tau)
-        log = self.log
-        if fast.run(k, log.next_joints_address()) != 0:
+        if self._fast.run(k, self.log.next_joints_address()) != 0:
             return False
         self._last_knot = k
-        self._last_cycle = cycle
-        self.kernel_cycles += 1
-        if phase is Phase.SETTLING and cycle >= self._settle_until:
-            phase = self.phase = Phase.TRACKING
-            self.motion_start_cycle = cycle
-        if phase is Phase.TRACKING and tau >= ref.duration:
-            phase = self.phase = Phase.FINISHED
-        elapsed = time.perf_counter_ns() - started
-        self.timer.record(elapsed, time.thread_time_ns() - cpu_started)
-        log.commit(t, t + self.config.lead_time_s, int(phase), tau, elapsed * 1e-3, 0)
+        self._fast_step_done(cycle, t, phase, tau, ref.duration, started, cpu_started, 0)
         return True
 
     def _enable(self, observed, sp: Setpoints) -> None:
