@@ -460,7 +460,7 @@ class Controller:
                 enable_operation=int(Command.ENABLE_OPERATION))
             self._ref_t_start = reference.t_start
             self._ref_duration = reference.duration
-            self._lead_time_s = self.config.lead_time_s
+        self._lead_time_s = self.config.lead_time_s
 
     # ------------------------------------------------------------------ properties
     @property
@@ -621,14 +621,8 @@ class Controller:
         path. False when the Python path must take this cycle (a drive not in Operation
         enabled or a node fault, a kernel result failing a check, unusual observed
         arrays); nothing has changed then."""
-        bound = self._observed_bound
-        if bound is None or observed.position is not bound[0] or observed.statusword is not bound[1] \
-                or observed.node_fault is not bound[2]:
-            try:
-                self._fast.bind_observed(observed.statusword, observed.node_fault, observed.position)
-            except ValueError:
-                return False
-            self._observed_bound = (observed.position, observed.statusword, observed.node_fault)
+        if not self._bind_fast_observed(observed):
+            return False
         phase = self.phase
         if phase is Phase.SETTLING:
             tau = 0.0
@@ -645,7 +639,7 @@ class Controller:
         h = self._h
         if self._shape_gap != 1 and self._shaper is not None:
             # a jump the bus interpolates: shape over the samples in between (drive_compensation)
-            plan = self._fast.plan
+            plan = self._fast.plan.out  # the shaper gains the C cycle reads
             g_over_t, denominator = self._shaper.gains(self._shape_gap)
             plan.g_over_t[:], plan.denominator[:] = g_over_t.tolist(), denominator.tolist()
             self._fast.h[0] = h
@@ -661,17 +655,36 @@ class Controller:
             status = self._fast.fast_cycle(address, log.next_joints_address())
         if status == FAST_STOP_CHECK or status == FAST_REJECTED:
             return False
+        self._fast_step_done(cycle, t, phase, tau, self._ref_duration, started, cpu_started, status)
+        return True
+
+    def _bind_fast_observed(self, observed: ObservedActuals) -> bool:
+        """Point the compiled cycle (``self._fast``) at ``observed``'s arrays when they are not
+        the ones bound; False when they do not have the layout it reads."""
+        bound = self._observed_bound
+        if bound is None or observed.position is not bound[0] or observed.statusword is not bound[1] \
+                or observed.node_fault is not bound[2]:
+            try:
+                self._fast.bind_observed(observed.statusword, observed.node_fault, observed.position)
+            except ValueError:
+                return False
+            self._observed_bound = (observed.position, observed.statusword, observed.node_fault)
+        return True
+
+    def _fast_step_done(self, cycle: int, t: float, phase: Phase, tau: float, duration: float, started: int,
+                        cpu_started: int, iterations: int) -> None:
+        """After a cycle the compiled path took (the log row written): the phase changes of the
+        Python path (settled, reference of ``duration`` s done), the cycle's timing and the log."""
         self._last_cycle = cycle
+        self.kernel_cycles += 1
         if phase is Phase.SETTLING and cycle >= self._settle_until:
             phase = self.phase = Phase.TRACKING
             self.motion_start_cycle = cycle
-        self.kernel_cycles += 1
-        if phase is Phase.TRACKING and tau >= self._ref_duration:
+        if phase is Phase.TRACKING and tau >= duration:
             phase = self.phase = Phase.FINISHED
         elapsed = time.perf_counter_ns() - started
         self.timer.record(elapsed, time.thread_time_ns() - cpu_started)
-        log.commit(t, t + self._lead_time_s, int(phase), tau, elapsed * 1e-3, status)
-        return True
+        self.log.commit(t, t + self._lead_time_s, int(phase), tau, elapsed * 1e-3, iterations)
 
     def _enable(self, observed: ObservedActuals, sp: Setpoints) -> None:
         """Enable sequence: next controlword per drive, hold the start configuration."""

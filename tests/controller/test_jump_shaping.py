@@ -15,7 +15,7 @@ import pytest
 from controller import Controller, ControllerConfig, ControllerInfo, TcpTrajectory
 from planners.iso9283 import ISO_Q_HINT, iso9283_test_path
 from robot.dynamics import RobotDynamics
-from tests.controller.test_jumped_cycle import PERIOD, cycles_with_jumps, drive, drive_model
+from controller_support import PERIOD, drive, drive_model
 
 LOOKAHEAD = 4
 CYCLES = 2600
@@ -28,6 +28,15 @@ def tcp_ref():
     return TcpTrajectory.from_reference(path.reference, path.duration, PERIOD)
 
 
+def cycles_with_jumps(total: int, jumps: dict[int, int]) -> list[int]:
+    """Cycle numbers 0..total-1 run by a controller that jumps ``jumps[k]`` cycles after cycle k."""
+    out, k = [], 0
+    while k < total:
+        out.append(k)
+        k += jumps.get(k, 1)
+    return out
+
+
 def make(ref, fast: bool, lookahead: int) -> Controller:
     ctrl = Controller(ref, ControllerConfig(mode="model_based", settle_time_s=0.002, fast_cycle=fast,
                                             lead_cycles=2 + lookahead),
@@ -36,19 +45,22 @@ def make(ref, fast: bool, lookahead: int) -> Controller:
     return ctrl
 
 
-def targets(ctrl: Controller, cycles: list[int]) -> tuple[np.ndarray, np.ndarray]:
+def targets(ctrl: Controller, cycles: list[int], total: int = CYCLES) -> tuple[np.ndarray, np.ndarray]:
     """Per cycle 0..CYCLES-1 the target the drives apply (the managing node's linear interpolation
     over a skipped cycle, as with the look-ahead) and q_d of the cycles run (NaN for the others)."""
-    out, q_d = np.full((CYCLES, 6), np.nan), np.full((CYCLES, 6), np.nan)
+    out, q_d = np.full((total, 6), np.nan), np.full((total, 6), np.nan)
 
     def keep(c: Controller, k: int) -> None:
         out[k] = c.setpoints.position
-        q_d[k] = c._q_d
+        q_d[k] = c._shaper._q_prev  # the shaped motion (the elastic controller's: the motor's)
 
-    drive(ctrl, cycles, keep)
+    drive(ctrl, cycles, check=keep, half_way=False)
+    assert ctrl.fallback_cycles == 0
+    if ctrl.config.fast_cycle:  # the compiled whole cycle took the jumps
+        assert ctrl.kernel_cycles > len(cycles) - 100
     ran = np.array(cycles)
     for j in range(6):
-        out[:, j] = np.interp(np.arange(CYCLES), ran, out[ran, j])
+        out[:, j] = np.interp(np.arange(total), ran, out[ran, j])
     return out, q_d
 
 
@@ -83,3 +95,33 @@ def test_without_lookahead_a_jump_is_shaped_over_one_sample_as_before(tcp_ref):
     jumped, _ = targets(make(tcp_ref, True, 0), cycles_with_jumps(CYCLES, {1500: 3}))
     # one sample's recursion over a 3-cycle jump: the target absorbs about 2 cycles of motion
     assert np.max(np.abs(jumped[1503] - reference[1503])) > 1e-5
+
+
+def test_the_elastic_controller_shapes_over_the_jump_on_both_paths():
+    """The elastic mode's motor-side shaping (its compiled cycle and its Python path, bit for bit
+    the same) after jumps of 3 and 4 cycles: the drive's speed demand at the new target is the
+    one without the jump."""
+    from controller.elastic import ELASTIC_MODE, ElasticController
+    from controller.reference import JointTrajectory
+
+    amplitude, omega = np.array([0.3, -0.5, 0.4, 0.8, -0.6, 1.0]), np.array([2.0, 3.0, 1.5, 4.0, 5.0, 3.5])
+    q0 = np.array([0.2, -0.6, 1.2, 0.3, 0.8, -0.2])
+    t = np.arange(0.0, 0.06 + PERIOD / 2, PERIOD)
+    q, qd, qdd = (np.array([amplitude * omega ** n * np.sin(omega * s + n * np.pi / 2) + (q0 if n == 0 else 0.0)
+                            for s in t]) for n in range(3))
+    ref = JointTrajectory(t, q, qd, qdd, PERIOD)
+    total, jumps = 140, {60: 3, 100: 4}
+
+    def make_elastic(fast: bool) -> ElasticController:
+        ctrl = ElasticController(ref, ControllerConfig(mode=ELASTIC_MODE, settle_time_s=0.002, fast_cycle=fast,
+                                                       lead_cycles=2 + LOOKAHEAD),
+                                 dynamics=RobotDynamics(payload=[8.0, 0.0, 0.0, 0.08]), drive_model=drive_model())
+        ctrl.setup(ControllerInfo(period_s=PERIOD, lookahead_cycles=LOOKAHEAD))
+        return ctrl
+
+    reference, motor = targets(make_elastic(False), list(range(total)), total)
+    runs = {fast: targets(make_elastic(fast), cycles_with_jumps(total, jumps), total)[0] for fast in (False, True)}
+    np.testing.assert_array_equal(runs[True], runs[False])
+    v_ref, v_jump = speed_demand(reference, motor), speed_demand(runs[True], motor)
+    for start, gap in jumps.items():
+        np.testing.assert_allclose(v_jump[start + gap], v_ref[start + gap], rtol=0, atol=1e-9)

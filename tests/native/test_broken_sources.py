@@ -73,6 +73,20 @@ def _elastic_cycle(monkeypatch, folder):
         elastic.load_elastic_cycle.cache_clear()
 
 
+def _cycle_outputs_header(monkeypatch, folder):
+    """The header both controller cycles include: a broken copy breaks the build that includes
+    it (here the elastic cycle's: native.build puts the header next to the source)."""
+    from controller import compiled_cycle, elastic
+
+    monkeypatch.setattr(compiled_cycle, "CYCLE_OUTPUTS_HEADER",
+                        _broken_copy(compiled_cycle.CYCLE_OUTPUTS_HEADER, folder))
+    elastic.load_elastic_cycle.cache_clear()
+    try:
+        return elastic.load_elastic_cycle()
+    finally:
+        elastic.load_elastic_cycle.cache_clear()
+
+
 def _ik_table(monkeypatch, folder):
     from controller import ik_table
 
@@ -133,6 +147,7 @@ COMPONENTS = [
     ("crash_guard", "crash guard", _crash_guard),
     ("controller_cycle", "controller cycle kernel", _controller_cycle),
     ("elastic_cycle", "elastic controller cycle", _elastic_cycle),
+    ("cycle_outputs_header", "elastic controller cycle", _cycle_outputs_header),
     ("ik_table", "compiled IK table", _ik_table),
 ]
 
@@ -150,10 +165,10 @@ def test_every_hand_written_c_source_is_covered():
     root = Path(__file__).resolve().parents[2]
     sources = {p.relative_to(root).as_posix() for package in ("native", "cosim", "fieldbus", "controller", "planners",
                                                               "robot", "calibration", "identification")
-               for pattern in ("*.c", "*.cpp") for p in (root / package).rglob(pattern)}
+               for pattern in ("*.c", "*.cpp", "*.h") for p in (root / package).rglob(pattern)}
     covered = {"cosim/master/kernel.c", "fieldbus/codec.c", "cosim/tracking/tracker_kernel.c",
                "cosim/results/crashguard.c", "controller/fast_cycle.c", "controller/elastic_cycle.c",
-               "controller/ik_table.cpp"}
+               "controller/ik_table.cpp", "controller/cycle_outputs.h"}
     assert sources == covered  # fmus/: fmi3_adapter.c here, the FMU sources below
 
 
