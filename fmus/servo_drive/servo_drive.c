@@ -38,10 +38,12 @@
  * Holding brake: closed whenever the power stage is off (from initialisation until
  * Operation enabled, and again in Switch on disabled / Fault), opened when it is on;
  * both instantly. Closed, it is an elasto-plastic friction contact evaluated at every
- * current sample: a spring-damper to the position where it closed, pre-stretched so that
- * it starts with the torque the motor made when the power stage switched off (none at
- * power-up), its torque limited to brake_holding_torque (beyond, it slips and the anchor
- * is dragged along). Its
+ * current sample: a spring-damper to the position where it closed, its torque limited
+ * to brake_holding_torque (beyond, it slips and the anchor is dragged along). A stop ramp
+ * that switches the power stage off (fault reaction, quick stop option 2) ends at
+ * standstill, then the motor holds the axis for brake_closing_time while the brake engages;
+ * the closed brake's spring starts loaded with the motor's last torque (it takes the load
+ * over without the axis moving); other switch-offs close it unloaded. Its
  * torque is part of tau_out (brake_torque output); torque_actual is the motor's only.
  *
  * Units: joint side rad, rad/s, N m; motor current A; voltage V; time s.
@@ -113,10 +115,11 @@ static void power_off(ModelState *s)
 }
 
 /* Close the brake when the power stage is off (anchored at the next current sample: at
- * initialisation the inputs may not be set yet), open it otherwise. A brake that closes on a
- * motor holding a load takes that load over where the shaft is: its spring starts stretched by
- * brake_preload / brake_stiffness (the joint is already deflected by the load the motor held;
- * locking the motor shaft does not move it). */
+ * initialisation the inputs may not be set yet), open it otherwise. At the end of a stop ramp
+ * and the brake's closing time the engaged brake takes over, where the shaft is, the load the
+ * motor held the resting axis with: its spring starts stretched by brake_preload /
+ * brake_stiffness (the joint is already deflected by that load; locking the motor shaft does
+ * not move it). Any other switch-off (power-up, disable voltage) closes it unloaded. */
 static void update_brake(Instance *inst)
 {
     ModelState *s = &inst->d.s;
@@ -165,8 +168,6 @@ static void enter(Instance *inst, int state)
         if (s->cia_state != CIA_QUICK_STOP_ACTIVE) power_off(s); /* fresh controller states */
         s->target_prev = R(TARGET_POSITION);
     }
-    if (power_on(s->cia_state) && !power_on(state)) /* the brake takes over the motor's torque */
-        s->brake_preload = R(GEAR_RATIO) * R(TORQUE_CONSTANT) * s->current;
     s->cia_state = state;
     if (!power_on(state)) power_off(s);
     update_brake(inst);
@@ -362,9 +363,11 @@ static void position_sample(Instance *inst)
         int closed = s->standstill_samples * ts >= R(STANDSTILL_TIME) + R(BRAKE_CLOSING_TIME) - 1e-12;
         if (!closed) s->standstill_samples = still || reached ? s->standstill_samples + 1 : 0;
         closed = s->standstill_samples * ts >= R(STANDSTILL_TIME) + R(BRAKE_CLOSING_TIME) - 1e-12;
-        if (closed) {
+        if (closed && (s->cia_state == CIA_FAULT_REACTION_ACTIVE || I(QUICK_STOP_OPTION_CODE) == 2)) {
+            /* the engaged brake takes over the torque the motor holds the resting axis with */
+            s->brake_preload = R(GEAR_RATIO) * R(TORQUE_CONSTANT) * s->current;
             if (s->cia_state == CIA_FAULT_REACTION_ACTIVE) enter(inst, CIA_FAULT);          /* 14 */
-            else if (I(QUICK_STOP_OPTION_CODE) == 2) enter(inst, CIA_SWITCH_ON_DISABLED);   /* 12 */
+            else enter(inst, CIA_SWITCH_ON_DISABLED);                                      /* 12 */
         }
     }
 }
