@@ -64,6 +64,8 @@ if TYPE_CHECKING:
 FUNCTION_NAME = "controller_cycle"
 CFLAGS = ("-O2", "-fPIC", "-shared", "-std=c99", "-ffp-contract=off")
 FAST_CYCLE_SOURCE = Path(__file__).with_name("fast_cycle.c")
+#: what fast_cycle.c and elastic_cycle.c share (the arrays a cycle writes and reads, shaping, log row)
+CYCLE_OUTPUTS_HEADER = Path(__file__).with_name("cycle_outputs.h")
 FAST_STOP_CHECK, FAST_REJECTED = 2, -1
 """``fast_cycle_run`` results besides 0/1 (accepted, IK steps): a drive is not in
 Operation enabled or a node is faulted (the Python path decides), the kernel's result
@@ -169,10 +171,61 @@ def build_library(function: ca.Function) -> Path:
         return [c_file]
 
     try:
-        return native.build("controller_cycle", [FAST_CYCLE_SOURCE], generate=generate,
-                            key=hashlib.sha256(source.encode()).digest(), cflags=CFLAGS)
+        return native.build("controller_cycle", [FAST_CYCLE_SOURCE], headers=[CYCLE_OUTPUTS_HEADER],
+                            generate=generate, key=hashlib.sha256(source.encode()).digest(), cflags=CFLAGS)
     except native.NativeBuildError as exc:
         raise CompiledCycleError(f"controller kernel: {exc}") from None
+
+
+class CycleOutputs(ctypes.Structure):
+    """Mirror of ``cycle_outputs`` in cycle_outputs.h (shaping, what a compiled cycle writes
+    and reads); bound by :func:`bind_outputs` and :func:`bind_observed`."""
+
+    _fields_ = [
+        ("shape", ctypes.c_longlong),
+        ("lead", ctypes.c_double * N_JOINTS), ("g_over_t", ctypes.c_double * N_JOINTS),
+        ("denominator", ctypes.c_double * N_JOINTS),
+        *((name, ctypes.c_void_p) for name in ("shaper_delta", "shaper_q_prev", "shaper_target", "q_d", "qd_d",
+                                               "qdd_d", "sp_position", "sp_torque", "sp_controlword")),
+        ("enable_operation", ctypes.c_longlong),
+        *((name, ctypes.c_void_p) for name in ("statusword", "node_fault", "q_obs")),
+    ]
+
+
+def bind_outputs(out: CycleOutputs, shaper: "SetpointShaper | None",
+                 desired: tuple[np.ndarray, np.ndarray, np.ndarray], setpoints: "Setpoints",
+                 enable_operation: int) -> list:
+    """Point ``out`` at the set-point shaper's arrays (updated in place) or none, the
+    controller's desired-motion arrays (q_d, qd_d, qdd_d) and set-points, with the
+    controlword of a computing cycle; returns the objects the caller must keep alive."""
+    out.shape = int(shaper is not None)
+    if shaper is not None:
+        out.lead[:] = np.broadcast_to(shaper._lead, (N_JOINTS,)).tolist()
+        out.g_over_t[:] = np.broadcast_to(shaper._g_over_t, (N_JOINTS,)).tolist()
+        out.denominator[:] = np.broadcast_to(shaper._denominator, (N_JOINTS,)).tolist()
+        out.shaper_delta = _address(shaper._delta, np.float64, "shaper delta")
+        out.shaper_q_prev = _address(shaper._q_prev, np.float64, "shaper q_prev")
+        out.shaper_target = _address(shaper.target, np.float64, "shaper target")
+    q_d, qd_d, qdd_d = desired
+    out.q_d = _address(q_d, np.float64, "q_d")
+    out.qd_d = _address(qd_d, np.float64, "qd_d")
+    out.qdd_d = _address(qdd_d, np.float64, "qdd_d")
+    out.sp_position = _address(setpoints.position, np.float64, "setpoints.position")
+    out.sp_torque = _address(setpoints.torque_offset, np.float64, "setpoints.torque_offset")
+    out.sp_controlword = _address(setpoints.controlword, np.int64, "setpoints.controlword")
+    out.enable_operation = int(enable_operation)
+    return [shaper, q_d, qd_d, qdd_d, setpoints.position, setpoints.torque_offset, setpoints.controlword]
+
+
+def bind_observed(out: CycleOutputs, statusword: np.ndarray, node_fault: np.ndarray,
+                  position: np.ndarray) -> tuple:
+    """Point ``out`` at the arrays a cycle reads (int64 statuswords, bool node faults, float64
+    positions, (6,) each; ValueError when they do not have that layout); returns them (keep
+    them alive)."""
+    out.statusword = _address(statusword, np.int64, "observed.statusword")
+    out.node_fault = _address(node_fault, np.bool_, "observed.node_fault")
+    out.q_obs = _address(position, np.float64, "observed.position")
+    return statusword, node_fault, position
 
 
 class FastPlan(ctypes.Structure):
@@ -184,14 +237,7 @@ class FastPlan(ctypes.Structure):
         ("info", ctypes.c_void_p),
         ("accept2", ctypes.c_double), ("tol2", ctypes.c_double), ("singular_tol", ctypes.c_double),
         ("lower", ctypes.c_double * N_JOINTS), ("upper", ctypes.c_double * N_JOINTS),
-        ("model_based", ctypes.c_longlong), ("shape", ctypes.c_longlong),
-        ("lead", ctypes.c_double * N_JOINTS), ("g_over_t", ctypes.c_double * N_JOINTS),
-        ("denominator", ctypes.c_double * N_JOINTS),
-        ("shaper_delta", ctypes.c_void_p), ("shaper_q_prev", ctypes.c_void_p), ("shaper_target", ctypes.c_void_p),
-        ("q_d", ctypes.c_void_p), ("qd_d", ctypes.c_void_p), ("qdd_d", ctypes.c_void_p),
-        ("sp_position", ctypes.c_void_p), ("sp_torque", ctypes.c_void_p), ("sp_controlword", ctypes.c_void_p),
-        ("enable_operation", ctypes.c_longlong),
-        ("statusword", ctypes.c_void_p), ("node_fault", ctypes.c_void_p), ("q_obs", ctypes.c_void_p),
+        ("model_based", ctypes.c_longlong), ("out", CycleOutputs),
     ]
 
 
@@ -296,34 +342,14 @@ class CompiledCycle:
         plan.lower[:] = [float(x) for x in lower]
         plan.upper[:] = [float(x) for x in upper]
         plan.model_based = int(bool(model_based))
-        plan.shape = int(shaper is not None)
-        if shaper is not None:
-            plan.lead[:] = shaper._lead.tolist()
-            plan.g_over_t[:] = shaper._g_over_t.tolist()
-            plan.denominator[:] = shaper._denominator.tolist()
-            plan.shaper_delta = _address(shaper._delta, np.float64, "shaper delta")
-            plan.shaper_q_prev = _address(shaper._q_prev, np.float64, "shaper q_prev")
-            plan.shaper_target = _address(shaper.target, np.float64, "shaper target")
-        q_d, qd_d, qdd_d = desired
-        plan.q_d = _address(q_d, np.float64, "q_d")
-        plan.qd_d = _address(qd_d, np.float64, "qd_d")
-        plan.qdd_d = _address(qdd_d, np.float64, "qdd_d")
-        plan.sp_position = _address(setpoints.position, np.float64, "setpoints.position")
-        plan.sp_torque = _address(setpoints.torque_offset, np.float64, "setpoints.torque_offset")
-        plan.sp_controlword = _address(setpoints.controlword, np.int64, "setpoints.controlword")
-        plan.enable_operation = int(enable_operation)
-        self._keep = [shaper, q_d, qd_d, qdd_d, setpoints.position, setpoints.torque_offset, setpoints.controlword]
+        self._keep = bind_outputs(plan.out, shaper, desired, setpoints, enable_operation)
         self.plan = plan
         self._plan_ref = ctypes.byref(plan)
 
     def bind_observed(self, statusword: np.ndarray, node_fault: np.ndarray, position: np.ndarray) -> None:
         """Point the fast cycle at the arrays it reads (int64 statuswords, bool node faults,
         float64 positions, (6,) each); ValueError when they do not have that layout."""
-        plan = self.plan
-        plan.statusword = _address(statusword, np.int64, "observed.statusword")
-        plan.node_fault = _address(node_fault, np.bool_, "observed.node_fault")
-        plan.q_obs = _address(position, np.float64, "observed.position")
-        self._keep_observed = (statusword, node_fault, position)
+        self._keep_observed = bind_observed(self.plan.out, statusword, node_fault, position)
 
     def fast_cycle(self, ref_address: int, log_row_address: int) -> int:
         """The whole compiled-path cycle (fast_cycle.c) for the packed reference row at

@@ -405,6 +405,11 @@ class Controller:
         self.kernel_cycles = 0
         self.fallback_cycles = 0
         self._h = self.config.period_s  # time since the state the IK seed is predicted from (s)
+        # samples between this cycle's target and the last one sent, as the drives see them: > 1
+        # after a jump only when the bus interpolates the cycles skipped (set-point look-ahead;
+        # controller.drive_compensation, "After a jump"); set by setup(info)
+        self._shape_gap = 1
+        self._bus_interpolates_jumps = False
         self._shaper = SetpointShaper(drive_model) if (drive_model is not None and self.model_based) else None
         if self._shaper is not None:
             if abs(drive_model.period_s - self.config.period_s) > 1e-12:
@@ -455,7 +460,7 @@ class Controller:
                 enable_operation=int(Command.ENABLE_OPERATION))
             self._ref_t_start = reference.t_start
             self._ref_duration = reference.duration
-            self._lead_time_s = self.config.lead_time_s
+        self._lead_time_s = self.config.lead_time_s
 
     # ------------------------------------------------------------------ properties
     @property
@@ -507,6 +512,8 @@ class Controller:
         if info.lead_cycles != self.config.lead_cycles:
             raise ControllerConfigError(f"controller lead_cycles = {self.config.lead_cycles}: expected the cell's "
                                         f"1 + dead_time_cycles = {info.lead_cycles}")
+        # with a set-point look-ahead the managing node interpolates the cycles a jump skips
+        self._bus_interpolates_jumps = getattr(info, "lookahead_cycles", 0) > 0
 
     def step(self, inputs: ControllerInput) -> ControllerOutput:
         """One cycle through the contract (:class:`controller.contract.CellController`):
@@ -552,6 +559,8 @@ class Controller:
         # the time since the state the next IK seed is predicted from: one period, or more
         # after cycles this controller did not run (a split controller that fell behind)
         self._h = self.config.period_s if (last is None or cycle - last <= 1) else (cycle - last) * self.config.period_s
+        self._shape_gap = cycle - last if (self._bus_interpolates_jumps and last is not None and cycle - last > 1) \
+            else 1
         if self._fast is not None and self.phase in _COMPUTING:
             done = self._fast_step(cycle, t, observed, started, cpu_started)
             if done:
@@ -612,14 +621,8 @@ class Controller:
         path. False when the Python path must take this cycle (a drive not in Operation
         enabled or a node fault, a kernel result failing a check, unusual observed
         arrays); nothing has changed then."""
-        bound = self._observed_bound
-        if bound is None or observed.position is not bound[0] or observed.statusword is not bound[1] \
-                or observed.node_fault is not bound[2]:
-            try:
-                self._fast.bind_observed(observed.statusword, observed.node_fault, observed.position)
-            except ValueError:
-                return False
-            self._observed_bound = (observed.position, observed.statusword, observed.node_fault)
+        if not self._bind_fast_observed(observed):
+            return False
         phase = self.phase
         if phase is Phase.SETTLING:
             tau = 0.0
@@ -634,7 +637,17 @@ class Controller:
             address = self._scratch_address
         log = self.log
         h = self._h
-        if h != self.config.period_s:  # a jumped cycle: predict the seed over the cycles not run
+        if self._shape_gap != 1 and self._shaper is not None:
+            # a jump the bus interpolates: shape over the samples in between (drive_compensation)
+            plan = self._fast.plan.out  # the shaper gains the C cycle reads
+            g_over_t, denominator = self._shaper.gains(self._shape_gap)
+            plan.g_over_t[:], plan.denominator[:] = g_over_t.tolist(), denominator.tolist()
+            self._fast.h[0] = h
+            status = self._fast.fast_cycle(address, log.next_joints_address())
+            self._fast.h[0] = self.config.period_s
+            plan.g_over_t[:] = self._shaper._g_over_t.tolist()
+            plan.denominator[:] = self._shaper._denominator.tolist()
+        elif h != self.config.period_s:  # a jumped cycle: predict the seed over the cycles not run
             self._fast.h[0] = h
             status = self._fast.fast_cycle(address, log.next_joints_address())
             self._fast.h[0] = self.config.period_s
@@ -642,17 +655,36 @@ class Controller:
             status = self._fast.fast_cycle(address, log.next_joints_address())
         if status == FAST_STOP_CHECK or status == FAST_REJECTED:
             return False
+        self._fast_step_done(cycle, t, phase, tau, self._ref_duration, started, cpu_started, status)
+        return True
+
+    def _bind_fast_observed(self, observed: ObservedActuals) -> bool:
+        """Point the compiled cycle (``self._fast``) at ``observed``'s arrays when they are not
+        the ones bound; False when they do not have the layout it reads."""
+        bound = self._observed_bound
+        if bound is None or observed.position is not bound[0] or observed.statusword is not bound[1] \
+                or observed.node_fault is not bound[2]:
+            try:
+                self._fast.bind_observed(observed.statusword, observed.node_fault, observed.position)
+            except ValueError:
+                return False
+            self._observed_bound = (observed.position, observed.statusword, observed.node_fault)
+        return True
+
+    def _fast_step_done(self, cycle: int, t: float, phase: Phase, tau: float, duration: float, started: int,
+                        cpu_started: int, iterations: int) -> None:
+        """After a cycle the compiled path took (the log row written): the phase changes of the
+        Python path (settled, reference of ``duration`` s done), the cycle's timing and the log."""
         self._last_cycle = cycle
+        self.kernel_cycles += 1
         if phase is Phase.SETTLING and cycle >= self._settle_until:
             phase = self.phase = Phase.TRACKING
             self.motion_start_cycle = cycle
-        self.kernel_cycles += 1
-        if phase is Phase.TRACKING and tau >= self._ref_duration:
+        if phase is Phase.TRACKING and tau >= duration:
             phase = self.phase = Phase.FINISHED
         elapsed = time.perf_counter_ns() - started
         self.timer.record(elapsed, time.thread_time_ns() - cpu_started)
-        log.commit(t, t + self._lead_time_s, int(phase), tau, elapsed * 1e-3, status)
-        return True
+        self.log.commit(t, t + self._lead_time_s, int(phase), tau, elapsed * 1e-3, iterations)
 
     def _enable(self, observed: ObservedActuals, sp: Setpoints) -> None:
         """Enable sequence: next controlword per drive, hold the start configuration."""
@@ -747,7 +779,7 @@ class Controller:
         self._qdd_d[:] = qdd
         if self.model_based:
             sp.torque_offset[:] = torque
-            sp.position[:] = q if self._shaper is None else self._shaper.shape(q, qd, qdd)
+            sp.position[:] = q if self._shaper is None else self._shaper.shape(q, qd, qdd, self._shape_gap)
         else:
             sp.torque_offset[:] = 0.0
             sp.position[:] = q

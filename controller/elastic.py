@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import ctypes
 import dataclasses
-import time
 from functools import lru_cache
 from pathlib import Path
 
@@ -27,7 +26,8 @@ import numpy as np
 import pinocchio as pin
 
 import native
-from controller.compiled_cycle import _address
+from controller import compiled_cycle
+from controller.compiled_cycle import CycleOutputs, bind_observed, bind_outputs
 from controller.controller import _HOOKS, Command, Controller, ControllerConfig, ControllerConfigError, Phase
 from controller.drive_compensation import DriveLoopModel, SetpointShaper
 from controller.feedforward import ElasticReference, GearModel, elastic_feedforward
@@ -51,21 +51,15 @@ class _ElasticPlan(ctypes.Structure):
     _fields_ = [("n_knots", ctypes.c_longlong),
                 *((name, ctypes.c_void_p) for name in ("link_q", "link_qd", "link_qdd", "motor_q", "motor_qd",
                                                        "motor_qdd", "motor_torque")),
-                ("shape", ctypes.c_longlong),
-                ("lead", ctypes.c_double * 6), ("g_over_t", ctypes.c_double * 6),
-                ("denominator", ctypes.c_double * 6),
-                *((name, ctypes.c_void_p) for name in ("shaper_delta", "shaper_q_prev", "shaper_target", "q_d",
-                                                       "qd_d", "qdd_d", "sp_position", "sp_torque",
-                                                       "sp_controlword")),
-                ("enable_operation", ctypes.c_longlong),
-                *((name, ctypes.c_void_p) for name in ("statusword", "node_fault", "q_obs"))]
+                ("out", CycleOutputs)]
 
 
 @lru_cache(maxsize=1)
 def load_elastic_cycle() -> ctypes.CDLL | None:
     """The compiled elastic cycle (``elastic_cycle.c``, built by :mod:`native`), or None (no compiler:
     the Python path runs every cycle, bit for bit the same)."""
-    lib = native.load_library(ELASTIC_CYCLE_SOURCE, _ELASTIC_CYCLE_CFLAGS, what="elastic controller cycle")
+    lib = native.load_library(ELASTIC_CYCLE_SOURCE, _ELASTIC_CYCLE_CFLAGS, what="elastic controller cycle",
+                              headers=[compiled_cycle.CYCLE_OUTPUTS_HEADER])
     if lib is not None:
         lib.elastic_cycle_run.restype = ctypes.c_int
         lib.elastic_cycle_run.argtypes = [ctypes.c_void_p, ctypes.c_longlong, ctypes.c_void_p]
@@ -95,24 +89,8 @@ class ElasticCycle:
         plan.n_knots = n
         (plan.link_q, plan.link_qd, plan.link_qdd, plan.motor_q, plan.motor_qd, plan.motor_qdd,
          plan.motor_torque) = (a.ctypes.data for a in self._keep)
-        sh = ctrl._shaper
-        plan.shape = int(sh is not None)
-        if sh is not None:
-            plan.lead[:] = np.broadcast_to(sh._lead, (6,)).tolist()
-            plan.g_over_t[:] = np.broadcast_to(sh._g_over_t, (6,)).tolist()
-            plan.denominator[:] = np.broadcast_to(sh._denominator, (6,)).tolist()
-            plan.shaper_delta = _address(sh._delta, np.float64, "shaper delta")
-            plan.shaper_q_prev = _address(sh._q_prev, np.float64, "shaper q_prev")
-            plan.shaper_target = _address(sh.target, np.float64, "shaper target")
-        plan.q_d = _address(ctrl._q_d, np.float64, "q_d")
-        plan.qd_d = _address(ctrl._qd_d, np.float64, "qd_d")
-        plan.qdd_d = _address(ctrl._qdd_d, np.float64, "qdd_d")
-        sp = ctrl.setpoints
-        plan.sp_position = _address(sp.position, np.float64, "setpoints.position")
-        plan.sp_torque = _address(sp.torque_offset, np.float64, "setpoints.torque_offset")
-        plan.sp_controlword = _address(sp.controlword, np.int64, "setpoints.controlword")
-        plan.enable_operation = int(Command.ENABLE_OPERATION)
-        self._keep += [sh, ctrl._q_d, ctrl._qd_d, ctrl._qdd_d, sp.position, sp.torque_offset, sp.controlword]
+        self._keep += bind_outputs(plan.out, ctrl._shaper, (ctrl._q_d, ctrl._qd_d, ctrl._qdd_d), ctrl.setpoints,
+                                   Command.ENABLE_OPERATION)
         self.plan = plan
         self._plan_ref = ctypes.byref(plan)
         self._run = lib.elastic_cycle_run
@@ -121,11 +99,7 @@ class ElasticCycle:
     def bind_observed(self, statusword: np.ndarray, node_fault: np.ndarray, position: np.ndarray) -> None:
         """Point the cycle at the arrays it reads (int64 statuswords, bool node faults, float64
         positions, (6,) each); ValueError when they do not have that layout."""
-        plan = self.plan
-        plan.statusword = _address(statusword, np.int64, "observed.statusword")
-        plan.node_fault = _address(node_fault, np.bool_, "observed.node_fault")
-        plan.q_obs = _address(position, np.float64, "observed.position")
-        self._observed = (statusword, node_fault, position)
+        self._observed = bind_observed(self.plan.out, statusword, node_fault, position)
 
     def run(self, knot: int, log_row_address: int) -> int:
         """The cycle at ``knot``, writing the log row (36 doubles) at ``log_row_address`` (0: none);
@@ -217,33 +191,28 @@ class ElasticController(Controller):
         set-points, shaper state, log row and timing as :meth:`Controller.run_cycle` with
         :meth:`_compute`. False when the Python path must take this cycle (a drive not in
         Operation enabled or a node fault, unusual observed arrays); nothing has changed then."""
-        fast = self._fast
-        bound = self._observed_bound
-        if bound is None or observed.position is not bound[0] or observed.statusword is not bound[1] \
-                or observed.node_fault is not bound[2]:
-            try:
-                fast.bind_observed(observed.statusword, observed.node_fault, observed.position)
-            except ValueError:
-                return False
-            self._observed_bound = (observed.position, observed.statusword, observed.node_fault)
+        if not self._bind_fast_observed(observed):
+            return False
         phase = self.phase
         tau = 0.0 if phase is Phase.SETTLING else (cycle - self.motion_start_cycle) * self.config.period_s
         ref = self.reference
         k, _ = ref.grid.locate(ref.t_start + tau)
-        log = self.log
-        if fast.run(k, log.next_joints_address()) != 0:
+        fast = self._fast
+        if self._shape_gap != 1 and self._shaper is not None:
+            # a jump the bus interpolates: shape over the samples in between (drive_compensation)
+            sh, plan = self._shaper, fast.plan.out  # the shaper gains the C cycle reads
+            g_over_t, denominator = sh.gains(self._shape_gap)
+            plan.g_over_t[:] = np.broadcast_to(g_over_t, (6,)).tolist()
+            plan.denominator[:] = np.broadcast_to(denominator, (6,)).tolist()
+            status = fast.run(k, self.log.next_joints_address())
+            plan.g_over_t[:] = np.broadcast_to(sh._g_over_t, (6,)).tolist()
+            plan.denominator[:] = np.broadcast_to(sh._denominator, (6,)).tolist()
+        else:
+            status = fast.run(k, self.log.next_joints_address())
+        if status != 0:
             return False
         self._last_knot = k
-        self._last_cycle = cycle
-        self.kernel_cycles += 1
-        if phase is Phase.SETTLING and cycle >= self._settle_until:
-            phase = self.phase = Phase.TRACKING
-            self.motion_start_cycle = cycle
-        if phase is Phase.TRACKING and tau >= ref.duration:
-            phase = self.phase = Phase.FINISHED
-        elapsed = time.perf_counter_ns() - started
-        self.timer.record(elapsed, time.thread_time_ns() - cpu_started)
-        log.commit(t, t + self.config.lead_time_s, int(phase), tau, elapsed * 1e-3, 0)
+        self._fast_step_done(cycle, t, phase, tau, ref.duration, started, cpu_started, 0)
         return True
 
     def _enable(self, observed, sp: Setpoints) -> None:
@@ -277,7 +246,7 @@ class ElasticController(Controller):
             sh._q_prev[:] = q_d
             target = np.add(q_d, sh._delta, out=sh.target)
         else:
-            target = sh.shape(m.q[k], m.qd[k], m.qdd[k])
+            target = sh.shape(m.q[k], m.qd[k], m.qdd[k], self._shape_gap)
         self._last_knot = k
         return target
 

@@ -20,67 +20,29 @@
  *
  * Compile with -ffp-contract=off so no multiply-add is fused (numpy does not fuse).
  */
-#include <string.h>
-
-typedef long long int ec_int;
+#include "cycle_outputs.h"
 
 enum { ELASTIC_PYTHON = 2 };
 
 typedef struct {
-    ec_int n_knots;
+    cycle_int n_knots;
     /* references, (n_knots, 6) C-contiguous doubles each */
     const double *link_q, *link_qd, *link_qdd;
     const double *motor_q, *motor_qd, *motor_qdd, *motor_torque;
-    /* drive set-point shaping */
-    ec_int shape;
-    double lead[6], g_over_t[6], denominator[6];
-    double *shaper_delta, *shaper_q_prev, *shaper_target;  /* SetpointShaper's arrays (6 each) */
-    /* what the cycle writes */
-    double *q_d, *qd_d, *qdd_d;                           /* Controller's desired motion (6 each) */
-    double *sp_position, *sp_torque;                      /* Setpoints arrays (6 each) */
-    ec_int *sp_controlword;                               /* Setpoints controlwords (int64, 6) */
-    ec_int enable_operation;
-    /* what the cycle reads (ObservedActuals, bound by the caller) */
-    const ec_int *statusword;                             /* int64, 6 */
-    const unsigned char *node_fault;                      /* bool, 6 */
-    const double *q_obs;                                  /* rad, 6 */
+    cycle_outputs out;  /* shaping, what the cycle writes and reads (cycle_outputs.h) */
 } elastic_plan;
 
-int elastic_cycle_run(elastic_plan *p, ec_int k, double *log_row)
+int elastic_cycle_run(elastic_plan *p, cycle_int k, double *log_row)
 {
-    int i;
-    for (i = 0; i < 6; ++i) {
-        if ((p->statusword[i] & 0x6F) != 0x27 || p->node_fault[i]) return ELASTIC_PYTHON;
-    }
+    cycle_outputs *o = &p->out;
+    if (!cycle_drives_enabled(o)) return ELASTIC_PYTHON;
     if (k < 0 || k >= p->n_knots) return ELASTIC_PYTHON;
-    const ec_int row = 6 * k;
-    memcpy(p->q_d, p->link_q + row, 6 * sizeof(double));
-    memcpy(p->qd_d, p->link_qd + row, 6 * sizeof(double));
-    memcpy(p->qdd_d, p->link_qdd + row, 6 * sizeof(double));
-    memcpy(p->sp_torque, p->motor_torque + row, 6 * sizeof(double));
-    if (p->shape) {
-        const double *q = p->motor_q + row, *qd = p->motor_qd + row, *qdd = p->motor_qdd + row;
-        for (i = 0; i < 6; ++i) {
-            double w = qdd[i] * p->lead[i];
-            w += qd[i];
-            w -= p->g_over_t[i] * (q[i] - p->shaper_q_prev[i]);
-            w += p->g_over_t[i] * p->shaper_delta[i];
-            p->shaper_delta[i] = w / p->denominator[i];
-            p->shaper_q_prev[i] = q[i];
-            p->shaper_target[i] = q[i] + p->shaper_delta[i];
-            p->sp_position[i] = p->shaper_target[i];
-        }
-    } else {
-        memcpy(p->sp_position, p->motor_q + row, 6 * sizeof(double));
-    }
-    for (i = 0; i < 6; ++i) p->sp_controlword[i] = p->enable_operation;
-    if (log_row) {
-        memcpy(log_row, p->q_d, 6 * sizeof(double));
-        memcpy(log_row + 6, p->qd_d, 6 * sizeof(double));
-        memcpy(log_row + 12, p->qdd_d, 6 * sizeof(double));
-        memcpy(log_row + 18, p->sp_torque, 6 * sizeof(double));
-        memcpy(log_row + 24, p->sp_position, 6 * sizeof(double));
-        memcpy(log_row + 30, p->q_obs, 6 * sizeof(double));
-    }
+    const cycle_int row = 6 * k;
+    memcpy(o->q_d, p->link_q + row, 6 * sizeof(double));
+    memcpy(o->qd_d, p->link_qd + row, 6 * sizeof(double));
+    memcpy(o->qdd_d, p->link_qdd + row, 6 * sizeof(double));
+    memcpy(o->sp_torque, p->motor_torque + row, 6 * sizeof(double));
+    cycle_write_targets(o, p->motor_q + row, p->motor_qd + row, p->motor_qdd + row);
+    cycle_write_log(o, log_row);
     return 0;
 }

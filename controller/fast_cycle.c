@@ -21,11 +21,9 @@
  *
  * Compile with -ffp-contract=off so no multiply-add is fused (numpy does not fuse).
  */
-#include <string.h>
+#include "cycle_outputs.h"
 
-typedef long long int cc_int;
-
-int controller_cycle(const double **arg, double **res, cc_int *iw, double *w, int mem);
+int controller_cycle(const double **arg, double **res, cycle_int *iw, double *w, int mem);
 
 enum { FAST_STOP_CHECK = 2, FAST_REJECTED = -1 };
 
@@ -33,7 +31,7 @@ typedef struct {
     /* kernel call */
     const double **arg;   /* arg[0] = state, arg[1] = ref (set here), arg[2] = &h */
     double **res;         /* res[0] = result, res[1] = tau, res[2] = info */
-    cc_int *iw;
+    cycle_int *iw;
     double *w;
     double *state;        /* 18: q, qd, qdd of the last accepted cycle */
     double *result;       /* 18 */
@@ -43,26 +41,15 @@ typedef struct {
     double accept2, tol2, singular_tol;
     double lower[6], upper[6];
     /* what the cycle writes */
-    cc_int model_based;   /* torque offset = tau (else 0) */
-    cc_int shape;         /* drive set-point shaping on */
-    double lead[6], g_over_t[6], denominator[6];
-    double *shaper_delta, *shaper_q_prev, *shaper_target;  /* SetpointShaper's arrays (6 each) */
-    double *q_d, *qd_d, *qdd_d;                           /* Controller's desired motion (6 each) */
-    double *sp_position, *sp_torque;                      /* Setpoints arrays (6 each) */
-    cc_int *sp_controlword;                               /* Setpoints controlwords (int64, 6) */
-    cc_int enable_operation;
-    /* what the cycle reads (ObservedActuals, bound by the caller) */
-    const cc_int *statusword;                             /* int64, 6 */
-    const unsigned char *node_fault;                      /* bool, 6 */
-    const double *q_obs;                                  /* rad, 6 */
+    cycle_int model_based;   /* torque offset = tau (else 0) */
+    cycle_outputs out;       /* shaping, what the cycle writes and reads (cycle_outputs.h) */
 } fast_plan;
 
 int fast_cycle_run(fast_plan *p, const double *ref, double *log_row)
 {
     int i;
-    for (i = 0; i < 6; ++i) {
-        if ((p->statusword[i] & 0x6F) != 0x27 || p->node_fault[i]) return FAST_STOP_CHECK;
-    }
+    cycle_outputs *o = &p->out;
+    if (!cycle_drives_enabled(o)) return FAST_STOP_CHECK;
     p->arg[1] = ref;
     if (controller_cycle(p->arg, p->res, p->iw, p->w, 0) != 0) return FAST_REJECTED;
     const double *r = p->result;
@@ -72,31 +59,11 @@ int fast_cycle_run(fast_plan *p, const double *ref, double *log_row)
         if (!(p->lower[i] <= r[i] && r[i] <= p->upper[i])) return FAST_REJECTED;
     }
     memcpy(p->state, r, 18 * sizeof(double));
-    memcpy(p->q_d, r, 6 * sizeof(double));
-    memcpy(p->qd_d, r + 6, 6 * sizeof(double));
-    memcpy(p->qdd_d, r + 12, 6 * sizeof(double));
-    for (i = 0; i < 6; ++i) p->sp_torque[i] = p->model_based ? p->tau[i] : 0.0;
-    if (p->shape) {
-        for (i = 0; i < 6; ++i) {
-            const double q = r[i], qd = r[6 + i], qdd = r[12 + i];
-            double w = qdd * p->lead[i];
-            w += qd;
-            w -= p->g_over_t[i] * (q - p->shaper_q_prev[i]);
-            w += p->g_over_t[i] * p->shaper_delta[i];
-            p->shaper_delta[i] = w / p->denominator[i];
-            p->shaper_q_prev[i] = q;
-            p->shaper_target[i] = q + p->shaper_delta[i];
-            p->sp_position[i] = p->shaper_target[i];
-        }
-    } else {
-        memcpy(p->sp_position, r, 6 * sizeof(double));
-    }
-    for (i = 0; i < 6; ++i) p->sp_controlword[i] = p->enable_operation;
-    if (log_row) {
-        memcpy(log_row, r, 18 * sizeof(double));
-        memcpy(log_row + 18, p->sp_torque, 6 * sizeof(double));
-        memcpy(log_row + 24, p->sp_position, 6 * sizeof(double));
-        memcpy(log_row + 30, p->q_obs, 6 * sizeof(double));
-    }
+    memcpy(o->q_d, r, 6 * sizeof(double));
+    memcpy(o->qd_d, r + 6, 6 * sizeof(double));
+    memcpy(o->qdd_d, r + 12, 6 * sizeof(double));
+    for (i = 0; i < 6; ++i) o->sp_torque[i] = p->model_based ? p->tau[i] : 0.0;
+    cycle_write_targets(o, r, r + 6, r + 12);
+    cycle_write_log(o, log_row);
     return e2 <= p->tol2 ? 0 : 1;
 }

@@ -97,6 +97,22 @@ class _Grid:
         return k, t - float(self.times[k])
 
 
+class _OnGrid:
+    """What both trajectory kinds say of their knot grid ``self.grid``."""
+
+    grid: _Grid
+
+    @property
+    def t_start(self) -> float:
+        """Time of the first knot in s."""
+        return self.grid.t_start
+
+    @property
+    def duration(self) -> float:
+        """Length of the trajectory in s."""
+        return self.grid.duration
+
+
 def quintic_hermite(p0: np.ndarray, v0: np.ndarray, a0: np.ndarray, p1: np.ndarray, v1: np.ndarray, a1: np.ndarray,
               h: float, s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Quintic Hermite through (p, v, a) at s = 0 and 1 over an interval of ``h`` s: value,
@@ -137,7 +153,7 @@ class TcpSample:
     acceleration: np.ndarray
 
 
-class TcpTrajectory:
+class TcpTrajectory(_OnGrid):
     """A planned flange trajectory sampled on a uniform grid (see module docstring).
 
     Arrays: ``times`` (n,) s; ``position`` (n, 3) m; ``rotation`` (n, 3, 3);
@@ -178,15 +194,6 @@ class TcpTrajectory:
         acc = np.hstack([_array(ref, "acceleration", (n, 3), what),
                          _array(ref, "angular_acceleration", (n, 3), what)])
         return cls(times, _array(ref, "position", (n, 3), what), rotation, twist, acc, dt)
-
-    @property
-    def t_start(self) -> float:
-        return self.grid.t_start
-
-    @property
-    def duration(self) -> float:
-        """Length of the trajectory in s."""
-        return self.grid.duration
 
     def sample(self, t: float) -> TcpSample:
         """The desired flange motion at time ``t`` (s, clamped to the trajectory).
@@ -242,7 +249,7 @@ class JointSample:
     qdd: np.ndarray
 
 
-class JointTrajectory:
+class JointTrajectory(_OnGrid):
     """A planned joint trajectory sampled on a uniform grid (see module docstring).
 
     Arrays ``times`` (n,) s and ``q``, ``qd``, ``qdd`` (n, 6) in rad, rad/s, rad/s^2.
@@ -280,15 +287,6 @@ class JointTrajectory:
             raise ReferenceError("JointTrajectory.from_planner_trajectory: expected an object with times t (n >= 2,)")
         t0 = float(t[0])
         return cls.from_sampler(lambda times: trajectory.sample(times + t0), float(t[-1]) - t0, dt)
-
-    @property
-    def t_start(self) -> float:
-        return self.grid.t_start
-
-    @property
-    def duration(self) -> float:
-        """Length of the trajectory in s."""
-        return self.grid.duration
 
     def sample(self, t: float) -> JointSample:
         """Joint references at ``t`` (s, clamped); at a knot the stored rows (views)."""

@@ -5,9 +5,10 @@ the controller's cycle kernel, the laser tracker's kernel, the PtP node function
 the FMU build find the compiler, build, cache, load and report failures here:
 
 * **compiler**: ``$CC`` if set, else ``cc``, else ``gcc`` on the PATH (:func:`compiler`);
-* **cache key**: SHA-256 over the artefact's name, its C sources (or the caller's key
-  for generated code), the compiler's path, size and modification time, the flags, the
-  include directories and the Python version and ABI (:func:`build`);
+* **cache key**: SHA-256 over the artefact's name, its C sources and the headers they
+  include from their own folder (or the caller's key for generated code), the compiler's
+  path, size and modification time, the flags, the include directories and the Python
+  version and ABI (:func:`build`);
 * **cache directory**: ``$COSIM_CACHE_DIR``, else ``$XDG_CACHE_HOME/rx130l-cosim/native``,
   else ``~/.cache/rx130l-cosim/native`` — per user, created ``0700``, refused when it is not
   owned by the user or writable by others; when no such directory can be created, a
@@ -142,12 +143,16 @@ def run_compiler(command: Sequence[str], what: str, timeout: float = BUILD_TIMEO
                                f"{result.stderr[-4000:]}")
 
 
-def build(name: str, sources: Sequence[Path] = (), *, generate: Callable[[Path], Sequence[Path]] | None = None,
-          key: bytes = b"", cflags: Sequence[str] = DEFAULT_CFLAGS, include_dirs: Sequence[Path | str] = (),
+def build(name: str, sources: Sequence[Path] = (), *, headers: Sequence[Path] = (),
+          generate: Callable[[Path], Sequence[Path]] | None = None, key: bytes = b"",
+          cflags: Sequence[str] = DEFAULT_CFLAGS, include_dirs: Sequence[Path | str] = (),
           python_extension: bool = False, cached_only: bool = False) -> Path:
     """Compile ``sources`` (C files) and the files ``generate(folder)`` writes into a shared
     library named ``name`` in the cache, once per cache key; return the library's path.
 
+    ``headers``: files the sources ``#include "..."`` from their own folder: copied next to
+    them for the compiler and hashed into the cache key like the sources (an edited header
+    rebuilds), not compiled on their own.
     ``generate`` is called only when the library is not cached yet: code generators pass
     their own identity as ``key`` (e.g. a hash of the model and the generator's version)
     so a cached library is found without generating anything. Files ``generate`` writes
@@ -170,7 +175,7 @@ def build(name: str, sources: Sequence[Path] = (), *, generate: Callable[[Path],
     for part in (name.encode(), key, _compiler_identity(cc), " ".join(cflags).encode(), "\0".join(includes).encode(),
                  sys.version.encode(), suffix.encode(), platform.machine().encode()):
         digest.update(part + b"\0")
-    for source in sources:
+    for source in (*sources, *headers):
         digest.update(Path(source).name.encode() + b"\0" + Path(source).read_bytes() + b"\0")
     root = cache_root()
     target = root / f"{name}-{digest.hexdigest()[:16]}"
@@ -189,6 +194,8 @@ def build(name: str, sources: Sequence[Path] = (), *, generate: Callable[[Path],
             for source in sources:
                 shutil.copy2(source, work / Path(source).name)
                 c_files.append(work / Path(source).name)
+            for header in headers:
+                shutil.copy2(header, work / Path(header).name)
             if generate is not None:
                 c_files += [Path(p) for p in generate(work)]
             command = [cc, *cflags, *(f"-I{p}" for p in includes), *map(str, c_files),
@@ -259,10 +266,13 @@ def optional(what: str, make: Callable[[], T], instead: str = PYTHON_PATH) -> T 
         return None
 
 
-def load_library(source: Path, cflags: Sequence[str] = DEFAULT_CFLAGS, what: str | None = None) -> ctypes.CDLL | None:
-    """The C file ``source`` built and loaded with ctypes, or None (see :func:`optional`)."""
+def load_library(source: Path, cflags: Sequence[str] = DEFAULT_CFLAGS, what: str | None = None,
+                 headers: Sequence[Path] = ()) -> ctypes.CDLL | None:
+    """The C file ``source`` (including ``headers``, see :func:`build`) built and loaded with
+    ctypes, or None (see :func:`optional`)."""
     source = Path(source)
-    return optional(what or f"{source.name}", lambda: load_ctypes(build(source.stem, [source], cflags=cflags)))
+    return optional(what or f"{source.name}",
+                    lambda: load_ctypes(build(source.stem, [source], headers=headers, cflags=cflags)))
 
 
 __all__ = ["BUILD_TIMEOUT_S", "DEFAULT_CFLAGS", "ENV_CACHE", "ENV_MODE", "MODES", "NativeBuildError", "NotBuiltYet", "build",

@@ -56,3 +56,19 @@ def build_cell(scenario_path: Path, out_dir: Path):
 def column_block(recording, names: list[str]) -> np.ndarray:
     cols = recording.columns
     return recording.data[:, [cols.index(n) for n in names]]
+
+
+def hil_scenario(tmp_path: Path, stop_time: str = "5 s", loss_threshold: int = 80) -> Path:
+    """scenarios/hil.toml at a 2 ms bus cycle (drives sampling at it too), stopping at
+    ``stop_time``, the drives' loss-of-SoC/PReq counters tripping at ``loss_threshold``
+    (0: never), written to ``tmp_path``/hil.toml."""
+    text = (ROOT / "scenarios" / "hil.toml").read_text()
+    text = text.replace('stop_time = "6 s"', f'stop_time = "{stop_time}"')
+    text = text.replace('period = "400 us"', 'period = "2 ms"').replace("cycle_time_us = 400", "cycle_time_us = 2000")
+    text = text.replace('builtin = "servo_drive"',
+                        'builtin = "servo_drive"\n[fmus.parameters]\nposition_sample_time = 0.002  # s, the bus cycle')
+    text = text.replace("[fieldbus.recording]", f"[fieldbus.thresholds]\ncn_loss_of_soc = {loss_threshold}\n"
+                        f"cn_loss_of_preq = {loss_threshold}\n[fieldbus.recording]")
+    path = tmp_path / "hil.toml"
+    path.write_text(text)
+    return path

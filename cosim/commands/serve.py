@@ -128,18 +128,15 @@ def _check_cpu_and_hosts(cpu: str | None, accept_from, peer: str | None = None) 
         usable = sorted(os.sched_getaffinity(0))
         if not (cpu.strip().isdigit() and int(cpu) in usable):
             raise InvalidInput(f"--cpu: expected 'auto', 'none' or a CPU this process may use {usable}, got {cpu!r}")
+    hosts = []  # (option, host, what the option expects)
     for item in accept_from or ():
         host, sep, port = str(item).rpartition(":")
-        host = host if sep and port.isdigit() else str(item)
-        try:
-            socket.gethostbyname(host)
-        except OSError as exc:
-            raise InvalidInput(f"--accept-from: cannot resolve {host!r} ({exc}); expected hosts or host:port of "
-                               f"this network") from None
+        hosts.append(("--accept-from", host if sep and port.isdigit() else str(item),
+                      "hosts or host:port of this network"))
     if peer is not None:
-        host = str(peer).rpartition(":")[0]
+        hosts.append((f"--peer {peer!r}", str(peer).rpartition(":")[0], "the controller's host:port"))
+    for option, host, expected in hosts:
         try:
             socket.gethostbyname(host)
         except OSError as exc:
-            raise InvalidInput(f"--peer {peer!r}: cannot resolve {host!r} ({exc}); expected the controller's "
-                               f"host:port") from None
+            raise InvalidInput(f"{option}: cannot resolve {host!r} ({exc}); expected {expected}") from None

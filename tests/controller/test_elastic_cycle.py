@@ -7,13 +7,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from controller import ControllerConfig, DriveLoopModel, Phase, speed_comparison_lead
+from controller import ControllerConfig, Phase
 from controller.elastic import ELASTIC_MODE, ElasticController, load_elastic_cycle
 from controller.reference import JointTrajectory
-from fieldbus import Cia402DriveModel, ObservedActuals
+from controller_support import PERIOD, drive, drive_model, logged
 from robot.dynamics import RobotDynamics
 
-PERIOD = 400e-6
 DYN = RobotDynamics(payload=[8.0, 0.0, 0.0, 0.08])
 A = np.array([0.3, -0.5, 0.4, 0.8, -0.6, 1.0])
 W = np.array([2.0, 3.0, 1.5, 4.0, 5.0, 3.5])
@@ -30,29 +29,11 @@ def reference():
     return JointTrajectory(t, q, qd, qdd, PERIOD)
 
 
-def drive_model() -> DriveLoopModel:
-    lead = speed_comparison_lead(PERIOD, 200e-6, 0.25e-3)
-    return DriveLoopModel(position_kv=np.array([54.6, 168.7, 311.3, 306.7, 317.7, 317.7]),
-                          speed_feedforward_gain=np.ones(6), lead_s=np.full(6, lead), period_s=PERIOD)
-
-
 def run(ref, fast: bool, cycles: int, shaped: bool = True, fault_at: int | None = None, cls=ElasticController):
     ctrl = cls(ref, ControllerConfig(mode=ELASTIC_MODE, settle_time_s=0.002, fast_cycle=fast), dynamics=DYN,
                drive_model=drive_model() if shaped else None)
-    drives = [Cia402DriveModel() for _ in range(6)]
-    obs = ObservedActuals.zeros(6)
-    obs.fresh[:] = True
-    obs.position[:] = ctrl.q_start
-    obs.statusword[:] = [d.statusword for d in drives]
-    for k in range(cycles):
-        sp = ctrl.run_cycle(k, k * PERIOD, obs)
-        for i, d in enumerate(drives):
-            d.step(int(sp.controlword[i]), fault=(fault_at is not None and k >= fault_at and i == 4))
-        obs.statusword[:] = [d.statusword for d in drives]
-        obs.position[:] = 0.5 * (obs.position + sp.position)
-    log = ctrl.log.columns()
-    log.pop("compute_us")
-    return log, ctrl
+    drive(ctrl, range(cycles), fault_at=fault_at, fault_node=4)
+    return logged(ctrl), ctrl
 
 
 @pytest.mark.parametrize("shaped", [True, False])

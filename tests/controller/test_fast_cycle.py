@@ -6,24 +6,17 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from controller import Controller, ControllerConfig, DriveLoopModel, Phase, TcpTrajectory, speed_comparison_lead
-from fieldbus import Cia402DriveModel, ObservedActuals
+from controller import Controller, ControllerConfig, Phase, TcpTrajectory
+from controller_support import PERIOD, drive, drive_model, logged
+from fieldbus import ObservedActuals
 from planners.iso9283 import ISO_Q_HINT, iso9283_test_path
 from robot.dynamics import RobotDynamics
-
-PERIOD = 400e-6
 
 
 @pytest.fixture(scope="module")
 def tcp_ref():
     path = iso9283_test_path()
     return TcpTrajectory.from_reference(path.reference, path.duration, PERIOD)
-
-
-def drive_model() -> DriveLoopModel:
-    lead = speed_comparison_lead(PERIOD, 200e-6, 0.25e-3)
-    return DriveLoopModel(position_kv=np.array([54.6, 168.7, 311.3, 306.7, 317.7, 317.7]),
-                          speed_feedforward_gain=np.ones(6), lead_s=np.full(6, lead), period_s=PERIOD)
 
 
 def run(ref, mode: str, fast: bool, cycles: int, fault_at: int | None = None, reject: bool = False):
@@ -35,20 +28,8 @@ def run(ref, mode: str, fast: bool, cycles: int, fault_at: int | None = None, re
         ctrl._accept2 = 0.0
         if ctrl._fast is not None:
             ctrl._fast.plan.accept2 = 0.0
-    drives = [Cia402DriveModel() for _ in range(6)]
-    obs = ObservedActuals.zeros(6)
-    obs.fresh[:] = True
-    obs.position[:] = ctrl.q_start
-    obs.statusword[:] = [d.statusword for d in drives]
-    for k in range(cycles):
-        sp = ctrl.run_cycle(k, k * PERIOD, obs)
-        for i, d in enumerate(drives):
-            d.step(int(sp.controlword[i]), fault=(fault_at is not None and k >= fault_at and i == 2))
-        obs.statusword[:] = [d.statusword for d in drives]
-        obs.position[:] = 0.5 * (obs.position + sp.position)
-    log = ctrl.log.columns()
-    log.pop("compute_us")
-    return log, ctrl
+    drive(ctrl, range(cycles), fault_at=fault_at, fault_node=2)
+    return logged(ctrl), ctrl
 
 
 @pytest.mark.parametrize("mode", ["model_based", "standard"])
@@ -77,18 +58,9 @@ def test_fast_cycle_refuses_unusual_observed_arrays(tcp_ref):
     ref_log, _ = run(tcp_ref, "model_based", False, 30)
     ctrl = Controller(tcp_ref, ControllerConfig(mode="model_based", settle_time_s=0.002), dynamics=RobotDynamics(),
                       q_hint=np.array(ISO_Q_HINT), drive_model=drive_model())
-    drives = [Cia402DriveModel() for _ in range(6)]
     obs = ObservedActuals.zeros(6)
     obs.statusword = obs.statusword.astype(np.int32)
-    obs.fresh[:] = True
-    obs.position[:] = ctrl.q_start
-    obs.statusword[:] = [d.statusword for d in drives]
-    for k in range(30):
-        sp = ctrl.run_cycle(k, k * PERIOD, obs)
-        for d, cw in zip(drives, sp.controlword.tolist()):
-            d.step(cw)
-        obs.statusword[:] = [d.statusword for d in drives]
-        obs.position[:] = 0.5 * (obs.position + sp.position)
+    drive(ctrl, range(30), observed=obs)
     log = ctrl.log.columns()
     assert ctrl.kernel_cycles > 15
     np.testing.assert_array_equal(log["target3"], ref_log["target3"])

@@ -8,13 +8,11 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from controller import Controller, ControllerConfig, DriveLoopModel, Phase, TcpTrajectory, speed_comparison_lead
-from fieldbus import Cia402DriveModel, ObservedActuals
+from controller import Controller, ControllerConfig, Phase, TcpTrajectory
+from controller_support import PERIOD, drive, drive_model
 from planners.iso9283 import ISO_Q_HINT, iso9283_test_path
 from robot.dynamics import RobotDynamics
 from robot.inverse_kinematics import NumericIK
-
-PERIOD = 400e-6
 
 
 @pytest.fixture(scope="module")
@@ -23,33 +21,9 @@ def tcp_ref():
     return TcpTrajectory.from_reference(path.reference, path.duration, PERIOD)
 
 
-def drive_model() -> DriveLoopModel:
-    lead = speed_comparison_lead(PERIOD, 200e-6, 0.25e-3)
-    return DriveLoopModel(position_kv=np.array([54.6, 168.7, 311.3, 306.7, 317.7, 317.7]),
-                          speed_feedforward_gain=np.ones(6), lead_s=np.full(6, lead), period_s=PERIOD)
-
-
 def make(ref, fast: bool = True) -> Controller:
     return Controller(ref, ControllerConfig(mode="model_based", settle_time_s=0.002, fast_cycle=fast),
                       dynamics=RobotDynamics(), q_hint=np.array(ISO_Q_HINT), drive_model=drive_model())
-
-
-def drive(ctrl: Controller, cycles: list[int], check=None) -> None:
-    """Run ``ctrl`` on the given cycle numbers (CiA 402 state machines, positions following
-    the targets); ``check(ctrl, cycle)`` after each."""
-    drives = [Cia402DriveModel() for _ in range(6)]
-    obs = ObservedActuals.zeros(6)
-    obs.fresh[:] = True
-    obs.position[:] = ctrl.q_start
-    obs.statusword[:] = [d.statusword for d in drives]
-    for k in cycles:
-        sp = ctrl.run_cycle(k, k * PERIOD, obs)
-        if check is not None:
-            check(ctrl, k)
-        for i, d in enumerate(drives):
-            d.step(int(sp.controlword[i]))
-        obs.statusword[:] = [d.statusword for d in drives]
-        obs.position[:] = sp.position
 
 
 def cycles_with_jumps(total: int, jumps: dict[int, int]) -> list[int]:
@@ -80,7 +54,7 @@ def test_jumped_cycle_stays_on_the_compiled_path_and_solves_the_ik(tcp_ref, fast
             np.testing.assert_allclose(jac @ c._qd_d, sample.twist, atol=1e-9)
             checked.append(k)
 
-    drive(ctrl, cycles_with_jumps(3200, jumps), check)
+    drive(ctrl, cycles_with_jumps(3200, jumps), half_way=False, check=check)
     assert ctrl.phase is Phase.TRACKING
     assert len(checked) == 2
     assert ctrl.fallback_cycles == 0  # never the Python-path IK
@@ -94,7 +68,7 @@ def test_without_jumps_the_cycle_is_unchanged(tcp_ref):
     logs = []
     for fast in (True, False):
         ctrl = make(tcp_ref, fast)
-        drive(ctrl, list(range(300)))
+        drive(ctrl, range(300), half_way=False)
         log = ctrl.log.columns()
         log.pop("compute_us")
         logs.append(log)
@@ -110,7 +84,7 @@ def test_warm_up_leaves_the_controller_as_it_was(tcp_ref):
     warmed.warm_up()
     assert warmed.fallback_cycles == 0 and warmed.kernel_cycles == 0
     for ctrl in (plain, warmed):
-        drive(ctrl, list(range(400)))
+        drive(ctrl, range(400), half_way=False)
     a, b = plain.log.columns(), warmed.log.columns()
     a.pop("compute_us"), b.pop("compute_us")
     for name, column in a.items():

@@ -13,6 +13,7 @@ import pytest
 from fieldbus import DriveActuals, FieldbusConfig, JointScaling, PowerlinkNetwork, Setpoints, decode
 from fieldbus.errors import FieldbusConfigError
 from fieldbus.telegrams import RxPdo1, encode_rpdo1, rpdo1_length
+from paced_support import paced_run
 
 PARAMS = tomllib.loads((Path(__file__).resolve().parents[2] / "robot" / "rx130l_params.toml").read_text())
 TRAIN = PARAMS["drive_train"]
@@ -189,45 +190,17 @@ def test_python_path_and_compiled_codec_apply_the_same(tmp_path, monkeypatch):
 # the paced cell side (virtual clock): a controller late in chosen cycles
 
 
-class Clock:
-    def __init__(self) -> None:
-        self.t = 0.0
-
-    def __call__(self) -> float:
-        return self.t
-
-
 PACED_SCALING = JointScaling([100.0] * 6, 2**20, [10.0] * 6)
 
 
 def _paced(lookahead, late=(), cycles=60, log_path=None):
-    from fieldbus import DriveEndpoint, ManagingNodeEndpoint
-    from fieldbus.simbus import unique_channel
+    def setpoint(k: int, sp: Setpoints) -> None:
+        sp.position[:] = 1e-3 * k * k
+        sp.torque_offset[:] = 0.1 * k
 
     config = {"seed": 1, "setpoint_lookahead": lookahead,  # counters: +8 per loss, no trip at two in a row
               "thresholds": {"cn_loss_of_soc": 40, "cn_loss_of_preq": 40}}
-    channel = unique_channel("hil")
-    mn = ManagingNodeEndpoint(config, PACED_SCALING, channel=channel)
-    cn = DriveEndpoint(config, PACED_SCALING, channel=channel, log_path=log_path)
-    clock = Clock()
-    sp, act = Setpoints.zeros(6), DriveActuals.zeros(6)
-    applied = []
-    for k in range(cycles):
-        sp.controlword[:] = 0x0F
-        sp.position[:] = 1e-3 * k * k
-        sp.torque_offset[:] = 0.1 * k
-        act.statusword[:] = 0x27
-        if k not in late:
-            mn.send_setpoints(k, sp)
-        clock.t = k * 4e-4 + 2e-4
-        a = cn.run_cycle_paced(k, act, deadline=clock.t, clock=clock)
-        applied.append((a.position.copy(), a.torque_offset.copy(), a.fresh.copy()))
-        if k in late:
-            mn.send_setpoints(k, sp)  # after the window: dropped as late in the next one
-        mn.collect_actuals(k)
-    cn.close()
-    mn.close()
-    return cn, applied
+    return paced_run(config, PACED_SCALING, cycles, setpoint, late=late, log_path=log_path)
 
 
 def test_paced_cell_covers_late_cycles_exactly_with_the_same_counters(tmp_path):

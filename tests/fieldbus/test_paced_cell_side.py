@@ -10,46 +10,18 @@ import pytest
 from fieldbus import DriveActuals, DriveEndpoint, JointScaling, ManagingNodeEndpoint, Setpoints
 from fieldbus.simbus import unique_channel
 from fieldbus.telegrams import RPDO1_BASE, SYNC_ID, TPDO1_BASE
+from paced_support import Clock, paced_run
 
 SCALING = JointScaling([100.0] * 6, 2**20, [10.0] * 6)
 CONFIG = {"seed": 1}
 
 
-class Clock:
-    """Wall time that moves only when told: every window has already closed."""
-
-    def __init__(self) -> None:
-        self.t = 0.0
-
-    def __call__(self) -> float:
-        return self.t
+def _ramp(k: int, sp: Setpoints) -> None:
+    sp.position[:] = 1e-3 * k
 
 
 def _run(late_cycles, cycles, log_path=None, skip=()):
-    channel = unique_channel("hil")
-    mn = ManagingNodeEndpoint(CONFIG, SCALING, channel=channel)
-    cn = DriveEndpoint(CONFIG, SCALING, channel=channel, log_path=log_path)
-    clock = Clock()
-    sp, act = Setpoints.zeros(6), DriveActuals.zeros(6)
-    applied = []
-    for k in range(cycles):
-        sp.controlword[:] = 0x0F
-        sp.position[:] = 1e-3 * k
-        act.statusword[:] = 0x27
-        on_time = k not in late_cycles and k not in skip
-        if on_time:
-            mn.send_setpoints(k, sp)
-        clock.t = k * 4e-4 + 2e-4
-        a = cn.run_cycle_paced(k, act, deadline=clock.t, clock=clock)
-        applied.append((a.position.copy(), a.fresh.copy()))
-        if k in late_cycles:
-            mn.send_setpoints(k, sp)  # after the window: arrives in the next one
-        if k in skip:
-            mn._begin(k)  # the controller skipped this cycle entirely (keeps its own numbering)
-        mn.collect_actuals(k)
-    cn.close()
-    mn.close()
-    return cn, applied
+    return paced_run(CONFIG, SCALING, cycles, _ramp, late=late_cycles, skip=skip, log_path=log_path)
 
 
 def _errors(cn, kind):
@@ -60,7 +32,7 @@ def test_on_time_controller_loses_nothing():
     cn, applied = _run(set(), 30)
     assert _errors(cn, "loss_of_preq") == [] and _errors(cn, "loss_of_soc") == []
     assert cn.frames_late == 0
-    assert all(fresh.all() for _, fresh in applied[1:])
+    assert all(fresh.all() for _, _, fresh in applied[1:])
 
 
 def test_late_cycles_are_lost_frames_with_counter_increments_in_exactly_those_cycles(tmp_path):
@@ -77,7 +49,7 @@ def test_late_cycles_are_lost_frames_with_counter_increments_in_exactly_those_cy
     # each late group arrives in the next window, where it is dropped
     assert cn.frames_late == 3 * 7
     # the set-point applied with one cycle of dead time is missing (held) after a lost cycle
-    assert not applied[11][1].any() and applied[12][1].all()
+    assert not applied[11][2].any() and applied[12][2].all()
     # the cell's CAN log: SoC and PReqs absent in the lost cycles, PRes every cycle
     frames = list(can.LogReader(str(tmp_path / "cell.blf")))
     soc_cycles = sorted(round(m.timestamp / 4e-4) for m in frames if m.arbitration_id == SYNC_ID)

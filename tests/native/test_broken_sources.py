@@ -28,49 +28,48 @@ def _broken_copy(source: Path, folder: Path) -> Path:
     return copy
 
 
+def _rebuilt(monkeypatch, folder, module, attribute, load):
+    """``load()`` (an ``lru_cache``d loader) with ``module.attribute`` (a source path) replaced by
+    a broken copy in ``folder``; the loader's cache cleared before and after."""
+    monkeypatch.setattr(module, attribute, _broken_copy(getattr(module, attribute), folder))
+    load.cache_clear()
+    try:
+        return load()
+    finally:
+        load.cache_clear()
+
+
 def _kernel(monkeypatch, folder):
     from cosim.master import kernel
 
-    monkeypatch.setattr(kernel, "SOURCE", _broken_copy(kernel.SOURCE, folder))
-    kernel.load_kernel.cache_clear()
-    try:
-        return kernel.load_kernel()
-    finally:
-        kernel.load_kernel.cache_clear()
+    return _rebuilt(monkeypatch, folder, kernel, "SOURCE", kernel.load_kernel)
 
 
 def _codec(monkeypatch, folder):
     from fieldbus import codec
 
     monkeypatch.delenv("FIELDBUS_CODEC", raising=False)
-    monkeypatch.setattr(codec, "SOURCE", _broken_copy(codec.SOURCE, folder))
-    codec.load_codec.cache_clear()
-    try:
-        return codec.load_codec()
-    finally:
-        codec.load_codec.cache_clear()
+    return _rebuilt(monkeypatch, folder, codec, "SOURCE", codec.load_codec)
 
 
 def _fmi3_adapter(monkeypatch, folder):
     from fmus import fmi3
 
-    monkeypatch.setattr(fmi3, "ADAPTER_SOURCE", _broken_copy(fmi3.ADAPTER_SOURCE, folder))
-    fmi3.load_fmi3_adapter.cache_clear()
-    try:
-        return fmi3.load_fmi3_adapter()
-    finally:
-        fmi3.load_fmi3_adapter.cache_clear()
+    return _rebuilt(monkeypatch, folder, fmi3, "ADAPTER_SOURCE", fmi3.load_fmi3_adapter)
 
 
 def _elastic_cycle(monkeypatch, folder):
     from controller import elastic
 
-    monkeypatch.setattr(elastic, "ELASTIC_CYCLE_SOURCE", _broken_copy(elastic.ELASTIC_CYCLE_SOURCE, folder))
-    elastic.load_elastic_cycle.cache_clear()
-    try:
-        return elastic.load_elastic_cycle()
-    finally:
-        elastic.load_elastic_cycle.cache_clear()
+    return _rebuilt(monkeypatch, folder, elastic, "ELASTIC_CYCLE_SOURCE", elastic.load_elastic_cycle)
+
+
+def _cycle_outputs_header(monkeypatch, folder):
+    """The header both controller cycles include: a broken copy breaks the build that includes
+    it (here the elastic cycle's: native.build puts the header next to the source)."""
+    from controller import compiled_cycle, elastic
+
+    return _rebuilt(monkeypatch, folder, compiled_cycle, "CYCLE_OUTPUTS_HEADER", elastic.load_elastic_cycle)
 
 
 def _ik_table(monkeypatch, folder):
@@ -133,6 +132,7 @@ COMPONENTS = [
     ("crash_guard", "crash guard", _crash_guard),
     ("controller_cycle", "controller cycle kernel", _controller_cycle),
     ("elastic_cycle", "elastic controller cycle", _elastic_cycle),
+    ("cycle_outputs_header", "elastic controller cycle", _cycle_outputs_header),
     ("ik_table", "compiled IK table", _ik_table),
 ]
 
@@ -150,10 +150,10 @@ def test_every_hand_written_c_source_is_covered():
     root = Path(__file__).resolve().parents[2]
     sources = {p.relative_to(root).as_posix() for package in ("native", "cosim", "fieldbus", "controller", "planners",
                                                               "robot", "calibration", "identification")
-               for pattern in ("*.c", "*.cpp") for p in (root / package).rglob(pattern)}
+               for pattern in ("*.c", "*.cpp", "*.h") for p in (root / package).rglob(pattern)}
     covered = {"cosim/master/kernel.c", "fieldbus/codec.c", "cosim/tracking/tracker_kernel.c",
                "cosim/results/crashguard.c", "controller/fast_cycle.c", "controller/elastic_cycle.c",
-               "controller/ik_table.cpp"}
+               "controller/ik_table.cpp", "controller/cycle_outputs.h"}
     assert sources == covered  # fmus/: fmi3_adapter.c here, the FMU sources below
 
 

@@ -48,6 +48,30 @@ def test_build_load_and_cache_hit(cache, tmp_path):
     assert not list(cache.glob(".twice-*"))  # no temporary build folder left behind
 
 
+def test_a_header_is_compiled_with_its_source_and_in_the_key(cache, tmp_path):
+    src, inc = tmp_path / "src", tmp_path / "inc"  # the header in another folder: build puts it next to the source
+    src.mkdir()
+    inc.mkdir()
+    header = inc / "factor.h"
+    header.write_text("#define FACTOR 2.0\n")
+    source = src / "scaled.c"
+    source.write_text('#include "factor.h"\ndouble scaled(double x) { return FACTOR * x; }\n')
+
+    def scaled(library: Path) -> float:
+        lib = native.load_ctypes(library)
+        lib.scaled.restype, lib.scaled.argtypes = native.ctypes.c_double, [native.ctypes.c_double]
+        return lib.scaled(21.0)
+
+    first = native.build("scaled", [source], headers=[header])
+    assert scaled(first) == 42.0
+    assert native.build("scaled", [source], headers=[header]) == first  # cached
+    header.write_text("#define FACTOR 3.0\n")
+    second = native.build("scaled", [source], headers=[header])
+    assert second != first and scaled(second) == 63.0  # the header is in the key
+    with pytest.raises(native.NativeBuildError, match="factor.h"):
+        native.build("scaled", [source])  # without it the compiler does not find it
+
+
 def test_generated_sources_and_side_files_build_once(cache):
     calls = []
 

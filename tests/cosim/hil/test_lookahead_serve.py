@@ -14,6 +14,7 @@ from pathlib import Path
 
 from fieldbus.canlog import open_log
 from fieldbus.telegrams import rpdo1_length
+from realtime_support import hil_scenario
 
 ROOT = Path(__file__).resolve().parents[3]
 PORT = 45000 + (os.getpid() % 400) * 10 + 4
@@ -78,16 +79,7 @@ def _runs(cycles):
 
 
 def test_served_cell_covers_unanswered_cycles_from_the_lookahead(tmp_path):
-    text = (ROOT / "scenarios" / "hil.toml").read_text()
-    text = text.replace('stop_time = "6 s"', 'stop_time = "2 s"')
-    text = text.replace('period = "400 us"', 'period = "2 ms"').replace("cycle_time_us = 400", "cycle_time_us = 2000")
-    text = text.replace('builtin = "servo_drive"',
-                        'builtin = "servo_drive"\n[fmus.parameters]\nposition_sample_time = 0.002  # s, the bus cycle')
-    # counters never trip (every loss is still counted), so every lost cycle is judged
-    text = text.replace("[fieldbus.recording]", "[fieldbus.thresholds]\ncn_loss_of_soc = 0\ncn_loss_of_preq = 0\n"
-                        "[fieldbus.recording]")
-    scenario = tmp_path / "hil.toml"
-    scenario.write_text(text)
+    scenario = hil_scenario(tmp_path, "2 s", loss_threshold=0)  # counters never trip: every lost cycle is judged
     out = tmp_path / "out"
     controller = subprocess.Popen([sys.executable, "-c", CONTROLLER, str(out / "hil_endpoint.json"), str(K),
                                    json.dumps(SKIPS)], env=_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE,

@@ -25,6 +25,7 @@ import numpy as np
 import pytest
 
 from cosim.api import RunResult
+from realtime_support import hil_scenario
 
 ROOT = Path(__file__).resolve().parents[3]
 EXAMPLE = ROOT / "examples" / "hil_external_controller.py"
@@ -32,18 +33,9 @@ PORT = 46000 + (os.getpid() % 400) * 10
 
 
 def _scenario(tmp_path: Path, stop_time: str = "5 s") -> Path:
-    text = (ROOT / "scenarios" / "hil.toml").read_text()
-    text = text.replace('stop_time = "6 s"', f'stop_time = "{stop_time}"')
-    text = text.replace('period = "400 us"', 'period = "2 ms"').replace("cycle_time_us = 400", "cycle_time_us = 2000")
-    text = text.replace('builtin = "servo_drive"',
-                        'builtin = "servo_drive"\n[fmus.parameters]\nposition_sample_time = 0.002  # s, the bus cycle')
     # a loaded test machine stalls a process by milliseconds now and then: the counters
     # trip after 10 lost cycles here (20 ms) instead of 2, a stop of the controller still trips them
-    text = text.replace("[fieldbus.recording]", "[fieldbus.thresholds]\ncn_loss_of_soc = 80\ncn_loss_of_preq = 80\n"
-                        "[fieldbus.recording]")
-    path = tmp_path / "hil.toml"
-    path.write_text(text)
-    return path
+    return hil_scenario(tmp_path, stop_time, loss_threshold=80)
 
 
 def _env() -> dict:
