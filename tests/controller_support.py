@@ -40,6 +40,15 @@ def drive(ctrl, cycles: Iterable[int], *, fault_at: int | None = None, fault_nod
         obs.position[:] = 0.5 * (obs.position + sp.position) if half_way else sp.position
 
 
+def cycles_with_jumps(total: int, jumps: dict[int, int]) -> list[int]:
+    """Cycle numbers 0..total-1 run by a controller that jumps ``jumps[k]`` cycles after cycle k."""
+    out, k = [], 0
+    while k < total:
+        out.append(k)
+        k += jumps.get(k, 1)
+    return out
+
+
 def logged(ctrl) -> dict:
     """The controller's log columns without the compute times (they differ run to run)."""
     log = ctrl.log.columns()

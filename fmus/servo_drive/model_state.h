@@ -49,6 +49,8 @@ typedef struct {
     int brake_anchor_pending;/* 1: closed, the anchor is taken at the next current sample */
     double brake_anchor;     /* rad, where the closed brake's spring is relaxed */
     double brake_torque;     /* N m joint side, at the last current sample */
+    double brake_preload;    /* N m joint side: the motor's torque when the power stage switched off,
+                                taken over by the brake as it closes (0 at power-up) */
 
     /* constants derived from the parameters at initialization */
     double counts_per_rad;   /* encoder counts per joint rad */

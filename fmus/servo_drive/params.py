@@ -59,6 +59,7 @@ _ENTRIES: tuple[tuple[str, str, int | None, str], ...] = (
     ("brake", "holding_torque_factor", None, "nonnegative"),
     ("brake", "natural_frequency", None, "positive"),
     ("brake", "damping_ratio", None, "nonnegative"),
+    ("brake", "closing_time", None, "nonnegative"),
 )
 
 
@@ -196,4 +197,5 @@ def drive_start_values(axis: int, robot: RobotParameters | None = None,
         "brake_damping": 2.0 * d("brake", "damping_ratio") * math.sqrt(brake_stiffness * j_max),
         "encoder_counts_per_rev": int(robot.encoder_counts_per_motor_rev),
         "quick_stop_option_code": int(drive.get("stops", "quick_stop_option_code")),
+        "brake_closing_time": d("brake", "closing_time"),
     }

@@ -39,7 +39,11 @@
  * Operation enabled, and again in Switch on disabled / Fault), opened when it is on;
  * both instantly. Closed, it is an elasto-plastic friction contact evaluated at every
  * current sample: a spring-damper to the position where it closed, its torque limited
- * to brake_holding_torque (beyond, it slips and the anchor is dragged along). Its
+ * to brake_holding_torque (beyond, it slips and the anchor is dragged along). A stop ramp
+ * that switches the power stage off (fault reaction, quick stop option 2) ends at
+ * standstill, then the motor holds the axis for brake_closing_time while the brake engages;
+ * the closed brake's spring starts loaded with the motor's last torque (it takes the load
+ * over without the axis moving); other switch-offs close it unloaded. Its
  * torque is part of tau_out (brake_torque output); torque_actual is the motor's only.
  *
  * Units: joint side rad, rad/s, N m; motor current A; voltage V; time s.
@@ -110,8 +114,12 @@ static void power_off(ModelState *s)
     s->following_error_flag = 0;
 }
 
-/* Close the brake when the power stage is off (anchored at the position measured at the
- * next current sample: at initialisation the inputs may not be set yet), open it otherwise. */
+/* Close the brake when the power stage is off (anchored at the next current sample: at
+ * initialisation the inputs may not be set yet), open it otherwise. At the end of a stop ramp
+ * and the brake's closing time the engaged brake takes over, where the shaft is, the load the
+ * motor held the resting axis with: its spring starts stretched by brake_preload /
+ * brake_stiffness (the joint is already deflected by that load; locking the motor shaft does
+ * not move it). Any other switch-off (power-up, disable voltage) closes it unloaded. */
 static void update_brake(Instance *inst)
 {
     ModelState *s = &inst->d.s;
@@ -129,8 +137,9 @@ static void brake_sample(Instance *inst)
     double stretch, tau;
     if (!s->brake_closed) return;
     if (s->brake_anchor_pending) {
-        s->brake_anchor = R(Q_MEAS);
+        s->brake_anchor = R(Q_MEAS) + s->brake_preload / k; /* spring torque = the motor's last torque */
         s->brake_anchor_pending = 0;
+        s->brake_preload = 0.0;
     }
     stretch = R(Q_MEAS) - s->brake_anchor;
     if (k * fabs(stretch) > limit) { /* slipping: the anchor follows at the holding torque */
@@ -346,12 +355,19 @@ static void position_sample(Instance *inst)
                 error, R(FOLLOWING_ERROR_WINDOW), ERROR_FOLLOWING);
         raise_fault(inst, ERROR_FOLLOWING);
     } else if (s->cia_state != CIA_OPERATION_ENABLED) {
-        /* standstill: ramp at zero and |speed| <= threshold for standstill_time (0x606F/0x6070) */
+        /* standstill: ramp at zero and |speed| <= threshold for standstill_time (0x606F/0x6070);
+         * then, before a switch-off, the motor holds the axis for brake_closing_time while the
+         * brake engages (counted on whatever the speed does) */
         int still = s->ramp_velocity == 0.0 && fabs(s->speed_filtered) <= R(STANDSTILL_VELOCITY);
-        s->standstill_samples = still ? s->standstill_samples + 1 : 0;
-        if (still && s->standstill_samples * ts >= R(STANDSTILL_TIME) - 1e-12) {
+        int reached = s->standstill_samples * ts >= R(STANDSTILL_TIME) - 1e-12;
+        int closed = s->standstill_samples * ts >= R(STANDSTILL_TIME) + R(BRAKE_CLOSING_TIME) - 1e-12;
+        if (!closed) s->standstill_samples = still || reached ? s->standstill_samples + 1 : 0;
+        closed = s->standstill_samples * ts >= R(STANDSTILL_TIME) + R(BRAKE_CLOSING_TIME) - 1e-12;
+        if (closed && (s->cia_state == CIA_FAULT_REACTION_ACTIVE || I(QUICK_STOP_OPTION_CODE) == 2)) {
+            /* the engaged brake takes over the torque the motor holds the resting axis with */
+            s->brake_preload = R(GEAR_RATIO) * R(TORQUE_CONSTANT) * s->current;
             if (s->cia_state == CIA_FAULT_REACTION_ACTIVE) enter(inst, CIA_FAULT);          /* 14 */
-            else if (I(QUICK_STOP_OPTION_CODE) == 2) enter(inst, CIA_SWITCH_ON_DISABLED);   /* 12 */
+            else enter(inst, CIA_SWITCH_ON_DISABLED);                                      /* 12 */
         }
     }
 }
@@ -475,6 +491,7 @@ static int initial_state(Instance *inst)
     s->brake_closed = 0;
     s->brake_anchor_pending = 0;
     s->brake_torque = 0.0;
+    s->brake_preload = 0.0;
     s->cia_state = CIA_SWITCH_ON_DISABLED; /* automatic after initialisation */
     update_brake(inst);                    /* closes the brake */
     s->position_actual = quantise(s, R(Q_MEAS));

@@ -109,4 +109,9 @@ def servo_drive_spec() -> FmuSpec:
     spec.add("unsupported_mode_requests", "Integer", OUTPUT,
              "how many times modes_of_operation was set to a value the drive does not support",
              depends_on=("modes_of_operation",))
+    spec.add("brake_closing_time", "Real", PARAMETER,
+             "holding brake closing time: at the end of a stop ramp that switches the power stage off (fault "
+             "reaction, quick stop option 2) the brake is commanded closed and the motor holds the axis this "
+             "long more before its power stage switches off; the brake then takes over the motor's torque",
+             unit="s", start=defaults["brake_closing_time"], min=0.0, max=10.0)
     return spec

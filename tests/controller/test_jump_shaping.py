@@ -15,7 +15,7 @@ import pytest
 from controller import Controller, ControllerConfig, ControllerInfo, TcpTrajectory
 from planners.iso9283 import ISO_Q_HINT, iso9283_test_path
 from robot.dynamics import RobotDynamics
-from controller_support import PERIOD, drive, drive_model
+from controller_support import PERIOD, cycles_with_jumps, drive, drive_model
 
 LOOKAHEAD = 4
 CYCLES = 2600
@@ -26,15 +26,6 @@ JUMPS = {1500: 2, 1700: 3, 1900: 5, 2100: 8}  # cycle -> jump (the last longer t
 def tcp_ref():
     path = iso9283_test_path()
     return TcpTrajectory.from_reference(path.reference, path.duration, PERIOD)
-
-
-def cycles_with_jumps(total: int, jumps: dict[int, int]) -> list[int]:
-    """Cycle numbers 0..total-1 run by a controller that jumps ``jumps[k]`` cycles after cycle k."""
-    out, k = [], 0
-    while k < total:
-        out.append(k)
-        k += jumps.get(k, 1)
-    return out
 
 
 def make(ref, fast: bool, lookahead: int) -> Controller:

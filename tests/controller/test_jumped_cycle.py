@@ -9,7 +9,7 @@ import pinocchio as pin
 import pytest
 
 from controller import Controller, ControllerConfig, Phase, TcpTrajectory
-from controller_support import PERIOD, drive, drive_model
+from controller_support import PERIOD, cycles_with_jumps, drive, drive_model
 from planners.iso9283 import ISO_Q_HINT, iso9283_test_path
 from robot.dynamics import RobotDynamics
 from robot.inverse_kinematics import NumericIK
@@ -24,14 +24,6 @@ def tcp_ref():
 def make(ref, fast: bool = True) -> Controller:
     return Controller(ref, ControllerConfig(mode="model_based", settle_time_s=0.002, fast_cycle=fast),
                       dynamics=RobotDynamics(), q_hint=np.array(ISO_Q_HINT), drive_model=drive_model())
-
-
-def cycles_with_jumps(total: int, jumps: dict[int, int]) -> list[int]:
-    out, k = [], 0
-    while k < total:
-        out.append(k)
-        k += jumps.get(k, 1)
-    return out
 
 
 @pytest.mark.parametrize("fast", [True, False])

@@ -13,6 +13,7 @@ SWITCH_ON_DISABLED, READY, SWITCHED_ON, ENABLED, QUICK_STOP, FAULT_REACTION, FAU
     0x40, 0x21, 0x23, 0x27, 0x07, 0x0F, 0x08)
 SHUTDOWN, SWITCH_ON, ENABLE, DISABLE_VOLTAGE, QUICK_STOP_CMD, FAULT_RESET = 0x06, 0x07, 0x0F, 0x00, 0x02, 0x80
 TS_P = 400e-6  # one position sample = one state-machine evaluation
+CLOSING = round(drive_start_values(4)["brake_closing_time"] / TS_P)  # samples the motor holds while the brake engages
 
 
 class Axis:
@@ -126,7 +127,7 @@ def test_quick_stop_ramp(option_code, final):
     axis.run(ENABLE, samples=100)
     assert axis.qd == pytest.approx(2.0, rel=1e-3)
     axis.velocity = 0.0  # the master would freeze the target; the drive ignores it anyway
-    states, speeds, slope = _ramp_deceleration(axis, QUICK_STOP, QUICK_STOP_CMD, 300)
+    states, speeds, slope = _ramp_deceleration(axis, QUICK_STOP, QUICK_STOP_CMD, 300 + CLOSING)
     assert states[0] == QUICK_STOP                     # 11
     assert slope == pytest.approx(-values["quick_stop_deceleration"], rel=0.05)
     assert states[-1] == final and abs(speeds[-1]) <= values["standstill_velocity"]
@@ -147,7 +148,7 @@ def test_fault_reaction_fault_and_reset():
     axis.velocity = 2.0
     axis.run(ENABLE, samples=100)
     axis.velocity = 0.0
-    states, speeds, slope = _ramp_deceleration(axis, FAULT_REACTION, ENABLE, 250, fault_code=0x8130)
+    states, speeds, slope = _ramp_deceleration(axis, FAULT_REACTION, ENABLE, 250 + CLOSING, fault_code=0x8130)
     assert states[0] == FAULT_REACTION                 # 13
     assert slope == pytest.approx(-values["fault_reaction_deceleration"], rel=0.05)
     assert states[-1] == FAULT                         # 14
@@ -169,6 +170,27 @@ def test_fault_reaction_fault_and_reset():
     axis.enable()
 
 
+def test_the_brake_takes_over_the_held_load_without_the_axis_moving():
+    """A fault reaction under a static load: ramp to standstill, the motor holds the axis for the
+    brake's closing time (still powered), then the closed brake takes over the motor's torque
+    where the axis is: no sag onto the brake spring, no creep afterwards."""
+    values = drive_start_values(4)
+    axis = Axis()
+    axis.load = 0.3 * values["brake_holding_torque"]
+    axis.enable()
+    axis.velocity = 1.0
+    axis.run(ENABLE, samples=100)
+    axis.velocity = 0.0
+    axis.run(ENABLE, samples=200, fault_code=0x8130)  # ramp (20 ms), 10 ms standstill, 50 ms of the closing
+    held, motor = axis.q, axis.motor_torque
+    assert axis.state == FAULT_REACTION and motor == pytest.approx(-axis.load, rel=0.02)  # still holding
+    axis.run(ENABLE, samples=CLOSING + 100, fault_code=0x8130)
+    assert axis.state == FAULT and axis.motor_torque == 0.0
+    assert axis.brake_torque == pytest.approx(-axis.load, rel=1e-3)
+    sag = axis.load / values["brake_stiffness"]
+    assert abs(axis.q - held) < 0.02 * abs(sag) and abs(axis.qd) < 1e-5
+
+
 def test_fault_while_disabled_goes_straight_to_fault():
     axis = Axis()
     assert axis.run(SHUTDOWN, fault_code=0x8700) == FAULT
@@ -180,7 +202,7 @@ def test_following_error_window_raises_fault_8611():
     axis.target = 0.01  # a jump far beyond the window
     axis.run(ENABLE, samples=2)
     assert axis.statusword & 0x2000 or axis.state in (FAULT_REACTION, FAULT)
-    axis.run(ENABLE, samples=60)  # ramp from the (slow) actual speed, then 10 ms standstill
+    axis.run(ENABLE, samples=60 + CLOSING)  # ramp from the (slow) actual speed, 10 ms standstill, brake closing
     assert axis.state == FAULT
     assert int(axis.drive.get_integer_outputs()[1]) == 0x8611
     assert any("following error" in message for message in axis.drive.messages)

@@ -318,15 +318,15 @@ def test_a_controller_killed_mid_motion_stops_the_arm(tmp_path):
     t = np.asarray(ts["time"])
     qd = np.column_stack([np.asarray(ts[f"plant.qd[{j}]"]) for j in range(1, 7)])
     assert np.abs(qd[(t > trip - 0.3) & (t < trip)]).max() > 1e-2  # it was moving
-    # the brakes hold the motors at once; the links settle on the elastic gears: the wrist (axis 5)
-    # creeps with a time constant of about 0.16 s after a stop from 0.3-0.5 rad/s, so below
-    # 1e-3 rad/s takes 0.49-0.52 s depending on the instant of the kill (docs/hil.md, Measured)
+    # each drive ramps to standstill, holds the axis for the brake's closing time (0.1 s), then the
+    # closed brake takes over the motor's torque: no load falls onto the brake spring, no creep
+    # (docs/hil.md, "A controller that dies"); all six joints below 1e-3 rad/s 0.5 s after the trip
     cleared = [f for f in hil["fault_reactions"] if f["event"] == "fault_cleared" and f["time_s"] > trip]
     assert {f["node"] for f in cleared} == set(range(1, 7)), hil["fault_reactions"]
     back = min(f["time_s"] for f in cleared)
-    stopped = (t >= trip + 0.6) & (t < back)
+    stopped = (t >= trip + 0.5) & (t < back)
+    assert stopped.any()
     assert np.abs(qd[stopped]).max() < 1e-3
-    assert np.abs(qd[:, [0, 1, 2, 3, 5]][(t >= trip + 0.5) & (t < back)]).max() < 1e-3  # all but the wrist's 5
     emcy = [m for m in open_log(out / "can_model_based.parquet")
             if 0x81 <= m.arbitration_id <= 0x86 and len(m.data) == 8]
     assert {m.arbitration_id - 0x80 for m in emcy} == set(range(1, 7))
