@@ -1,5 +1,5 @@
 """The main job's output: size of every file, the total against the 128 MB the job wrote as
-CSV (the 128 MB the main job wrote when its series were CSV), and what writing it costs in CPU time per mode.
+CSV, and what writing it costs in CPU time per mode.
 
 Runs ``scenarios/iso9283.toml`` into a temporary folder (or takes ``--results DIR``), lists
 each file's size and the total, then replays one mode's data through the writers the job
@@ -30,7 +30,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 SCENARIO = ROOT / "scenarios" / "iso9283.toml"
 CSV_BASELINE_MB = 128.0
-"""The main job's output when it wrote CSV : 128 MB; the target is at least 5x below that."""
+"""The main job's output when it wrote CSV: 128 MB; the target is at least 5x below that."""
 FLUSH_CYCLES = 250  # the recorder's hand-over period (fieldbus/powerlink_defaults.toml)
 
 
