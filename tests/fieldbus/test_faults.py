@@ -289,16 +289,23 @@ def test_each_fault_kind_feeds_its_threshold_counters(frames, kind, delay_us, ex
     assert all(o.fresh.all() for k, (_, o) in enumerate(out) if k != 10)
 
 
-def test_extrapolating_policy_continues_the_ramp_over_a_lost_setpoint():
-    config = burst(1, 10, 1) | {"reaction": {"missing_setpoint": "extrapolate"}}
+def ramp_through_a_burst(cycles, burst_cycles):
+    """Send a 1 mrad-per-cycle position ramp to every drive while node 1 loses the PReqs of
+    ``burst_cycles`` cycles from cycle 10, drives extrapolating: the scaling, the applied set-points
+    of each cycle and node 1's applied position in counts."""
+    config = burst(1, 10, burst_cycles) | {"reaction": {"missing_setpoint": "extrapolate"}}
     sc = scaling()
     with PowerlinkNetwork(config, sc) as network:
         setpoints, actuals = Setpoints.zeros(6), DriveActuals.zeros(6)
         applied = []
-        for k in range(14):
+        for k in range(cycles):
             setpoints.position[:] = 1e-3 * k
             applied.append(network.run_cycle(k, setpoints, actuals).applied.copy())
-    counts = [int(sc.position_to_counts(a.position)[0]) for a in applied]
+    return sc, applied, [int(sc.position_to_counts(a.position)[0]) for a in applied]
+
+
+def test_extrapolating_policy_continues_the_ramp_over_a_lost_setpoint():
+    sc, applied, counts = ramp_through_a_burst(14, 1)
     assert not applied[11].fresh[0] and applied[12].fresh[0]
     assert counts[11] - counts[10] == counts[10] - counts[9]  # the PReq of cycle 10 never arrived
     assert counts[12] == int(sc.position_to_counts(np.full(6, 11e-3))[0])
@@ -307,15 +314,7 @@ def test_extrapolating_policy_continues_the_ramp_over_a_lost_setpoint():
 def test_extrapolation_lasts_one_cycle_then_holds():
     """A run of missing set-points: the first is extrapolated, the next ones hold it (a drive does not
     run on blind along a straight line while its controller is gone); fresh ones take over again."""
-    config = burst(1, 10, 4) | {"reaction": {"missing_setpoint": "extrapolate"}}
-    sc = scaling()
-    with PowerlinkNetwork(config, sc) as network:
-        setpoints, actuals = Setpoints.zeros(6), DriveActuals.zeros(6)
-        applied = []
-        for k in range(18):
-            setpoints.position[:] = 1e-3 * k
-            applied.append(network.run_cycle(k, setpoints, actuals).applied.copy())
-    counts = [int(sc.position_to_counts(a.position)[0]) for a in applied]
+    sc, applied, counts = ramp_through_a_burst(18, 4)
     assert [bool(a.fresh[0]) for a in applied[10:17]] == [True, False, False, False, False, True, True]
     assert counts[11] - counts[10] == counts[10] - counts[9]  # extrapolated
     assert counts[12] == counts[13] == counts[14] == counts[11]  # then held
