@@ -100,21 +100,24 @@ def test_identify_regressor_std_correction():
     assert corrected.data["std_correlation_factor"] == pytest.approx(2.0)
 
 
+def assert_refused(path, text, old, new, key):
+    """The scenario ``text`` with ``old`` replaced by ``new``, written to ``path``, is refused with a
+    ScenarioError naming ``key`` (and ``old`` really is in the text, so the edit happened)."""
+    assert old in text, old
+    path.write_text(text.replace(old, new))
+    with pytest.raises(ScenarioError, match=key.replace(".", r"\.")):
+        load_scenario(path)
+
+
 def test_scenario_loads_and_bad_values_are_named(tmp_path):
     scenario = load_scenario(SCENARIO)
     assert scenario.job.name == "identification"
     assert scenario.data["excitation"]["order"] == 5 and scenario.data["measurement"]["cutoff"] == 20.0
     text = open(SCENARIO).read()
     bad = tmp_path / "bad.toml"
-    bad.write_text(text.replace("skip_periods = 1", "skip_periods = 5"))
-    with pytest.raises(ScenarioError, match=r"excitation.skip_periods"):
-        load_scenario(bad)
-    bad.write_text(text.replace('cutoff = "20 Hz"', 'cutoff = "2 kHz"'))
-    with pytest.raises(ScenarioError, match=r"measurement.cutoff"):
-        load_scenario(bad)
-    bad.write_text(text.replace("order = 5 ", "order = 0 "))
-    with pytest.raises(ScenarioError, match=r"excitation.order"):
-        load_scenario(bad)
+    assert_refused(bad, text, "skip_periods = 1", "skip_periods = 5", "excitation.skip_periods")
+    assert_refused(bad, text, 'cutoff = "20 Hz"', 'cutoff = "2 kHz"', "measurement.cutoff")
+    assert_refused(bad, text, "order = 5 ", "order = 0 ", "excitation.order")
 
 
 def test_snapped_omega_and_recorder():
@@ -190,16 +193,10 @@ def test_elastic_campaign_scenario_loads(tmp_path):
     assert scenario.data["measurement"]["cutoff"] < 14.0  # below the first gear resonance
     text = open("scenarios/identification_elastic.toml").read()
     bad = tmp_path / "bad.toml"
-    bad.write_text(text.replace('period = "1 ms"              # besides', 'period = "2 ms"              # besides'))
-    with pytest.raises(ScenarioError, match=r"record.period"):
-        load_scenario(bad)
-    bad.write_text(text.replace('method = "wls"', 'kinematics = "nominal"\nmethod = "wls"'))
-    with pytest.raises(ScenarioError, match=r"measurement.kinematics"):
-        load_scenario(bad)
-    bad.write_text(text.replace('iso_mode = "model_based_elastic"', 'iso_mode = "bogus"'))
-    with pytest.raises(ScenarioError, match=r"controller.iso_mode"):
-        load_scenario(bad)
+    assert_refused(bad, text, 'period = "1 ms"              # besides', 'period = "2 ms"              # besides',
+                   "record.period")
+    assert_refused(bad, text, 'method = "wls"', 'kinematics = "nominal"\nmethod = "wls"', "measurement.kinematics")
+    assert_refused(bad, text, 'iso_mode = "model_based_elastic"', 'iso_mode = "bogus"', "controller.iso_mode")
     rigid = open(SCENARIO).read()  # the elastic feed-forward on a rigid plant is refused
-    bad.write_text(rigid.replace('compare_models = [', 'iso_mode = "model_based_elastic"\ncompare_models = ['))
-    with pytest.raises(ScenarioError, match=r"controller.iso_mode"):
-        load_scenario(bad)
+    assert_refused(bad, rigid, 'compare_models = [', 'iso_mode = "model_based_elastic"\ncompare_models = [',
+                   "controller.iso_mode")
