@@ -34,12 +34,20 @@ CSV_BASELINE_MB = 128.0
 FLUSH_CYCLES = 250  # the recorder's hand-over period (fieldbus/powerlink_defaults.toml)
 
 
-def run_job(out: Path, scenario: Path = SCENARIO, stop_time: str | None = None) -> Path:
-    if stop_time is not None:
-        text = scenario.read_text(encoding="utf-8").replace('stop_time = "12.6 s"', f'stop_time = "{stop_time}"', 1)
-        scenario = out.parent / "iso_short.toml"
+def run_job(out: Path, scenario: Path = SCENARIO, stop_time: str | None = None, plain: bool = False) -> Path:
+    """Run the main job into ``out``; ``plain``: the layout before the compact encodings (every
+    column plain, ``$COSIM_COMPACT=0``) with the CAN log as BLF."""
+    if stop_time is not None or plain:
+        text = scenario.read_text(encoding="utf-8")
+        if stop_time is not None:
+            text = text.replace('stop_time = "12.6 s"', f'stop_time = "{stop_time}"', 1)
+        if plain:
+            text = text.replace("\n[results]\n", '\n[results]\ncan_log_format = "blf"\n', 1)
+        scenario = out.parent / "iso_variant.toml"
         scenario.write_text(text, encoding="utf-8")
     env = {**os.environ, "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    if plain:
+        env["COSIM_COMPACT"] = "0"
     subprocess.run([sys.executable, "-m", "cosim", "run", str(scenario), "--out", str(out), "--quiet"], cwd=ROOT,
                    env=env, check=True, stdout=subprocess.DEVNULL)
     return out

@@ -1,7 +1,8 @@
 """Size, write and read time of the main job's output under other encodings (lossless only).
 
 Takes a results folder of the main job (``--results DIR``; default: runs
-``scenarios/iso9283.toml`` into a temporary folder) and rewrites every time series
+``scenarios/iso9283.toml`` into a temporary folder in the plain layout, ``$COSIM_COMPACT=0``
+and ``can_log_format = "blf"``, through ``bench_output.run_job``) and rewrites every time series
 (``timeseries_*``, ``controller_*``, ``tcp_*`` Parquet files) with each candidate set of
 pyarrow writer options, checking that every value reads back bit for bit, and prints the
 total size, the write time and the read time per candidate; then the CAN logs: BLF as
@@ -15,15 +16,13 @@ from __future__ import annotations
 import argparse
 import io
 import os
-import subprocess
-import sys
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
+from bench_output import run_job
 
 
 def candidates(schema) -> dict[str, dict]:
@@ -112,11 +111,8 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
     with tempfile.TemporaryDirectory() as tmp:
         folder = args.results
-        if folder is None:
-            folder = Path(tmp) / "iso9283"
-            env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]))
-            subprocess.run([sys.executable, "-m", "cosim", "run", str(ROOT / "scenarios" / "iso9283.toml"),
-                            "--out", str(folder), "--quiet"], check=True, env=env)
+        if folder is None:  # the plain layout and BLF, which the candidates are measured against
+            folder = run_job(Path(tmp) / "iso9283", plain=True)
         total = sum(p.stat().st_size for p in folder.iterdir() if p.is_file())
         print(f"{folder}: {total / 1e6:.1f} MB in all (load average {os.getloadavg()[0]:.2f})")
         print(f"{'time series, candidate':40s} {'MB':>7s} {'write s':>8s} {'read s':>7s}")
