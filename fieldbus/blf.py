@@ -31,7 +31,8 @@ from can.io.blf import (CAN_ERROR_EXT, CAN_FD_MESSAGE, CAN_MESSAGE, EDL, FILE_HE
                         ZLIB_DEFLATE, BLFWriter, timestamp_to_systemtime)
 from can.util import len2dlc
 
-from fieldbus.canlog import MAX_DATA, RECORD_DTYPE, record_dtype  # noqa: E402,F401  (the recorder's records)
+from fieldbus.canlog import (MAX_DATA, RECORD_DTYPE, blf_nanoseconds, blf_start,  # noqa: E402,F401
+                             record_dtype)  # (the recorder's records; python-can's BLF times)
 #: python-can's defaults: uncompressed bytes per container, zlib level, application id, channel.
 CONTAINER_SIZE = BLFWriter.max_container_size
 DEFAULT_COMPRESSION = -1
@@ -114,11 +115,10 @@ class BlfRecordWriter:
             return 0
         t = rec["t"]
         if self.start_timestamp is None:  # python-can: the first frame's time, truncated to ms
-            self.start_timestamp = int(float(t[0]) * 1000) / 1000
+            self.start_timestamp = blf_start(t[0])
         self.stop_timestamp = float(t[-1])
-        # python-can: int((timestamp - start) * 1e9), at least 0 (int() truncates towards zero)
-        nanoseconds = np.maximum(np.trunc((t - self.start_timestamp) * 1e9), 0.0).astype(np.uint64)
-        return self.write_frames(nanoseconds, rec["id"], rec["error"], rec["length"], rec["data"])
+        return self.write_frames(blf_nanoseconds(t, self.start_timestamp), rec["id"], rec["error"], rec["length"],
+                                 rec["data"])
 
     def write_frames(self, nanoseconds: np.ndarray, ids: np.ndarray, error: np.ndarray, length: np.ndarray,
                      data: np.ndarray) -> int:
