@@ -639,14 +639,11 @@ class Controller:
         h = self._h
         if self._shape_gap != 1 and self._shaper is not None:
             # a jump the bus interpolates: shape over the samples in between (drive_compensation)
-            plan = self._fast.plan.out  # the shaper gains the C cycle reads
-            g_over_t, denominator = self._shaper.gains(self._shape_gap)
-            plan.g_over_t[:], plan.denominator[:] = g_over_t.tolist(), denominator.tolist()
+            self._set_shaper_gains(self._fast.plan.out, self._shape_gap)
             self._fast.h[0] = h
             status = self._fast.fast_cycle(address, log.next_joints_address())
             self._fast.h[0] = self.config.period_s
-            plan.g_over_t[:] = self._shaper._g_over_t.tolist()
-            plan.denominator[:] = self._shaper._denominator.tolist()
+            self._set_shaper_gains(self._fast.plan.out, 1)
         elif h != self.config.period_s:  # a jumped cycle: predict the seed over the cycles not run
             self._fast.h[0] = h
             status = self._fast.fast_cycle(address, log.next_joints_address())
@@ -657,6 +654,14 @@ class Controller:
             return False
         self._fast_step_done(cycle, t, phase, tau, self._ref_duration, started, cpu_started, status)
         return True
+
+    def _set_shaper_gains(self, plan, gap: int) -> None:
+        """Write the set-point shaper's gains for a target ``gap`` samples after the previous one
+        (:meth:`SetpointShaper.gains`; 1 = its own) into ``plan.g_over_t`` / ``plan.denominator``,
+        the arrays a compiled cycle reads."""
+        g_over_t, denominator = self._shaper.gains(gap)
+        plan.g_over_t[:] = np.broadcast_to(g_over_t, (N_JOINTS,)).tolist()
+        plan.denominator[:] = np.broadcast_to(denominator, (N_JOINTS,)).tolist()
 
     def _bind_fast_observed(self, observed: ObservedActuals) -> bool:
         """Point the compiled cycle (``self._fast``) at ``observed``'s arrays when they are not

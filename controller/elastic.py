@@ -200,13 +200,9 @@ class ElasticController(Controller):
         fast = self._fast
         if self._shape_gap != 1 and self._shaper is not None:
             # a jump the bus interpolates: shape over the samples in between (drive_compensation)
-            sh, plan = self._shaper, fast.plan.out  # the shaper gains the C cycle reads
-            g_over_t, denominator = sh.gains(self._shape_gap)
-            plan.g_over_t[:] = np.broadcast_to(g_over_t, (6,)).tolist()
-            plan.denominator[:] = np.broadcast_to(denominator, (6,)).tolist()
+            self._set_shaper_gains(fast.plan.out, self._shape_gap)
             status = fast.run(k, self.log.next_joints_address())
-            plan.g_over_t[:] = np.broadcast_to(sh._g_over_t, (6,)).tolist()
-            plan.denominator[:] = np.broadcast_to(sh._denominator, (6,)).tolist()
+            self._set_shaper_gains(fast.plan.out, 1)
         else:
             status = fast.run(k, self.log.next_joints_address())
         if status != 0:
