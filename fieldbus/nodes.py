@@ -291,7 +291,9 @@ class ManagingNode:
         sync = self._sync_msg
         sync.timestamp = times[0]
         sync.data[0] = (cycle % self._sync_overflow) + 1
-        return self._lookahead_frames(cycle, build) if self._k else self._frames
+        if not self._k:
+            return self._frames
+        return self._lookahead_frames(cycle) if build else self._lookahead_frames(cycle, False)
 
     def _lookahead_frames(self, cycle: int, build: bool = True) -> list[FastMessage]:
         """The PReqs of ``cycle`` with the set-point look-ahead, from this cycle's packed
@@ -405,7 +407,9 @@ class ManagingNode:
                 self._pack_saturated(msg, i, cw, position[i], torque_offset[i], mode, target_torque[i],
                                      target_velocity[i], velocity_offset[i])
         self._last_cw = controlword
-        return self._lookahead_frames(cycle, build) if self._k else self._frames
+        if not self._k:
+            return self._frames
+        return self._lookahead_frames(cycle) if build else self._lookahead_frames(cycle, False)
 
     def _pack_saturated(self, msg: FastMessage, i: int, cw: int, position: float, torque: float, mode: int,
                         target_torque: float, target_velocity: float, velocity_offset: float) -> None:

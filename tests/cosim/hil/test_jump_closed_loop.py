@@ -57,8 +57,8 @@ def test_stalls_covered_by_the_lookahead_cost_nothing_in_the_closed_loop(tmp_pat
     send = nodes.ManagingNode._lookahead_frames
     call = link.FieldbusLink.__call__
 
-    def lookahead_frames(self, cycle):  # a stalled controller sends nothing in its skipped cycles
-        return self._frames_sent if cycle in SKIPPED else send(self, cycle)
+    def lookahead_frames(self, cycle, build=True):  # a stalled controller sends nothing in its skipped cycles
+        return self._frames_sent if cycle in SKIPPED else send(self, cycle, build)
 
     def cycle(self, t):  # ... and does not compute the set-points for them
         if self.cycle + 1 not in SKIPPED:
