@@ -329,7 +329,17 @@ def late_controller(endpoint_file: str, late: tuple[int, ...], seconds: float, q
 
 
 def _late_scenario(work: Path, seconds: float) -> Path:
+    """scenarios/hil.toml for ``seconds`` with POWERLINK's default loss-of-SoC/PReq thresholds (the
+    late controller is about what POWERLINK specifies: 15 trips at the second lost cycle in a row;
+    hil.toml sets those of a buffered drive)."""
+    import re
+
+    from fieldbus import FieldbusConfig
+
     text = (ROOT / "scenarios" / "hil.toml").read_text().replace('stop_time = "6 s"', f'stop_time = "{seconds} s"')
+    defaults = FieldbusConfig.from_dict({}).thresholds
+    for key in ("cn_loss_of_soc", "cn_loss_of_preq"):
+        text = re.sub(rf"^{key} = \d+", f"{key} = {getattr(defaults, key)}", text, count=1, flags=re.MULTILINE)
     path = work / "hil_late.toml"
     path.write_text(text)
     return path
@@ -386,7 +396,7 @@ def late_run(work: Path, seconds: float = LATE_SECONDS, late: tuple[int, ...] = 
     first = hil["controller"]["first_cycle"]
     cycles = hil["cycles"]
     planned = list(ctrl["late_sent"])  # cell cycles (the controller read them from the cell's PRes)
-    threshold = FieldbusConfig.from_dict({}).thresholds.cn_loss_of_preq  # hil.toml keeps the default
+    threshold = FieldbusConfig.from_dict({}).thresholds.cn_loss_of_preq  # _late_scenario: the default
     expected = expected_counters(planned, cycles, threshold=threshold)
     observed = {row["cycle"]: row["counters"] for row in hil["lost_cycles"]}
     trips: dict[int, set[int]] = {}
