@@ -118,7 +118,9 @@ class CounterBank:
         self.log = log
         self.on_threshold = on_threshold
         self.counters: list[ThresholdCounter] = []
-        self._nonzero: set[ThresholdCounter] = set()
+        # the non-zero counters in the order they became non-zero (a dict: a set's order would follow
+        # the objects' addresses, and the decrement events of one cycle would come in any order)
+        self._nonzero: dict[ThresholdCounter, None] = {}
         self._errored: set[ThresholdCounter] = set()
 
     def new(self, side: str, node: int, kind: str, threshold: int, increment: int,
@@ -133,7 +135,7 @@ class CounterBank:
         if c.threshold > 0:
             before = c.value
             c.value += c.increment
-            self._nonzero.add(c)
+            self._nonzero[c] = None
             reached = before < c.threshold <= c.value
         self._errored.add(c)
         self.log.add(FieldbusEvent(time_s, cycle, c.side, c.node, c.kind, "error",
@@ -163,7 +165,7 @@ class CounterBank:
                 self.log.add(FieldbusEvent(time_s, cycle, c.side, c.node, c.kind, "decrement",
                                            c.value, c.cumulative, c.threshold, ""))
                 if c.value == 0:
-                    self._nonzero.discard(c)
+                    del self._nonzero[c]
         if self._errored:
             self._errored.clear()
 
