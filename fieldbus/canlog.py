@@ -45,13 +45,16 @@ a BLF file stores (``int((t - start_s) * 1e9)``, python-can's conversion, ``star
 frame's time truncated to ms) and ``stop_s`` (metadata) the last frame's time, which BLF keeps
 in its header. Metadata ``format`` = :data:`FORMAT`.
 
-While a run goes, the frames stream in log order to ``<file>.partial`` (an Arrow IPC stream
-with the recorder's own columns ``t`` float64 s, ``id``, ``error``, ``length``, ``data``
-20 bytes): every complete batch stays readable after a crash (:func:`read_frames` reads it);
-``close()`` turns it into the Parquet file.
+While a run goes, the frames stream in log order to ``<file>.partial`` (an uncompressed Arrow
+IPC stream with the recorder's own columns ``t`` float64 s, ``id``, ``error``, ``length``,
+``data`` 20 bytes): every complete batch stays readable after a crash (:func:`read_frames`
+reads it). Each row group is encoded once, as it fills, into ``<file>.tmp`` (a Parquet file
+without its footer); ``close()`` writes the last group and the footer, renames the file into
+place and removes the stream.
 """
 from __future__ import annotations
 
+import functools
 import os
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -69,7 +72,9 @@ ROW_GROUP_ROWS = 1 << 17
 is one group (~6 MB); smaller groups cost more (4750: +60 %, 65536: +8 %)."""
 PARTIAL_SUFFIX = ".partial"
 COMPRESSION_LEVEL = 6
-"""zstd level of the Parquet file (the partial stream: level 1)."""
+"""zstd level of the Parquet file."""
+PARTIAL_COMPRESSION = None
+"""Compression of the partial stream (None: uncompressed, the cheapest to write; it only lives while a run goes)."""
 MAX_DATA = 20
 
 
@@ -116,6 +121,7 @@ def blf_nanoseconds(t: np.ndarray, start: float) -> np.ndarray:
     return np.maximum(np.trunc((np.asarray(t, dtype=float) - start) * 1e9), 0.0).astype(np.int64)
 
 
+@functools.lru_cache(maxsize=None)
 def _schema():
     import pyarrow as pa
 
@@ -144,8 +150,11 @@ def _layout_masks(ids: np.ndarray, error: np.ndarray, length: np.ndarray):
 
 class CanLogWriter:
     """Writes recorder records (:data:`RECORD_DTYPE`, in log order) to the columnar CAN log
-    ``path``: streamed to ``<path>.partial`` as they come, turned into Parquet by :meth:`close`.
-    The same interface as :class:`fieldbus.blf.BlfRecordWriter` (``write_records``, ``close``)."""
+    ``path``: streamed to ``<path>.partial`` as they come (what a crash leaves readable), and
+    encoded into the Parquet file's row groups as they fill (``<path>.tmp``, no footer yet);
+    :meth:`close` writes the last row group and the footer, renames the file into place and
+    removes the stream. The same interface as :class:`fieldbus.blf.BlfRecordWriter`
+    (``write_records``, ``close``)."""
 
     def __init__(self, path: str | Path, row_group_rows: int = ROW_GROUP_ROWS, data_bytes: int = MAX_DATA) -> None:
         import pyarrow as pa
@@ -160,8 +169,9 @@ class CanLogWriter:
         self._schema = _partial_schema(self.data_bytes)
         self._file = pa.OSFile(str(self.partial), "wb")
         self._stream = pa.ipc.new_stream(self._file, self._schema,
-                                         options=pa.ipc.IpcWriteOptions(compression="zstd"))
+                                         options=pa.ipc.IpcWriteOptions(compression=PARTIAL_COMPRESSION))
         self._file.flush()
+        self._groups = _RowGroups(self.path, self.data_bytes)
 
     def write_records(self, records: bytes | np.ndarray) -> int:
         """Append frames given as recorder records (in log order); returns their number."""
@@ -172,18 +182,21 @@ class CanLogWriter:
         if rec.size == 0:
             return 0
         data = pa.FixedSizeBinaryArray.from_buffers(pa.binary(self.data_bytes), rec.size,
-                                                    [None, pa.py_buffer(np.ascontiguousarray(rec["data"]).tobytes())])
+                                                    [None, pa.py_buffer(np.ascontiguousarray(rec["data"]))])
         batch = pa.RecordBatch.from_arrays([pa.array(np.ascontiguousarray(rec["t"])),
                                             pa.array(np.ascontiguousarray(rec["id"])),
                                             pa.array(np.ascontiguousarray(rec["error"])),
                                             pa.array(np.ascontiguousarray(rec["length"])), data], schema=self._schema)
         self._stream.write_batch(batch)
         self._file.flush()
+        self._groups.add(rec, self.row_group_rows)
         self.object_count += rec.size
         return rec.size
 
     def close(self) -> None:
-        """Turn the stream into the Parquet file (atomic rename) and remove it (again: no-op)."""
+        """Write the last row group and the footer, rename the file into place (atomic) and
+        remove the stream (again: no-op). Should that fail, the stream stays (readable, and
+        :func:`partial_to_parquet` turns it into the Parquet file)."""
         if self._stream is None:
             return
         try:
@@ -191,7 +204,72 @@ class CanLogWriter:
         finally:
             self._file.close()
             self._stream = self._file = None
-        partial_to_parquet(self.partial, self.path, self.row_group_rows)
+        self._groups.finish()
+        self.partial.unlink(missing_ok=True)
+
+
+class _RowGroups:
+    """Recorder records (log order) encoded into the row groups of the columnar CAN log ``path``
+    as they fill (written to ``<path>.tmp``); :meth:`finish` adds the metadata and renames."""
+
+    def __init__(self, path: Path, data_bytes: int = MAX_DATA) -> None:
+        self.path = Path(path)
+        self.tmp = self.path.with_name(self.path.name + ".tmp")
+        self.data_bytes = int(data_bytes)
+        self.start: float | None = None
+        self.stop: float | None = None
+        self.previous_ns = 0
+        self._buffer = np.empty(0, dtype=record_dtype(self.data_bytes))
+        self._rows = 0
+        self._writer = None
+
+    def add(self, rec: np.ndarray, row_group_rows: int) -> None:
+        """Take ``rec`` (copied); encode and write every row group of ``row_group_rows`` that fills."""
+        if rec.size == 0:
+            return
+        width = rec.dtype["data"].shape[0]
+        if width != self.data_bytes:
+            raise ValueError(f"records of {width} data bytes for a CAN log of {self.data_bytes}")
+        if self.start is None:
+            self.start = blf_start(rec["t"][0])
+        self.stop = float(rec["t"][-1])
+        if self._buffer.size != row_group_rows:
+            self._encode()  # (a new group size: what is buffered forms its own group)
+            self._buffer = np.empty(row_group_rows, dtype=rec.dtype)
+        void = np.dtype((np.void, rec.dtype.itemsize))  # whole records: a memcpy (field by field is ~8x slower)
+        buffer, rec = self._buffer.view(void), np.ascontiguousarray(rec).view(void)
+        while rec.size:
+            take = min(rec.size, row_group_rows - self._rows)
+            buffer[self._rows:self._rows + take] = rec[:take]
+            self._rows += take
+            rec = rec[take:]
+            if self._rows == row_group_rows:
+                self._encode()
+
+    def _encode(self) -> None:
+        if not self._rows:
+            return
+        table, self.previous_ns = _encode_records(self._buffer[:self._rows], self.start, self.previous_ns)
+        if self._writer is None:
+            self._writer = _parquet_writer(self.tmp, table.schema)
+        self._writer.write_table(table, row_group_size=self._rows)
+        self._rows = 0
+
+    def finish(self) -> None:
+        """The last row group, the metadata (format, start_s, stop_s, data_bytes), the footer;
+        then the file renamed into place."""
+        try:
+            self._encode()
+            if self._writer is None:
+                self._writer = _parquet_writer(self.tmp, _schema())
+            self._writer.add_key_value_metadata({
+                "format": FORMAT, "start_s": repr(self.start if self.start is not None else 0.0),
+                "stop_s": repr(self.stop if self.stop is not None else 0.0), "data_bytes": str(self.data_bytes)})
+        finally:
+            if self._writer is not None:
+                self._writer.close()
+                self._writer = None
+        os.replace(self.tmp, self.path)
 
 
 def _partial_records(partial: Path) -> Iterator[np.ndarray]:
@@ -217,79 +295,88 @@ def _partial_records(partial: Path) -> Iterator[np.ndarray]:
             return
 
 
-def _encode_group(frames: np.ndarray, previous_ns: int):
-    """One row group (a pyarrow Table) of ``frames`` (:data:`FRAME_DTYPE`, log order)."""
+def _column(values: np.ndarray, present: np.ndarray | None = None, count: int = 0):
+    """A pyarrow array of ``values`` (null where not ``present``; ``count`` present)."""
     import pyarrow as pa
 
-    n = frames.size
-    ns = frames["t_ns"]
+    if present is None:
+        return pa.array(values)
+    n = values.size
+    bitmap = np.packbits(present, bitorder="little")
+    return pa.Array.from_buffers(pa.from_numpy_dtype(values.dtype), n, [pa.py_buffer(bitmap), pa.py_buffer(values)],
+                                 null_count=n - count)
+
+
+def _encode_records(rec: np.ndarray, start: float, previous_ns: int):
+    """One row group (a pyarrow Table) of recorder records ``rec`` (log order) and the BLF time
+    (ns) of its last frame: the rows sorted by id (stably), ``dt_ns`` against ``previous_ns``."""
+    import pyarrow as pa
+
+    n = rec.size
+    width = rec.dtype["data"].shape[0]
+    ns = blf_nanoseconds(rec["t"], start)
     dt = np.diff(ns, prepend=np.int64(previous_ns))
-    order = np.argsort(frames["id"], kind="stable")
-    g = frames[order]
-    columns = {"seq": pa.array(order.astype(np.uint32)), "dt_ns": pa.array(dt[order]), "id": pa.array(g["id"]),
-               "error": pa.array(g["error"] != 0), "length": pa.array(g["length"])}
-    decoded = np.zeros(n, dtype=bool)
-    values = {name: np.zeros(n, dtype=dtype) for name, dtype in FIELDS.items()}
-    present = {name: np.zeros(n, dtype=bool) for name in FIELDS}
-    for mask, dtype in _layout_masks(g["id"], g["error"], g["length"]):
-        sub = np.ascontiguousarray(g["data"][mask][:, :dtype.itemsize]).view(dtype).reshape(-1)
+    ids = rec["id"]
+    order = np.argsort(ids, kind="stable")  # radix sort (16-bit keys)
+    sid = ids[order]
+    serr = rec["error"][order]
+    slen = rec["length"][order]
+    columns = {"seq": pa.array(order.astype(np.uint32)), "dt_ns": pa.array(dt[order]), "id": pa.array(sid),
+               "error": pa.array(serr != 0), "length": pa.array(slen)}
+    values: dict[str, np.ndarray] = {}
+    present: dict[str, np.ndarray] = {}
+    decoded = 0
+    data = rec["data"]
+    for lo, hi, size, dtype in LAYOUTS:
+        # rows sorted by id: the layout's id range is one slice, its length and error flag pick the rows
+        a, b = int(np.searchsorted(sid, lo, side="left")), int(np.searchsorted(sid, hi, side="right"))
+        if a >= b:
+            continue
+        pick = (slen[a:b] == size) & (serr[a:b] == 0)
+        every = bool(pick.all())
+        rows = order[a:b] if every else order[a:b][pick]
+        if not rows.size:
+            continue
+        sub = data[rows, :size].view(dtype).reshape(-1)
+        decoded += rows.size
         for name in dtype.names:
-            values[name][mask] = sub[name]
-            present[name][mask] = True
-        decoded |= mask
-    raw = [None if decoded[i] else bytes(g["data"][i, :g["length"][i]]) for i in range(n)] if not decoded.all() \
-        else None
-    columns["data"] = pa.array(raw, type=pa.binary()) if raw is not None else pa.nulls(n, type=pa.binary())
-    for name in FIELDS:
-        columns[name] = pa.array(values[name], mask=~present[name])
-    return pa.table(columns, schema=_schema())
+            if name not in values:
+                values[name] = np.zeros(n, dtype=FIELDS[name])
+                present[name] = np.zeros(n, dtype=bool)
+            if every:
+                values[name][a:b] = sub[name]
+                present[name][a:b] = True
+            else:
+                values[name][a:b][pick] = sub[name]
+                present[name][a:b] |= pick
+    if decoded == n:
+        columns["data"] = pa.nulls(n, type=pa.binary())
+    else:
+        undecoded = np.ones(n, dtype=bool)
+        for p in present.values():
+            undecoded &= ~p
+        raw = [None] * n
+        for i in np.flatnonzero(undecoded).tolist():
+            k = order[i]
+            raw[i] = bytes(data[k, :min(int(rec["length"][k]), width)])
+        columns["data"] = pa.array(raw, type=pa.binary())
+    for name, dtype in FIELDS.items():
+        if name in values:
+            columns[name] = _column(values[name], present[name], int(np.count_nonzero(present[name])))
+        else:
+            columns[name] = pa.nulls(n, type=pa.from_numpy_dtype(dtype))
+    return pa.table(columns, schema=_schema()), (int(ns[-1]) if n else previous_ns)
 
 
 def partial_to_parquet(partial: Path, path: Path, row_group_rows: int = ROW_GROUP_ROWS) -> None:
-    """Rewrite the partial stream ``partial`` as the columnar CAN log ``path`` (bounded memory)."""
-    tmp = path.with_name(path.name + ".tmp")
-    start = stop = None
-    width = MAX_DATA
-    previous = 0
-    writer = None
-    pending: list[np.ndarray] = []
-    rows = 0
-
-    def flush() -> None:
-        nonlocal previous, writer, pending, rows
-        if not pending:
-            return
-        rec = np.concatenate(pending)
-        frames = _frames_of(rec, start)
-        table = _encode_group(frames, previous)
-        previous = int(frames["t_ns"][-1])
-        if writer is None:
-            writer = _parquet_writer(tmp, table.schema)
-        writer.write_table(table, row_group_size=len(rec))
-        pending, rows = [], 0
-
-    try:
-        for rec in _partial_records(partial):
-            if start is None:
-                start = blf_start(rec["t"][0])
-            stop = float(rec["t"][-1])
-            width = rec.dtype["data"].shape[0]
-            while rec.size:
-                take = min(rec.size, row_group_rows - rows)
-                pending.append(rec[:take])
-                rows += take
-                rec = rec[take:]
-                if rows == row_group_rows:
-                    flush()
-        flush()
-        if writer is None:
-            writer = _parquet_writer(tmp, _schema())
-        writer.add_key_value_metadata({"format": FORMAT, "start_s": repr(start if start is not None else 0.0),
-                                       "stop_s": repr(stop if stop is not None else 0.0), "data_bytes": str(width)})
-    finally:
-        if writer is not None:
-            writer.close()
-    os.replace(tmp, path)
+    """Rewrite the partial stream ``partial`` (e.g. left by a killed run) as the columnar CAN log
+    ``path`` (bounded memory) and remove the stream."""
+    groups = None
+    for rec in _partial_records(partial):
+        if groups is None:
+            groups = _RowGroups(path, rec.dtype["data"].shape[0])
+        groups.add(rec, row_group_rows)
+    (groups or _RowGroups(path)).finish()
     partial.unlink(missing_ok=True)
 
 

@@ -90,21 +90,26 @@ class _BlfSink:
         from fieldbus.canlog import CanLogWriter, record_dtype
 
         self._dtype = record_dtype(data_bytes)
+        self._void = np.dtype((np.void, self._dtype.itemsize))
         if columnar:
             self.writer = CanLogWriter(path, data_bytes=data_bytes)
         else:
             from fieldbus.blf import BlfRecordWriter
 
             self.writer = BlfRecordWriter(path)
-        self.pending = np.empty(0, dtype=self._dtype)
+        self.pending = np.empty(0, dtype=self._void)
         self.written = 0
 
     def feed(self, records: bytes, watermark_s: float | None) -> None:
-        new = np.frombuffer(records, dtype=self._dtype)
+        void = self._void  # whole records: copies and takes at memcpy speed (numpy's structured ones are ~8x slower)
+        new = np.frombuffer(records, dtype=void)
         pending = np.concatenate([self.pending, new]) if self.pending.size else new
-        pending = pending[np.argsort(pending["t"], kind="stable")]
-        count = pending.size if watermark_s is None else int(np.searchsorted(pending["t"], watermark_s, "left"))
-        self.written += _whole(self.writer.write_records, pending[:count])
+        t = pending.view(self._dtype)["t"]
+        if t.size > 1 and not (t[1:] >= t[:-1]).all():  # a cycle's frames interleave: sort (stably, as list.sort)
+            pending = pending[np.argsort(t, kind="stable")]
+            t = pending.view(self._dtype)["t"]
+        count = pending.size if watermark_s is None else int(np.searchsorted(t, watermark_s, "left"))
+        self.written += _whole(self.writer.write_records, pending[:count].view(self._dtype))
         self.pending = pending[count:].copy()
 
     def close(self) -> None:

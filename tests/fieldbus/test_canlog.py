@@ -98,6 +98,34 @@ def test_partial_stream_is_readable_while_writing_and_after_a_crash(tmp_path):
     assert len(list(CanLogReader(tmp_path / "x.parquet"))) == half // RECORD.size
 
 
+def test_row_groups_are_encoded_as_they_fill_and_a_killed_run_keeps_every_frame(tmp_path):
+    """Row groups go into ``<file>.tmp`` during the run (no second pass at close); a run killed
+    before close leaves the stream with every frame written so far, and partial_to_parquet
+    turns it into the very file close() writes."""
+    from fieldbus.canlog import partial_to_parquet
+
+    records = _telegram_records(600)
+    n = len(records) // RECORD.size
+    done = CanLogWriter(tmp_path / "done.parquet", row_group_rows=2000)
+    killed = CanLogWriter(tmp_path / "killed.parquet", row_group_rows=2000)
+    for begin in range(0, n, 950):
+        chunk = records[begin * RECORD.size:(begin + 950) * RECORD.size]
+        done.write_records(chunk)
+        killed.write_records(chunk)
+    tmp = tmp_path / "killed.parquet.tmp"
+    assert tmp.stat().st_size > 0  # full row groups are already encoded
+    done.close()
+    assert not (tmp_path / "done.parquet.tmp").exists() and not done.partial.exists()
+    killed._stream.close()  # the process dies: no footer, no rename
+    killed._file.close()
+    log = read_frames(tmp_path / "killed.parquet")
+    assert not log.complete and len(log) == n
+    assert np.array_equal(log.frames, read_frames(tmp_path / "done.parquet").frames)
+    partial_to_parquet(killed.partial, tmp_path / "killed.parquet", row_group_rows=2000)
+    assert (tmp_path / "killed.parquet").read_bytes() == (tmp_path / "done.parquet").read_bytes()
+    assert not killed.partial.exists() and not tmp.exists()
+
+
 def test_network_run_logged_as_parquet_equals_blf(tmp_path):
     from fieldbus import PowerlinkNetwork
     from tests.fieldbus.test_network import drive, scaling
