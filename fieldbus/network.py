@@ -62,7 +62,7 @@ class PowerlinkNetwork(Closeable):
         self.events = EventLog()
         self.channel = default_channel(config)
         self.recorder = (FrameRecorder(log_path, config.recording.flush_every_cycles, config.recording.background,
-                                       rpdo1_length(config.setpoint_lookahead))
+                                       64 if config.setpoint_buffer else rpdo1_length(config.setpoint_lookahead))
                          if log_path is not None else None)
         shared = {"channel": self.channel, "events": self.events, "recorder": self.recorder,
                   "record_received": False}
@@ -266,7 +266,12 @@ def network_summary(config: FieldbusConfig, events: EventLog, mn_side: ManagingN
         "setpoint_lookahead": {
             "cycles": config.setpoint_lookahead,
             "cycles_covered_per_node": ({str(i + 1): int(v) for i, v in enumerate(drive_side.nodes.cycles_covered)}
-                                        if drive_side is not None else None)},
+                                        if drive_side is not None else None),
+            # cycles whose set-point neither a PReq nor the buffer had (missing_setpoint applied)
+            "cycles_without_setpoint_per_node": (
+                {str(i + 1): int(v) for i, v in enumerate(drive_side.nodes.cycles_without_setpoint)}
+                if drive_side is not None else None),
+            "buffer": config.setpoint_buffer},
         "event_tally": events.tally(),
         "faults": faults,
     }
