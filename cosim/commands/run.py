@@ -40,16 +40,48 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """:func:`_run`; then the objects of the run are frozen for the garbage collector
+    """:func:`_run` (for a job that draws its figures in a process forked first,
+    :data:`EARLY_FIGURES`, that process is started before anything else and ended after);
+    then the objects of the run are frozen for the garbage collector
     (``gc.freeze``): the process ends next, and Python's last collections at exit would walk
     every object the run created (0.3-1 s of the main job's wall time, after its final
     status). Files are closed by then; memory goes back with the process."""
     import gc
 
+    from cosim.results import figure_process
+
+    _start_figure_process(args)
     try:
         return _run(args)
     finally:
+        figure_process.stop()
         gc.freeze()
+
+
+#: Jobs whose figures a process forked at the command's start draws
+#: (:mod:`cosim.results.figure_process`): job name -> its warm-up, ``"module:function"``.
+EARLY_FIGURES = {"iso9283": "cosim.jobs.iso9283_figures:warm_up"}
+
+
+def _start_figure_process(args: argparse.Namespace) -> None:
+    """Fork the figure process before anything heavy is imported, when the scenario file's job
+    draws its figures there (:data:`EARLY_FIGURES`) and ``[results] figures`` is not false; in
+    process runs only (not ``--realtime``/``--split``). A file that cannot be read or parsed
+    starts nothing (loading it reports the error)."""
+    if getattr(args, "realtime", False) or getattr(args, "split", False):
+        return
+    import tomllib
+
+    try:
+        document = tomllib.loads(Path(args.scenario).read_text(encoding="utf-8"))
+        warm_up = EARLY_FIGURES.get(document.get("scenario", {}).get("job"))
+        wanted = document.get("results", {}).get("figures", True) is not False
+    except (OSError, ValueError, AttributeError, TypeError):
+        return
+    if warm_up is not None and wanted:
+        from cosim.results import figure_process
+
+        figure_process.start(warm_up)
 
 
 def _run(args: argparse.Namespace) -> int:

@@ -42,6 +42,7 @@ from cosim.cell.mode_pool import run_modes
 from cosim.cell.mode_runs import prepare, run_user
 from cosim.cell.parts import CELL_FIELDS, check_cell_scenario
 from cosim.cell.user_controller import make_user_controller, user_controller_label
+from cosim.results import figure_process
 from cosim.tracking.metrics import TrackingResult
 from cosim.scenario.context import RunContext
 from cosim.scenario.cosim_tables import COSIM_FIELDS
@@ -63,8 +64,10 @@ def run(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
     results: dict[str, TrackingResult] = {}
     failed: list = []
     warm_up = None
-    if setup.doc["results"]["figures"]:
-        from cosim.jobs.iso9283_figures import warm_up  # matplotlib's import while the workers run
+    if not setup.doc["results"]["figures"]:
+        figure_process.stop()
+    elif figure_process.current() is None:  # no figure process warming up matplotlib already:
+        from cosim.jobs.iso9283_figures import warm_up  # import it here while the workers run
     for outcome in run_modes(ctx, setup, setup.doc["controller"]["modes"],  # side by side: cosim.cell.mode_pool
                              while_waiting=warm_up):
         if outcome.entry is not None:

@@ -24,10 +24,12 @@ from __future__ import annotations
 import os
 import sys
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
 
+from cosim.results import figure_process
 
 COLOURS = {"standard": "tab:red", "standard_speed_ff": "tab:orange", "model_based": "tab:blue",
            "model_based_elastic": "tab:green"}
@@ -115,11 +117,40 @@ def write_figures(out_dir: Path, results: dict[str, Any], path: Any, processes: 
     With ``processes`` > 1, more than one usable core and no other thread in this process, the
     vibration figure is drawn by a forked process while this one draws the other three
     (:func:`_draw_all`); the files are the same either way."""
-    os.environ.setdefault("MPLBACKEND", "Agg")
     # the built-in modes in their order, then any other run (a user's controller)
     modes = [m for m in [*COLOURS, *(r for r in results if r not in COLOURS)] if m in results and results[m].t.size]
     if not modes:
+        figure_process.stop()
         return []
+    helper = figure_process.current()
+    if helper is not None:  # forked at the command's start, matplotlib warmed up there: it draws
+        drawn, files = helper.call("cosim.jobs.iso9283_figures:_write_figures", out_dir,
+                                   {m: figure_data(results[m]) for m in modes}, modes, figure_path(path), processes)
+        if drawn:
+            return files
+    return _write_figures(out_dir, results, modes, path, processes)
+
+
+#: The fields of a tracking result (cosim.tracking.metrics.TrackingResult) the figures draw.
+FIGURE_FIELDS = ("t", "lag", "arc_length", "tcp_error", "path_error", "spectrum_hz", "spectrum_m", "residual_t",
+                 "residual_error", "residual")
+
+
+def figure_data(result: Any) -> SimpleNamespace:
+    """What the figures read of a tracking result, as plain data (arrays, a dict): the figure
+    process gets these, not the result (whose class would import the cell there)."""
+    return SimpleNamespace(**{name: getattr(result, name) for name in FIGURE_FIELDS})
+
+
+def figure_path(path: Any) -> SimpleNamespace:
+    """What the figures read of the test path: each segment's start along the path (m)."""
+    return SimpleNamespace(segments=[SimpleNamespace(arc_start=float(seg.arc_start)) for seg in path.segments])
+
+
+def _write_figures(out_dir: Path, results: dict[str, Any], modes: list[str], path: Any,
+                   processes: int = 2) -> list[Path]:
+    """:func:`write_figures` in this process (with ``processes`` > 1 the vibration figure in a fork)."""
+    os.environ.setdefault("MPLBACKEND", "Agg")
     jobs = [(_lag_figure, out_dir / "figure2a_lag_errors.png"), (_tcp_error_figure, out_dir / "figure2b_tcp_error.png"),
             (_path_error_figure, out_dir / "tcp_error_vs_desired_path.png"), (_vibration_figure, out_dir / "vibration.png")]
     return _draw_all([(draw, file, results, modes, path) for draw, file in jobs], fork=processes > 1)

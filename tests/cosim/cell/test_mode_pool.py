@@ -112,11 +112,21 @@ def children(pid: int) -> list[int]:
 
 def workers_of(pid: int) -> list[int]:
     """The mode workers of the ``cosim run`` process ``pid``: its children, or under the supervisor
-    (cosim/commands/supervisor.py) the children of the run's process."""
+    (cosim/commands/supervisor.py) the children of the run's process; not the process that draws
+    the figures (cosim/results/figure_process.py)."""
     kids = children(pid)
     if len(kids) == 1 and children(kids[0]):
-        return children(kids[0])
-    return kids
+        kids = children(kids[0])
+    return [k for k in kids if not is_figure_process(k)]
+
+
+def is_figure_process(pid: int) -> bool:
+    from cosim.results.figure_process import PROCESS_NAME
+
+    try:
+        return (Path("/proc") / str(pid) / "comm").read_text().strip() == PROCESS_NAME
+    except OSError:
+        return False
 
 
 def alive(pid: int) -> bool:
@@ -134,6 +144,9 @@ def test_signal_to_the_group_stops_every_worker_in_order(tmp_path, signum):
     wait_until_simulating(proc, out, 0.6)
     workers = workers_of(proc.pid)
     assert len(workers) == 2
+    figures = [k for k in children(proc.pid) + [g for c in children(proc.pid) for g in children(c)]
+               if is_figure_process(k)]
+    assert len(figures) == 1  # forked at the start of `cosim run`, it waits to draw the figures
     os.killpg(proc.pid, signum)
     _, err = proc.communicate(timeout=150)
     assert proc.returncode == 130, err
@@ -152,7 +165,7 @@ def test_signal_to_the_group_stops_every_worker_in_order(tmp_path, signum):
         frames = list(open_log(out / f"can_{mode}.parquet"))
         assert len(frames) > 1000 and frames[-1].timestamp <= stopped + 1e-3
     time.sleep(0.5)
-    assert not [pid for pid in workers if alive(pid)]
+    assert not [pid for pid in workers + figures if alive(pid)]
 
 
 def test_a_killed_worker_fails_the_run_naming_its_mode(tmp_path):
