@@ -46,8 +46,8 @@ frame's time truncated to ms) and ``stop_s`` (metadata) the last frame's time, w
 in its header. Metadata ``format`` = :data:`FORMAT`.
 
 While a run goes, the frames stream in log order to ``<file>.partial`` (an uncompressed Arrow
-IPC stream with the recorder's own columns ``t`` float64 s, ``id``, ``error``, ``length``,
-``data`` 20 bytes): every complete batch stays readable after a crash (:func:`read_frames`
+IPC stream, :data:`PARTIAL_FORMAT`: one column ``record`` holding the recorder's whole records,
+:data:`RECORD_DTYPE`): every complete batch stays readable after a crash (:func:`read_frames`
 reads it). Each row group is encoded once, as it fills, into ``<file>.tmp`` (a Parquet file
 without its footer); ``close()`` writes the last group and the footer, renames the file into
 place and removes the stream.
@@ -132,12 +132,18 @@ def _schema():
     return pa.schema(fields)
 
 
+PARTIAL_FORMAT = FORMAT + " partial 2"
+"""``format`` of the partial stream: one column ``record`` of whole recorder records (the stream
+of ``FORMAT + " partial"`` had the columns ``t``, ``id``, ``error``, ``length``, ``data``; still read)."""
+
+
 def _partial_schema(data_bytes: int = MAX_DATA):
     import pyarrow as pa
 
-    return pa.schema([pa.field("t", pa.float64(), metadata={b"unit": b"s"}), pa.field("id", pa.uint16()),
-                      pa.field("error", pa.uint8()), pa.field("length", pa.uint8()),
-                      pa.field("data", pa.binary(data_bytes))], metadata={b"format": (FORMAT + " partial").encode()})
+    layout = f"<f8 t (s), <u2 id, u1 error, u1 length, {data_bytes} bytes data (the first length of them)"
+    return pa.schema([pa.field("record", pa.binary(record_dtype(data_bytes).itemsize),
+                               metadata={b"layout": layout.encode()})],
+                     metadata={b"format": PARTIAL_FORMAT.encode(), b"data_bytes": str(data_bytes).encode()})
 
 
 def _layout_masks(ids: np.ndarray, error: np.ndarray, length: np.ndarray):
@@ -182,13 +188,10 @@ class CanLogWriter:
                else records)
         if rec.size == 0:
             return 0
-        data = pa.FixedSizeBinaryArray.from_buffers(pa.binary(self.data_bytes), rec.size,
-                                                    [None, pa.py_buffer(np.ascontiguousarray(rec["data"]))])
-        batch = pa.RecordBatch.from_arrays([pa.array(np.ascontiguousarray(rec["t"])),
-                                            pa.array(np.ascontiguousarray(rec["id"])),
-                                            pa.array(np.ascontiguousarray(rec["error"])),
-                                            pa.array(np.ascontiguousarray(rec["length"])), data], schema=self._schema)
-        self._stream.write_batch(batch)
+        rec = np.ascontiguousarray(rec)
+        whole = pa.FixedSizeBinaryArray.from_buffers(self._schema.field(0).type, rec.size,
+                                                     [None, pa.py_buffer(rec.view(np.uint8))])
+        self._stream.write_batch(pa.RecordBatch.from_arrays([whole], schema=self._schema))
         self._file.flush()
         self._groups.add(rec, self.row_group_rows)
         self.object_count += rec.size
@@ -286,7 +289,14 @@ def _partial_records(partial: Path) -> Iterator[np.ndarray]:
                 batch = reader.read_next_batch()
                 if not batch.num_rows:
                     continue
-                data = batch.column("data")
+                if batch.schema.names == ["record"]:
+                    whole = batch.column(0)
+                    size = whole.type.byte_width
+                    raw = np.frombuffer(whole.buffers()[1], dtype=np.uint8)
+                    yield raw[whole.offset * size:(whole.offset + len(whole)) * size].view(
+                        record_dtype(size - RECORD_DTYPE.itemsize + MAX_DATA))
+                    continue
+                data = batch.column("data")  # the first partial stream: the record's fields as columns
                 width = data.type.byte_width
                 rec = np.empty(batch.num_rows, dtype=record_dtype(width))
                 for name in ("t", "id", "error", "length"):
