@@ -213,7 +213,8 @@ class _Endpoint(Closeable):
         if recorder is None and log_path is not None:
             # the longest frame: the RPDO1 with this configuration's look-ahead (64: any CAN FD frame)
             recorder = FrameRecorder(log_path, config.recording.flush_every_cycles, config.recording.background,
-                                     record_data_bytes or rpdo1_length(config.setpoint_lookahead))
+                                     record_data_bytes or (64 if config.setpoint_buffer
+                                                           else rpdo1_length(config.setpoint_lookahead)))
             self._owns_recorder = True
         else:
             self._owns_recorder = False
@@ -478,6 +479,19 @@ class ManagingNodeEndpoint(_Endpoint):
             frames = node.frames(cycle, self._times, *[getattr(setpoints, name).tolist()
                                                        for name in _SETPOINT_FIELDS])
         self._transmit(frames)
+
+    def plan_ahead(self, cycle: int, setpoints: Setpoints) -> None:
+        """Take ``setpoints``, the controller's output for the PReqs of ``cycle``, into the
+        set-point buffer's plan without sending anything: a controller that stalled and did
+        not run the cycles before ``cycle`` catches up on them (in order) before it answers the
+        cell's newest cycle, so the buffer holds the set-points it would have sent rather than
+        an interpolation over the stall. Only with ``setpoint_lookahead`` > 0."""
+        node = self.node
+        if not node._k:
+            raise ValueError("plan_ahead: this bus has no set-point look-ahead (setpoint_lookahead = 0)")
+        if node.encode(cycle, self._times, setpoints, build=False) is None:
+            node.frames(cycle, self._times, *[getattr(setpoints, name).tolist() for name in _SETPOINT_FIELDS],
+                        build=False)
 
     def run_cycle(self, cycle: int, setpoints: Setpoints) -> ObservedActuals:
         """send_setpoints + collect_actuals (for a controller in its own process)."""

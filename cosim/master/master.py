@@ -37,6 +37,7 @@ import math
 import time as _time
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -115,10 +116,16 @@ class SignalReader:
         self._bus = bus
         self._indices = indices
         self._out = np.zeros(len(indices), dtype=bus.dtype)
+        #: refresh() puts the current values into the array :meth:`read` returns (for a caller that
+        #: keeps that array). The method ``take`` with positional arguments: np.take adds two Python
+        #: calls, keywords their parsing; mode "clip" writes straight into the output, where "raise"
+        #: (the default) gathers into a temporary first (0.2 against 1.2 us for 18 values). The
+        #: indices are the master's own bus locations, always in range: the values are the same.
+        self.refresh: Callable[[], np.ndarray] = partial(bus.take, indices, None, self._out, "clip")
 
     def read(self) -> np.ndarray:
         """Current values (a reused array: copy it to keep it)."""
-        self._bus.take(self._indices, out=self._out)  # the method: np.take adds two Python calls
+        self.refresh()
         return self._out
 
 

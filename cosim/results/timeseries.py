@@ -65,7 +65,7 @@ def default_flush_interval() -> float:
     return value
 COMPRESSION = "zstd"
 COMPRESSION_LEVEL = 3
-"""zstd level of the final Parquet files (the streams while a run goes use level 1). On the
+"""zstd level of the final Parquet files (the streams while a run goes are not compressed). On the
 main job's controller log: level 1 4.22 MB, 3 3.99 MB, 6 3.74 MB for 0.15 CPU-s more per file
 (measured by CPU time at load 11): level 3, the cheaper write."""
 
@@ -193,7 +193,13 @@ def _writer(path: Path, schema, plan: Mapping[str, tuple] | None = None):
 
 PARTIAL_SUFFIX = ".partial"
 """While a run goes, a Parquet sink streams to ``<file>.parquet.partial`` (Arrow IPC stream,
-zstd): readable at any moment up to the last complete batch, also after a crash."""
+uncompressed: :data:`PARTIAL_COMPRESSION`): readable at any moment up to the last complete
+batch, also after a crash."""
+PARTIAL_COMPRESSION = None
+"""Compression of the partial streams. zstd (level 1) made the main job's controller log stream
+8.4 MB instead of 10.6 MB but cost 21 ms to write and 12 ms to read back per mode (none: 7 and
+2 ms; lz4: 9.1 MB, 12 and 5 ms): the stream lives only until the run ends, the Parquet file
+holds the rows compressed (zstd 3, about 4 MB)."""
 ROW_GROUP_ROWS = 16384
 """Rows per Parquet row group: a reader holds one group at a time (16384 x 40 float64 columns =
 5 MB); 0.2 % larger files than 65536-row groups on the main job, and memory that stays flat
@@ -229,6 +235,7 @@ class ParquetSink:
         self._fill = 0
         self._int_columns: list[int] = []
         self._last = time.perf_counter()
+        self._stats: _PlanStats | None = None
 
     def open(self, columns: Sequence[str], kinds: Sequence[str]) -> None:
         import pyarrow as pa
@@ -245,13 +252,15 @@ class ParquetSink:
                                                        DERIVED_KEY: json.dumps(self.derived).encode()})
         self._file = pa.OSFile(str(self.partial), "wb")
         self._stream = pa.ipc.new_stream(self._file, self._schema,
-                                         options=pa.ipc.IpcWriteOptions(compression=COMPRESSION))
+                                         options=pa.ipc.IpcWriteOptions(compression=PARTIAL_COMPRESSION))
         # the schema (column names, units) on disk at once: readable even if the run dies now
         self._stream.write_batch(pa.RecordBatch.from_arrays([pa.array([], type=f.type) for f in self._schema],
                                                             schema=self._schema))
         self._file.flush()
         self._buffer = np.empty((self.buffer_rows, len(columns)))
         self._fill = 0
+        self._stats = (_PlanStats(self._schema, self.scales, self.float_delta)
+                       if compact_enabled() and (self.scales or self.float_delta) else None)
 
     def write(self, block: np.ndarray) -> None:
         block = np.asarray(block, dtype=float)
@@ -274,6 +283,8 @@ class ParquetSink:
                   for i in range(data.shape[1])]
         self._stream.write_batch(pa.RecordBatch.from_arrays(arrays, schema=self._schema))
         self._file.flush()
+        if self._stats is not None:
+            self._stats.update(data)
         self.rows_written += self._fill
         self._fill = 0
         self._last = time.perf_counter()
@@ -292,7 +303,7 @@ class ParquetSink:
             self._file.close()
             self._stream = self._file = None
             self._buffer = None
-        _partial_to_parquet(self.partial, self.path, self._schema, self.scales, self.float_delta, self.derived)
+        _partial_to_parquet(self.partial, self.path, self._schema, self._stats, self.derived)
 
 
 def _stream_batches(partial: Path):
@@ -302,31 +313,41 @@ def _stream_batches(partial: Path):
         yield from pa.ipc.open_stream(source)
 
 
-def _partial_to_parquet(partial: Path, path: Path, schema, scales: Mapping[str, float] | None = None,
-                        float_delta: bool = False, derived: Mapping[str, Any] | None = None) -> None:
-    """Rewrite the Arrow stream ``partial`` as the Parquet file ``path`` (bounded memory), with
-    the compact encodings of :func:`encoding_plan` (a first pass over the stream decides them)."""
+def _partial_to_parquet(partial: Path, path: Path, schema, stats: _PlanStats | None = None,
+                        derived: Mapping[str, Any] | None = None) -> None:
+    """Rewrite the Arrow stream ``partial`` as the Parquet file ``path`` (bounded memory), in one
+    pass, with the compact encodings ``stats`` plans (None: plain columns) - what every row
+    decides was gathered as the rows were written; the delta coding is chosen on the first row
+    group's rows (:meth:`_PlanStats.plan`) before it is written."""
     import pyarrow as pa
 
-    plan: dict[str, tuple] = {}
-    if compact_enabled() and (scales or float_delta):
-        plan = encoding_plan(_stream_batches(partial), schema, scales or {}, float_delta)
-    out_schema = _encoded_schema(schema, plan, derived)
     tmp = path.with_name(path.name + ".tmp")
-    writer = _writer(tmp, out_schema, plan)
+    writer = None
+    plan: dict[str, tuple] = {}
+    out_schema = None
+
+    def write(table) -> None:
+        nonlocal writer, plan, out_schema
+        if writer is None:
+            plan = stats.plan(table) if stats is not None else {}
+            out_schema = _encoded_schema(schema, plan, derived)
+            writer = _writer(tmp, out_schema, plan)
+        if table is not None:
+            writer.write_table(_encode_table(table, plan, out_schema))
+
     try:
         pending, rows = [], 0
         for batch in _stream_batches(partial):
             pending.append(batch)
             rows += batch.num_rows
             if rows >= ROW_GROUP_ROWS:
-                writer.write_table(_encode_table(pa.Table.from_batches(pending, schema=schema), plan, out_schema))
+                write(pa.Table.from_batches(pending, schema=schema))
                 pending, rows = [], 0
                 release_memory()
-        if pending:
-            writer.write_table(_encode_table(pa.Table.from_batches(pending, schema=schema), plan, out_schema))
+        write(pa.Table.from_batches(pending, schema=schema) if pending else None)
     finally:
-        writer.close()
+        if writer is not None:
+            writer.close()
     os.replace(tmp, path)
     partial.unlink(missing_ok=True)
 
@@ -339,7 +360,10 @@ ENCODING_KEY = b"cosim.encoding"
 SCALE_KEY = b"cosim.scale"
 DERIVED_KEY = b"cosim.derived"
 DELTA_ORDERS = (1, 2, 3)
-DELTA_SAMPLE_ROWS = 16384
+DELTA_SAMPLE_ROWS = 8192
+"""Rows (the first of a series) on which each float column's delta coding is tried: on the main
+job's controller and TCP logs every one of the 133 choices is the one 16384 rows give, at half
+the cost (the trial compressions were a quarter of writing the controller log)."""
 DELTA_MIN_GAIN = 0.9
 """A float column is delta-coded only when that makes its sample at most this fraction of the plain size."""
 
@@ -349,12 +373,20 @@ def compact_enabled() -> bool:
     return os.environ.get(ENV_COMPACT, "1").strip().lower() not in ("0", "false", "no", "off")
 
 
+def _diff(x: np.ndarray) -> np.ndarray:
+    """``numpy.diff(x, prepend=0)`` of an int64 array (wrapping), without the prepended copy."""
+    out = np.empty_like(x)
+    if x.size:
+        out[0] = x[0]
+        np.subtract(x[1:], x[:-1], out=out[1:])
+    return out
+
+
 def _bits_delta(values: np.ndarray, order: int) -> np.ndarray:
     """The float64 bit patterns (as int64) differenced ``order`` times (wrapping; first value kept)."""
     x = np.ascontiguousarray(values, dtype=np.float64).view(np.int64)
-    with np.errstate(over="ignore"):
-        for _ in range(order):
-            x = np.diff(x, prepend=np.int64(0))
+    for _ in range(order):
+        x = _diff(x)
     return x
 
 
@@ -373,64 +405,102 @@ def _zstd_size(raw: bytes) -> int:
     return len(pa.Codec("zstd").compress(raw))
 
 
-def encoding_plan(batches, schema, scales: Mapping[str, float], float_delta: bool) -> dict[str, tuple]:
-    """Per float column: ``("scaled", scale, int type)`` when every value is ``counts * scale``
-    exactly with integer counts (``scales`` names the candidates and their scale), else, with
-    ``float_delta``, ``("delta", k)`` when the k-th difference of the float64 bit patterns
-    compresses best (checked on the first :data:`DELTA_SAMPLE_ROWS` rows, only if at most
-    :data:`DELTA_MIN_GAIN` of the plain size); plain otherwise. Reads ``batches`` once."""
-    floats = [f.name for f in schema if str(f.type) == "double"]
-    same: dict[str, str] | None = None  # column -> an earlier column with the same bits in every row
-    exact = {name: True for name in floats if name in scales}
-    peak = {name: 0 for name in exact}
-    sample: dict[str, list[np.ndarray]] = {name: [] for name in floats} if float_delta else {}
-    sampled = 0
-    for batch in batches:
-        if float_delta and batch.num_rows:
-            values = {name: np.ascontiguousarray(batch.column(name).to_numpy()).view(np.int64) for name in floats}
-            if same is None:
-                first: dict[bytes, str] = {}
-                same = {}
-                for name in floats:
-                    key = values[name].tobytes()
+class _PlanStats:
+    """What the compact plan (:func:`encoding_plan`) needs to know of every row of a series,
+    gathered block by block as the rows are written (:meth:`update`): the float columns equal
+    to an earlier one in every row (with ``float_delta``), and the ``scales`` candidates that
+    stay exact integer counts times their scale (with their largest count). :meth:`plan` adds
+    the delta coding chosen on a sample of the first rows."""
+
+    def __init__(self, schema, scales: Mapping[str, float], float_delta: bool) -> None:
+        self.names = list(schema.names)
+        self.floats = [i for i, f in enumerate(schema) if str(f.type) == "double"]
+        self.scales = {i: float(scales[self.names[i]]) for i in self.floats if self.names[i] in scales}
+        self.float_delta = bool(float_delta)
+        self.same: dict[int, int] | None = None  # column -> an earlier column with the same bits in every row
+        self.exact = {i: True for i in self.scales}
+        self.peak = {i: 0.0 for i in self.scales}
+
+    def update(self, block: np.ndarray) -> None:
+        """Account for the rows ``block`` (float64, one column per schema field)."""
+        if not len(block):
+            return
+        if self.float_delta:
+            bits = np.ascontiguousarray(block).view(np.int64)
+            if self.same is None:
+                first: dict[bytes, int] = {}
+                self.same = {}
+                for i in self.floats:
+                    key = np.ascontiguousarray(bits[:, i]).tobytes()
                     if key in first:
-                        same[name] = first[key]
+                        self.same[i] = first[key]
                     else:
-                        first[key] = name
+                        first[key] = i
             else:
-                same = {c: o for c, o in same.items() if np.array_equal(values[c], values[o])}
-        for name in list(exact):
-            if not exact[name]:
+                self.same = {c: o for c, o in self.same.items() if np.array_equal(bits[:, c], bits[:, o])}
+        for i, scale in self.scales.items():
+            if not self.exact[i]:
                 continue
-            v = batch.column(name).to_numpy()
-            counts = np.rint(v / scales[name])
-            ok = np.all(np.isfinite(counts)) and np.array_equal((counts * scales[name]).view(np.int64),
-                                                                 np.ascontiguousarray(v).view(np.int64))
-            exact[name] = bool(ok)
-            if ok and counts.size:
-                peak[name] = max(peak[name], float(np.abs(counts).max()))
-        if sampled < DELTA_SAMPLE_ROWS and sample:
-            for name in floats:
-                sample[name].append(batch.column(name).to_numpy())
+            v = block[:, i]
+            counts = np.rint(v / scale) + 0.0  # as stored: an integer count has no sign of zero
+            peak = float(np.abs(counts).max())
+            # exact: the value is what the reader computes from the stored integer, bit for bit
+            ok = peak <= 2.0 ** 53 and np.array_equal((counts * scale).view(np.int64),
+                                                      np.ascontiguousarray(v).view(np.int64))
+            self.exact[i] = bool(ok)
+            if ok:
+                self.peak[i] = max(self.peak[i], peak)
+
+    def plan(self, table=None) -> dict[str, tuple]:
+        """The plan (:func:`encoding_plan`) with the delta coding tried on the first
+        :data:`DELTA_SAMPLE_ROWS` rows of ``table`` (the first rows of the series; None: none)."""
+        names = self.names
+        plan: dict[str, tuple] = {names[c]: ("same", names[o]) for c, o in (self.same or {}).items()}
+        for i in self.floats:
+            name = names[i]
+            if name in plan:
+                continue
+            if self.exact.get(i):
+                plan[name] = ("scaled", self.scales[i], "int32" if self.peak[i] < 2 ** 31 - 1 else "int64")
+                continue
+            if not self.float_delta or table is None:
+                continue
+            v = table.column(name).to_numpy()[:DELTA_SAMPLE_ROWS]
+            if v.size < 16:
+                continue
+            plain = _zstd_size(np.ascontiguousarray(v).view(np.uint8).reshape(-1, 8).T.tobytes())  # byte-stream split
+            sizes, x = {}, np.ascontiguousarray(v).view(np.int64)
+            for k in range(1, max(DELTA_ORDERS) + 1):
+                x = _diff(x)
+                if k in DELTA_ORDERS:
+                    sizes[k] = _zstd_size(x.tobytes())
+            best = min(sizes, key=sizes.get)
+            if sizes[best] <= DELTA_MIN_GAIN * plain:
+                plan[name] = ("delta", best)
+        return plan
+
+
+def encoding_plan(batches, schema, scales: Mapping[str, float], float_delta: bool) -> dict[str, tuple]:
+    """Per float column: ``("same", other)`` when (with ``float_delta``) an earlier float column
+    has the same bits in every row; ``("scaled", scale, int type)`` when every value is
+    ``counts * scale`` exactly with integer counts (``scales`` names the candidates and their
+    scale), else, with ``float_delta``, ``("delta", k)`` when the k-th difference of the float64
+    bit patterns compresses best (checked on the first :data:`DELTA_SAMPLE_ROWS` rows, only if
+    at most :data:`DELTA_MIN_GAIN` of the plain size); plain otherwise. Reads ``batches`` (Arrow
+    record batches of ``schema``) once; a :class:`ParquetSink` gathers the same as it writes."""
+    import pyarrow as pa
+
+    stats = _PlanStats(schema, scales, float_delta)
+    sample, sampled = [], 0
+    for batch in batches:
+        if not batch.num_rows:
+            continue
+        stats.update(np.column_stack([batch.column(i).to_numpy(zero_copy_only=False).astype(float, copy=False)
+                                      for i in range(batch.num_columns)]))
+        if sampled < DELTA_SAMPLE_ROWS:
+            sample.append(batch)
             sampled += batch.num_rows
-    plan: dict[str, tuple] = {c: ("same", o) for c, o in (same or {}).items()}
-    for name in floats:
-        if name in plan:
-            continue
-        if exact.get(name):
-            plan[name] = ("scaled", float(scales[name]), "int32" if peak[name] < 2 ** 31 - 1 else "int64")
-            continue
-        if not sample:
-            continue
-        v = np.concatenate(sample[name])[:DELTA_SAMPLE_ROWS] if sample[name] else np.zeros(0)
-        if v.size < 16:
-            continue
-        plain = _zstd_size(np.ascontiguousarray(v).view(np.uint8).reshape(-1, 8).T.tobytes())  # byte-stream split
-        sizes = {k: _zstd_size(_bits_delta(v, k).tobytes()) for k in DELTA_ORDERS}
-        best = min(sizes, key=sizes.get)
-        if sizes[best] <= DELTA_MIN_GAIN * plain:
-            plan[name] = ("delta", best)
-    return plan
+    return stats.plan(pa.Table.from_batches(sample, schema=schema) if sample else None)
 
 
 def _encoded_schema(schema, plan: Mapping[str, tuple], derived: Mapping[str, Any] | None = None):

@@ -42,7 +42,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from numpy.lib.stride_tricks import sliding_window_view
 
 from controller import quintic_hermite
 from robot.joints import N_JOINTS
@@ -137,14 +136,48 @@ def desired_joints(t: np.ndarray, t_apply: np.ndarray, q_d: np.ndarray, qd_d: np
 def _pair_distance2(points: np.ndarray, a: np.ndarray, ab: np.ndarray, ab2: np.ndarray, i: np.ndarray,
                     j: np.ndarray) -> np.ndarray:
     """Squared distance of ``points[i]`` to the segments ``a[j] + [0, 1] ab[j]`` (pairwise)."""
-    ap = points[i] - a[j]
-    u = np.clip(np.einsum("ij,ij->i", ap, ab[j]) / ab2[j], 0.0, 1.0)
-    d = ap - u[:, None] * ab[j]
+    ap = np.take(points, i, axis=0) - np.take(a, j, axis=0)
+    abj = np.take(ab, j, axis=0)
+    u = np.clip(np.einsum("ij,ij->i", ap, abj) / ab2.take(j), 0.0, 1.0)
+    d = ap - u[:, None] * abj
     return np.einsum("ij,ij->i", d, d)
 
 
-#: Elements per block of candidate offsets in :func:`distance_to_polyline` (128 KB a coordinate: in cache).
-_BLOCK_ELEMENTS = 1 << 14
+_COARSE_SEGMENTS = 16
+"""Segments per coarse ball of :func:`distance_to_polyline` (16 of 1 ms: about 16 mm at 1 m/s)."""
+_FINE_SEGMENTS = 4
+"""Segments per fine ball (a quarter of a coarse one)."""
+_INFLATE = 1.0 + 1e-9
+"""Relative margin on every bound of :func:`distance_to_polyline` (far above float64 rounding)."""
+
+
+def _balls(mid: np.ndarray, half: np.ndarray, size: int) -> tuple[list[np.ndarray], np.ndarray]:
+    """Balls holding each run of ``size`` consecutive segments (midpoints ``mid``, half lengths
+    ``half``) whole: (centre x, y, z arrays, radius). Segments with a non-finite midpoint are left
+    out (no bound ever admits them); a run of only such segments gets a NaN radius (never admitted)."""
+    count = mid.shape[0]
+    balls = -(-count // size)
+    fill = balls * size - count
+    finite = np.isfinite(mid).all(axis=1) & np.isfinite(half)
+    padded = np.concatenate([np.where(finite[:, None], mid, 0.0), np.zeros((fill, 3))]).reshape(balls, size, 3)
+    weight = np.concatenate([finite, np.zeros(fill, dtype=bool)]).reshape(balls, size)
+    members = weight.sum(axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        center = padded.sum(axis=1) / members[:, None]
+        spread = padded - center[:, None, :]
+        reach = np.sqrt(np.einsum("ijk,ijk->ij", spread, spread)) + np.where(weight, np.concatenate(
+            [np.where(finite, half, 0.0), np.zeros(fill)]).reshape(balls, size), 0.0)
+        radius = np.where(weight, reach, -np.inf).max(axis=1) * _INFLATE + 1e-12
+    radius[members == 0] = np.nan
+    return [np.ascontiguousarray(center[:, k]) for k in range(3)], radius
+
+
+def _squared(p: list[np.ndarray], i: np.ndarray, c: list[np.ndarray], j: np.ndarray) -> np.ndarray:
+    """|p[i] - c[j]|^2 elementwise (``p``, ``c``: x, y, z arrays; ``i``, ``j``: index arrays)."""
+    dx = p[0].take(i) - c[0].take(j)
+    dy = p[1].take(i) - c[1].take(j)
+    dz = p[2].take(i) - c[2].take(j)
+    return dx * dx + dy * dy + dz * dz
 
 
 def distance_to_polyline(points: np.ndarray, polyline: np.ndarray, window: int = AT_WINDOW_SAMPLES) -> np.ndarray:
@@ -152,60 +185,70 @@ def distance_to_polyline(points: np.ndarray, polyline: np.ndarray, window: int =
     ``window`` samples of the point's own index (points and polyline are sampled at the
     same times, ``m == n``).
 
-    Exact and pruned: the distance to the point's own segment bounds the answer, so only
-    segments of the window whose midpoint lies within that bound plus half their length
-    can be closer; only those are evaluated (a handful instead of 2 window + 1), each with
-    the same arithmetic, so the minimum is the same number as over the whole window. The
-    candidate test runs over blocks of offsets at once (strided views of the padded segment
-    arrays), the same arithmetic per element as one offset at a time."""
+    Exact and pruned: the answer is the minimum of :func:`_pair_distance2` over the point's
+    window, and only segments that can reach it are evaluated (about five of 2 window + 1).
+    Bounds on the answer: the distance to the point's own segment, and that to the nearest
+    midpoint of the segments in the nearest ball of 16 (a midpoint lies on its segment).
+    A segment whose midpoint is farther than a bound plus its half length cannot be closer;
+    a ball of 16, then of 4 consecutive segments farther than the bound plus its radius holds
+    none that can. Every bound has a 1e-9 relative margin; the segments kept get the same
+    arithmetic as in a search over the whole window, so the minimum is the same number
+    (tests/cosim/tracking/test_path_accuracy_pruned.py)."""
     n = polyline.shape[0]
     if n == 1:
         return np.linalg.norm(points - polyline[0], axis=1)
     m = points.shape[0]
+    last = n - 2  # the last segment
     a = polyline[:-1]
     ab = polyline[1:] - a
     ab2 = np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-300)
     idx = np.arange(m)
-    best = _pair_distance2(points, a, ab, ab2, idx, np.clip(idx, 0, n - 2))  # own segment: in every window
-    reach = np.sqrt(best) * (1.0 + 1e-9) + 1e-12
-    # segment j = clip(i + k, 0, n - 2) for offset k is the slice [k + window, k + window + m) of the
-    # segment arrays padded with the first / last segment (contiguous slices, no gathers)
-    pad = (window, window + max(m - (n - 1), 0))
-    mid = np.pad(a + 0.5 * ab, (pad, (0, 0)), mode="edge")
-    half = np.pad(0.5 * np.sqrt(ab2) * (1.0 + 1e-9), pad, mode="edge")
-    px, py, pz = (np.ascontiguousarray(points[:, k]) for k in range(3))
-    # row lo of each (2 window + 1, m) view is offset k = lo - window: the slice [lo, lo + m)
-    count = 2 * window + 1
-    wx, wy, wz, wh = (sliding_window_view(np.ascontiguousarray(c), m)[:count]
-                      for c in (mid[:, 0], mid[:, 1], mid[:, 2], half))
-    rows, segs, mids = [], [], []
-    step = max(1, min(count, _BLOCK_ELEMENTS // max(m, 1)))  # offsets per block: bounded memory
-    for lo in range(0, count, step):
-        hi = min(count, lo + step)
-        dx = px - wx[lo:hi]
-        dy = py - wy[lo:hi]
-        dz = pz - wz[lo:hi]
-        limit = reach + wh[lo:hi]
-        d2 = dx * dx + dy * dy + dz * dz
-        offset, near = np.nonzero(d2 <= limit * limit)
-        if near.size:
-            rows.append(near)
-            segs.append(np.clip(near + (offset + (lo - window)), 0, n - 2))
-            mids.append(d2[offset, near])
-    if rows:
-        i, j, mid2 = np.concatenate(rows), np.concatenate(segs), np.concatenate(mids)
-        # A second, tighter bound: a segment's midpoint lies on it, so the nearest candidate
-        # midpoint's distance bounds the answer too (far tighter than the own segment's when the
-        # measured point lags behind its commanded one). Only candidates whose midpoint lies
-        # within that bound plus half their length can be closer; the others are dropped before
-        # the exact distances are computed. The minimum is the same number.
-        nearest_mid2 = np.full(m, np.inf)
-        np.minimum.at(nearest_mid2, i, mid2)
-        reach2 = np.minimum(reach, np.sqrt(nearest_mid2) * (1.0 + 1e-9) + 1e-12)
-        limit = reach2[i] + half[j + window]
-        keep = mid2 <= limit * limit
+    best = _pair_distance2(points, a, ab, ab2, idx, np.minimum(idx, last))  # own segment: in every window
+    with np.errstate(invalid="ignore"):
+        reach = np.sqrt(best) * _INFLATE + 1e-12
+        mid = a + 0.5 * ab
+        half = 0.5 * np.sqrt(ab2) * _INFLATE
+        p = [np.ascontiguousarray(points[:, k]) for k in range(3)]
+        mids = [np.ascontiguousarray(mid[:, k]) for k in range(3)]
+        lo = np.maximum(np.minimum(idx - window, last), 0)  # the window: segments clip(i + k, 0, last), |k| <= window
+        hi = np.minimum(idx + window, last)
+        coarse, coarse_r = _balls(mid, half, _COARSE_SEGMENTS)
+        fine, fine_r = _balls(mid, half, _FINE_SEGMENTS)
+        # every coarse ball touching the window, (m, count)
+        first, final = lo // _COARSE_SEGMENTS, hi // _COARSE_SEGMENTS
+        ball = first[:, None] + np.arange(int((final - first).max()) + 1)
+        outside = ball > final[:, None]
+        np.minimum(ball, coarse_r.size - 1, out=ball)
+        ball_d2 = _squared(p, idx[:, None], coarse, ball)
+        ball_d2[outside] = np.inf
+        # the second bound: the nearest midpoint among the segments of the nearest ball (inside the window)
+        seg = ball[idx, np.argmin(np.where(np.isnan(ball_d2), np.inf, ball_d2), axis=1)][:, None] * _COARSE_SEGMENTS \
+            + np.arange(_COARSE_SEGMENTS)
+        beyond = (seg < lo[:, None]) | (seg > hi[:, None])
+        np.minimum(seg, last, out=seg)
+        mid_d2 = _squared(p, idx[:, None], mids, seg)
+        mid_d2[beyond | np.isnan(mid_d2)] = np.inf
+        reach = np.minimum(reach, np.sqrt(mid_d2.min(axis=1)) * _INFLATE + 1e-12)
+        # coarse balls that can hold a closer segment -> their fine balls -> their segments
+        limit = reach[:, None] + coarse_r.take(ball)
+        i, k = np.nonzero(ball_d2 <= limit * limit)
+        per = _COARSE_SEGMENTS // _FINE_SEGMENTS
+        i, b = np.repeat(i, per), (ball[i, k][:, None] * per + np.arange(per)).ravel()
+        keep = b < fine_r.size
+        i, b = i[keep], b[keep]
+        limit = reach.take(i) + fine_r.take(b)
+        keep = _squared(p, i, fine, b) <= limit * limit
+        i, j = np.repeat(i[keep], _FINE_SEGMENTS), (b[keep][:, None] * _FINE_SEGMENTS + np.arange(_FINE_SEGMENTS)).ravel()
+        keep = (j >= lo.take(i)) & (j <= hi.take(i))
         i, j = i[keep], j[keep]
-        np.minimum.at(best, i, _pair_distance2(points, a, ab, ab2, i, j))
+        limit = reach.take(i) + half.take(j)
+        keep = _squared(p, i, mids, j) <= limit * limit
+    i, j = i[keep], j[keep]  # ascending in i
+    if i.size:
+        d2 = _pair_distance2(points, a, ab, ab2, i, j)
+        start = np.flatnonzero(np.concatenate(([True], i[1:] != i[:-1])))
+        rows = i[start]
+        best[rows] = np.minimum(best[rows], np.minimum.reduceat(d2, start))
     return np.sqrt(best)
 
 

@@ -63,6 +63,53 @@ def test_flush_streams_buffered_rows_after_the_interval(tmp_path):
     assert read_series(tmp_path / "s.parquet")[1].shape == (10, 2)
 
 
+@pytest.mark.parametrize("rows", [0, 10, 9000, 40000])
+def test_compact_sink_plans_as_one_pass_over_the_whole_stream(tmp_path, rows):
+    """The compact plan a sink gathers while it writes (same columns, exact counts, delta coding
+    on the first rows) is the one a pass over the whole stream gives, and every value comes back."""
+    from cosim.results.timeseries import _schema, encoding_plan
+
+    rng = np.random.default_rng(rows)
+    t = np.arange(rows) * 4e-4
+    counts = np.cumsum(rng.integers(-3, 4, rows)).astype(float)
+    data = np.column_stack([t, np.sin(t), np.sin(t), counts * 2.5e-6, rng.normal(size=rows),
+                            rng.integers(0, 3, rows).astype(float), np.rint(np.cos(3 * t) * 1e3) * 1e-3 + 0.0,
+                            -np.zeros(rows)])  # -0.0 is no integer count: not scaled, its sign comes back
+    if rows > 20000:  # equal / exact counts up to the last row: decided on every row, not on the first ones
+        data[-1, 2] += 0.5
+        data[-1, 6] += 1e-7
+    names, kinds = ["time", "a", "a_copy", "obs", "noise", "n", "c", "z"], ["Real"] * 5 + ["Integer", "Real", "Real"]
+    scales = {"obs": 2.5e-6, "c": 1e-3, "z": 1.0}
+    sink = ParquetSink(tmp_path / "s.parquet", buffer_rows=1024, flush_interval_s=3600.0, scales=scales,
+                       float_delta=True)
+    sink.open(names, kinds)
+    for start in range(0, rows, 700):
+        sink.write(data[start:start + 700])
+    sink.close()
+    import pyarrow as pa
+
+    schema = _schema(names, [k == "Integer" for k in kinds], {})
+    batches = [pa.RecordBatch.from_arrays([pa.array(data[s:s + 1024, i].astype(np.int64) if kinds[i] == "Integer"
+                                                    else np.ascontiguousarray(data[s:s + 1024, i]))
+                                           for i in range(len(names))], schema=schema)
+               for s in range(0, rows, 1024)]
+    plan = encoding_plan(batches, schema, scales, True)
+    stored = pq.read_schema(tmp_path / "s.parquet")
+    for name in names:
+        how = plan.get(name)
+        if how is not None and how[0] == "same":
+            assert name not in stored.names
+            continue
+        meta = (stored.field(name).metadata or {}).get(b"cosim.encoding")
+        assert meta == (None if how is None else b"scaled" if how[0] == "scaled" else f"delta{how[1]}".encode()), name
+    if rows:
+        assert (plan.get("a_copy", ("",))[0] == "same") == (rows <= 20000)
+        assert plan["obs"][0] == "scaled" and (plan.get("c", ("",))[0] == "scaled") == (rows <= 20000)
+        assert plan.get("z", ("",))[0] != "scaled"
+    back_names, back = read_series(tmp_path / "s.parquet")
+    assert back_names == names and np.array_equal(back.view(np.int64), data.view(np.int64))
+
+
 def test_write_columns_both_formats_are_exact(tmp_path):
     data = _rows(500)
     columns = {"t": data[:, 0], "x": data[:, 1], "phase": data[:, 2]}

@@ -60,3 +60,41 @@ def test_lagging_points_equal_full_window(lag):
     rng = np.random.default_rng(lag)
     points = np.vstack([polyline[:1].repeat(lag, 0), polyline[:n - lag]]) + 5e-5 * rng.normal(size=(n, 3))
     assert np.array_equal(distance_to_polyline(points, polyline), full_window(points, polyline))
+
+
+def full_window_nan(points: np.ndarray, polyline: np.ndarray, window: int = AT_WINDOW_SAMPLES) -> np.ndarray:
+    """The full search where segments are not finite: they are never the nearest (NaN only when
+    the point or its own segment is NaN), as the pruned search has always treated them."""
+    n = polyline.shape[0]
+    a = polyline[:-1]
+    ab = polyline[1:] - a
+    ab2 = np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-300)
+    out = np.empty(points.shape[0])
+    for i in range(points.shape[0]):
+        seg = np.unique(np.clip(i + np.arange(-window, window + 1), 0, n - 2))
+        ap = points[i] - a[seg]
+        u = np.clip(np.einsum("ij,ij->i", ap, ab[seg]) / ab2[seg], 0.0, 1.0)
+        d = ap - u[:, None] * ab[seg]
+        d2 = np.einsum("ij,ij->i", d, d)
+        own = d2[seg == min(i, n - 2)][0]
+        out[i] = np.sqrt(own if np.isnan(own) else np.nanmin(d2))
+    return out
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_points_and_segments_of_other_counts_and_nan(seed):
+    """More or fewer points than polyline vertices, and NaN vertices (a failed run's set-points):
+    the same numbers as the full search."""
+    rng = np.random.default_rng(100 + seed)
+    n = int(rng.integers(2, 400))
+    m = int(rng.integers(1, 500))
+    polyline = np.cumsum(rng.normal(size=(n, 3)) * 1e-3, axis=0)
+    points = polyline[np.minimum(np.arange(m), n - 1)] + rng.normal(size=(m, 3)) * 2e-3
+    window = int(rng.integers(1, 60))
+    if seed % 2:
+        polyline[rng.integers(0, n, size=max(1, n // 20))] = np.nan
+        points[rng.integers(0, m, size=max(1, m // 30))] = np.nan
+    assert np.array_equal(distance_to_polyline(points, polyline, window), full_window_nan(points, polyline, window),
+                          equal_nan=True)
+    if not seed % 2:
+        assert np.array_equal(distance_to_polyline(points, polyline, window), full_window(points, polyline, window))
