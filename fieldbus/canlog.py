@@ -241,13 +241,13 @@ class _RowGroups:
         if self._buffer.size != row_group_rows:
             self._encode()  # (a new group size: what is buffered forms its own group)
             self._buffer = np.empty(row_group_rows, dtype=rec.dtype)
-        void = np.dtype((np.void, rec.dtype.itemsize))  # whole records: a memcpy (field by field is ~8x slower)
-        buffer, rec = self._buffer.view(void), np.ascontiguousarray(rec).view(void)
-        while rec.size:
-            take = min(rec.size, row_group_rows - self._rows)
-            buffer[self._rows:self._rows + take] = rec[:take]
+        size = rec.dtype.itemsize  # whole records as bytes: a memcpy (numpy's structured copy is ~8x slower)
+        buffer, raw = self._buffer.view(np.uint8), np.ascontiguousarray(rec).view(np.uint8)
+        while raw.size:
+            take = min(raw.size // size, row_group_rows - self._rows)
+            buffer[self._rows * size:(self._rows + take) * size] = raw[:take * size]
             self._rows += take
-            rec = rec[take:]
+            raw = raw[take * size:]
             if self._rows == row_group_rows:
                 self._encode()
 
@@ -372,8 +372,8 @@ def _encode_records(rec: np.ndarray, start: float, previous_ns: int, scratch: di
     slen = np.ascontiguousarray(srec["length"])
     columns = {"seq": pa.array(order.astype(np.uint32)), "dt_ns": pa.array(dt[order]), "id": pa.array(sid),
                "error": pa.array(serr != 0), "length": pa.array(slen)}
-    values: dict[str, np.ndarray] = {}
-    present: dict[str, np.ndarray] = {}
+    spans: dict[str, list] = {}  # field -> (first row, end row, values, rows picked in between or None: all)
+    picked: list = []
     decoded = 0
     los, his, views = _layout_views(rec.dtype.itemsize)
     # rows sorted by id: each layout's id range is one slice, its length and error flag pick the rows
@@ -387,32 +387,55 @@ def _encode_records(rec: np.ndarray, start: float, previous_ns: int, scratch: di
         if not sub.size:
             continue
         decoded += sub.size
+        picked.append((a, b, None if every else pick))
         for name in view.names:
-            if name not in values:
-                values[name], present[name] = _field_arrays(scratch, name, n)
-            if every:
-                values[name][a:b] = sub[name]
-                present[name][a:b] = True
-            else:
-                values[name][a:b][pick] = sub[name]
-                present[name][a:b] |= pick
+            spans.setdefault(name, []).append((a, b, sub[name], None if every else pick))
     if decoded == n:
         columns["data"] = _nulls(n, "binary")
     else:
         undecoded = np.ones(n, dtype=bool)
-        for p in present.values():
-            undecoded &= ~p
+        for a, b, pick in picked:
+            undecoded[a:b] &= False if pick is None else ~pick
         raw: list[bytes | None] = [None] * n
         data = srec["data"]
         for i in np.flatnonzero(undecoded).tolist():
             raw[i] = bytes(data[i, :min(int(slen[i]), width)])
         columns["data"] = pa.array(raw, type=pa.binary())
     for name, dtype in FIELDS.items():
-        if name in values:
-            columns[name] = _column(values[name], present[name], int(np.count_nonzero(present[name])))
-        else:
-            columns[name] = _nulls(n, dtype.str)
+        columns[name] = _field_column(spans.get(name), n, dtype, scratch, name)
     return pa.table(columns, schema=_schema()), (int(ns[-1]) if n else previous_ns)
+
+
+def _field_column(spans: list | None, n: int, dtype: np.dtype, scratch: dict | None, name: str):
+    """Field ``name``'s column of ``n`` rows from its ``spans`` (see :func:`_encode_records`).
+    Where the rows of each span are all the field's (the usual case) the column is chunked:
+    nulls, values without nulls, nulls - the Parquet writer takes such chunks about 20 %
+    faster than one array with a validity bitmap (the same file)."""
+    import pyarrow as pa
+
+    if not spans:
+        return _nulls(n, dtype.str)
+    kind = pa.from_numpy_dtype(dtype)
+    if all(pick is None for _a, _b, _values, pick in spans) and \
+            all(spans[k][0] >= spans[k - 1][1] for k in range(1, len(spans))):
+        chunks, row = [], 0
+        for a, b, values, _pick in spans:
+            if a > row:
+                chunks.append(pa.nulls(a - row, type=kind))
+            chunks.append(pa.array(np.ascontiguousarray(values, dtype=dtype)))
+            row = b
+        if row < n:
+            chunks.append(pa.nulls(n - row, type=kind))
+        return pa.chunked_array(chunks, type=kind)
+    values, present = _field_arrays(scratch, name, n)
+    for a, b, part, pick in spans:
+        if pick is None:
+            values[a:b] = part
+            present[a:b] = True
+        else:
+            values[a:b][pick] = part
+            present[a:b] |= pick
+    return _column(values, present, int(np.count_nonzero(present)))
 
 
 def partial_to_parquet(partial: Path, path: Path, row_group_rows: int = ROW_GROUP_ROWS) -> None:
