@@ -375,8 +375,8 @@ def evaluate_run(ctx: RunContext, mode: str, cell: CellRun, controller: Any, ref
                 if user_ik is None:
                     user_ik = _ReferenceJoints(start, reference, kinematic_model, q_start, t)
                 q_d = user_ik.joints(t)
-            commanded = true_kinematics.transforms(q_d)[:, :3, 3]
-            actual = true_kinematics.transforms(q)[:, :3, 3]
+            commanded = true_kinematics.positions(q_d)
+            actual = true_kinematics.positions(q)
             tau = np.clip(t - (start if start is not None else np.inf), 0.0, path.duration)
             programmed = reference.positions(reference.t_start + tau)
             ref = path.reference(tau)
