@@ -329,7 +329,17 @@ def late_controller(endpoint_file: str, late: tuple[int, ...], seconds: float, q
 
 
 def _late_scenario(work: Path, seconds: float) -> Path:
+    """scenarios/hil.toml for ``seconds`` with POWERLINK's default loss-of-SoC/PReq thresholds (the
+    late controller is about what POWERLINK specifies: 15 trips at the second lost cycle in a row;
+    hil.toml sets those of a buffered drive)."""
+    import re
+
+    from fieldbus import FieldbusConfig
+
     text = (ROOT / "scenarios" / "hil.toml").read_text().replace('stop_time = "6 s"', f'stop_time = "{seconds} s"')
+    defaults = FieldbusConfig.from_dict({}).thresholds
+    for key in ("cn_loss_of_soc", "cn_loss_of_preq"):
+        text = re.sub(rf"^{key} = \d+", f"{key} = {getattr(defaults, key)}", text, count=1, flags=re.MULTILINE)
     path = work / "hil_late.toml"
     path.write_text(text)
     return path
@@ -386,7 +396,7 @@ def late_run(work: Path, seconds: float = LATE_SECONDS, late: tuple[int, ...] = 
     first = hil["controller"]["first_cycle"]
     cycles = hil["cycles"]
     planned = list(ctrl["late_sent"])  # cell cycles (the controller read them from the cell's PRes)
-    threshold = FieldbusConfig.from_dict({}).thresholds.cn_loss_of_preq  # hil.toml keeps the default
+    threshold = FieldbusConfig.from_dict({}).thresholds.cn_loss_of_preq  # _late_scenario: the default
     expected = expected_counters(planned, cycles, threshold=threshold)
     observed = {row["cycle"]: row["counters"] for row in hil["lost_cycles"]}
     trips: dict[int, set[int]] = {}
@@ -455,11 +465,21 @@ def hil_lookahead() -> int:
     return int(document.get("fieldbus", {}).get("setpoint_lookahead", 0))
 
 
+def hil_buffer() -> int:
+    """``[fieldbus] setpoint_buffer`` of scenarios/hil.toml: the drives' set-point buffer depth of
+    the HIL configuration (0 when the scenario sets none)."""
+    import tomllib
+
+    document = tomllib.loads((ROOT / "scenarios" / "hil.toml").read_text())
+    return int(document.get("fieldbus", {}).get("setpoint_buffer", 0))
+
+
 def iso_scenario(work: Path, stop_time_s: float | None = None, missing_setpoint: str = "hold",
-                 name: str = "iso", lookahead: int = 0) -> Path:
+                 name: str = "iso", lookahead: int = 0, buffer: int = 0) -> Path:
     """scenarios/``ISO_SCENARIO``, model_based mode only, no figures, loss counters at
     ``ISO_THRESHOLD``, the drives' reaction to a missing set-point ``missing_setpoint``
-    ('hold' or 'extrapolate'), ``lookahead`` cycles of set-point look-ahead in each PReq."""
+    ('hold' or 'extrapolate'), ``lookahead`` cycles of set-point look-ahead in each PReq,
+    a set-point buffer of ``buffer`` cycles in the drives."""
     text = (ROOT / "scenarios" / ISO_SCENARIO).read_text()
 
     def replace(text: str, pattern: str, new: str) -> str:
@@ -475,7 +495,7 @@ def iso_scenario(work: Path, stop_time_s: float | None = None, missing_setpoint:
         text = replace(text, r'^stop_time = ".*"', f'stop_time = "{stop_time_s} s"')
     text = replace(text, r"^figures = true", "figures = false")
     text = replace(text, r"^cycle_time_us = 400.*$",
-                   f"cycle_time_us = 400\nsetpoint_lookahead = {lookahead}\n[fieldbus.thresholds]\ncn_loss_of_soc = {ISO_THRESHOLD}\n"
+                   f"cycle_time_us = 400\nsetpoint_lookahead = {lookahead}\nsetpoint_buffer = {buffer}\n[fieldbus.thresholds]\ncn_loss_of_soc = {ISO_THRESHOLD}\n"
                    f'cn_loss_of_preq = {ISO_THRESHOLD}\n[fieldbus.reaction]\nmissing_setpoint = "{missing_setpoint}"')
     work.mkdir(parents=True, exist_ok=True)
     path = work / f"{name}.toml"
@@ -532,6 +552,7 @@ def iso_split_run(scenario: Path, out: Path, split: bool) -> dict:
                     "lost_after_cell_overrun": cell_side_stall,
                     "lost_with_cell_in_time": len(lost_cycles) - cell_side_stall,
                     "controller_cycles_skipped": hil["controller_side"]["cycles_skipped"],
+                    "controller_cycles_caught_up": hil["controller_side"].get("cycles_caught_up", 0),
                     "controller_stalls_over_one_cycle": hil["controller_side"].get("stalls_over_one_cycle"),
                     "controller_compute_over_one_cycle": hil["controller_side"].get("compute_over_one_cycle"),
                     "cell_overrun_causes": {k: v for k, v in cell.get("overrun_causes", {}).items()
@@ -563,11 +584,11 @@ def _run_lengths(cycles: list[int]) -> dict[str, int]:
 
 
 def iso_split(work: Path, runs: int = 5, stop_time_s: float | None = None, missing_setpoint: str = "hold",
-              lookahead: int = 0) -> dict:
+              lookahead: int = 0, buffer: int = 0) -> dict:
     """The HIL comparison figure: ISO 9283 model-based TCP error of the paced split run (our controller
     in this process, ``cosim serve``'s cell in another, 400 µs) against the in-process run;
     ``runs`` split runs, medians."""
-    scenario = iso_scenario(work, stop_time_s, missing_setpoint, lookahead=lookahead)
+    scenario = iso_scenario(work, stop_time_s, missing_setpoint, lookahead=lookahead, buffer=buffer)
     reference = iso_split_run(scenario, work / "in_process", split=False)
     split = [iso_split_run(scenario, work / f"split_{i}", split=True) for i in range(runs)]
 
@@ -578,7 +599,7 @@ def iso_split(work: Path, runs: int = 5, stop_time_s: float | None = None, missi
     tcp = med("tcp_error_max_mm")
     completed = sum(1 for r in split if r["status"] == "ok")
     return {"runs": runs, "completed_runs": completed,"stop_time_s": stop_time_s, "missing_setpoint": missing_setpoint, "setpoint_lookahead": lookahead,
-            "threshold": ISO_THRESHOLD,
+            "setpoint_buffer": buffer, "threshold": ISO_THRESHOLD,
             "in_process": reference, "split_runs": split,
             "tcp_error_max_mm_in_process": reference["tcp_error_max_mm"], "tcp_error_max_mm_split": tcp,
             "tcp_error_rms_mm_in_process": reference["tcp_error_rms_mm"], "tcp_error_rms_mm_split": med("tcp_error_rms_mm"),
@@ -599,7 +620,8 @@ def iso_split(work: Path, runs: int = 5, stop_time_s: float | None = None, missi
 def print_iso(r: dict) -> None:
     ref = r["in_process"]
     print(f"ISO 9283 model_based, missing set-point '{r['missing_setpoint']}', look-ahead "
-          f"{r.get('setpoint_lookahead', 0)} cycles, thresholds {r['threshold']}: "
+          f"{r.get('setpoint_lookahead', 0)} cycles, set-point buffer {r.get('setpoint_buffer', 0)} cycles, "
+          f"thresholds {r['threshold']}: "
           f"in process max/RMS TCP error {ref['tcp_error_max_mm']:.4f}/{ref['tcp_error_rms_mm']:.4f} mm")
     for i, x in enumerate(r["split_runs"]):
         if x["status"] != "ok" or "cycles" not in x:
@@ -611,7 +633,8 @@ def print_iso(r: dict) -> None:
               f"time; controller: PRes waiting > 1 cycle {x['controller_stalls_over_one_cycle']}, steps > 1 cycle "
               f"{x['controller_compute_over_one_cycle']}; causes {x.get('lost_cycle_causes')}; cell overruns "
               f"{x['cell_overrun_causes']}; covered from the look-ahead {x.get('cycles_covered')} node-cycles, "
-              f"held {x.get('cycles_held')}; runs of lost cycles by length {x.get('lost_runs')}), round trip p50/p99 "
+              f"held {x.get('cycles_held')}; runs of lost cycles by length {x.get('lost_runs')}; controller caught up "
+              f"{x.get('controller_cycles_caught_up')} cycles), round trip p50/p99 "
               f"{x['round_trip_us']['p50_us']:.1f}/{x['round_trip_us']['p99_us']:.1f} us, controller compute p50/p99/max "
               f"{x['controller_compute_us']['p50_us']:.1f}/{x['controller_compute_us']['p99_us']:.1f}/"
               f"{x['controller_compute_us']['max_us']:.0f} us, steal {x['steal_ms_per_s']:.1f} ms/s, load "
@@ -641,12 +664,15 @@ def main(argv: list[str] | None = None) -> int:
                         help="--iso: the drives' reaction to a lost set-point")
     parser.add_argument("--lookahead", type=int, default=0,
                         help="--iso: [fieldbus] setpoint_lookahead, cycles of set-points each PReq carries ahead")
+    parser.add_argument("--buffer", type=int, default=0,
+                        help="--iso: [fieldbus] setpoint_buffer, the drives' set-point buffer depth in cycles "
+                             "(needs --lookahead >= 1)")
     args = parser.parse_args(argv)
     if args.iso:
         import tempfile
 
         with tempfile.TemporaryDirectory(prefix="bench-hil-iso-") as tmp:
-            iso = iso_split(Path(tmp), args.runs, args.stop_time, args.missing_setpoint, args.lookahead)
+            iso = iso_split(Path(tmp), args.runs, args.stop_time, args.missing_setpoint, args.lookahead, args.buffer)
         print_iso(iso)
         if args.json:
             args.json.write_text(json.dumps(iso, indent=1))

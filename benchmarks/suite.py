@@ -364,9 +364,10 @@ def hil(sizes: Sizes, work: Path) -> dict[str, Any]:
     late = bench_hil.late_run(work / "late", sizes.hil_late_seconds, sizes.hil_late_cycles)
     # the ISO comparison in the HIL configuration of scenarios/hil.toml: drives extrapolating a
     # missing set-point, our controller sending the set-point look-ahead (docs/hil.md)
-    lookahead = bench_hil.hil_lookahead()
-    iso = bench_hil.iso_split(work / "iso", sizes.hil_iso_runs, sizes.hil_iso_stop_time_s, "extrapolate", lookahead)
-    extra: dict[str, Any] = {"iso_setpoint_lookahead": lookahead}
+    lookahead, buffer = bench_hil.hil_lookahead(), bench_hil.hil_buffer()
+    iso = bench_hil.iso_split(work / "iso", sizes.hil_iso_runs, sizes.hil_iso_stop_time_s, "extrapolate", lookahead,
+                              buffer)
+    extra: dict[str, Any] = {"iso_setpoint_lookahead": lookahead, "iso_setpoint_buffer": buffer}
     if sizes.hil_iso_without_lookahead and lookahead:
         plain = bench_hil.iso_split(work / "iso_no_lookahead", sizes.hil_iso_runs, sizes.hil_iso_stop_time_s,
                                     "extrapolate", 0)

@@ -92,7 +92,9 @@ class ControllerInfo:
         default): each output goes out that many cycles later as the set-point due next,
         and before that in as many PReqs as a look-ahead entry the drives keep for a lost
         PReq. A new controlword or mode of operation goes out at once (the drives' look-ahead
-        is replaced), so the enable sequence and a stop are not delayed.
+        is replaced), so the enable sequence and a stop are not delayed. With a set-point
+        buffer in the drives (``[fieldbus] setpoint_buffer`` = D) it is D: the drives hold up
+        to D planned set-points and a lost PReq run of up to D cycles costs nothing.
     lead_cycles: ``1 + dead_time_cycles + lookahead_cycles``: an output computed at ``t_k``
         acts from ``t_k + lead_cycles * period_s``.
     compute_budget_s: the controller's share of the cycle, s (compute above it is a

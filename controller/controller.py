@@ -151,6 +151,8 @@ class ControllerConfig:
 
 
 _COMPUTING = frozenset((Phase.SETTLING, Phase.TRACKING, Phase.FINISHED))
+_perf_counter_ns = time.perf_counter_ns
+_thread_time_ns = time.thread_time_ns
 _SCALAR_ROW = struct.Struct("@6d")
 _JOINT_ROW_BYTES = 6 * N_JOINTS * 8
 
@@ -461,6 +463,7 @@ class Controller:
             self._ref_t_start = reference.t_start
             self._ref_duration = reference.duration
         self._lead_time_s = self.config.lead_time_s
+        self._period_s = self.config.period_s
 
     # ------------------------------------------------------------------ properties
     @property
@@ -553,14 +556,19 @@ class Controller:
     def run_cycle(self, cycle: int, t: float, observed: ObservedActuals | ControllerInput) -> Setpoints:
         """One controller cycle at time ``t`` (s) of cycle number ``cycle``: read the actual
         values, return the set-points for the next cycle (a reused object)."""
-        started = time.perf_counter_ns()
-        cpu_started = time.thread_time_ns()
+        started = _perf_counter_ns()
+        cpu_started = _thread_time_ns()
         last = self._last_cycle
         # the time since the state the next IK seed is predicted from: one period, or more
         # after cycles this controller did not run (a split controller that fell behind)
-        self._h = self.config.period_s if (last is None or cycle - last <= 1) else (cycle - last) * self.config.period_s
-        self._shape_gap = cycle - last if (self._bus_interpolates_jumps and last is not None and cycle - last > 1) \
-            else 1
+        if last is not None and cycle - last == 1:  # the usual cycle: the expressions below give these
+            self._h = self._period_s
+            self._shape_gap = 1
+        else:
+            self._h = self.config.period_s if (last is None or cycle - last <= 1) \
+                else (cycle - last) * self.config.period_s
+            self._shape_gap = cycle - last if (self._bus_interpolates_jumps and last is not None and cycle - last > 1) \
+                else 1
         if self._fast is not None and self.phase in _COMPUTING:
             done = self._fast_step(cycle, t, observed, started, cpu_started)
             if done:
@@ -687,8 +695,8 @@ class Controller:
             self.motion_start_cycle = cycle
         if phase is Phase.TRACKING and tau >= duration:
             phase = self.phase = Phase.FINISHED
-        elapsed = time.perf_counter_ns() - started
-        self.timer.record(elapsed, time.thread_time_ns() - cpu_started)
+        elapsed = _perf_counter_ns() - started
+        self.timer.record(elapsed, _thread_time_ns() - cpu_started)
         self.log.commit(t, t + self._lead_time_s, int(phase), tau, elapsed * 1e-3, iterations)
 
     def _enable(self, observed: ObservedActuals, sp: Setpoints) -> None:

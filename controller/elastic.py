@@ -184,6 +184,8 @@ class ElasticController(Controller):
             if lib is not None:
                 self._fast = ElasticCycle(lib, self)
                 self._observed_bound = None
+                self._ref_t_start = reference.t_start  # what the cycle reads of the reference
+                self._ref_duration = reference.duration
                 self.kernel_note = f"elastic cycle {lib._name}"
 
     def _fast_step(self, cycle: int, t: float, observed, started: int, cpu_started: int) -> bool:
@@ -191,12 +193,15 @@ class ElasticController(Controller):
         set-points, shaper state, log row and timing as :meth:`Controller.run_cycle` with
         :meth:`_compute`. False when the Python path must take this cycle (a drive not in
         Operation enabled or a node fault, unusual observed arrays); nothing has changed then."""
-        if not self._bind_fast_observed(observed):
-            return False
+        bound = self._observed_bound
+        if bound is None or observed.position is not bound[0] or observed.statusword is not bound[1] \
+                or observed.node_fault is not bound[2]:
+            if not self._bind_fast_observed(observed):
+                return False
         phase = self.phase
-        tau = 0.0 if phase is Phase.SETTLING else (cycle - self.motion_start_cycle) * self.config.period_s
+        tau = 0.0 if phase is Phase.SETTLING else (cycle - self.motion_start_cycle) * self._period_s
         ref = self.reference
-        k, _ = ref.grid.locate(ref.t_start + tau)
+        k, _ = ref.grid.locate(self._ref_t_start + tau)
         fast = self._fast
         if self._shape_gap != 1 and self._shaper is not None:
             # a jump the bus interpolates: shape over the samples in between (drive_compensation)
@@ -208,7 +213,7 @@ class ElasticController(Controller):
         if status != 0:
             return False
         self._last_knot = k
-        self._fast_step_done(cycle, t, phase, tau, ref.duration, started, cpu_started, 0)
+        self._fast_step_done(cycle, t, phase, tau, self._ref_duration, started, cpu_started, 0)
         return True
 
     def _enable(self, observed, sp: Setpoints) -> None:

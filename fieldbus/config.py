@@ -16,7 +16,8 @@ from pathlib import Path
 from typing import Any
 
 from fieldbus.errors import FieldbusConfigError
-from fieldbus.telegrams import MAX_LOOKAHEAD, RPDO1_LOOKAHEAD_ENTRY, RPDO1_MAX_BYTES, RPDO1_SIGNED
+from fieldbus.telegrams import (MAX_LOOKAHEAD, MAX_SETPOINT_BUFFER, RPDO1_LOOKAHEAD_ENTRY, RPDO1_MAX_BYTES,
+                                RPDO1_SIGNED)
 from fieldbus.timing import check_cycle_budget
 
 DEFAULTS_PATH = Path(__file__).with_name("powerlink_defaults.toml")
@@ -245,13 +246,21 @@ class FieldbusConfig:
     recording: RecordingConfig
     source: str = "<dict>"
     setpoint_lookahead: int = 0
+    setpoint_buffer: int = 0
+
+    @property
+    def planned_ahead_cycles(self) -> int:
+        """Cycles a controller on this bus computes its set-points ahead of the plain
+        cyclic synchronous timing: ``setpoint_buffer`` when the drives buffer set-points,
+        else ``setpoint_lookahead``."""
+        return self.setpoint_buffer or self.setpoint_lookahead
 
     @property
     def lead_cycles(self) -> int:
         """Cycles from a controller computing a set-point to the drive applying it:
-        1 (into the next cycle's PReq) + ``dead_time_cycles`` + ``setpoint_lookahead`` (a
-        controller sending set-points ahead computes each that many cycles early)."""
-        return 1 + self.dead_time_cycles + self.setpoint_lookahead
+        1 (into the next cycle's PReq) + ``dead_time_cycles`` + :attr:`planned_ahead_cycles`
+        (a controller sending set-points ahead computes each that many cycles early)."""
+        return 1 + self.dead_time_cycles + self.planned_ahead_cycles
 
     @property
     def node_ids(self) -> range:
@@ -406,6 +415,7 @@ def _build(v: dict[str, Any], source: str) -> FieldbusConfig:
         start_time_s=r.number("start_time_s", v["start_time_s"]),
         seed=r.integer("seed", v["seed"], 0),
         setpoint_lookahead=_lookahead(r, v["setpoint_lookahead"]),
+        setpoint_buffer=_buffer(r, v["setpoint_buffer"], v["setpoint_lookahead"], v["dead_time_cycles"]),
         bus=bus, timing=timing, thresholds=thresholds, reaction=reaction,
         scaling=scaling, faults=faults, recording=recording, source=source,
     )
@@ -416,6 +426,22 @@ def _lookahead(r: _Rules, value: object) -> int:
         r.fail("setpoint_lookahead", value,
                f"an integer number of cycles in [0, {MAX_LOOKAHEAD}] (the RPDO1 carries {RPDO1_SIGNED.size} bytes "
                f"+ {RPDO1_LOOKAHEAD_ENTRY.size} per look-ahead cycle in at most {RPDO1_MAX_BYTES} bytes of CAN FD)")
+    return int(value)  # type: ignore[arg-type]
+
+
+def _buffer(r: _Rules, value: object, lookahead: object, dead_time: object) -> int:
+    if not _is_int(value) or not 0 <= value <= MAX_SETPOINT_BUFFER:  # type: ignore[operator]
+        r.fail("setpoint_buffer", value,
+               f"an integer number of cycles in [0, {MAX_SETPOINT_BUFFER}] (0x60C4 sub 1 maximum buffer size; "
+               f"the PRes reports the fill in one byte)")
+    if value and not (_is_int(lookahead) and 1 <= lookahead):  # type: ignore[operator]
+        r.fail("setpoint_buffer", value, "0 with setpoint_lookahead = 0: each PReq refills the buffer with "
+                                         "setpoint_lookahead entries (1..4), so set setpoint_lookahead >= 1")
+    if value and value < lookahead:  # type: ignore[operator]
+        r.fail("setpoint_buffer", value, f"at least setpoint_lookahead = {lookahead} cycles")
+    if value and _is_int(dead_time) and value + dead_time > 255:  # type: ignore[operator]
+        r.fail("setpoint_buffer", value, f"setpoint_buffer + dead_time_cycles ({dead_time}) <= 255 (the PRes "
+                                         f"reports the set-points held in one byte)")
     return int(value)  # type: ignore[arg-type]
 
 

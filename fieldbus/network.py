@@ -62,7 +62,7 @@ class PowerlinkNetwork(Closeable):
         self.events = EventLog()
         self.channel = default_channel(config)
         self.recorder = (FrameRecorder(log_path, config.recording.flush_every_cycles, config.recording.background,
-                                       rpdo1_length(config.setpoint_lookahead))
+                                       64 if config.setpoint_buffer else rpdo1_length(config.setpoint_lookahead))
                          if log_path is not None else None)
         shared = {"channel": self.channel, "events": self.events, "recorder": self.recorder,
                   "record_received": False}
@@ -92,7 +92,10 @@ class PowerlinkNetwork(Closeable):
                              and self.mn._codec is not None and self.cn._codec is not None
                              and self.mn_side._send_many is not None and self.drive_side._send_many is not None
                              and self.mn_side._drain is not None and self.drive_side._drain is not None)
-        self._faults_planned = self.mn_side.plan.enabled or self.drive_side.plan.enabled
+        # the endpoints' fault plans when neither injects anything (a wrapper installed later, e.g.
+        # cosim.realtime's overrun plan, is asked every cycle)
+        quiet = not (self.mn_side.plan.enabled or self.drive_side.plan.enabled)
+        self._quiet_plans = (self.mn_side.plan, self.drive_side.plan) if quiet else (None, None)
         self._checked_integers: tuple = ()  # (controlword, modes) arrays whose dtypes were checked
 
     # ------------------------------------------------------------------ life cycle
@@ -131,8 +134,10 @@ class PowerlinkNetwork(Closeable):
         mn_side, cn_side = self.mn_side, self.drive_side
         if mn_side._cycle != cycle - 1 or cn_side._cycle != cycle - 1 or cycle < 0:
             return None  # not consecutive (the endpoints raise), or a first cycle other than 0
-        if self._faults_planned and (mn_side.plan.for_cycle(cycle) is not None
-                                     or cn_side.plan.for_cycle(cycle) is not None):
+        mn_plan, cn_plan = mn_side.plan, cn_side.plan
+        quiet = self._quiet_plans
+        if (mn_plan is not quiet[0] or cn_plan is not quiet[1]) and (mn_plan.for_cycle(cycle) is not None
+                                                                  or cn_plan.for_cycle(cycle) is not None):
             return None
         cw, modes = setpoints.controlword, setpoints.modes_of_operation
         checked = self._checked_integers
@@ -143,7 +148,7 @@ class PowerlinkNetwork(Closeable):
                 return None
             self._checked_integers = (cw, modes)
         # managing node: SoC and PReqs (ManagingNodeEndpoint.send_setpoints)
-        times = mn_side.schedule.timestamps(cycle)  # both sides' schedules give the same times
+        times = mn_side.schedule.timestamps(cycle)
         mn_side._cycle = cycle
         mn_side._times = times
         mn_side._kinds = _NO_FAULTS
@@ -164,7 +169,7 @@ class PowerlinkNetwork(Closeable):
             record(frames)
         # controlled nodes: SoC, PReqs in, PRes out (DriveEndpoint.run_cycle)
         cn_side._cycle = cycle
-        cn_side._times = times
+        cn_side._times = times = cn_side.schedule.timestamps(cycle)
         cn_side._kinds = _NO_FAULTS
         cn = self.cn
         applied = cn.start_cycle(cycle, actuals)
@@ -261,7 +266,12 @@ def network_summary(config: FieldbusConfig, events: EventLog, mn_side: ManagingN
         "setpoint_lookahead": {
             "cycles": config.setpoint_lookahead,
             "cycles_covered_per_node": ({str(i + 1): int(v) for i, v in enumerate(drive_side.nodes.cycles_covered)}
-                                        if drive_side is not None else None)},
+                                        if drive_side is not None else None),
+            # cycles whose set-point neither a PReq nor the buffer had (missing_setpoint applied)
+            "cycles_without_setpoint_per_node": (
+                {str(i + 1): int(v) for i, v in enumerate(drive_side.nodes.cycles_without_setpoint)}
+                if drive_side is not None else None),
+            "buffer": config.setpoint_buffer},
         "event_tally": events.tally(),
         "faults": faults,
     }

@@ -33,6 +33,7 @@ import struct
 from collections import deque
 from collections.abc import Callable
 from functools import partial
+from itertools import islice
 from math import floor
 from operator import mul
 from typing import TYPE_CHECKING
@@ -46,8 +47,8 @@ from fieldbus.events import CounterBank, EventLog, FieldbusEvent, ThresholdCount
 from fieldbus.process_data import AppliedSetpoints, DriveActuals, ObservedActuals
 from fieldbus.telegrams import (
     CLASSIC_RPDO1_DEFAULTS, EMCY, EMCY_BASE, EMCY_COMMUNICATION, EMCY_ERROR_REGISTER_COMMUNICATION,
-    MODES_OF_OPERATION, RPDO1_BASE, RPDO1_CLASSIC, RPDO1_LOOKAHEAD_ENTRY, RPDO1_LOOKAHEAD_LENGTHS, RPDO1_SIGNED,
-    SYNC_ID, TPDO1, TPDO1_BASE, TPDO2,
+    MODES_OF_OPERATION, RPDO1_BASE, RPDO1_BUFFER_SKIP, RPDO1_BUFFER_SKIP_OFFSET, RPDO1_CLASSIC, RPDO1_LOOKAHEAD_ENTRY,
+    RPDO1_LOOKAHEAD_LENGTHS, RPDO1_MAX_BYTES, RPDO1_SIGNED, SYNC_ID, TPDO1, TPDO1_BASE, TPDO2, TPDO2_BUFFERED,
     TPDO2_BASE, FastMessage, check_frame, check_mode_of_operation, classify, rpdo1_length,
 )
 
@@ -68,6 +69,10 @@ _PACK_TPDO2_INTO = TPDO2.pack_into
 _UNPACK_RPDO1 = RPDO1_SIGNED.unpack
 _UNPACK_TPDO1 = TPDO1.unpack
 _UNPACK_TPDO2 = TPDO2.unpack
+_TPDO2_BUFFERED_LEN = TPDO2_BUFFERED.size
+_UNPACK_TPDO2_BUFFERED = TPDO2_BUFFERED.unpack
+_PACK_SKIP = RPDO1_BUFFER_SKIP.pack_into
+_UNPACK_SKIP = RPDO1_BUFFER_SKIP.unpack_from
 
 def _lookahead_entry(raw: bytes) -> bytes:
     """The 10-byte look-ahead entry of a packed 20-byte RPDO1: the set-point of its mode
@@ -241,10 +246,17 @@ class ManagingNode:
         # as the PReq's set-point due next, each first in that many PReqs before as a
         # look-ahead entry (the controller computes them that much earlier: its lead_cycles)
         self._k = k = config.setpoint_lookahead
+        # set-point buffer (setpoint_buffer = D > 0): the ring holds D + 1 planned set-points and
+        # each PReq's k entries start at the first cycle the drive reported missing in its PRes
+        self._depth = depth = config.setpoint_buffer or k
+        self._buffered = config.setpoint_buffer > 0
+        self._dead = config.dead_time_cycles
+        self.buffer_missing_from: list[int | None] = [None] * n  # per node: first SoC cycle the drive lacks
         if k:
-            self._ring = [deque(maxlen=k + 1) for _ in range(n)]
-            self._entries = [deque(maxlen=k + 1) for _ in range(n)]  # the ring's look-ahead entries, packed
-            self._la_msgs = [FastMessage(0.0, RPDO1_BASE + i + 1, bytearray(rpdo1_length(k))) for i in range(n)]
+            self._ring = [deque(maxlen=depth + 1) for _ in range(n)]
+            self._entries = [deque(maxlen=depth + 1) for _ in range(n)]  # the ring's look-ahead entries, packed
+            length = RPDO1_MAX_BYTES if self._buffered else rpdo1_length(k)
+            self._la_msgs = [FastMessage(0.0, RPDO1_BASE + i + 1, bytearray(length)) for i in range(n)]
             self._frames_sent = [self._sync_msg] + self._la_msgs
             self._la_cycle = -1  # cycle of the last PReqs sent
         th = config.thresholds
@@ -263,7 +275,7 @@ class ManagingNode:
         self._late = [False] * n
         self._crc = [False] * n
 
-    def encode(self, cycle: int, times: list, setpoints: "Setpoints") -> list[FastMessage] | None:
+    def encode(self, cycle: int, times: list, setpoints: "Setpoints", build: bool = True) -> list[FastMessage] | None:
         """:meth:`frames` for ``setpoints`` (arrays) through the compiled codec; None when
         the codec is unavailable or declines (a node fault latched, a value outside the
         telegram range or not finite, unusual arrays): then call :meth:`frames`."""
@@ -279,49 +291,70 @@ class ManagingNode:
         sync = self._sync_msg
         sync.timestamp = times[0]
         sync.data[0] = (cycle % self._sync_overflow) + 1
-        return self._lookahead_frames(cycle) if self._k else self._frames
+        if not self._k:
+            return self._frames
+        return self._lookahead_frames(cycle) if build else self._lookahead_frames(cycle, False)
 
-    def _lookahead_frames(self, cycle: int) -> list[FastMessage]:
+    def _lookahead_frames(self, cycle: int, build: bool = True) -> list[FastMessage]:
         """The PReqs of ``cycle`` with the set-point look-ahead, from this cycle's packed
         20-byte RPDO1s (the controller's newest output, for the SoC of cycle + d + k): per
         node a ring of the planned set-points for the SoCs of cycles cycle + d .. cycle + d + k;
         the first is the set-point due next, the others the k look-ahead entries.
+
+        With a set-point buffer of depth D (``setpoint_buffer``) the ring holds cycle + d ..
+        cycle + d + D and the k entries start at the first cycle the drive reported missing
+        (its PRes, :attr:`buffer_missing_from`), at most at the newest k: in steady state the
+        newest with k - 1 repeated, after lost PReqs a refill of k per cycle; bytes 60-61 carry
+        where they start. ``build`` False: only take the output into the ring (a controller
+        catching up on cycles it did not run; nothing is sent).
 
         A new controlword or mode of operation replaces the node's ring with the new output
         (the controller changed its plan: enabling, a quick stop, a fault reset go out at
         once). A controller that skipped cycles (it fell behind and jumped to the cell's
         cycle) left no set-points for the cycles in between: they are interpolated linearly
         between its last output and the new one, in telegram units."""
-        k = self._k
+        k, depth = self._k, self._depth
         gap = cycle - self._la_cycle
         self._la_cycle = cycle
         entry = _lookahead_entry
-        for staged, ring, entries, msg in zip(self._preq_msgs, self._ring, self._entries, self._la_msgs):
+        buffered = self._buffered
+        base = cycle + self._dead  # the SoC cycle of ring[0], the set-point due next
+        for staged, ring, entries, msg, missing in zip(self._preq_msgs, self._ring, self._entries, self._la_msgs,
+                                                       self.buffer_missing_from):
             raw = bytes(staged.data)
             if not ring or gap < 1 or raw[:2] != ring[-1][:2] or raw[8] != ring[-1][8]:
                 ring.clear()
-                ring.extend((raw,) * (k + 1))
+                ring.extend((raw,) * (depth + 1))
                 entries.clear()
-                entries.extend((entry(raw),) * (k + 1))
+                entries.extend((entry(raw),) * (depth + 1))
             else:
                 if gap > 1:
-                    for between in _interpolated(ring[-1], raw, gap, k):
+                    for between in _interpolated(ring[-1], raw, gap, depth):
                         ring.append(between)
                         entries.append(entry(between))
                 ring.append(raw)
                 entries.append(entry(raw))
+            if not build:
+                continue
             data = msg.data
             data[:20] = ring[0]
             data[9] = k
-            entries.rotate(-1)  # the k newest, then the oldest (the set-point due next)
-            data[20:20 + 10 * k] = b"".join(entries)[:10 * k]
-            entries.rotate(1)
+            if buffered:
+                first = depth + 1 - k  # the newest k
+                if missing is not None and missing - base < first:
+                    first = max(missing - base, 1)
+                data[20:20 + 10 * k] = b"".join(islice(entries, first, first + k))
+                _PACK_SKIP(data, RPDO1_BUFFER_SKIP_OFFSET, first - 1)
+            else:
+                entries.rotate(-1)  # the k newest, then the oldest (the set-point due next)
+                data[20:20 + 10 * k] = b"".join(entries)[:10 * k]
+                entries.rotate(1)
             msg.timestamp = staged.timestamp
         return self._frames_sent
 
     def frames(self, cycle: int, times: list, controlword: list, position: list, torque_offset: list,
                modes: list | None = None, target_torque: list | None = None, target_velocity: list | None = None,
-               velocity_offset: list | None = None) -> list[FastMessage]:
+               velocity_offset: list | None = None, build: bool = True) -> list[FastMessage]:
         """SYNC and one RPDO1 per node for ``cycle``: ``times`` = [soc, preq_1..N, ...]
         send times (s); set-points per node as plain lists in SI units (quantised
         here; modes of operation 8, 9 or 10, default 8, others raise ValueError; the
@@ -374,7 +407,9 @@ class ManagingNode:
                 self._pack_saturated(msg, i, cw, position[i], torque_offset[i], mode, target_torque[i],
                                      target_velocity[i], velocity_offset[i])
         self._last_cw = controlword
-        return self._lookahead_frames(cycle) if self._k else self._frames
+        if not self._k:
+            return self._frames
+        return self._lookahead_frames(cycle) if build else self._lookahead_frames(cycle, False)
 
     def _pack_saturated(self, msg: FastMessage, i: int, cw: int, position: float, torque: float, mode: int,
                         target_torque: float, target_velocity: float, velocity_offset: float) -> None:
@@ -432,6 +467,15 @@ class ManagingNode:
                             else:
                                 vel[i], err[i], mode[i] = _UNPACK_TPDO2(data)
                                 got2[i] = True
+                            continue
+                        if len(data) == _TPDO2_BUFFERED_LEN:  # with the set-points the drive holds ahead
+                            if msg.timestamp > latest[i]:
+                                late[i] = True
+                            else:
+                                vel[i], err[i], mode[i], held = _UNPACK_TPDO2_BUFFERED(data)
+                                got2[i] = True
+                                # it holds the SoCs of cycle + 1 .. cycle + held
+                                self.buffer_missing_from[i] = self.cycle + 1 + held
                             continue
             self._other_frame(msg)
 
@@ -559,6 +603,15 @@ class ControlledNodes:
         self._ahead_any = False
         self._ahead_new = [False] * n  # the buffer was refilled by this cycle's PReq
         self.cycles_covered = [0] * n  # cycles whose set-point came from the buffer (PReq lost or late)
+        self.cycles_without_setpoint = [0] * n  # cycles with neither a PReq's nor a buffered set-point
+        # set-point buffer (setpoint_buffer = D > 0, CiA 402 0x60C4): per node a FIFO of the set-points
+        # for consecutive SoCs from _fifo_head on, at most D + dead time (0x60C4 sub 1), refilled by
+        # the look-ahead entries of every PReq where it ends; None: the newest PReq's look-ahead only
+        self._fifo_cap = config.setpoint_buffer + self._d if config.setpoint_buffer else 0
+        self._fifo: list[deque] | None = [deque() for _ in range(n)] if self._fifo_cap else None
+        self._fifo_head = [0] * n
+        self._tpdo2_held_msgs = [FastMessage(0.0, TPDO2_BASE + i + 1, bytearray(_TPDO2_BUFFERED_LEN))
+                                 for i in range(n)]
         self.covered_now: list[int] = []  # nodes (index) covered from the buffer at this cycle's SoC
         # latched actuals (telegram units), index = node - 1
         self._a_sw = [0] * n
@@ -709,6 +762,11 @@ class ControlledNodes:
             for i in covered:  # applied exactly as planned, but no PReq arrived for it
                 fresh[i] = False
             all_fresh = False
+        if not all_fresh:
+            without = self.cycles_without_setpoint
+            for i in range(n):
+                if not fresh[i] and not (covered and i in covered):
+                    without[i] += 1
         app = self.applied
         if self._any_fault or self._fault_shown:
             forced = list(cws)
@@ -753,6 +811,24 @@ class ControlledNodes:
         missing (its PReq was lost or late); returns the nodes covered. A node whose buffer
         has nothing for this cycle stays missing: ``missing_setpoint`` applies."""
         covered = []
+        if self._fifo is not None:  # the set-point buffer: its head is due now (consumed either way)
+            for i, fifo in enumerate(self._fifo):
+                if not fifo:
+                    continue
+                head = self._fifo_head[i]
+                while fifo and head < cycle:
+                    fifo.popleft()
+                    head += 1
+                if fifo and head == cycle:
+                    held = fifo.popleft()
+                    head += 1
+                    if self._pipe[i][slot] is None:
+                        self._pipe[i][slot] = held
+                        self.cycles_covered[i] += 1
+                        covered.append(i)
+                self._fifo_head[i] = head
+            self.covered_now = covered
+            return covered
         for i, ahead in enumerate(self._ahead):
             if ahead is not None and self._pipe[i][slot] is None:
                 base, due, data = ahead
@@ -806,13 +882,57 @@ class ControlledNodes:
                 pipe[i][slot] = due = _UNPACK_RPDO1(data[:_RPDO1_LEN])
                 ok[i] = True
                 if entries:  # kept as received; an entry is decoded only when a cycle needs it
-                    self._ahead[i] = (self.cycle + self._d, due, bytes(data))
+                    if self._fifo is not None:
+                        self._buffer_take(i, due, data, entries, size)
+                    else:
+                        self._ahead[i] = (self.cycle + self._d, due, bytes(data))
                     self._ahead_new[i] = True
                     self._ahead_any = True
+
             else:
                 pipe[i][slot] = (_UNPACK_RPDO1(msg.data) if size == _RPDO1_LEN
                                  else _UNPACK_RPDO1_CLASSIC(msg.data) + CLASSIC_RPDO1_DEFAULTS)
                 ok[i] = True
+
+    def _buffer_take(self, i: int, due: tuple[int, ...], data: bytearray, entries: int, size: int) -> None:
+        """Node ``i``'s set-point buffer after a PReq with look-ahead ``entries``: its own
+        set-point ``due`` (for the SoC of cycle + d) and its entries (cycle + d + s + j, s from
+        bytes 60-61 of a 64-byte RPDO1) where they continue the FIFO without a gap, up to its
+        maximum size; a new controlword or mode of operation clears it first (the controller
+        changed its plan), as does a gap before the own set-point."""
+        fifo = self._fifo[i]
+        own = self.cycle + self._d
+        if fifo and (fifo[-1][0] != due[0] or fifo[-1][3] != due[3]):
+            fifo.clear()
+        head = self._fifo_head[i]
+        end = head + len(fifo)
+        if not fifo or own < head or own > end:
+            fifo.clear()
+            fifo.append(due)
+            head, end = own, own + 1
+        elif own == end:
+            fifo.append(due)
+            end += 1
+        else:
+            fifo[own - head] = due
+        skip = _UNPACK_SKIP(data, RPDO1_BUFFER_SKIP_OFFSET)[0] if size == RPDO1_MAX_BYTES else 0
+        cap = self._fifo_cap
+        first = max(end - own - skip, 1)  # the first entry not yet held
+        if first <= entries and own + skip + first == end:
+            data = bytes(data)
+            for j in range(first, entries + 1):
+                if len(fifo) >= cap:
+                    break
+                fifo.append(_entry_setpoint(due, data, j))
+        self._fifo_head[i] = head
+
+    def buffer_held(self, i: int) -> int:
+        """Node ``i``'s set-points held beyond the current SoC without a gap (0x60C4 sub 2 as its
+        PRes reports it): the buffer holds the SoCs up to cycle + this value."""
+        fifo = self._fifo[i] if self._fifo is not None else None
+        if not fifo:
+            return 0
+        return min(max(self._fifo_head[i] + len(fifo) - 1 - self.cycle, 0), 255)
 
     def _other_frame(self, msg: can.Message) -> None:
         """The SYNC, other nodes' traffic, or a frame that cannot be decoded."""
@@ -862,7 +982,8 @@ class ControlledNodes:
         if answer_all:
             ok = [True] * self.nodes
         if self._prepacked:  # payloads packed at the SoC by the codec
-            return self._codec.pres_frames(self._tpdo1_msgs, self._tpdo2_msgs, times, ok, late)
+            out = self._codec.pres_frames(self._tpdo1_msgs, self._tpdo2_msgs, times, ok, late)
+            return self._with_buffer_held(out) if self._fifo is not None else out
         n = self.nodes
         out: list[FastMessage] = []
         append = out.append
@@ -883,6 +1004,21 @@ class ControlledNodes:
                     self._pack_saturated(m1, m2, i)
                 append(m1)
                 append(m2)
+        return self._with_buffer_held(out) if self._fifo is not None else out
+
+    def _with_buffer_held(self, out: list) -> list:
+        """``out`` with each TPDO2 as the 8-byte TPDO2 whose byte 7 reports the node's
+        set-points held ahead (:meth:`buffer_held`)."""
+        held_msgs = self._tpdo2_held_msgs
+        for index, m in enumerate(out):
+            i = m.arbitration_id - TPDO2_BASE - 1
+            if 0 <= i < self.nodes:
+                held = held_msgs[i]
+                data = held.data
+                data[:7] = m.data
+                data[7] = self.buffer_held(i)
+                held.timestamp = m.timestamp
+                out[index] = held
         return out
 
     def _pack_saturated(self, m1: FastMessage, m2: FastMessage, i: int) -> None:
@@ -915,11 +1051,14 @@ class ControlledNodes:
         t = self._t0 + cycle * self._cycle_time
         if self._ahead_any:  # a PReq without look-ahead empties the node's buffer
             ok, new = self._preq_ok, self._ahead_new
+            fifo = self._fifo
             for i in range(n):
                 if ok[i] and not new[i]:
                     self._ahead[i] = None
+                    if fifo is not None:
+                        fifo[i].clear()
             self._ahead_new = [False] * n
-            self._ahead_any = any(a is not None for a in self._ahead)
+            self._ahead_any = any(fifo) if fifo is not None else any(a is not None for a in self._ahead)
         if not judge:
             self._sync_seen = False
             self._preq_ok = [False] * n

@@ -72,6 +72,18 @@ MAX_LOOKAHEAD = (RPDO1_MAX_BYTES - RPDO1_SIGNED.size) // RPDO1_LOOKAHEAD_ENTRY.s
 CAN_FD_LENGTHS = (0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 16, 20, 24, 32, 48, 64)
 RPDO1_LOOKAHEAD_LENGTHS = (32, 48, 64)  # the CAN FD lengths that hold 1..MAX_LOOKAHEAD entries
 
+# Set-point buffer (``[fieldbus] setpoint_buffer``, after CiA 402 object 0x60C4): a 64-byte
+# RPDO1 carries at bytes 60-61 the entry skip s (UINT16): its entry j is for the cycle
+# s + j after the one of its own set-point (s = 0, the zero padding of the plain look-ahead:
+# the entries follow the own set-point). A TPDO2 of 8 bytes carries at byte 7 how many
+# set-points the drive holds for the cycles after the current one (0x60C4 sub 2, UINT8).
+RPDO1_BUFFER_SKIP = struct.Struct("<H")
+RPDO1_BUFFER_SKIP_OFFSET = RPDO1_MAX_BYTES - 4  # bytes 60-61, after 4 entries (20 + 4 * 10 = 60)
+TPDO2_BUFFERED = struct.Struct("<iHbB")  # TPDO2 + set-points held ahead (0x60C4 sub 2, UINT8)
+#: the deepest set-point buffer the telegrams can report (byte 7 of the TPDO2 is a UINT8
+#: holding buffer + dead time; 5 kept free for dead times of up to 5 cycles)
+MAX_SETPOINT_BUFFER = 250
+
 
 def rpdo1_length(lookahead: int) -> int:
     """Data bytes of an RPDO1 carrying ``lookahead`` entries (20 without any): 20 + 10 k
@@ -108,6 +120,7 @@ class RxPdo1(NamedTuple):
     target_velocity: int = 0
     velocity_offset: int = 0
     lookahead: tuple = ()  # (set-point of the active mode, torque offset, velocity offset) per following cycle
+    lookahead_skip: int = 0  # entry j is for the cycle lookahead_skip + j after the own set-point's (64 bytes)
 
 
 class TxPdo1(NamedTuple):
@@ -126,6 +139,7 @@ class TxPdo2(NamedTuple):
     velocity_actual: int
     error_code: int
     modes_of_operation_display: int = 8
+    setpoints_held: int = -1  # 8-byte TPDO2: set-points the drive holds ahead (0x60C4 sub 2); -1: not sent
 
 
 class Sync(NamedTuple):
@@ -162,7 +176,7 @@ def classify(arbitration_id: int) -> tuple[str, int]:
 
 _LENGTHS = {"sync": (0, 1), "emcy": (EMCY.size,),
             "rpdo1": (RPDO1_SIGNED.size, RPDO1_CLASSIC.size) + RPDO1_LOOKAHEAD_LENGTHS,
-            "tpdo1": (TPDO1.size,), "tpdo2": (TPDO2.size,)}
+            "tpdo1": (TPDO1.size,), "tpdo2": (TPDO2.size, TPDO2_BUFFERED.size)}
 
 
 def check_frame(msg: can.Message, kind: str, node: int) -> None:
@@ -201,15 +215,17 @@ def decode(msg: can.Message) -> Telegram:
         if len(data) == RPDO1_CLASSIC.size:
             return RxPdo1(node, *RPDO1_CLASSIC.unpack(data))
         cw, pos, tq, mode, _, target_torque, target_velocity, velocity_offset = RPDO1_SIGNED.unpack_from(data)
-        ahead = ()
+        ahead, skip = (), 0
         if len(data) > RPDO1_SIGNED.size:
             ahead = tuple(RPDO1_LOOKAHEAD_ENTRY.unpack_from(data, RPDO1_SIGNED.size + j * RPDO1_LOOKAHEAD_ENTRY.size)
                           for j in range(data[9]))
-        return RxPdo1(node, cw, pos, tq, mode, target_torque, target_velocity, velocity_offset, ahead)
+            if len(data) == RPDO1_MAX_BYTES:
+                skip = RPDO1_BUFFER_SKIP.unpack_from(data, RPDO1_BUFFER_SKIP_OFFSET)[0]
+        return RxPdo1(node, cw, pos, tq, mode, target_torque, target_velocity, velocity_offset, ahead, skip)
     if kind == "tpdo1":
         return TxPdo1(node, *TPDO1.unpack(data))
     if kind == "tpdo2":
-        return TxPdo2(node, *TPDO2.unpack(data))
+        return TxPdo2(node, *(TPDO2.unpack(data) if len(data) == TPDO2.size else TPDO2_BUFFERED.unpack(data)))
     if kind == "sync":
         return Sync(data[0] if data else 0)
     return Emergency(node, *EMCY.unpack(data))
@@ -231,10 +247,11 @@ def check_mode_of_operation(mode: int, name: str = "modes_of_operation") -> int:
 
 def encode_rpdo1(controlword: int, target_position: int, torque_offset: int, modes_of_operation: int = 8,
                  target_torque: int = 0, target_velocity: int = 0, velocity_offset: int = 0,
-                 lookahead: tuple | list = ()) -> bytes:
+                 lookahead: tuple | list = (), lookahead_skip: int = 0) -> bytes:
     """RPDO1 payload (20 bytes, or with ``lookahead`` = up to 4 tuples (set-point of the active
-    mode, torque offset, velocity offset) for the following cycles: 32, 48 or 64 bytes);
-    raises ValueError naming the field if a value is out of range."""
+    mode, torque offset, velocity offset) for the following cycles: 32, 48 or 64 bytes; with
+    ``lookahead_skip`` s > 0 (a set-point buffer) always 64 bytes, entry j for the cycle s + j
+    after the own set-point's); raises ValueError naming the field if a value is out of range."""
     if len(lookahead) > MAX_LOOKAHEAD:
         raise ValueError(f"lookahead: {len(lookahead)} entries, expected at most {MAX_LOOKAHEAD}")
     base = _encode_base(controlword, target_position, torque_offset, modes_of_operation, target_torque,
@@ -248,6 +265,9 @@ def encode_rpdo1(controlword: int, target_position: int, torque_offset: int, mod
         data += RPDO1_LOOKAHEAD_ENTRY.pack(_checked(target, *target_range, f"lookahead[{j}] set-point"),
                                            _checked(offset, INT16_MIN, INT16_MAX, f"lookahead[{j}] torque offset"),
                                            _checked(velocity, INT32_MIN, INT32_MAX, f"lookahead[{j}] velocity offset"))
+    if lookahead_skip:
+        data = data.ljust(RPDO1_MAX_BYTES, b"\0")
+        RPDO1_BUFFER_SKIP.pack_into(data, RPDO1_BUFFER_SKIP_OFFSET, _checked(lookahead_skip, 0, 0xFFFF, "lookahead_skip"))
     return bytes(data.ljust(rpdo1_length(len(lookahead)), b"\0"))
 
 
@@ -269,8 +289,13 @@ def encode_tpdo1(statusword: int, position_actual: int, torque_actual: int) -> b
                       _checked(torque_actual, INT16_MIN, INT16_MAX, "torque_actual"))
 
 
-def encode_tpdo2(velocity_actual: int, error_code: int, modes_of_operation_display: int = 8) -> bytes:
-    """TPDO2 payload; raises ValueError naming the field if a value is out of range."""
+def encode_tpdo2(velocity_actual: int, error_code: int, modes_of_operation_display: int = 8,
+                 setpoints_held: int | None = None) -> bytes:
+    """TPDO2 payload (8 bytes with ``setpoints_held``, the set-point buffer's fill: 0x60C4 sub 2);
+    raises ValueError naming the field if a value is out of range."""
+    if setpoints_held is not None:
+        return encode_tpdo2(velocity_actual, error_code, modes_of_operation_display) + bytes(
+            [_checked(setpoints_held, 0, 255, "setpoints_held")])
     return TPDO2.pack(_checked(velocity_actual, INT32_MIN, INT32_MAX, "velocity_actual"),
                       _checked(error_code, 0, 0xFFFF, "error_code"),
                       _checked(modes_of_operation_display, -128, 127, "modes_of_operation_display"))

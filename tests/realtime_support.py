@@ -67,8 +67,11 @@ def hil_scenario(tmp_path: Path, stop_time: str = "5 s", loss_threshold: int = 8
     text = text.replace('period = "400 us"', 'period = "2 ms"').replace("cycle_time_us = 400", "cycle_time_us = 2000")
     text = text.replace('builtin = "servo_drive"',
                         'builtin = "servo_drive"\n[fmus.parameters]\nposition_sample_time = 0.002  # s, the bus cycle')
-    text = text.replace("[fieldbus.recording]", f"[fieldbus.thresholds]\ncn_loss_of_soc = {loss_threshold}\n"
-                        f"cn_loss_of_preq = {loss_threshold}\n[fieldbus.recording]")
+    import re
+
+    for key in ("cn_loss_of_soc", "cn_loss_of_preq"):  # the served drives' thresholds (scenarios/hil.toml sets them)
+        text, count = re.subn(rf"^{key} = \d+", f"{key} = {loss_threshold}", text, count=1, flags=re.MULTILINE)
+        assert count == 1, key
     path = tmp_path / "hil.toml"
     path.write_text(text)
     return path

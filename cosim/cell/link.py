@@ -60,11 +60,12 @@ class CellBus:
         self.applied = AppliedSetpoints(fresh=np.zeros(n, dtype=bool), comm_fault=np.zeros(n, dtype=bool),
                                         **{APPLIED_FIELD.get(name, name): view for name, view in views.items()})
         self._pairs = [(view, APPLIED_FIELD.get(name, name)) for name, view in views.items()]
+        self._refresh = [reader.refresh for reader in self._readers]
 
     def read(self) -> None:
         """Refresh :attr:`actuals` from the drives' outputs."""
-        for reader in self._readers:
-            reader.read()
+        for refresh in self._refresh:
+            refresh()
 
     def write(self, applied: AppliedSetpoints) -> None:
         """Copy what ``applied`` holds into the ``bus.*`` variables."""
@@ -136,6 +137,6 @@ class FieldbusLink:
         except ControllerFailure as exc:
             raise SimulationError("controller", exc.time_s, exc.reason) from exc
         self.cycle += 1
-        stopped_at = self.port.stopped_at_s
+        stopped_at = getattr(self.controller, "stopped_at_s", None)  # ControllerPort.stopped_at_s, without its call
         if stopped_at is not None and t - stopped_at >= self.stop_grace_s - 1e-12:
             raise SimulationError("controller", stopped_at, f"motion stopped: {self.port.stop_reason}")

@@ -152,7 +152,7 @@ def controller_info(controller: Any, fb_config: FieldbusConfig, *, label: str = 
 
     return ControllerInfo(period_s=fb_config.cycle_time_s, n_joints=N_JOINTS,
                           dead_time_cycles=fb_config.dead_time_cycles,
-                          lookahead_cycles=fb_config.setpoint_lookahead, compute_budget_s=budget,
+                          lookahead_cycles=fb_config.planned_ahead_cycles, compute_budget_s=budget,
                           position_min=p.position_lower.copy(), position_max=p.position_upper.copy(),
                           velocity_max=p.velocity_limit.copy(), torque_max=p.effort_limit.copy(),
                           rated_torque=p.rated_torque.copy(), q_start=pick(q_start, "q_start"),

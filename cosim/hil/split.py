@@ -351,6 +351,8 @@ def run_hil_split(cell: CellDescription, controller: Any, ctx: Any, *, options: 
     # in wall and thread CPU time, and the PRes's wait in the socket (kernel arrival -> read)
     times = ControllerTimes(stop_cycle + 2)
     skipped = 0
+    caught_up = 0  # outputs of skipped cycles computed afterwards into the set-point buffer's plan
+    buffer_depth = config.setpoint_buffer
     spin_ns = int(controller_spin_s() * 1e9)
     period_ns = int(round(period * 1e9))
     granted = "normal"
@@ -407,8 +409,15 @@ def run_hil_split(cell: CellDescription, controller: Any, ctx: Any, *, options: 
                     break
                 jumped = cycle - last > 1
                 skipped += max(cycle - last - 1, 0)
-                last = cycle
                 try:
+                    if jumped and buffer_depth and last >= 0:
+                        # the drives buffer set-points: compute the outputs of the cycles this
+                        # controller did not run (in order, with what it observed now) into the
+                        # managing node's plan instead of leaving an interpolation over the stall
+                        for j in range(max(last + 1, cycle - buffer_depth), cycle):
+                            endpoint.plan_ahead(j + 1, port.step(j, j * period, observed, False, False))
+                            caught_up += 1
+                    last = cycle
                     setpoints = port.step(cycle, cycle * period, observed, jumped, False)
                 except ControllerFailure as exc:
                     failure = SimulationError("controller", exc.time_s, exc.reason)
@@ -459,7 +468,8 @@ def run_hil_split(cell: CellDescription, controller: Any, ctx: Any, *, options: 
     cell_hil = child["hil"] if child else {}
     overrun_cycles = _overrun_cycles(child["pacer"]) if child else set()
     report = {
-        "controller_side": {"cycles": last + 1, "cycles_skipped": skipped, **times.report(period),
+        "controller_side": {"cycles": last + 1, "cycles_skipped": skipped, "cycles_caught_up": caught_up,
+                            **times.report(period),
                             "pres_one_way_latency": percentiles_us(controller_latency, POINTS),
                             "spin_us": spin_ns * 1e-3, "loop_cpu_fraction": loop_cpu_fraction,
                             "scheduling": granted},

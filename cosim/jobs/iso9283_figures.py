@@ -25,7 +25,7 @@ import os
 import sys
 from pathlib import Path
 from types import SimpleNamespace
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
@@ -92,12 +92,15 @@ def _figure(**kwargs: Any) -> tuple[Any, Any]:
     return fig, fig.subplots(**kwargs)
 
 
-def warm_up() -> None:
+def warm_up(prepare: bool = True) -> None:
     """Import matplotlib's figure and Agg canvas and draw one small figure into memory (fonts
     loaded, text layout, log-scale tick machinery, PNG writer), so that :func:`write_figures`
-    does not pay for them. The job calls this while the modes' worker processes run and this
-    process only waits for them (:func:`cosim.cell.mode_pool.run_modes` ``while_waiting``):
-    about 0.35 CPU-s moved out of the serial end of the run. Nothing is written."""
+    does not pay for them; with ``prepare``, also make the four figures' axes without their data
+    (:data:`AXES`) and draw them once (their ticks, tick labels and text layout), kept for
+    :func:`write_figures` (about a third of its drawing time). Run by the figure process forked
+    at the start of ``cosim run`` (:mod:`cosim.results.figure_process`) while the command imports
+    the cell, else by the job while the modes' worker processes run and its process only waits
+    for them (:func:`cosim.cell.mode_pool.run_modes` ``while_waiting``). Nothing is written."""
     import io
 
     os.environ.setdefault("MPLBACKEND", "Agg")
@@ -109,6 +112,25 @@ def warm_up() -> None:
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize=8, loc="upper right")
     fig.savefig(io.BytesIO(), dpi=110)
+    if prepare:
+        for name, make in AXES.items():
+            drawing = make()
+            drawing[0].canvas.draw()
+            _PREPARED[name] = drawing
+
+
+#: The figures' axes without their data (labels, titles, scales, grids, margins), by figure.
+AXES: dict[str, Callable[[], tuple[Any, Any]]] = {}
+#: Axes :func:`warm_up` made and drew once, each taken by the first figure drawn of its kind.
+_PREPARED: dict[str, tuple[Any, Any]] = {}
+
+
+def _axes(name: str) -> tuple[Any, Any]:
+    """The figure and axes ``name`` of :data:`AXES`: the ones :func:`warm_up` prepared if they are
+    still there (their ticks, tick labels and text layout made once already), else new ones.
+    The PNG is the same either way (tests/cosim/jobs/test_iso9283_figures.py)."""
+    drawing = _PREPARED.pop(name, None)
+    return drawing if drawing is not None else AXES[name]()
 
 
 def write_figures(out_dir: Path, results: dict[str, Any], path: Any, processes: int = 2) -> list[Path]:
@@ -197,84 +219,113 @@ def _draw_all(jobs: list[tuple], fork: bool = True) -> list[Path]:
     return written + [draw(file, results, modes, path) for draw, file, results, modes, path in jobs[half:]]
 
 
-def _lag_figure(file: Path, results: dict[str, Any], modes: list[str], path: Any) -> Path:
+def _lag_axes() -> tuple[Any, Any]:
     fig, axes = _figure(nrows=3, ncols=1, figsize=(9, 7.5), sharex=True)
+    for j, ax in enumerate(axes):
+        ax.set_ylabel(f"axis {j + 1} lag [mrad]")
+        ax.grid(True, alpha=0.3)
+    axes[-1].set_xlabel("path time [s]")
+    fig.suptitle("Lag errors q_d - q of axes 1-3 on the ISO 9283 path (cf. paper Fig. 2a)")
+    fig.subplots_adjust(**MARGINS_TALL, hspace=0.13)
+    return fig, axes
+
+
+def _lag_figure(file: Path, results: dict[str, Any], modes: list[str], path: Any) -> Path:
+    fig, axes = _axes("lag")
     for j, ax in enumerate(axes):
         for mode in modes:
             r = results[mode]
             ax.plot(*envelope(r.t - r.t[0], r.lag[:, j] * 1e3), color=COLOURS.get(mode, "tab:green"), lw=0.8,
                     label=LABELS.get(mode, mode))
-        ax.set_ylabel(f"axis {j + 1} lag [mrad]")
-        ax.grid(True, alpha=0.3)
     axes[0].legend(loc="upper right", fontsize=8)
-    axes[-1].set_xlabel("path time [s]")
-    fig.suptitle("Lag errors q_d - q of axes 1-3 on the ISO 9283 path (cf. paper Fig. 2a)")
-    fig.subplots_adjust(**MARGINS_TALL, hspace=0.13)
     return _save(fig, file)
 
 
-def _tcp_error_figure(file: Path, results: dict[str, Any], modes: list[str], path: Any) -> Path:
+def _along_path_axes(ylabel: str, title: str, log: bool) -> tuple[Any, Any]:
     fig, ax = _figure(figsize=(9, 4.5))
+    if log:
+        ax.set_yscale("log")  # the modes differ by orders of magnitude (docs/main_job.md)
+    ax.set_xlabel("path length [m]")
+    ax.set_ylabel(ylabel)
+    ax.set_title(title, y=TITLE_Y)
+    ax.grid(True, alpha=0.3)
+    fig.subplots_adjust(**MARGINS_WIDE)
+    return fig, ax
+
+
+def _tcp_error_axes() -> tuple[Any, Any]:
+    return _along_path_axes("TCP error [mm] (log scale)",
+                            "TCP error along the ISO 9283 path, laser tracker at 1 ms (cf. paper Fig. 2b)", log=True)
+
+
+def _path_error_axes() -> tuple[Any, Any]:
+    return _along_path_axes("error to the programmed path [mm]",
+                            "Measured TCP vs programmed path (dynamic + geometric error of the controller's model)",
+                            log=False)
+
+
+def _tcp_error_figure(file: Path, results: dict[str, Any], modes: list[str], path: Any) -> Path:
+    fig, ax = _axes("tcp_error")
     for mode in modes:
         r = results[mode]
         ax.plot(*envelope(r.arc_length, r.tcp_error * 1e3), color=COLOURS.get(mode, "tab:green"), lw=0.8,
                 label=f"{LABELS.get(mode, mode)}: max {r.tcp_error.max() * 1e3:.3f} mm")
     _segment_marks(ax, path)
-    ax.set_yscale("log")  # the modes differ by orders of magnitude (docs/main_job.md)
-    ax.set_xlabel("path length [m]")
-    ax.set_ylabel("TCP error [mm] (log scale)")
-    ax.set_title("TCP error along the ISO 9283 path, laser tracker at 1 ms (cf. paper Fig. 2b)", y=TITLE_Y)
-    ax.grid(True, alpha=0.3)
     ax.legend(fontsize=8, loc="lower center")
-    fig.subplots_adjust(**MARGINS_WIDE)
     return _save(fig, file)
 
 
 def _path_error_figure(file: Path, results: dict[str, Any], modes: list[str], path: Any) -> Path:
-    fig, ax = _figure(figsize=(9, 4.5))
+    fig, ax = _axes("path_error")
     for mode in modes:
         r = results[mode]
         ax.plot(*envelope(r.arc_length, r.path_error * 1e3), color=COLOURS.get(mode, "tab:green"), lw=0.8,
                 label=f"{LABELS.get(mode, mode)}: max {r.path_error.max() * 1e3:.3f} mm")
     _segment_marks(ax, path)
-    ax.set_xlabel("path length [m]")
-    ax.set_ylabel("error to the programmed path [mm]")
-    ax.set_title("Measured TCP vs programmed path (dynamic + geometric error of the controller's model)", y=TITLE_Y)
-    ax.grid(True, alpha=0.3)
     ax.legend(fontsize=8, loc="lower right")
-    fig.subplots_adjust(**MARGINS_WIDE)
     return _save(fig, file)
 
 
-def _vibration_figure(file: Path, results: dict[str, Any], modes: list[str], path: Any) -> Path:
+def _vibration_axes() -> tuple[Any, Any]:
     fig, (ax_f, ax_r) = _figure(nrows=2, ncols=1, figsize=(9, 7.5))
-    for mode in sorted(modes, key=lambda m: -float(results[m].tcp_error.max())):  # largest first: none hidden
-        r = results[mode]
-        if r.spectrum_hz.size > 1:
-            ax_f.loglog(*envelope(r.spectrum_hz[1:], r.spectrum_m[1:] * 1e3, log_x=True),
-                        color=COLOURS.get(mode, "tab:green"), lw=0.8, label=LABELS.get(mode, mode))
-        if r.residual_t.size:
-            res = r.residual
-            ax_r.semilogy(r.residual_t * 1e3, np.maximum(r.residual_error * 1e3, 1e-6),
-                          color=COLOURS.get(mode, "tab:green"), lw=0.9,
-                          label=f"{LABELS.get(mode, mode)}: peak {res.get('peak_mm', float('nan')):.4f} mm, settled "
-                                f"{_ms(res.get('settling_time_s'))}, static offset "
-                                f"{res.get('static_offset_mm', float('nan')):.3f} mm")
-    band = next((results[m].residual.get("band_mm") for m in modes if results[m].residual), None)
-    if band is not None:
-        ax_r.axhline(band, color="0.4", lw=0.8, ls="--", label=f"settling band {band:.3f} mm")
+    ax_f.set_xscale("log")
+    ax_f.set_yscale("log")
+    ax_r.set_yscale("log")
     ax_f.set_xlabel("frequency [Hz]")
     ax_f.set_ylabel("TCP error amplitude [mm]")
     ax_f.set_title("Spectrum of the noise-free TCP error over the ISO 9283 path (Hann window)", y=TITLE_Y)
     ax_f.grid(True, which="both", alpha=0.3)
-    ax_f.legend(fontsize=8, loc="upper right")
     ax_r.set_xlabel("time after the end of the motion [ms]")
     ax_r.set_ylabel("distance from the final pose [mm] (log)")
     ax_r.set_title("Residual vibration after the motion ends (noise-free TCP, about the attained final pose)", y=TITLE_Y)
     ax_r.grid(True, which="both", alpha=0.3)
-    ax_r.legend(fontsize=8, loc="upper right")
     fig.subplots_adjust(**MARGINS_TALL, hspace=0.3)
+    return fig, (ax_f, ax_r)
+
+
+def _vibration_figure(file: Path, results: dict[str, Any], modes: list[str], path: Any) -> Path:
+    fig, (ax_f, ax_r) = _axes("vibration")
+    for mode in sorted(modes, key=lambda m: -float(results[m].tcp_error.max())):  # largest first: none hidden
+        r = results[mode]
+        if r.spectrum_hz.size > 1:
+            ax_f.plot(*envelope(r.spectrum_hz[1:], r.spectrum_m[1:] * 1e3, log_x=True),
+                      color=COLOURS.get(mode, "tab:green"), lw=0.8, label=LABELS.get(mode, mode))
+        if r.residual_t.size:
+            res = r.residual
+            ax_r.plot(r.residual_t * 1e3, np.maximum(r.residual_error * 1e3, 1e-6),
+                      color=COLOURS.get(mode, "tab:green"), lw=0.9,
+                      label=f"{LABELS.get(mode, mode)}: peak {res.get('peak_mm', float('nan')):.4f} mm, settled "
+                            f"{_ms(res.get('settling_time_s'))}, static offset "
+                            f"{res.get('static_offset_mm', float('nan')):.3f} mm")
+    band = next((results[m].residual.get("band_mm") for m in modes if results[m].residual), None)
+    if band is not None:
+        ax_r.axhline(band, color="0.4", lw=0.8, ls="--", label=f"settling band {band:.3f} mm")
+    ax_f.legend(fontsize=8, loc="upper right")
+    ax_r.legend(fontsize=8, loc="upper right")
     return _save(fig, file)
+
+
+AXES.update(lag=_lag_axes, tcp_error=_tcp_error_axes, path_error=_path_error_axes, vibration=_vibration_axes)
 
 
 def _ms(seconds: float | None) -> str:

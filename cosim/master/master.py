@@ -37,6 +37,7 @@ import math
 import time as _time
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -115,10 +116,16 @@ class SignalReader:
         self._bus = bus
         self._indices = indices
         self._out = np.zeros(len(indices), dtype=bus.dtype)
+        #: refresh() puts the current values into the array :meth:`read` returns (for a caller that
+        #: keeps that array). The method ``take`` with positional arguments: np.take adds two Python
+        #: calls, keywords their parsing; mode "clip" writes straight into the output, where "raise"
+        #: (the default) gathers into a temporary first (0.2 against 1.2 us for 18 values). The
+        #: indices are the master's own bus locations, always in range: the values are the same.
+        self.refresh: Callable[[], np.ndarray] = partial(bus.take, indices, None, self._out, "clip")
 
     def read(self) -> np.ndarray:
         """Current values (a reused array: copy it to keep it)."""
-        self._bus.take(self._indices, out=self._out)  # the method: np.take adds two Python calls
+        self.refresh()
         return self._out
 
 
@@ -536,17 +543,17 @@ class Master:
             while True:
                 if n != self._events_done_tick:
                     self._events_done_tick = n
-                    self._run_events(n, events)
+                    target = self._run_events(n, events, n_end)  # and the next event tick
                 else:  # resumed run: the events of tick n already ran
                     for e in events:
                         if e.next_tick == n:
                             e.next_tick += e.period
+                    target = n_end
+                    for e in events:  # the next event tick (a loop: cheaper than min() over a generator)
+                        if e.next_tick < target:
+                            target = e.next_tick
                 if n >= n_end:
                     break
-                target = n_end
-                for e in events:  # the next event tick (a loop: cheaper than min() over a generator)
-                    if e.next_tick < target:
-                        target = e.next_tick
                 try:
                     advance(n, target)
                 except FmuTerminated as ended:
@@ -611,14 +618,21 @@ class Master:
                 return
         self.ended_by = {"instance": None, "time": t, "status": None, "last_successful_time": t}
 
-    def _run_events(self, n: int, events: list[_Event]) -> None:
+    def _run_events(self, n: int, events: list[_Event], horizon: int = 0) -> int:
+        """Run the tasks and recorders due at tick ``n``; returns the next event tick, at most
+        ``horizon``."""
         t = self.start_time + n * self.base_step
         gathered = False
         ending: EndSimulation | None = None
+        upcoming = horizon
         for e in events:
             if e.next_tick != n:
+                if e.next_tick < upcoming:
+                    upcoming = e.next_tick
                 continue
             e.next_tick += e.period
+            if e.next_tick < upcoming:
+                upcoming = e.next_tick
             item = e.item
             if isinstance(item, Task):
                 if ending is not None:
@@ -645,6 +659,7 @@ class Master:
                 item.sample(t)
         if ending is not None:
             raise ending
+        return upcoming
 
     def close(self) -> None:
         """Flush and close recorders, terminate and free every FMU instance (idempotent)."""

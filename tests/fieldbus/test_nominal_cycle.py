@@ -138,3 +138,32 @@ def test_inline_nominal_cycle_only_where_it_applies():
         assert not network.nominal_path
     with PowerlinkNetwork({"setpoint_lookahead": 2}, scaling()) as network:
         assert not network.nominal_path
+
+
+@needs_codec
+def test_a_fault_plan_installed_later_is_asked_every_cycle(tmp_path):
+    """A plan wrapper given to both endpoints after construction (as cosim.realtime's overrun
+    policy does) takes its cycles away from the inline path: the PReqs it drops are lost."""
+    from fieldbus.faults import CycleFaults
+
+    class LosePreqs:
+        def __init__(self, base, cycles):
+            self.base, self.cycles = base, cycles
+
+        def for_cycle(self, cycle):
+            if cycle not in self.cycles:
+                return self.base.for_cycle(cycle)
+            return CycleFaults(cycle, {node: "loss" for node in range(1, 7)})
+
+    counts = []
+    for nominal in (True, False):
+        with PowerlinkNetwork({}, scaling()) as network:
+            network.nominal_path = nominal
+            plan = LosePreqs(network.mn_side.plan, {20, 21})
+            network.mn_side.plan = network.drive_side.plan = plan
+            setpoints, actuals = Setpoints.zeros(6), DriveActuals.zeros(6)
+            for k in range(40):
+                network.run_cycle(k, setpoints, actuals)
+            counts.append(network.summary()["counters"])
+    assert counts[0] == counts[1]
+    assert all(c["cumulative"] == 2 for c in counts[0] if c["kind"] == "loss_of_preq")
