@@ -126,6 +126,35 @@ def test_row_groups_are_encoded_as_they_fill_and_a_killed_run_keeps_every_frame(
     assert not killed.partial.exists() and not tmp.exists()
 
 
+def test_the_first_partial_stream_layout_is_still_read(tmp_path):
+    """A stream written by the first writer (the record's fields as columns t, id, error,
+    length, data) reads as the same frames as today's (one column of whole records)."""
+    import pyarrow as pa
+
+    from fieldbus.canlog import RECORD_DTYPE, partial_to_parquet
+
+    records = _telegram_records(300)
+    new = CanLogWriter(tmp_path / "new.parquet")
+    new.write_records(records)
+    new._stream.close()
+    new._file.close()
+    rec = np.frombuffer(records, dtype=RECORD_DTYPE)
+    schema = pa.schema([("t", pa.float64()), ("id", pa.uint16()), ("error", pa.uint8()), ("length", pa.uint8()),
+                        ("data", pa.binary(20))], metadata={b"format": (FORMAT + " partial").encode()})
+    old = tmp_path / "old.parquet.partial"
+    with pa.OSFile(str(old), "wb") as sink, pa.ipc.new_stream(sink, schema) as stream:
+        for part in (rec[:1000], rec[1000:]):
+            data = pa.FixedSizeBinaryArray.from_buffers(pa.binary(20), part.size,
+                                                        [None, pa.py_buffer(np.ascontiguousarray(part["data"]))])
+            stream.write_batch(pa.RecordBatch.from_arrays(
+                [pa.array(np.ascontiguousarray(part[name])) for name in ("t", "id", "error", "length")] + [data],
+                schema=schema))
+    assert np.array_equal(read_frames(old).frames, read_frames(new.partial).frames)
+    partial_to_parquet(old, tmp_path / "old.parquet")
+    partial_to_parquet(new.partial, tmp_path / "new.parquet")
+    assert (tmp_path / "old.parquet").read_bytes() == (tmp_path / "new.parquet").read_bytes()
+
+
 def test_network_run_logged_as_parquet_equals_blf(tmp_path):
     from fieldbus import PowerlinkNetwork
     from tests.fieldbus.test_network import drive, scaling
