@@ -507,10 +507,18 @@ class DriveEndpoint(_Endpoint):
     side = "cn"
     #: paced cell side: cycles without the controller's group after which its next SoC re-synchronises
     REALIGN_AFTER = 2
+    #: ... unless that SoC's counter is that of one of the last LATE_GROUP_CYCLES cycles: a group the
+    #: same controller sent late (after a stall, say), not a restart; it re-synchronises only when
+    #: RESYNC_STREAK cycles in a row bring a group exactly that far behind (a restarted controller
+    #: whose counter happens to land there). Re-synchronising on a late group shifted every
+    #: set-point after it by the lateness until the next re-synchronisation.
+    LATE_GROUP_CYCLES = 16
+    RESYNC_STREAK = 3
 
     def __init__(self, config: FieldbusConfig | dict | None, scaling: JointScaling, **kwargs: Any) -> None:
         super().__init__(config, scaling, **kwargs)
         self.nodes = ControlledNodes(self.config, scaling, self.layout, self.events)
+        self._behind_streak, self._behind_last, self._behind_cycle = 0, 0, -2  # late groups in a row (_late_group)
         self.cadence = ControllerCadence(self.config.scaling.sync_counter_overflow, self.config.cycle_time_s)
         self._emcy_offset = (self.layout.nominal_end_of_isochronous + self.layout.mn_turnaround
                              + self.layout.wire_soa + self.layout.cn_response)
@@ -591,7 +599,8 @@ class DriveEndpoint(_Endpoint):
             if bytes(groups[index][0].data[:1]) == expected:
                 chosen = index
                 break
-        if chosen is None and groups and (self._align is None or cycle - self._last_taken > self.REALIGN_AFTER):
+        if chosen is None and groups and (self._align is None or cycle - self._last_taken > self.REALIGN_AFTER) \
+                and not self._late_group(cycle, groups[-1], expected, overflow):
             chosen = len(groups) - 1  # (re)synchronise on the controller's newest SoC
             self._align = (groups[chosen][0].data[0] - 1 - cycle) % overflow if groups[chosen][0].data else 0
         late = stale + sum(len(g) for i, g in enumerate(groups) if i != chosen)
@@ -623,6 +632,19 @@ class DriveEndpoint(_Endpoint):
         if self._record is not None and (self._record_received or self._owns_recorder):
             self._record(out)  # what the cell took, with the cycle's timestamps
         return out
+
+    def _late_group(self, cycle: int, group: list, expected: bytes | None, overflow: int) -> bool:
+        """True when ``group`` (the newest, not this cycle's) carries the counter of one of the last
+        :attr:`LATE_GROUP_CYCLES` cycles under the current mapping and has not done so, equally far
+        behind, in :attr:`RESYNC_STREAK` cycles in a row: a late group, dropped, not a restart."""
+        if expected is None or not group[0].data:
+            return False
+        behind = (expected[0] - group[0].data[0]) % overflow
+        if not 0 < behind <= self.LATE_GROUP_CYCLES:
+            return False
+        streak = self._behind_streak + 1 if (behind == self._behind_last and cycle == self._behind_cycle + 1) else 1
+        self._behind_streak, self._behind_last, self._behind_cycle = streak, behind, cycle
+        return streak < self.RESYNC_STREAK
 
     def _note_cadence(self, cycle: int, groups: list, time_s: float) -> None:
         """Judge the controller's SoC counter against this cell's cycles (:class:`ControllerCadence`)."""

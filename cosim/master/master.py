@@ -543,17 +543,17 @@ class Master:
             while True:
                 if n != self._events_done_tick:
                     self._events_done_tick = n
-                    self._run_events(n, events)
+                    target = self._run_events(n, events, n_end)  # and the next event tick
                 else:  # resumed run: the events of tick n already ran
                     for e in events:
                         if e.next_tick == n:
                             e.next_tick += e.period
+                    target = n_end
+                    for e in events:  # the next event tick (a loop: cheaper than min() over a generator)
+                        if e.next_tick < target:
+                            target = e.next_tick
                 if n >= n_end:
                     break
-                target = n_end
-                for e in events:  # the next event tick (a loop: cheaper than min() over a generator)
-                    if e.next_tick < target:
-                        target = e.next_tick
                 try:
                     advance(n, target)
                 except FmuTerminated as ended:
@@ -618,14 +618,21 @@ class Master:
                 return
         self.ended_by = {"instance": None, "time": t, "status": None, "last_successful_time": t}
 
-    def _run_events(self, n: int, events: list[_Event]) -> None:
+    def _run_events(self, n: int, events: list[_Event], horizon: int = 0) -> int:
+        """Run the tasks and recorders due at tick ``n``; returns the next event tick, at most
+        ``horizon``."""
         t = self.start_time + n * self.base_step
         gathered = False
         ending: EndSimulation | None = None
+        upcoming = horizon
         for e in events:
             if e.next_tick != n:
+                if e.next_tick < upcoming:
+                    upcoming = e.next_tick
                 continue
             e.next_tick += e.period
+            if e.next_tick < upcoming:
+                upcoming = e.next_tick
             item = e.item
             if isinstance(item, Task):
                 if ending is not None:
@@ -652,6 +659,7 @@ class Master:
                 item.sample(t)
         if ending is not None:
             raise ending
+        return upcoming
 
     def close(self) -> None:
         """Flush and close recorders, terminate and free every FMU instance (idempotent)."""

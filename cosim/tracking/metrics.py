@@ -158,16 +158,26 @@ def _balls(mid: np.ndarray, half: np.ndarray, size: int) -> tuple[list[np.ndarra
     count = mid.shape[0]
     balls = -(-count // size)
     fill = balls * size - count
-    finite = np.isfinite(mid).all(axis=1) & np.isfinite(half)
-    padded = np.concatenate([np.where(finite[:, None], mid, 0.0), np.zeros((fill, 3))]).reshape(balls, size, 3)
-    weight = np.concatenate([finite, np.zeros(fill, dtype=bool)]).reshape(balls, size)
+    finite = bool(np.isfinite(mid).all() and np.isfinite(half).all())
+    if finite:  # the last run padded with copies of the last segment: the same ball
+        if fill:
+            mid = np.concatenate([mid, np.repeat(mid[-1:], fill, axis=0)])
+            half = np.concatenate([half, np.repeat(half[-1:], fill)])
+        runs = mid.reshape(balls, size, 3)
+        center = runs.mean(axis=1)
+        spread = runs - center[:, None, :]
+        radius = (np.sqrt(np.einsum("ijk,ijk->ij", spread, spread)) + half.reshape(balls, size)).max(axis=1)
+        return [np.ascontiguousarray(center[:, k]) for k in range(3)], radius * _INFLATE + 1e-12
+    keep = np.isfinite(mid).all(axis=1) & np.isfinite(half)
+    runs = np.concatenate([np.where(keep[:, None], mid, 0.0), np.zeros((fill, 3))]).reshape(balls, size, 3)
+    weight = np.concatenate([keep, np.zeros(fill, dtype=bool)]).reshape(balls, size)
     members = weight.sum(axis=1)
     with np.errstate(invalid="ignore", divide="ignore"):
-        center = padded.sum(axis=1) / members[:, None]
-        spread = padded - center[:, None, :]
-        reach = np.sqrt(np.einsum("ijk,ijk->ij", spread, spread)) + np.where(weight, np.concatenate(
-            [np.where(finite, half, 0.0), np.zeros(fill)]).reshape(balls, size), 0.0)
-        radius = np.where(weight, reach, -np.inf).max(axis=1) * _INFLATE + 1e-12
+        center = runs.sum(axis=1) / members[:, None]
+        spread = runs - center[:, None, :]
+        extent = np.sqrt(np.einsum("ijk,ijk->ij", spread, spread)) + np.concatenate(
+            [np.where(keep, half, 0.0), np.zeros(fill)]).reshape(balls, size)
+        radius = np.where(weight, extent, -np.inf).max(axis=1) * _INFLATE + 1e-12
     radius[members == 0] = np.nan
     return [np.ascontiguousarray(center[:, k]) for k in range(3)], radius
 

@@ -187,3 +187,16 @@ def test_a_restarted_controller_counter_jump_is_no_mismatch():
             continue  # gone for 40 cycles first
         assert cadence.note(k, counter) is None
     assert cadence.report() is None and cadence.blocks >= 7
+
+
+def test_a_late_group_after_a_stall_does_not_shift_the_controllers_cycles():
+    """The controller sends nothing in cycles 30-31 (a stall) and its groups of 32 and 33 late (they
+    arrive one window later): the cell lost 30-33, but the late group of 32, the only one in window
+    33, is not taken as a restart (re-synchronising on it shifted every later set-point by a cycle);
+    from 34 on the cell applies exactly what the run without the stall applies."""
+    config = {**CONFIG, "thresholds": {"cn_loss_of_soc": 0, "cn_loss_of_preq": 0}}  # counted, never tripping
+    clean = paced_run(config, SCALING, 60, _ramp)[1]
+    cn, applied = paced_run(config, SCALING, 60, _ramp, late=(32, 33), skip=(30, 31))
+    assert [c for c, node, _ in _errors(cn, "loss_of_preq") if node == 1] == [30, 31, 32, 33]
+    for k in range(36, 60):
+        assert np.array_equal(applied[k][0], clean[k][0]), k
