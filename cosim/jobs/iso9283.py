@@ -36,6 +36,7 @@ on the bus); figures ``figure2a_lag_errors.png``, ``figure2b_tcp_error.png``,
 from __future__ import annotations
 
 import math
+import os
 from typing import Any
 
 from cosim.cell.mode_pool import run_modes
@@ -116,8 +117,10 @@ def run(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
 #: 30 520 knots of the path (joint table and flatness-based feed-forward, about 0.5 CPU-s more
 #: than another mode's set-up; docs/main_job.md).
 LONGEST_MODE = "model_based_elastic"
-#: ``nice`` increment of the other modes' workers when it runs (``run_modes(niceness=...)``).
+#: ``nice`` increment of the other modes' workers when it runs (``run_modes(niceness=...)``);
+#: ``$COSIM_MODE_NICENESS`` (a whole number >= 0) overrides it, e.g. 0 to compare.
 OTHER_MODES_NICENESS = 1
+NICENESS_ENV = "COSIM_MODE_NICENESS"
 
 
 def _niceness(modes: list[str]) -> dict[str, int]:
@@ -125,7 +128,14 @@ def _niceness(modes: list[str]) -> dict[str, int]:
     the three end together rather than the elastic one running alone at the end."""
     if LONGEST_MODE not in modes:
         return {}
-    return {mode: OTHER_MODES_NICENESS for mode in modes if mode != LONGEST_MODE}
+    text = os.environ.get(NICENESS_ENV, "").strip()
+    try:
+        step = int(text) if text else OTHER_MODES_NICENESS
+    except ValueError:
+        raise ValueError(f"${NICENESS_ENV} = {text!r}: expected a whole number >= 0 (nice steps)") from None
+    if step < 0:
+        raise ValueError(f"${NICENESS_ENV} = {text!r}: expected a whole number >= 0 (nice steps)")
+    return {mode: step for mode in modes if mode != LONGEST_MODE and step}
 
 
 def _ratio(a: float, b: float) -> float:

@@ -131,8 +131,16 @@ def test_niceness_lowers_the_priority_of_the_modes_named(monkeypatch):
     assert {o.mode: o.entry["nice"] for o in outcomes} == {"light": lowered, "long": 0}
 
 
-def test_the_main_job_lowers_the_other_modes_for_the_elastic_one():
+def test_the_main_job_lowers_the_other_modes_for_the_elastic_one(monkeypatch):
+    import pytest
+
     from cosim.jobs.iso9283 import _niceness
 
+    monkeypatch.delenv("COSIM_MODE_NICENESS", raising=False)
     assert _niceness(["standard", "model_based", "model_based_elastic"]) == {"standard": 1, "model_based": 1}
     assert _niceness(["standard", "standard_speed_ff", "model_based"]) == {}
+    monkeypatch.setenv("COSIM_MODE_NICENESS", "0")  # all at one priority, to compare
+    assert _niceness(["standard", "model_based", "model_based_elastic"]) == {}
+    monkeypatch.setenv("COSIM_MODE_NICENESS", "-1")
+    with pytest.raises(ValueError, match="COSIM_MODE_NICENESS"):
+        _niceness(["standard", "model_based_elastic"])
