@@ -72,7 +72,7 @@ ROW_GROUP_ROWS = 1 << 17
 is one group (~6 MB); smaller groups cost more (4750: +60 %, 65536: +8 %)."""
 PARTIAL_SUFFIX = ".partial"
 COMPRESSION_LEVEL = 1
-"""zstd level of the Parquet file."""
+"""zstd level of the Parquet file (6: 1.4-1.9 % smaller for ~10-20 ms more CPU per 600 000 frames)."""
 PARTIAL_COMPRESSION = None
 """Compression of the partial stream (None: uncompressed, the cheapest to write; it only lives while a run goes)."""
 MAX_DATA = 20
