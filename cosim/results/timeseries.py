@@ -316,9 +316,11 @@ def _stream_batches(partial: Path):
 def _partial_to_parquet(partial: Path, path: Path, schema, stats: _PlanStats | None = None,
                         derived: Mapping[str, Any] | None = None) -> None:
     """Rewrite the Arrow stream ``partial`` as the Parquet file ``path`` (bounded memory), in one
-    pass, with the compact encodings ``stats`` plans (None: plain columns) - what every row
-    decides was gathered as the rows were written; the delta coding is chosen on the first row
-    group's rows (:meth:`_PlanStats.plan`) before it is written."""
+    pass, in row groups of :data:`ROW_GROUP_ROWS` rows (the last one shorter; the same file for
+    the same rows, however the run's wall-clock flushes cut the stream), with the compact
+    encodings ``stats`` plans (None: plain columns) - what every row decides was gathered as
+    the rows were written; the delta coding is chosen on the first row group's rows
+    (:meth:`_PlanStats.plan`) before it is written."""
     import pyarrow as pa
 
     tmp = path.with_name(path.name + ".tmp")
@@ -340,9 +342,14 @@ def _partial_to_parquet(partial: Path, path: Path, schema, stats: _PlanStats | N
         for batch in _stream_batches(partial):
             pending.append(batch)
             rows += batch.num_rows
-            if rows >= ROW_GROUP_ROWS:
-                write(pa.Table.from_batches(pending, schema=schema))
-                pending, rows = [], 0
+            if rows >= ROW_GROUP_ROWS:  # row groups of exactly ROW_GROUP_ROWS rows, whatever the batches
+                table = pa.Table.from_batches(pending, schema=schema)
+                start = 0
+                while rows - start >= ROW_GROUP_ROWS:
+                    write(table.slice(start, ROW_GROUP_ROWS))
+                    start += ROW_GROUP_ROWS
+                pending = table.slice(start).to_batches() if rows > start else []
+                rows -= start
                 release_memory()
         write(pa.Table.from_batches(pending, schema=schema) if pending else None)
     finally:
