@@ -148,7 +148,6 @@ def solve_table(ik: Any, reference: Any, out: np.ndarray, build: bool = True) ->
         state = np.concatenate([ik.q, ik.qd, ik.qdd])
         lower = np.array(ik._lower, dtype=float)
         upper = np.array(ik._upper, dtype=float)
-        targets = reference._placements
         k = 0
         while k < n:
             k = library.ik_table_run(handle, k, n, state.ctypes.data, rotations.ctypes.data, positions.ctypes.data,
@@ -158,7 +157,7 @@ def solve_table(ik: Any, reference: Any, out: np.ndarray, build: bool = True) ->
             if k >= n:
                 break
             ik.set_state(state[:6], state[6:12], state[12:])  # the knot before: Python solves knot k
-            q, qd, qdd = ik.solve(targets[k], twists[k], accelerations[k], h)
+            q, qd, qdd = ik.solve(reference._placements[k], twists[k], accelerations[k], h)
             out[0, k], out[1, k], out[2, k] = q, qd, qdd
             state[:6], state[6:12], state[12:] = q, qd, qdd
             k += 1

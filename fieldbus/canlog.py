@@ -72,7 +72,7 @@ ROW_GROUP_ROWS = 1 << 17
 is one group (~6 MB); smaller groups cost more (4750: +60 %, 65536: +8 %)."""
 PARTIAL_SUFFIX = ".partial"
 COMPRESSION_LEVEL = 1
-"""zstd level of the Parquet file."""
+"""zstd level of the Parquet file (6: 1.4-1.9 % smaller for ~10-20 ms more CPU per 600 000 frames)."""
 PARTIAL_COMPRESSION = None
 """Compression of the partial stream (None: uncompressed, the cheapest to write; it only lives while a run goes)."""
 MAX_DATA = 20
@@ -638,5 +638,5 @@ def to_blf(path: str | Path, out: str | Path, chunk: int = 1 << 16) -> Path:
 
 __all__ = ["CanLog", "CanLogReader", "CanLogWriter", "FIELDS", "FORMAT", "FRAME_DTYPE", "LAYOUTS", "RECORD_DTYPE",
            "frame_dtype", "record_dtype",
-           "ROW_GROUP_ROWS", "blf_nanoseconds", "blf_start", "is_columnar", "iter_messages", "open_log",
+           "PARTIAL_FORMAT", "ROW_GROUP_ROWS", "blf_nanoseconds", "blf_start", "is_columnar", "iter_messages", "open_log",
            "partial_to_parquet", "read_frames", "resolve", "to_blf"]

@@ -291,6 +291,21 @@ class IsoTestPath:
             speed[mask] = sd
         return FlangeReference(tt, pos, rot, vel, om, acc, dom, idx, arc, speed)
 
+    def progress(self, t: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
+        """(segment index, arc length [m]) at time(s) t [s] (clamped to [0, duration]): the
+        ``segment`` and ``arc_length`` of :meth:`reference`, the same numbers, without the poses."""
+        tt = np.atleast_1d(np.asarray(t, dtype=float))
+        if tt.ndim != 1 or not np.all(np.isfinite(tt)):
+            raise IsoPathError(f"IsoTestPath.progress t: expected finite times in s, got {t!r}")
+        tt = np.clip(tt, 0.0, self.duration)
+        idx = self.segment_at(tt)
+        arc = np.empty(tt.size)
+        for k in np.unique(idx):
+            seg = self.segments[k]
+            mask = idx == k
+            arc[mask] = seg.arc_start + seg.law.evaluate(tt[mask] - seg.t_start)[0]
+        return idx, arc
+
     def cartesian_trajectory(self, dt: float = 1e-3) -> FlangeReference:
         """The reference sampled every ``dt`` s from 0 to the end (last sample exact)."""
         if not (dt > 0.0 and math.isfinite(dt)):

@@ -375,24 +375,23 @@ def evaluate_run(ctx: RunContext, mode: str, cell: CellRun, controller: Any, ref
                 if user_ik is None:
                     user_ik = _ReferenceJoints(start, reference, kinematic_model, q_start, t)
                 q_d = user_ik.joints(t)
-            commanded = true_kinematics.transforms(q_d)[:, :3, 3]
-            actual = true_kinematics.transforms(q)[:, :3, 3]
+            commanded = true_kinematics.positions(q_d)
+            actual = true_kinematics.positions(q)
             tau = np.clip(t - (start if start is not None else np.inf), 0.0, path.duration)
             programmed = reference.positions(reference.t_start + tau)
-            ref = path.reference(tau)
-            segment = ref.segment
+            segment, arc_length = path.progress(tau)
             if derived is None:
                 lag = q_d - q
-                tcp_sink.write(np.column_stack([t, tau, segment.astype(float), ref.arc_length, programmed, commanded,
+                tcp_sink.write(np.column_stack([t, tau, segment.astype(float), arc_length, programmed, commanded,
                                                 measured, np.linalg.norm(measured - commanded, axis=1) * 1e3,
                                                 np.linalg.norm(measured - programmed, axis=1) * 1e3, q_d, q, lag]))
             else:  # the rest is rebuilt by the reader, bit for bit (_tcp_derived)
-                tcp_sink.write(np.column_stack([tau, segment.astype(float), ref.arc_length, programmed, commanded, q_d]))
+                tcp_sink.write(np.column_stack([tau, segment.astype(float), arc_length, programmed, commanded, q_d]))
             tcp_sink.flush()
             inside = (t >= window[0] - 1e-9) & (t <= window[1] + 1e-9)
             if inside.any():
                 for key, arr in (("t", t), ("q", q), ("measured", measured), ("q_d", q_d), ("commanded", commanded),
-                                 ("programmed", programmed), ("segment", segment), ("arc_length", ref.arc_length),
+                                 ("programmed", programmed), ("segment", segment), ("arc_length", arc_length),
                                  ("actual", actual)):
                     parts[key].append(arr[inside])
             residual.add(t, actual - commanded)

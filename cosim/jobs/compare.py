@@ -459,9 +459,9 @@ def _evaluate_joint(ctx: RunContext, label: str, cell: CellRun, controller: Any,
     else:  # a user's controller: the reference itself, aligned at its motion start (the start pose before)
         q_d = planned_q.copy()
     true_kin = FlangeKinematics(setup.true_robot.kinematic_model())
-    commanded = true_kin.transforms(q_d)[:, :3, 3] if t.size else measured
-    actual = true_kin.transforms(q)[:, :3, 3] if t.size else measured
-    programmed = FlangeKinematics(setup.kinematics).transforms(planned_q)[:, :3, 3] if t.size else measured
+    commanded = true_kin.positions(q_d) if t.size else measured
+    actual = true_kin.positions(q) if t.size else measured
+    programmed = FlangeKinematics(setup.kinematics).positions(planned_q) if t.size else measured
     t_end = start + traj.duration if start is not None else -1.0
     window = (start if start is not None else np.inf, min(t_end, float(t[-1]) if t.size else -1.0))
     result = evaluate(t, q, measured, q_d, commanded, programmed, np.zeros(t.size, dtype=int), window, tau, actual)

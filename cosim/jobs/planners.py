@@ -284,8 +284,8 @@ def _execute(ctx: RunContext, doc: dict[str, Any], name: str, traj: Any, true_ro
     ok = np.isfinite(stack[0]).all(axis=1)
     q_d = desired_joints(t, log["t_apply"][ok], stack[0][ok], stack[1][ok], stack[2][ok]) if ok.any() else q
     true_kin = FlangeKinematics(true_robot.kinematic_model())
-    commanded = true_kin.transforms(q_d)[:, :3, 3]
-    actual = true_kin.transforms(q)[:, :3, 3]
+    commanded = true_kin.positions(q_d)
+    actual = true_kin.positions(q)
     start = controller.motion_start_s
     window = (t >= start) & (t <= start + reference.duration) if start is not None else np.zeros(t.size, bool)
     err = np.linalg.norm(measured - commanded, axis=1) * 1e3

@@ -48,10 +48,11 @@ def builtin_fmu_names() -> tuple[str, ...]:
 
 
 def resolve_builtin(name: str) -> Path:
-    """Path of the project's FMU ``name``, built (if needed) by ``fmus.build.ensure_fmus``."""
-    from fmus.build import ensure_fmus
+    """Path of the project's FMU ``name``, built (if needed: its inputs' hash changed) by
+    ``fmus.build.build_fmu``."""
+    from fmus.build import build_fmu
 
-    return Path(ensure_fmus()[name])
+    return Path(build_fmu(name)[0])
 
 
 def resolve_source(folder: str, where: Where) -> Path:
@@ -216,6 +217,7 @@ def check_cosim_tables(doc: dict, where: Where, master_variables: Mapping[str, s
             f"a positive integer multiple of macro_step = {base!r} s", sim["stop_time"])
     descriptions = {}
     in_process_once: dict[str, str] = {}  # FMUs that may be instantiated once per process -> their in-process instance
+    builtins: dict[str, Path] = {}  # each project FMU checked (hashed over its sources) once per document
     for i, fmu in enumerate(doc["fmus"]):
         w = where / "fmus"
         if fmu["name"] in descriptions or fmu["name"] in {v.split(".", 1)[0] for v in master_variables}:
@@ -224,7 +226,9 @@ def check_cosim_tables(doc: dict, where: Where, master_variables: Mapping[str, s
             names = builtin_fmu_names()
             if fmu["builtin"] not in names:
                 raise (w[i] / "builtin").error(f"one of the project's FMUs {list(names)}", fmu["builtin"])
-            fmu["path"] = resolve_builtin(fmu["builtin"])
+            if fmu["builtin"] not in builtins:
+                builtins[fmu["builtin"]] = resolve_builtin(fmu["builtin"])
+            fmu["path"] = builtins[fmu["builtin"]]
         if "source" in fmu:
             fmu["path"] = resolve_source(fmu["source"], w[i] / "source")
         try:

@@ -68,6 +68,10 @@ def test_the_motion_stops_at_every_junction_and_arc_length_is_monotone(iso):
     assert np.all(np.diff(full.arc_length) >= -1e-12)
     assert full.arc_length[-1] == pytest.approx(iso.length)
     assert list(np.unique(full.segment)) == list(range(len(iso.segments)))
+    times = np.concatenate([full.t, [-1.0, iso.duration + 1.0], ends])  # progress() is reference() without poses
+    segment, arc = iso.progress(times)
+    ref = iso.reference(times)
+    assert np.array_equal(segment, ref.segment) and np.array_equal(arc, ref.arc_length)
 
 
 def test_joint_trajectory_reproduces_the_cartesian_reference(iso, tmp_path):

@@ -62,6 +62,18 @@ def test_batched_fk_and_jacobian_equal_the_single_pinocchio_calls(kin: FlangeKin
         np.testing.assert_allclose(j, kin.jacobian(q), atol=1e-13)
 
 
+def test_batched_positions_are_the_transforms_translations_bit_for_bit() -> None:
+    """positions() (the evaluation's flange points) is the translation of transforms(), the same
+    numbers, on the nominal and on a true robot's model (geometric errors: rotated placements)."""
+    from robot.true_robot import make_true_robot
+
+    for model in (None, make_true_robot(3).kinematic_model()):
+        kin = FlangeKinematics(model)
+        qs = random_configurations(kin, 500, seed=2)
+        assert np.array_equal(kin.positions(qs), kin.transforms(qs)[:, :3, 3])
+        assert np.array_equal(kin.positions(qs[7]), kin.transforms(qs[7])[:, :3, 3])
+
+
 def test_pose_is_position_and_cardan_angles(kin: FlangeKinematics) -> None:
     q = np.array([0.3, -0.4, 0.9, 1.2, -0.7, 2.0])
     pose = kin.pose(q)

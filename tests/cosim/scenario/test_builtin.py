@@ -1,5 +1,5 @@
 """The scenario files in scenarios/ that use the generic 'fmus' job validate and run with the
-project's own FMUs (``builtin = ...`` resolved through fmus.build.ensure_fmus)."""
+project's own FMUs (``builtin = ...`` resolved through fmus.build.build_fmu)."""
 import json
 import tomllib
 from pathlib import Path
