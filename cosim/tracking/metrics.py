@@ -265,12 +265,10 @@ def _candidates_compiled(kernel, points: np.ndarray, mid: np.ndarray, half: np.n
                          coarse_r: np.ndarray, window: int, reach: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(point, segment) index pairs to evaluate, ascending in the point, from the C search."""
     m = points.shape[0]
-    points = np.ascontiguousarray(points, dtype=np.float64)
-    mid = np.ascontiguousarray(mid)
-    half = np.ascontiguousarray(half)
-    centre = np.ascontiguousarray(np.column_stack(coarse))
-    radius = np.ascontiguousarray(coarse_r)
-    reach = np.ascontiguousarray(reach)
+    f64 = np.float64
+    points, mid, half, reach = (np.ascontiguousarray(x, dtype=f64) for x in (points, mid, half, reach))
+    centre = np.ascontiguousarray(np.column_stack(coarse), dtype=f64)
+    radius = np.ascontiguousarray(coarse_r, dtype=f64)
     capacity = 16 * m + 64
     while True:
         out_i = np.empty(capacity, dtype=np.int64)
