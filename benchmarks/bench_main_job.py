@@ -16,12 +16,15 @@ every run. Medians over the runs are printed last (``--json`` also writes them).
 
 ``--processes N`` sets ``$COSIM_MODE_PROCESSES`` (0: the modes one after another in one
 process, the way the job ran before; default: the job's own choice), so the two can be
-compared back to back on the same load.
+compared back to back on the same load. ``--env NAME=VALUE`` (repeatable) sets an environment
+variable for the runs, e.g. ``COSIM_FIGURE_PROCESS=0`` (figures drawn by the job's own process,
+not by the process forked at the command's start) or ``COSIM_MODE_NICENESS=0`` (the main job's
+workers all at the same priority), for such comparisons.
 
 Usage::
 
     python benchmarks/bench_main_job.py [--runs 3] [--processes N] [--scenario scenarios/iso9283.toml]
-        [--json out.json]
+        [--env NAME=VALUE ...] [--json out.json]
 """
 from __future__ import annotations
 
@@ -40,9 +43,10 @@ ROOT = Path(__file__).resolve().parents[1]
 SCENARIO = ROOT / "scenarios" / "iso9283.toml"
 
 
-def one_run(scenario: Path, out: Path, processes: int | None = None) -> dict[str, Any]:
+def one_run(scenario: Path, out: Path, processes: int | None = None,
+            extra_env: dict[str, str] | None = None) -> dict[str, Any]:
     """One ``python -m cosim run`` process; its figures (see the module docstring)."""
-    env = {**os.environ, "MPLBACKEND": "Agg"}
+    env = {**os.environ, "MPLBACKEND": "Agg", **(extra_env or {})}
     env["PYTHONPATH"] = os.pathsep.join(p for p in (str(ROOT), env.get("PYTHONPATH", "")) if p)
     if processes is not None:
         env["COSIM_MODE_PROCESSES"] = str(processes)
@@ -65,12 +69,13 @@ def one_run(scenario: Path, out: Path, processes: int | None = None) -> dict[str
             "load_before": load_before, "load_after": os.getloadavg()[0]}
 
 
-def run(runs: int = 3, processes: int | None = None, scenario: Path = SCENARIO) -> dict[str, Any]:
+def run(runs: int = 3, processes: int | None = None, scenario: Path = SCENARIO,
+        extra_env: dict[str, str] | None = None) -> dict[str, Any]:
     """``runs`` runs; per-run figures and medians (raises if the tracking figures differ between runs)."""
     results = []
     with tempfile.TemporaryDirectory(prefix="bench-main-job-") as work:
         for k in range(runs):
-            results.append(one_run(Path(scenario), Path(work) / f"run{k}", processes))
+            results.append(one_run(Path(scenario), Path(work) / f"run{k}", processes, extra_env))
     figures = {json.dumps(r["tcp_error_max_mm"], sort_keys=True) for r in results}
     if len(figures) != 1:
         raise RuntimeError(f"the tracking figures differ between runs: {figures}")
@@ -90,8 +95,17 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--processes", type=int, default=None, help="$COSIM_MODE_PROCESSES for the runs")
     parser.add_argument("--scenario", type=Path, default=SCENARIO)
     parser.add_argument("--json", type=Path, default=None)
+    parser.add_argument("--env", action="append", default=[], metavar="NAME=VALUE",
+                        help="an environment variable for the runs, e.g. COSIM_FIGURE_PROCESS=0 or "
+                             "COSIM_MODE_NICENESS=0 (repeatable)")
     args = parser.parse_args(argv)
-    out = run(args.runs, args.processes, args.scenario)
+    extra_env = {}
+    for item in args.env:
+        name, sep, value = item.partition("=")
+        if not sep or not name:
+            parser.error(f"--env {item!r}: expected NAME=VALUE")
+        extra_env[name] = value
+    out = run(args.runs, args.processes, args.scenario, extra_env)
     print(f"main job ({args.scenario.name}, {out['sim_time_s']:.4g} s simulated, mode processes "
           f"{out['mode_processes']}):")
     print(f"{'run':>4} {'RTF':>6} {'wall':>7} {'process':>8} {'CPU':>7} {'load':>11}")

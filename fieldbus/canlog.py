@@ -638,5 +638,5 @@ def to_blf(path: str | Path, out: str | Path, chunk: int = 1 << 16) -> Path:
 
 __all__ = ["CanLog", "CanLogReader", "CanLogWriter", "FIELDS", "FORMAT", "FRAME_DTYPE", "LAYOUTS", "RECORD_DTYPE",
            "frame_dtype", "record_dtype",
-           "ROW_GROUP_ROWS", "blf_nanoseconds", "blf_start", "is_columnar", "iter_messages", "open_log",
+           "PARTIAL_FORMAT", "ROW_GROUP_ROWS", "blf_nanoseconds", "blf_start", "is_columnar", "iter_messages", "open_log",
            "partial_to_parquet", "read_frames", "resolve", "to_blf"]

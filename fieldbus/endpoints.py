@@ -508,12 +508,15 @@ class DriveEndpoint(_Endpoint):
     #: paced cell side: cycles without the controller's group after which its next SoC re-synchronises
     REALIGN_AFTER = 2
     #: ... unless that SoC's counter is that of one of the last LATE_GROUP_CYCLES cycles: a group the
-    #: same controller sent late (after a stall, say), not a restart; it re-synchronises only when
-    #: RESYNC_STREAK cycles in a row bring a group exactly that far behind (a restarted controller
-    #: whose counter happens to land there). Re-synchronising on a late group shifted every
-    #: set-point after it by the lateness until the next re-synchronisation.
-    LATE_GROUP_CYCLES = 16
-    RESYNC_STREAK = 3
+    #: same controller sent late (a stall after it computed the group, before or in its sendto:
+    #: 23 cycles late was seen), not a restart; it re-synchronises only when RESYNC_STREAK cycles in
+    #: a row bring a group exactly that far behind (a restarted controller in step whose counter
+    #: happens to land there: 10 ms at 400 µs; a controller late by the same amount that long is
+    #: taken as it is). Re-synchronising on a late group shifted every set-point after it by the
+    #: lateness until the next re-synchronisation. 119: just under half of the SoC counter's 240
+    #: values, so that "behind" is unambiguous.
+    LATE_GROUP_CYCLES = 119
+    RESYNC_STREAK = 25
 
     def __init__(self, config: FieldbusConfig | dict | None, scaling: JointScaling, **kwargs: Any) -> None:
         super().__init__(config, scaling, **kwargs)
@@ -602,7 +605,14 @@ class DriveEndpoint(_Endpoint):
         if chosen is None and groups and (self._align is None or cycle - self._last_taken > self.REALIGN_AFTER) \
                 and not self._late_group(cycle, groups[-1], expected, overflow):
             chosen = len(groups) - 1  # (re)synchronise on the controller's newest SoC
-            self._align = (groups[chosen][0].data[0] - 1 - cycle) % overflow if groups[chosen][0].data else 0
+            align = (groups[chosen][0].data[0] - 1 - cycle) % overflow if groups[chosen][0].data else 0
+            if self._align is not None and align != self._align:
+                self.events.add(FieldbusEvent(self._t0 + cycle * self._cycle_time, cycle, "cn", 0, "sync_counter",
+                                              "resynchronised", align, self._align, -1,
+                                              f"the controller's SoC counter re-synchronised after "
+                                              f"{cycle - self._last_taken - 1} cycles without its group "
+                                              f"(mapping {self._align} -> {align})"))
+            self._align = align
         late = stale + sum(len(g) for i, g in enumerate(groups) if i != chosen)
         if late:
             self.frames_late += late

@@ -19,7 +19,9 @@ two), else one per core; on one core the modes run one after another in this pro
 one after another in this process). Paced (``--realtime``) and split (``--split``) runs
 always run one mode at a time here, and so does a process that runs other threads (a sweep's
 Dask worker, which is already one of several processes): only a single-threaded process is
-forked. summary.json says ``mode_processes`` (0: in this process).
+forked. summary.json says ``mode_processes`` (0: in this process). A job that knows one mode takes
+longer may give the others' workers a lower scheduling priority (``niceness``), so that all
+end together.
 
 Stopping:
 
@@ -43,7 +45,7 @@ import signal
 import sys
 import threading
 import time
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -99,8 +101,8 @@ def worker_count(modes: int, ctx: Any = None) -> int:
 
 
 def run_modes(ctx: Any, setup: Any, modes: Sequence[str], extra_signals: Sequence[str] = (),
-              processes: int | None = None, while_waiting: Callable[[], Any] | None = None
-              ) -> Iterator[ModeOutcome]:
+              processes: int | None = None, while_waiting: Callable[[], Any] | None = None,
+              niceness: Mapping[str, int] | None = None) -> Iterator[ModeOutcome]:
     """Run ``modes`` of ``setup`` (:func:`cosim.cell.mode_runs.prepare`) and yield their
     :class:`ModeOutcome` in the order of ``modes``. ``processes``: worker processes (default
     :func:`worker_count`; 0: one after another in this process, where a failed mode ends the
@@ -110,7 +112,10 @@ def run_modes(ctx: Any, setup: Any, modes: Sequence[str], extra_signals: Sequenc
     progress), e.g. to import what comes after the modes; joined when the outcomes run out
     (before the caller's loop over them ends); an exception from it is ignored (the work is redone later). Not called when the
     modes run in this process or when there are more modes than workers (a later fork must not
-    happen while another thread runs)."""
+    happen while another thread runs). ``niceness``: per mode, how much lower the scheduling
+    priority of its worker is (``nice`` increment, 0 if not given): the modes known to take
+    less CPU yield some of the cores to a longer one, so that all end about together instead
+    of the longest running alone on one core at the end (results unchanged)."""
     from cosim.cell.mode_runs import run_mode
 
     modes = list(modes)
@@ -125,7 +130,7 @@ def run_modes(ctx: Any, setup: Any, modes: Sequence[str], extra_signals: Sequenc
             if cell.failure is not None:
                 return
         return
-    yield from _Pool(ctx, setup, modes, extra_signals, count, while_waiting).outcomes()
+    yield from _Pool(ctx, setup, modes, extra_signals, count, while_waiting, niceness).outcomes()
 
 
 # ------------------------------------------------------------------------------------------ worker side
@@ -263,9 +268,10 @@ class _Pool:
     """The parent's side: start the workers, relay progress, collect outcomes, stop them."""
 
     def __init__(self, ctx: Any, setup: Any, modes: list[str], extra_signals: Sequence[str], count: int,
-                 while_waiting: Callable[[], Any] | None = None) -> None:
+                 while_waiting: Callable[[], Any] | None = None, niceness: Mapping[str, int] | None = None) -> None:
         self.ctx, self.setup, self.modes, self.extra_signals = ctx, setup, modes, tuple(extra_signals)
         self.while_waiting = while_waiting
+        self.niceness = dict(niceness or {})
         self.count = count
         self.total_s = float(setup.doc["simulation"]["stop_time"]) * len(modes)
         self.progress: dict[str, float] = {}
@@ -283,6 +289,12 @@ class _Pool:
                                   name=f"cosim-mode-{mode}", daemon=True)
         process.start()
         sender.close()
+        increment = int(self.niceness.get(mode, 0))
+        if increment > 0:  # lower its priority (allowed for our own process): a longer mode gets more CPU
+            try:
+                os.setpriority(os.PRIO_PROCESS, process.pid, os.getpriority(os.PRIO_PROCESS, 0) + increment)
+            except (AttributeError, OSError):
+                pass
         self.running[mode] = (process, receiver)
         self.progress.setdefault(mode, 0.0)
 

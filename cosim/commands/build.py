@@ -13,8 +13,8 @@ What it builds (:data:`PARTS`, then per scenario):
 
 * the fixed C parts: the master's stepping kernel, the fieldbus codec (CPython extension),
   the direct calls of the loop's compiled functions (CPython extension, :mod:`native.calls`),
-  the laser tracker's kernel, the crash guard, the FMI 3.0 adapter, and the elastic mode's
-  compiled IK table (C++ on pinocchio's headers, :mod:`controller.ik_table`);
+  the laser tracker's kernel, the path accuracy's candidate search, the crash guard, the FMI
+  3.0 adapter, and the elastic mode's compiled IK table (C++ on pinocchio's headers, :mod:`controller.ik_table`);
 * the plant and servo-drive FMUs, FMI 2.0 (what the jobs run) and FMI 3.0;
 * the PtP planner's node functions (CasADi-generated C);
 * for each SCENARIO (default: the main job, ``scenarios/iso9283.toml``, in the working
@@ -86,6 +86,13 @@ def _tracker_kernel() -> Any:
     return load_library(KERNEL_SOURCE)
 
 
+def _path_accuracy_kernel() -> Any:
+    from cosim.tracking.metrics import KERNEL_SOURCE
+    from native import load_library
+
+    return load_library(KERNEL_SOURCE)
+
+
 def _elastic_cycle() -> Any:
     from controller.elastic import load_elastic_cycle
 
@@ -150,6 +157,7 @@ PARTS: tuple[tuple[str, Callable[[], Any], bool], ...] = (
     ("co-simulation master kernel", _master_kernel, True),
     ("fieldbus codec", _fieldbus_codec, True),
     ("laser tracker kernel", _tracker_kernel, True),
+    ("path accuracy kernel", _path_accuracy_kernel, True),
     ("elastic controller cycle", _elastic_cycle, True),
     ("direct calls of the loop's compiled functions", _direct_calls, True),
     ("crash guard", _crash_guard, True),

@@ -36,6 +36,7 @@ on the bus); figures ``figure2a_lag_errors.png``, ``figure2b_tcp_error.png``,
 from __future__ import annotations
 
 import math
+import os
 from typing import Any
 
 from cosim.cell.mode_pool import run_modes
@@ -69,7 +70,7 @@ def run(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
     elif figure_process.current() is None:  # no figure process warming up matplotlib already:
         from cosim.jobs.iso9283_figures import warm_up  # import it here while the workers run
     for outcome in run_modes(ctx, setup, setup.doc["controller"]["modes"],  # side by side: cosim.cell.mode_pool
-                             while_waiting=warm_up):
+                             while_waiting=warm_up, niceness=_niceness(setup.doc["controller"]["modes"])):
         if outcome.entry is not None:
             modes[outcome.mode] = outcome.entry
             results[outcome.mode] = outcome.result
@@ -110,6 +111,31 @@ def run(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
 
         fields["figures"] = [p.name for p in write_figures(ctx.out_dir, results, path)]
     return fields
+
+
+#: The mode whose worker takes the most CPU: its set-up inverts the elastic model along all
+#: 30 520 knots of the path (joint table and flatness-based feed-forward, about 0.5 CPU-s more
+#: than another mode's set-up; docs/main_job.md).
+LONGEST_MODE = "model_based_elastic"
+#: ``nice`` increment of the other modes' workers when it runs (``run_modes(niceness=...)``);
+#: ``$COSIM_MODE_NICENESS`` (a whole number >= 0) overrides it, e.g. 0 to compare.
+OTHER_MODES_NICENESS = 1
+NICENESS_ENV = "COSIM_MODE_NICENESS"
+
+
+def _niceness(modes: list[str]) -> dict[str, int]:
+    """The other modes' workers yield a little CPU to the elastic mode's, so that on two cores
+    the three end together rather than the elastic one running alone at the end."""
+    if LONGEST_MODE not in modes:
+        return {}
+    text = os.environ.get(NICENESS_ENV, "").strip()
+    try:
+        step = int(text) if text else OTHER_MODES_NICENESS
+    except ValueError:
+        raise ValueError(f"${NICENESS_ENV} = {text!r}: expected a whole number >= 0 (nice steps)") from None
+    if step < 0:
+        raise ValueError(f"${NICENESS_ENV} = {text!r}: expected a whole number >= 0 (nice steps)")
+    return {mode: step for mode in modes if mode != LONGEST_MODE and step}
 
 
 def _ratio(a: float, b: float) -> float:

@@ -279,8 +279,9 @@ class ParquetSink:
         if not self._fill or self._stream is None:
             return
         data = self._buffer[:self._fill]
-        arrays = [pa.array(data[:, i].astype(np.int64) if i in self._int_columns else np.ascontiguousarray(data[:, i]))
-                  for i in range(data.shape[1])]
+        columns = np.ascontiguousarray(data.T)  # one transposing copy: each column contiguous
+        ints = set(self._int_columns)
+        arrays = [pa.array(columns[i].astype(np.int64) if i in ints else columns[i]) for i in range(len(columns))]
         self._stream.write_batch(pa.RecordBatch.from_arrays(arrays, schema=self._schema))
         self._file.flush()
         if self._stats is not None:
@@ -316,9 +317,11 @@ def _stream_batches(partial: Path):
 def _partial_to_parquet(partial: Path, path: Path, schema, stats: _PlanStats | None = None,
                         derived: Mapping[str, Any] | None = None) -> None:
     """Rewrite the Arrow stream ``partial`` as the Parquet file ``path`` (bounded memory), in one
-    pass, with the compact encodings ``stats`` plans (None: plain columns) - what every row
-    decides was gathered as the rows were written; the delta coding is chosen on the first row
-    group's rows (:meth:`_PlanStats.plan`) before it is written."""
+    pass, in row groups of :data:`ROW_GROUP_ROWS` rows (the last one shorter; the same file for
+    the same rows, however the run's wall-clock flushes cut the stream), with the compact
+    encodings ``stats`` plans (None: plain columns) - what every row decides was gathered as
+    the rows were written; the delta coding is chosen on the first row group's rows
+    (:meth:`_PlanStats.plan`) before it is written."""
     import pyarrow as pa
 
     tmp = path.with_name(path.name + ".tmp")
@@ -340,9 +343,14 @@ def _partial_to_parquet(partial: Path, path: Path, schema, stats: _PlanStats | N
         for batch in _stream_batches(partial):
             pending.append(batch)
             rows += batch.num_rows
-            if rows >= ROW_GROUP_ROWS:
-                write(pa.Table.from_batches(pending, schema=schema))
-                pending, rows = [], 0
+            if rows >= ROW_GROUP_ROWS:  # row groups of exactly ROW_GROUP_ROWS rows, whatever the batches
+                table = pa.Table.from_batches(pending, schema=schema)
+                start = 0
+                while rows - start >= ROW_GROUP_ROWS:
+                    write(table.slice(start, ROW_GROUP_ROWS))
+                    start += ROW_GROUP_ROWS
+                pending = table.slice(start).to_batches() if rows > start else []
+                rows -= start
                 release_memory()
         write(pa.Table.from_batches(pending, schema=schema) if pending else None)
     finally:
@@ -759,6 +767,22 @@ def _derived_chunks(path: Path, spec: Mapping[str, Any], columns: Sequence[str] 
         raise KeyError(f"{unknown[0]!r}: no such column in {path}")
     stored = [c for c in spec["columns"] if c not in copies and c not in differences and c not in distances
               and c not in same]
+    # only what the columns asked for are made of (every stored column used to be read)
+    need = set(names)
+    pending = list(names)
+    while pending:
+        c = pending.pop()
+        deps = ([same[c]] if c in same else list(differences[c]) if c in differences
+                else [*distances[c][0], *distances[c][1]] if c in distances else [])
+        for d in deps:
+            if d not in need:
+                need.add(d)
+                pending.append(d)
+    stored = [c for c in stored if c in need] or stored[:1]  # one column at least: it counts the rows
+    copies = {c: s for c, s in copies.items() if c in need}
+    same = {c: o for c, o in same.items() if c in need}
+    differences = {c: ab for c, ab in differences.items() if c in need}
+    distances = {c: ab for c, ab in distances.items() if c in need}
     source_columns = list(dict.fromkeys(copies.values()))
     source = resolve_series(path.parent / spec["source"]) if source_columns else path
     if not source.exists():

@@ -39,7 +39,9 @@ Definitions (all positions of the flange origin in base_link):
 """
 from __future__ import annotations
 
+import ctypes
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -190,7 +192,30 @@ def _squared(p: list[np.ndarray], i: np.ndarray, c: list[np.ndarray], j: np.ndar
     return dx * dx + dy * dy + dz * dz
 
 
-def distance_to_polyline(points: np.ndarray, polyline: np.ndarray, window: int = AT_WINDOW_SAMPLES) -> np.ndarray:
+KERNEL_SOURCE = Path(__file__).with_name("polyline_kernel.c")
+"""The candidate search of :func:`distance_to_polyline` in C (built by :mod:`native`)."""
+_KERNEL: list = []
+
+
+def candidate_kernel():
+    """The compiled candidate search (``polyline_candidates`` of :data:`KERNEL_SOURCE`), or None
+    when it cannot be built (``$COSIM_NATIVE``: the numpy search runs, same numbers)."""
+    if not _KERNEL:
+        from native import load_library
+
+        library = load_library(KERNEL_SOURCE, what="path accuracy kernel")
+        fn = None
+        if library is not None:
+            fn = library.polyline_candidates
+            p, n = ctypes.c_void_p, ctypes.c_longlong
+            fn.argtypes = [p, n, p, p, n, p, p, n, n, n, p, p, p, n]
+            fn.restype = n
+        _KERNEL.append(fn)
+    return _KERNEL[0]
+
+
+def distance_to_polyline(points: np.ndarray, polyline: np.ndarray, window: int = AT_WINDOW_SAMPLES,
+                         compiled: bool | None = None) -> np.ndarray:
     """Distance (m,) of each point to the polyline (n, 3), searching the segments within
     ``window`` samples of the point's own index (points and polyline are sampled at the
     same times, ``m == n``).
@@ -203,7 +228,9 @@ def distance_to_polyline(points: np.ndarray, polyline: np.ndarray, window: int =
     a ball of 16, then of 4 consecutive segments farther than the bound plus its radius holds
     none that can. Every bound has a 1e-9 relative margin; the segments kept get the same
     arithmetic as in a search over the whole window, so the minimum is the same number
-    (tests/cosim/tracking/test_path_accuracy_pruned.py)."""
+    (tests/cosim/tracking/test_path_accuracy_pruned.py). The search for those segments runs
+    in C (:func:`candidate_kernel`, balls of 16 only) when it is built and ``compiled`` is not
+    False (True: it must be); the distances are always numpy's."""
     n = polyline.shape[0]
     if n == 1:
         return np.linalg.norm(points - polyline[0], axis=1)
@@ -218,11 +245,53 @@ def distance_to_polyline(points: np.ndarray, polyline: np.ndarray, window: int =
         reach = np.sqrt(best) * _INFLATE + 1e-12
         mid = a + 0.5 * ab
         half = 0.5 * np.sqrt(ab2) * _INFLATE
+        coarse, coarse_r = _balls(mid, half, _COARSE_SEGMENTS)
+    kernel = candidate_kernel() if compiled is not False else None
+    if compiled and kernel is None:
+        raise RuntimeError("the path accuracy kernel is not built (see $COSIM_NATIVE)")
+    if kernel is not None:
+        i, j = _candidates_compiled(kernel, points, mid, half, coarse, coarse_r, window, reach)
+    else:
+        i, j = _candidates(points, mid, half, coarse, coarse_r, window, reach)
+    if i.size:  # ascending in i
+        d2 = _pair_distance2(points, a, ab, ab2, i, j)
+        start = np.flatnonzero(np.concatenate(([True], i[1:] != i[:-1])))
+        rows = i[start]
+        best[rows] = np.minimum(best[rows], np.minimum.reduceat(d2, start))
+    return np.sqrt(best)
+
+
+def _candidates_compiled(kernel, points: np.ndarray, mid: np.ndarray, half: np.ndarray, coarse: list[np.ndarray],
+                         coarse_r: np.ndarray, window: int, reach: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(point, segment) index pairs to evaluate, ascending in the point, from the C search."""
+    m = points.shape[0]
+    f64 = np.float64
+    points, mid, half, reach = (np.ascontiguousarray(x, dtype=f64) for x in (points, mid, half, reach))
+    centre = np.ascontiguousarray(np.column_stack(coarse), dtype=f64)
+    radius = np.ascontiguousarray(coarse_r, dtype=f64)
+    capacity = 16 * m + 64
+    while True:
+        out_i = np.empty(capacity, dtype=np.int64)
+        out_j = np.empty(capacity, dtype=np.int64)
+        count = kernel(points.ctypes.data, m, mid.ctypes.data, half.ctypes.data, mid.shape[0], centre.ctypes.data,
+                       radius.ctypes.data, radius.size, _COARSE_SEGMENTS, int(window), reach.ctypes.data,
+                       out_i.ctypes.data, out_j.ctypes.data, capacity)
+        if count <= capacity:
+            return out_i[:count], out_j[:count]
+        capacity = int(count)
+
+
+def _candidates(points: np.ndarray, mid: np.ndarray, half: np.ndarray, coarse: list[np.ndarray],
+                coarse_r: np.ndarray, window: int, reach: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(point, segment) index pairs to evaluate, ascending in the point (the numpy search)."""
+    m = points.shape[0]
+    last = mid.shape[0] - 1
+    idx = np.arange(m)
+    with np.errstate(invalid="ignore"):
         p = [np.ascontiguousarray(points[:, k]) for k in range(3)]
         mids = [np.ascontiguousarray(mid[:, k]) for k in range(3)]
         lo = np.maximum(np.minimum(idx - window, last), 0)  # the window: segments clip(i + k, 0, last), |k| <= window
         hi = np.minimum(idx + window, last)
-        coarse, coarse_r = _balls(mid, half, _COARSE_SEGMENTS)
         fine, fine_r = _balls(mid, half, _FINE_SEGMENTS)
         # every coarse ball touching the window, (m, count)
         first, final = lo // _COARSE_SEGMENTS, hi // _COARSE_SEGMENTS
@@ -253,13 +322,7 @@ def distance_to_polyline(points: np.ndarray, polyline: np.ndarray, window: int =
         i, j = i[keep], j[keep]
         limit = reach.take(i) + half.take(j)
         keep = _squared(p, i, mids, j) <= limit * limit
-    i, j = i[keep], j[keep]  # ascending in i
-    if i.size:
-        d2 = _pair_distance2(points, a, ab, ab2, i, j)
-        start = np.flatnonzero(np.concatenate(([True], i[1:] != i[:-1])))
-        rows = i[start]
-        best[rows] = np.minimum(best[rows], np.minimum.reduceat(d2, start))
-    return np.sqrt(best)
+    return i[keep], j[keep]
 
 
 def path_accuracy(measured: np.ndarray, commanded: np.ndarray, segment: np.ndarray) -> dict[int, float]:

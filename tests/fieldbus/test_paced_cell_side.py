@@ -9,7 +9,7 @@ import pytest
 
 from fieldbus import DriveActuals, DriveEndpoint, JointScaling, ManagingNodeEndpoint, Setpoints
 from fieldbus.simbus import unique_channel
-from fieldbus.telegrams import RPDO1_BASE, SYNC_ID, TPDO1_BASE
+from fieldbus.telegrams import RPDO1_BASE, SYNC_ID, TPDO1_BASE, FastMessage
 from paced_support import Clock, paced_run
 
 SCALING = JointScaling([100.0] * 6, 2**20, [10.0] * 6)
@@ -200,3 +200,45 @@ def test_a_late_group_after_a_stall_does_not_shift_the_controllers_cycles():
     assert [c for c, node, _ in _errors(cn, "loss_of_preq") if node == 1] == [30, 31, 32, 33]
     for k in range(36, 60):
         assert np.array_equal(applied[k][0], clean[k][0]), k
+
+
+def test_a_group_delivered_many_cycles_late_is_dropped_not_a_restart():
+    """The controller computed its group of cycle 30 and then stalled before it went out: the group
+    arrives 23 cycles late, alone in window 53, and nothing else comes until cycle 55. It is a late
+    group (its counter is that of a past cycle), not a restarted controller: dropped, and from 55 on
+    the cell applies what the run without the stall applies (before: re-synchronised on it, every
+    later set-point 23 cycles old until the next re-synchronisation)."""
+    config = {**CONFIG, "thresholds": {"cn_loss_of_soc": 0, "cn_loss_of_preq": 0}}
+    clean = paced_run(config, SCALING, 90, _ramp)[1]
+    channel = unique_channel("hil")
+    mn = ManagingNodeEndpoint(config, SCALING, channel=channel)
+    cn = DriveEndpoint(config, SCALING, channel=channel)
+    clock = Clock()
+    sp, act = Setpoints.zeros(6), DriveActuals.zeros(6)
+    stashed, applied = [], []
+    try:
+        for k in range(90):
+            sp.controlword[:] = 0x0F
+            _ramp(k, sp)
+            act.statusword[:] = 0x27
+            if k == 30:  # computed, then the process stalled before its sendto
+                send, mn._transmit = mn._transmit, lambda frames: stashed.extend(FastMessage(
+                    m.timestamp, m.arbitration_id, bytearray(m.data)) for m in frames) or frames
+                mn.send_setpoints(k, sp)
+                mn._transmit = send
+            elif 31 <= k <= 54:
+                mn._begin(k)
+            else:
+                mn.send_setpoints(k, sp)
+            if k == 53:
+                mn.bus.send_many(stashed)  # the stale group of 30 reaches the cell in window 53
+            clock.t = k * 4e-4 + 2e-4
+            a = cn.run_cycle_paced(k, act, deadline=clock.t, clock=clock)
+            applied.append(a.position.copy())
+            mn.collect_actuals(k)
+    finally:
+        cn.close()
+        mn.close()
+    assert [c for c, node, _ in _errors(cn, "loss_of_preq") if node == 1] == list(range(30, 55))
+    for k in range(57, 90):
+        assert np.array_equal(applied[k], clean[k][0]), k

@@ -103,3 +103,44 @@ def test_the_job_process_relays_progress_while_it_waits(monkeypatch):
             assert time.monotonic() - started < 8.0  # the first outcome came while slow() still ran
             release.set()
     assert got == ["a", "b"]
+
+
+def _priority_worker(connection, ctx, setup, mode, extra_signals):
+    """Reports its own scheduling priority once the parent had time to lower it."""
+    import os
+    import time
+
+    base = setup.base_priority
+    deadline = time.monotonic() + 5.0
+    while os.getpriority(os.PRIO_PROCESS, 0) == base and mode == "light" and base < 19 and time.monotonic() < deadline:
+        time.sleep(0.01)
+    mode_pool._send_whole(connection, ("done", mode, {"nice": os.getpriority(os.PRIO_PROCESS, 0) - base}, None,
+                                       None, 1.0))
+    connection.close()
+
+
+def test_niceness_lowers_the_priority_of_the_modes_named(monkeypatch):
+    """``run_modes(niceness=...)``: the worker of a mode named gets that much lower a priority (the
+    main job's other modes yield to the elastic one); the others keep this process's."""
+    import os
+
+    monkeypatch.setattr(mode_pool, "_worker", _priority_worker)
+    setup = SimpleNamespace(doc={"simulation": {"stop_time": 1.0}}, base_priority=os.getpriority(os.PRIO_PROCESS, 0))
+    outcomes = list(mode_pool.run_modes(_context(), setup, ["light", "long"], processes=2, niceness={"light": 1}))
+    lowered = min(1, 19 - setup.base_priority)  # 19: the lowest priority there is
+    assert {o.mode: o.entry["nice"] for o in outcomes} == {"light": lowered, "long": 0}
+
+
+def test_the_main_job_lowers_the_other_modes_for_the_elastic_one(monkeypatch):
+    import pytest
+
+    from cosim.jobs.iso9283 import _niceness
+
+    monkeypatch.delenv("COSIM_MODE_NICENESS", raising=False)
+    assert _niceness(["standard", "model_based", "model_based_elastic"]) == {"standard": 1, "model_based": 1}
+    assert _niceness(["standard", "standard_speed_ff", "model_based"]) == {}
+    monkeypatch.setenv("COSIM_MODE_NICENESS", "0")  # all at one priority, to compare
+    assert _niceness(["standard", "model_based", "model_based_elastic"]) == {}
+    monkeypatch.setenv("COSIM_MODE_NICENESS", "-1")
+    with pytest.raises(ValueError, match="COSIM_MODE_NICENESS"):
+        _niceness(["standard", "model_based_elastic"])

@@ -107,3 +107,18 @@ def test_the_documented_recipe_decodes_without_our_reader(runs):
                     stored = np.cumsum(stored)
                 parts.append(stored.view(np.float64))
         assert np.array_equal(_bits(np.concatenate(parts)), _bits(reference[:, names.index(name)])), name
+
+
+def test_some_columns_of_a_file_with_derived_columns(runs):
+    """Asking for some columns reads only what they are made of, and gives the same values as
+    the whole file (copies from the source, same-as, differences, distances)."""
+    from cosim.results.timeseries import iter_series
+
+    _, compact = runs
+    for path, pick in ((compact / "controller_standard.parquet", ["target3", "t_apply", "q_d3"]),
+                       (compact / "tcp_model_based.parquet", ["lag2", "tcp_error_mm"]),
+                       (compact / "tcp_model_based.parquet", ["q1", "t"]),
+                       (compact / "tcp_model_based.parquet", ["path_error_mm"])):
+        names, whole = read_series(path)
+        got = np.concatenate([block for _, block in iter_series(path, pick, rows=100)])
+        assert np.array_equal(_bits(got), _bits(whole[:, [names.index(c) for c in pick]])), (path.name, pick)

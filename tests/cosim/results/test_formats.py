@@ -110,6 +110,28 @@ def test_compact_sink_plans_as_one_pass_over_the_whole_stream(tmp_path, rows):
     assert back_names == names and np.array_equal(back.view(np.int64), data.view(np.int64))
 
 
+def test_the_same_rows_make_the_same_file_however_the_stream_was_cut(tmp_path):
+    """Row groups of ROW_GROUP_ROWS rows whatever the batches (wall-clock flushes cut the stream
+    differently in every run): the same rows give the same bytes."""
+    from cosim.results.timeseries import ROW_GROUP_ROWS
+
+    rows = 2 * ROW_GROUP_ROWS + 1234
+    t = np.arange(rows) * 1e-3
+    data = np.column_stack([t, np.sin(t), np.cos(7 * t)])
+    files = []
+    for k, cut in enumerate((1000, 777, 5000)):
+        sink = ParquetSink(tmp_path / f"s{k}.parquet", buffer_rows=4096, flush_interval_s=3600.0, float_delta=True)
+        sink.open(["time", "a", "b"], ["Real"] * 3)
+        for start in range(0, rows, cut):
+            sink.write(data[start:start + cut])
+            if (start // cut) % 3 == 0:
+                sink._write_batch()  # what a flush after the wall-clock interval does
+        sink.close()
+        files.append((tmp_path / f"s{k}.parquet").read_bytes())
+        assert pq.ParquetFile(tmp_path / f"s{k}.parquet").metadata.num_row_groups == 3
+    assert files[0] == files[1] == files[2]
+
+
 def test_write_columns_both_formats_are_exact(tmp_path):
     data = _rows(500)
     columns = {"t": data[:, 0], "x": data[:, 1], "phase": data[:, 2]}

@@ -3,7 +3,16 @@ full search over every segment of the window (the former implementation, kept he
 import numpy as np
 import pytest
 
-from cosim.tracking.metrics import AT_WINDOW_SAMPLES, distance_to_polyline, path_accuracy
+from cosim.tracking.metrics import AT_WINDOW_SAMPLES, candidate_kernel, distance_to_polyline, path_accuracy
+
+
+@pytest.fixture(params=[False, True], ids=["numpy", "compiled"])
+def compiled(request):
+    """Both candidate searches: numpy, and the C one (skipped only without a compiler and without
+    $COSIM_NATIVE=require, which .ci/run sets: there a missing build fails)."""
+    if request.param and candidate_kernel() is None:
+        pytest.skip("no C compiler: the numpy search runs")
+    return request.param
 
 
 def full_window(points: np.ndarray, polyline: np.ndarray, window: int = AT_WINDOW_SAMPLES) -> np.ndarray:
@@ -26,7 +35,7 @@ def full_window(points: np.ndarray, polyline: np.ndarray, window: int = AT_WINDO
 
 
 @pytest.mark.parametrize("seed", range(12))
-def test_pruned_equals_full_window(seed):
+def test_pruned_equals_full_window(seed, compiled):
     rng = np.random.default_rng(seed)
     n = int(rng.integers(1, 1000))
     step = rng.uniform(1e-4, 1.0)
@@ -35,7 +44,8 @@ def test_pruned_equals_full_window(seed):
         polyline[n // 2:] = polyline[n // 2:][::-1]
     points = polyline + rng.normal(size=(n, 3)) * rng.uniform(0.0, 5.0) * step
     window = int(rng.integers(1, 200)) if seed % 2 else AT_WINDOW_SAMPLES
-    assert np.array_equal(distance_to_polyline(points, polyline, window), full_window(points, polyline, window))
+    assert np.array_equal(distance_to_polyline(points, polyline, window, compiled=compiled),
+                          full_window(points, polyline, window))
 
 
 def test_iso_like_path_accuracy_per_segment():
@@ -50,7 +60,7 @@ def test_iso_like_path_accuracy_per_segment():
 
 
 @pytest.mark.parametrize("lag", [0, 3, 18, 60])
-def test_lagging_points_equal_full_window(lag):
+def test_lagging_points_equal_full_window(lag, compiled):
     """Measured points trailing their commanded ones by ``lag`` samples (the standard cascade's
     case: the own segment is far, the nearest midpoint near): the second, tighter bound keeps
     the minimum the same number."""
@@ -59,7 +69,7 @@ def test_lagging_points_equal_full_window(lag):
     polyline = np.column_stack([0.5 * np.cos(s / 0.5), 0.5 * np.sin(s / 0.5), 0.05 * s])
     rng = np.random.default_rng(lag)
     points = np.vstack([polyline[:1].repeat(lag, 0), polyline[:n - lag]]) + 5e-5 * rng.normal(size=(n, 3))
-    assert np.array_equal(distance_to_polyline(points, polyline), full_window(points, polyline))
+    assert np.array_equal(distance_to_polyline(points, polyline, compiled=compiled), full_window(points, polyline))
 
 
 def full_window_nan(points: np.ndarray, polyline: np.ndarray, window: int = AT_WINDOW_SAMPLES) -> np.ndarray:
@@ -82,7 +92,7 @@ def full_window_nan(points: np.ndarray, polyline: np.ndarray, window: int = AT_W
 
 
 @pytest.mark.parametrize("seed", range(6))
-def test_points_and_segments_of_other_counts_and_nan(seed):
+def test_points_and_segments_of_other_counts_and_nan(seed, compiled):
     """More or fewer points than polyline vertices, and NaN vertices (a failed run's set-points):
     the same numbers as the full search."""
     rng = np.random.default_rng(100 + seed)
@@ -94,7 +104,7 @@ def test_points_and_segments_of_other_counts_and_nan(seed):
     if seed % 2:
         polyline[rng.integers(0, n, size=max(1, n // 20))] = np.nan
         points[rng.integers(0, m, size=max(1, m // 30))] = np.nan
-    assert np.array_equal(distance_to_polyline(points, polyline, window), full_window_nan(points, polyline, window),
-                          equal_nan=True)
+    got = distance_to_polyline(points, polyline, window, compiled=compiled)
+    assert np.array_equal(got, full_window_nan(points, polyline, window), equal_nan=True)
     if not seed % 2:
-        assert np.array_equal(distance_to_polyline(points, polyline, window), full_window(points, polyline, window))
+        assert np.array_equal(got, full_window(points, polyline, window))
