@@ -44,6 +44,7 @@ from __future__ import annotations
 import ctypes
 import hashlib
 import tempfile
+from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -52,6 +53,7 @@ import numpy as np
 import pinocchio as pin
 
 import native
+from native.calls import address_of, load_calls
 
 from robot.dynamics import RobotDynamics
 from robot.symbolic import chain_structure, inverse_dynamics_expression
@@ -345,6 +347,9 @@ class CompiledCycle:
         self._keep = bind_outputs(plan.out, shaper, desired, setpoints, enable_operation)
         self.plan = plan
         self._plan_ref = ctypes.byref(plan)
+        calls = load_calls()
+        if calls is not None:  # called by address: the same call without ctypes' conversions
+            self.fast_cycle = partial(calls.int_p_p_p, address_of(self._fast), ctypes.addressof(plan))
 
     def bind_observed(self, statusword: np.ndarray, node_fault: np.ndarray, position: np.ndarray) -> None:
         """Point the fast cycle at the arrays it reads (int64 statuswords, bool node faults,

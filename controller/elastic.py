@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import ctypes
 import dataclasses
-from functools import lru_cache
+from functools import lru_cache, partial
 from pathlib import Path
 
 import numpy as np
@@ -34,6 +34,7 @@ from controller.feedforward import ElasticReference, GearModel, elastic_feedforw
 from controller.joint_reference import CartesianToJoint
 from controller.reference import JointTrajectory, TcpTrajectory, higher_derivatives
 from fieldbus import Setpoints
+from native.calls import address_of, load_calls
 from robot.dynamics import RobotDynamics
 
 ELASTIC_MODE = "model_based_elastic"
@@ -94,6 +95,9 @@ class ElasticCycle:
         self.plan = plan
         self._plan_ref = ctypes.byref(plan)
         self._run = lib.elastic_cycle_run
+        calls = load_calls()
+        if calls is not None:  # called by address: the same call without ctypes' conversions
+            self.run = partial(calls.int_p_ll_p, address_of(lib.elastic_cycle_run), ctypes.addressof(plan))
         self._observed: tuple = ()
 
     def bind_observed(self, statusword: np.ndarray, node_fault: np.ndarray, position: np.ndarray) -> None:

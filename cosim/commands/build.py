@@ -12,6 +12,7 @@ checkout all build the same way, into the same per-user cache, with the same err
 What it builds (:data:`PARTS`, then per scenario):
 
 * the fixed C parts: the master's stepping kernel, the fieldbus codec (CPython extension),
+  the direct calls of the loop's compiled functions (CPython extension, :mod:`native.calls`),
   the laser tracker's kernel, the path accuracy's candidate search, the crash guard, the FMI
   3.0 adapter, and the elastic mode's compiled IK table (C++ on pinocchio's headers, :mod:`controller.ik_table`);
 * the plant and servo-drive FMUs, FMI 2.0 (what the jobs run) and FMI 3.0;
@@ -98,6 +99,12 @@ def _elastic_cycle() -> Any:
     return load_elastic_cycle()
 
 
+def _direct_calls() -> Any:
+    from native.calls import load_calls
+
+    return load_calls()
+
+
 def _crash_guard() -> Any:
     import native
     from cosim.results import crashguard
@@ -152,6 +159,7 @@ PARTS: tuple[tuple[str, Callable[[], Any], bool], ...] = (
     ("laser tracker kernel", _tracker_kernel, True),
     ("path accuracy kernel", _path_accuracy_kernel, True),
     ("elastic controller cycle", _elastic_cycle, True),
+    ("direct calls of the loop's compiled functions", _direct_calls, True),
     ("crash guard", _crash_guard, True),
     ("FMI 3.0 adapter", _fmi3_adapter, True),
     ("compiled IK table (C++, pinocchio)", _ik_table, True),

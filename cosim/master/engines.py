@@ -16,12 +16,14 @@ import ctypes
 import math
 import time
 from dataclasses import dataclass, field
+from functools import partial
 
 import numpy as np
 
 from cosim.master.errors import FmuEnded, FmuTerminated, SimulationError
 from cosim.master.kernel import (FAIL_ENDED, FAIL_GET, FAIL_NONFINITE, FAIL_SET, FAIL_STEP, CFailure, CPlan, CSlave,
                                  load_kernel)
+from native.calls import address_of, load_calls
 from fmus.fmu import VALUE_DTYPE, VALUE_TYPES, Fmu, status_name
 
 BUS_ORDER = VALUE_TYPES  # the value types an Fmu exchanges, one bus each
@@ -225,6 +227,13 @@ class NativeEngine:
         self._plan_ref = ctypes.byref(self._plan)
         self._failure = CFailure()
         self._failure_ref = ctypes.byref(self._failure)
+        calls = load_calls()
+        if calls is not None:  # the kernel called by address: the same call without ctypes' conversions
+            self._step = partial(calls.int_p_ll_ll_p, address_of(self._advance), ctypes.addressof(self._plan))
+            self._failure_arg = ctypes.addressof(self._failure)
+        else:
+            self._step = partial(self._advance, self._plan_ref)
+            self._failure_arg = self._failure_ref
 
     @staticmethod
     def _fill(c: CSlave, slave: SlavePlan) -> None:
@@ -251,7 +260,7 @@ class NativeEngine:
     def advance(self, n_from: int, n_to: int) -> None:
         """Step all due slaves for ticks n_from .. n_to-1 in C; raise SimulationError on failure
         (FmuEnded when an FMU ended the simulation itself)."""
-        rc = self._advance(self._plan_ref, n_from, n_to, self._failure_ref)
+        rc = self._step(n_from, n_to, self._failure_arg)
         if rc:
             f = self._failure
             if f.what == FAIL_ENDED:

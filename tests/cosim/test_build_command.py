@@ -55,7 +55,7 @@ def test_build_compiles_each_part_into_the_cache_once(cache, monkeypatch, capsys
 def test_every_native_part_of_the_testbed_is_listed():
     names = [what for what, _, _ in build_command.PARTS]
     for expected in ("master kernel", "fieldbus codec", "tracker kernel", "path accuracy kernel",
-                     "elastic controller cycle", "crash guard",
+                     "elastic controller cycle", "direct calls", "crash guard",
                      "FMI 3.0 adapter", "IK table",
                      "FMUs (FMI 2.0)", "FMUs (FMI 3.0)", "PtP node functions"):
         assert any(expected in name for name in names), expected

@@ -52,6 +52,12 @@ def _codec(monkeypatch, folder):
     return _rebuilt(monkeypatch, folder, codec, "SOURCE", codec.load_codec)
 
 
+def _direct_calls(monkeypatch, folder):
+    from native import calls
+
+    return _rebuilt(monkeypatch, folder, calls, "SOURCE", calls.load_calls)
+
+
 def _fmi3_adapter(monkeypatch, folder):
     from fmus import fmi3
 
@@ -102,6 +108,14 @@ def _tracker(monkeypatch, folder):
     return laser_tracker.KERNEL_SOURCE if tracker.compiled else None
 
 
+def _path_accuracy(monkeypatch, folder):
+    from cosim.tracking import metrics
+
+    monkeypatch.setattr(metrics, "KERNEL_SOURCE", _broken_copy(metrics.KERNEL_SOURCE, folder))
+    monkeypatch.setattr(metrics, "_KERNEL", [])
+    return metrics.candidate_kernel()
+
+
 def _crash_guard(monkeypatch, folder):
     from cosim.results import crashguard
 
@@ -127,8 +141,10 @@ def _controller_cycle(monkeypatch, folder):
 COMPONENTS = [
     ("master_kernel", "co-simulation master kernel", _kernel),
     ("fieldbus_codec", "fieldbus codec", _codec),
+    ("direct_calls", "direct calls", _direct_calls),
     ("fmi3_adapter", "FMI 3.0 adapter", _fmi3_adapter),
     ("tracker_kernel", "laser tracker kernel", _tracker),
+    ("path_accuracy_kernel", "path accuracy kernel", _path_accuracy),
     ("crash_guard", "crash guard", _crash_guard),
     ("controller_cycle", "controller cycle kernel", _controller_cycle),
     ("elastic_cycle", "elastic controller cycle", _elastic_cycle),
@@ -152,8 +168,8 @@ def test_every_hand_written_c_source_is_covered():
                                                               "robot", "calibration", "identification")
                for pattern in ("*.c", "*.cpp", "*.h") for p in (root / package).rglob(pattern)}
     covered = {"cosim/master/kernel.c", "fieldbus/codec.c", "cosim/tracking/tracker_kernel.c",
-               "cosim/results/crashguard.c", "controller/fast_cycle.c", "controller/elastic_cycle.c",
-               "controller/ik_table.cpp", "controller/cycle_outputs.h"}
+               "cosim/tracking/polyline_kernel.c", "cosim/results/crashguard.c", "controller/fast_cycle.c", "controller/elastic_cycle.c",
+               "controller/ik_table.cpp", "controller/cycle_outputs.h", "native/calls.c"}
     assert sources == covered  # fmus/: fmi3_adapter.c here, the FMU sources below
 
 
