@@ -202,6 +202,34 @@ def test_compiled_link_torque_is_the_casadi_expression_bit_for_bit(monkeypatch):
         np.testing.assert_array_equal(a, b)
 
 
+def test_link_torque_grid_call_is_the_compiled_map_exactly(monkeypatch):
+    """link_torque_derivatives' one C call over the grid (elastic_link_torque_grid) gives the
+    compiled function's CasADi map numbers bit for bit (random knots, a length that is not a
+    multiple of MAP_BLOCK), and so does the map path in blocks it replaces; single knots (6,)
+    too."""
+    from controller import feedforward
+    from robot.symbolic import chain_structure
+
+    structure = chain_structure(DYN.model)
+    assert feedforward._compiled_link_torque_grid(structure) is not None
+    rng = np.random.default_rng(11)
+    n = 2 * feedforward.MAP_BLOCK + 37
+    d = [rng.standard_normal((n, 6)) for _ in range(5)]
+    p = DYN.parameter_vector()
+    share = GEAR.motor_friction_share
+    rest = [p, np.asarray(DYN.payload, dtype=float), (1 - share) * p[VISCOUS_SLICE], (1 - share) * p[COULOMB_SLICE]]
+    mapped = feedforward._compiled_link_torque_function(structure).map(n)(*(a.T for a in d), *rest)
+    grid = link_torque_derivatives(DYN, GEAR, *d)
+    single = link_torque_derivatives(DYN, GEAR, *(a[5] for a in d))
+    monkeypatch.setattr(feedforward, "_compiled_link_torque_grid", lambda structure: None)
+    blocks = link_torque_derivatives(DYN, GEAR, *d)
+    for a, b, c, e in zip(grid, mapped, blocks, single):
+        assert a.shape == (n, 6) and e.shape == (1, 6)
+        np.testing.assert_array_equal(a, np.array(b).T)
+        np.testing.assert_array_equal(c, a)
+        np.testing.assert_array_equal(e[0], a[5])
+
+
 def test_link_torque_in_blocks_is_the_one_wide_map_exactly():
     """link_torque_derivatives evaluates MAP_BLOCK knots per CasADi call: the same numbers as
     one map over all knots (a length that is not a multiple of the block)."""
