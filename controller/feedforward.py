@@ -15,7 +15,7 @@ from __future__ import annotations
 import ctypes
 import hashlib
 import math
-import tempfile
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -196,38 +196,50 @@ CASADI_SYMBOL_EXPORT int elastic_link_torque_grid(long long n, const double* q, 
 """
 
 
+def _generator_key(structure_key: bytes) -> bytes:
+    """The identity of the generated link torque source without generating it (building the
+    CasADi expression and its C code costs ~0.11 CPU-s, paid only when the library is not
+    cached): the kinematic structure, the CasADi version and the source files the expression
+    is built from (this module, robot/symbolic.py, robot/spatial_lists.py, robot/dynamics.py)."""
+    import robot.dynamics
+    import robot.spatial_lists
+    import robot.symbolic
+
+    digest = hashlib.sha256(b"elastic_link_torque generated source v2\0" + structure_key)
+    digest.update(ca.__version__.encode() + b"\0")
+    for module in (sys.modules[__name__], robot.symbolic, robot.spatial_lists, robot.dynamics):
+        digest.update(Path(module.__file__).read_bytes() + b"\0")
+    return digest.digest()
+
+
 def _compiled_link_torque(structure: ChainStructure):
     """(``casadi.external`` function, ctypes grid driver) of the compiled link torque, or None
     (see :func:`_compiled_link_torque_function`)."""
     if native.mode() == "off":
         return None
-    function = _link_torque_function(structure)
     key = _structure_key(structure)
     if key in _COMPILED_LINK_TORQUE:
         return _COMPILED_LINK_TORQUE[key]
 
     def make() -> ca.Function:
-        generator = ca.CodeGenerator("elastic_link_torque.c", {"with_header": False, "casadi_int": "long long int"})
-        generator.add(function)
-        with tempfile.TemporaryDirectory() as tmp:
-            generator.generate(tmp + "/")
-            source = (Path(tmp) / "elastic_link_torque.c").read_text()
-
-        source += _GRID_DRIVER  # the whole grid in one call (link_torque_derivatives)
-
-        def generate(folder: Path) -> list[Path]:
+        def generate(folder: Path) -> list[Path]:  # only when the library is not cached yet
+            generator = ca.CodeGenerator("elastic_link_torque.c", {"with_header": False,
+                                                                   "casadi_int": "long long int"})
+            generator.add(_link_torque_function(structure))
+            generator.generate(str(folder) + "/")
             c_file = folder / "elastic_link_torque.c"
-            c_file.write_text(source)
+            # the whole grid in one call (link_torque_derivatives)
+            c_file.write_text(c_file.read_text() + _GRID_DRIVER)
             return [c_file]
 
-        library = native.build("elastic_link_torque", generate=generate,
-                               key=hashlib.sha256(source.encode()).digest(), cflags=LINK_TORQUE_CFLAGS)
+        library = native.build("elastic_link_torque", generate=generate, key=_generator_key(key),
+                               cflags=LINK_TORQUE_CFLAGS)
         lib = native.load_ctypes(library)  # owner and mode checks before CasADi loads it
         grid = lib.elastic_link_torque_grid
         grid.restype = ctypes.c_int
         grid.argtypes = [ctypes.c_longlong] + [ctypes.c_void_p] * 12
         try:
-            return ca.external(function.name(), str(library)), grid
+            return ca.external("elastic_link_torque", str(library)), grid
         except RuntimeError as exc:
             raise native.NativeBuildError(f"loading {library} with casadi.external failed: {exc}") from None
 
@@ -261,7 +273,6 @@ def link_torque_derivatives(dynamics: RobotDynamics, gear: GearModel, q: ArrayLi
     (n, 6) or (6,)): the rigid links of ``dynamics`` (no rotor inertia) plus the link-side
     share of its friction."""
     structure = chain_structure(dynamics.model)
-    function = _link_torque_function(structure)
     p = dynamics.parameter_vector()
     share = gear.motor_friction_share
     fv_l, fc_l = (1.0 - share) * p[VISCOUS_SLICE], (1.0 - share) * p[COULOMB_SLICE]
@@ -281,7 +292,7 @@ def link_torque_derivatives(dynamics: RobotDynamics, gear: GearModel, q: ArrayLi
         if status != 0:
             raise RuntimeError(f"elastic_link_torque_grid failed (status {status})")
         return out[0], out[1], out[2]
-    evaluate = _compiled_link_torque_function(structure) or function
+    evaluate = _compiled_link_torque_function(structure) or _link_torque_function(structure)
     columns = [np.ascontiguousarray(a.T) for a in args]
     n = columns[0].shape[1]
     out = np.empty((3, N_JOINTS, n))

@@ -230,6 +230,30 @@ def test_link_torque_grid_call_is_the_compiled_map_exactly(monkeypatch):
         np.testing.assert_array_equal(e[0], a[5])
 
 
+def test_cached_link_torque_library_is_found_without_building_the_expression(monkeypatch):
+    """The compiled link torque's cache key is the generator's identity (structure, CasADi
+    version, the expression's source files): a process whose cache holds the library loads it
+    without building the CasADi expression (~0.1 CPU-s of the elastic set-up); a changed source
+    file changes the key."""
+    from controller import feedforward
+    from robot.symbolic import chain_structure
+
+    structure = chain_structure(DYN.model)
+    assert feedforward._compiled_link_torque(structure) is not None  # built (or found) once
+    monkeypatch.setattr(feedforward, "_COMPILED_LINK_TORQUE", {})
+    monkeypatch.setattr(feedforward, "_LINK_TORQUE_FUNCTIONS", {})
+
+    def refuse(structure):
+        raise AssertionError("the expression was built although the library is cached")
+
+    monkeypatch.setattr(feedforward, "_build_link_torque_function", refuse)
+    compiled, grid = feedforward._compiled_link_torque(structure)
+    assert compiled.class_name() != "SXFunction" and grid is not None
+    key = feedforward._structure_key(structure)
+    assert feedforward._generator_key(key) == feedforward._generator_key(key)
+    assert feedforward._generator_key(key) != feedforward._generator_key(key + b"x")
+
+
 def test_link_torque_in_blocks_is_the_one_wide_map_exactly():
     """link_torque_derivatives evaluates MAP_BLOCK knots per CasADi call: the same numbers as
     one map over all knots (a length that is not a multiple of the block)."""
