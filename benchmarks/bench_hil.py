@@ -302,12 +302,14 @@ def late_controller(endpoint_file: str, late: tuple[int, ...], seconds: float, q
     setpoints = Setpoints.zeros(desc["nodes"])
     setpoints.position[:] = desc["q_start_rad"]
     sequencers = [EnableSequencer() for _ in range(desc["nodes"])]
-    late_set, sent_late, last, first = set(late), [], -1, None
+    pending, sent_late, last, first = sorted(late), [], -1, None
     endpoint.send_following(setpoints)  # the cell takes it as the first group
     with realtime_scheduling(SCHEDULING, 10), no_cyclic_gc():
         while True:
             got = endpoint.follow(0.5 if first is not None else 120.0)  # the cell may take a while to start
-            arrived = endpoint.bus.oldest_arrival_ns or time.time_ns()  # the PRes's kernel arrival (wall ns)
+            # the newest PRes's kernel arrival (wall ns): after a stall of this process several have
+            # arrived, and timing from the oldest one made the 'late' group early enough to be taken
+            arrived = endpoint.bus.newest_arrival_ns or time.time_ns()
             if got is None:
                 break
             cycle, observed = got
@@ -317,7 +319,11 @@ def late_controller(endpoint_file: str, late: tuple[int, ...], seconds: float, q
             first = cell_cycle if first is None else first
             for i, sequencer in enumerate(sequencers):
                 setpoints.controlword[i] = sequencer.next_controlword(int(observed.statusword[i]))
-            if cell_cycle + 1 - first in late_set and cell_cycle + 1 not in sent_late:
+            # the next planned cycle reached: ``follow`` digests every PRes that has arrived, so after a
+            # stall (of the cell or of this process) it can jump over a planned cycle - take the next
+            # cycle instead of skipping the plan (one per PRes: a pair stays a pair)
+            if pending and cell_cycle + 1 - first >= pending[0]:
+                pending.pop(0)
                 while time.time_ns() - arrived < delay_ns:
                     pass
                 sent_late.append(cell_cycle + 1)
@@ -397,7 +403,6 @@ def late_run(work: Path, seconds: float = LATE_SECONDS, late: tuple[int, ...] = 
     cycles = hil["cycles"]
     planned = list(ctrl["late_sent"])  # cell cycles (the controller read them from the cell's PRes)
     threshold = FieldbusConfig.from_dict({}).thresholds.cn_loss_of_preq  # _late_scenario: the default
-    expected = expected_counters(planned, cycles, threshold=threshold)
     observed = {row["cycle"]: row["counters"] for row in hil["lost_cycles"]}
     trips: dict[int, set[int]] = {}
     for f in hil["fault_reactions"]:
@@ -406,40 +411,96 @@ def late_run(work: Path, seconds: float = LATE_SECONDS, late: tuple[int, ...] = 
     soc, pres = _cell_cycles_in_can_log(out / "can_model_based.parquet", period)
     judged = range(first, min(first + ctrl["cycles_followed"], cycles))
     missing_soc = sorted(k for k in judged if k not in soc)
-    per_cycle = []
-    for k in planned:
-        row = observed.get(k, {})
-        per_cycle.append({"cycle": k, "expected_counter": expected["errors"][k],
-                          "observed_loss_of_preq_counters": row.get("loss_of_preq"),
-                          "observed_loss_of_soc_counters": row.get("loss_of_soc"),
-                          "soc_in_can_log": k in soc, "pres_in_can_log": k in pres,
-                          "expected_trip": k in expected["trips"], "observed_trip_nodes": sorted(trips.get(k, ()))})
+    cell_late = {int(c): x for c, x in hil.get("overrun_cycles", [])}
+    faulted = {k for a, b in hil.get("all_nodes_faulted_cycles", []) for k in range(a, b + 1)}
+    per_cycle = judge_late_cycles(planned, observed, trips, soc, pres, cell_late, threshold, faulted=faulted)
     unplanned = sorted(k for k in set(observed) - set(planned) if k in judged)
+    n_judged = sum(not r["status"].startswith("not judged") for r in per_cycle)
+    reasons = {}
     for r in per_cycle:
-        r["exact"] = (r["observed_loss_of_preq_counters"] == [r["expected_counter"]] * 6
-                      and r["observed_loss_of_soc_counters"] == [r["expected_counter"]] * 6
-                      and not r["soc_in_can_log"] and r["pres_in_can_log"]
-                      and r["expected_trip"] == (r["observed_trip_nodes"] == list(range(1, 7))))
-    exact = sum(r["exact"] for r in per_cycle)
+        if r["status"].startswith("not judged"):
+            reasons[r["status"]] = reasons.get(r["status"], 0) + 1
+    exact = sum(r["status"] == "exact" for r in per_cycle)
     return {"seconds": seconds, "cycles": cycles, "first_cycle": first, "late_controller_cycles": list(late),
             "late_cell_cycles": planned, "per_cycle": per_cycle, "observed_lost_cycles": sorted(observed),
             "missing_soc_in_can_log": missing_soc, "unplanned_lost_cycles": unplanned,
-            "planned_exact": exact, "planned_exact_fraction": exact / len(per_cycle) if per_cycle else None,
-            "frames_late": hil["frames_late"], "overruns": hil["overruns"],
+            "planned": len(per_cycle), "judged": n_judged, "not_judged": reasons,
+            "planned_exact": exact, "judged_exact_fraction": exact / n_judged if n_judged else None,
+            "frames_late": hil["frames_late"], "overruns": hil["overruns"], "cycles_served": cycles,
+            "overrun_causes": {k: hil["overrun_causes"][k] for k in ("stalled", "own_work", "other")},
+            "longest_overrun_run": hil["longest_overrun_run"],
             "serve_exit": serve.returncode, "serve_stderr_tail": err[-500:] if serve.returncode else "",
             "load_average_before": load_before, "load_average_after": os.getloadavg()}
+
+
+#: status of a planned late cycle the cell itself started late (or started the cycle before late)
+NOT_JUDGED = "not judged: cell late"
+#: ... one whose cycle before had no group taken (the cell had dropped the controller's groups: a stall
+#: of the controller, or its SoC counter out of step until the cell re-aligns), so k's loss is not k's alone
+NOT_JUDGED_NO_GROUP = "not judged: no group taken the cycle before"
+#: ... one in which every node's communication fault was latched (the cell counts no missing group then)
+NOT_JUDGED_FAULTED = "not judged: drives in fault reaction"
+
+
+def judge_late_cycles(planned: list[int], observed: dict[int, dict], trips: dict[int, set[int]], soc: set[int],
+                      pres: set[int], cell_late: dict[int, float], threshold: int, nodes: int = 6,
+                      faulted: set[int] = frozenset()) -> list[dict]:
+    """Per planned late cycle k: what POWERLINK specifies against what the served cell did.
+
+    ``observed``: cycle -> {"loss_of_preq"/"loss_of_soc": counter per node} (summary ``hil.lost_cycles``);
+    ``trips``: cycle -> nodes whose loss-of-SoC/PReq fault reaction fired; ``soc``/``pres``: cycles with
+    the cell's SoC taken / a PRes sent in the CAN log; ``cell_late``: the cell's own overrun cycles ->
+    lateness (µs). The expected counter at k follows from the cycles actually lost before k (the
+    planned ones and any stall: +8 per lost cycle, -1 per good one) and k itself. A cycle k the cell
+    started late (k or k-1 an overrun) is not judged: its window opened late, so a group sent after
+    the nominal window may still be in time for it - the controller was not late *for that cell*.
+    Nor is a cycle k whose cycle before had no SoC taken (in ``soc``) unless planned too
+    (:data:`NOT_JUDGED_NO_GROUP`), or
+    one in ``faulted`` (every node's communication fault latched: :data:`NOT_JUDGED_FAULTED`).
+    -> rows with ``status`` 'exact', 'DIFFERS' or one of the NOT_JUDGED* reasons."""
+    rows = []
+    for k in planned:
+        history = sorted({c for c in observed if c < k} | {k})
+        expected = expected_counters(history, k + 1, threshold=threshold)
+        row = observed.get(k, {})
+        r = {"cycle": k, "expected_counter": expected["errors"][k],
+             "observed_loss_of_preq_counters": row.get("loss_of_preq"),
+             "observed_loss_of_soc_counters": row.get("loss_of_soc"),
+             "soc_in_can_log": k in soc, "pres_in_can_log": k in pres,
+             "expected_trip": k in expected["trips"], "observed_trip_nodes": sorted(trips.get(k, ())),
+             "cell_lateness_us": [cell_late.get(k - 1), cell_late.get(k)]}
+        exact = (r["observed_loss_of_preq_counters"] == [r["expected_counter"]] * nodes
+                 and r["observed_loss_of_soc_counters"] == [r["expected_counter"]] * nodes
+                 and not r["soc_in_can_log"] and r["pres_in_can_log"]
+                 and r["expected_trip"] == (r["observed_trip_nodes"] == list(range(1, nodes + 1))))
+        if k in cell_late or k - 1 in cell_late:
+            r["status"] = NOT_JUDGED
+        elif k - 1 not in soc and k - 1 not in planned:  # (a planned cycle before: a pair, lost by design)
+            r["status"] = NOT_JUDGED_NO_GROUP
+        elif k in faulted:
+            r["status"] = NOT_JUDGED_FAULTED
+        else:
+            r["status"] = "exact" if exact else "DIFFERS"
+        rows.append(r)
+    return rows
 
 
 def print_late(r: dict) -> None:
     print(f"late controller against cosim serve, {r['cycles']} cycles (first group in cell cycle "
           f"{r['first_cycle']}), load {r['load_average_before'][0]:.2f} -> {r['load_average_after'][0]:.2f}:")
     for row in r["per_cycle"]:
+        before, at = (f"{x:.0f} us" if x is not None else "-" for x in row["cell_lateness_us"])
         print(f"  cell cycle {row['cycle']}: counters expected {row['expected_counter']}, observed loss of PReq "
               f"{row['observed_loss_of_preq_counters']}, loss of SoC {row['observed_loss_of_soc_counters']},"
               f" SoC in CAN log {row['soc_in_can_log']}, PRes {row['pres_in_can_log']}, trip expected "
-              f"{row['expected_trip']} observed nodes {row['observed_trip_nodes']}: {'exact' if row['exact'] else 'DIFFERS'}")
-    print(f"  planned cycles exactly as POWERLINK specifies: {r['planned_exact']} of {len(r['per_cycle'])}; "
-          f"unplanned lost cycles "
+              f"{row['expected_trip']} observed nodes {row['observed_trip_nodes']}; cell overrun before/at "
+              f"{before}/{at}: {row['status']}")
+    c = r["overrun_causes"]
+    print(f"  planned {r['planned']} (of {len(r['late_controller_cycles'])}), judged {r['judged']}, exactly as "
+          f"POWERLINK specifies {r['planned_exact']} of {r['judged']} judged; not judged {r['not_judged'] or 0}")
+    print(f"  the cell's own overruns: {r['overruns']} in {r['cycles_served']} cycles "
+          f"({100 * r['overruns'] / max(r['cycles_served'], 1):.1f} %, longest run {r['longest_overrun_run']}; "
+          f"stalled {c['stalled']}, own work {c['own_work']}, other {c['other']}); unplanned lost cycles "
           f"{r['unplanned_lost_cycles']} (stalls); cycles without SoC in the CAN log {len(r['missing_soc_in_can_log'])}"
           f"; late frames dropped {r['frames_late']}")
 

@@ -155,6 +155,7 @@ _perf_counter_ns = time.perf_counter_ns
 _thread_time_ns = time.thread_time_ns
 _SCALAR_ROW = struct.Struct("@6d")
 _JOINT_ROW_BYTES = 6 * N_JOINTS * 8
+_SCALAR_ROW_BYTES = _SCALAR_ROW.size
 
 
 LOG_COLUMNS = (("t", "t_apply", "phase", "tau")
@@ -198,6 +199,7 @@ class ControllerLog:
 
     def _bind(self) -> None:
         self._joints_address = int(self.joints.ctypes.data)
+        self._capacity = self.scalars.shape[0]
         self._pack_scalars = partial(_SCALAR_ROW.pack_into, memoryview(self.scalars).cast("B"))
 
     def _grow(self) -> None:
@@ -268,7 +270,7 @@ class ControllerLog:
     def next_joints_address(self) -> int:
         """Memory address of the next row's joint block (6 x 6 doubles: q_d, qd_d, qdd_d,
         tau_ff, target, q_obs) for a compiled writer; complete the row with :meth:`commit`."""
-        if self.rows == self.scalars.shape[0]:
+        if self.rows == self._capacity:
             self._grow()
         return self._joints_address + _JOINT_ROW_BYTES * self.rows
 
@@ -629,13 +631,16 @@ class Controller:
         path. False when the Python path must take this cycle (a drive not in Operation
         enabled or a node fault, a kernel result failing a check, unusual observed
         arrays); nothing has changed then."""
-        if not self._bind_fast_observed(observed):
-            return False
+        bound = self._observed_bound
+        if bound is None or observed.position is not bound[0] or observed.statusword is not bound[1] \
+                or observed.node_fault is not bound[2]:
+            if not self._bind_fast_observed(observed):
+                return False
         phase = self.phase
         if phase is Phase.SETTLING:
             tau = 0.0
         else:
-            tau = (cycle - self.motion_start_cycle) * self.config.period_s
+            tau = (cycle - self.motion_start_cycle) * self._period_s
         ref = self.reference
         k, offset = ref.grid.locate(self._ref_t_start + tau)
         if offset == 0.0:
@@ -644,20 +649,26 @@ class Controller:
             ref.packed_sample(self._ref_t_start + tau, self._scratch)
             address = self._scratch_address
         log = self.log
+        row = log.rows  # the log row the compiled cycle writes (ControllerLog.next_joints_address)
+        if row == log._capacity:
+            log._grow()
+            row = log.rows
+        joints = log._joints_address + _JOINT_ROW_BYTES * row
         h = self._h
+        fast = self._fast
         if self._shape_gap != 1 and self._shaper is not None:
             # a jump the bus interpolates: shape over the samples in between (drive_compensation)
-            self._set_shaper_gains(self._fast.plan.out, self._shape_gap)
-            self._fast.h[0] = h
-            status = self._fast.fast_cycle(address, log.next_joints_address())
-            self._fast.h[0] = self.config.period_s
-            self._set_shaper_gains(self._fast.plan.out, 1)
-        elif h != self.config.period_s:  # a jumped cycle: predict the seed over the cycles not run
-            self._fast.h[0] = h
-            status = self._fast.fast_cycle(address, log.next_joints_address())
-            self._fast.h[0] = self.config.period_s
+            self._set_shaper_gains(fast.plan.out, self._shape_gap)
+            fast.h[0] = h
+            status = fast.fast_cycle(address, joints)
+            fast.h[0] = self._period_s
+            self._set_shaper_gains(fast.plan.out, 1)
+        elif h != self._period_s:  # a jumped cycle: predict the seed over the cycles not run
+            fast.h[0] = h
+            status = fast.fast_cycle(address, joints)
+            fast.h[0] = self._period_s
         else:
-            status = self._fast.fast_cycle(address, log.next_joints_address())
+            status = fast.fast_cycle(address, joints)
         if status == FAST_STOP_CHECK or status == FAST_REJECTED:
             return False
         self._fast_step_done(cycle, t, phase, tau, self._ref_duration, started, cpu_started, status)
@@ -690,14 +701,21 @@ class Controller:
         Python path (settled, reference of ``duration`` s done), the cycle's timing and the log."""
         self._last_cycle = cycle
         self.kernel_cycles += 1
-        if phase is Phase.SETTLING and cycle >= self._settle_until:
+        if phase is Phase.TRACKING:
+            if tau >= duration:
+                phase = self.phase = Phase.FINISHED
+        elif phase is Phase.SETTLING and cycle >= self._settle_until:
             phase = self.phase = Phase.TRACKING
             self.motion_start_cycle = cycle
-        if phase is Phase.TRACKING and tau >= duration:
-            phase = self.phase = Phase.FINISHED
+            if tau >= duration:
+                phase = self.phase = Phase.FINISHED
         elapsed = _perf_counter_ns() - started
         self.timer.record(elapsed, _thread_time_ns() - cpu_started)
-        self.log.commit(t, t + self._lead_time_s, int(phase), tau, elapsed * 1e-3, iterations)
+        # the row's scalars (ControllerLog.commit inlined: phase, an IntEnum, packs as its value)
+        log = self.log
+        k = log.rows
+        log._pack_scalars(_SCALAR_ROW_BYTES * k, t, t + self._lead_time_s, phase, tau, elapsed * 1e-3, iterations)
+        log.rows = k + 1
 
     def _enable(self, observed: ObservedActuals, sp: Setpoints) -> None:
         """Enable sequence: next controlword per drive, hold the start configuration."""

@@ -11,7 +11,9 @@ value (default 100 µs, the main job's target for the p99 compute time, docs/mai
 """
 from __future__ import annotations
 
+import struct
 from dataclasses import dataclass
+from functools import partial
 
 import numpy as np
 
@@ -42,6 +44,7 @@ class TimingSummary:
 EXACT_CYCLES = 1 << 18
 """Cycles whose compute times are kept one by one (105 s at 400 µs, 4 MB); longer runs fold
 them into :class:`_Histogram` blocks so that memory stays bounded."""
+_PAIR = struct.Struct("@2q")  # one cycle held: wall clock, thread CPU time (ns)
 BINS_PER_OCTAVE = 256
 """Resolution of the folded histogram: a bin spans a factor 2**(1/256) (0.27 %)."""
 _OCTAVES = 48  # 1 ns .. 2.8e14 ns
@@ -83,26 +86,34 @@ class CycleTimer:
         if not budget_s > 0.0:
             raise ValueError(f"CycleTimer budget_s = {budget_s!r}: expected a compute budget > 0 s")
         self.budget_ns = int(round(budget_s * 1e9))
-        self.durations_ns = np.zeros(min(max(int(capacity), 16), EXACT_CYCLES), dtype=np.int64)
-        self.cpu_ns = np.zeros_like(self.durations_ns)
+        self._alloc(min(max(int(capacity), 16), EXACT_CYCLES))
         self.count = 0
         self.deadline_misses = 0
         self._held = 0  # rows of durations_ns/cpu_ns in use (count minus the folded ones)
         self._folded: tuple[_Histogram, _Histogram] | None = None
 
+    def _alloc(self, size: int, keep: int = 0) -> None:
+        """(Re)allocate room for ``size`` cycles (wall, CPU ns side by side in one buffer, so a
+        cycle is stored by one ``pack_into``), keeping the first ``keep`` held."""
+        pairs = np.zeros((size, 2), dtype=np.int64)
+        if keep:
+            pairs[:keep] = self._pairs[:keep]
+        self._pairs = pairs
+        self._size = size
+        self.durations_ns = pairs[:, 0]  # views: wall clock and thread CPU time of each cycle held
+        self.cpu_ns = pairs[:, 1]
+        self._pack = partial(_PAIR.pack_into, memoryview(pairs).cast("B"))
+
     def record(self, duration_ns: int, cpu_ns: int = -1) -> None:
         """Store one cycle's compute time in ns (wall clock; CPU time, -1: not measured)."""
         k = self._held
-        if k == self.durations_ns.size:
+        if k == self._size:
             if k < EXACT_CYCLES and self._folded is None:
-                grown = min(2 * k, EXACT_CYCLES)
-                self.durations_ns = np.concatenate([self.durations_ns, np.zeros(grown - k, dtype=np.int64)])
-                self.cpu_ns = np.concatenate([self.cpu_ns, np.zeros(grown - k, dtype=np.int64)])
+                self._alloc(min(2 * k, EXACT_CYCLES), keep=k)
             else:
                 self._fold()
                 k = 0
-        self.durations_ns[k] = duration_ns
-        self.cpu_ns[k] = cpu_ns
+        self._pack(k << 4, duration_ns, cpu_ns)
         self._held = k + 1
         self.count += 1
         if duration_ns > self.budget_ns:

@@ -28,7 +28,7 @@ import pinocchio as pin
 import native
 from controller import compiled_cycle
 from controller.compiled_cycle import CycleOutputs, bind_observed, bind_outputs
-from controller.controller import _HOOKS, Command, Controller, ControllerConfig, ControllerConfigError, Phase
+from controller.controller import _HOOKS, _JOINT_ROW_BYTES, Command, Controller, ControllerConfig, ControllerConfigError, Phase
 from controller.drive_compensation import DriveLoopModel, SetpointShaper
 from controller.feedforward import ElasticReference, GearModel, elastic_feedforward
 from controller.joint_reference import CartesianToJoint
@@ -207,13 +207,19 @@ class ElasticController(Controller):
         ref = self.reference
         k, _ = ref.grid.locate(self._ref_t_start + tau)
         fast = self._fast
+        log = self.log
+        row = log.rows  # the log row the compiled cycle writes (ControllerLog.next_joints_address)
+        if row == log._capacity:
+            log._grow()
+            row = log.rows
+        joints = log._joints_address + _JOINT_ROW_BYTES * row
         if self._shape_gap != 1 and self._shaper is not None:
             # a jump the bus interpolates: shape over the samples in between (drive_compensation)
             self._set_shaper_gains(fast.plan.out, self._shape_gap)
-            status = fast.run(k, self.log.next_joints_address())
+            status = fast.run(k, joints)
             self._set_shaper_gains(fast.plan.out, 1)
         else:
-            status = fast.run(k, self.log.next_joints_address())
+            status = fast.run(k, joints)
         if status != 0:
             return False
         self._last_knot = k

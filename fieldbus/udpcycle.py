@@ -339,6 +339,9 @@ class UdpCycleBus(BusABC):
         #: got any, 0 if not measured: ``time.time_ns() - oldest_arrival_ns`` right after a
         #: ``recv`` is how long the datagram waited for this process
         self.oldest_arrival_ns = 0
+        #: kernel arrival time (ns since the epoch) of the newest datagram received so far, 0 if not
+        #: measured (a peer that paces itself on the other side's latest frame times from this)
+        self.newest_arrival_ns = 0
         self._kernel_stamps = bool(latency_samples) and _SO_TIMESTAMPNS is not None and bool(_CMSG_SPACE)
         if self._kernel_stamps:
             try:
@@ -450,6 +453,7 @@ class UdpCycleBus(BusABC):
                 if arrived:
                     if not got:
                         self.oldest_arrival_ns = arrived
+                    self.newest_arrival_ns = arrived
                     if sent_ns:
                         self.latency_ns.append(arrived - sent_ns)
             key = (address, sender)

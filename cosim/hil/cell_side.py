@@ -45,6 +45,8 @@ DEFERRED_RECORDING_BYTES = 256 * 2**20
 SERVED_FLUSH_CYCLES = 20
 #: lost cycles listed one by one in the report (with every node's counter values); more are counted only
 MAX_LOST_CYCLES_LISTED = 1000
+#: overrun cycles listed one by one in the report (cycle, lateness µs); more are counted only
+MAX_OVERRUNS_LISTED = 5000
 
 
 def _now_s() -> float:
@@ -60,6 +62,9 @@ class CellSideLink:
         self.window_ns = int(round(window_s * 1e9))
         self.cycle = 0
         self.taken = np.zeros(cycles + 1, dtype=bool)  # the controller's group came in time
+        # every node's communication fault latched at the start of the cycle (then a missing group is
+        # not counted: cosim serve's loss judging, DriveEndpoint.run_cycle_paced)
+        self.all_faulted = np.zeros(cycles + 1, dtype=bool)
         self.held = np.zeros(N_JOINTS, dtype=np.int64)  # cycles a drive held / extrapolated its set-point
         self.actuals = DriveActuals.zeros(N_JOINTS)
         self.bus = None
@@ -88,6 +93,8 @@ class CellSideLink:
         deadline = (pacer.deadline_ns(k) + self.window_ns) * 1e-9
         self.bus.read()
         endpoint = self.endpoint
+        if endpoint.nodes._any_fault and all(endpoint.nodes.comm_fault):
+            self.all_faulted[min(k, self.all_faulted.size - 1)] = True
         applied = endpoint.run_cycle_paced(k, self.actuals, deadline, clock=_now_s)
         if endpoint._last_taken == k:
             self.taken[min(k, self.taken.size - 1)] = True
@@ -158,6 +165,13 @@ def longest_run(flags: np.ndarray) -> int:
     return longest
 
 
+def runs_of(flags: np.ndarray) -> list[list[int]]:
+    """[first, last] index ranges of the runs of True in ``flags``."""
+    f = np.concatenate([[False], np.asarray(flags, dtype=bool), [False]]).astype(np.int8)
+    edges = np.flatnonzero(np.diff(f))
+    return [[int(a), int(b) - 1] for a, b in zip(edges[::2], edges[1::2])]
+
+
 #: a cycle's work after the bus exchange counts as a stall of the process when less than this
 #: fraction of its wall time was CPU time of the cell's thread
 STALL_CPU_FRACTION = 0.5
@@ -226,6 +240,12 @@ def timing_report(link: CellSideLink, endpoint: DriveEndpoint, pacer: Any) -> di
                      "max_at_cycle": int(log.cycles[int(np.argmax(lateness))]) if lateness.size else None},
         "missed_ticks": int(log.missed_ticks),
         "overrun_causes": overrun_causes(link, pacer),
+        # the cycles the cell itself started late (window opened late: a group that missed its
+        # window may still be taken in such a cycle), with their lateness, first MAX_OVERRUNS_LISTED
+        "overrun_cycles": [[int(c), float(x)] for c, x in zip(log.cycles[:log.count][overrun][:MAX_OVERRUNS_LISTED].tolist(),
+                                                              lateness[overrun][:MAX_OVERRUNS_LISTED].tolist())],
+        # [first, last] cycle ranges in which every node's communication fault was latched (first MAX_OVERRUNS_LISTED)
+        "all_nodes_faulted_cycles": runs_of(link.all_faulted[:cycles])[:MAX_OVERRUNS_LISTED],
         "controller": {"first_cycle": first, "cycles_in_time": int(taken.sum()),
                        "cycles_missed_after_first": int((~taken[first:]).sum()) if first is not None else 0},
         "frames_lost_per_node": lost_by_node,
