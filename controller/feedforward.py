@@ -12,9 +12,10 @@ pinocchio Data, friction coefficients as plain floats, a reused output array.
 """
 from __future__ import annotations
 
+import ctypes
 import hashlib
 import math
-import tempfile
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -154,10 +155,97 @@ def _build_link_torque_function(structure: ChainStructure) -> ca.Function:
 
 MAP_BLOCK = 256
 """Knots per CasADi map call in :func:`link_torque_derivatives`."""
-_COMPILED_LINK_TORQUE: dict[bytes, ca.Function | None] = {}
+_COMPILED_LINK_TORQUE: dict[bytes, tuple[ca.Function, ctypes._CFuncPtr] | None] = {}
 LINK_TORQUE_CFLAGS = ("-O2", "-fPIC", "-shared", "-std=c99", "-ffp-contract=off")
 """Flags of the compiled link torque (no contraction into fused multiply-adds: the compiled
 code then does the CasADi virtual machine's operations in its order, bit for bit)."""
+
+
+_GRID_DRIVER = r"""
+/* Added by controller/feedforward.py: the generated function on every knot of a grid in one
+   call. Inputs and outputs are (n, 6) row-major arrays (knot k at offset 6 k, the layout a
+   CasADi map passes to each evaluation); p, payload, fv_l, fc_l are shared by all knots. */
+#include <stdlib.h>
+CASADI_SYMBOL_EXPORT int elastic_link_torque_grid(long long n, const double* q, const double* qd,
+    const double* qdd, const double* q3, const double* q4, const double* p, const double* payload,
+    const double* fv, const double* fc, double* tau, double* tau_d, double* tau_dd) {
+  casadi_int sz_arg, sz_res, sz_iw, sz_w, k;
+  const casadi_real** arg;
+  casadi_real** res;
+  casadi_int* iw;
+  casadi_real* w;
+  int status = 0;
+  elastic_link_torque_work(&sz_arg, &sz_res, &sz_iw, &sz_w);
+  arg = (const casadi_real**) calloc((size_t) (sz_arg > 9 ? sz_arg : 9), sizeof(*arg));
+  res = (casadi_real**) calloc((size_t) (sz_res > 3 ? sz_res : 3), sizeof(*res));
+  iw = (casadi_int*) malloc((size_t) (sz_iw > 0 ? sz_iw : 1) * sizeof(*iw));
+  w = (casadi_real*) malloc((size_t) (sz_w > 0 ? sz_w : 1) * sizeof(*w));
+  if (!arg || !res || !iw || !w) {
+    status = -1;
+  } else {
+    arg[5] = p; arg[6] = payload; arg[7] = fv; arg[8] = fc;
+    for (k = 0; k < n && status == 0; ++k) {
+      arg[0] = q + 6 * k; arg[1] = qd + 6 * k; arg[2] = qdd + 6 * k; arg[3] = q3 + 6 * k; arg[4] = q4 + 6 * k;
+      res[0] = tau + 6 * k; res[1] = tau_d + 6 * k; res[2] = tau_dd + 6 * k;
+      status = elastic_link_torque(arg, res, iw, w, 0);
+    }
+  }
+  free(arg); free(res); free(iw); free(w);
+  return status;
+}
+"""
+
+
+def _generator_key(structure_key: bytes) -> bytes:
+    """The identity of the generated link torque source without generating it (building the
+    CasADi expression and its C code costs ~0.11 CPU-s, paid only when the library is not
+    cached): the kinematic structure, the CasADi version and the source files the expression
+    is built from (this module, robot/symbolic.py, robot/spatial_lists.py, robot/dynamics.py)."""
+    import robot.dynamics
+    import robot.spatial_lists
+    import robot.symbolic
+
+    digest = hashlib.sha256(b"elastic_link_torque generated source v2\0" + structure_key)
+    digest.update(ca.__version__.encode() + b"\0")
+    for module in (sys.modules[__name__], robot.symbolic, robot.spatial_lists, robot.dynamics):
+        digest.update(Path(module.__file__).read_bytes() + b"\0")
+    return digest.digest()
+
+
+def _compiled_link_torque(structure: ChainStructure):
+    """(``casadi.external`` function, ctypes grid driver) of the compiled link torque, or None
+    (see :func:`_compiled_link_torque_function`)."""
+    if native.mode() == "off":
+        return None
+    key = _structure_key(structure)
+    if key in _COMPILED_LINK_TORQUE:
+        return _COMPILED_LINK_TORQUE[key]
+
+    def make() -> ca.Function:
+        def generate(folder: Path) -> list[Path]:  # only when the library is not cached yet
+            generator = ca.CodeGenerator("elastic_link_torque.c", {"with_header": False,
+                                                                   "casadi_int": "long long int"})
+            generator.add(_link_torque_function(structure))
+            generator.generate(str(folder) + "/")
+            c_file = folder / "elastic_link_torque.c"
+            # the whole grid in one call (link_torque_derivatives)
+            c_file.write_text(c_file.read_text() + _GRID_DRIVER)
+            return [c_file]
+
+        library = native.build("elastic_link_torque", generate=generate, key=_generator_key(key),
+                               cflags=LINK_TORQUE_CFLAGS)
+        lib = native.load_ctypes(library)  # owner and mode checks before CasADi loads it
+        grid = lib.elastic_link_torque_grid
+        grid.restype = ctypes.c_int
+        grid.argtypes = [ctypes.c_longlong] + [ctypes.c_void_p] * 12
+        try:
+            return ca.external("elastic_link_torque", str(library)), grid
+        except RuntimeError as exc:
+            raise native.NativeBuildError(f"loading {library} with casadi.external failed: {exc}") from None
+
+    compiled = native.optional("elastic link torque", make)
+    _COMPILED_LINK_TORQUE[key] = compiled
+    return compiled
 
 
 def _compiled_link_torque_function(structure: ChainStructure) -> ca.Function | None:
@@ -166,37 +254,15 @@ def _compiled_link_torque_function(structure: ChainStructure) -> ca.Function | N
     or None when compiled code is off or unavailable (``$COSIM_NATIVE``: the CasADi virtual
     machine then evaluates the same expression). Same results bit for bit (the C code runs
     the virtual machine's operations in its order, ``-ffp-contract=off``; exact-equality test
-    in tests/controller/test_elastic.py), 2-3x faster on the 30 520 knots of the ISO path."""
-    if native.mode() == "off":
-        return None
-    function = _link_torque_function(structure)
-    key = _structure_key(structure)
-    if key in _COMPILED_LINK_TORQUE:
-        return _COMPILED_LINK_TORQUE[key]
+    in tests/controller/test_elastic.py)."""
+    compiled = _compiled_link_torque(structure)
+    return None if compiled is None else compiled[0]
 
-    def make() -> ca.Function:
-        generator = ca.CodeGenerator("elastic_link_torque.c", {"with_header": False, "casadi_int": "long long int"})
-        generator.add(function)
-        with tempfile.TemporaryDirectory() as tmp:
-            generator.generate(tmp + "/")
-            source = (Path(tmp) / "elastic_link_torque.c").read_text()
 
-        def generate(folder: Path) -> list[Path]:
-            c_file = folder / "elastic_link_torque.c"
-            c_file.write_text(source)
-            return [c_file]
-
-        library = native.build("elastic_link_torque", generate=generate,
-                               key=hashlib.sha256(source.encode()).digest(), cflags=LINK_TORQUE_CFLAGS)
-        native.load_ctypes(library)  # owner and mode checks before CasADi loads it
-        try:
-            return ca.external(function.name(), str(library))
-        except RuntimeError as exc:
-            raise native.NativeBuildError(f"loading {library} with casadi.external failed: {exc}") from None
-
-    compiled = native.optional("elastic link torque", make)
-    _COMPILED_LINK_TORQUE[key] = compiled
-    return compiled
+def _compiled_link_torque_grid(structure: ChainStructure):
+    """The same library's ``elastic_link_torque_grid`` (ctypes; see ``_GRID_DRIVER``), or None."""
+    compiled = _compiled_link_torque(structure)
+    return None if compiled is None else compiled[1]
 
 
 def link_torque_derivatives(dynamics: RobotDynamics, gear: GearModel, q: ArrayLike, qd: ArrayLike,
@@ -207,15 +273,28 @@ def link_torque_derivatives(dynamics: RobotDynamics, gear: GearModel, q: ArrayLi
     (n, 6) or (6,)): the rigid links of ``dynamics`` (no rotor inertia) plus the link-side
     share of its friction."""
     structure = chain_structure(dynamics.model)
-    function = _link_torque_function(structure)
     p = dynamics.parameter_vector()
     share = gear.motor_friction_share
     fv_l, fc_l = (1.0 - share) * p[VISCOUS_SLICE], (1.0 - share) * p[COULOMB_SLICE]
     args = [np.atleast_2d(np.asarray(a, dtype=float)) for a in (q, qd, qdd, qddd, qdddd)]
-    evaluate = _compiled_link_torque_function(structure) or function
+    fixed = (p, np.asarray(dynamics.payload, dtype=float), fv_l, fc_l)
+    grid = _compiled_link_torque_grid(structure)
+    if grid is not None and all(a.ndim == 2 and a.shape[1] == N_JOINTS for a in args) \
+            and len({a.shape[0] for a in args}) == 1 and [np.size(c) for c in fixed] == [78, 4, 6, 6]:
+        # the compiled function knot by knot in one C call: the numbers of the map below bit
+        # for bit (each knot's evaluation is the same call on the same 6-vectors), without
+        # CasADi's map and matrix conversions (0.24 -> 0.05 CPU-s on the ISO path's 30 520 knots)
+        rows = [np.ascontiguousarray(a) for a in args]
+        consts = [np.ascontiguousarray(c, dtype=np.float64) for c in fixed]
+        out = np.empty((3, rows[0].shape[0], N_JOINTS))
+        status = grid(rows[0].shape[0], *(a.ctypes.data for a in rows), *(c.ctypes.data for c in consts),
+                      *(o.ctypes.data for o in out))
+        if status != 0:
+            raise RuntimeError(f"elastic_link_torque_grid failed (status {status})")
+        return out[0], out[1], out[2]
+    evaluate = _compiled_link_torque_function(structure) or _link_torque_function(structure)
     columns = [np.ascontiguousarray(a.T) for a in args]
     n = columns[0].shape[1]
-    fixed = (p, np.asarray(dynamics.payload, dtype=float), fv_l, fc_l)
     out = np.empty((3, N_JOINTS, n))
     # blocks of MAP_BLOCK knots: building and calling a CasADi map costs more than linear in
     # its width (30 520 knots at once 0.40 s, in blocks of 256 0.17 s); each knot's numbers

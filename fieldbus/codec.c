@@ -775,6 +775,65 @@ static PyObject *receive_preq(PyObject *self, PyObject *const *args, Py_ssize_t 
  * b"".join(RECORD.pack(m.timestamp, m.arbitration_id, m.is_error_frame, len(m.data), m.data))
  * with RECORD = struct.Struct("<dHBB20s") would make them; None (the caller packs in Python,
  * which raises struct.error) when a value does not fit that layout. */
+/* One record of `msg` at `p`; 0 (nothing written) when a value does not fit the layout. */
+static int pack_record(PyObject *msg, unsigned char *p)
+{
+    if (fast_message(msg)) { /* the frames the nodes send: borrowed slots, exact types */
+        PyObject *ts = SLOT(msg, off_timestamp), *id = SLOT(msg, off_arbitration_id);
+        PyObject *err = SLOT(msg, off_is_error_frame), *data = SLOT(msg, off_data);
+        if (ts && id && data && PyFloat_CheckExact(ts) && PyLong_CheckExact(id) && (err == Py_False || err == Py_True) &&
+            PyByteArray_CheckExact(data)) {
+            long idv = PyLong_AsLong(id);
+            Py_ssize_t size = PyByteArray_GET_SIZE(data);
+            if (idv >= 0 && idv <= 0xFFFF && size <= 0xFF) {
+                double t = PyFloat_AS_DOUBLE(ts);
+                memcpy(p, &t, 8);
+                p[8] = (unsigned char)(idv & 0xFF);
+                p[9] = (unsigned char)((idv >> 8) & 0xFF);
+                p[10] = (unsigned char)(err == Py_True);
+                p[11] = (unsigned char)size;
+                memset(p + 12, 0, RECORD_DATA);
+                memcpy(p + 12, PyByteArray_AS_STRING(data), (size_t)(size < RECORD_DATA ? size : RECORD_DATA));
+                return 1;
+            }
+            if (idv == -1) PyErr_Clear(); /* overflow: the general path below declines it too */
+        }
+    }
+    PyObject *ts = get_attr(msg, s_timestamp, off_timestamp);
+    PyObject *id = get_attr(msg, s_arbitration_id, off_arbitration_id);
+    PyObject *err = get_attr(msg, s_is_error_frame, off_is_error_frame);
+    PyObject *data = get_attr(msg, s_data, off_data);
+    int ok = ts && id && err && data && (PyFloat_CheckExact(ts) || PyLong_CheckExact(ts)) && PyLong_Check(id) &&
+             PyLong_Check(err) && (PyByteArray_CheckExact(data) || PyBytes_CheckExact(data));
+    double t = 0.0;
+    long idv = -1, errv = -1;
+    Py_ssize_t size = 0;
+    const char *bytes = NULL;
+    if (ok) {
+        t = PyFloat_CheckExact(ts) ? PyFloat_AS_DOUBLE(ts) : PyLong_AsDouble(ts);
+        idv = PyLong_AsLong(id);
+        errv = PyLong_AsLong(err);
+        if (PyErr_Occurred()) PyErr_Clear();
+        size = PyByteArray_CheckExact(data) ? PyByteArray_GET_SIZE(data) : PyBytes_GET_SIZE(data);
+        bytes = PyByteArray_CheckExact(data) ? PyByteArray_AS_STRING(data) : PyBytes_AS_STRING(data);
+        ok = (idv >= 0 && idv <= 0xFFFF && errv >= 0 && errv <= 0xFF && size <= 0xFF);
+    }
+    if (ok) {
+        memcpy(p, &t, 8); /* little-endian host (x86-64), as "<d" */
+        p[8] = (unsigned char)(idv & 0xFF);
+        p[9] = (unsigned char)((idv >> 8) & 0xFF);
+        p[10] = (unsigned char)errv;
+        p[11] = (unsigned char)size;
+        memset(p + 12, 0, RECORD_DATA);
+        memcpy(p + 12, bytes, (size_t)(size < RECORD_DATA ? size : RECORD_DATA));
+    }
+    Py_XDECREF(ts);
+    Py_XDECREF(id);
+    Py_XDECREF(err);
+    Py_XDECREF(data);
+    return ok;
+}
+
 static PyObject *pack_records(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
 {
     CHECK_ARGS(1);
@@ -785,45 +844,44 @@ static PyObject *pack_records(PyObject *self, PyObject *const *args, Py_ssize_t 
     if (out == NULL) return NULL;
     unsigned char *p = (unsigned char *)PyBytes_AS_STRING(out);
     for (Py_ssize_t k = 0; k < count; ++k, p += RECORD_SIZE) {
-        PyObject *msg = PySequence_Fast_GET_ITEM(frames, k);
-        PyObject *ts = get_attr(msg, s_timestamp, off_timestamp);
-        PyObject *id = get_attr(msg, s_arbitration_id, off_arbitration_id);
-        PyObject *err = get_attr(msg, s_is_error_frame, off_is_error_frame);
-        PyObject *data = get_attr(msg, s_data, off_data);
-        int ok = ts && id && err && data && (PyFloat_CheckExact(ts) || PyLong_CheckExact(ts)) && PyLong_Check(id) &&
-                 PyLong_Check(err) && (PyByteArray_CheckExact(data) || PyBytes_CheckExact(data));
-        double t = 0.0;
-        long idv = -1, errv = -1;
-        Py_ssize_t size = 0;
-        const char *bytes = NULL;
-        if (ok) {
-            t = PyFloat_CheckExact(ts) ? PyFloat_AS_DOUBLE(ts) : PyLong_AsDouble(ts);
-            idv = PyLong_AsLong(id);
-            errv = PyLong_AsLong(err);
-            if (PyErr_Occurred()) PyErr_Clear();
-            size = PyByteArray_CheckExact(data) ? PyByteArray_GET_SIZE(data) : PyBytes_GET_SIZE(data);
-            bytes = PyByteArray_CheckExact(data) ? PyByteArray_AS_STRING(data) : PyBytes_AS_STRING(data);
-            ok = (idv >= 0 && idv <= 0xFFFF && errv >= 0 && errv <= 0xFF && size <= 0xFF);
-        }
-        if (ok) {
-            memcpy(p, &t, 8); /* little-endian host (x86-64), as "<d" */
-            p[8] = (unsigned char)(idv & 0xFF);
-            p[9] = (unsigned char)((idv >> 8) & 0xFF);
-            p[10] = (unsigned char)errv;
-            p[11] = (unsigned char)size;
-            memset(p + 12, 0, RECORD_DATA);
-            memcpy(p + 12, bytes, (size_t)(size < RECORD_DATA ? size : RECORD_DATA));
-        }
-        Py_XDECREF(ts);
-        Py_XDECREF(id);
-        Py_XDECREF(err);
-        Py_XDECREF(data);
-        if (!ok) {
+        if (!pack_record(PySequence_Fast_GET_ITEM(frames, k), p)) {
             Py_DECREF(out);
             Py_RETURN_NONE;
         }
     }
     return out;
+}
+
+/* ------------------------------------------------------------------ pack_records_append
+ * pack_records_append(buffer, fallback, frames) -> None | fallback(frames): append the
+ * records pack_records(frames) returns to the bytearray `buffer` (no bytes object per call,
+ * no join); when a value does not fit that layout, nothing is appended and fallback(frames)
+ * (which packs in Python and appends, or raises struct.error) is called instead. Bound with
+ * functools.partial, it is FrameRecorder.add_many without a Python frame. */
+static PyObject *pack_records_append(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    CHECK_ARGS(3);
+    PyObject *buffer = args[0], *fallback = args[1], *frames = args[2];
+    if (!PyByteArray_CheckExact(buffer)) {
+        PyErr_SetString(PyExc_TypeError, "pack_records_append: buffer must be a bytearray");
+        return NULL;
+    }
+    if (PyList_CheckExact(frames) || PyTuple_CheckExact(frames)) {
+        Py_ssize_t count = PySequence_Fast_GET_SIZE(frames);
+        Py_ssize_t start = PyByteArray_GET_SIZE(buffer);
+        Py_ssize_t end = start + count * RECORD_SIZE;
+        if (PyByteArray_Resize(buffer, end) < 0) return NULL;
+        Py_ssize_t k = 0;
+        for (; k < count; ++k) {
+            /* the address is taken again per frame: a generic attribute read runs Python code */
+            if (PyByteArray_GET_SIZE(buffer) != end) break;
+            unsigned char *p = (unsigned char *)PyByteArray_AS_STRING(buffer) + start + k * RECORD_SIZE;
+            if (!pack_record(PySequence_Fast_GET_ITEM(frames, k), p)) break;
+        }
+        if (k == count && PyByteArray_GET_SIZE(buffer) == end) Py_RETURN_NONE;
+        if (PyByteArray_GET_SIZE(buffer) >= start && PyByteArray_Resize(buffer, start) < 0) return NULL;
+    }
+    return PyObject_CallOneArg(fallback, frames);
 }
 
 /* ------------------------------------------------------------------ module */
@@ -837,6 +895,8 @@ static PyMethodDef methods[] = {
     {"receive_pres", (PyCFunction)(void (*)(void))receive_pres, METH_FASTCALL, "Digest TPDO1/TPDO2 frames."},
     {"receive_preq", (PyCFunction)(void (*)(void))receive_preq, METH_FASTCALL, "Digest RPDO1 frames."},
     {"pack_records", (PyCFunction)(void (*)(void))pack_records, METH_FASTCALL, "Recorder records of frames."},
+    {"pack_records_append", (PyCFunction)(void (*)(void))pack_records_append, METH_FASTCALL,
+     "Append recorder records of frames to a bytearray."},
     {"register_message_types", (PyCFunction)(void (*)(void))register_message_types, METH_FASTCALL,
      "Message types whose attributes are read and written at their slot offsets."},
     {NULL, NULL, 0, NULL},

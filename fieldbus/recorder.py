@@ -14,6 +14,7 @@ simulation loop.
 """
 from __future__ import annotations
 
+import functools
 import multiprocessing
 import struct
 from pathlib import Path
@@ -199,13 +200,17 @@ class FrameRecorder(Closeable):
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self.flush_every_cycles = flush_every_cycles
         self.background = background
-        self._records: list[bytes] = []
-        self._pending_frames = 0
+        self._records = bytearray()  # the records since the last flush, in the order they were added
         # records hold frames of up to data_bytes (20: the plain RPDO1; 64 with a set-point look-ahead)
         self.data_bytes = data_bytes
         self._record_struct = record_struct(data_bytes)
-        self._pack_records = (getattr(load_codec(), "pack_records", None)  # compiled (20-byte records), or None
-                              if data_bytes == 20 else None)
+        codec = load_codec() if data_bytes == 20 else None  # compiled packing: 20-byte records only
+        self._pack_records = getattr(codec, "pack_records", None)
+        append = getattr(codec, "pack_records_append", None)
+        if append is not None:
+            # add_many as one compiled call appending to the records (no Python frame, no bytes
+            # object per call): the same bytes as the method below, which stays the reference
+            self.add_many = functools.partial(append, self._records, self._add_packed)  # type: ignore[method-assign]
         self.frames_recorded = 0
         self.frames_written = 0
         self._sink: _LogSink | _BlfSink | None = None
@@ -230,14 +235,17 @@ class FrameRecorder(Closeable):
 
     def add_many(self, frames: list) -> None:
         """Record sent frames (copied: the senders reuse their message objects)."""
-        self._pending_frames += len(frames)
         if self._pack_records is not None:
             records = self._pack_records(frames)  # the same bytes, in one call
             if records is not None:
-                self._records.append(records)
+                self._records += records
                 return
+        self._add_packed(frames)
+
+    def _add_packed(self, frames: list) -> None:
+        """:meth:`add_many` in Python (``struct.error`` for a value that does not fit a record)."""
         pack = self._record_struct.pack
-        self._records.append(b"".join([pack(m.timestamp, m.arbitration_id, m.is_error_frame, len(m.data), m.data)
+        self._records += (b"".join([pack(m.timestamp, m.arbitration_id, m.is_error_frame, len(m.data), m.data)
                                        for m in frames]))
 
     def end_cycle(self, cycle: int, watermark_s: float) -> None:
@@ -248,10 +256,9 @@ class FrameRecorder(Closeable):
     def flush(self, watermark_s: float | None = None) -> None:
         """Hand all records over; those with timestamp < ``watermark_s`` (all if None)
         are written, later ones wait for the next flush."""
-        records = b"".join(self._records)
-        self.frames_recorded += self._pending_frames
-        self._pending_frames = 0
-        self._records = []
+        records = bytes(self._records)
+        self._records.clear()  # in place: the compiled add_many holds this bytearray
+        self.frames_recorded += len(records) // self._record_struct.size
         if self._sink is not None:
             self._sink.feed(records, watermark_s)
             self.frames_written = self._sink.written

@@ -114,8 +114,8 @@ def run(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
 
 
 #: The mode whose worker takes the most CPU: its set-up inverts the elastic model along all
-#: 30 520 knots of the path (joint table and flatness-based feed-forward, about 0.5 CPU-s more
-#: than another mode's set-up; docs/main_job.md).
+#: 30 520 knots of the path (joint table and flatness-based feed-forward, about 0.2 CPU-s more
+#: than another mode's set-up; docs/main_job.md) and its cycle costs more.
 LONGEST_MODE = "model_based_elastic"
 #: ``nice`` increment of the other modes' workers when it runs (``run_modes(niceness=...)``);
 #: ``$COSIM_MODE_NICENESS`` (a whole number >= 0) overrides it, e.g. 0 to compare.

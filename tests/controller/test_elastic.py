@@ -202,6 +202,58 @@ def test_compiled_link_torque_is_the_casadi_expression_bit_for_bit(monkeypatch):
         np.testing.assert_array_equal(a, b)
 
 
+def test_link_torque_grid_call_is_the_compiled_map_exactly(monkeypatch):
+    """link_torque_derivatives' one C call over the grid (elastic_link_torque_grid) gives the
+    compiled function's CasADi map numbers bit for bit (random knots, a length that is not a
+    multiple of MAP_BLOCK), and so does the map path in blocks it replaces; single knots (6,)
+    too."""
+    from controller import feedforward
+    from robot.symbolic import chain_structure
+
+    structure = chain_structure(DYN.model)
+    assert feedforward._compiled_link_torque_grid(structure) is not None
+    rng = np.random.default_rng(11)
+    n = 2 * feedforward.MAP_BLOCK + 37
+    d = [rng.standard_normal((n, 6)) for _ in range(5)]
+    p = DYN.parameter_vector()
+    share = GEAR.motor_friction_share
+    rest = [p, np.asarray(DYN.payload, dtype=float), (1 - share) * p[VISCOUS_SLICE], (1 - share) * p[COULOMB_SLICE]]
+    mapped = feedforward._compiled_link_torque_function(structure).map(n)(*(a.T for a in d), *rest)
+    grid = link_torque_derivatives(DYN, GEAR, *d)
+    single = link_torque_derivatives(DYN, GEAR, *(a[5] for a in d))
+    monkeypatch.setattr(feedforward, "_compiled_link_torque_grid", lambda structure: None)
+    blocks = link_torque_derivatives(DYN, GEAR, *d)
+    for a, b, c, e in zip(grid, mapped, blocks, single):
+        assert a.shape == (n, 6) and e.shape == (1, 6)
+        np.testing.assert_array_equal(a, np.array(b).T)
+        np.testing.assert_array_equal(c, a)
+        np.testing.assert_array_equal(e[0], a[5])
+
+
+def test_cached_link_torque_library_is_found_without_building_the_expression(monkeypatch):
+    """The compiled link torque's cache key is the generator's identity (structure, CasADi
+    version, the expression's source files): a process whose cache holds the library loads it
+    without building the CasADi expression (~0.1 CPU-s of the elastic set-up); a changed source
+    file changes the key."""
+    from controller import feedforward
+    from robot.symbolic import chain_structure
+
+    structure = chain_structure(DYN.model)
+    assert feedforward._compiled_link_torque(structure) is not None  # built (or found) once
+    monkeypatch.setattr(feedforward, "_COMPILED_LINK_TORQUE", {})
+    monkeypatch.setattr(feedforward, "_LINK_TORQUE_FUNCTIONS", {})
+
+    def refuse(structure):
+        raise AssertionError("the expression was built although the library is cached")
+
+    monkeypatch.setattr(feedforward, "_build_link_torque_function", refuse)
+    compiled, grid = feedforward._compiled_link_torque(structure)
+    assert compiled.class_name() != "SXFunction" and grid is not None
+    key = feedforward._structure_key(structure)
+    assert feedforward._generator_key(key) == feedforward._generator_key(key)
+    assert feedforward._generator_key(key) != feedforward._generator_key(key + b"x")
+
+
 def test_link_torque_in_blocks_is_the_one_wide_map_exactly():
     """link_torque_derivatives evaluates MAP_BLOCK knots per CasADi call: the same numbers as
     one map over all knots (a length that is not a multiple of the block)."""

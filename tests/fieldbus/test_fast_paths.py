@@ -160,6 +160,49 @@ def test_recorder_records_packed_by_the_codec_equal_struct_pack():
     assert load_codec().pack_records([FastMessage(0.0, 0x1_0000, bytearray(8))]) is None  # struct.error in Python
 
 
+@needs_codec
+def test_recorder_add_many_appends_compiled_records_in_order_with_the_python_fallback(tmp_path):
+    """The recorder's compiled add_many (pack_records_append into one bytearray) hands over the
+    bytes the Python add_many hands over, in call order, also when a frame the codec declines
+    (a NumPy timestamp) is packed in Python between compiled calls; a frame that fits no record
+    raises struct.error as in Python and records nothing of its call."""
+    import struct
+
+    import numpy as np
+
+    from fieldbus.recorder import RECORD, FrameRecorder
+    from fieldbus.telegrams import FastMessage
+
+    batches = [[FastMessage(0.25, 0x181, bytearray(b"\x01\x02\x03")), FastMessage(1e-4, 0x080, bytearray(b"\x05"))],
+               [FastMessage(0.5, 0x201, bytearray(range(20))), FastMessage(np.float64(0.75), 0x202, bytearray(b"\x07"))],
+               (FastMessage(3, 0x205, bytearray(b"\xa5"), is_error_frame=True),), []]
+    expected = b"".join(RECORD.pack(m.timestamp, m.arbitration_id, m.is_error_frame, len(m.data), m.data)
+                        for batch in batches for m in batch)
+    handed: list[bytes] = []
+
+    class Sink:
+        written = 0
+
+        def feed(self, records, watermark_s):
+            handed.append(records)
+
+        def close(self):
+            pass
+
+    recorder = FrameRecorder(tmp_path / "can.parquet")
+    assert not hasattr(recorder.add_many, "__func__")  # the compiled one: no Python method
+    recorder._sink = Sink()
+    for batch in batches:
+        recorder.add_many(batch)
+    with pytest.raises(struct.error):
+        recorder.add_many([FastMessage(1.0, 0x181, bytearray(2)), FastMessage(1.0, 0x1_0000, bytearray(8))])
+    recorder.flush(None)
+    recorder.add_many(batches[0])
+    recorder.flush(None)
+    assert handed == [expected, expected[:2 * RECORD.size]]
+    assert recorder.frames_recorded == 7
+
+
 @pytest.mark.parametrize("codec", ["compiled", "python"])
 def test_drive_side_accepts_a_classic_8_byte_rpdo1(monkeypatch, codec):
     """A controller on classic CAN sends the 8-byte CSP telegram: applied as mode 8 without
