@@ -387,13 +387,18 @@ class ManagingNodeEndpoint(_Endpoint):
         node.start_cycle(cycle)
         frames = node.encode(cycle, self._times, setpoints)  # compiled codec, None: Python
         if frames is None:
-            values = [getattr(setpoints, name).tolist() for name in _SETPOINT_FIELDS]
-            n = self.config.nodes
-            if any(len(v) != n for v in values):
-                raise ValueError(f"setpoints: expected {n} entries per field, got "
-                                 + ", ".join(f"{name} {len(v)}" for name, v in zip(_SETPOINT_FIELDS, values)))
-            frames = node.frames(cycle, self._times, *values)
+            frames = self._python_frames(cycle, self._times, setpoints)
         self._transmit(frames)
+
+    def _python_frames(self, cycle: int, times: Any, setpoints: Setpoints) -> list:
+        """SoC and PReqs of ``cycle`` from the Python nodes (no compiled codec), after checking
+        that every set-point field has one entry per node."""
+        values = [getattr(setpoints, name).tolist() for name in _SETPOINT_FIELDS]
+        n = self.config.nodes
+        if any(len(v) != n for v in values):
+            raise ValueError(f"setpoints: expected {n} entries per field, got "
+                             + ", ".join(f"{name} {len(v)}" for name, v in zip(_SETPOINT_FIELDS, values)))
+        return self.node.frames(cycle, times, *values)
 
     def collect_actuals(self, cycle: int) -> ObservedActuals:
         """Receive this cycle's PRes frames (and EMCYs); the controller's view of cycle k."""

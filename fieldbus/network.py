@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 
 from fieldbus.config import FieldbusConfig
-from fieldbus.endpoints import (_NO_FAULTS, _SETPOINT_FIELDS, SYNCHRONOUS_INTERFACES, DriveEndpoint,
+from fieldbus.endpoints import (_NO_FAULTS, SYNCHRONOUS_INTERFACES, DriveEndpoint,
                                 ManagingNodeEndpoint, default_channel)
 from fieldbus.events import EventLog
 from fieldbus.lifecycle import Closeable
@@ -156,12 +156,7 @@ class PowerlinkNetwork(Closeable):
         mn.start_cycle(cycle)
         frames = mn.encode(cycle, times, setpoints)
         if frames is None:
-            values = [getattr(setpoints, name).tolist() for name in _SETPOINT_FIELDS]
-            n = self.config.nodes
-            if any(len(v) != n for v in values):
-                raise ValueError(f"setpoints: expected {n} entries per field, got "
-                                 + ", ".join(f"{name} {len(v)}" for name, v in zip(_SETPOINT_FIELDS, values)))
-            frames = mn.frames(cycle, times, *values)
+            frames = mn_side._python_frames(cycle, times, setpoints)
         mn_side._send_many(frames)
         mn_side.frames_sent += len(frames)
         record = mn_side._record
