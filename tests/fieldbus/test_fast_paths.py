@@ -4,24 +4,13 @@ with random losses, late and corrupted frames, saturating values, fault reaction
 fault reset, on simbus and python-can's virtual interface."""
 from __future__ import annotations
 
-import tomllib
-from pathlib import Path
-
 import numpy as np
 import pytest
 
-from fieldbus import DriveActuals, DriveState, JointScaling, PowerlinkNetwork, Setpoints, statusword_for
+from fieldbus import DriveActuals, PowerlinkNetwork, Setpoints
 from fieldbus import nodes
 from fieldbus.codec import load_codec
-
-PARAMS = tomllib.loads((Path(__file__).resolve().parents[2] / "robot" / "rx130l_params.toml").read_text())
-TRAIN = PARAMS["drive_train"]
-ENABLED = statusword_for(DriveState.OPERATION_ENABLED)
-
-
-def scaling() -> JointScaling:
-    return JointScaling(TRAIN["gear_ratio"]["value"], TRAIN["encoder_counts_per_motor_rev"]["value"],
-                        TRAIN["rated_torque"]["value"])
+from fieldbus_support import ENABLED, FAULT_CONFIGS, scaling
 
 
 def trace(config: dict, cycles: int, seed: int) -> tuple[list, dict]:
@@ -55,20 +44,8 @@ def trace(config: dict, cycles: int, seed: int) -> tuple[list, dict]:
     return out, summary
 
 
-CONFIGS = {
-    "clean": {},
-    "random faults": {"seed": 5, "faults": {"loss_probability": 3e-3, "late_probability": 3e-3,
-                                            "corrupt_probability": 3e-3}},
-    "bursts": {"faults": {"bursts": [{"node": 2, "start_cycle": 40, "cycles": 20, "frames": "pres", "kind": "loss"},
-                                     {"node": 5, "start_cycle": 120, "cycles": 20, "frames": "preq",
-                                      "kind": "corrupt"},
-                                     {"node": 1, "start_cycle": 200, "cycles": 3, "frames": "soc", "kind": "late"}]}},
-    "virtual": {"bus": {"interface": "virtual"}, "seed": 2, "faults": {"loss_probability": 5e-3}},
-    "extrapolate": {"reaction": {"missing_setpoint": "extrapolate"},
-                    "faults": {"bursts": [{"node": 3, "start_cycle": 50, "cycles": 1, "frames": "preq", "kind": "loss"},
-                                          {"node": 4, "start_cycle": 90, "cycles": 5, "frames": "preq",
-                                           "kind": "loss"}]}},
-}
+CONFIGS = {**FAULT_CONFIGS,
+           "virtual": {"bus": {"interface": "virtual"}, "seed": 2, "faults": {"loss_probability": 5e-3}}}
 
 
 class CountingCodec:

@@ -3,8 +3,6 @@ on the right side, every error and counter change is recorded, the drive gets it
 reaction, fault reset recovers; garbage on the bus is counted and never stops the run."""
 import json
 import logging
-import tomllib
-from pathlib import Path
 
 import can
 import numpy as np
@@ -12,18 +10,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from fieldbus import (Cia402DriveModel, DriveActuals, DriveState, EnableSequencer, JointScaling,
-                      PowerlinkNetwork, Setpoints, decode_statusword, statusword_for)
+from fieldbus import (Cia402DriveModel, DriveActuals, DriveState, EnableSequencer, PowerlinkNetwork, Setpoints,
+                      decode_statusword, statusword_for)
 from fieldbus.cia402 import motion_enabled
-
-PARAMS = tomllib.loads((Path(__file__).resolve().parents[2] / "robot" / "rx130l_params.toml").read_text())
-TRAIN = PARAMS["drive_train"]
-ENABLED = statusword_for(DriveState.OPERATION_ENABLED)
-
-
-def scaling():
-    return JointScaling(TRAIN["gear_ratio"]["value"], TRAIN["encoder_counts_per_motor_rev"]["value"],
-                        TRAIN["rated_torque"]["value"])
+from fieldbus_support import ENABLED, scaling
 
 
 def burst(node, start, cycles, frames="preq", kind="loss"):

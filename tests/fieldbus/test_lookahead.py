@@ -3,8 +3,6 @@ of the following k cycles; a drive whose PReq is lost or late applies the buffer
 that cycle exactly, and only a burst longer than the buffer falls back to
 ``missing_setpoint``. POWERLINK's consequences (lost frames, threshold counters, CAN log)
 stay exactly those of the run without look-ahead."""
-import tomllib
-from pathlib import Path
 
 import can
 import numpy as np
@@ -13,27 +11,12 @@ import pytest
 from fieldbus import DriveActuals, FieldbusConfig, JointScaling, PowerlinkNetwork, Setpoints, decode
 from fieldbus.errors import FieldbusConfigError
 from fieldbus.telegrams import RxPdo1, encode_rpdo1, rpdo1_length
+from fieldbus_support import PREQ_IDS, lost_preqs, output, scaling, stack
 from paced_support import paced_run
-
-PARAMS = tomllib.loads((Path(__file__).resolve().parents[2] / "robot" / "rx130l_params.toml").read_text())
-TRAIN = PARAMS["drive_train"]
-PREQ_IDS = {0x200 + n for n in range(1, 7)}
-
-
-def scaling():
-    return JointScaling(TRAIN["gear_ratio"]["value"], TRAIN["encoder_counts_per_motor_rev"]["value"],
-                        TRAIN["rated_torque"]["value"])
-
-
-def output(k):
-    """The controller's output computed in cycle k: a smooth, distinct motion per joint
-    (CSP set-point, torque and velocity feed-forward)."""
-    gains = np.arange(1, 7)
-    return (0.2 * np.sin(1e-3 * k * gains), 3.0 * np.cos(2e-3 * k * gains), 0.3 * np.cos(1e-3 * k * gains))
 
 
 def run(tmp_path, name, cycles=120, lookahead=0, bursts=(), missing="hold"):
-    """Run the network for ``cycles`` with the outputs above, PReqs lost in ``bursts``
+    """Run the network for ``cycles`` with fieldbus_support.output, PReqs lost in ``bursts``
     ((node or None for all, first cycle, cycles)); returns the applied values per cycle,
     the summary and the CAN log path."""
     table = {"setpoint_lookahead": lookahead, "reaction": {"missing_setpoint": missing},
@@ -55,22 +38,6 @@ def run(tmp_path, name, cycles=120, lookahead=0, bursts=(), missing="hold"):
             setpoints.position[:], setpoints.torque_offset[:], setpoints.velocity_offset[:] = output(k)
         summary = network.summary()
     return applied, summary, path
-
-
-def stack(applied, field):
-    return np.array([row[field] for row in applied])
-
-
-def lost_preqs(path):
-    """{cycle: nodes whose PReq is in the CAN log} per SoC."""
-    seen, cycle = {}, None
-    for msg in can.LogReader(str(path)):
-        if msg.arbitration_id == 0x080:
-            cycle = round(msg.timestamp / 400e-6)
-            seen[cycle] = set()
-        elif msg.arbitration_id in PREQ_IDS and cycle is not None:
-            seen[cycle].add(msg.arbitration_id - 0x200)
-    return seen
 
 
 def test_telegram_layout_round_trip_and_lengths():

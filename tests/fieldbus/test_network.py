@@ -3,26 +3,18 @@ from the python-can log, latched actual values, other interfaces, recording."""
 import os
 import subprocess
 import sys
-import tomllib
-from pathlib import Path
 
 import can
 import numpy as np
 import pytest
 
-from fieldbus import DriveActuals, JointScaling, PowerlinkNetwork, Setpoints, decode
+from fieldbus import DriveActuals, PowerlinkNetwork, Setpoints, decode
 from fieldbus.telegrams import RxPdo1
+from fieldbus_support import scaling
 
-PARAMS = tomllib.loads((Path(__file__).resolve().parents[2] / "robot" / "rx130l_params.toml").read_text())
-TRAIN = PARAMS["drive_train"]
 T = 400e-6
 NO_JITTER = {"timing": {"soc_jitter_us": 0.0, "response_jitter_us": 0.0}}
 NODE_IDS = {0x200 + n for n in range(1, 7)} | {0x180 + n for n in range(1, 7)} | {0x280 + n for n in range(1, 7)}
-
-
-def scaling():
-    return JointScaling(TRAIN["gear_ratio"]["value"], TRAIN["encoder_counts_per_motor_rev"]["value"],
-                        TRAIN["rated_torque"]["value"])
 
 
 def drive(network, cycles, first=0):

@@ -4,41 +4,21 @@ observed value, every event and counter, over clean cycles and cycles with injec
 latched node faults, fault resets, saturating values and changing modes."""
 from __future__ import annotations
 
-import tomllib
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from fieldbus import DriveActuals, DriveState, JointScaling, PowerlinkNetwork, Setpoints, statusword_for
+from fieldbus import DriveActuals, PowerlinkNetwork, Setpoints
 from fieldbus.codec import load_codec
+from fieldbus_support import ENABLED, FAULT_CONFIGS, scaling
 
-PARAMS = tomllib.loads((Path(__file__).resolve().parents[2] / "robot" / "rx130l_params.toml").read_text())
-TRAIN = PARAMS["drive_train"]
-ENABLED = statusword_for(DriveState.OPERATION_ENABLED)
 
-CONFIGS = {
-    "clean": {},
-    "random faults": {"seed": 5, "faults": {"loss_probability": 3e-3, "late_probability": 3e-3,
-                                            "corrupt_probability": 3e-3}},
-    "bursts": {"faults": {"bursts": [{"node": 2, "start_cycle": 40, "cycles": 20, "frames": "pres", "kind": "loss"},
-                                     {"node": 5, "start_cycle": 120, "cycles": 20, "frames": "preq",
-                                      "kind": "corrupt"},
-                                     {"node": 1, "start_cycle": 200, "cycles": 3, "frames": "soc", "kind": "late"}]}},
-    "quick stop, silent node": {"reaction": {"abort_connection_option": "quick_stop"},
-                                "faults": {"silent_nodes": [{"node": 4, "from_cycle": 30, "until_cycle": 60}]}},
-    "extrapolate": {"reaction": {"missing_setpoint": "extrapolate"},
-                    "faults": {"bursts": [{"node": 3, "start_cycle": 50, "cycles": 1, "frames": "preq", "kind": "loss"},
-                                          {"node": 4, "start_cycle": 90, "cycles": 5, "frames": "preq",
-                                           "kind": "loss"}]}},
-}
+CONFIGS = {**FAULT_CONFIGS,
+           "quick stop, silent node": {"reaction": {"abort_connection_option": "quick_stop"},
+                                       "faults": {"silent_nodes": [{"node": 4, "from_cycle": 30, "until_cycle": 60}]}}}
 
 needs_codec = pytest.mark.skipif(load_codec() is None, reason="no C compiler / Python headers for the fieldbus codec")
-
-
-def scaling() -> JointScaling:
-    return JointScaling(TRAIN["gear_ratio"]["value"], TRAIN["encoder_counts_per_motor_rev"]["value"],
-                        TRAIN["rated_torque"]["value"])
 
 
 def trace(config: dict, cycles: int, nominal: bool, tmp_path: Path) -> tuple[list, list, dict, list, int]:

@@ -7,46 +7,14 @@ import can
 import numpy as np
 import pytest
 
-import tomllib
-from pathlib import Path
-
-from fieldbus import DriveActuals, FieldbusConfig, JointScaling, PowerlinkNetwork, Setpoints, decode
+from fieldbus import DriveActuals, FieldbusConfig, PowerlinkNetwork, Setpoints, decode
 from fieldbus.errors import FieldbusConfigError
 from fieldbus.telegrams import encode_rpdo1, encode_tpdo2
-
-TRAIN = tomllib.loads((Path(__file__).resolve().parents[2] / "robot" / "rx130l_params.toml").read_text())["drive_train"]
-PREQ_IDS = {0x200 + n for n in range(1, 7)}
-
-
-def scaling():
-    return JointScaling(TRAIN["gear_ratio"]["value"], TRAIN["encoder_counts_per_motor_rev"]["value"],
-                        TRAIN["rated_torque"]["value"])
-
-
-def output(k):
-    """The controller's output computed in cycle k: a smooth, distinct motion per joint."""
-    gains = np.arange(1, 7)
-    return (0.2 * np.sin(1e-3 * k * gains), 3.0 * np.cos(2e-3 * k * gains), 0.3 * np.cos(1e-3 * k * gains))
-
-
-def stack(applied, field):
-    return np.array([row[field] for row in applied])
-
-
-def lost_preqs(path):
-    """{cycle: nodes whose PReq is in the CAN log} per SoC."""
-    seen, cycle = {}, None
-    for msg in can.LogReader(str(path)):
-        if msg.arbitration_id == 0x080:
-            cycle = round(msg.timestamp / 400e-6)
-            seen[cycle] = set()
-        elif msg.arbitration_id in PREQ_IDS and cycle is not None:
-            seen[cycle].add(msg.arbitration_id - 0x200)
-    return seen
+from fieldbus_support import lost_preqs, output, scaling, stack
 
 
 def run(tmp_path, name, cycles=200, buffer=16, lookahead=4, bursts=(), missing="hold", catch_up=True):
-    """The network for ``cycles`` with the outputs of test_lookahead computed ``buffer`` cycles
+    """The network for ``cycles`` with the outputs of fieldbus_support.output computed ``buffer`` cycles
     ahead; in ``bursts`` ((first cycle, cycles)) every PReq is lost and the controller computes
     nothing (it stalled): with ``catch_up`` it computes the skipped outputs in the first cycle
     after (``ManagingNodeEndpoint.plan_ahead``), else the managing node interpolates the jump."""
