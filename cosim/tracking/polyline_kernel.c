@@ -25,6 +25,18 @@ static double squared(const double *p, const double *c)
     return dx * dx + dy * dy + dz * dz;
 }
 
+/* Whether ball b (of `size` consecutive segments) can hold a segment within `bound` of p; if so,
+ * its segments inside the window lo..hi are *j0..*j1. */
+static int ball_in_reach(const double *p, long long b, long long size, long long lo, long long hi, double bound,
+                         const double *centre, const double *radius, long long *j0, long long *j1)
+{
+    const double limit = bound + radius[b];
+    if (!(squared(p, centre + 3 * b) <= limit * limit)) return 0;
+    *j0 = b * size > lo ? b * size : lo;
+    *j1 = b * size + size - 1 < hi ? b * size + size - 1 : hi;
+    return 1;
+}
+
 /* points (m, 3); mid (segments, 3) midpoints, half (segments) half lengths with the margin;
  * centre (balls, 3), radius (balls): balls of `size` consecutive segments; reach (m): the own
  * segment's bound. Writes at most `capacity` pairs to out_i / out_j (ascending in i, then j)
@@ -46,10 +58,8 @@ long long polyline_candidates(const double *points, long long m, const double *m
         /* 2. the nearest midpoint inside the window among the balls that can hold a nearer segment */
         double nearest = INFINITY;
         for (long long b = first; b <= final && b < balls; ++b) {
-            const double limit = bound + radius[b];
-            if (!(squared(p, centre + 3 * b) <= limit * limit)) continue;
-            const long long j0 = b * size > lo ? b * size : lo;
-            const long long j1 = b * size + size - 1 < hi ? b * size + size - 1 : hi;
+            long long j0, j1;
+            if (!ball_in_reach(p, b, size, lo, hi, bound, centre, radius, &j0, &j1)) continue;
             for (long long j = j0; j <= j1; ++j) {
                 const double d2 = squared(p, mid + 3 * j);
                 if (d2 < nearest) nearest = d2;
@@ -59,10 +69,8 @@ long long polyline_candidates(const double *points, long long m, const double *m
         if (tight < bound) bound = tight;
         /* 1 + 3. the candidates */
         for (long long b = first; b <= final && b < balls; ++b) {
-            const double limit = bound + radius[b];
-            if (!(squared(p, centre + 3 * b) <= limit * limit)) continue;
-            const long long j0 = b * size > lo ? b * size : lo;
-            const long long j1 = b * size + size - 1 < hi ? b * size + size - 1 : hi;
+            long long j0, j1;
+            if (!ball_in_reach(p, b, size, lo, hi, bound, centre, radius, &j0, &j1)) continue;
             for (long long j = j0; j <= j1; ++j) {
                 const double reachable = bound + half[j];
                 if (squared(p, mid + 3 * j) <= reachable * reachable) {
