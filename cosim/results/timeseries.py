@@ -294,6 +294,10 @@ class ParquetSink:
         if self._fill and time.perf_counter() - self._last >= self.flush_interval_s:
             self._write_batch()
 
+    def sync(self) -> None:
+        """Write the rows held to the stream now, whatever the flush interval."""
+        self._write_batch()
+
     def close(self) -> None:
         if self._stream is None:
             return
