@@ -517,7 +517,9 @@ def read_timeseries(path: str | Path, kind: str = "auto"):
 def _read_csv_columns(path: Path) -> TimeSeries:
     import numpy as np
 
-    with open(path, encoding="utf-8", newline="") as f:
+    from robot.textfiles import open_text
+
+    with open_text(path) as f:
         reader = csv.reader(f)
         header = next(reader, [])
         rows = list(reader)

@@ -40,6 +40,8 @@ from typing import IO, Any
 
 import numpy as np
 
+from robot.textfiles import open_text
+
 FORMATS = ("parquet", "csv")
 SUFFIXES = {"parquet": ".parquet", "csv": ".csv"}
 ENV_FORMAT = "COSIM_TIMESERIES"
@@ -681,7 +683,7 @@ def read_series(path: str | Path) -> tuple[list[str], np.ndarray]:
         names = series_columns(path)
         blocks = [block for _, block in parquet_groups(path)]
         return names, (np.concatenate(blocks) if blocks else np.zeros((0, len(names))))
-    with open(path, encoding="utf-8", newline="") as f:
+    with open_text(path) as f:
         header = next(csv.reader(f))
     data = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
     if data.size == 0:
@@ -852,7 +854,7 @@ def _iter_stored(path: Path, columns: Sequence[str] | None, rows: int):
                 cols = [batch.column(batch.schema.get_field_index(n)).to_numpy(zero_copy_only=False) for n in names]
                 yield names, np.column_stack([c.astype(float, copy=False) for c in cols])
         return
-    with open(path, encoding="utf-8", newline="") as f:
+    with open_text(path) as f:
         header = next(csv.reader([f.readline()]))
         take = [header.index(n) for n in columns] if columns is not None else list(range(len(header)))
         names = [header[i] for i in take]
@@ -906,7 +908,7 @@ def series_columns(path: str | Path) -> list[str]:
                 return list(pa.ipc.open_stream(source).schema.names)
             except (pa.ArrowInvalid, OSError):
                 return []
-    with open(path, encoding="utf-8", newline="") as f:
+    with open_text(path) as f:
         return next(csv.reader([f.readline()]))
 
 
