@@ -135,9 +135,9 @@ def _schema():
     return pa.schema(fields)
 
 
-PARTIAL_FORMAT = FORMAT + " partial 2"
+PARTIAL_FORMAT = FORMAT_1 + " partial 2"
 """``format`` of the partial stream: one column ``record`` of whole recorder records (the stream
-of ``FORMAT + " partial"`` had the columns ``t``, ``id``, ``error``, ``length``, ``data``; still read)."""
+of ``FORMAT_1 + " partial"`` had the columns ``t``, ``id``, ``error``, ``length``, ``data``; still read)."""
 
 
 def _partial_schema(data_bytes: int = MAX_DATA):
