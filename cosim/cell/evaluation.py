@@ -398,7 +398,7 @@ def evaluate_run(ctx: RunContext, mode: str, cell: CellRun, controller: Any, ref
         "fieldbus": {k: cell.fieldbus[k] for k in ("cycles_run", "frames_sent", "frames_dropped", "frames_recorded",
                                                    "log_path", "dead_time_cycles", "node_fault", "comm_fault",
                                                    "scaling_saturations", "event_tally")},
-        "files": {"timeseries": ctx.series_name(f"timeseries_{mode}"), "controller": controller_file if builtin else None,
+        "files": {"timeseries": ctx.series_name(f"timeseries_{mode}"), "controller": controller_file if builtin else _record_name(cell),
                   "tcp": tcp_file, "can_log": Path(cell.fieldbus["log_path"]).name
                   if cell.fieldbus.get("log_path") else None},
     }
@@ -426,6 +426,12 @@ def evaluate_run(ctx: RunContext, mode: str, cell: CellRun, controller: Any, ref
     if hasattr(ctx, "note_verdict"):
         ctx.note_verdict(mode, entry)
     return entry, result
+
+
+def _record_name(cell: CellRun) -> str | None:
+    """The file name of a user controller's command log (``CellRun.controller_record``), None without one."""
+    record = getattr(cell, "controller_record", None)
+    return Path(record).name if record is not None else None
 
 
 class _ReferenceJoints:

@@ -86,6 +86,12 @@ class RunContext:
         self.summary.note_where(mode=label, at_s=time_s)
         self.sim_time_s += float(covered_s)
 
+    def begin(self, label: str) -> None:
+        """Name the part about to be built and run (a mode, an entry): an error before its master
+        starts is reported in ``label``, with no simulated time of an earlier part."""
+        self.label = label
+        self._last_time_s = None
+
     @property
     def stopped_at_s(self) -> float | None:
         """Simulated time (s) of the master being executed, else where the last one stopped (None before any)."""
