@@ -19,7 +19,8 @@ Two jobs (``--job``):
     actual every 400 us), which holds the path's duration only, however long the stop time.
 
 Each length runs once for ``--short`` and once for ``--long`` simulated seconds (default
-60 s and 600 s) in a fresh interpreter (``python -m cosim run``, started by
+60 s and 600 s) in a fresh interpreter (``python -m cosim run`` with ``COSIM_SUPERVISE=0``, so
+that the run is that process and not a child of the supervisor; started by
 :func:`run_measured`); the figure is each run's own peak resident memory: the ``VmHWM`` of
 ``/proc/self/status`` the run's process reads as it exits (the high-water mark of its own
 address space, which starts at the ``exec`` of the fresh interpreter). The ``ru_maxrss`` that
@@ -77,7 +78,10 @@ process's own peak resident memory (``VmHWM``, kB) to a file as it exits."""
 def run_measured(args: list[str], env: dict | None = None, cwd: Path | None = None) -> tuple[int, float, float]:
     """Run ``python *args`` (``["-m", "cosim", ...]``, ``["-c", code]`` or ``[script, ...]``) in a fresh interpreter;
     returns (exit status, its own peak RSS in MiB from ``/proc/self/status`` VmHWM, the
-    ``ru_maxrss`` MiB ``wait4`` reports for it - which includes the forking process's pages)."""
+    ``ru_maxrss`` MiB ``wait4`` reports for it - which includes the forking process's pages).
+    ``python -m cosim run`` runs unsupervised here (``COSIM_SUPERVISE=0``): supervised, the
+    command's first process only waits for the run, which is a forked child."""
+    env = dict(os.environ if env is None else env, COSIM_SUPERVISE="0")
     with tempfile.TemporaryDirectory(prefix="bench-memory-") as tmp:
         peak_file = Path(tmp) / "vmhwm_kb"
         child = subprocess.Popen([sys.executable, "-c", LAUNCHER, str(peak_file), *args], env=env, cwd=cwd)
