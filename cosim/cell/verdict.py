@@ -103,6 +103,8 @@ def describe_violation(v: dict[str, Any]) -> str:
     """``following_error joint 3 at t = 1.234 s: 0.021 rad (limit 0.01 rad) (0x8611, quick_stop)``."""
     if v.get("kind") == "budget":
         return f"compute budget: {v.get('detail')}"
+    if v.get("kind") == "refused":  # the detail names planner, joint, limit and time
+        return str(v.get("detail"))
     parts = [str(v.get("kind") or "violation")]
     if v.get("joint") is not None:
         parts.append(f"joint {v['joint']}")
