@@ -301,3 +301,51 @@ def test_exit_code_5_from_python_m_cosim_run(tmp_path):
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
     assert summary["status"] == "fault" and summary["modes"]["Idle"]["verdict"] == "fault"
     assert "never reached Operation enabled" in summary["reason"]
+
+
+SLOW = '''
+import time
+from controller import ControllerOutput
+from controller.tracking_clock import TrackingClock
+
+
+class Slow:
+    """Takes 1.5 ms of CPU per 400 us cycle: under --realtime every cycle overruns."""
+
+    def setup(self, info):
+        self.clock = TrackingClock(info, settle_time_s=0.05, enable_timeout_s=0.1)
+        self.out = ControllerOutput.zeros(info.n_joints)
+
+    def step(self, inputs):
+        end = time.thread_time_ns() + 1_500_000
+        while time.thread_time_ns() < end:
+            pass
+        tau = self.clock.update(inputs, self.out.controlword)
+        self.out.target_position[:] = self.clock.reference(tau)[0]
+        return self.out
+
+    def close(self):
+        pass
+
+    motion_start_s = property(lambda self: self.clock.motion_start_s)
+    stop_reason = property(lambda self: self.clock.stop_reason)
+    stopped_at_s = property(lambda self: self.clock.stopped_at_s)
+'''
+
+
+def test_realtime_run_that_fails_by_overruns_says_so(tmp_path):
+    """cosim run --realtime with a controller slower than the bus cycle: the one-line verdict names the
+    overruns as well as what they caused."""
+    (tmp_path / "slow.py").write_text(SLOW, encoding="utf-8")
+    path = write_variant(ISO_TEXT, tmp_path / "slow.toml", [
+        *SHORT[1:], ('stop_time = "12.6 s"', 'stop_time = "0.4 s"'),
+        ('modes = ["standard", "standard_speed_ff", "model_based"]', 'modes = []\nclass = "slow.py:Slow"'),
+        ("[results]", '[realtime]\noverrun_policy = "skip"\nscheduling = "normal"\ncpu = "none"\n\n[results]')])
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    done = subprocess.run([sys.executable, "-m", "cosim", "run", str(path), "--out", str(tmp_path / "out"), "--quiet",
+                           "--realtime"], capture_output=True, text=True, cwd=ROOT, env=env, timeout=600)
+    assert done.returncode in (3, 5), done.stderr
+    last = done.stderr.strip().splitlines()[-1]
+    assert "Operation enabled" in last and "controller overran" in last and "% of cycles" in last, done.stderr
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert "controller overran" in summary["reason"]
