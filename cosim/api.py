@@ -244,7 +244,7 @@ def load_scenario(scenario: "str | Path | Mapping[str, Any] | Scenario",
             ``output``) or gives a value of the wrong type or unit. ``.file`` is the path,
             ``"<dict>"`` or ``"<string>"``.
     """
-    from cosim.scenario.loader import load_document, read_toml_file, resolve_path
+    from cosim.scenario.loader import load_scenario, resolve_path
 
     if isinstance(scenario, Scenario):
         return scenario.with_overrides(overrides) if overrides else scenario
@@ -262,7 +262,7 @@ def load_scenario(scenario: "str | Path | Mapping[str, Any] | Scenario",
         source = STRING_LABEL
     elif isinstance(scenario, (str, Path)):
         path = resolve_path(scenario)  # a project scenario of an installed package from any folder
-        validated = load_document(read_toml_file(path, "scenario"), path)
+        validated = load_scenario(path)
         source = str(path)
     else:
         raise TypeError(f"scenario: expected a path, a TOML text, a dict or a cosim.Scenario, "
