@@ -132,14 +132,6 @@ def controller_log_of(controller: Any) -> Any:
     return log if isinstance(log, ControllerLog) else None
 
 
-def controller_log_encodings() -> dict[str, Any]:
-    """The controller log's compact Parquet encodings: the observed positions ``q_obs<j>`` are
-    encoder counts times the joint's rad per count (stored as the counts when every value is
-    exactly that), the other float columns delta-coded where that is smaller (lossless)."""
-    rad_per_count = joint_scaling().rad_per_count
-    return {"scales": {f"q_obs{j + 1}": float(r) for j, r in enumerate(rad_per_count)}, "float_delta": True}
-
-
 def controller_record_name(cell: CellDescription) -> str:
     """``controller_<name>`` for the cell's ``timeseries_<name>`` record file (the label otherwise)."""
     stem = Path(cell.record_file).stem
@@ -268,7 +260,7 @@ def _run_on_master(cell: CellDescription, controller: CellController, ctx: RunCo
             from controller.controller import LOG_COLUMNS
 
             controller_file = ctx.series_name(controller_record_name(cell))
-            log.stream_to(ctx.series_sink(controller_file, series_units(LOG_COLUMNS), **controller_log_encodings()))
+            log.stream_to(ctx.series_sink(controller_file, series_units(LOG_COLUMNS)))
         bus: Any = network
         scheduling: Any = contextlib.nullcontext("normal")
         if paced:

@@ -129,10 +129,9 @@ class RunContext:
         stem = name[:-len(Path(name).suffix)] if Path(name).suffix in (".csv", ".parquet") else name
         return stem + SUFFIXES[self.timeseries_format]
 
-    def series_sink(self, name: str, units: dict[str, str] | None = None, **encodings):
-        """A streaming recorder sink writing ``out_dir / series_name(name)`` (Parquet or CSV;
-        ``encodings``: the Parquet sink's compact encodings, cosim.results.timeseries)."""
-        return sink_for(self.path(self.series_name(name)), units, **encodings)
+    def series_sink(self, name: str, units: dict[str, str] | None = None):
+        """A streaming recorder sink writing ``out_dir / series_name(name)`` (Parquet or CSV)."""
+        return sink_for(self.path(self.series_name(name)), units)
 
     csv_sink = series_sink
     """Former name of :meth:`series_sink` (writes the run's format, Parquet by default)."""
