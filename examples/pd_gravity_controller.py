@@ -31,25 +31,44 @@ import numpy as np
 from controller import MODE_CST, ControllerInfo, ControllerInput, ControllerOutput
 from controller.tracking_clock import TrackingClock
 
-# Default gains per joint (joint side): a critically damped loop of 10 Hz per axis on the
+# Gains per joint (joint side): a critically damped loop of bandwidth f per axis on the
 # diagonal of the nominal mass matrix (rotor inertia included) at the ISO 9283 start pose
-# with the 8 kg tool, J = (27.0, 35.8, 19.9, 0.390, 0.469, 0.0508) kg m^2:
-# Kp = J w^2, Kd = 2 J w, w = 2 pi 10 rad/s.
+# with the 8 kg tool: Kp = J w^2, Kd = 2 J w, w = 2 pi f.
+AXIS_INERTIA = (27.0, 35.8, 19.9, 0.390, 0.469, 0.0508)          # kg m^2
+# The defaults: f = 10 Hz (rounded), for the rigid plant (scenarios/iso9283_rigid.toml,
+# examples/compare.toml). On the elastic-gear plant (scenarios/iso9283.toml) 10 Hz is too close to
+# the gears' resonance for a loop closed over 1.2 ms of bus delay on the motor encoders: use
+# bandwidth_hz = 3 with inertia_feedforward = true there (docs/bring_your_own.md, "What to expect").
 DEFAULT_KP = (1.07e5, 1.41e5, 7.86e4, 1.54e3, 1.85e3, 2.01e2)   # N m / rad
 DEFAULT_KD = (3.40e3, 4.50e3, 2.50e3, 49.0, 59.0, 6.38)          # N m s / rad
+
+
+def gains_for(bandwidth_hz: float) -> tuple[np.ndarray, np.ndarray]:
+    """(Kp, Kd) of a critically damped loop of ``bandwidth_hz`` per axis on :data:`AXIS_INERTIA`."""
+    w = 2.0 * math.pi * float(bandwidth_hz)
+    inertia = np.asarray(AXIS_INERTIA)
+    return inertia * w * w, 2.0 * inertia * w
 
 
 class PDGravity:
     """Joint PD + gravity compensation in CST (see the module docstring).
 
-    kp, kd: 6 gains each (N m/rad, N m s/rad); settle_time: hold after enabling (s);
+    kp, kd: 6 gains each (N m/rad, N m s/rad); or bandwidth_hz: the gains of a critically damped
+    loop of that bandwidth per axis (:func:`gains_for`; not together with kp/kd); default the
+    10 Hz gains :data:`DEFAULT_KP`, :data:`DEFAULT_KD`. settle_time: hold after enabling (s);
     inertia_feedforward: add M(q_d) qdd_d (a computed-torque flavour), default False.
     """
 
-    def __init__(self, kp=DEFAULT_KP, kd=DEFAULT_KD, settle_time: float = 0.2,
-                 inertia_feedforward: bool = False) -> None:
-        self.kp = np.asarray(kp, dtype=float).reshape(6)
-        self.kd = np.asarray(kd, dtype=float).reshape(6)
+    def __init__(self, kp=None, kd=None, settle_time: float = 0.2, inertia_feedforward: bool = False,
+                 bandwidth_hz: float | None = None) -> None:
+        if bandwidth_hz is not None:
+            if kp is not None or kd is not None:
+                raise ValueError("give either bandwidth_hz or kp and kd, not both")
+            if not (math.isfinite(bandwidth_hz) and bandwidth_hz > 0):
+                raise ValueError(f"bandwidth_hz = {bandwidth_hz!r}: expected a frequency > 0 Hz")
+            kp, kd = gains_for(bandwidth_hz)
+        self.kp = np.asarray(DEFAULT_KP if kp is None else kp, dtype=float).reshape(6)
+        self.kd = np.asarray(DEFAULT_KD if kd is None else kd, dtype=float).reshape(6)
         if np.any(self.kp < 0) or np.any(self.kd < 0):
             raise ValueError("kp and kd must be >= 0")
         self.settle_time = float(settle_time)
