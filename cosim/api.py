@@ -356,7 +356,9 @@ class Summary:
 
     @property
     def status(self) -> str:
-        """``"ok"``, ``"failed"``, ``"interrupted"`` or ``"running"`` (a run that died without finishing)."""
+        """``"ok"``, ``"limit"``, ``"fault"`` (completed, with the most severe verdict of its cell runs;
+        cosim/cell/verdict.py), ``"failed"``, ``"interrupted"`` or ``"running"`` (a run that died
+        without finishing)."""
         return str(self.raw.get("status", "running"))
 
     @property
@@ -365,7 +367,7 @@ class Summary:
 
     @property
     def reason(self) -> str | None:
-        """Why the run failed (None when ok)."""
+        """Why the run failed, or which run hit a limit or faulted and how (None when ok)."""
         return self.raw.get("reason")
 
     @property
@@ -661,6 +663,8 @@ def run(scenario: "str | Path | Mapping[str, Any] | Scenario", out: str | Path |
         realtime, split: pace the robot cell at the wall clock / run controller and drives in two
             processes (as ``cosim run --realtime/--split``; docs/timing.md).
         check: raise :class:`RunFailed` when the run ends ``failed`` (False: return the result).
+            A run that completed with verdict ``limit`` or ``fault`` is returned, not raised:
+            ``result.status`` says so (and ``result.summary["verdicts"]`` per cell run).
         timeseries: ``"parquet"`` (default, or ``$COSIM_TIMESERIES``) or ``"csv"``: the format
             of the time-series files.
         max_output, max_memory, ignore_budget: the run's budget (``cosim.results.budget``:
@@ -682,7 +686,7 @@ def run(scenario: "str | Path | Mapping[str, Any] | Scenario", out: str | Path |
         out_dir, temporary = Path(out), False
     result = _execute_into(sc, out_dir, options, quiet=quiet, origin="out", temporary=temporary,
                            timeseries=timeseries, budget=None if ignore_budget else (max_output, max_memory))
-    if check and result.status != "ok":
+    if check and result.status == "failed":
         raise RunFailed(result) from result.error
     return result
 
@@ -773,10 +777,13 @@ def _run_job(sc: Scenario, ctx) -> BaseException | None:
 
     try:
         fields = sc.validated.job.runner(sc.validated, ctx) or {}
-        ctx.summary.finish_ok(ctx.sim_time_s, **fields)
+        status, reason, verdict_fields = _job_verdict(ctx)
+        ctx.summary.finish_verdict(status, ctx.sim_time_s, reason, **fields, **verdict_fields)
         return None
     except KeyboardInterrupt as exc:  # SIGINT, or SIGTERM through the CLI's handler
         with defer_signals():
+            if getattr(ctx, "verdicts", None):
+                ctx.summary.data["verdicts"] = dict(ctx.verdicts)
             ctx.summary.finish_interrupted(signal_name_of(exc), ctx.stopped_at_s, ctx.sim_time_s,
                                            mode=ctx.label or None, interrupted_in=ctx.label or None)
         raise
@@ -796,9 +803,34 @@ def _run_job(sc: Scenario, ctx) -> BaseException | None:
                 reason, stopped = _first_line(str(exc)), ctx.stopped_at_s
             else:
                 reason, stopped = f"internal error: {type(exc).__name__}: {exc}", ctx.stopped_at_s
+            if getattr(ctx, "verdicts", None):
+                extra["verdicts"] = dict(ctx.verdicts)
             ctx.summary.finish_failed(reason, stopped, ctx.sim_time_s, failed_in=ctx.label or None,
                                       mode=ctx.label or None, **extra)
         return exc
+
+
+def _job_verdict(ctx) -> tuple[str, str | None, dict[str, Any]]:
+    """The job's status (the most severe verdict of its cell runs, ``ok`` without any), the
+    reason naming the first such run and its first violation, and the summary fields
+    ``verdicts`` (per run) and ``first_violation`` (of the run the status comes from)."""
+    from cosim.cell.verdict import describe_violation, most_severe
+
+    verdicts = dict(getattr(ctx, "verdicts", None) or {})
+    if not verdicts:
+        return "ok", None, {}
+    status = most_severe(v["verdict"] for v in verdicts.values())
+    fields: dict[str, Any] = {"verdicts": verdicts}
+    if status == "ok":
+        return status, None, fields
+    label, worst = next((k, v) for k, v in verdicts.items() if v["verdict"] == status)
+    first = worst.get("first_violation")
+    fields["first_violation"] = first
+    others = [k for k, v in verdicts.items() if v["verdict"] != "ok" and k != label]
+    reason = f"{label}: {status}" + (f": {describe_violation(first)}" if first else "")
+    if others:
+        reason += f" (also not ok: {', '.join(others)})"
+    return status, reason, fields
 
 
 def _first_line(text: str) -> str:

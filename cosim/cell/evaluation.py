@@ -455,6 +455,11 @@ def evaluate_run(ctx: RunContext, mode: str, cell: CellRun, controller: Any, ref
         entry["stopped_at_s"] = stopped_at
     elif cell.failure is not None and cell.failure.component == "controller":
         entry["stopped_at_s"] = cell.failure.time
+    from cosim.cell.verdict import record
+
+    record(entry, cell, timing)  # verdict, violations, first_violation (cosim/cell/verdict.py)
+    if hasattr(ctx, "note_verdict"):
+        ctx.note_verdict(mode, entry)
     return entry, result
 
 

@@ -85,6 +85,15 @@ class CellRun:
     controller_record: Any = None
     """The built-in controller's log streamed as the run went (``controller_<name>`` in the
     results folder, Parquet or CSV); None when it stayed in memory (paced and split runs)."""
+    protection_events: list[dict] = field(default_factory=list)
+    """The drives' and the plant's protection events (limit reached, end stop hit; the record of
+    docs/robustness.md), judged by :func:`cosim.cell.verdict.judge`."""
+    drives_checked: bool = False
+    """Whether the run watched the drives' states (``drives_enabled_at_s`` is meaningful)."""
+    drives_enabled_at_s: float | None = None
+    """Simulated time the six drives first all reported Operation enabled (None: never)."""
+    controller_close_error: str | None = None
+    """What the controller's ``close()`` raised (one line), None when it closed cleanly."""
 
 
 def master_units(master: Master, signals: Sequence[str]) -> dict[str, str]:
@@ -299,4 +308,6 @@ def _run_on_master(cell: CellDescription, controller: CellController, ctx: RunCo
     return CellRun(cell.label, ctx.path(record_file), recorder.rows_written, master.time, network.summary(),
                    wall, engine, recording, failure, cpu, pacer=pacer if paced else None, scheduling=granted,
                    controller_timing=link.port.timing(), port_overhead=link.port.overhead(),
-                   controller_record=ctx.path(controller_file) if controller_file else None)
+                   controller_record=ctx.path(controller_file) if controller_file else None,
+                   drives_checked=True, drives_enabled_at_s=link.enabled_at_s,
+                   controller_close_error=link.port.close_error)

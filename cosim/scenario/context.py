@@ -66,6 +66,17 @@ class RunContext:
         self._totals: dict[int, float] = {}
         self._running: Master | None = None
         self._last_time_s: float | None = None
+        self.verdicts: dict[str, dict] = {}
+        """label -> the verdict of each cell run of the job (:meth:`note_verdict`)."""
+
+    def note_verdict(self, label: str, entry: dict) -> None:
+        """Record the verdict of the cell run ``label`` from its summary record ``entry`` (its
+        ``verdict``, ``first_violation``, ``warnings``; cosim/cell/verdict.py). The job's final
+        status is the most severe of them; ``cosim run`` prints one line per run from them."""
+        verdict = entry.get("verdict") or ("failed" if entry.get("status") == "failed" else "ok")
+        self.verdicts[label] = {"verdict": verdict, "first_violation": entry.get("first_violation"),
+                                "violations_total": entry.get("violations_total", len(entry.get("violations") or ())),
+                                "warnings": list(entry.get("warnings") or ())}
 
     def note_position(self, label: str, time_s: float, covered_s: float = 0.0) -> None:
         """Record where a run that does not go through :meth:`execute` (the split cell) stopped:

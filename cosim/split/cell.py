@@ -278,7 +278,7 @@ def run_split_cell(cell: CellDescription, controller, ctx, *, options: Execution
     return CellRun(label, ctx.path(record_file), int(rows.shape[0]), reached, fieldbus_summary, wall,
                    ready.get("engine", ""), memory, failure, loop_cpu_time_s=cpu, pacer=pacer, scheduling=granted,
                    split=info, controller_timing=controller_port.timing(),
-                   port_overhead=controller_port.overhead())
+                   port_overhead=controller_port.overhead(), controller_close_error=controller_port.close_error)
 
 
 def _acknowledged(conn, cycle: int, timeout_s: float) -> bool:
