@@ -17,8 +17,9 @@ friction and rotor deviations, geometric errors, payload). The modes follow the 
   model torque as torque offset, plus the drive set-point shaping.
 
 A user's controller (``[controller] class = "file.py:Class"`` or ``fmu = "ctrl.fmu"``,
-the controller contract :mod:`controller.contract`) runs after the modes on the same
-robot as one more entry (``[controller] label``, default the class or FMU name).
+the controller contract :mod:`controller.contract`) runs on the same robot as one more
+entry (``[controller] label``, default the class or FMU name): alone, unless
+``[controller] modes`` lists built-in modes, which then run first.
 
 The drive speed feed-forward is the servo-drive FMU parameter ``speed_feedforward_gain``,
 set by the job per mode (``[controller.<mode>] drive_speed_feedforward`` overrides the

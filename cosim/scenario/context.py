@@ -86,6 +86,12 @@ class RunContext:
         self.summary.note_where(mode=label, at_s=time_s)
         self.sim_time_s += float(covered_s)
 
+    def begin(self, label: str) -> None:
+        """Name the part about to be built and run (a mode, an entry): an error before its master
+        starts is reported in ``label``, with no simulated time of an earlier part."""
+        self.label = label
+        self._last_time_s = None
+
     @property
     def stopped_at_s(self) -> float | None:
         """Simulated time (s) of the master being executed, else where the last one stopped (None before any)."""
@@ -103,10 +109,9 @@ class RunContext:
         stem = name[:-len(Path(name).suffix)] if Path(name).suffix in (".csv", ".parquet") else name
         return stem + SUFFIXES[self.timeseries_format]
 
-    def series_sink(self, name: str, units: dict[str, str] | None = None, **encodings):
-        """A streaming recorder sink writing ``out_dir / series_name(name)`` (Parquet or CSV;
-        ``encodings``: the Parquet sink's compact encodings, cosim.results.timeseries)."""
-        return sink_for(self.path(self.series_name(name)), units, **encodings)
+    def series_sink(self, name: str, units: dict[str, str] | None = None):
+        """A streaming recorder sink writing ``out_dir / series_name(name)`` (Parquet or CSV)."""
+        return sink_for(self.path(self.series_name(name)), units)
 
     csv_sink = series_sink
     """Former name of :meth:`series_sink` (writes the run's format, Parquet by default)."""

@@ -6,6 +6,9 @@ recording the drives' actual values at the bus cycle (the same code path as the 
 from __future__ import annotations
 
 import json
+import shutil
+import struct
+import subprocess
 from pathlib import Path
 
 import can
@@ -120,3 +123,145 @@ def test_the_project_reader_and_cantools_see_the_same_frames(run, device_files):
     with open_log(run / f"can_{MODE}.parquet") as reader:
         seen = {msg.arbitration_id for msg in reader}
     assert seen <= ids and len(seen) == 19
+
+
+# ------------------------------------------------------------------------------ Wireshark (tshark)
+CANOPEN = ("-d", "can.subdissector,canopen")  # decode CAN payloads as CANopen
+
+
+def _tshark(*args: str) -> list[str]:
+    """tshark's output lines; the test fails (not skips) without tshark (.ci/run installs it)."""
+    exe = shutil.which("tshark")
+    assert exe, "tshark is not installed: .ci/run installs it (apt-get install tshark)"
+    result = subprocess.run([exe, *args], capture_output=True, text=True, timeout=600)
+    assert result.returncode == 0, result.stderr
+    return [line for line in result.stdout.splitlines() if line]
+
+
+def _problems(path: Path, *extra: str) -> tuple[int, int]:
+    """(malformed frames, frames with an expert-info error) as tshark dissects ``path``."""
+    return (len(_tshark("-r", str(path), *extra, "-Y", "_ws.malformed")),
+            len(_tshark("-r", str(path), *extra, "-Y", "_ws.expert.severity == error")))
+
+
+def _log_telegrams(log: Path) -> list:
+    """The run's CAN log through the project's reader: [(arbitration id, decoded telegram)]."""
+    from fieldbus.telegrams import decode
+
+    with open_log(log) as reader:
+        return [(msg.arbitration_id, decode(msg)) for msg in reader]
+
+
+@pytest.fixture(scope="module")
+def captures(run, tmp_path_factory):
+    out = tmp_path_factory.mktemp("captures")
+    assert main(["export-pcap", str(run), "-o", str(out)]) == 0
+    return out
+
+
+def test_tshark_dissects_the_powerlink_capture_like_the_can_log(run, captures):
+    from fieldbus.telegrams import RxPdo1, Sync, TxPdo1
+
+    path = captures / f"powerlink_{MODE}.pcapng"
+    frames = _tshark("-r", str(path), "-T", "fields", "-E", "separator=;", "-e", "frame.protocols", "-e", "epl.mtyp",
+                     "-e", "epl.src", "-e", "epl.dest", "-e", "data.data")
+    assert all(line.split(";")[0].startswith("eth:ethertype:epl") for line in frames)
+    assert _problems(path) == (0, 0)
+    log = _log_telegrams(run / f"can_{MODE}.parquet")
+    socs = [f for f in frames if f.split(";")[1] == "1"]
+    assert len(socs) == sum(isinstance(t, Sync) for _, t in log) == len(_tshark("-r", str(path), "-Y", "epl.soc"))
+    preqs = [f.split(";") for f in frames if f.split(";")[1] == "3"]
+    pres = [f.split(";") for f in frames if f.split(";")[1] == "4"]
+    want_preq = [t for _, t in log if isinstance(t, RxPdo1)]
+    want_pres = [t for _, t in log if isinstance(t, TxPdo1)]
+    assert [(int(s), int(d)) for _, _, s, d, _ in preqs] == [(240, t.node) for t in want_preq]
+    assert [(int(s), int(d)) for _, _, s, d, _ in pres] == [(t.node, 255) for t in want_pres]
+    assert {t.node for t in want_preq} == set(range(1, 7))
+    # the position set-points (0x607A, bytes 2-5 of the PReq payload) and actual positions (0x6064)
+    setpoints = [struct.unpack_from("<i", bytes.fromhex(p[4]), 2)[0] for p in preqs]
+    assert setpoints == [t.target_position for t in want_preq] and len(set(setpoints)) > 100
+    actuals = [struct.unpack_from("<i", bytes.fromhex(p[4]), 2)[0] for p in pres]
+    assert actuals == [t.position_actual for t in want_pres]
+    soas = [f for f in frames if f.split(";")[1] == "5"]
+    assert len(soas) == len(socs) and len(frames) == len(socs) + len(preqs) + len(pres) + len(soas)
+    print(f"tshark POWERLINK: {len(frames)} frames dissected ({len(socs)} SoC, {len(preqs)} PReq, {len(pres)} PRes, "
+          f"{len(soas)} SoA), 0 malformed, 0 expert errors")
+
+
+def test_tshark_dissects_the_can_capture_as_canopen_like_the_can_log(run, captures):
+    from fieldbus.telegrams import RxPdo1, Sync
+
+    path = captures / f"can_{MODE}.pcapng"
+    frames = _tshark("-r", str(path), *CANOPEN, "-T", "fields", "-E", "separator=;", "-e", "can.id",
+                     "-e", "canopen.sync.counter", "-e", "canopen.pdo.data.bytes", "-e", "frame.protocols")
+    assert _problems(path, *CANOPEN) == (0, 0)
+    log = _log_telegrams(run / f"can_{MODE}.parquet")
+    assert [int(f.split(";")[0]) for f in frames] == [i for i, _ in log]
+    assert all(f.split(";")[3].endswith("canopen") for f in frames)
+    counters = [int(f.split(";")[1]) for f in frames if f.split(";")[1]]
+    assert counters == [t.counter for _, t in log if isinstance(t, Sync)]
+    rpdo = [bytes.fromhex(f.split(";")[2]) for f in frames if 0x201 <= int(f.split(";")[0]) <= 0x27F]
+    assert [struct.unpack_from("<i", d, 2)[0] for d in rpdo] == [t.target_position for _, t in log
+                                                                 if isinstance(t, RxPdo1)]
+    print(f"tshark CAN: {len(frames)} frames dissected as CANopen, 0 malformed, 0 expert errors")
+
+
+def test_emcy_and_corrupted_frames_in_both_captures(tmp_path):
+    """A CAN log with an EMCY and a corrupted TPDO1: the POWERLINK capture invites the node with a
+    StatusRequest and carries the EMCY as its StatusResponse's error entry, leaves the corrupted
+    PRes out; the CAN capture has the EMCY and an error frame; tshark finds nothing malformed."""
+    from fieldbus import telegrams
+    from fieldbus.canlog import RECORD_DTYPE, CanLogWriter
+
+    records = []
+
+    def add(t, arbitration_id, data, error=False):
+        r = np.zeros(1, RECORD_DTYPE)
+        r["t"], r["id"], r["error"], r["length"] = t, arbitration_id, error, len(data)
+        r["data"][0, :len(data)] = np.frombuffer(data, np.uint8)
+        records.append(r)
+
+    for k in range(3):
+        t0 = k * 400e-6
+        add(t0, 0x080, bytes([k + 1]))
+        for n in (1, 2):
+            add(t0 + 10e-6 * n, 0x200 + n, telegrams.encode_rpdo1(0x0F, 1000 * n + k, 5))
+            add(t0 + 10e-6 * n + 5e-6, 0x180 + n, telegrams.encode_tpdo1(0x1237, 1000 * n + k, 3), error=(k, n) == (1, 2))
+            add(t0 + 10e-6 * n + 5e-6, 0x280 + n, telegrams.encode_tpdo2(77, 0, 8))
+    add(800e-6 + 200e-6, 0x082, struct.pack("<HBBHH", 0x8100, 0x11, 3, 16, 15))
+    writer = CanLogWriter(tmp_path / "can_x.parquet")
+    writer.write_records(np.concatenate(records))
+    writer.close()
+    assert main(["export-pcap", str(tmp_path / "can_x.parquet"), "-o", str(tmp_path)]) == 0
+    epl, can_capture = tmp_path / "powerlink_x.pcapng", tmp_path / "can_x.pcapng"
+    assert _problems(epl) == (0, 0) and _problems(can_capture, *CANOPEN) == (0, 0)
+    assert len(_tshark("-r", str(epl), "-Y", "epl.pres")) == 5  # the corrupted PRes is left out
+    soa = _tshark("-r", str(epl), "-Y", "epl.soa.svid == 2", "-T", "fields", "-e", "epl.soa.svtg")
+    assert soa == ["2"]
+    entry = _tshark("-r", str(epl), "-Y", "epl.asnd", "-T", "fields", "-E", "occurrence=f", "-e", "epl.src",
+                    "-e", "epl.asnd.svid", "-e", "epl.asnd.sres.el.entry.code", "-e", "epl.asnd.sres.el.entry.type.profile")
+    assert entry == ["2\t0x02\t33024\t402"]
+    emcy = _tshark("-r", str(can_capture), *CANOPEN, "-Y", "canopen.em.err_code", "-T", "fields",
+                   "-e", "can.id", "-e", "canopen.em.err_code", "-e", "canopen.em.err_reg")
+    assert emcy == ["130\t0x8100\t0x11"]
+    assert len(_tshark("-r", str(can_capture), "-Y", "can.flags.err == 1")) == 1
+
+
+def test_tshark_finds_what_is_wrong_in_a_broken_capture(tmp_path):
+    """The checks above can fail: a PReq whose size field exceeds its frame is an expert error, a SoC
+    cut short is malformed."""
+    from pcapng import FileWriter, blocks
+
+    header = bytes.fromhex("0200000000f0") + b"\x88\xab"
+    frames = [bytes.fromhex("020000000001") + header + struct.pack("<BBBBBBBBH", 3, 1, 240, 0, 1, 0, 0, 0, 200)
+              + bytes(36), bytes.fromhex("01111e000001") + header + bytes((1, 255, 240, 0, 0))]
+    shb = blocks.SectionHeader()
+    shb.new_member(blocks.InterfaceDescription, link_type=1)
+    path = tmp_path / "broken.pcapng"
+    with open(path, "wb") as handle:
+        writer = FileWriter(handle, shb)
+        for frame in frames:
+            packet = shb.new_member(blocks.EnhancedPacket)
+            packet.packet_data = frame
+            writer.write_block(packet)
+    assert _problems(path) == (1, 2)
