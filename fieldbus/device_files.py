@@ -181,16 +181,16 @@ def to_xdd(od: ObjectDictionary, file_name: str | None = None, *, cycle_time_us:
            "</ProfileBody>",
            "</ISO15745Profile>",
            "<ISO15745Profile>",
-           header.format(ident="Powerlink_Communication_Network_Profile", name=escape(ident["product_name"]) + " communication",
+           header.format(ident="Powerlink_Communication_Profile", name=escape(ident["product_name"]) + " communication",
                          cls="CommunicationNetwork"),
            f'<ProfileBody xsi:type="ProfileBody_CommunicationNetwork_Powerlink" {body_attrs}>',
            "<ApplicationLayers>",
            f"<identity><vendorID>0x{ident['vendor_id']:08X}</vendorID>"
            f"<productID>0x{ident['product_code']:08X}</productID></identity>",
            "<DataTypeList>"]
-    tags = {"BOOLEAN": "BOOL", "INTEGER8": "SINT", "INTEGER16": "INT", "INTEGER32": "DINT", "UNSIGNED8": "USINT",
-            "UNSIGNED16": "UINT", "UNSIGNED32": "UDINT", "REAL32": "REAL", "VISIBLE_STRING": "Visible_String",
-            "UNSIGNED64": "ULINT"}
+    tags = {"BOOLEAN": "Boolean", "INTEGER8": "Integer8", "INTEGER16": "Integer16", "INTEGER32": "Integer32",
+            "UNSIGNED8": "Unsigned8", "UNSIGNED16": "Unsigned16", "UNSIGNED32": "Unsigned32", "REAL32": "Real32",
+            "VISIBLE_STRING": "Visible_String", "UNSIGNED64": "Unsigned64"}
     for name, (index, _, _) in DATA_TYPES.items():
         out.append(f'<defType dataType="{index:04X}"><{tags[name]}/></defType>')
     out.append("</DataTypeList>")
