@@ -97,6 +97,10 @@ def _eds_variable(e: Entry, name: str, description: str) -> list[tuple[str, obje
     items: list[tuple[str, object]] = [("ParameterName", name), ("ObjectType", "0x7"),
                                        ("DataType", f"0x{e.data_type_index:04X}"), ("AccessType", e.access),
                                        ("DefaultValue", _number(e)), ("PDOMapping", _pdo_mapping_flag(e))]
+    if e.low is not None:
+        items.append(("LowLimit", repr(float(e.low)) if e.data_type == "REAL32" else str(e.low)))
+    if e.high is not None:
+        items.append(("HighLimit", repr(float(e.high)) if e.data_type == "REAL32" else str(e.high)))
     if e.unit:
         items.append(("Unit", e.unit))  # not in CiA 306; read by the canopen library, ignored by others
     if description:
@@ -146,6 +150,7 @@ def _xdd_attrs(e: Entry, name: str) -> str:
     attrs = [("name", name), ("objectType", "7"), ("dataType", f"{e.data_type_index:04X}"),
              ("accessType", e.access), ("defaultValue", _number(e, node_relative=False)),
              ("PDOmapping", _xdd_pdo_flag(e))]
+    attrs += [(key, value) for key, value in (("lowLimit", e.low), ("highLimit", e.high)) if value is not None]
     return " ".join(f"{k}={quoteattr(str(v))}" for k, v in attrs)
 
 

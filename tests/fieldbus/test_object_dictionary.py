@@ -145,6 +145,7 @@ def test_the_canopen_library_loads_the_eds_with_every_object_equal(ods, tmp_path
                 else:
                     assert var.default == e.default, (hex(e.index), e.subindex)
                 assert (var.unit or "") == e.unit
+                assert (var.min, var.max) == (e.low, e.high)
                 compared += 1
         assert compared == sum(1 for _ in od.entries()) == 94
 
