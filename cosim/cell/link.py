@@ -60,10 +60,14 @@ class CellBus:
         self.applied = AppliedSetpoints(fresh=np.zeros(n, dtype=bool), comm_fault=np.zeros(n, dtype=bool),
                                         **{APPLIED_FIELD.get(name, name): view for name, view in views.items()})
         self._pairs = [(view, APPLIED_FIELD.get(name, name)) for name, view in views.items()]
-        self._refresh = [reader.refresh for reader in self._readers]
+        # the drives latch their actual values at the SoC: their inputs at t_k (the plant's
+        # position) are set before their outputs are read (direct feedthrough of position_actual)
+        self._refresh = [master.refresher(DRIVES)] + [reader.refresh for reader in self._readers]
 
     def read(self) -> None:
-        """Refresh :attr:`actuals` from the drives' outputs."""
+        """Refresh :attr:`actuals` from the drives' outputs at the current tick ``t_k``: each drive's
+        inputs at ``t_k`` are set first, so a drive that latches its position at the sync (the
+        servo_drive FMU) reports the position at ``t_k``, not at its previous sample."""
         for refresh in self._refresh:
             refresh()
 
