@@ -1,6 +1,8 @@
 """A user controller: joint PD + gravity compensation in cyclic synchronous torque (CiA 402 mode 10).
 
     tau = Kp (q_d - q) + Kd (qd_d - qd) + g(q)   [+ M(q_d) qdd_d with inertia_feedforward = true]
+                                                 [+ M(q_d) qdd_d + C(q_d, qd_d) qd_d + f(qd_d)
+                                                    with model_feedforward = true]
 
 sent to every drive as its target torque (0x6071) in modes of operation 10 (CST): the drives'
 position and speed loops are bypassed, the controller closes the loops itself over the
@@ -38,7 +40,7 @@ AXIS_INERTIA = (27.0, 35.8, 19.9, 0.390, 0.469, 0.0508)          # kg m^2
 # The defaults: f = 10 Hz (rounded), for the rigid plant (scenarios/iso9283_rigid.toml,
 # examples/compare.toml). On the elastic-gear plant (scenarios/iso9283.toml) 10 Hz is too close to
 # the gears' resonance for a loop closed over 1.2 ms of bus delay on the motor encoders: use
-# bandwidth_hz = 3 with inertia_feedforward = true there (docs/bring_your_own.md, "What to expect").
+# bandwidth_hz = 3 with model_feedforward = true there (docs/bring_your_own.md, "What to expect").
 DEFAULT_KP = (1.07e5, 1.41e5, 7.86e4, 1.54e3, 1.85e3, 2.01e2)   # N m / rad
 DEFAULT_KD = (3.40e3, 4.50e3, 2.50e3, 49.0, 59.0, 6.38)          # N m s / rad
 
@@ -56,11 +58,13 @@ class PDGravity:
     kp, kd: 6 gains each (N m/rad, N m s/rad); or bandwidth_hz: the gains of a critically damped
     loop of that bandwidth per axis (:func:`gains_for`; not together with kp/kd); default the
     10 Hz gains :data:`DEFAULT_KP`, :data:`DEFAULT_KD`. settle_time: hold after enabling (s);
-    inertia_feedforward: add M(q_d) qdd_d (a computed-torque flavour), default False.
+    inertia_feedforward: add M(q_d) qdd_d (a computed-torque flavour), default False;
+    model_feedforward: add the nominal model's whole torque along the reference but gravity,
+    M(q_d) qdd_d + C(q_d, qd_d) qd_d + f(qd_d) (inverse dynamics minus g(q_d)), default False.
     """
 
     def __init__(self, kp=None, kd=None, settle_time: float = 0.2, inertia_feedforward: bool = False,
-                 bandwidth_hz: float | None = None) -> None:
+                 bandwidth_hz: float | None = None, model_feedforward: bool = False) -> None:
         if bandwidth_hz is not None:
             if kp is not None or kd is not None:
                 raise ValueError("give either bandwidth_hz or kp and kd, not both")
@@ -73,6 +77,7 @@ class PDGravity:
             raise ValueError("kp and kd must be >= 0")
         self.settle_time = float(settle_time)
         self.inertia_feedforward = bool(inertia_feedforward)
+        self.model_feedforward = bool(model_feedforward)
         self.clock: TrackingClock | None = None
 
     # the cell reads these (when the motion starts, why the controller stopped)
@@ -100,7 +105,9 @@ class PDGravity:
         q = inputs.position + inputs.velocity * self.lead_s         # predicted to when the output acts
         qd = inputs.velocity
         tau = self.kp * (q_d - q) + self.kd * (qd_d - qd) + self.dynamics.gravity(q)
-        if self.inertia_feedforward:
+        if self.model_feedforward:
+            tau += self.dynamics.inverse_dynamics(q_d, qd_d, qdd_d) - self.dynamics.gravity(q_d)
+        elif self.inertia_feedforward:
             tau += self.dynamics.mass_matrix(q_d) @ qdd_d
         if not math.isfinite(float(tau.sum())):
             raise FloatingPointError(f"non-finite torque at t = {inputs.time_s} s")

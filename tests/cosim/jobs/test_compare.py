@@ -240,7 +240,7 @@ def test_model_based_elastic_runs_on_joint_and_cartesian_files(tmp_path):
 def test_compare_elastic_example_pd_gains_for_elastic_gears(tmp_path):
     """examples/compare_elastic.toml (the comparison on the main job's elastic plant) on its Cartesian line:
     the PD + gravity class with the rigid plant's 10 Hz gains drives the currents to their clamp and lags
-    by millimetres; with the gains for elastic gears (3 Hz + inertia feed-forward) it stays well inside
+    by millimetres; with the gains for elastic gears (3 Hz + model feed-forward) it stays well inside
     the clamp and is several times better; the flatness-based feed-forward is the best entry."""
     example = ROOT / "examples" / "compare_elastic.toml"
     text = example.read_text(encoding="utf-8")

@@ -30,7 +30,7 @@ def test_short_form_validates_to_the_long_form(tmp_path):
     validate to the same document (every value, defaults and SI conversion included)."""
     shutil.copy(ROOT / "examples" / "pd_gravity_controller.py", tmp_path)
     long_text = MAIN_JOB.read_text().replace('[controller]\n', '[controller]\nclass = "pd_gravity_controller.py:PDGravity"\n'
-                                          'parameters = { bandwidth_hz = 3.0, inertia_feedforward = true }\n', 1)
+                                          'parameters = { bandwidth_hz = 3.0, model_feedforward = true }\n', 1)
     assert long_text.count("pd_gravity_controller.py:PDGravity") == 1
     (tmp_path / "long.toml").write_text(long_text)
     short, long = load_scenario(SHORT), load_scenario(tmp_path / "long.toml")
@@ -48,7 +48,7 @@ def test_short_form_runs_with_the_long_forms_figures(tmp_path):
     shutil.copy(ROOT / "examples" / "pd_gravity_controller.py", tmp_path)
     long_text = MAIN_JOB.read_text().replace(
         '[controller]\n', '[controller]\nclass = "pd_gravity_controller.py:PDGravity"\n'
-                                          'parameters = { bandwidth_hz = 3.0, inertia_feedforward = true }\n', 1)
+                                          'parameters = { bandwidth_hz = 3.0, model_feedforward = true }\n', 1)
     long_text = long_text.replace('modes = ["standard", "model_based", "model_based_elastic"]', "modes = []", 1)
     assert "modes = []" in long_text
     (tmp_path / "long.toml").write_text(long_text)
