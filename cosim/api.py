@@ -18,7 +18,7 @@ temporary one) and read what it wrote; run sweeps from Python with the same obje
 
 Scenarios are given as a path to a TOML file, a TOML text (a string holding a newline),
 a dict (the parsed TOML document) or a :class:`Scenario`. Overrides are ``{"dotted.key":
-value}`` with the syntax and the code of sweep axes (``cosim.sweep.keypath``:
+value}`` with the syntax and the code of sweep axes (``cosim.scenario.keypath``:
 ``fmus[0].parameters."q0[2]"``); values follow the scenario's own rules (SI numbers or
 unit strings such as ``"5 kg"``), relative file paths in them are relative to the working
 directory (as are those of a dict or TOML text).
@@ -169,7 +169,7 @@ class Scenario:
         """The document as TOML text (file paths made absolute, so it runs from any folder)."""
         import tomli_w
 
-        from cosim.sweep.keypath import absolute_paths
+        from cosim.scenario.keypath import absolute_paths
 
         doc = absolute_paths(self._validated.job.schema, self.document, self._validated.where.base_dir)
         return tomli_w.dumps(doc)
@@ -178,7 +178,7 @@ class Scenario:
         """What this scenario will run, as text: name, job, source, overrides, then every setting
         of the validated document as ``key path = value`` (SI units, defaults included; lists
         longer than ``max_list`` items shown by their length)."""
-        from cosim.sweep.keypath import format_key_path
+        from cosim.scenario.keypath import format_key_path
 
         lines = [f"scenario {self.name!r}: job {self.job!r}" + (f" - {self.description}" if self.description else ""),
                  f"  from {self.source}"]
@@ -244,7 +244,7 @@ def load_scenario(scenario: "str | Path | Mapping[str, Any] | Scenario",
             ``output``) or gives a value of the wrong type or unit. ``.file`` is the path,
             ``"<dict>"`` or ``"<string>"``.
     """
-    from cosim.scenario.loader import load_document, read_toml_file, resolve_path
+    from cosim.scenario.loader import load_scenario, resolve_path
 
     if isinstance(scenario, Scenario):
         return scenario.with_overrides(overrides) if overrides else scenario
@@ -262,7 +262,7 @@ def load_scenario(scenario: "str | Path | Mapping[str, Any] | Scenario",
         source = STRING_LABEL
     elif isinstance(scenario, (str, Path)):
         path = resolve_path(scenario)  # a project scenario of an installed package from any folder
-        validated = load_document(read_toml_file(path, "scenario"), path)
+        validated = load_scenario(path)
         source = str(path)
     else:
         raise TypeError(f"scenario: expected a path, a TOML text, a dict or a cosim.Scenario, "
@@ -306,7 +306,7 @@ def _apply_overrides(base: "ValidatedScenario", source: str, overrides: Mapping[
         return Scenario(base, source, earlier)
     from cosim.scenario.loader import load_document
     from cosim.scenario.schema import Where
-    from cosim.sweep.keypath import (KeyPathSyntaxError, absolute_paths, format_key_path, overlapping,
+    from cosim.scenario.keypath import (KeyPathSyntaxError, absolute_paths, format_key_path, overlapping,
                                      parse_key_path, spec_at, with_value)
     from cosim.sweep.loader import flatten_overrides, scenario_key_path
 
@@ -403,7 +403,7 @@ class Summary:
         return str(self.raw.get("started_at", ""))
 
     def __getitem__(self, key: str) -> Any:
-        from cosim.sweep.keypath import get_path, parse_key_path
+        from cosim.scenario.keypath import get_path, parse_key_path
 
         if key in self.raw:
             return self.raw[key]

@@ -192,7 +192,7 @@ class TrajectoryEntry(Spec):
     }, one_of=[("path", "planner", "file")], doc="a trajectory table")
 
     # the trajectory file or planner file of an entry travels with a sweep's tasks
-    # (cosim.sweep.keypath.referenced_files)
+    # (cosim.scenario.keypath.referenced_files)
     def referenced_file(self, value: Any) -> str | None:
         if isinstance(value, dict):
             if isinstance(value.get("file"), str):

@@ -39,7 +39,7 @@ from typing import Any
 from tqdm import tqdm
 
 from cosim.results.summary import replace_text
-from cosim.sweep.keypath import referenced_files
+from cosim.scenario.keypath import referenced_files
 from cosim.sweep.loader import Sweep
 from cosim.sweep.table import write_table
 from cosim.sweep.task import (ShippedResult, VariantTask, make_row, receive_shipped, reuse_finished,
