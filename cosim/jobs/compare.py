@@ -43,7 +43,8 @@ import numpy as np
 from controller import ControllerLog
 from cosim.cell import wiring
 from cosim.cell.description import describe_cell
-from cosim.cell.evaluation import controller_log_columns, evaluate_run, recording_chunks
+from cosim.cell.evaluation import (controller_log_columns, deadline_basis, evaluate_run, recording_chunks,
+                                   timing_fields)
 from cosim.cell.mode_runs import CellSetup, mode_cell, prepare
 from cosim.cell.parts import (BUILTIN_MODES, CELL_FIELDS, TORQUE_FEEDFORWARD_MODES, can_log_path, check_cell_scenario,
                               drive_speed_feedforward, fill_cell_defaults, mode_fmus)
@@ -487,10 +488,10 @@ def _evaluate_joint(ctx: RunContext, label: str, cell: CellRun, controller: Any,
         series[f"lag{j + 1}"] = q_d[:, j] - q[:, j]
     tcp_file = ctx.write_series(f"tcp_{label}", series, series_units(series))
     timing = controller.timing() if builtin else cell.controller_timing
+    if timing is not None:
+        timing = timing.judged_on(deadline_basis(cell))
     entry = {"status": "ok" if cell.failure is None else "failed", **result.metrics([motion.name]),
-             "deadline_misses": getattr(timing, "deadline_misses", None),
-             "compute_budget_us": getattr(timing, "budget_us", None),
-             "cycle_compute_us": {k: getattr(timing, f"{k}_us", None) for k in ("p50", "p99", "max")},
+             **timing_fields(timing),
              "motion_start_s": start, "sim_time_s": cell.reached_s, "loop_wall_time_s": cell.loop_wall_time_s,
              "path_completed": bool(start is not None and t.size and t[-1] >= t_end - 1e-9),
              "stop_reason": getattr(controller, "stop_reason", None),
