@@ -252,23 +252,26 @@ def overrun_note(run: Any) -> str | None:
 
 def budget_warning(timing: Any) -> dict[str, Any] | None:
     """A ``budget`` warning when more than :data:`CHRONIC_BUDGET_FRACTION` of the controller's timed
-    cycles (a :class:`controller.TimingSummary`) were over its compute budget, else None. Where
-    the timing has the controller's CPU time, the misses count only when that too is over the
-    budget in more than that share of cycles (CPU p99 above the budget): wall time alone also
-    holds the time other processes took the core."""
+    cycles (a :class:`controller.TimingSummary`) were over its compute budget, else None: the
+    misses as the timing judged them (``deadline_basis``: CPU time in a simulated-time run,
+    wall time in a real-time one). A timing without a basis counts its wall-time misses only
+    when the CPU time is over the budget too (CPU p99 above it)."""
     cycles = getattr(timing, "cycles", 0) or 0
     misses = getattr(timing, "deadline_misses", 0) or 0
     if cycles <= 0 or misses <= CHRONIC_BUDGET_FRACTION * cycles:
         return None
     budget = getattr(timing, "budget_us", float("nan"))
     cpu_p99 = getattr(timing, "cpu_p99_us", None)
-    if isinstance(cpu_p99, (int, float)) and math.isfinite(cpu_p99) and cpu_p99 <= budget:
-        return None  # the wall-time misses are time other processes took: the controller's own CPU time fits
+    basis = getattr(timing, "deadline_basis", None)
+    if basis is None and isinstance(cpu_p99, (int, float)) and math.isfinite(cpu_p99) and cpu_p99 <= budget:
+        return None  # wall-time misses only, and the controller's own CPU time fits: time other processes took
     share = 100.0 * misses / cycles
     p99 = getattr(timing, "p99_us", float("nan"))
     cpu = f", CPU p99 {cpu_p99:.4g} us" if isinstance(cpu_p99, (int, float)) and math.isfinite(cpu_p99) else ""
+    clock = {"cpu_time": "CPU time", "wall_time": "wall time"}.get(basis or "", "compute time")
     return violation("budget", None, f"the controller overran its compute budget of {budget:.6g} us in "
-                                     f"{misses} of {cycles} cycles ({share:.4g} %; p99 {p99:.4g} us{cpu})",
+                                     f"{misses} of {cycles} cycles ({share:.4g} %, judged on {clock}; wall p99 "
+                                     f"{p99:.4g} us{cpu})",
                      value=share, limit=100.0 * CHRONIC_BUDGET_FRACTION, unit="%")
 
 
