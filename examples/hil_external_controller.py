@@ -22,7 +22,7 @@ cycle's set-points (the cell's threshold counters count it).
 
 Usage::
 
-    python -m cosim serve scenarios/hil.toml --out results/hil &
+    python -m cosim serve scenarios/hil.toml --out results/hil --wait-for-controller 60 &
     python examples/hil_external_controller.py results/hil/hil_endpoint.json --amplitude 0.2 --duration 2
 """
 from __future__ import annotations

@@ -70,9 +70,9 @@ def _silent_at_the_end(report: dict) -> int:
     return max([r["length"] for r in runs if r["first_cycle"] + r["length"] - 1 >= end - 1], default=0)
 
 
-def _serve(scenario: Path, out: Path, port: int) -> subprocess.Popen:
+def _serve(scenario: Path, out: Path, port: int, *extra: str) -> subprocess.Popen:
     return subprocess.Popen([sys.executable, "-m", "cosim", "serve", str(scenario), "--out", str(out), "--quiet",
-                             "--channel", f"127.0.0.1:{port}", "--scheduling", "normal"],
+                             "--channel", f"127.0.0.1:{port}", "--scheduling", "normal", *extra],
                             env=_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
@@ -160,9 +160,10 @@ def test_the_plain_controller_enables_and_disables_without_a_fault(plain_run):
 def test_the_example_controller_ends_with_the_drives_disabled_and_no_fault(tmp_path):
     """The example disables the drives after its motion and cycles on until the cell stops: the
     last PRes show Ready to switch on (no fault) and no cycle is lost at the end of the run (with
-    the default thresholds the old example's silence tripped all six drives there)."""
+    the default thresholds the old example's silence tripped all six drives there). As the quick
+    start: the cell waits for the controller's first datagram, so the run's 4 s start with it."""
     out = tmp_path / "out"
-    serve = _serve(_scenario(tmp_path, "7 s"), out, PORT + 5)
+    serve = _serve(_scenario(tmp_path, "4 s"), out, PORT + 5, "--wait-for-controller", "60")
     _wait_endpoint(out, serve)
     ctrl = subprocess.run([sys.executable, str(EXAMPLE), str(out / "hil_endpoint.json"), "--amplitude", "0.2",
                            "--duration", "1.0"], env=_env(), capture_output=True, text=True, timeout=120)
