@@ -74,6 +74,14 @@ class CellSideLink:
         self.after_wall_ns = np.zeros(cycles + 1, dtype=np.int64)
         self.after_cpu_ns = np.zeros(cycles + 1, dtype=np.int64)
         self._after = (0, 0)
+        # what the external controller did, seen from the drives: the cycles in which all drives
+        # reported Operation enabled (first, last) and in which an applied target position changed
+        # after the first of those (first, last)
+        self.enabled_first: int | None = None
+        self.enabled_last: int | None = None
+        self.motion_first: int | None = None
+        self.motion_last: int | None = None
+        self._target = np.full(N_JOINTS, np.nan)
 
     def setup(self, master: Master) -> None:
         from cosim.cell.link import CellBus
@@ -98,6 +106,16 @@ class CellSideLink:
         applied = endpoint.run_cycle_paced(k, self.actuals, deadline, clock=_now_s)
         if endpoint._last_taken == k:
             self.taken[min(k, self.taken.size - 1)] = True
+        if ((self.actuals.statusword & 0x6F) == 0x27).all():  # CiA 402 Operation enabled, every drive
+            if self.enabled_first is None:
+                self.enabled_first = k
+            self.enabled_last = k
+        if not np.array_equal(applied.position, self._target):
+            if self.enabled_first is not None and k > self.enabled_first:
+                if self.motion_first is None:
+                    self.motion_first = k
+                self.motion_last = k
+            self._target[:] = applied.position
         fresh = applied.fresh
         if not fresh.all():
             self.held += ~fresh
@@ -106,6 +124,18 @@ class CellSideLink:
                 self.held[covered] -= 1
         self.cycle = k + 1
         self._after = (time.perf_counter_ns(), time.thread_time_ns())
+
+    def controller_run(self, period_s: float) -> dict[str, Any]:
+        """What the external controller did as the drives saw it (times s = cycle x period; None:
+        never): ``enabled_at_s`` (all drives in Operation enabled), ``motion_start_s`` /
+        ``motion_end_s`` (the first / last cycle an applied target position changed after that),
+        ``enabled_until_s`` (the last cycle all drives were enabled) and ``enabled_at_end``."""
+        def at(k):
+            return None if k is None else k * period_s
+
+        return {"enabled_at_s": at(self.enabled_first), "motion_start_s": at(self.motion_first),
+                "motion_end_s": at(self.motion_last), "enabled_until_s": at(self.enabled_last),
+                "enabled_at_end": self.enabled_last is not None and self.enabled_last == self.cycle - 1}
 
 
 def endpoint_description(cell: CellDescription, settings: ServeSettings, config: FieldbusConfig,
@@ -424,6 +454,7 @@ def run_served_cell(cell: CellDescription, ctx: Any, settings: ServeSettings, *,
     run = CellRun(cell.label, ctx.path(cell.record_file), recorder.rows_written, master.time, summary, wall, engine,
                   memory, failure, cpu, pacer=pacer, scheduling=granted)
     run.hil = report
+    run.external_controller = link.controller_run(period)
     run.preq_latency_us = [x * 1e-3 for x in getattr(endpoint.bus, "latency_ns", ())]
     return run
 

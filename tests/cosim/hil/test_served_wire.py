@@ -174,3 +174,13 @@ def test_the_example_controller_ends_with_the_drives_disabled_and_no_fault(tmp_p
     assert all(sw & 0x6F == 0x21 for sw in last), [hex(s) for s in last]
     assert _silent_at_the_end(report) == 0
     assert report["fault_reactions"] == []
+    # the summary describes the external controller's run, no placeholders of the job's controller
+    summary = json.loads((out / "summary.json").read_text())
+    (entry,) = summary["modes"].values()
+    assert entry["controller"] == "external (cosim serve)"
+    assert 0.0 <= entry["enabled_at_s"] < entry["motion_start_s"] < entry["motion_end_s"] < entry["enabled_until_s"]
+    assert entry["motion_end_s"] - entry["motion_start_s"] == pytest.approx(1.0, abs=0.1)  # --duration 1.0
+    assert entry["enabled_at_end"] is False
+    for placeholder in ("controller_phase", "residual_vibration", "evaluated_samples", "path_completed",
+                        "tcp_error_max_mm"):
+        assert placeholder not in entry
