@@ -208,30 +208,45 @@ STALL_CPU_FRACTION = 0.5
 
 
 def overrun_causes(link: CellSideLink, pacer: Any) -> dict[str, Any]:
-    """Why the cell started cycles late: for each overrun cycle k, the work after the bus
-    exchange of cycle k-1 (FMU steps, tracker, recorder) in wall and CPU time. ``stalled``:
-    the wall time was mostly not CPU time of the cell (the process was not running: the OS or
-    the hypervisor); ``own_work``: it was (the cell's own computation was too slow); ``other``:
-    that work was short (the lateness came from the bus exchange or the wait itself)."""
+    """Why the cell started cycles late, the machine or the model: for each overrun cycle k,
+    how late the OS woke the pacer from its sleep before W_k (wake-up time minus the requested
+    time) and the work after the bus exchange of cycle k-1 (FMU steps, tracker, recorder) in
+    wall and CPU time. ``stalled``: the whole process was held up - ``woken_late`` (asleep, it
+    was woken more than half the cycle's lateness late) or ``descheduled`` (the work's wall
+    time was mostly not CPU time of the cell); ``own_work``: the work was CPU time (the
+    cell's own computation was too slow); ``other``: neither (the bus exchange, the wait)."""
     log = pacer.log
-    over = log.cycles[:log.count][log.overrun[:log.count]]
+    n = log.count
+    overrun = log.overrun[:n]
+    over = log.cycles[:n][overrun]
+    oversleep = log.oversleep_ns[:n][overrun]
+    lateness = log.lateness_ns[:n][overrun]
     period = pacer.period_ns
     counts = {"stalled": 0, "own_work": 0, "other": 0}
+    stalls = {"woken_late": 0, "descheduled": 0}
     examples = []
-    for k in over.tolist():
-        if k < 1 or k - 1 >= link.after_wall_ns.size:
-            counts["other"] += 1
-            continue
-        wall, cpu = int(link.after_wall_ns[k - 1]), int(link.after_cpu_ns[k - 1])
-        if wall < period // 2:
-            kind = "other"
-        elif cpu < STALL_CPU_FRACTION * wall:
-            kind = "stalled"
+    for k, slept, late in zip(over.tolist(), oversleep.tolist(), lateness.tolist()):
+        wall = cpu = -1
+        if 1 <= k <= link.after_wall_ns.size:
+            wall, cpu = int(link.after_wall_ns[k - 1]), int(link.after_cpu_ns[k - 1])
+        if slept > 0 and 2 * slept >= late:
+            kind, detail = "stalled", "woken_late"
+        elif wall >= period // 2 and cpu < STALL_CPU_FRACTION * wall:
+            kind, detail = "stalled", "descheduled"
+        elif wall >= period // 2:
+            kind, detail = "own_work", None
         else:
-            kind = "own_work"
+            kind, detail = "other", None
         counts[kind] += 1
+        if detail is not None:
+            stalls[detail] += 1
         if len(examples) < 50:
-            examples.append({"cycle": k, "work_wall_us": wall * 1e-3, "work_cpu_us": cpu * 1e-3, "cause": kind})
+            examples.append({"cycle": k, "lateness_us": late * 1e-3, "woken_late_us": None if slept < 0 else slept * 1e-3,
+                             "work_wall_us": None if wall < 0 else wall * 1e-3,
+                             "work_cpu_us": None if cpu < 0 else cpu * 1e-3, "cause": detail or kind})
+    counts["stalls"] = stalls  # type: ignore[assignment]
+    slept_all = log.oversleep_ns[:n]
+    counts["woken_late_us"] = percentiles_us(slept_all[slept_all >= 0] * 1e-3)  # type: ignore[assignment]
     n = min(link.cycle, link.after_wall_ns.size)
     return {**counts, "work_after_bus_us": percentiles_us(link.after_wall_ns[:max(n - 1, 0)] * 1e-3),
             "work_after_bus_cpu_us": percentiles_us(link.after_cpu_ns[:max(n - 1, 0)] * 1e-3),

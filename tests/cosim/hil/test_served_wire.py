@@ -184,3 +184,29 @@ def test_the_example_controller_ends_with_the_drives_disabled_and_no_fault(tmp_p
     for placeholder in ("controller_phase", "residual_vibration", "evaluated_samples", "path_completed",
                         "tcp_error_max_mm"):
         assert placeholder not in entry
+
+
+def test_the_overrun_report_tells_a_stall_of_the_process_from_its_own_work():
+    """Cycle 1: the pacer was woken 900 us late from its sleep (the machine); cycle 2: the work
+    before it took 900 us of wall time but 50 us of CPU (descheduled); cycle 3: 900 us of CPU
+    (the cell's own work); cycle 4: late with neither (other)."""
+    from types import SimpleNamespace
+
+    from cosim.hil.cell_side import overrun_causes
+    from cosim.realtime.pacer import LatenessLog
+
+    log = LatenessLog(16)
+    us = 1000
+    log.append(0, 0, False, -1, 100 * us)
+    log.append(1, 950 * us, True, 100 * us, 900 * us)
+    log.append(2, 600 * us, True, 900 * us, -1)
+    log.append(3, 600 * us, True, 900 * us, -1)
+    log.append(4, 300 * us, True, 100 * us, 10 * us)
+    wall = np.array([100, 900, 900, 100, 0, 0]) * us  # index k-1: the work before cycle k
+    cpu = np.array([100, 50, 900, 100, 0, 0]) * us
+    link = SimpleNamespace(after_wall_ns=wall, after_cpu_ns=cpu, cycle=5)
+    report = overrun_causes(link, SimpleNamespace(log=log, period_ns=400 * us))
+    assert (report["stalled"], report["own_work"], report["other"]) == (2, 1, 1)
+    assert report["stalls"] == {"woken_late": 1, "descheduled": 1}
+    assert [e["cause"] for e in report["examples"]] == ["woken_late", "descheduled", "own_work", "other"]
+    assert report["woken_late_us"]["max_us"] == 900.0
