@@ -466,9 +466,10 @@ int model_initialize(Instance *inst)
     return 0;
 }
 
-/* After a sub-step from (q_before, qd_before) at time t0 to x: count and time end-stop contact
- * onsets (the crossing time and speed interpolated linearly over the sub-step), track the
- * largest penetration, and log each onset. */
+/* After a sub-step from (q_before, qd_before) at time t0 to x: count end-stop contact onsets,
+ * their time (the crossing interpolated linearly over the sub-step) and impact speed (the speed
+ * at the end of the last free sub-step: off by at most the free acceleration times the sub-step),
+ * track the largest penetration, and log each onset. */
 static void track_end_stops(Instance *inst, const double q_before[6], const double qd_before[6], const double *x,
                             double t0, double dt)
 {
@@ -484,7 +485,7 @@ static void track_end_stops(Instance *inst, const double q_before[6], const doub
             double frac = penetration(inst, j, q_before[j]) > 0.0 || gap == 0.0 ? 0.0 : (stop - q_before[j]) / gap;
             s->contacts[j]++;
             s->impact_time[j] = t0 + frac * dt;
-            s->impact_speed[j] = fabs(qd_before[j] + frac * (x[6 + j] - qd_before[j]));
+            s->impact_speed[j] = fabs(qd_before[j]); /* the speed at the end of the last free sub-step */
             fmu_log(inst, fmi2OK, "logEvents", "t=%.6f s: joint %d hits its %s end stop (%.6g rad) at %.6g rad/s",
                     s->impact_time[j], j + 1, upper ? "upper" : "lower", stop, s->impact_speed[j]);
         }

@@ -53,7 +53,8 @@ typedef struct {
                                 taken over by the brake as it closes (0 at power-up) */
 
     /* protection (docs/fmus.md "Protection") */
-    int step_bits;           /* LIMIT_* bits seen at any sample of the running step */
+    int active_bits;         /* LIMIT_* bits active as last evaluated */
+    int step_bits;           /* LIMIT_* bits active at any sample of the running step */
     int history_bits;        /* every bit limit_status has had since the start */
     int i2t_derated;         /* 1: current limited to rated_current by the I2t monitoring */
     double i2t;              /* A^2 s, integral of (i^2 - rated^2), never below 0 */

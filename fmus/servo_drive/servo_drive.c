@@ -109,6 +109,18 @@ static double quantise(const ModelState *s, double q)
     return floor(q * s->counts_per_rad) / s->counts_per_rad;
 }
 
+/* Protection bit `bit` (LIMIT_*) is active (on) or not, as evaluated at this sample: it stays in
+ * limit_status until a later evaluation clears it, and shows for the whole step in which it was set. */
+static void limit_bit(ModelState *s, int bit, int on)
+{
+    if (on) {
+        s->active_bits |= bit;
+        s->step_bits |= bit;
+    } else {
+        s->active_bits &= ~bit;
+    }
+}
+
 static void power_off(ModelState *s)
 {
     s->current = 0.0;
@@ -121,6 +133,7 @@ static void power_off(ModelState *s)
     s->limit_active = 0;
     s->following_error = 0.0;
     s->following_error_flag = 0;
+    s->active_bits &= LIMIT_I2T; /* the I2t state outlives the power stage */
 }
 
 /* Close the brake when the power stage is off (anchored at the next current sample: at
@@ -313,8 +326,8 @@ static void supervise(Instance *inst)
     if (!power_on(s->cia_state)) return;
     beyond_position = lo < hi && (p < lo || p > hi);
     overspeed = fabs(s->speed_filtered) > R(MAX_MOTOR_SPEED);
-    if (beyond_position) s->step_bits |= LIMIT_POSITION;
-    if (overspeed) s->step_bits |= LIMIT_SPEED;
+    limit_bit(s, LIMIT_POSITION, beyond_position);
+    limit_bit(s, LIMIT_SPEED, overspeed);
     if (s->cia_state != CIA_OPERATION_ENABLED) return;
     if (beyond_position) {
         fmu_log(inst, fmi2Warning, "logStatusWarning",
@@ -353,8 +366,8 @@ static double current_limit_now(Instance *inst)
         fmu_log(inst, fmi2OK, "logEvents", "t=%.6f s: I2t %.6g A2s below %.6g of its threshold: peak current allowed "
                 "again", inst->d.time, s->i2t, R(I2T_RELEASE));
     }
+    limit_bit(s, LIMIT_I2T, s->i2t_derated);
     if (s->i2t_derated) {
-        s->step_bits |= LIMIT_I2T;
         if (s->error_code == 0) s->error_code = ERROR_I2T; /* again after a fault reset while still derated */
         return fmin(s->current_max, rated);
     }
@@ -381,6 +394,7 @@ static void position_sample(Instance *inst)
         s->following_error = 0.0;
         s->following_error_flag = 0;
         s->fe_samples = 0;
+        limit_bit(s, LIMIT_FOLLOWING, 0);
         if (s->mode == MODE_CSV) {
             v = R(TARGET_VELOCITY) + R(VELOCITY_OFFSET);
             if (v > R(VELOCITY_LIMIT)) v = R(VELOCITY_LIMIT);
@@ -419,7 +433,7 @@ static void position_sample(Instance *inst)
     s->following_error = error;
     s->following_error_flag = R(FOLLOWING_ERROR_WINDOW) > 0.0 && fabs(error) > R(FOLLOWING_ERROR_WINDOW);
     s->fe_samples = s->following_error_flag ? s->fe_samples + 1 : 0;
-    if (s->following_error_flag) s->step_bits |= LIMIT_FOLLOWING;
+    limit_bit(s, LIMIT_FOLLOWING, s->following_error_flag);
 
     if (s->cia_state == CIA_OPERATION_ENABLED && s->following_error_flag
         && s->fe_samples * ts >= R(FOLLOWING_ERROR_TIME) - 1e-12) { /* window 0x6065 for time 0x6066 */
@@ -458,7 +472,7 @@ static void speed_sample(Instance *inst)
         demand = (R(TARGET_TORQUE) + R(TORQUE_OFFSET)) / (n * R(TORQUE_CONSTANT));
         limited = demand > imax ? imax : (demand < -imax ? -imax : demand);
         s->limit_active = limited != demand;
-        if (s->limit_active) s->step_bits |= LIMIT_TORQUE;
+        limit_bit(s, LIMIT_TORQUE, s->limit_active);
         s->current_demand = limited;
         return;
     }
@@ -467,7 +481,7 @@ static void speed_sample(Instance *inst)
     demand = kp * error + s->speed_integral + feedforward;
     limited = demand > imax ? imax : (demand < -imax ? -imax : demand);
     s->limit_active = limited != demand;
-    if (s->limit_active) s->step_bits |= LIMIT_TORQUE;
+    limit_bit(s, LIMIT_TORQUE, s->limit_active);
     /* conditional integration (anti-windup): no integration that drives further into the limit */
     if (!s->limit_active || (demand > 0.0) != (error > 0.0))
         s->speed_integral += kp * R(SPEED_SAMPLE_TIME) / R(SPEED_TN) * error;
@@ -515,7 +529,7 @@ static void write_outputs(Instance *inst)
     I(ERROR_CODE) = s->error_code;
     I(MODES_OF_OPERATION_DISPLAY) = s->mode;
     I(UNSUPPORTED_MODE_REQUESTS) = s->mode_rejections;
-    bits = s->step_bits;
+    bits = s->active_bits | s->step_bits;
     if (s->cia_state == CIA_FAULT_REACTION_ACTIVE || s->cia_state == CIA_FAULT)
         bits |= s->error_code == ERROR_OVERSPEED ? LIMIT_SPEED << 8
               : s->error_code == ERROR_POSITION_LIMIT ? LIMIT_POSITION << 8
@@ -582,6 +596,7 @@ static int initial_state(Instance *inst)
     s->i2t = 0.0;
     s->i2t_derated = 0;
     s->step_bits = 0;
+    s->active_bits = 0;
     s->history_bits = 0;
     s->fe_samples = 0;
     s->voltage_max = R(BUS_VOLTAGE) / sqrt(3.0);
