@@ -452,7 +452,7 @@ def output(sizes: Sizes, work: Path) -> dict[str, Any]:
         return _median([m[group][key] for m in modes])
     return {"total_mb": out["total_mb"], "ratio_to_csv_128mb": out["ratio_to_csv_128mb"],
             "can_columnar_cpu_s": med("can", "columnar_cpu_s"), "can_blf_cpu_s": med("can", "blf_cpu_s"),
-            "series_compact_cpu_s": med("series", "compact_cpu_s"), "series_plain_cpu_s": med("series", "plain_cpu_s"),
+            "series_cpu_s": med("series", "cpu_s"),
             "files": out["files"], "load_average": list(out["load_average"])}
 
 
@@ -507,8 +507,7 @@ REQUIRED: dict[str, tuple[str, ...]] = {
     "memory": ("cell_ratio", "cell_short_peak_rss_mib", "cell_long_peak_rss_mib"),
     "main_job": ("realtime_factor", "process_realtime_factor", "cpu_s"),
     "cli": ("help_wall_s", "help_cpu_s"),
-    "output": ("total_mb", "ratio_to_csv_128mb", "can_columnar_cpu_s", "can_blf_cpu_s", "series_compact_cpu_s",
-               "series_plain_cpu_s"),
+    "output": ("total_mb", "ratio_to_csv_128mb", "can_columnar_cpu_s", "can_blf_cpu_s", "series_cpu_s"),
 }
 RATIOS = ("own_cp_vs_toppra_solve_time", "own_cp_vs_toppra_duration", "own_ptp_vs_ruckig_feasible_duration",
           "own_ptp_vs_ruckig_feasible_solve_time", "in_process_vs_split_realtime_factor")
@@ -629,8 +628,7 @@ ROWS: tuple[tuple[str, str, str, str], ...] = (
     ("output", "ratio_to_csv_128mb", "main job output: 128 MB CSV / total", "x"),
     ("output", "can_columnar_cpu_s", "CAN log write CPU per mode, columnar", "s"),
     ("output", "can_blf_cpu_s", "CAN log write CPU per mode, BLF", "s"),
-    ("output", "series_compact_cpu_s", "time series write CPU per mode, compact", "s"),
-    ("output", "series_plain_cpu_s", "time series write CPU per mode, plain", "s"),
+    ("output", "series_cpu_s", "time series write CPU per mode", "s"),
     ("hil", "probe_gap_ms_per_s", "hil: machine stalls of a bare SCHED_FIFO loop (probe)", "ms/s"),
     ("hil", "probe_gaps_over_1ms_per_s", "hil: probe gaps over 1 ms", "1/s"),
     ("hil", "overrun_fraction", "hil: paced split 400 us, cell overrun fraction", ""),

@@ -34,6 +34,8 @@ COMMAND_MODULES: tuple[str, ...] = (
     "cosim.commands.build_fmus",
     "cosim.commands.export_ssp",
     "cosim.commands.export_blf",
+    "cosim.commands.device_files",
+    "cosim.commands.export_pcap",
     "cosim.commands.run",
     "cosim.commands.serve",
     "cosim.commands.calibrate",

@@ -265,12 +265,11 @@ def _controller_file(ctx: RunContext, name: str, cell: CellRun, controller: Any)
     if streamed is not None:
         return Path(streamed)
     from controller.controller import LOG_COLUMNS, LOG_KINDS
-    from cosim.cell.runner import controller_log_encodings
 
     log = controller.log.columns()
     if list(log) != list(LOG_COLUMNS):  # not the built-in log's layout: as it is
         return ctx.path(ctx.write_series(name, log, series_units(log)))
-    sink = ctx.series_sink(name, series_units(log), **controller_log_encodings())  # as the streamed log
+    sink = ctx.series_sink(name, series_units(log))  # as the streamed log
     sink.open(list(LOG_COLUMNS), list(LOG_KINDS))
     try:
         rows = len(log[LOG_COLUMNS[0]])
@@ -279,31 +278,6 @@ def _controller_file(ctx: RunContext, name: str, cell: CellRun, controller: Any)
     finally:
         sink.close()
     return ctx.path(ctx.series_name(name))
-
-
-def _tcp_derived(ctx: RunContext, rec: Any, cols: list[str], tcp_columns: list[str]) -> dict[str, Any] | None:
-    """How ``tcp_<mode>`` leaves out what it repeats or computes exactly from stored values
-    (cosim.results.timeseries.derived_spec): ``t``, ``q<j>`` and ``*_measured`` are the
-    recording's time, ``plant.q[j]`` and ``tracker.*`` (``source``: ``timeseries_<mode>``,
-    the same rows), ``lag<j> = q_d<j> - q<j>``, ``tcp_error_mm`` / ``path_error_mm`` the
-    distance of the measured point to the commanded / programmed one in mm. Only for a
-    recording streamed to a Parquet file, with ``$COSIM_COMPACT`` not 0; None otherwise (all
-    columns stored). Returns ``{"stored": [...], "spec": {...}}``."""
-    from cosim.results.timeseries import SeriesFile, compact_enabled
-
-    if not (compact_enabled() and isinstance(rec, SeriesFile) and cols and ctx.timeseries_format == "parquet"):
-        return None
-    copy = {"t": cols[0], **{f"q{j}": f"plant.q[{j}]" for j in range(1, 7)},
-            **{f"{axis}_measured": f"tracker.{axis}" for axis in "xyz"}}
-    difference = {f"lag{j}": [f"q_d{j}", f"q{j}"] for j in range(1, 7)}
-    measured = [f"{axis}_measured" for axis in "xyz"]
-    distance = {"tcp_error_mm": [measured, [f"{axis}_commanded" for axis in "xyz"]],
-                "path_error_mm": [measured, [f"{axis}_programmed" for axis in "xyz"]]}
-    rebuilt = set(copy) | set(difference) | set(distance)
-    units = series_units([c for c in tcp_columns if c in rebuilt])
-    spec = {"columns": tcp_columns, "source": Path(rec.path).with_suffix(".parquet").name, "copy": copy,
-            "difference": difference, "distance_mm": distance, "units": units}
-    return {"stored": [c for c in tcp_columns if c not in rebuilt], "spec": spec}
 
 
 def evaluate_run(ctx: RunContext, mode: str, cell: CellRun, controller: Any, reference, path, true_robot,
@@ -354,13 +328,8 @@ def evaluate_run(ctx: RunContext, mode: str, cell: CellRun, controller: Any, ref
     tcp_columns = (["t", "tau", "segment", "arc_length"]
                    + [f"{axis}_{name}" for name in ("programmed", "commanded", "measured") for axis in "xyz"]
                    + ["tcp_error_mm", "path_error_mm"] + [f"{g}{j}" for g in ("q_d", "q", "lag") for j in range(1, 7)])
-    derived = _tcp_derived(ctx, rec, cols, tcp_columns)
-    tcp_stored = [c for c in tcp_columns if derived is None or c in derived["stored"]]
-    if derived is None:
-        tcp_sink = ctx.series_sink(f"tcp_{mode}", series_units(tcp_columns))
-    else:
-        tcp_sink = ctx.series_sink(f"tcp_{mode}", series_units(tcp_stored), derived=derived["spec"], float_delta=True)
-    tcp_sink.open(tcp_stored, ["Integer" if c == "segment" else "Real" for c in tcp_stored])
+    tcp_sink = ctx.series_sink(f"tcp_{mode}", series_units(tcp_columns))  # every column stored (derived ones too)
+    tcp_sink.open(tcp_columns, ["Integer" if c == "segment" else "Real" for c in tcp_columns])
     parts: dict[str, list[np.ndarray]] = {k: [] for k in ("t", "q", "measured", "q_d", "commanded", "programmed",
                                                           "segment", "arc_length", "actual")}
     rows = 0
@@ -380,13 +349,9 @@ def evaluate_run(ctx: RunContext, mode: str, cell: CellRun, controller: Any, ref
             tau = np.clip(t - (start if start is not None else np.inf), 0.0, path.duration)
             programmed = reference.positions(reference.t_start + tau)
             segment, arc_length = path.progress(tau)
-            if derived is None:
-                lag = q_d - q
-                tcp_sink.write(np.column_stack([t, tau, segment.astype(float), arc_length, programmed, commanded,
-                                                measured, np.linalg.norm(measured - commanded, axis=1) * 1e3,
-                                                np.linalg.norm(measured - programmed, axis=1) * 1e3, q_d, q, lag]))
-            else:  # the rest is rebuilt by the reader, bit for bit (_tcp_derived)
-                tcp_sink.write(np.column_stack([tau, segment.astype(float), arc_length, programmed, commanded, q_d]))
+            tcp_sink.write(np.column_stack([t, tau, segment.astype(float), arc_length, programmed, commanded,
+                                            measured, np.linalg.norm(measured - commanded, axis=1) * 1e3,
+                                            np.linalg.norm(measured - programmed, axis=1) * 1e3, q_d, q, q_d - q]))
             tcp_sink.flush()
             inside = (t >= window[0] - 1e-9) & (t <= window[1] + 1e-9)
             if inside.any():
@@ -433,7 +398,7 @@ def evaluate_run(ctx: RunContext, mode: str, cell: CellRun, controller: Any, ref
         "fieldbus": {k: cell.fieldbus[k] for k in ("cycles_run", "frames_sent", "frames_dropped", "frames_recorded",
                                                    "log_path", "dead_time_cycles", "node_fault", "comm_fault",
                                                    "scaling_saturations", "event_tally")},
-        "files": {"timeseries": ctx.series_name(f"timeseries_{mode}"), "controller": controller_file if builtin else None,
+        "files": {"timeseries": ctx.series_name(f"timeseries_{mode}"), "controller": controller_file if builtin else _record_name(cell),
                   "tcp": tcp_file, "can_log": Path(cell.fieldbus["log_path"]).name
                   if cell.fieldbus.get("log_path") else None},
     }
@@ -455,7 +420,18 @@ def evaluate_run(ctx: RunContext, mode: str, cell: CellRun, controller: Any, ref
         entry["stopped_at_s"] = stopped_at
     elif cell.failure is not None and cell.failure.component == "controller":
         entry["stopped_at_s"] = cell.failure.time
+    from cosim.cell.verdict import record
+
+    record(entry, cell, timing)  # verdict, violations, first_violation (cosim/cell/verdict.py)
+    if hasattr(ctx, "note_verdict"):
+        ctx.note_verdict(mode, entry)
     return entry, result
+
+
+def _record_name(cell: CellRun) -> str | None:
+    """The file name of a user controller's command log (``CellRun.controller_record``), None without one."""
+    record = getattr(cell, "controller_record", None)
+    return Path(record).name if record is not None else None
 
 
 class _ReferenceJoints:

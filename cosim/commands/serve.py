@@ -21,7 +21,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--channel", default=DEFAULT_CHANNEL,
                         help=f"the cell's address host:port, unicast or a multicast group (default {DEFAULT_CHANNEL})")
     parser.add_argument("--peer", default=None,
-                        help="the controller's host:port (default: answer whoever sent the last valid datagram)")
+                        help="the controller's host:port (default: learned from the first valid datagram; from then on "
+                             "only that sender is accepted unless --accept-from lists more)")
     parser.add_argument("--accept-from", default=None,
                         help="comma-separated hosts or host:port accepted as the controller (default: any)")
     parser.add_argument("--window", type=float, default=DEFAULT_WINDOW_FRACTION,

@@ -45,8 +45,8 @@ from cosim.cell import wiring
 from cosim.cell.description import describe_cell
 from cosim.cell.evaluation import controller_log_columns, evaluate_run, recording_chunks
 from cosim.cell.mode_runs import CellSetup, mode_cell, prepare
-from cosim.cell.parts import (BUILTIN_MODES, CELL_FIELDS, can_log_path, check_cell_scenario, drive_speed_feedforward,
-                              fill_cell_defaults, mode_fmus)
+from cosim.cell.parts import (BUILTIN_MODES, CELL_FIELDS, TORQUE_FEEDFORWARD_MODES, can_log_path, check_cell_scenario,
+                              drive_speed_feedforward, fill_cell_defaults, mode_fmus)
 from cosim.cell.runner import CellRun, controller_info, run_cell
 from cosim.jobs import planners as planners_job
 from cosim.tracking.metrics import desired_joints, evaluate
@@ -192,7 +192,7 @@ class TrajectoryEntry(Spec):
     }, one_of=[("path", "planner", "file")], doc="a trajectory table")
 
     # the trajectory file or planner file of an entry travels with a sweep's tasks
-    # (cosim.sweep.keypath.referenced_files)
+    # (cosim.scenario.keypath.referenced_files)
     def referenced_file(self, value: Any) -> str | None:
         if isinstance(value, dict):
             if isinstance(value.get("file"), str):
@@ -399,7 +399,8 @@ def _motions(ctx: RunContext, doc: dict[str, Any], setup: CellSetup, source: Pat
 # ------------------------------------------------------------------------------------- running
 def _controller_for(setup: CellSetup, ctrl: dict[str, Any], motion: _Motion, stop_time: float):
     """(document for the run, Controller) of a built-in mode on ``motion``."""
-    from controller import Controller, ControllerConfig, JointTrajectory
+    from controller import ControllerConfig, JointTrajectory
+    from controller.elastic import make_controller
 
     mode = ctrl["mode"]
     ctrl_t = setup.doc["controller"]
@@ -407,7 +408,7 @@ def _controller_for(setup: CellSetup, ctrl: dict[str, Any], motion: _Motion, sto
     if speed_ff is None:
         speed_ff = drive_speed_feedforward(ctrl_t, mode)
     settings = {"controller_mode": BUILTIN_MODES[mode].controller_mode, "drive_speed_feedforward": speed_ff,
-                "torque_feedforward": BUILTIN_MODES[mode].controller_mode == "model_based",
+                "torque_feedforward": BUILTIN_MODES[mode].controller_mode in TORQUE_FEEDFORWARD_MODES,
                 "description": BUILTIN_MODES[mode].description}
     run_doc = {**setup.doc, "fmus": mode_fmus(setup.doc["fmus"], speed_ff)}
     if motion.kind_of == "iso9283":
@@ -420,8 +421,10 @@ def _controller_for(setup: CellSetup, ctrl: dict[str, Any], motion: _Motion, sto
     config = ControllerConfig(mode=settings["controller_mode"], period_s=period,
                               lead_cycles=setup.fieldbus.lead_cycles,
                               compute_budget_s=ctrl_t["compute_budget"], settle_time_s=ctrl_t["settle_time"])
-    controller = Controller(reference, config, kinematic_model=setup.kinematics, dynamics=setup.dynamics,
-                            drive_model=drive_model, capacity=int(stop_time / period) + 16)
+    # the elastic mode inverts the flexible-joint model along the joint reference (controller/elastic.py):
+    # jerk and snap from the reference's accelerations on the controller grid, as on the ISO path
+    controller = make_controller(reference, config, kinematic_model=setup.kinematics, dynamics=setup.dynamics,
+                                 drive_model=drive_model, capacity=int(stop_time / period) + 16)
     return run_doc, controller
 
 
@@ -481,7 +484,8 @@ def _evaluate_joint(ctx: RunContext, label: str, cell: CellRun, controller: Any,
              "path_completed": bool(start is not None and t.size and t[-1] >= t_end - 1e-9),
              "stop_reason": getattr(controller, "stop_reason", None),
              "files": {"timeseries": ctx.series_name(f"timeseries_{label}"), "tcp": tcp_file,
-                       **({"controller": ctx.series_name(f"controller_{label}")} if builtin else {})}}
+                       "controller": ctx.series_name(f"controller_{label}") if builtin else (
+                           Path(cell.controller_record).name if cell.controller_record is not None else None)}}
     if cell.failure is not None:
         entry["failure"] = str(cell.failure)
     return entry, result
@@ -572,6 +576,7 @@ def run_entry(ctx: RunContext, setup: CellSetup, ctrl: dict[str, Any], motion: _
 
     doc = setup.doc
     label = f"{ctrl['name']}__{motion.name}"
+    ctx.begin(label)  # an error before the cell runs names this entry, not the previous one
     stop_time = _stop_time(doc, motion)
     demand = [f"{d}.current_demand" for d in wiring.DRIVES]
     if ctrl["kind"] == "mode":

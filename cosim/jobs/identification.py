@@ -84,8 +84,10 @@ MEASUREMENT_TABLE = Table({
                                         doc="added Gaussian current-measurement noise, sigma in % of rated torque"),
     "noise_seed": Field(Integer(min=0), default=0),
     "method": Field(String(choices=("wls", "ols")), default="wls"),
-    "position_lag_cycles": Field(Integer(min=0, max=10), default=1,
-                                 doc="cycles by which position actual lags torque actual (drive latching)"),
+    "position_lag_cycles": Field(Integer(min=0, max=10), default=0,
+                                 doc="cycles by which position actual lags torque actual (0: the drives latch "
+                                     "both at the SoC, as the servo_drive FMU does; 1: a drive that reports "
+                                     "the previous cycle's position)"),
     "consistent": Field(Boolean(), default=True,
                         doc="also fit a physically consistent parameter vector and validate it"),
     "kinematics": Field(String(choices=("calibrated", "nominal")), default="calibrated",

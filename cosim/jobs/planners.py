@@ -72,7 +72,7 @@ class PlannerEntry(Spec):
             return value
         raise where.error(self.expected, value)
 
-    # the file of a 'file.py:Class' entry travels with a sweep's tasks (cosim.sweep.keypath.referenced_files)
+    # the file of a 'file.py:Class' entry travels with a sweep's tasks (cosim.scenario.keypath.referenced_files)
     def referenced_file(self, value: Any) -> str | None:
         return class_spec_file(value)
 

@@ -1,7 +1,9 @@
 """``summary.json``: written when a run starts and rewritten atomically as it goes.
 
 Fields every run has: ``scenario``, ``job``, ``status`` (``"running"``, ``"ok"``,
-``"failed"`` or ``"interrupted"``), ``reason`` and ``stopped_at_s`` when failed or
+``"limit"``, ``"fault"``, ``"failed"`` or ``"interrupted"``: the most severe verdict of the
+job's cell runs, cosim/cell/verdict.py), ``verdicts`` (per cell run: its verdict and first
+violation), ``reason`` (also for ``limit``/``fault``), and ``stopped_at_s`` when failed or
 interrupted (plus ``signal`` and ``failed_in``/``interrupted_in``, the mode or part that
 was running), ``sim_time_s`` (simulated
 seconds reached), ``wall_time_s``, ``realtime_factor`` (= sim_time_s / wall_time_s, >1 is
@@ -229,6 +231,19 @@ class SummaryWriter:
         self.data.update(fields)
         self.data["status"] = "ok"
         self.data.pop("reason", None)
+        self._finish(sim_time_s)
+        self.write()
+
+    def finish_verdict(self, status: str, sim_time_s: float, reason: str | None = None, **fields: Any) -> None:
+        """Final status of a run that completed: ``"ok"``, or the most severe verdict of its cell
+        runs (``"limit"``, ``"fault"``, ``"failed"``) with ``reason`` (the run and its first
+        violation). An OSError writing it propagates, as for :meth:`finish_ok`."""
+        if status == "ok":
+            self.finish_ok(sim_time_s, **fields)
+            return
+        self.data.update(fields)
+        self.data["status"] = status
+        self.data["reason"] = reason or status
         self._finish(sim_time_s)
         self.write()
 

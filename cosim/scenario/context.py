@@ -66,6 +66,17 @@ class RunContext:
         self._totals: dict[int, float] = {}
         self._running: Master | None = None
         self._last_time_s: float | None = None
+        self.verdicts: dict[str, dict] = {}
+        """label -> the verdict of each cell run of the job (:meth:`note_verdict`)."""
+
+    def note_verdict(self, label: str, entry: dict) -> None:
+        """Record the verdict of the cell run ``label`` from its summary record ``entry`` (its
+        ``verdict``, ``first_violation``, ``warnings``; cosim/cell/verdict.py). The job's final
+        status is the most severe of them; ``cosim run`` prints one line per run from them."""
+        verdict = entry.get("verdict") or ("failed" if entry.get("status") == "failed" else "ok")
+        self.verdicts[label] = {"verdict": verdict, "first_violation": entry.get("first_violation"),
+                                "violations_total": entry.get("violations_total", len(entry.get("violations") or ())),
+                                "warnings": list(entry.get("warnings") or ())}
 
     def note_position(self, label: str, time_s: float, covered_s: float = 0.0) -> None:
         """Record where a run that does not go through :meth:`execute` (the split cell) stopped:
@@ -74,6 +85,12 @@ class RunContext:
         self._last_time_s = float(time_s)
         self.summary.note_where(mode=label, at_s=time_s)
         self.sim_time_s += float(covered_s)
+
+    def begin(self, label: str) -> None:
+        """Name the part about to be built and run (a mode, an entry): an error before its master
+        starts is reported in ``label``, with no simulated time of an earlier part."""
+        self.label = label
+        self._last_time_s = None
 
     @property
     def stopped_at_s(self) -> float | None:
@@ -92,10 +109,9 @@ class RunContext:
         stem = name[:-len(Path(name).suffix)] if Path(name).suffix in (".csv", ".parquet") else name
         return stem + SUFFIXES[self.timeseries_format]
 
-    def series_sink(self, name: str, units: dict[str, str] | None = None, **encodings):
-        """A streaming recorder sink writing ``out_dir / series_name(name)`` (Parquet or CSV;
-        ``encodings``: the Parquet sink's compact encodings, cosim.results.timeseries)."""
-        return sink_for(self.path(self.series_name(name)), units, **encodings)
+    def series_sink(self, name: str, units: dict[str, str] | None = None):
+        """A streaming recorder sink writing ``out_dir / series_name(name)`` (Parquet or CSV)."""
+        return sink_for(self.path(self.series_name(name)), units)
 
     csv_sink = series_sink
     """Former name of :meth:`series_sink` (writes the run's format, Parquet by default)."""

@@ -209,7 +209,7 @@ def _materialize(task: VariantTask, blobs: tuple[bytes, ...]) -> tuple[dict[str,
     user's module file once), which the document is then run against.
     """
     from cosim.scenario import get_job
-    from cosim.sweep.keypath import get_path, relocate_file, spec_at, with_value
+    from cosim.scenario.keypath import get_path, relocate_file, spec_at, with_value
 
     if len(blobs) != len(task.inputs):
         raise ValueError(f"variant {task.id}: {len(task.inputs)} input files expected, {len(blobs)} received")

@@ -366,6 +366,49 @@ def test_sweep_scheduler_that_does_not_answer(tmp_path, capsys):
     assert definition["status"] == "failed" and "no Dask scheduler" in definition["reason"]
 
 
+def test_sweep_scheduler_that_accepts_and_never_answers(tmp_path, capsys):
+    """An address that accepts the TCP connection and then stays silent (a hung scheduler, another
+    service): a clear error within 10 s, not a wait for ever (dask's Client waits for its handshake)."""
+    import socket
+    import threading
+    import time
+
+    import dask.distributed  # noqa: F401 - imported before the clock starts: the wait is what is timed
+
+    plant(tmp_path, name="base.toml")
+    path = tmp_path / "sw.toml"
+    path.write_text(SWEEP.format(extra=""))
+    server = socket.socket()
+    server.bind(("127.0.0.1", 0))
+    server.listen(8)
+    accepted: list[socket.socket] = []
+
+    def accept() -> None:
+        while True:
+            try:
+                accepted.append(server.accept()[0])
+            except OSError:  # closed at the end of the test
+                return
+
+    threading.Thread(target=accept, daemon=True).start()
+    address = f"tcp://127.0.0.1:{server.getsockname()[1]}"
+    try:
+        t0 = time.perf_counter()
+        code, err = cli(capsys, "sweep", path, "--scheduler", address, "--out", tmp_path / "o", "--quiet")
+        elapsed = time.perf_counter() - t0
+    finally:
+        server.close()
+        for conn in accepted:
+            conn.close()
+    assert accepted, "the test server never saw the connection"
+    line = one_error_line(err)
+    assert code == 2 and f"--scheduler '{address}'" in line and "no Dask scheduler answered within 5 s" in line
+    assert "accepts the connection and never answers" in line
+    assert elapsed < 10.0, elapsed
+    definition = json.loads((tmp_path / "o" / "sweep.json").read_text())
+    assert definition["status"] == "failed" and "no Dask scheduler" in definition["reason"]
+
+
 def test_identify_refuses_physically_impossible_parameters():
     from types import SimpleNamespace
 
