@@ -37,7 +37,7 @@ PROTECTION_SIGNALS: tuple[str, ...] = (
 
 # kind -> (CiA 402 error code in 0x603F or None, unit of value and limit, what it is)
 KINDS: dict[str, tuple[str | None, str, str]] = {
-    "torque_limit": (None, "N.m", "current set-point clamped at max torque 0x6072 / max current 0x6073"),
+    "torque_limit": (None, "N.m", "commanded torque beyond max torque 0x6072 / max current 0x6073: clamped"),
     "i2t": ("0x2310", "A", "I2t: current limit derated to the rated current 0x6075 (warning)"),
     "speed_limit": ("0x8400", "rad/s", "speed beyond max motor speed 0x6080"),
     "position_limit": ("0x8612", "rad", "position outside the software position limits 0x607D"),

@@ -485,7 +485,7 @@ static void speed_sample(Instance *inst)
         demand = (R(TARGET_TORQUE) + R(TORQUE_OFFSET)) / (n * R(TORQUE_CONSTANT));
         limited = demand > imax ? imax : (demand < -imax ? -imax : demand);
         s->limit_active = limited != demand;
-        limit_bit(s, LIMIT_TORQUE, s->limit_active);
+        limit_bit(s, LIMIT_TORQUE, s->limit_active); /* the commanded torque is beyond max torque/current */
         s->current_demand = limited;
         return;
     }
@@ -494,7 +494,10 @@ static void speed_sample(Instance *inst)
     demand = kp * error + s->speed_integral + feedforward;
     limited = demand > imax ? imax : (demand < -imax ? -imax : demand);
     s->limit_active = limited != demand;
-    limit_bit(s, LIMIT_TORQUE, s->limit_active);
+    /* a protection event only when the command itself asks for more (the torque offset 0x60B2):
+     * the speed loop's own saturation (e.g. taking the load over when the brake opens) is the
+     * drive's regulation, shown in statusword bit 11 only */
+    limit_bit(s, LIMIT_TORQUE, fabs(feedforward) > imax);
     /* conditional integration (anti-windup): no integration that drives further into the limit */
     if (!s->limit_active || (demand > 0.0) != (error > 0.0))
         s->speed_integral += kp * R(SPEED_SAMPLE_TIME) / R(SPEED_TN) * error;
