@@ -78,6 +78,8 @@ class Entry:
     source: str = ""
     node_offset: int | None = None  # default = node id + node_offset ("$NODEID+0x...") when not None
     description: str = ""
+    low: int | float | None = None  # the lowest value a write may set (besides the data type's range)
+    high: int | float | None = None  # the highest
 
     @property
     def bits(self) -> int | None:
@@ -309,7 +311,11 @@ def _entry(ctx: _Context, index: int, item: Mapping[str, Any], subindex: int, wh
         source = "fieldbus/object_dictionary.toml [identity]"
     e = Entry(index=index, subindex=subindex, name=name, data_type=data_type, access=access, default=default,
               pdo=bool(item.get("pdo", False)), unit=str(item.get("unit", "")), signal=item.get("signal"),
-              quantity=quantity, source=source, node_offset=node_offset, description=str(item.get("description", "")))
+              quantity=quantity, source=source, node_offset=node_offset, description=str(item.get("description", "")),
+              low=item.get("low"), high=item.get("high"))
+    for limit in (e.low, e.high):
+        if limit is not None and (data_type == "VISIBLE_STRING" or not e.in_range(limit)):
+            raise ObjectDictionaryError(f"{ctx.path}: {where}: limit {limit!r} does not fit {data_type}")
     if data_type == "VISIBLE_STRING":
         if not isinstance(default, str):
             raise ObjectDictionaryError(f"{ctx.path}: {where}: default = {default!r}, expected a string")

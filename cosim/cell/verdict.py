@@ -103,6 +103,10 @@ def describe_violation(v: dict[str, Any]) -> str:
     """``following_error joint 3 at t = 1.234 s: 0.021 rad (limit 0.01 rad) (0x8611, quick_stop)``."""
     if v.get("kind") == "budget":
         return f"compute budget: {v.get('detail')}"
+    if v.get("kind") == "overrun":
+        return f"real time: {v.get('detail')}"
+    if v.get("kind") == "refused":  # the detail names planner, joint, limit and time
+        return str(v.get("detail"))
     parts = [str(v.get("kind") or "violation")]
     if v.get("joint") is not None:
         parts.append(f"joint {v['joint']}")
@@ -201,6 +205,13 @@ def judge(run: Any) -> Verdict:
         verdict = most_severe([verdict, "fault"])
         extra.append(violation("not_enabled", getattr(run, "reached_s", None),
                                "the drives never reached Operation enabled (the controller did not enable them)"))
+    overrun = overrun_note(run)
+    if overrun:  # a paced run whose cycles overran: the likely cause of what went wrong, said where it shows
+        for v in extra:
+            if v["kind"] in ("controller_stop", "failure", "not_enabled"):
+                v["detail"] = f"{v['detail']}: {overrun}"
+        if verdict == "ok" or not extra:
+            warnings.append(violation("overrun", None, overrun))
     violations = sorted(limits + faults + extra, key=_time_key)
     first = violations[0] if violations else None
     if failure is not None and not _is_controller_stop(failure):
@@ -208,6 +219,25 @@ def judge(run: Any) -> Verdict:
     elif close_error and verdict == "failed":
         first = extra[-1]
     return Verdict(verdict, violations[:MAX_VIOLATIONS], first, len(violations), warnings)
+
+
+def overrun_note(run: Any) -> str | None:
+    """For a paced run (``run.pacer``) whose cycles overran their wall deadline in more than
+    :data:`CHRONIC_BUDGET_FRACTION` of the cycles: ``"controller overran 99.96 % of cycles (budget
+    400 us, controller p99 5012 us)"``, else None."""
+    log = getattr(getattr(run, "pacer", None), "log", None)
+    count = int(getattr(log, "count", 0) or 0)
+    if count <= 0:
+        return None
+    overruns = int(log.overrun[:count].sum())
+    if overruns <= CHRONIC_BUDGET_FRACTION * count:
+        return None
+    period_us = getattr(run.pacer, "period_ns", 0) * 1e-3
+    timing = getattr(run, "controller_timing", None)
+    p99 = getattr(timing, "p99_us", None)
+    own = f", controller p99 {p99:.4g} us" if isinstance(p99, (int, float)) and math.isfinite(p99) else ""
+    return (f"controller overran {100.0 * overruns / count:.4g} % of cycles ({overruns} of {count}; budget "
+            f"{period_us:.4g} us per bus cycle{own})")
 
 
 def budget_warning(timing: Any) -> dict[str, Any] | None:

@@ -69,10 +69,19 @@ def run(args: argparse.Namespace) -> int:
         return 130
     _warn_cycle_time_mismatch(result.summary.raw.get("hil") or {})
     _warn_transport_faults(result.summary.raw.get("hil") or {})
+    from cosim.cell.verdict import exit_code
+    from cosim.commands.run import print_run_lines
+
+    print_run_lines(result.summary.raw, args.quiet)
     if result.ok:
         if not args.quiet:
             print(f"{scenario.name}: served, results in {out_dir}/", file=sys.stderr)
         return 0
+    status = result.summary.status
+    if status in ("limit", "fault"):  # completed, but the drives reacted (e.g. tripped on lost cycles)
+        print(f"{scenario.name}: served, {status}: {(result.summary.reason or '').strip()}; results in {out_dir}/ "
+              f"(summary.json: {status}, exit code {exit_code(status)}, docs/robustness.md)", file=sys.stderr)
+        return exit_code(status)
     print(f"error: {scenario.name}: served run failed: {(result.summary.reason or '').strip()}", file=sys.stderr)
     return 3
 

@@ -569,7 +569,12 @@ def _cell_experiment(doc, ctx, trajectory, duration, cell: _Cell, params, elasti
     reflector = tuple(doc["stiffness"]["reflector"]) if elastic else (0.0, 0.0, 0.0)
     run = cell.run(ctx, recorder, "excitation", stop_time, "excitation",
                    tracker=dataclasses.replace(tracker, reflector=reflector))
-    if run.failure is not None:
+    from cosim.cell.verdict import judge
+
+    verdict = judge(run).fields()  # the excitation run's verdict (cosim/cell/verdict.py)
+    ctx.note_verdict("excitation", verdict)
+    ctx.summary.update(excitation_verdict=verdict)
+    if run.failure is not None:  # stopped early: no complete excitation data to identify from
         raise run.failure
     start = controller.motion_start_s
     if start is None:

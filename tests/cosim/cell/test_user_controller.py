@@ -116,7 +116,7 @@ def test_a_user_controller_class_runs_the_cell(tmp_path):
     assert entry["user_controller"] and entry["controller"] == "Follow" and entry["status"] == "ok"
     assert entry["motion_start_s"] == pytest.approx(0.0144, abs=2e-3)   # enabled ~3.6 ms + settle 10 + lead 0.8
     assert 0.0 < entry["tcp_error_max_mm"] < 5.0                        # it tracks the path
-    assert entry["controller_cycles_timed"] == 151 and entry["cycle_compute_us"]["p50"] > 0
+    assert entry["controller_cycles_timed"] == 151 and entry["cycle_wall_us"]["p50"] > 0
     assert (tmp_path / "out" / "timeseries_follow.parquet").is_file() and (tmp_path / "out" / "tcp_follow.parquet").is_file()
     assert list(summary["modes"]) == ["follow"]  # a named controller without `modes` runs alone
     # the per-cycle command log, as the built-in modes have: one row per cycle, what went to the drives

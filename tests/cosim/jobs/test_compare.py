@@ -164,7 +164,8 @@ def test_bad_entries_are_refused_before_running(tmp_path):
 
 def test_a_failing_user_controller_is_a_failed_entry_and_the_others_run(tmp_path):
     """A user controller that raises mid-run stops its own run cleanly (status failed, the reason,
-    its time series so far on disk); the comparison goes on and ranks the entries that ran."""
+    its time series so far on disk); the comparison goes on and ranks the entries that ended ok; the
+    command exits 3 (its most severe verdict, failed)."""
     _joint_csv(tmp_path / "wave.csv")
     (tmp_path / "flaky.py").write_text(
         "from controller import ControllerOutput\n"
@@ -184,7 +185,8 @@ def test_a_failing_user_controller_is_a_failed_entry_and_the_others_run(tmp_path
     path = _compare_toml(tmp_path, '["model_based", "flaky.py:Flaky"]', '["wave.csv"]',
                          [("figures = true", "figures = false")])
     code, summary = run_scenario(path, tmp_path / "out")
-    assert code == 0, summary.get("reason")
+    assert code == 3 and summary["status"] == "failed", summary.get("reason")  # not ok: exit non-zero
+    assert summary["reason"].startswith("Flaky__wave: failed: failure at t = 0.15")
     rows = {r["controller"]: r for r in summary["table"]}
     assert rows["model_based"]["status"] == "ok" and rows["model_based"]["rank"] == 1
     assert rows["Flaky"]["status"] == "failed" and rows["Flaky"]["rank"] is None
