@@ -517,7 +517,9 @@ def read_timeseries(path: str | Path, kind: str = "auto"):
 def _read_csv_columns(path: Path) -> TimeSeries:
     import numpy as np
 
-    with open(path, encoding="utf-8", newline="") as f:
+    from robot.textfiles import open_text
+
+    with open_text(path) as f:
         reader = csv.reader(f)
         header = next(reader, [])
         rows = list(reader)
@@ -771,7 +773,7 @@ def _execute_into(sc: Scenario, out_dir: Path, options, *, quiet: bool, origin: 
 def _run_job(sc: Scenario, ctx) -> BaseException | None:
     """Run the job in ``ctx`` and write the final status (ok, failed with the reason and where,
     interrupted); return the exception that failed the run, or None."""
-    from cosim.cli import defer_signals
+    from cosim.cli import defer_signals, interrupt_raised
     from cosim.commands.exits import describe_os_error, is_disk_full, signal_name_of
     from cosim.master import SimulationError
 
@@ -788,6 +790,12 @@ def _run_job(sc: Scenario, ctx) -> BaseException | None:
                                            mode=ctx.label or None, interrupted_in=ctx.label or None)
         raise
     except Exception as exc:
+        interrupt = interrupt_raised()
+        if interrupt is not None:  # Ctrl-C raised inside code that turned it into this error (a Python FMU)
+            with defer_signals():
+                ctx.summary.finish_interrupted(interrupt.signal_name, ctx.stopped_at_s, ctx.sim_time_s,
+                                               mode=ctx.label or None, interrupted_in=ctx.label or None)
+            raise interrupt from exc
         with defer_signals():
             extra: dict[str, Any] = {}
             if isinstance(exc, SimulationError):

@@ -97,6 +97,10 @@ def _eds_variable(e: Entry, name: str, description: str) -> list[tuple[str, obje
     items: list[tuple[str, object]] = [("ParameterName", name), ("ObjectType", "0x7"),
                                        ("DataType", f"0x{e.data_type_index:04X}"), ("AccessType", e.access),
                                        ("DefaultValue", _number(e)), ("PDOMapping", _pdo_mapping_flag(e))]
+    if e.low is not None:
+        items.append(("LowLimit", repr(float(e.low)) if e.data_type == "REAL32" else str(e.low)))
+    if e.high is not None:
+        items.append(("HighLimit", repr(float(e.high)) if e.data_type == "REAL32" else str(e.high)))
     if e.unit:
         items.append(("Unit", e.unit))  # not in CiA 306; read by the canopen library, ignored by others
     if description:
@@ -146,6 +150,7 @@ def _xdd_attrs(e: Entry, name: str) -> str:
     attrs = [("name", name), ("objectType", "7"), ("dataType", f"{e.data_type_index:04X}"),
              ("accessType", e.access), ("defaultValue", _number(e, node_relative=False)),
              ("PDOmapping", _xdd_pdo_flag(e))]
+    attrs += [(key, value) for key, value in (("lowLimit", e.low), ("highLimit", e.high)) if value is not None]
     return " ".join(f"{k}={quoteattr(str(v))}" for k, v in attrs)
 
 
@@ -181,16 +186,16 @@ def to_xdd(od: ObjectDictionary, file_name: str | None = None, *, cycle_time_us:
            "</ProfileBody>",
            "</ISO15745Profile>",
            "<ISO15745Profile>",
-           header.format(ident="Powerlink_Communication_Network_Profile", name=escape(ident["product_name"]) + " communication",
+           header.format(ident="Powerlink_Communication_Profile", name=escape(ident["product_name"]) + " communication",
                          cls="CommunicationNetwork"),
            f'<ProfileBody xsi:type="ProfileBody_CommunicationNetwork_Powerlink" {body_attrs}>',
            "<ApplicationLayers>",
            f"<identity><vendorID>0x{ident['vendor_id']:08X}</vendorID>"
            f"<productID>0x{ident['product_code']:08X}</productID></identity>",
            "<DataTypeList>"]
-    tags = {"BOOLEAN": "BOOL", "INTEGER8": "SINT", "INTEGER16": "INT", "INTEGER32": "DINT", "UNSIGNED8": "USINT",
-            "UNSIGNED16": "UINT", "UNSIGNED32": "UDINT", "REAL32": "REAL", "VISIBLE_STRING": "Visible_String",
-            "UNSIGNED64": "ULINT"}
+    tags = {"BOOLEAN": "Boolean", "INTEGER8": "Integer8", "INTEGER16": "Integer16", "INTEGER32": "Integer32",
+            "UNSIGNED8": "Unsigned8", "UNSIGNED16": "Unsigned16", "UNSIGNED32": "Unsigned32", "REAL32": "Real32",
+            "VISIBLE_STRING": "Visible_String", "UNSIGNED64": "Unsigned64"}
     for name, (index, _, _) in DATA_TYPES.items():
         out.append(f'<defType dataType="{index:04X}"><{tags[name]}/></defType>')
     out.append("</DataTypeList>")

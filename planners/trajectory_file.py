@@ -58,6 +58,7 @@ import numpy as np
 
 from planners.base import JointLimits
 from planners.trajectory import N_JOINTS, Trajectory, TrajectoryError, uniform_times
+from robot.textfiles import read_text
 
 DEFAULT_SAMPLE_DT = 1e-3
 """Grid [s] on which a loaded file is sampled and checked between its own samples."""
@@ -168,7 +169,7 @@ def _read_table(path: Path) -> _Table:
     if not path.is_file():
         raise TrajectoryFileError(path, "no such file")
     try:
-        text = path.read_text(encoding="utf-8-sig")
+        text = read_text(path)  # UTF-8, a byte-order mark dropped
     except (OSError, UnicodeDecodeError) as exc:
         raise TrajectoryFileError(path, f"cannot be read as UTF-8 text: {exc}") from None
     rows: list[tuple[int, list[str]]] = []

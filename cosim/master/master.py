@@ -533,6 +533,16 @@ class Master:
         events.sort(key=lambda e: e.order)
         return events
 
+    def flush_recorders(self) -> None:
+        """Hand every recorder's buffered rows to its sink and have the sink write them now
+        (``sink.sync()`` where it has one, else its ``flush()``): what is on disk then holds every
+        sample taken so far."""
+        for recorder in self._recorders:
+            recorder.flush()
+            sync = getattr(recorder.sink, "sync", None)
+            if sync is not None:
+                sync()
+
     def run(self, until: float | None = None) -> float:
         """Advance the simulation to time ``until`` (s; default the stop_time given to initialize).
 

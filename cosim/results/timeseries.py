@@ -39,6 +39,8 @@ from typing import IO, Any
 
 import numpy as np
 
+from robot.textfiles import open_text
+
 FORMATS = ("parquet", "csv")
 SUFFIXES = {"parquet": ".parquet", "csv": ".csv"}
 ENV_FORMAT = "COSIM_TIMESERIES"
@@ -302,6 +304,10 @@ class ParquetSink:
         if self._fill and time.perf_counter() - self._last >= self.flush_interval_s:
             self._write_batch()
 
+    def sync(self) -> None:
+        """Write the rows held to the stream now, whatever the flush interval."""
+        self._write_batch()
+
     def close(self) -> None:
         if self._stream is None:
             return
@@ -485,7 +491,7 @@ def read_series(path: str | Path) -> tuple[list[str], np.ndarray]:
         names = series_columns(path)
         blocks = [block for _, block in parquet_groups(path)]
         return names, (np.concatenate(blocks) if blocks else np.zeros((0, len(names))))
-    with open(path, encoding="utf-8", newline="") as f:
+    with open_text(path) as f:
         header = next(csv.reader(f))
     data = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
     if data.size == 0:
@@ -655,7 +661,7 @@ def _iter_stored(path: Path, columns: Sequence[str] | None, rows: int):
                 cols = [batch.column(batch.schema.get_field_index(n)).to_numpy(zero_copy_only=False) for n in names]
                 yield names, np.column_stack([c.astype(float, copy=False) for c in cols])
         return
-    with open(path, encoding="utf-8", newline="") as f:
+    with open_text(path) as f:
         header = next(csv.reader([f.readline()]))
         take = [header.index(n) for n in columns] if columns is not None else list(range(len(header)))
         names = [header[i] for i in take]
@@ -709,7 +715,7 @@ def series_columns(path: str | Path) -> list[str]:
                 return list(pa.ipc.open_stream(source).schema.names)
             except (pa.ArrowInvalid, OSError):
                 return []
-    with open(path, encoding="utf-8", newline="") as f:
+    with open_text(path) as f:
         return next(csv.reader([f.readline()]))
 
 

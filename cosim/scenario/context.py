@@ -27,6 +27,22 @@ SUMMARY_INTERVAL_S = 2.0
 HEARTBEATS_PER_RUN = 1000
 
 
+def user_fmu_in_process(doc: dict) -> bool:
+    """Whether a scenario document runs an FMU that is not the project's own in the run's process: an
+    ``[[fmus]]`` table with ``path`` or ``source`` not run out of process, a ``[controller] fmu``, or a
+    ``compare`` controller FMU."""
+    from cosim.scenario.cosim_tables import out_of_process
+
+    sim = doc.get("simulation") or {}
+    for fmu in doc.get("fmus") or []:
+        if isinstance(fmu, dict) and "builtin" not in fmu and not out_of_process(fmu, sim):
+            return True
+    if (doc.get("controller") or {}).get("fmu"):
+        return True
+    entries = (doc.get("compare") or {}).get("controllers") or []
+    return any(isinstance(e, dict) and (e.get("fmu") or e.get("fmu_source")) for e in entries)
+
+
 class RunContext:
     """Output folder, summary and progress of one ``cosim run``.
 
@@ -41,6 +57,9 @@ class RunContext:
             split, paced) or None (one process, unpaced).
         timeseries_format: ``"parquet"`` (default, ``$COSIM_TIMESERIES``) or ``"csv"``: the
             format of every time series the run writes (:meth:`series_name`).
+        write_through: the scenario runs an FMU of the user's in this process (:func:`user_fmu_in_process`):
+            at every heartbeat (1000 per run) the recorders write what they hold, so a crash of that
+            FMU leaves the rows up to the last simulated time the summary reports.
 
     ``wall_origin``/``wall_time_from``: where summary.json's wall time starts
     (:class:`cosim.results.summary.SummaryWriter`; default: now, ``"run call"``).
@@ -50,6 +69,7 @@ class RunContext:
                  timeseries_format: str | None = None, wall_origin: float | None = None,
                  wall_time_from: str = "run call") -> None:
         self.scenario = scenario
+        self.write_through = user_fmu_in_process(getattr(scenario, "data", None) or {})
         self.timeseries_format = timeseries_format or default_format()
         if self.timeseries_format not in SUFFIXES:
             raise ValueError(f"timeseries format: expected one of {', '.join(SUFFIXES)}, got {self.timeseries_format!r}")
@@ -129,8 +149,12 @@ class RunContext:
         self.label = label
         self.summary.note_where(mode=label, at_s=master.start_time)
 
+        write_through = self.write_through
+
         def heartbeat(t: float) -> None:
             now = time.perf_counter()
+            if write_through:  # an FMU of the user's in this process: a crash keeps the rows up to here
+                master.flush_recorders()
             self.summary.note_time(self._base + t - master.start_time, t)  # for the supervisor: two numbers
             if self._bar is not None and now - state["bar"] > PROGRESS_INTERVAL_S:
                 self._bar.update(t - master.start_time)

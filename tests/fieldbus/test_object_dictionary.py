@@ -145,6 +145,7 @@ def test_the_canopen_library_loads_the_eds_with_every_object_equal(ods, tmp_path
                 else:
                     assert var.default == e.default, (hex(e.index), e.subindex)
                 assert (var.unit or "") == e.unit
+                assert (var.min, var.max) == (e.low, e.high)
                 compared += 1
         assert compared == sum(1 for _ in od.entries()) == 94
 
@@ -182,6 +183,8 @@ def test_the_xdd_holds_the_required_elements_and_every_object(ods):
         assert len(profiles) == 2
         classes = [p.findtext("x:ProfileHeader/x:ProfileClassID", namespaces=NS) for p in profiles]
         assert classes == ["Device", "CommunicationNetwork"]
+        assert [p.findtext("x:ProfileHeader/x:ProfileIdentification", namespaces=NS) for p in profiles] == [
+            "Powerlink_Device_Profile", "Powerlink_Communication_Profile"]
         bodies = [p.find("x:ProfileBody", NS) for p in profiles]
         assert [b.get(XSI_TYPE) for b in bodies] == ["ProfileBody_Device_Powerlink",
                                                        "ProfileBody_CommunicationNetwork_Powerlink"]
@@ -197,7 +200,11 @@ def test_the_xdd_holds_the_required_elements_and_every_object(ods):
                      "x:NetworkManagement/x:CNFeatures"):
             assert comm.find(path, NS) is not None, path
         assert comm.find("x:NetworkManagement/x:GeneralFeatures", NS).get("NMTCycleTimeMin") == "400"
-        declared = {d.get("dataType") for d in comm.iterfind("x:ApplicationLayers/x:DataTypeList/x:defType", NS)}
+        types = {d.get("dataType"): etree.QName(d[0]).localname
+                 for d in comm.iterfind("x:ApplicationLayers/x:DataTypeList/x:defType", NS)}
+        # EPSG DS 311 type names (as Wireshark's POWERLINK profile parser reads them)
+        assert types["0006"] == "Unsigned16" and types["0004"] == "Integer32" and types["0008"] == "Real32"
+        declared = set(types)
         listed = {int(o.get("index"), 16): o for o in comm.iterfind("x:ApplicationLayers/x:ObjectList/x:Object", NS)}
         expected = xdd_objects(od)
         assert sorted(listed) == [o.index for o in expected]

@@ -323,6 +323,40 @@ def test_identify_non_utf8(tmp_path, capsys):
     assert code == 2 and "bad.csv" in one_error_line(err)
 
 
+def test_every_csv_reader_accepts_a_byte_order_mark(tmp_path, capsys, calibration_files):
+    """A UTF-8 CSV with a byte-order mark (Excel's "CSV UTF-8") reads as without it everywhere a CSV is
+    read (robot.textfiles): identify, calibrate, trajectory files, a run's CSV time series."""
+    from calibration.measurements import read_measurements_csv
+    from cosim.results import read_series
+    from identification.data import read_motion_csv
+    from planners.trajectory_file import load_trajectory_file
+
+    def with_bom(path: Path) -> Path:
+        marked = path.with_name("bom_" + path.name)
+        marked.write_bytes(b"\xef\xbb\xbf" + path.read_bytes())
+        return marked
+
+    record = _record(tmp_path / "rec.csv")
+    plain, marked = read_motion_csv(record), read_motion_csv(with_bom(record))
+    assert np.array_equal(plain.q, marked.q) and np.array_equal(plain.tau, marked.tau)
+    outcomes = []  # this record (gravity torques only) is refused by the plausibility check: the same for both
+    for path in (record, with_bom(record)):
+        code, err = cli(capsys, "identify", path, "--out", tmp_path / f"id_{path.stem}")
+        outcomes.append((code, one_error_line(err).replace(path.name, "<file>")))
+    assert outcomes[0] == outcomes[1] and outcomes[0][0] != 2, outcomes
+    good = calibration_files["good"]
+    assert np.array_equal(read_measurements_csv(with_bom(good)).q, read_measurements_csv(good).q)
+    assert cli(capsys, "calibrate", with_bom(good), "--out", tmp_path / "cal")[0] == 0
+    trajectory = ROOT / "examples" / "trajectories" / "pick_place_joint.csv"
+    copied = tmp_path / "traj.csv"
+    copied.write_bytes(trajectory.read_bytes())
+    assert np.array_equal(load_trajectory_file(with_bom(copied)).q, load_trajectory_file(copied).q)
+    series = tmp_path / "series.csv"
+    series.write_text("time,plant.q[1]\n0.0,1.5\n0.001,1.25\n", encoding="utf-8")
+    names, data = read_series(with_bom(series))
+    assert names == ["time", "plant.q[1]"] and data.tolist() == [[0.0, 1.5], [0.001, 1.25]]
+
+
 # ------------------------------------------------------------------------------------------ sweep
 SWEEP = """[sweep]
 name = "s"
