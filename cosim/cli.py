@@ -34,6 +34,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "cosim.commands.build_fmus",
     "cosim.commands.export_ssp",
     "cosim.commands.export_blf",
+    "cosim.commands.view",
     "cosim.commands.run",
     "cosim.commands.serve",
     "cosim.commands.calibrate",

@@ -281,9 +281,8 @@ def _run_data(run: Run, label: str, colour: str, summary: dict[str, Any] | None,
             columns[source] = _read_columns(run.files[source], list(dict.fromkeys(wanted[source])), notes,
                                             f"{label}")
     out: dict[str, Any] = {"name": run.name, "label": label, "colour": TAB_RGB.get(colour, colour),
-                           "status": run.entry.get("verdict") or run.entry.get("status") or
-                           ("running" if any(p.name.endswith(".partial") for p in run.files.values()) else None),
-                           "times": {}, "series": {}, "events": []}
+                           "partial": any(p.name.endswith(".partial") for p in run.files.values()),
+                           "times": {}, "series": {}}
     times: dict[str, np.ndarray] = {}
     for source, cols in columns.items():
         t = next((cols[c] for c in SOURCE_TIME[source] if c in cols), None)
@@ -336,11 +335,8 @@ def _run_data(run: Run, label: str, colour: str, summary: dict[str, Any] | None,
             programmed = np.column_stack([tcp[f"{a}_programmed"] for a in "xyz"])
             ok = np.isfinite(programmed[even]).all(axis=1)
             out["path"]["programmed"] = _pack(programmed[even][ok].ravel(), "f4")
-    out["events"] = _entry_events(run.entry, summary, run.name)
     can = run.folder / f"can_{run.name}.parquet"
-    if can.exists():
-        out["events"] += _emcy_events(can, notes, label)
-    out["events"].sort(key=lambda e: e["time_s"])
+    out["bus_events"] = _emcy_events(can, notes, label) if can.exists() else []
     return out
 
 
@@ -387,58 +383,57 @@ def _clean(value: Any) -> Any:
     return value
 
 
+def _check_folder(folder: Path) -> None:
+    if not folder.exists():
+        raise ReportError(f"{folder}: no such folder (expected a results folder with summary.json)")
+    if not folder.is_dir():
+        raise ReportError(f"{folder}: not a folder (expected a results folder with summary.json)")
+    if not any(folder.iterdir()):
+        raise ReportError(f"{folder}: empty folder (expected a results folder with summary.json)")
+
+
+def _labels(folders: list[Path], runs_by_folder: list[list[Run]]) -> list[list[tuple[str, str]]]:
+    """(label, matplotlib colour) of every run: the mode's name and colour for one folder;
+    ``<folder>/<mode>`` and colours in turn for several."""
+    if len(folders) == 1:
+        names = [r.name for r in runs_by_folder[0]]
+        others = [n for n in names if n not in ("standard", "standard_speed_ff", "model_based", "model_based_elastic")]
+        return [[(n, colour_of(n, others)) for n in names]]
+    labels = [f"{f.name}/{r.name}" for f, found in zip(folders, runs_by_folder) for r in found]
+    return [[(f"{f.name}/{r.name}", colour_of(f"{f.name}/{r.name}", labels)) for r in found]
+            for f, found in zip(folders, runs_by_folder)]
+
+
 def collect(folders: list[Path]) -> dict[str, Any]:
-    """Everything the report shows, as JSON-ready data (raises ReportError on a folder that holds no run)."""
+    """Everything the report shows, as JSON-ready data (ReportError on a folder that holds no run):
+    the time series part (:func:`collect_series`) and the summary part (``light``, :func:`collect_light`)."""
+    data = collect_series(folders)
+    data["light"] = collect_light(folders)
+    return data
+
+
+def collect_series(folders: list[Path]) -> dict[str, Any]:
+    """The part of the report read from the time series and CAN logs (the slow part; it does not
+    change when summary.json gets its final status)."""
+    folders = [Path(f) for f in folders]
     notes: list[str] = []
     budget = _Budget(FULL_VALUES_BUDGET)
-    sources: list[dict[str, Any]] = []
     runs: list[dict[str, Any]] = []
-    several = len(folders) > 1
-    others: list[str] = []
+    found_all = []
     for folder in folders:
-        folder = Path(folder)
-        if not folder.exists():
-            raise ReportError(f"{folder}: no such folder (expected a results folder with summary.json)")
-        if not folder.is_dir():
-            raise ReportError(f"{folder}: not a folder (expected a results folder with summary.json)")
-        if not any(folder.iterdir()):
-            raise ReportError(f"{folder}: empty folder (expected a results folder with summary.json)")
-        folder_notes: list[str] = []
-        summary = read_summary(folder, folder_notes)
+        _check_folder(folder)
+        summary = read_summary(folder, [])
         found = find_runs(folder, summary)
-        if summary is None and not found:
+        if summary is None and not found and not (folder / "summary.json").exists():
             raise ReportError(f"{folder}: not a results folder (no summary.json and no time series "
                               f"tcp_/timeseries_/controller_*.parquet)")
-        if summary is None and not folder_notes:
-            folder_notes.append("summary.json missing: only the time series are shown")
-        status = (summary or {}).get("status")
-        if status == "running":
-            folder_notes.append(f"the run is still going (status 'running', {(summary or {}).get('sim_time_s', 0):.3g} s "
-                                f"simulated when summary.json was last written): showing what is there so far")
-        elif status in ("failed", "interrupted", "limit", "fault"):
-            where = summary.get("stopped_at_s")
-            folder_notes.append(f"the run ended '{status}'" + (f" at t = {where:.6g} s" if isinstance(where, (int, float))
-                                                               else "")
-                                + (f" in {summary.get('mode') or summary.get('failed_in')}"
-                                   if summary.get("mode") or summary.get("failed_in") else "")
-                                + (f": {_first_line(summary.get('reason'))}" if summary.get("reason") else ""))
-        if not found:
-            folder_notes.append("no time series in the folder: summary only")
-        prefix = f"{folder.name}/" if several else ""
-        for run in found:
-            label = prefix + run.name
-            others.append(label)
-        for run in found:
-            label = prefix + run.name
-            colour = colour_of(run.name) if not several or folders.index(folder) == 0 and run.name in \
-                ("standard", "standard_speed_ff", "model_based", "model_based_elastic") else colour_of(label, others)
-            runs.append({**_run_data(run, label, colour, summary, folder_notes, budget),
+        found_all.append(found)
+    for folder, found, labels in zip(folders, found_all, _labels(folders, found_all)):
+        folder_notes: list[str] = []
+        for run, (label, colour) in zip(found, labels):
+            runs.append({**_run_data(run, label, colour, None, folder_notes, budget),
                          "folder": str(folder), "title": label_of(run.name)})
-        sources.append({"folder": str(folder), "name": folder.name, "summary": _clean(summary) if summary else None,
-                        "notes": folder_notes, "compare": _compare_table(folder, summary)})
-        notes += [f"{folder.name}: {n}" if several else n for n in folder_notes]
-    if budget.left < 0:
-        budget.left = 0
+        notes += [f"{folder.name}: {n}" if len(folders) > 1 else n for n in folder_notes]
     decimated = [f"{r['label']}: {c['label']} ({p.title})" for r in runs for p in PANELS
                  for c in r["series"].get(p.key, []) if c["full"] is None]
     if decimated:
@@ -446,12 +441,61 @@ def collect(folders: list[Path]) -> dict[str, Any]:
                      f"the run; the full-resolution budget of {FULL_VALUES_BUDGET:,} values was spent): "
                      + "; ".join(decimated[:8]) + (" ..." if len(decimated) > 8 else ""))
     return {"format": "rx130l-cosim report 1", "generated": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
-            "sources": sources, "runs": runs, "notes": notes,
+            "runs": runs, "notes": notes,
             "panels": [{"key": p.key, "title": p.title, "ylabel": p.ylabel, "unit": p.unit, "log": p.log,
                         "joints": list(p.joints), "limit": p.limit} for p in PANELS],
             "limits": {"current_limit": _current_limits()},
             "urdf": _urdf_chain(), "key_figures": [list(k) for k in KEY_FIGURES], "timing_keys": list(TIMING_KEYS),
             "overview_columns": OVERVIEW_COLUMNS}
+
+
+def collect_light(folders: list[Path]) -> dict[str, Any]:
+    """The part of the report read from summary.json (and compare.json): the summaries, what the
+    status means (notes), each run's status and its limit/fault events (``run_events`` by label)."""
+    folders = [Path(f) for f in folders]
+    sources, notes, events, statuses = [], [], {}, {}
+    found_all, summaries, all_notes = [], [], []
+    for folder in folders:
+        folder_notes: list[str] = []
+        summary = read_summary(folder, folder_notes)
+        found_all.append(find_runs(folder, summary))
+        summaries.append(summary)
+        all_notes.append(folder_notes)
+    for folder, summary, found, labels, folder_notes in zip(folders, summaries, found_all,
+                                                           _labels(folders, found_all), all_notes):
+        if summary is None and not folder_notes:
+            folder_notes.append("summary.json missing: only the time series are shown")
+        folder_notes += status_notes(summary)
+        if not found:
+            folder_notes.append("no time series in the folder: summary only")
+        for run, (label, _) in zip(found, labels):
+            events[label] = sorted(_entry_events(run.entry, summary, run.name), key=lambda e: e["time_s"])
+            statuses[label] = (run.entry.get("verdict") or run.entry.get("status")
+                               or ("running" if (summary or {}).get("status") == "running" else None))
+        sources.append({"folder": str(folder), "name": folder.name, "summary": _clean(summary) if summary else None,
+                        "notes": folder_notes, "compare": _compare_table(folder, summary)})
+        notes += [f"{folder.name}: {n}" if len(folders) > 1 else n for n in folder_notes]
+    return {"sources": sources, "notes": notes, "run_events": events, "run_status": statuses}
+
+
+def status_notes(summary: dict[str, Any] | None) -> list[str]:
+    """What a summary's status says about the report: a run still going, or one that ended badly and where."""
+    if not summary:
+        return []
+    status = summary.get("status")
+    if status == "running":
+        return [f"the run is still going (status 'running', {float(summary.get('sim_time_s') or 0):.3g} s simulated "
+                f"when summary.json was last written): showing what is there so far"]
+    if status in ("failed", "interrupted", "limit", "fault"):
+        where = summary.get("stopped_at_s")
+        first = summary.get("first_violation") if isinstance(summary.get("first_violation"), dict) else None
+        return [f"the run ended '{status}'" + (f" at t = {where:.6g} s" if isinstance(where, (int, float)) else "")
+                + (f" in {summary.get('mode') or summary.get('failed_in')}"
+                   if summary.get("mode") or summary.get("failed_in") else "")
+                + (f": {_first_line(summary.get('reason'))}" if summary.get("reason") else "")
+                + (f"; first violation: {first.get('kind')} axis {first.get('joint')} at t = {first.get('time_s')} s"
+                   if first else "")]
+    return []
 
 
 def _compare_table(folder: Path, summary: dict[str, Any] | None) -> dict[str, Any] | None:
@@ -480,11 +524,15 @@ def plotly_bundle() -> str:
     return (Path(plotly.__file__).parent / "package_data" / "plotly.min.js").read_text(encoding="utf-8")
 
 
+def report_title(light: dict[str, Any]) -> str:
+    return "cosim report: " + ", ".join(
+        f"{s['summary'].get('scenario', s['name']) if s['summary'] else s['name']}" for s in light["sources"])
+
+
 def render(data: dict[str, Any]) -> str:
     """The HTML text of a report of ``data`` (:func:`collect`)."""
     payload = json.dumps(data, separators=(",", ":"), allow_nan=False).replace("</", "<\\/")
-    title = "cosim report: " + ", ".join(
-        f"{s['summary'].get('scenario', s['name']) if s['summary'] else s['name']}" for s in data["sources"])
+    title = report_title(data["light"])
     parts = {"TITLE": _escape(title), "CSS": _asset("report.css"),
              "PLOTLY": plotly_bundle().replace("</script", "<\\/script"), "DATA": payload, "APP": _asset("report.js")}
     return re.sub(r"\{\{(TITLE|CSS|PLOTLY|DATA|APP)\}\}", lambda m: parts[m.group(1)], _asset("report.html"))
@@ -514,3 +562,118 @@ def _escape(text: str) -> str:
 def _first_line(value: Any) -> str:
     text = str(value).strip()
     return text.splitlines()[0] if text else type(value).__name__
+
+
+# ------------------------------------------------------------------------------- written by a run
+#: The placeholder of the summary part in a prepared report (:func:`prepare`).
+LIGHT_TOKEN = '"@@cosim-report-summary@@"'
+TITLE_TOKEN = "@@cosim-report-title@@"
+PART_SUFFIX = ".part"
+ENV = "COSIM_REPORT"
+"""``0``: runs write no report.html (as ``[results] report = false``)."""
+_background: dict[Path, int] = {}
+
+
+def prepare(folder: Path) -> Path:
+    """Write ``report.html.part``: the report with its time-series part and a placeholder for the
+    summary part, which :func:`finish` fills in once summary.json has its final status."""
+    folder = Path(folder)
+    data = collect_series([folder])
+    data["light"] = "@@cosim-report-summary@@"
+    parts = {"TITLE": TITLE_TOKEN, "CSS": _asset("report.css"),
+             "PLOTLY": plotly_bundle().replace("</script", "<\\/script"),
+             "DATA": json.dumps(data, separators=(",", ":"), allow_nan=False).replace("</", "<\\/"),
+             "APP": _asset("report.js")}
+    text = re.sub(r"\{\{(TITLE|CSS|PLOTLY|DATA|APP)\}\}", lambda m: parts[m.group(1)], _asset("report.html"))
+    part = folder / (REPORT_NAME + PART_SUFFIX)
+    part.write_text(text, encoding="utf-8")
+    return part
+
+
+def start(folder: Path) -> int | None:
+    """:func:`prepare` in a forked process (a run's files are all written; the job still draws its
+    figures and finishes summary.json meanwhile); its pid, or None when it cannot fork here (other
+    threads, one core): :func:`finish` then writes the whole report."""
+    import os
+    import sys
+    import threading
+
+    from cosim.results.figure_process import usable_cores
+
+    folder = Path(folder)
+    if not hasattr(os, "fork") or threading.active_count() > 1 or usable_cores() < 2 or folder in _background:
+        return None
+    for stream in (sys.stdout, sys.stderr):
+        stream.flush()
+    pid = os.fork()
+    if pid == 0:
+        code = 1
+        try:
+            import signal
+
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
+            signal.signal(signal.SIGTERM, signal.SIG_DFL)
+            prepare(folder)
+            code = 0
+        except BaseException:  # noqa: BLE001 - the parent writes the report itself then
+            code = 1
+        finally:
+            os._exit(code)
+    _background[folder] = pid
+    return pid
+
+
+def cancel(folder: Path) -> None:
+    """End a :func:`start`-ed process of ``folder`` (if any) and remove what it wrote."""
+    import os
+    import signal
+
+    pid = _background.pop(Path(folder), None)
+    if pid is not None:
+        try:
+            os.kill(pid, signal.SIGKILL)
+            os.waitpid(pid, 0)
+        except (ProcessLookupError, ChildProcessError):
+            pass
+    (Path(folder) / (REPORT_NAME + PART_SUFFIX)).unlink(missing_ok=True)
+
+
+def finish(folder: Path) -> Path:
+    """Write ``folder/report.html``: the prepared part (waiting for the process of :func:`start`)
+    with the summary part filled in, or the whole report when nothing was prepared."""
+    import os
+
+    folder = Path(folder)
+    part = folder / (REPORT_NAME + PART_SUFFIX)
+    pid = _background.pop(folder, None)
+    ok = False
+    if pid is not None:
+        try:
+            _, status = os.waitpid(pid, 0)
+            ok = os.waitstatus_to_exitcode(status) == 0
+        except ChildProcessError:
+            ok = False
+    out = folder / REPORT_NAME
+    if ok and part.exists():
+        light = collect_light([folder])
+        text = part.read_text(encoding="utf-8")
+        payload = json.dumps(light, separators=(",", ":"), allow_nan=False).replace("</", "<\\/")
+        text = text.replace(TITLE_TOKEN, _escape(report_title(light)), 2).replace(LIGHT_TOKEN, payload, 1)
+        tmp = out.with_name(out.name + ".tmp")
+        tmp.write_text(text, encoding="utf-8")
+        tmp.replace(out)
+        part.unlink(missing_ok=True)
+        return out
+    part.unlink(missing_ok=True)
+    return write_report([folder], out)
+
+
+def wanted(document: dict[str, Any] | None) -> bool:
+    """Whether a run of this scenario document writes report.html: ``[results] report`` (default
+    true) unless ``$COSIM_REPORT`` is ``0``."""
+    import os
+
+    if os.environ.get(ENV, "").strip() == "0":
+        return False
+    results = (document or {}).get("results")
+    return not (isinstance(results, dict) and results.get("report") is False)

@@ -5,7 +5,16 @@
   'use strict';
   var D = JSON.parse(document.getElementById('cosim-data').textContent);
   var R = window.cosimReport = { ready: false, data: D, time: null, errors: [] };
+  // the summary part (written last: summary.json's final status) joins the time-series part
+  D.sources = D.light.sources;
+  D.notes = D.light.notes.concat(D.notes);
+  D.runs.forEach(function (r) {
+    r.events = (D.light.run_events[r.label] || []).concat(r.bus_events || []).sort(function (a, b) { return a.time_s - b.time_s; });
+    r.status = D.light.run_status[r.label] || (r.partial ? 'running' : null);
+  });
   var t0 = performance.now();
+  R.marks = { start: t0 };
+  function mark(name) { R.marks[name] = performance.now() - t0; }
 
   // ---------------------------------------------------------------- decoding
   function bytes(b64) {
@@ -399,7 +408,7 @@
       }
     });
     runs.forEach(function (r, k) {
-      var ev = r.events.filter(function (e) { return e.kind !== 'emcy' || true; });
+      var ev = r.events;
       var p = pathData[k];
       if (!ev.length || !p) return;
       var x = [], y = [], z = [], text = [];
@@ -594,11 +603,15 @@
     buildToggles();
     buildReadout();
   } catch (e) { R.errors.push(String(e)); console.error(e); }
-  Promise.all([buildPlots(), buildScene(), Promise.resolve(buildEvents())]).then(function () {
+  mark('summary');
+  var jobs = [buildPlots().then(function () { mark('plots'); }), buildScene().then(function () { mark('scene'); }),
+              Promise.resolve(buildEvents())];
+  Promise.all(jobs).then(function () {
     var first = runs.findIndex(function (r) { return r.series.tcp_error; });
     var tStart = tMin;
     return setTime(tStart);
   }).then(function () {
+    mark('readout');
     R.ready = true;
     R.readyMs = performance.now() - t0;
     document.body.setAttribute('data-ready', '1');
