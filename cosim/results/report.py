@@ -48,7 +48,7 @@ FULL_VALUES_BUDGET = 3_000_000
 #: Poses of the arm embedded per run for the 3D replay (evenly spaced in the rows).
 ARM_FRAMES = 4000
 #: Points of each 3D path (the TCP error's peaks and evenly spaced ones).
-PATH_POINTS = 4000
+PATH_POINTS = 1500
 #: Where the EMCY frames are (CiA 301: 0x080 + node id).
 EMCY_IDS = (0x081, 0x0FF)
 SOURCES = ("tcp", "timeseries", "controller")

@@ -246,7 +246,10 @@
       var layout = baseLayout(panel);
       layout.shapes = limitShapes(p);
       plots.push(p);
-      promises.push(Plotly.newPlot(div, data, layout, { responsive: true, displaylogo: false, scrollZoom: true }).then(function () {
+      var before = performance.now();
+      var made = Plotly.newPlot(div, data, layout, { responsive: true, displaylogo: false, scrollZoom: true });
+      R.marks['newPlot ' + panel.key] = performance.now() - before;
+      promises.push(made.then(function () {
         div.on('plotly_relayout', function (ev) { onRelayout(p, ev); });
         div.on('plotly_click', function (ev) { if (ev.points && ev.points.length) setTime(Number(ev.points[0].x)); });
       }));
@@ -439,11 +442,14 @@
     var layout = { margin: { l: 0, r: 0, t: 0, b: 0 }, showlegend: false, uirevision: 'keep',
                    scene: { aspectmode: 'data', xaxis: { title: { text: 'x [m]' } }, yaxis: { title: { text: 'y [m]' } }, zaxis: { title: { text: 'z [m]' } },
                             camera: { eye: { x: 1.6, y: -1.6, z: 0.9 } } } };
-    return Plotly.newPlot(scene, data, layout, { responsive: true, displaylogo: false });
+    var before = performance.now();
+    var made = Plotly.newPlot(scene, data, layout, { responsive: true, displaylogo: false });
+    R.marks['newPlot scene'] = performance.now() - before;
+    return made;
   }
   var scenePending = false;
   function updateScene() {
-    if (scenePending || !scene.data) return;
+    if (scenePending || !scene.data || R.time === null) return;
     scenePending = true;
     requestAnimationFrame(function () {
       scenePending = false;
@@ -604,16 +610,25 @@
     buildReadout();
   } catch (e) { R.errors.push(String(e)); console.error(e); }
   mark('summary');
-  var jobs = [buildPlots().then(function () { mark('plots'); }), buildScene().then(function () { mark('scene'); }),
-              Promise.resolve(buildEvents())];
-  Promise.all(jobs).then(function () {
-    var first = runs.findIndex(function (r) { return r.series.tcp_error; });
-    var tStart = tMin;
-    return setTime(tStart);
+  // the plots, the timeline and the readout first (interactive: R.ready), then the 3D scene (R.sceneReady):
+  // a WebGL scene takes seconds in a software renderer (headless browsers) and must not hold the rest up
+  scene.textContent = 'building the 3D view ...';
+  Promise.all([buildPlots().then(function () { mark('plots'); }), Promise.resolve(buildEvents())]).then(function () {
+    return setTime(tMin);
   }).then(function () {
     mark('readout');
     R.ready = true;
     R.readyMs = performance.now() - t0;
+    R.readyAt = performance.now();      // ms since the navigation started
     document.body.setAttribute('data-ready', '1');
+    return new Promise(function (resolve) { setTimeout(resolve, 0); });
+  }).then(function () {
+    scene.textContent = '';
+    return buildScene();
+  }).then(function () {
+    mark('scene');
+    updateScene();
+    R.sceneReady = true;
+    R.sceneReadyAt = performance.now();
   }).catch(function (e) { R.errors.push(String(e && e.stack || e)); console.error(e); });
 })();
