@@ -27,12 +27,18 @@
                           : new Float32Array(u8.buffer, 0, u8.byteLength / 4);
   }
   function decode(p) { return p ? typed(bytes(p.b64), p.dtype) : null; }
+  function uniform(p, a) {                // a time column: t0 + k dt plus each sample's residual (exact)
+    if (!p.uniform) return a;
+    var t0 = p.uniform[0], dt = p.uniform[1], out = new Float64Array(a.length);
+    for (var k = 0; k < a.length; k++) out[k] = (t0 + k * dt) + a[k];
+    return out;
+  }
   function decodeAsync(p) {
     if (!p) return Promise.resolve(null);
     var u = bytes(p.b64);
-    if (!p.z) return Promise.resolve(typed(u, p.dtype));
+    if (!p.z) return Promise.resolve(uniform(p, typed(u, p.dtype)));
     var stream = new Blob([u]).stream().pipeThrough(new DecompressionStream('deflate'));
-    return new Response(stream).arrayBuffer().then(function (buf) { return typed(new Uint8Array(buf), p.dtype); });
+    return new Response(stream).arrayBuffer().then(function (buf) { return uniform(p, typed(new Uint8Array(buf), p.dtype)); });
   }
   var fullCache = new Map();
   function full(p) {                       // decoded once, on demand
