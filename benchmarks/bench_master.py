@@ -21,13 +21,23 @@ calls, connection copies, the 400 us Python task) costs.
 Prints, per macro step (100/200/400 us), the median over REPEATS runs of SIM_TIME_S of:
 wall us per macro step, us per macro step per FMU, speed-up over fmpy_api, real-time
 factor, overhead per FMU and macro step.
-Run: python benchmarks/bench_master.py [--sim-time 0.2] [--repeats 5]
+
+Section ``engines``: the main job's ``export-ssp`` archive (plant + six drives, the cell's 18
+FMU-to-FMU connections, the bus inputs at their start values) run unchanged by three engines
+at the archive's step (100 us), ENGINES_SIM_TIME_S each, interleaved: our master (compiled
+kernel, the archive read by cosim.ssp.load_ssp), libcosim (libcosimpy, step from the archive's
+osp:FixedStepAlgorithm) and Ecos (ecospy, parameter set initialValues). Timed: the stepping
+only (loading, instantiation and initialization before the clock starts). Prints the median
+wall and CPU us per macro step (CPU: all threads of this process; libcosim and Ecos step FMUs
+on worker threads) and the largest |q| difference of each engine's plant from ours at the end.
+Run: python benchmarks/bench_master.py [--sim-time 0.2] [--repeats 5] [--section all|ways|engines]
 """
 from __future__ import annotations
 
 import argparse
 import statistics
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -194,11 +204,131 @@ def run_fast_fmu(paths, h: float, sim_time: float) -> float:
     return wall
 
 
+# ----------------------------------------------------------------------------- other engines
+ENGINES_SIM_TIME_S = 2.0
+Q_NAMES = [f"q[{i}]" for i in range(1, 7)]
+
+
+def export_main_job(folder: Path) -> Path:
+    """The main job's archive, as ``python -m cosim export-ssp scenarios/iso9283.toml`` writes it."""
+    from cosim.ssp import export_ssp
+
+    return export_ssp(Path(__file__).resolve().parents[1] / "scenarios" / "iso9283.toml", folder / "iso9283.ssp")
+
+
+def _timed(step) -> tuple[float, float]:
+    w0, c0 = time.perf_counter(), time.process_time()
+    step()
+    return time.perf_counter() - w0, time.process_time() - c0
+
+
+def run_ours_on_archive(archive: Path, sim_time: float) -> tuple[float, float, list[float]]:
+    """(wall s, CPU s, plant q at the end): our master, compiled kernel, on the archive's FMUs and connections."""
+    from cosim.ssp import load_ssp
+
+    system = load_ssp(archive)
+    m = Master(system.macro_step, engine="native")
+    for f in system.fmus:
+        m.add_fmu(f["name"], f["path"], step=f.get("step"), start_values=f["parameters"])
+    for c in system.connections:
+        m.connect(c)
+    with m:
+        m.initialize(sim_time)
+        wall, cpu = _timed(m.run)
+        q = list(m.view([f"plant.{n}" for n in Q_NAMES]))
+    return wall, cpu, q
+
+
+def run_libcosim(archive: Path, sim_time: float) -> tuple[float, float, list[float]]:
+    """The same with libcosim: the archive as it is, its own step; the first step (initialization) untimed."""
+    from libcosimpy.CosimExecution import CosimExecution
+    from libcosimpy.CosimLogging import CosimLogLevel, log_output_level
+    from libcosimpy.CosimObserver import CosimObserver
+
+    from libcosimpy._internal import get_last_error_message
+
+    log_output_level(CosimLogLevel.ERROR)
+    try:
+        execution = CosimExecution.from_ssp_file(str(archive))
+    except AssertionError:
+        raise RuntimeError(f"libcosim cannot load {archive}: {get_last_error_message()}") from None
+    observer = CosimObserver.create_last_value()
+    execution.add_observer(observer)
+    plant = execution.slave_index_from_instance_name("plant")
+    refs = {v.name.decode(): v.reference for v in execution.slave_variables(plant)}
+    assert execution.step(1)
+    wall, cpu = _timed(lambda: execution.simulate_until(round(sim_time * 1e9)))
+    q = observer.last_real_values(plant, [refs[n] for n in Q_NAMES])
+    return wall * n_ratio(sim_time), cpu * n_ratio(sim_time), q
+
+
+def n_ratio(sim_time: float, step: float = 1e-4) -> float:
+    """Steps simulated / steps timed when the first step runs untimed (initialization)."""
+    n = round(sim_time / step)
+    return n / (n - 1)
+
+
+def run_ecos(archive: Path, sim_time: float) -> tuple[float, float, list[float]]:
+    """The same with Ecos: the archive as it is, its step given, the parameter set named; first step untimed."""
+    from ecospy import EcosSimulation
+
+    from cosim.ssp import PARAMETER_SET, load_ssp
+
+    step = load_ssp(archive).macro_step
+    with EcosSimulation(ssp_path=str(archive), step_size=step) as sim:
+        sim.init(parameter_set=PARAMETER_SET)
+        sim.step(1)
+        wall, cpu = _timed(lambda: sim.step(round(sim_time / step) - 1))
+        q = [sim.get_real(f"plant::{n}") for n in Q_NAMES]
+        sim.terminate()
+    return wall * n_ratio(sim_time, step), cpu * n_ratio(sim_time, step), q
+
+
+def engines(sim_time: float, repeats: int) -> None:
+    """Our master vs libcosim vs Ecos on the main job's exported archive (see the module docstring)."""
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as folder:
+        archive = export_main_job(Path(folder))
+        n_steps = round(sim_time / 1e-4)
+        ways = {"our master": run_ours_on_archive, "libcosim": run_libcosim, "Ecos": run_ecos}
+        walls = {name: [] for name in ways}
+        cpus = {name: [] for name in ways}
+        q_end = {}
+        for _ in range(repeats):
+            for name, fn in ways.items():
+                wall, cpu, q_end[name] = fn(archive, sim_time)
+                walls[name].append(wall)
+                cpus[name].append(cpu)
+    print(f"\nthe main job's export-ssp archive (7 FMUs, 18 connections, 100 us), unchanged in each engine; "
+          f"{sim_time} s simulated, median of {repeats} (engines interleaved); load average "
+          f"{open('/proc/loadavg').read().split()[:3]}")
+    print(f"{'engine':>11} {'wall us/step':>12} {'CPU us/step':>11} {'x ours (CPU)':>12} {'max |dq| vs ours at end':>24}")
+    ours_cpu = statistics.median(cpus["our master"])
+    for name in ways:
+        wall, cpu = statistics.median(walls[name]), statistics.median(cpus[name])
+        dq = max(abs(a - b) for a, b in zip(q_end[name], q_end["our master"]))
+        print(f"{name:>11} {wall / n_steps * 1e6:>12.2f} {cpu / n_steps * 1e6:>11.2f} {cpu / ours_cpu:>12.2f} "
+              f"{dq:>24.3g}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--sim-time", type=float, default=0.2, help="simulated seconds per run")
     parser.add_argument("--repeats", type=int, default=5, help="runs per case (median reported)")
+    parser.add_argument("--section", choices=("all", "ways", "engines"), default="all",
+                        help="the four ways of stepping the FMU set, the three engines on the archive, or both")
+    parser.add_argument("--engines-sim-time", type=float, default=ENGINES_SIM_TIME_S,
+                        help="simulated seconds per engine run")
     args = parser.parse_args()
+    if args.section in ("all", "ways"):
+        ways(args)
+    if args.section in ("all", "engines"):
+        engines(args.engines_sim_time, args.repeats)
+
+
+def ways(args: argparse.Namespace) -> None:
+    """The four (five) ways of stepping the FMU set: the table of the module docstring."""
     paths = ensure_fmus()
     paths3 = ensure_fmus(fmi=3)
     cases = {

@@ -7,9 +7,8 @@ uses - in this process, CPU time (``time.process_time``), median of ``--repeats`
 
 * CAN log: the recorder's sink (sorting, watermarks) into the columnar log
   (``fieldbus.canlog``) vs the BLF writer (``fieldbus.blf``, python-can's bytes);
-* time series: ``cosim.results.ParquetSink`` streaming and closing each file with the job's
-  encodings (controller log: scaled counts + delta-coded floats; tcp: the stored columns,
-  delta-coded) vs the plain layout (``$COSIM_COMPACT=0``: every column float64).
+* time series: ``cosim.results.ParquetSink`` streaming and closing each file (standard
+  encodings: byte-stream-split or dictionary float64 columns, zstd).
 
 Run: python benchmarks/bench_output.py [--results results/iso9283] [--repeats 3]
 """
@@ -35,8 +34,7 @@ FLUSH_CYCLES = 250  # the recorder's hand-over period (fieldbus/powerlink_defaul
 
 
 def run_job(out: Path, scenario: Path = SCENARIO, stop_time: str | None = None, plain: bool = False) -> Path:
-    """Run the main job into ``out``; ``plain``: the layout before the compact encodings (every
-    column plain, ``$COSIM_COMPACT=0``) with the CAN log as BLF."""
+    """Run the main job into ``out``; ``plain``: with the CAN log as BLF."""
     if stop_time is not None or plain:
         text = scenario.read_text(encoding="utf-8")
         if stop_time is not None:
@@ -46,8 +44,6 @@ def run_job(out: Path, scenario: Path = SCENARIO, stop_time: str | None = None, 
         scenario = out.parent / "iso_variant.toml"
         scenario.write_text(text, encoding="utf-8")
     env = {**os.environ, "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")}
-    if plain:
-        env["COSIM_COMPACT"] = "0"
     subprocess.run([sys.executable, "-m", "cosim", "run", str(scenario), "--out", str(out), "--quiet"], cwd=ROOT,
                    env=env, check=True, stdout=subprocess.DEVNULL)
     return out
@@ -95,9 +91,8 @@ def can_write_cpu(log: Path, work: Path, repeats: int) -> dict[str, float]:
 
 
 def series_write_cpu(folder: Path, mode: str, work: Path, repeats: int) -> dict[str, float]:
-    """CPU s to stream and close one mode's three time series, compact vs plain."""
-    from cosim.cell.runner import controller_log_encodings
-    from cosim.results.timeseries import ParquetSink, derived_spec, read_series, read_units
+    """CPU s to stream and close one mode's three time series (as the job writes them)."""
+    from cosim.results.timeseries import ParquetSink, read_series, read_units
 
     jobs = []
     for stem in ("timeseries", "controller", "tcp"):
@@ -105,39 +100,17 @@ def series_write_cpu(folder: Path, mode: str, work: Path, repeats: int) -> dict[
         names, data = read_series(path)
         units = read_units(path)
         kinds = ["Integer" if n in ("phase", "ik_iterations", "segment") else "Real" for n in names]
-        compact: dict = {}
-        stored = list(range(len(names)))
-        if stem == "controller":
-            compact = controller_log_encodings()
-        elif stem == "tcp":
-            spec = derived_spec(path)
-            if spec is not None:
-                rebuilt = set(spec["copy"]) | set(spec["difference"]) | set(spec["distance_mm"])
-                stored = [i for i, n in enumerate(names) if n not in rebuilt]
-                compact = {"derived": spec, "float_delta": True}
-        jobs.append((stem, names, kinds, data, units, compact, stored))
+        jobs.append((stem, names, kinds, data, units))
 
-    def write(layout: str) -> None:
-        previous = os.environ.get("COSIM_COMPACT")
-        os.environ["COSIM_COMPACT"] = "1" if layout == "compact" else "0"
-        try:
-            for stem, names, kinds, data, units, compact, stored in jobs:
-                take = stored if layout == "compact" else list(range(len(names)))
-                sink = ParquetSink(work / f"{stem}.parquet", units, flush_interval_s=1e9,
-                                   **(compact if layout == "compact" else {}))
-                sink.open([names[i] for i in take], [kinds[i] for i in take])
-                block = data[:, take]
-                for start in range(0, len(block), 2048):  # the controller log's stream blocks
-                    sink.write(block[start:start + 2048])
-                sink.close()
-        finally:
-            if previous is None:
-                os.environ.pop("COSIM_COMPACT", None)
-            else:
-                os.environ["COSIM_COMPACT"] = previous
+    def write() -> None:
+        for stem, names, kinds, data, units in jobs:
+            sink = ParquetSink(work / f"{stem}.parquet", units, flush_interval_s=1e9)
+            sink.open(names, kinds)
+            for start in range(0, len(data), 2048):  # the controller log's stream blocks
+                sink.write(data[start:start + 2048])
+            sink.close()
 
-    return {"compact_cpu_s": _cpu(lambda: write("compact"), repeats),
-            "plain_cpu_s": _cpu(lambda: write("plain"), repeats)}
+    return {"cpu_s": _cpu(write, repeats)}
 
 
 def measure(results: Path | None = None, repeats: int = 3, stop_time: str | None = None,
@@ -161,11 +134,11 @@ def report(out: dict) -> str:
     lines = [f"{'file':42s} {'MB':>8s}"]
     lines += [f"{name:42s} {size / 1e6:8.3f}" for name, size in out["files"].items()]
     lines.append(f"{'total':42s} {out['total_mb']:8.3f}   ({out['ratio_to_csv_128mb']:.2f}x below the 128 MB CSV output)")
-    lines.append("write CPU per mode (s, median)   CAN columnar / BLF      series compact / plain")
+    lines.append("write CPU per mode (s, median)   CAN columnar / BLF      time series")
     for mode, m in out["modes"].items():
         c, s = m["can"], m["series"]
         lines.append(f"  {mode:28s} {c['columnar_cpu_s']:7.3f} / {c['blf_cpu_s']:7.3f}"
-                     f"   {s['compact_cpu_s']:7.3f} / {s['plain_cpu_s']:7.3f}")
+                     f"   {s['cpu_s']:7.3f}")
     lines.append("load average: " + " ".join(f"{x:.2f}" for x in out["load_average"]))
     return "\n".join(lines)
 

@@ -1,8 +1,7 @@
 """Size, write and read time of the main job's output under other encodings (lossless only).
 
 Takes a results folder of the main job (``--results DIR``; default: runs
-``scenarios/iso9283.toml`` into a temporary folder in the plain layout, ``$COSIM_COMPACT=0``
-and ``can_log_format = "blf"``, through ``bench_output.run_job``) and rewrites every time series
+``scenarios/iso9283.toml`` into a temporary folder with ``can_log_format = "blf"``, through ``bench_output.run_job``) and rewrites every time series
 (``timeseries_*``, ``controller_*``, ``tcp_*`` Parquet files) with each candidate set of
 pyarrow writer options, checking that every value reads back bit for bit, and prints the
 total size, the write time and the read time per candidate; then the CAN logs: BLF as
@@ -25,13 +24,24 @@ import numpy as np
 from bench_output import run_job
 
 
-def candidates(schema) -> dict[str, dict]:
-    """Writer options tried (name -> pyarrow.parquet.write_table keywords)."""
+def candidates(table) -> dict[str, dict]:
+    """Writer options tried (name -> pyarrow.parquet.write_table keywords); the first is the
+    job's own choice (cosim.results.timeseries.column_encodings on the first rows)."""
+    from cosim.results.timeseries import COMPRESSION_LEVEL, DICTIONARY_SAMPLE_ROWS, column_encodings
+
+    schema = table.schema
     floats = [f.name for f in schema if str(f.type) == "double"]
+    head = table.slice(0, DICTIONARY_SAMPLE_ROWS)
+    sample = np.column_stack([head.column(i).to_numpy().astype(float) for i in range(head.num_columns)])
+    dictionary, split = column_encodings(schema.names, sample, [str(f.type) != "double" for f in schema])
     base = dict(use_dictionary=False, write_statistics=False)
     return {
-        "current (bss, zstd 1, 16k groups)": dict(base, compression="zstd", use_byte_stream_split=floats,
-                                                  row_group_size=16384),
+        "as written (bss/dictionary, zstd 3)": dict(compression="zstd", compression_level=COMPRESSION_LEVEL,
+                                                    write_statistics=False, use_dictionary=dictionary or False,
+                                                    use_byte_stream_split=split or False, row_group_size=16384),
+        "bss, zstd 1": dict(base, compression="zstd", compression_level=1, use_byte_stream_split=floats,
+                            row_group_size=16384),
+        "plain, zstd 3": dict(base, compression="zstd", compression_level=3, row_group_size=16384),
         "bss, zstd 3": dict(base, compression="zstd", compression_level=3, use_byte_stream_split=floats,
                             row_group_size=16384),
         "bss, zstd 9": dict(base, compression="zstd", compression_level=9, use_byte_stream_split=floats,
@@ -52,14 +62,14 @@ def series_sizes(folder: Path) -> list[tuple[str, int, float, float]]:
 
     files = sorted(p for p in folder.glob("*.parquet") if p.stem.split("_")[0] in ("timeseries", "controller", "tcp"))
     tables = {p.name: pq.read_table(p) for p in files}
-    names = list(candidates(next(iter(tables.values())).schema))
+    names = list(candidates(next(iter(tables.values()))))
     out = []
     for name in names:
         size, write_s, read_s = 0, 0.0, 0.0
         for table in tables.values():
             buf = io.BytesIO()
             t0 = time.perf_counter()
-            pq.write_table(table, buf, **candidates(table.schema)[name])
+            pq.write_table(table, buf, **candidates(table)[name])
             write_s += time.perf_counter() - t0
             size += buf.tell()
             t0 = time.perf_counter()

@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from robot.kinematics import cardan_from_rotation, rotation_from_cardan
+from robot.textfiles import open_text
 
 JOINT_COLUMNS = tuple(f"q{i}" for i in range(1, 7))
 POSITION_COLUMNS = ("x", "y", "z")
@@ -144,7 +145,7 @@ def read_measurements_csv(path: str | Path) -> Measurements:
     where = f"measurement file {str(file)!r}"
     if not file.is_file():
         raise MeasurementError(f"{where} does not exist")
-    with file.open(newline="", encoding="utf-8-sig") as handle:
+    with open_text(file) as handle:  # UTF-8, a byte-order mark dropped
         reader = csv.reader(handle)
         try:
             header = next(reader)

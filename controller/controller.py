@@ -503,7 +503,7 @@ class Controller:
                 "trajectory_duration_s": self.duration, "enabled_at_s": self.enabled_at_s,
                 "motion_start_s": self.motion_start_s, "stop_reason": self.stop_reason,
                 "stopped_at_s": self.stopped_at_s, "q_start_rad": self.q_start.tolist(),
-                "cycle_compute_us": self.timing().as_dict(), "config": asdict(self.config),
+                "cycle_timing_us": self.timing().as_dict(), "config": asdict(self.config),
                 "compiled_kernel": self.kernel_note, "kernel_cycles": self.kernel_cycles,
                 "fallback_cycles": self.fallback_cycles}
 

@@ -49,6 +49,136 @@ def bus_carriers() -> dict[str, str | None]:
     return {name: next((c for c in options if c in have), None) for name, options in _CARRIER_NAMES.items()}
 
 
+COMMAND_LOG_GROUPS = (("controlword", "controlword", "-", "Integer"), ("mode", "modes_of_operation", "-", "Integer"),
+                      ("target", "target_position", "rad", "Real"),
+                      ("target_velocity", "target_velocity", "rad/s", "Real"),
+                      ("velocity_offset", "velocity_offset", "rad/s", "Real"),
+                      ("target_torque", "target_torque", "N.m", "Real"), ("tau_ff", "torque_offset", "N.m", "Real"),
+                      ("statusword", "statusword", "-", "Integer"), ("q_obs", "position", "rad", "Real"),
+                      ("qd_obs", "velocity", "rad/s", "Real"), ("tau_obs", "torque", "N.m", "Real"))
+"""The per-joint column groups of :class:`CommandLog`: (column prefix, ControllerOutput /
+ControllerInput field, unit, recorder kind). Names shared with the built-in controller's log
+(``controller.LOG_COLUMNS``) mean the same: ``target`` the target position sent, ``tau_ff`` the
+torque offset sent, ``q_obs`` the position actual the controller saw."""
+COMMAND_LOG_SCALARS = (("t", "s", "Real"), ("cycle", "-", "Integer"), ("late", "-", "Integer"),
+                       ("lost", "-", "Integer"), ("compute_us", "us", "Real"), ("compute_cpu_us", "us", "Real"))
+COMMAND_LOG_BLOCK_ROWS = 2048
+"""Rows a :class:`CommandLog` holds before it hands them to its sink (0.8 s at 400 µs)."""
+
+
+def command_log_columns(n_joints: int = 6) -> tuple[list[str], list[str], dict[str, str]]:
+    """(columns, recorder kinds, units) of a :class:`CommandLog` for ``n_joints`` drives."""
+    columns, kinds, units = [], [], {}
+    for name, unit, kind in COMMAND_LOG_SCALARS[:4]:
+        columns.append(name)
+        kinds.append(kind)
+        units[name] = unit
+    for prefix, _, unit, kind in COMMAND_LOG_GROUPS:
+        for j in range(1, n_joints + 1):
+            columns.append(f"{prefix}{j}")
+            kinds.append(kind)
+            units[f"{prefix}{j}"] = unit
+    for name, unit, kind in COMMAND_LOG_SCALARS[4:]:
+        columns.append(name)
+        kinds.append(kind)
+        units[name] = unit
+    return columns, kinds, {k: v for k, v in units.items() if v != "-"}
+
+
+class CommandLog:
+    """Per-cycle record of a user's controller as the cell drove it: one row per ``step``.
+
+    Columns (:func:`command_log_columns`): ``t`` (cycle time, s), ``cycle``, ``late`` and
+    ``lost`` (the previous output came late / was lost: 1), per joint what went to the drive
+    (``controlword``, ``mode`` = modes of operation, ``target`` position, ``target_velocity``,
+    ``velocity_offset``, ``target_torque``, ``tau_ff`` = torque offset) and what the controller
+    was given (``statusword``, ``q_obs``, ``qd_obs``, ``tau_obs``: position, velocity and torque
+    actuals), then the controller's own compute time (``compute_us`` wall, ``compute_cpu_us``
+    thread CPU). Rows are handed to ``sink`` (a recorder sink: ``open``, ``write``, ``flush``,
+    ``close``) a block at a time; without a sink they stay in memory until :meth:`close`.
+    """
+
+    def __init__(self, port: "ControllerPort", sink=None, block_rows: int = COMMAND_LOG_BLOCK_ROWS) -> None:
+        self.columns, self.kinds, self.units = command_log_columns(port.n)
+        self.sink = sink
+        self.rows = 0
+        self.total_rows = 0
+        self._held: list[np.ndarray] = []
+        self._block = np.empty((max(int(block_rows), 16), len(self.columns)))
+        self._head = np.zeros(4)
+        self._tail = np.zeros(2)
+        sp, inp = port.setpoints, port.inputs
+        carriers = bus_carriers()
+        parts: list[np.ndarray] = [self._head]
+        for _, name, _, _ in COMMAND_LOG_GROUPS:
+            carrier = carriers.get(name)
+            if carrier is not None:
+                parts.append(getattr(sp, carrier))
+            elif hasattr(inp, name):
+                parts.append(None)  # bound to the input arrays at each row (the port rebinds them)
+            else:
+                parts.append(np.zeros(port.n))
+        parts.append(self._tail)
+        self._parts = parts
+        self._inputs = inp
+        self._input_slots = [(k + 1, name) for k, (_, name, _, _) in enumerate(COMMAND_LOG_GROUPS)
+                             if parts[k + 1] is None]
+        if sink is not None:
+            sink.open(self.columns, self.kinds)
+
+    def add(self, t: float, cycle: int, late: bool, lost: bool, compute_ns: int, cpu_ns: int) -> None:
+        """Append the row of the cycle just run (the set-points as they go on the bus)."""
+        if self.rows == self._block.shape[0]:
+            self._spill()
+        head, tail, parts, inp = self._head, self._tail, self._parts, self._inputs
+        head[0], head[1], head[2], head[3] = t, cycle, late, lost
+        tail[0], tail[1] = compute_ns * 1e-3, cpu_ns * 1e-3
+        for slot, name in self._input_slots:
+            parts[slot] = getattr(inp, name)
+        np.concatenate(parts, out=self._block[self.rows], casting="unsafe")
+        self.rows += 1
+
+    def _spill(self) -> None:
+        if not self.rows:
+            return
+        block = self._block[:self.rows].copy() if self.sink is None else self._block[:self.rows]
+        if self.sink is None:
+            self._held.append(block)
+        else:
+            self.sink.write(block)
+            self.sink.flush()
+        self.total_rows += self.rows
+        self.rows = 0
+
+    def block(self) -> np.ndarray:
+        """Every row held in memory (no sink) as one (rows, columns) array."""
+        return np.concatenate([*self._held, self._block[:self.rows]]) if self._held or self.rows \
+            else np.zeros((0, len(self.columns)))
+
+    def close(self, sink=None) -> None:
+        """Write what is left to the log's sink and close it; a log without one writes all its rows to
+        ``sink`` now (given: opened, written, closed)."""
+        if self.sink is None:
+            if sink is None:
+                return
+            sink.open(self.columns, self.kinds)
+            try:
+                rows = self.block()
+                if len(rows):
+                    sink.write(rows)
+            finally:
+                sink.close()
+            self.total_rows += self.rows
+            self.rows = 0
+            self._held = []
+            return
+        try:
+            self._spill()
+        finally:
+            self.sink.close()
+            self.sink = None
+
+
 class ControllerFailure(RuntimeError):
     """The controller raised or returned an unusable output in a cycle (ends the run).
 
@@ -106,6 +236,16 @@ class ControllerPort:
         self.timer: CycleTimer | None = None if self._alias_out is not None else CycleTimer(100e-6)
         # the port's own cost per cycle, bounded for any length of run (CycleTimer folds long runs)
         self._overhead: CycleTimer | None = CycleTimer(1.0) if self.timer is not None else None
+        self.log: CommandLog | None = None
+
+    def start_log(self, sink=None) -> CommandLog | None:
+        """Record every cycle of a user's controller in a :class:`CommandLog` (streamed to ``sink``, a
+        recorder sink, or held in memory without one); the built-in controller keeps its own log
+        (``Controller.log``): None then."""
+        if self.timer is None:
+            return None
+        self.log = CommandLog(self, sink)
+        return self.log
 
     # ------------------------------------------------------------------ lifecycle
     def setup(self, info: ControllerInfo) -> None:
@@ -175,8 +315,11 @@ class ControllerPort:
         except Exception as exc:  # noqa: BLE001 - a user's code: stop the run cleanly
             raise ControllerFailure(t, cycle, f"{self.name}.step() raised {type(exc).__name__}: {exc}") from exc
         own = time.perf_counter_ns() - started
-        timer.record(own, time.thread_time_ns() - cpu_started)
+        cpu = time.thread_time_ns() - cpu_started
+        timer.record(own, cpu)
         sp = self._convert(out, cycle, t)
+        if self.log is not None:
+            self.log.add(t, cycle, late, lost, own, cpu)
         self._overhead.record(time.perf_counter_ns() - entered - own)
         return sp
 

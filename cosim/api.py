@@ -18,7 +18,7 @@ temporary one) and read what it wrote; run sweeps from Python with the same obje
 
 Scenarios are given as a path to a TOML file, a TOML text (a string holding a newline),
 a dict (the parsed TOML document) or a :class:`Scenario`. Overrides are ``{"dotted.key":
-value}`` with the syntax and the code of sweep axes (``cosim.sweep.keypath``:
+value}`` with the syntax and the code of sweep axes (``cosim.scenario.keypath``:
 ``fmus[0].parameters."q0[2]"``); values follow the scenario's own rules (SI numbers or
 unit strings such as ``"5 kg"``), relative file paths in them are relative to the working
 directory (as are those of a dict or TOML text).
@@ -169,7 +169,7 @@ class Scenario:
         """The document as TOML text (file paths made absolute, so it runs from any folder)."""
         import tomli_w
 
-        from cosim.sweep.keypath import absolute_paths
+        from cosim.scenario.keypath import absolute_paths
 
         doc = absolute_paths(self._validated.job.schema, self.document, self._validated.where.base_dir)
         return tomli_w.dumps(doc)
@@ -178,7 +178,7 @@ class Scenario:
         """What this scenario will run, as text: name, job, source, overrides, then every setting
         of the validated document as ``key path = value`` (SI units, defaults included; lists
         longer than ``max_list`` items shown by their length)."""
-        from cosim.sweep.keypath import format_key_path
+        from cosim.scenario.keypath import format_key_path
 
         lines = [f"scenario {self.name!r}: job {self.job!r}" + (f" - {self.description}" if self.description else ""),
                  f"  from {self.source}"]
@@ -244,7 +244,7 @@ def load_scenario(scenario: "str | Path | Mapping[str, Any] | Scenario",
             ``output``) or gives a value of the wrong type or unit. ``.file`` is the path,
             ``"<dict>"`` or ``"<string>"``.
     """
-    from cosim.scenario.loader import load_document, read_toml_file, resolve_path
+    from cosim.scenario.loader import load_scenario, resolve_path
 
     if isinstance(scenario, Scenario):
         return scenario.with_overrides(overrides) if overrides else scenario
@@ -262,7 +262,7 @@ def load_scenario(scenario: "str | Path | Mapping[str, Any] | Scenario",
         source = STRING_LABEL
     elif isinstance(scenario, (str, Path)):
         path = resolve_path(scenario)  # a project scenario of an installed package from any folder
-        validated = load_document(read_toml_file(path, "scenario"), path)
+        validated = load_scenario(path)
         source = str(path)
     else:
         raise TypeError(f"scenario: expected a path, a TOML text, a dict or a cosim.Scenario, "
@@ -306,7 +306,7 @@ def _apply_overrides(base: "ValidatedScenario", source: str, overrides: Mapping[
         return Scenario(base, source, earlier)
     from cosim.scenario.loader import load_document
     from cosim.scenario.schema import Where
-    from cosim.sweep.keypath import (KeyPathSyntaxError, absolute_paths, format_key_path, overlapping,
+    from cosim.scenario.keypath import (KeyPathSyntaxError, absolute_paths, format_key_path, overlapping,
                                      parse_key_path, spec_at, with_value)
     from cosim.sweep.loader import flatten_overrides, scenario_key_path
 
@@ -356,7 +356,9 @@ class Summary:
 
     @property
     def status(self) -> str:
-        """``"ok"``, ``"failed"``, ``"interrupted"`` or ``"running"`` (a run that died without finishing)."""
+        """``"ok"``, ``"limit"``, ``"fault"`` (completed, with the most severe verdict of its cell runs;
+        cosim/cell/verdict.py), ``"failed"``, ``"interrupted"`` or ``"running"`` (a run that died
+        without finishing)."""
         return str(self.raw.get("status", "running"))
 
     @property
@@ -365,7 +367,7 @@ class Summary:
 
     @property
     def reason(self) -> str | None:
-        """Why the run failed (None when ok)."""
+        """Why the run failed, or which run hit a limit or faulted and how (None when ok)."""
         return self.raw.get("reason")
 
     @property
@@ -401,7 +403,7 @@ class Summary:
         return str(self.raw.get("started_at", ""))
 
     def __getitem__(self, key: str) -> Any:
-        from cosim.sweep.keypath import get_path, parse_key_path
+        from cosim.scenario.keypath import get_path, parse_key_path
 
         if key in self.raw:
             return self.raw[key]
@@ -515,7 +517,9 @@ def read_timeseries(path: str | Path, kind: str = "auto"):
 def _read_csv_columns(path: Path) -> TimeSeries:
     import numpy as np
 
-    with open(path, encoding="utf-8", newline="") as f:
+    from robot.textfiles import open_text
+
+    with open_text(path) as f:
         reader = csv.reader(f)
         header = next(reader, [])
         rows = list(reader)
@@ -661,6 +665,8 @@ def run(scenario: "str | Path | Mapping[str, Any] | Scenario", out: str | Path |
         realtime, split: pace the robot cell at the wall clock / run controller and drives in two
             processes (as ``cosim run --realtime/--split``; docs/timing.md).
         check: raise :class:`RunFailed` when the run ends ``failed`` (False: return the result).
+            A run that completed with verdict ``limit`` or ``fault`` is returned, not raised:
+            ``result.status`` says so (and ``result.summary["verdicts"]`` per cell run).
         timeseries: ``"parquet"`` (default, or ``$COSIM_TIMESERIES``) or ``"csv"``: the format
             of the time-series files.
         max_output, max_memory, ignore_budget: the run's budget (``cosim.results.budget``:
@@ -682,7 +688,7 @@ def run(scenario: "str | Path | Mapping[str, Any] | Scenario", out: str | Path |
         out_dir, temporary = Path(out), False
     result = _execute_into(sc, out_dir, options, quiet=quiet, origin="out", temporary=temporary,
                            timeseries=timeseries, budget=None if ignore_budget else (max_output, max_memory))
-    if check and result.status != "ok":
+    if check and result.status == "failed":
         raise RunFailed(result) from result.error
     return result
 
@@ -800,20 +806,29 @@ def _write_report(out_dir: Path, wanted: bool) -> None:
 def _run_job(sc: Scenario, ctx) -> BaseException | None:
     """Run the job in ``ctx`` and write the final status (ok, failed with the reason and where,
     interrupted); return the exception that failed the run, or None."""
-    from cosim.cli import defer_signals
+    from cosim.cli import defer_signals, interrupt_raised
     from cosim.commands.exits import describe_os_error, is_disk_full, signal_name_of
     from cosim.master import SimulationError
 
     try:
         fields = sc.validated.job.runner(sc.validated, ctx) or {}
-        ctx.summary.finish_ok(ctx.sim_time_s, **fields)
+        status, reason, verdict_fields = _job_verdict(ctx)
+        ctx.summary.finish_verdict(status, ctx.sim_time_s, reason, **fields, **verdict_fields)
         return None
     except KeyboardInterrupt as exc:  # SIGINT, or SIGTERM through the CLI's handler
         with defer_signals():
+            if getattr(ctx, "verdicts", None):
+                ctx.summary.data["verdicts"] = dict(ctx.verdicts)
             ctx.summary.finish_interrupted(signal_name_of(exc), ctx.stopped_at_s, ctx.sim_time_s,
                                            mode=ctx.label or None, interrupted_in=ctx.label or None)
         raise
     except Exception as exc:
+        interrupt = interrupt_raised()
+        if interrupt is not None:  # Ctrl-C raised inside code that turned it into this error (a Python FMU)
+            with defer_signals():
+                ctx.summary.finish_interrupted(interrupt.signal_name, ctx.stopped_at_s, ctx.sim_time_s,
+                                               mode=ctx.label or None, interrupted_in=ctx.label or None)
+            raise interrupt from exc
         with defer_signals():
             extra: dict[str, Any] = {}
             if isinstance(exc, SimulationError):
@@ -829,9 +844,34 @@ def _run_job(sc: Scenario, ctx) -> BaseException | None:
                 reason, stopped = _first_line(str(exc)), ctx.stopped_at_s
             else:
                 reason, stopped = f"internal error: {type(exc).__name__}: {exc}", ctx.stopped_at_s
+            if getattr(ctx, "verdicts", None):
+                extra["verdicts"] = dict(ctx.verdicts)
             ctx.summary.finish_failed(reason, stopped, ctx.sim_time_s, failed_in=ctx.label or None,
                                       mode=ctx.label or None, **extra)
         return exc
+
+
+def _job_verdict(ctx) -> tuple[str, str | None, dict[str, Any]]:
+    """The job's status (the most severe verdict of its cell runs, ``ok`` without any), the
+    reason naming the first such run and its first violation, and the summary fields
+    ``verdicts`` (per run) and ``first_violation`` (of the run the status comes from)."""
+    from cosim.cell.verdict import describe_violation, most_severe
+
+    verdicts = dict(getattr(ctx, "verdicts", None) or {})
+    if not verdicts:
+        return "ok", None, {}
+    status = most_severe(v["verdict"] for v in verdicts.values())
+    fields: dict[str, Any] = {"verdicts": verdicts}
+    if status == "ok":
+        return status, None, fields
+    label, worst = next((k, v) for k, v in verdicts.items() if v["verdict"] == status)
+    first = worst.get("first_violation")
+    fields["first_violation"] = first
+    others = [k for k, v in verdicts.items() if v["verdict"] != "ok" and k != label]
+    reason = f"{label}: {status}" + (f": {describe_violation(first)}" if first else "")
+    if others:
+        reason += f" (also not ok: {', '.join(others)})"
+    return status, reason, fields
 
 
 def _first_line(text: str) -> str:

@@ -34,6 +34,8 @@ COMMAND_MODULES: tuple[str, ...] = (
     "cosim.commands.build_fmus",
     "cosim.commands.export_ssp",
     "cosim.commands.export_blf",
+    "cosim.commands.device_files",
+    "cosim.commands.export_pcap",
     "cosim.commands.view",
     "cosim.commands.run",
     "cosim.commands.serve",
@@ -76,11 +78,13 @@ class _SignalState:
 
     armed = True
     deferred: list[int] = []
+    raised: int | None = None  # the signal the handler raised Interrupted for (once per command)
 
 
 def _on_signal(signum: int, frame) -> None:
     if _SignalState.armed:
         _SignalState.armed = False
+        _SignalState.raised = signum
         raise Interrupted(signum)
     _SignalState.deferred.append(signum)
     if len(_SignalState.deferred) >= 3:  # the user insists: give up the clean shutdown
@@ -99,11 +103,21 @@ def defer_signals() -> Iterator[None]:
         _SignalState.armed = armed
 
 
+def interrupt_raised() -> Interrupted | None:
+    """The :class:`~cosim.commands.exits.Interrupted` the signal handler raised during this command
+    (None: no signal came). Code that is not ours may have swallowed it: a Python-implemented
+    FMU (pythonfmu) runs its model in this interpreter, so Ctrl-C can raise inside the FMU's
+    ``do_step``, which reports that as fmi2Error/fmi2Fatal; the run then fails naming an
+    innocent FMU unless the caller asks here and reports the interrupt instead."""
+    return Interrupted(_SignalState.raised) if _SignalState.raised is not None else None
+
+
 def install_signal_handlers() -> dict[int, object]:
     """SIGINT, SIGTERM and SIGHUP raise :class:`~cosim.commands.exits.Interrupted` (a KeyboardInterrupt) once;
     returns the previous handlers (for :func:`restore_signal_handlers`)."""
     _SignalState.armed = True
     _SignalState.deferred = []
+    _SignalState.raised = None
     previous: dict[int, object] = {}
     for signum in INTERRUPTS:
         try:
@@ -115,6 +129,7 @@ def install_signal_handlers() -> dict[int, object]:
 
 def restore_signal_handlers(previous: dict[int, object]) -> None:
     """Put back the handlers :func:`install_signal_handlers` replaced."""
+    _SignalState.raised = None
     for signum, handler in previous.items():
         try:
             signal.signal(signum, handler if handler is not None else signal.SIG_DFL)

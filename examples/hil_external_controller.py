@@ -6,8 +6,11 @@ serve`` before its first cycle), joins the bus through python-can's ``udpcycle``
 interface, enables the six drives through CiA 402 (a fault first reset by a rising edge of
 bit 7, 0x80; then shutdown 0x06 -> switch on 0x07 -> enable operation 0x0F, each when the
 statusword shows the state before it) holding each drive at its position actual, moves every
-joint from there along a smooth cosine out and back in cyclic synchronous position mode, and
-stops. Started again after the cell's drives reacted to its silence, it resets their faults
+joint from there along a smooth cosine out and back in cyclic synchronous position mode, rests
+0.5 s, disables the drives (shutdown 0x06: Ready to switch on, power stage off, brakes
+closed) and keeps the bus cycling, as a managing node does, until the cell stops: the run
+ends without a communication fault. Going silent instead (``--stop-after``, or
+``--exit-when-disabled``) is a loss of SoC/PReq to the cell's threshold counters. Started again after the cell's drives reacted to its silence, it resets their faults
 and does the same from where the arm stopped.
 
 Timing: the cell keeps the time; this program follows it. Every cycle the cell sends
@@ -71,6 +74,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--amplitude", type=float, default=0.2, help="joint excursion, rad")
     parser.add_argument("--duration", type=float, default=2.0, help="time out and back, s")
     parser.add_argument("--enable-timeout", type=float, default=5.0, help="s to wait for all drives enabled")
+    parser.add_argument("--exit-when-disabled", action="store_true",
+                        help="exit once the drives are disabled instead of cycling on until the cell stops")
     parser.add_argument("--stop-after", type=float, default=None,
                         help="go silent this many seconds into the motion (to show the cell's reaction)")
     args = parser.parse_args(argv)
@@ -89,6 +94,7 @@ def main(argv: list[str] | None = None) -> int:
     counter = 0
     cycles_seen = 0
     enabled_at = None
+    disabled_at = None
     motion_cycles = int(round(args.duration / cycle_s))
     started = time.monotonic()
 
@@ -121,6 +127,8 @@ def main(argv: list[str] | None = None) -> int:
             msg = pending.pop() if pending else bus.recv(0.5)
             if msg is None:
                 print("no PRes from the cell for 0.5 s: the cell stopped", file=sys.stderr)
+                if enabled_at is not None and disabled_at is None:
+                    print("the cell stopped before the motion ended (the drives were not disabled)", file=sys.stderr)
                 return 0 if enabled_at is not None else 2
             batch = [msg]
             msg = bus.recv(0)
@@ -154,12 +162,20 @@ def main(argv: list[str] | None = None) -> int:
                 target = list(position)
             else:
                 k = cycles_seen - enabled_at
-                if k > motion_cycles + int(0.5 / cycle_s):  # motion done and 0.5 s of rest
-                    return 0
-                phase = min(k / motion_cycles, 1.0)
-                offset = args.amplitude * 0.5 * (1.0 - math.cos(2.0 * math.pi * phase))
-                controlword = [ENABLE_OPERATION] * n
-                target = [b + round(offset * c) for b, c in zip(base, cpr)]
+                rest = int(0.5 / cycle_s)
+                if k > motion_cycles + rest:  # motion done and 0.5 s of rest: disable the drives
+                    controlword = [SHUTDOWN] * n  # Ready to switch on: power stage off, brakes closed
+                    if disabled_at is None and all(state(s) == "ready_to_switch_on" for s in status):
+                        disabled_at = cycles_seen
+                        print(f"all {n} drives disabled at cycle {cycles_seen}", flush=True)
+                    if disabled_at is not None and args.exit_when_disabled:
+                        return 0  # (the cell's counters then count the silence: a communication fault)
+                    # keep the bus cycling (as a managing node does) until the cell stops
+                else:
+                    phase = min(k / motion_cycles, 1.0)
+                    offset = args.amplitude * 0.5 * (1.0 - math.cos(2.0 * math.pi * phase))
+                    controlword = [ENABLE_OPERATION] * n
+                    target = [b + round(offset * c) for b, c in zip(base, cpr)]
             frames = [can.Message(arbitration_id=SYNC_ID, data=bytes([counter]), is_extended_id=False)]
             frames += [can.Message(arbitration_id=RPDO1_BASE + i + 1, is_extended_id=False,
                                    data=RPDO1.pack(controlword[i], target[i], 0)) for i in range(n)]

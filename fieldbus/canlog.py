@@ -4,14 +4,16 @@ cheaper to write, and nothing lost - :func:`to_blf` turns it into the very BLF f
 
 File format (``can_<mode>.parquet``; readable with any Parquet reader, this module not needed)
 -----------------------------------------------------------------------------------------------
-One row per frame. Rows are stored in row groups of at most :data:`ROW_GROUP_ROWS` frames;
-inside a row group they are sorted by arbitration id (stably), so each telegram's fields
-form long smooth runs that delta-encode to a few bits. Columns:
+One row per frame, every value as it is (standard Parquet types; integers delta-binary-packed,
+zstd): pandas, pyarrow, polars or DuckDB read each frame right without this module. Rows are
+stored in row groups of at most :data:`ROW_GROUP_ROWS` frames; inside a row group they are
+sorted by arbitration id (stably; the row group's ``sorting_columns`` say so), so each
+telegram's fields form long smooth runs that delta-encode to a few bits. ``seq`` is the
+frame's position in the log: sort by it for the frames in log (time) order. Columns:
 
 =========================  =======  ============================================================
-``seq``                    uint32   position of the frame in the log (time order) within its row group
-``dt_ns``                  int64    ``t_ns`` of this frame minus ``t_ns`` of the frame before it in the
-                                    log (the file's first frame: its ``t_ns``)
+``seq``                    int64    position of the frame in the whole log (0, 1, ...: time order)
+``t_ns``                   int64    the frame's time in ns since ``start_s`` (BLF's object time)
 ``id``                     uint16   arbitration id (11-bit, standard frames)
 ``error``                  bool     error frame
 ``length``                 uint8    data bytes (0..20; more than 8: a CAN FD frame)
@@ -38,9 +40,7 @@ TPDO2 ``0x281..0x2FF``      7       ``velocity_actual`` i32, ``error_code`` u16,
 
 Error frames and frames of any other id or length keep their payload in ``data``.
 
-Time: ``t_ns`` is the cumulative sum of ``dt_ns`` in log order (restore the order with ``seq``
-in each row group, row groups in file order); the frame's time in seconds is
-``start_s + t_ns / 1e9`` with ``start_s`` from the file's key-value metadata. ``t_ns`` is what
+Time: the frame's time in seconds is ``start_s + t_ns / 1e9`` with ``start_s`` from the file's key-value metadata. ``t_ns`` is what
 a BLF file stores (``int((t - start_s) * 1e9)``, python-can's conversion, ``start_s`` = the first
 frame's time truncated to ms) and ``stop_s`` (metadata) the last frame's time, which BLF keeps
 in its header. Metadata ``format`` = :data:`FORMAT`.
@@ -66,7 +66,10 @@ import numpy as np
 if TYPE_CHECKING:
     import can
 
-FORMAT = "rx130l-cosim CAN log 1"
+FORMAT = "rx130l-cosim CAN log 2"
+FORMAT_1 = "rx130l-cosim CAN log 1"
+"""Files of earlier versions (still read): ``seq`` the position within the row group, ``dt_ns`` the
+difference to the previous frame's ``t_ns`` instead of ``t_ns``."""
 ROW_GROUP_ROWS = 1 << 17
 """Frames per row group (about 6900 cycles of 19 frames): memory while converting and reading
 is one group (~6 MB); smaller groups cost more (4750: +60 %, 65536: +8 %)."""
@@ -108,7 +111,7 @@ FIELDS: dict[str, np.dtype] = {}
 for _lo, _hi, _n, _dt in LAYOUTS:
     for _name in _dt.names:
         FIELDS.setdefault(_name, _dt[_name].newbyteorder("="))
-INT_COLUMNS = ("seq", "dt_ns", "id", "length", *FIELDS)
+INT_COLUMNS = ("seq", "t_ns", "id", "length", *FIELDS)
 
 
 def blf_start(t0: float) -> float:
@@ -125,16 +128,16 @@ def blf_nanoseconds(t: np.ndarray, start: float) -> np.ndarray:
 def _schema():
     import pyarrow as pa
 
-    fields = [pa.field("seq", pa.uint32()), pa.field("dt_ns", pa.int64(), metadata={b"unit": b"ns"}),
+    fields = [pa.field("seq", pa.int64()), pa.field("t_ns", pa.int64(), metadata={b"unit": b"ns"}),
               pa.field("id", pa.uint16()), pa.field("error", pa.bool_()), pa.field("length", pa.uint8()),
               pa.field("data", pa.binary())]
     fields += [pa.field(name, pa.from_numpy_dtype(dtype)) for name, dtype in FIELDS.items()]
     return pa.schema(fields)
 
 
-PARTIAL_FORMAT = FORMAT + " partial 2"
+PARTIAL_FORMAT = FORMAT_1 + " partial 2"
 """``format`` of the partial stream: one column ``record`` of whole recorder records (the stream
-of ``FORMAT + " partial"`` had the columns ``t``, ``id``, ``error``, ``length``, ``data``; still read)."""
+of ``FORMAT_1 + " partial"`` had the columns ``t``, ``id``, ``error``, ``length``, ``data``; still read)."""
 
 
 def _partial_schema(data_bytes: int = MAX_DATA):
@@ -222,7 +225,7 @@ class _RowGroups:
         self.data_bytes = int(data_bytes)
         self.start: float | None = None
         self.stop: float | None = None
-        self.previous_ns = 0
+        self.frames = 0  # frames encoded so far: the next one's seq
         self._buffer = np.empty(0, dtype=record_dtype(self.data_bytes))
         self._rows = 0
         self._writer = None
@@ -254,8 +257,8 @@ class _RowGroups:
     def _encode(self) -> None:
         if not self._rows:
             return
-        table, self.previous_ns = _encode_records(self._buffer[:self._rows], self.start, self.previous_ns,
-                                                  self._scratch)
+        table = _encode_records(self._buffer[:self._rows], self.start, self.frames, self._scratch)
+        self.frames += self._rows
         if self._writer is None:
             self._writer = _parquet_writer(self.tmp, table.schema)
         self._writer.write_table(table, row_group_size=self._rows)
@@ -353,24 +356,23 @@ def _field_arrays(scratch: dict | None, name: str, n: int) -> tuple[np.ndarray, 
     return arrays
 
 
-def _encode_records(rec: np.ndarray, start: float, previous_ns: int, scratch: dict | None = None):
-    """One row group (a pyarrow Table) of recorder records ``rec`` (log order, contiguous) and
-    the BLF time (ns) of its last frame: the rows sorted by id (stably), ``dt_ns`` against
-    ``previous_ns``. ``scratch``: the field columns' arrays are reused from it (and kept in it)
-    - the table must then be written before the next call."""
+def _encode_records(rec: np.ndarray, start: float, first_seq: int, scratch: dict | None = None):
+    """One row group (a pyarrow Table) of recorder records ``rec`` (log order, contiguous, the
+    first one frame ``first_seq`` of the log): the rows sorted by id (stably). ``scratch``: the
+    field columns' arrays are reused from it (and kept in it) - the table must then be written
+    before the next call."""
     import pyarrow as pa
 
     n = rec.size
     width = rec.dtype["data"].shape[0]
     ns = blf_nanoseconds(rec["t"], start)
-    dt = np.diff(ns, prepend=np.int64(previous_ns))
     order = np.argsort(rec["id"], kind="stable")  # radix sort (16-bit keys)
     # the records in id order, taken whole (a memcpy each; numpy's structured take is ~8x slower)
     srec = np.ascontiguousarray(rec).view(np.dtype((np.void, rec.dtype.itemsize)))[order].view(rec.dtype)
     sid = np.ascontiguousarray(srec["id"])
     serr = np.ascontiguousarray(srec["error"])
     slen = np.ascontiguousarray(srec["length"])
-    columns = {"seq": pa.array(order.astype(np.uint32)), "dt_ns": pa.array(dt[order]), "id": pa.array(sid),
+    columns = {"seq": pa.array(order.astype(np.int64) + np.int64(first_seq)), "t_ns": pa.array(ns[order]), "id": pa.array(sid),
                "error": pa.array(serr != 0), "length": pa.array(slen)}
     spans: dict[str, list] = {}  # field -> (first row, end row, values, rows picked in between or None: all)
     picked: list = []
@@ -403,7 +405,7 @@ def _encode_records(rec: np.ndarray, start: float, previous_ns: int, scratch: di
         columns["data"] = pa.array(raw, type=pa.binary())
     for name, dtype in FIELDS.items():
         columns[name] = _field_column(spans.get(name), n, dtype, scratch, name)
-    return pa.table(columns, schema=_schema()), (int(ns[-1]) if n else previous_ns)
+    return pa.table(columns, schema=_schema())
 
 
 def _field_column(spans: list | None, n: int, dtype: np.dtype, scratch: dict | None, name: str):
@@ -456,7 +458,8 @@ def _parquet_writer(path: Path, schema):
     ints = [f.name for f in schema if f.name in INT_COLUMNS]
     return pq.ParquetWriter(path, schema, compression="zstd", compression_level=COMPRESSION_LEVEL,
                             use_dictionary=False, write_statistics=False,
-                            column_encoding={name: "DELTA_BINARY_PACKED" for name in ints})
+                            column_encoding={name: "DELTA_BINARY_PACKED" for name in ints},
+                            sorting_columns=[pq.SortingColumn(schema.get_field_index("id"))])
 
 
 def _frames_of(rec: np.ndarray, start: float) -> np.ndarray:
@@ -514,16 +517,21 @@ def _read_parquet(path: Path) -> tuple[np.ndarray, float, float]:
 
     pf = pq.ParquetFile(path)
     meta = {k.decode(): v.decode() for k, v in (pf.metadata.metadata or {}).items()}
-    if meta.get("format") != FORMAT:
+    if meta.get("format") not in (FORMAT, FORMAT_1):
         raise ValueError(f"{path}: not a CAN log of this format (metadata format = {meta.get('format')!r}, "
                          f"expected {FORMAT!r})")
+    version_1 = meta["format"] == FORMAT_1
     parts = []
     previous = 0
+    first = 0
     width = int(meta.get("data_bytes", MAX_DATA))
     for g in range(pf.metadata.num_row_groups):
         table = pf.read_row_group(g)
         n = table.num_rows
-        seq = table.column("seq").to_numpy()
+        seq = table.column("seq").to_numpy().astype(np.int64)
+        if not version_1:
+            seq = seq - first  # the position in the log: the row group's frames follow the earlier groups'
+            first += n
         grouped = np.zeros(n, dtype=frame_dtype(width))
         grouped["id"] = table.column("id").to_numpy()
         grouped["error"] = table.column("error").to_numpy(zero_copy_only=False)
@@ -542,11 +550,14 @@ def _read_parquet(path: Path) -> tuple[np.ndarray, float, float]:
                 grouped["data"][i, :len(payload)] = np.frombuffer(payload, dtype=np.uint8)
         frames = np.empty(n, dtype=frame_dtype(width))
         frames[seq] = grouped
-        dt = np.empty(n, dtype=np.int64)
-        dt[seq] = table.column("dt_ns").to_numpy()
-        frames["t_ns"] = previous + np.cumsum(dt)
-        if n:
-            previous = int(frames["t_ns"][-1])
+        if version_1:  # t_ns as differences
+            dt = np.empty(n, dtype=np.int64)
+            dt[seq] = table.column("dt_ns").to_numpy()
+            frames["t_ns"] = previous + np.cumsum(dt)
+            if n:
+                previous = int(frames["t_ns"][-1])
+        else:
+            frames["t_ns"][seq] = table.column("t_ns").to_numpy()
         parts.append(frames)
     frames = np.concatenate(parts) if parts else np.zeros(0, dtype=frame_dtype(width))
     return frames, float(meta["start_s"]), float(meta["stop_s"])

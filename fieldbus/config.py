@@ -11,6 +11,7 @@ import math
 import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from decimal import Decimal
 from functools import lru_cache
 from pathlib import Path
 from typing import Any
@@ -22,7 +23,15 @@ from fieldbus.timing import check_cycle_budget
 
 DEFAULTS_PATH = Path(__file__).with_name("powerlink_defaults.toml")
 
-US = 1e-6  # seconds per microsecond
+#: Microseconds per second.
+US_PER_S = 1_000_000
+
+
+def us_to_s(value: float) -> float:
+    """A time in microseconds as seconds, exact for the number as written: the decimal the float
+    prints as, divided by 10^6 in decimal, rounded once (400 -> 4e-4, 0.1 -> 1e-7, as the scenario's
+    "400 us" and "0.1 us"; multiplying by 1e-6 gives 0.00039999999999999996 and 1.0000000000000001e-07)."""
+    return float(Decimal(repr(float(value))) / US_PER_S)
 
 BURST_FRAMES = ("soc", "preq", "pres", "both")
 FAULT_KINDS = ("loss", "late", "corrupt")
@@ -343,7 +352,7 @@ def _build(v: dict[str, Any], source: str) -> FieldbusConfig:
                     options=dict(options))
 
     def us(key: str, low: float = 0.0, low_open: bool = False) -> float:
-        return r.number(key, v[key], low, None, low_open) * US
+        return us_to_s(r.number(key, v[key], low, None, low_open))
 
     def count(key: str, low: int = 0, high: int | None = None) -> int:
         return r.integer(key, v[key], low, high)
@@ -410,7 +419,7 @@ def _build(v: dict[str, Any], source: str) -> FieldbusConfig:
     )
     return FieldbusConfig(
         nodes=nodes,
-        cycle_time_s=r.number("cycle_time_us", v["cycle_time_us"], 0.0, None, low_open=True) * US,
+        cycle_time_s=us_to_s(r.number("cycle_time_us", v["cycle_time_us"], 0.0, None, low_open=True)),
         dead_time_cycles=r.integer("dead_time_cycles", v["dead_time_cycles"], 1, 10_000),
         start_time_s=r.number("start_time_s", v["start_time_s"]),
         seed=r.integer("seed", v["seed"], 0),

@@ -628,7 +628,10 @@ class DriveEndpoint(_Endpoint):
             return []
         self._last_taken = cycle
         times = self._times
-        out = [FastMessage(times[0], SYNC_ID, bytearray([cycle % overflow + 1]))]
+        # the nodes take the SoC as this cell cycle's (its counter is how the controller numbers
+        # it); the CAN log keeps the counter byte the controller sent (what was on the wire)
+        sync = FastMessage(times[0], SYNC_ID, bytearray([cycle % overflow + 1]))
+        out = [sync]
         for msg in groups[chosen][1:]:
             base, node = msg.arbitration_id & ~0x7F, msg.arbitration_id & 0x7F
             on_time = base == RPDO1_BASE and 1 <= node <= n and times[node] is not None
@@ -645,7 +648,11 @@ class DriveEndpoint(_Endpoint):
                     self.events.add(FieldbusEvent(t, cycle, "medium", node, f"{frame}_{kind}", "injected",
                                                   -1, -1, -1, f"fault injection: {frame.upper()} {kind}"))
         if self._record is not None and (self._record_received or self._owns_recorder):
-            self._record(out)  # what the cell took, with the cycle's timestamps
+            wire = groups[chosen][0]
+            logged = out
+            if out and out[0] is sync and bytes(wire.data) != bytes(sync.data):
+                logged = [FastMessage(sync.timestamp, SYNC_ID, bytearray(wire.data)), *out[1:]]
+            self._record(logged)  # what the cell took as it was on the wire, with the cycle's timestamps
         return out
 
     def _late_group(self, cycle: int, group: list, expected: bytes | None, overflow: int) -> bool:

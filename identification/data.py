@@ -33,6 +33,7 @@ from numpy.typing import ArrayLike
 from identification.errors import IdentificationDataError
 from identification.signals import sample_time_of
 from robot.joints import N_JOINTS
+from robot.textfiles import csv_rows
 
 Q_COLUMNS = tuple(f"q{i}" for i in range(1, 7))
 TAU_COLUMNS = tuple(f"tau{i}" for i in range(1, 7))
@@ -101,8 +102,7 @@ def read_motion_csv(path: str | Path) -> MotionRecord:
     if not path.is_file():
         raise IdentificationDataError(f"{where}: file not found, expected a CSV record (t, q1..q6, tau1..tau6)")
     try:
-        with open(path, newline="") as handle:
-            rows = list(csv.reader(handle))
+        rows = csv_rows(path)  # UTF-8, a byte-order mark dropped (robot.textfiles)
     except (OSError, UnicodeDecodeError, csv.Error) as exc:
         raise IdentificationDataError(f"{where}: cannot read as CSV text ({exc})") from exc
     rows = [r for r in rows if r and any(cell.strip() for cell in r)]

@@ -58,6 +58,7 @@ import numpy as np
 
 from planners.base import JointLimits
 from planners.trajectory import N_JOINTS, Trajectory, TrajectoryError, uniform_times
+from robot.textfiles import read_text
 
 DEFAULT_SAMPLE_DT = 1e-3
 """Grid [s] on which a loaded file is sampled and checked between its own samples."""
@@ -168,7 +169,7 @@ def _read_table(path: Path) -> _Table:
     if not path.is_file():
         raise TrajectoryFileError(path, "no such file")
     try:
-        text = path.read_text(encoding="utf-8-sig")
+        text = read_text(path)  # UTF-8, a byte-order mark dropped
     except (OSError, UnicodeDecodeError) as exc:
         raise TrajectoryFileError(path, f"cannot be read as UTF-8 text: {exc}") from None
     rows: list[tuple[int, list[str]]] = []
@@ -402,6 +403,61 @@ def _check_limits(path: Path, limits: JointLimits, file_t: np.ndarray, lines: np
 def _raise_limit(path, column, line, between, time, value, limit, kind, derived, count):
     raise TrajectoryLimitError(path, column=column, line=line, between=between, time=time, value=value, limit=limit,
                                kind=kind, derived=derived, violations=count)
+
+
+class PlanLimitError(TrajectoryError):
+    """A planner's trajectory lies beyond a limit of the robot, or does not end where the problem
+    asked (:func:`check_planned_trajectory`). Attributes: ``planner`` (its name or class spec),
+    ``joint`` (1..6), ``kind`` ("position", "velocity", "acceleration", "torque" or "goal"),
+    ``time`` (s, the trajectory's time), ``value``, ``limit`` (SI units; a (low, high) range for
+    positions), ``violations`` (checked points beyond limits in all)."""
+
+    def __init__(self, planner: str, message: str, *, joint: int, kind: str, time: float, value: float,
+                 limit: Any, violations: int = 1) -> None:
+        self.planner, self.joint, self.kind, self.time = planner, joint, kind, time
+        self.value, self.limit, self.violations = value, limit, violations
+        super().__init__(f"planner {planner}: {message}")
+
+
+GOAL_TOLERANCE_RAD = 1e-6
+"""How far a planned point-to-point trajectory may end from the problem's goal (rad per joint)."""
+
+
+def check_planned_trajectory(trajectory: Trajectory, planner: str, limits: JointLimits | None = None,
+                             goal: Any = None) -> dict[str, float]:
+    """Check a planner's trajectory before it runs, with the checker of trajectory files: every
+    sample of q, qd, qdd and tau against the robot's limits (``limits``, default
+    :meth:`JointLimits.from_robot`; the same slack :data:`LIMIT_TOLERANCE`), and, given the
+    problem's ``goal`` (6 angles, rad), that it ends there (:data:`GOAL_TOLERANCE_RAD`): a plan
+    that stops halfway is refused too. Returns the largest |value| / limit per kind; raises
+    :class:`PlanLimitError` naming the planner, joint, limit and time of the earliest violation."""
+    limits = limits or JointLimits.from_robot()
+    n = trajectory.t.size
+    try:
+        ratios = _check_limits(Path(planner), limits, trajectory.t, np.arange(n), trajectory, set(JOINT_GROUPS)
+                               | {f"{g}{j}" for g in JOINT_GROUPS for j in range(1, N_JOINTS + 1)})
+    except TrajectoryLimitError as exc:
+        column = exc.column or ""
+        group, joint = column.rstrip("0123456789"), int(column[len(column.rstrip("0123456789")):] or 0)
+        unit = _SI_UNIT.get(group, "")
+        bound = (f"the {exc.kind} range [{exc.limit[0]:.6g}, {exc.limit[1]:.6g}] {unit}" if isinstance(exc.limit, tuple)
+                 else f"the {exc.kind} limit |{column}| <= {exc.limit:.6g} {unit}")
+        more = f"; {exc.violations} samples beyond limits in all" if exc.violations > 1 else ""
+        raise PlanLimitError(planner, f"joint {joint} beyond its {exc.kind} limit at t = {exc.time:.6g} s: "
+                                      f"{column} = {exc.value:.6g} {unit} exceeds {bound}{more}",
+                             joint=joint, kind=exc.kind, time=exc.time, value=exc.value, limit=exc.limit,
+                             violations=exc.violations) from None
+    if goal is not None:
+        goal = np.asarray(goal, dtype=float).reshape(-1)
+        miss = np.abs(trajectory.q[-1] - goal)
+        if goal.size == N_JOINTS and np.any(miss > GOAL_TOLERANCE_RAD):
+            j = int(np.argmax(miss))
+            raise PlanLimitError(planner, f"ends at t = {trajectory.t[-1]:.6g} s with joint {j + 1} at "
+                                          f"{trajectory.q[-1, j]:.6g} rad, {miss[j]:.3g} rad from the goal "
+                                          f"{goal[j]:.6g} rad: the plan does not reach the end of the motion",
+                                 joint=j + 1, kind="goal", time=float(trajectory.t[-1]),
+                                 value=float(trajectory.q[-1, j]), limit=float(goal[j]))
+    return ratios
 
 
 # --------------------------------------------------------------------------------- loading

@@ -24,10 +24,12 @@ DEFINITIONS = {
                         "the plane normal to the path (one run, no averaging over repetitions)",
     "joint_lag": "q_d(t) - q(t) per joint, rad (paper Figure 2a)",
     "window": "from the motion start (drives apply trajectory time 0) to the end of the trajectory",
-    "cycle_compute_us": "wall time of the controller's own work per cycle (interpolation, IK, derivatives, "
-                        "feed-forward), perf_counter_ns; deadline miss = above compute_budget",
-    "cycle_compute_cpu_us": "the same as thread CPU time (thread_time_ns): without the time other processes "
-                            "took the core",
+    "cycle_wall_us": "wall time of the controller's own work per cycle (interpolation, IK, derivatives, "
+                     "feed-forward), perf_counter_ns: includes the time other processes took the core (the main "
+                     "job's modes run as sibling processes on shared cores)",
+    "cycle_compute_cpu_us": "the same as thread CPU time (thread_time_ns): the controller's own computation",
+    "deadline_misses": "cycles whose compute time exceeded compute_budget, judged on deadline_basis: the CPU time "
+                       "in a simulated-time run, the wall time in a real-time (paced, served) run",
 }
 
 
@@ -265,12 +267,11 @@ def _controller_file(ctx: RunContext, name: str, cell: CellRun, controller: Any)
     if streamed is not None:
         return Path(streamed)
     from controller.controller import LOG_COLUMNS, LOG_KINDS
-    from cosim.cell.runner import controller_log_encodings
 
     log = controller.log.columns()
     if list(log) != list(LOG_COLUMNS):  # not the built-in log's layout: as it is
         return ctx.path(ctx.write_series(name, log, series_units(log)))
-    sink = ctx.series_sink(name, series_units(log), **controller_log_encodings())  # as the streamed log
+    sink = ctx.series_sink(name, series_units(log))  # as the streamed log
     sink.open(list(LOG_COLUMNS), list(LOG_KINDS))
     try:
         rows = len(log[LOG_COLUMNS[0]])
@@ -279,31 +280,6 @@ def _controller_file(ctx: RunContext, name: str, cell: CellRun, controller: Any)
     finally:
         sink.close()
     return ctx.path(ctx.series_name(name))
-
-
-def _tcp_derived(ctx: RunContext, rec: Any, cols: list[str], tcp_columns: list[str]) -> dict[str, Any] | None:
-    """How ``tcp_<mode>`` leaves out what it repeats or computes exactly from stored values
-    (cosim.results.timeseries.derived_spec): ``t``, ``q<j>`` and ``*_measured`` are the
-    recording's time, ``plant.q[j]`` and ``tracker.*`` (``source``: ``timeseries_<mode>``,
-    the same rows), ``lag<j> = q_d<j> - q<j>``, ``tcp_error_mm`` / ``path_error_mm`` the
-    distance of the measured point to the commanded / programmed one in mm. Only for a
-    recording streamed to a Parquet file, with ``$COSIM_COMPACT`` not 0; None otherwise (all
-    columns stored). Returns ``{"stored": [...], "spec": {...}}``."""
-    from cosim.results.timeseries import SeriesFile, compact_enabled
-
-    if not (compact_enabled() and isinstance(rec, SeriesFile) and cols and ctx.timeseries_format == "parquet"):
-        return None
-    copy = {"t": cols[0], **{f"q{j}": f"plant.q[{j}]" for j in range(1, 7)},
-            **{f"{axis}_measured": f"tracker.{axis}" for axis in "xyz"}}
-    difference = {f"lag{j}": [f"q_d{j}", f"q{j}"] for j in range(1, 7)}
-    measured = [f"{axis}_measured" for axis in "xyz"]
-    distance = {"tcp_error_mm": [measured, [f"{axis}_commanded" for axis in "xyz"]],
-                "path_error_mm": [measured, [f"{axis}_programmed" for axis in "xyz"]]}
-    rebuilt = set(copy) | set(difference) | set(distance)
-    units = series_units([c for c in tcp_columns if c in rebuilt])
-    spec = {"columns": tcp_columns, "source": Path(rec.path).with_suffix(".parquet").name, "copy": copy,
-            "difference": difference, "distance_mm": distance, "units": units}
-    return {"stored": [c for c in tcp_columns if c not in rebuilt], "spec": spec}
 
 
 def evaluate_run(ctx: RunContext, mode: str, cell: CellRun, controller: Any, reference, path, true_robot,
@@ -354,13 +330,8 @@ def evaluate_run(ctx: RunContext, mode: str, cell: CellRun, controller: Any, ref
     tcp_columns = (["t", "tau", "segment", "arc_length"]
                    + [f"{axis}_{name}" for name in ("programmed", "commanded", "measured") for axis in "xyz"]
                    + ["tcp_error_mm", "path_error_mm"] + [f"{g}{j}" for g in ("q_d", "q", "lag") for j in range(1, 7)])
-    derived = _tcp_derived(ctx, rec, cols, tcp_columns)
-    tcp_stored = [c for c in tcp_columns if derived is None or c in derived["stored"]]
-    if derived is None:
-        tcp_sink = ctx.series_sink(f"tcp_{mode}", series_units(tcp_columns))
-    else:
-        tcp_sink = ctx.series_sink(f"tcp_{mode}", series_units(tcp_stored), derived=derived["spec"], float_delta=True)
-    tcp_sink.open(tcp_stored, ["Integer" if c == "segment" else "Real" for c in tcp_stored])
+    tcp_sink = ctx.series_sink(f"tcp_{mode}", series_units(tcp_columns))  # every column stored (derived ones too)
+    tcp_sink.open(tcp_columns, ["Integer" if c == "segment" else "Real" for c in tcp_columns])
     parts: dict[str, list[np.ndarray]] = {k: [] for k in ("t", "q", "measured", "q_d", "commanded", "programmed",
                                                           "segment", "arc_length", "actual")}
     rows = 0
@@ -380,13 +351,9 @@ def evaluate_run(ctx: RunContext, mode: str, cell: CellRun, controller: Any, ref
             tau = np.clip(t - (start if start is not None else np.inf), 0.0, path.duration)
             programmed = reference.positions(reference.t_start + tau)
             segment, arc_length = path.progress(tau)
-            if derived is None:
-                lag = q_d - q
-                tcp_sink.write(np.column_stack([t, tau, segment.astype(float), arc_length, programmed, commanded,
-                                                measured, np.linalg.norm(measured - commanded, axis=1) * 1e3,
-                                                np.linalg.norm(measured - programmed, axis=1) * 1e3, q_d, q, lag]))
-            else:  # the rest is rebuilt by the reader, bit for bit (_tcp_derived)
-                tcp_sink.write(np.column_stack([tau, segment.astype(float), arc_length, programmed, commanded, q_d]))
+            tcp_sink.write(np.column_stack([t, tau, segment.astype(float), arc_length, programmed, commanded,
+                                            measured, np.linalg.norm(measured - commanded, axis=1) * 1e3,
+                                            np.linalg.norm(measured - programmed, axis=1) * 1e3, q_d, q, q_d - q]))
             tcp_sink.flush()
             inside = (t >= window[0] - 1e-9) & (t <= window[1] + 1e-9)
             if inside.any():
@@ -412,15 +379,12 @@ def evaluate_run(ctx: RunContext, mode: str, cell: CellRun, controller: Any, ref
     tcp_file = ctx.series_name(f"tcp_{mode}")
     ik_max = setpoints.finish() if setpoints is not None else None
     timing = controller.timing() if builtin else port_timing
+    if timing is not None:
+        timing = timing.judged_on(deadline_basis(cell))
     entry: dict[str, Any] = {
         "status": "ok" if cell.failure is None else "failed",
         **result.metrics(path.segment_names),
-        "cycle_compute_us": None if timing is None else {"p50": timing.p50_us, "p99": timing.p99_us,
-                                                         "max": timing.max_us, "mean": timing.mean_us},
-        "cycle_compute_cpu_us": None if timing is None else {"p50": timing.cpu_p50_us, "p99": timing.cpu_p99_us,
-                                                             "max": timing.cpu_max_us},
-        "deadline_misses": None if timing is None else timing.deadline_misses,
-        "compute_budget_us": None if timing is None else timing.budget_us,
+        **timing_fields(timing),
         "controller_cycles_timed": None if timing is None else timing.cycles,
         "sim_time_s": cell.reached_s,
         "loop_wall_time_s": cell.loop_wall_time_s,
@@ -433,7 +397,7 @@ def evaluate_run(ctx: RunContext, mode: str, cell: CellRun, controller: Any, ref
         "fieldbus": {k: cell.fieldbus[k] for k in ("cycles_run", "frames_sent", "frames_dropped", "frames_recorded",
                                                    "log_path", "dead_time_cycles", "node_fault", "comm_fault",
                                                    "scaling_saturations", "event_tally")},
-        "files": {"timeseries": ctx.series_name(f"timeseries_{mode}"), "controller": controller_file if builtin else None,
+        "files": {"timeseries": ctx.series_name(f"timeseries_{mode}"), "controller": controller_file if builtin else _record_name(cell),
                   "tcp": tcp_file, "can_log": Path(cell.fieldbus["log_path"]).name
                   if cell.fieldbus.get("log_path") else None},
     }
@@ -455,7 +419,41 @@ def evaluate_run(ctx: RunContext, mode: str, cell: CellRun, controller: Any, ref
         entry["stopped_at_s"] = stopped_at
     elif cell.failure is not None and cell.failure.component == "controller":
         entry["stopped_at_s"] = cell.failure.time
+    from cosim.cell.verdict import record
+
+    record(entry, cell, timing)  # verdict, violations, first_violation (cosim/cell/verdict.py)
+    if hasattr(ctx, "note_verdict"):
+        ctx.note_verdict(mode, entry)
     return entry, result
+
+
+def deadline_basis(cell: Any) -> str:
+    """The clock a run's controller deadline misses are judged on: ``"wall_time"`` for a
+    real-time run (paced or served: the cycle waits for the wall clock), ``"cpu_time"`` for a
+    simulated-time run (nothing waits for the wall clock, and wall time holds the time sibling
+    processes took the core)."""
+    return "wall_time" if getattr(cell, "pacer", None) is not None else "cpu_time"
+
+
+def timing_fields(timing: Any) -> dict[str, Any]:
+    """A run's controller timing for summary.json (None values without a timing):
+    ``cycle_wall_us`` {p50, p99, max, mean}, ``cycle_compute_cpu_us`` {p50, p99, max},
+    ``deadline_misses`` (judged on ``deadline_basis``), ``cycles_over_budget_wall`` and
+    ``cycles_over_budget_cpu``, ``compute_budget_us`` (their definitions: :data:`DEFINITIONS`)."""
+    if timing is None:
+        return {"cycle_wall_us": None, "cycle_compute_cpu_us": None, "deadline_misses": None, "deadline_basis": None,
+                "cycles_over_budget_wall": None, "cycles_over_budget_cpu": None, "compute_budget_us": None}
+    return {"cycle_wall_us": {"p50": timing.p50_us, "p99": timing.p99_us, "max": timing.max_us, "mean": timing.mean_us},
+            "cycle_compute_cpu_us": {"p50": timing.cpu_p50_us, "p99": timing.cpu_p99_us, "max": timing.cpu_max_us},
+            "deadline_misses": timing.deadline_misses, "deadline_basis": timing.deadline_basis,
+            "cycles_over_budget_wall": timing.wall_over_budget, "cycles_over_budget_cpu": timing.cpu_over_budget,
+            "compute_budget_us": timing.budget_us}
+
+
+def _record_name(cell: CellRun) -> str | None:
+    """The file name of a user controller's command log (``CellRun.controller_record``), None without one."""
+    record = getattr(cell, "controller_record", None)
+    return Path(record).name if record is not None else None
 
 
 class _ReferenceJoints:

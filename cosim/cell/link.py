@@ -60,10 +60,14 @@ class CellBus:
         self.applied = AppliedSetpoints(fresh=np.zeros(n, dtype=bool), comm_fault=np.zeros(n, dtype=bool),
                                         **{APPLIED_FIELD.get(name, name): view for name, view in views.items()})
         self._pairs = [(view, APPLIED_FIELD.get(name, name)) for name, view in views.items()]
-        self._refresh = [reader.refresh for reader in self._readers]
+        # the drives latch their actual values at the SoC: their inputs at t_k (the plant's
+        # position) are set before their outputs are read (direct feedthrough of position_actual)
+        self._refresh = [master.refresher(DRIVES)] + [reader.refresh for reader in self._readers]
 
     def read(self) -> None:
-        """Refresh :attr:`actuals` from the drives' outputs."""
+        """Refresh :attr:`actuals` from the drives' outputs at the current tick ``t_k``: each drive's
+        inputs at ``t_k`` are set first, so a drive that latches its position at the sync (the
+        servo_drive FMU) reports the position at ``t_k``, not at its previous sample."""
         for refresh in self._refresh:
             refresh()
 
@@ -103,6 +107,8 @@ class FieldbusLink:
         self.bus: CellBus | None = None
         self._copy_applied = True
         self._paced = hasattr(network, "last_late")
+        self.enabled_at_s: float | None = None
+        """Simulated time the drives first all reported Operation enabled (None: not yet)."""
 
     def setup(self, master: Master) -> None:
         """Bind one reader per bus type for the drives' actual values and one writable
@@ -137,6 +143,13 @@ class FieldbusLink:
         except ControllerFailure as exc:
             raise SimulationError("controller", exc.time_s, exc.reason) from exc
         self.cycle += 1
+        if self.enabled_at_s is None:  # until the drives are enabled once: then no cost per cycle
+            self._watch_enable(t)
         stopped_at = getattr(self.controller, "stopped_at_s", None)  # ControllerPort.stopped_at_s, without its call
         if stopped_at is not None and t - stopped_at >= self.stop_grace_s - 1e-12:
             raise SimulationError("controller", stopped_at, f"motion stopped: {self.port.stop_reason}")
+
+    def _watch_enable(self, t: float) -> None:
+        """Note when every drive first reports Operation enabled (CiA 402 statusword & 0x6F == 0x27)."""
+        if all((int(s) & 0x6F) == 0x27 for s in self.actuals.statusword.tolist()):
+            self.enabled_at_s = t

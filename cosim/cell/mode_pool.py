@@ -127,8 +127,8 @@ def run_modes(ctx: Any, setup: Any, modes: Sequence[str], extra_signals: Sequenc
         for mode in modes:
             entry, result, cell, _ = run_mode(ctx, setup, mode, extra_signals)
             yield ModeOutcome(mode, entry, result, cell.failure)
-            if cell.failure is not None:
-                return
+            if cell.failure is not None and entry.get("verdict", "failed") == "failed":
+                return  # a failed run ends the sequence; a stop after a limit or a fault reaction does not
         return
     yield from _Pool(ctx, setup, modes, extra_signals, count, while_waiting, niceness).outcomes()
 

@@ -20,8 +20,8 @@ from controller.elastic import make_controller
 from cosim.cell import wiring
 from cosim.cell.description import CellDescription, describe_cell
 from cosim.cell.evaluation import DEFINITIONS, evaluate_run
-from cosim.cell.parts import (BUILTIN_MODES, can_log_path, controller_models, drive_speed_feedforward, fill_cell_defaults,
-                              make_true_robot, mode_fmus, tracker_config)
+from cosim.cell.parts import (BUILTIN_MODES, TORQUE_FEEDFORWARD_MODES, can_log_path, controller_models,
+                              drive_speed_feedforward, fill_cell_defaults, make_true_robot, mode_fmus, tracker_config)
 from cosim.cell.runner import CellRun, controller_info, run_cell
 from cosim.tracking.laser_tracker import TrackerConfig
 from cosim.tracking.metrics import TrackingResult
@@ -86,8 +86,7 @@ def prepare(doc: dict[str, Any], source: str) -> CellSetup:
     fb = FieldbusConfig.from_dict(doc["fieldbus"], source=source)
     mode_settings = {mode: {"controller_mode": BUILTIN_MODES[mode].controller_mode,
                             "drive_speed_feedforward": drive_speed_feedforward(ctrl_t, mode),
-                            "torque_feedforward": BUILTIN_MODES[mode].controller_mode in ("model_based",
-                                                                                          "model_based_elastic"),
+                            "torque_feedforward": BUILTIN_MODES[mode].controller_mode in TORQUE_FEEDFORWARD_MODES,
                             "description": BUILTIN_MODES[mode].description} for mode in ctrl_t["modes"]}
     return CellSetup(doc, true_robot, path, reference, kin, dyn, kin_label, dyn_label, tracker, fb,
                      int(doc["simulation"]["stop_time"] / period) + 16, mode_settings, source)

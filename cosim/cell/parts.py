@@ -60,6 +60,10 @@ BUILTIN_MODES: dict[str, BuiltinMode] = {
 }
 """The built-in modes (``[controller] modes``), in the order they are reported."""
 
+TORQUE_FEEDFORWARD_MODES = ("model_based", "model_based_elastic")
+"""The controller modes that send a torque feed-forward (and shape the drives' set-points when
+``[controller] drive_compensation``)."""
+
 SPEED_FEEDFORWARD_PARAMETER = "speed_feedforward_gain"
 """The servo-drive FMU parameter the job sets per mode."""
 
@@ -103,9 +107,21 @@ CONTROLLER_CONFIG_FIELDS: dict[str, Field] = {
 jobs here, identification with its own modes): their defaults are the controller's own
 (:class:`controller.ControllerConfig`), defined there once."""
 
+DEFAULT_MODES = ("standard", "model_based")
+"""``[controller] modes`` when the table leaves it out and names no user controller."""
+
+
+def _default_modes(table: dict[str, Any], where: Where) -> None:
+    """``modes`` left out: the built-in :data:`DEFAULT_MODES`, or none when the table names a user
+    controller (``class`` or ``fmu``: it runs alone unless modes are listed)."""
+    if "modes" not in table:
+        table["modes"] = [] if (table.get("class") or table.get("fmu")) else list(DEFAULT_MODES)
+
+
 CONTROLLER_TABLE = Table({
     "modes": Field(List(String(choices=tuple(BUILTIN_MODES)), min_len=0, unique=True),
-                   default=["standard", "model_based"]),
+                   doc="the built-in modes to run; default ['standard', 'model_based'], or [] when the table "
+                       "names a user controller (class or fmu): list modes to run them besides it"),
     "period": CONTROLLER_CONFIG_FIELDS["period"],
     "kinematics": Field(String(choices=("nominal", "true")), default="nominal",
                         doc="the controller's IK model: 'nominal' (URDF) or 'true' (perfectly calibrated)"),
@@ -133,7 +149,7 @@ CONTROLLER_TABLE = Table({
                         doc="FMU input variable = controller input field[joint] (e.g. pos1 = 'position[1]')"),
     "fmu_outputs": Field(Table({}, extra=String(), doc="the [controller.fmu_outputs] table"), default={},
                          doc="FMU output variable = controller output field[joint] (e.g. tau1 = 'target_torque[1]')"),
-}, doc="the [controller] table")
+}, check_fn=_default_modes, doc="the [controller] table")
 
 TRACKER_TABLE = Table({
     "period": Field(Number(unit="s", gt=0), default=1e-3),

@@ -38,6 +38,7 @@ from typing import Any, Callable
 
 from controller import CellController, ControllerInfo
 from controller.contract import DEFAULT_COMPUTE_BUDGET_S
+from controller.port import command_log_columns
 from cosim.cell.description import CellDescription
 from cosim.cell.link import FieldbusLink
 from cosim.cell.wiring import N_JOINTS, cell_variables, joint_scaling
@@ -83,8 +84,18 @@ class CellRun:
     controller_timing: Any = None
     port_overhead: dict[str, float] | None = None
     controller_record: Any = None
-    """The built-in controller's log streamed as the run went (``controller_<name>`` in the
-    results folder, Parquet or CSV); None when it stayed in memory (paced and split runs)."""
+    """The controller's log as the run went (``controller_<name>`` in the results folder, Parquet or
+    CSV): the built-in controller's own log (None when it stayed in memory: paced and split runs),
+    or for a user's controller the cell's :class:`controller.port.CommandLog`."""
+    protection_events: list[dict] = field(default_factory=list)
+    """The drives' and the plant's protection events (limit reached, end stop hit; the record of
+    docs/robustness.md), judged by :func:`cosim.cell.verdict.judge`."""
+    drives_checked: bool = False
+    """Whether the run watched the drives' states (``drives_enabled_at_s`` is meaningful)."""
+    drives_enabled_at_s: float | None = None
+    """Simulated time the six drives first all reported Operation enabled (None: never)."""
+    controller_close_error: str | None = None
+    """What the controller's ``close()`` raised (one line), None when it closed cleanly."""
 
 
 def master_units(master: Master, signals: Sequence[str]) -> dict[str, str]:
@@ -119,14 +130,6 @@ def controller_log_of(controller: Any) -> Any:
     except Exception:  # a user's controller with a property that fails: it has no built-in log
         return None
     return log if isinstance(log, ControllerLog) else None
-
-
-def controller_log_encodings() -> dict[str, Any]:
-    """The controller log's compact Parquet encodings: the observed positions ``q_obs<j>`` are
-    encoder counts times the joint's rad per count (stored as the counts when every value is
-    exactly that), the other float columns delta-coded where that is smaller (lossless)."""
-    rad_per_count = joint_scaling().rad_per_count
-    return {"scales": {f"q_obs{j + 1}": float(r) for j, r in enumerate(rad_per_count)}, "float_delta": True}
 
 
 def controller_record_name(cell: CellDescription) -> str:
@@ -249,6 +252,7 @@ def _run_on_master(cell: CellDescription, controller: CellController, ctx: RunCo
     network = PowerlinkNetwork(fb_config, joint_scaling(), log_path=cell.can_log)
     link = None
     log = None if paced else controller_log_of(controller)  # paced: no file I/O in the loop
+    command_log = None
     controller_file = None
     try:
         if log is not None:  # the controller's log streams beside the recording (bounded memory)
@@ -256,7 +260,7 @@ def _run_on_master(cell: CellDescription, controller: CellController, ctx: RunCo
             from controller.controller import LOG_COLUMNS
 
             controller_file = ctx.series_name(controller_record_name(cell))
-            log.stream_to(ctx.series_sink(controller_file, series_units(LOG_COLUMNS), **controller_log_encodings()))
+            log.stream_to(ctx.series_sink(controller_file, series_units(LOG_COLUMNS)))
         bus: Any = network
         scheduling: Any = contextlib.nullcontext("normal")
         if paced:
@@ -271,6 +275,11 @@ def _run_on_master(cell: CellDescription, controller: CellController, ctx: RunCo
             scheduling = realtime_scheduling(settings.scheduling, settings.fifo_priority, settings.cpu)
         recorder, link = add_cell_tasks(master, bus, controller, period, laser, cell.signals, cell.record_period_s,
                                         sink, cell.controller, cell.stop_grace_s)
+        if log is None and controller_log_of(controller) is None:
+            # a user's controller: the port logs what it commanded, streamed (in memory when paced)
+            controller_file = ctx.series_name(controller_record_name(cell))
+            command_log = link.port.start_log(None if paced else ctx.series_sink(
+                controller_file, command_log_columns(N_JOINTS)[2]))
         if paced:
             ctx.label = cell.label  # no summary heartbeat in a paced loop
         else:
@@ -295,8 +304,12 @@ def _run_on_master(cell: CellDescription, controller: CellController, ctx: RunCo
             sink.close()  # the master closed its recorder (footer written); again is a no-op
         if log is not None:
             log.close_stream()
+        if command_log is not None:
+            command_log.close(ctx.series_sink(controller_file, command_log.units) if paced else None)
     recording = memory if paced else SeriesFile(ctx.path(record_file))
     return CellRun(cell.label, ctx.path(record_file), recorder.rows_written, master.time, network.summary(),
                    wall, engine, recording, failure, cpu, pacer=pacer if paced else None, scheduling=granted,
                    controller_timing=link.port.timing(), port_overhead=link.port.overhead(),
-                   controller_record=ctx.path(controller_file) if controller_file else None)
+                   controller_record=ctx.path(controller_file) if controller_file else None,
+                   drives_checked=True, drives_enabled_at_s=link.enabled_at_s,
+                   controller_close_error=link.port.close_error)

@@ -11,6 +11,10 @@ traceback only with ``--debug``):
       folder (read-only, no permission, a file, locked by another run)
 3     failed run: a simulation, a fit or an evaluation failed, or the disk
       filled up; ``summary.json`` says ``failed`` and why
+4     completed with verdict ``limit``: a run hit a drive protection limit or a
+      plant end stop (``summary.json`` status ``limit``, the first violation)
+5     completed with verdict ``fault``: a drive or fieldbus fault reaction not
+      caused by a limit, or drives never enabled (status ``fault``)
 130   interrupted by SIGINT (Ctrl-C), SIGTERM or SIGHUP; ``summary.json`` says
       ``interrupted`` with the signal and where the run stopped
 128+n the run's process was killed by signal n (137 SIGKILL: a user or the
@@ -30,6 +34,8 @@ EXIT_OK = 0
 EXIT_PARTIAL = 1
 EXIT_INVALID = 2
 EXIT_FAILED = 3
+EXIT_LIMIT = 4
+EXIT_FAULT = 5
 EXIT_INTERRUPTED = 130
 
 

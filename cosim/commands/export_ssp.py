@@ -1,5 +1,5 @@
 """``python -m cosim export-ssp SCENARIO OUT.ssp``: the scenario's FMUs, connections and parameter
-values as an SSP 1.0 archive other SSP tools can load (docs/cosim.md, "SSP")."""
+values as an SSP 1.0 archive other SSP tools (libcosim, Ecos) load and run as it is (docs/cosim.md, "SSP")."""
 from __future__ import annotations
 
 import argparse
@@ -8,8 +8,8 @@ from pathlib import Path
 
 NAME = "export-ssp"
 HELP = ("Write the scenario's FMUs, connections and parameter values as an SSP 1.0 archive "
-        "(SystemStructure.ssd + one .ssv per FMU + the FMUs); inputs driven by the Python controller "
-        "and bus are system inputs of the SSD.")
+        "(SystemStructure.ssd + one .ssv per FMU + the FMUs) that libcosim and Ecos run as it is; FMU inputs "
+        "driven by the Python controller and bus are annotated with the master variable that drives them.")
 
 #: Exit codes: 0 written, 2 invalid scenario or output path.
 EXIT_OK, EXIT_INVALID = 0, 2
@@ -41,6 +41,6 @@ def run(args: argparse.Namespace) -> int:
         raise InvalidInput(f"OUT {str(args.out)!r}: cannot write the archive ({exc.strerror or type(exc).__name__}); expected a "
                            f"writable file path") from None
     print(f"{out}: system {system.name!r}: {len(system.fmus)} FMUs, {len(system.connections)} connections between "
-          f"them, {len(system.system_inputs)} system inputs driven by the Python side, "
+          f"them, {len(system.inputs_connections)} FMU inputs driven by the Python side, "
           f"{sum(len(f['parameters']) for f in system.fmus)} parameter values; valid against the SSP 1.0 schema")
     return EXIT_OK

@@ -11,7 +11,8 @@ HELP = ("Validate a scenario TOML file, then run its job ([scenario] job, e.g. '
         "summary.json and time series to results/<scenario name>/ (or --out DIR).")
 
 #: Exit codes (cosim/commands/exits.py, docs/robustness.md): 0 ok, 2 invalid scenario or unusable results
-#: folder, 3 the run failed (summary.json "failed"), 130 interrupted (summary.json "interrupted").
+#: folder, 3 the run failed (summary.json "failed"), 4 a run hit a limit ("limit"), 5 a run faulted
+#: ("fault"), 130 interrupted (summary.json "interrupted").
 EXIT_OK, EXIT_INVALID, EXIT_FAILED, EXIT_INTERRUPTED = 0, 2, 3, 130
 EXIT_INTERNAL = EXIT_FAILED  # an unexpected error is a failed run too
 
@@ -121,12 +122,21 @@ def _run(args: argparse.Namespace) -> int:
               f"{out_dir}/", file=sys.stderr)
         return EXIT_INTERRUPTED
     summary = result.summary
+    print_run_lines(summary.raw, args.quiet)
     if result.ok:
         data = summary.raw
         if not args.quiet:
             print(f"{scenario.name}: ok, {data['sim_time_s']:.6g} s simulated in {data['wall_time_s']:.3g} s "
                   f"({data['realtime_factor']:.3g}x real time); results in {out_dir}/", file=sys.stderr)
         return EXIT_OK
+    if summary.status in ("limit", "fault"):
+        from cosim.cell.verdict import exit_code
+
+        data = summary.raw
+        print(f"{scenario.name}: {summary.status}: {_first_line(summary.reason or '')}; "
+              f"{data['sim_time_s']:.6g} s simulated; results in {out_dir}/ (summary.json: {summary.status}, "
+              f"exit code {exit_code(summary.status)}, docs/robustness.md)", file=sys.stderr)
+        return exit_code(summary.status)
     exc = result.error
     debug = getattr(args, "debug", False)
     if debug and exc is not None:
@@ -139,6 +149,22 @@ def _run(args: argparse.Namespace) -> int:
           + ("" if debug or isinstance(exc, (SimulationError, OSError, ValueError))
              else "; run with --debug for the traceback"), file=sys.stderr)
     return EXIT_FAILED
+
+
+def print_run_lines(data: dict, quiet: bool = False) -> None:
+    """One console line per cell run of the job (``label: verdict[: first violation]``) and one
+    per warning (e.g. chronic compute-budget overruns); with ``quiet`` only the runs that are not
+    ok and the warnings."""
+    from cosim.cell.verdict import describe_violation, run_line
+
+    verdicts = data.get("verdicts") or {}
+    if len(verdicts) <= 1 and data.get("status") == "ok" and not any(v.get("warnings") for v in verdicts.values()):
+        return  # one run, ok: the command's line says it all
+    for label, v in verdicts.items():
+        if not quiet or v.get("verdict") != "ok":
+            print(f"  {run_line(label, v)}", file=sys.stderr)
+        for warning in v.get("warnings") or ():
+            print(f"  warning: {label}: {describe_violation(warning)}", file=sys.stderr)
 
 
 def _first_line(text: str) -> str:

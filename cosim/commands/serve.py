@@ -21,7 +21,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--channel", default=DEFAULT_CHANNEL,
                         help=f"the cell's address host:port, unicast or a multicast group (default {DEFAULT_CHANNEL})")
     parser.add_argument("--peer", default=None,
-                        help="the controller's host:port (default: answer whoever sent the last valid datagram)")
+                        help="the controller's host:port (default: learned from the first valid datagram; from then on "
+                             "only that sender is accepted unless --accept-from lists more)")
     parser.add_argument("--accept-from", default=None,
                         help="comma-separated hosts or host:port accepted as the controller (default: any)")
     parser.add_argument("--window", type=float, default=DEFAULT_WINDOW_FRACTION,
@@ -68,10 +69,20 @@ def run(args: argparse.Namespace) -> int:
         return 130
     _warn_cycle_time_mismatch(result.summary.raw.get("hil") or {})
     _warn_transport_faults(result.summary.raw.get("hil") or {})
+    _report_losses(result.summary.raw.get("hil") or {})
+    from cosim.cell.verdict import exit_code
+    from cosim.commands.run import print_run_lines
+
+    print_run_lines(result.summary.raw, args.quiet)
     if result.ok:
         if not args.quiet:
             print(f"{scenario.name}: served, results in {out_dir}/", file=sys.stderr)
         return 0
+    status = result.summary.status
+    if status in ("limit", "fault"):  # completed, but the drives reacted (e.g. tripped on lost cycles)
+        print(f"{scenario.name}: served, {status}: {(result.summary.reason or '').strip()}; results in {out_dir}/ "
+              f"(summary.json: {status}, exit code {exit_code(status)}, docs/robustness.md)", file=sys.stderr)
+        return exit_code(status)
     print(f"error: {scenario.name}: served run failed: {(result.summary.reason or '').strip()}", file=sys.stderr)
     return 3
 
@@ -99,6 +110,20 @@ def _warn_cycle_time_mismatch(hil: dict) -> None:
                   f"{'?' if estimate is None else f'{estimate * 1e3:.4g}'} ms, the cell's "
                   f"{found['cell_cycle_time_s'] * 1e3:.4g} ms (hil_endpoint.json cycle_time_s); its frames were "
                   f"lost cycles for the threshold counters (summary.json hil.{label})", file=sys.stderr)
+
+
+def _report_losses(hil: dict) -> None:
+    """One line per served run: the cycles lost (their runs, the longest) and the drives' fault
+    reactions (loss-of-SoC/PReq trips), whatever the thresholds let through."""
+    for label, report in hil.items():
+        if not isinstance(report, dict) or "lost_cycles_total" not in report:
+            continue
+        runs = report.get("lost_cycle_runs") or {}
+        trips = [f for f in report.get("fault_reactions", []) if f.get("event") == "fault_reaction"]
+        first = f"; first at cycle {trips[0]['cycle']} (t = {trips[0]['time_s']:.4g} s)" if trips else ""
+        print(f"{label}: {report['lost_cycles_total']} lost cycles in {runs.get('count', 0)} runs (longest "
+              f"{runs.get('longest', 0)}), {report.get('fault_reactions_total', len(trips))} fault reaction "
+              f"events{first} (summary.json hil.{label})", file=sys.stderr)
 
 
 def _warn_transport_faults(hil: dict) -> None:

@@ -208,6 +208,29 @@ def overrun_causes(link: CellSideLink, pacer: Any) -> dict[str, Any]:
             "examples": examples}
 
 
+MAX_FAULT_REACTIONS_LISTED = 200
+MAX_LOST_RUNS_LISTED = 200
+
+
+def lost_cycle_runs(lost_at: dict[int, float]) -> dict[str, Any]:
+    """Runs of consecutive lost cycles: count, longest, a histogram of their lengths and the runs
+    (``first_cycle``, ``length``, ``time_s`` of the first), longest first, cut at
+    MAX_LOST_RUNS_LISTED (``cut`` says so; ``count`` is the full number)."""
+    runs: list[dict[str, Any]] = []
+    for c in sorted(lost_at):
+        if runs and c == runs[-1]["first_cycle"] + runs[-1]["length"]:
+            runs[-1]["length"] += 1
+        else:
+            runs.append({"first_cycle": int(c), "length": 1, "time_s": float(lost_at[c])})
+    lengths: dict[str, int] = {}
+    for r in runs:
+        lengths[str(r["length"])] = lengths.get(str(r["length"]), 0) + 1
+    ordered = sorted(runs, key=lambda r: (-r["length"], r["first_cycle"]))
+    return {"count": len(runs), "longest": ordered[0]["length"] if runs else 0,
+            "length_histogram": dict(sorted(lengths.items(), key=lambda kv: int(kv[0]))),
+            "runs": ordered[:MAX_LOST_RUNS_LISTED], "cut": len(runs) > MAX_LOST_RUNS_LISTED}
+
+
 def timing_report(link: CellSideLink, endpoint: DriveEndpoint, pacer: Any) -> dict[str, Any]:
     """The served cell's side of the timing report (summary.json ``hil``)."""
     log = pacer.log
@@ -219,8 +242,10 @@ def timing_report(link: CellSideLink, endpoint: DriveEndpoint, pacer: Any) -> di
     lost_by_node = {str(i + 1): 0 for i in range(N_JOINTS)}
     faults = []
     losses: dict[int, dict[str, list]] = {}  # cycle -> counter value per node after its loss errors
+    lost_at: dict[int, float] = {}  # every cycle with a loss error (time of its SoC, s)
     for e in endpoint.events.events:
         if e.side == "cn" and e.kind in ("loss_of_soc", "loss_of_preq") and e.event == "error":
+            lost_at.setdefault(e.cycle, e.time_s)
             if e.kind == "loss_of_preq":
                 lost_by_node[str(e.node)] += 1
             if 1 <= e.node <= N_JOINTS and (e.cycle in losses or len(losses) < MAX_LOST_CYCLES_LISTED):
@@ -251,11 +276,17 @@ def timing_report(link: CellSideLink, endpoint: DriveEndpoint, pacer: Any) -> di
         "frames_lost_per_node": lost_by_node,
         "frames_late": endpoint.frames_late,
         "lost_cycles": [{"cycle": c, "counters": row} for c, row in sorted(losses.items())],
+        "lost_cycles_total": len(lost_at),
+        "lost_cycles_cut": len(lost_at) > len(losses),
+        # runs of consecutive lost cycles (what the thresholds let through or reacted to), longest first
+        "lost_cycle_runs": lost_cycle_runs(lost_at),
         "cycles_held_per_node": {str(i + 1): int(v) for i, v in enumerate(link.held)},
         "setpoint_lookahead": {"cycles_covered_per_node": {str(i + 1): int(v) for i, v in
                                                            enumerate(endpoint.nodes.cycles_covered)},
                                "cycles_covered": int(sum(endpoint.nodes.cycles_covered))},
-        "fault_reactions": faults[:200],
+        "fault_reactions": faults[:MAX_FAULT_REACTIONS_LISTED],
+        "fault_reactions_total": len(faults),
+        "fault_reactions_cut": len(faults) > MAX_FAULT_REACTIONS_LISTED,
         "cycle_time_mismatch": endpoint.cadence.report(),
         "preq_one_way_latency": percentiles_us(latency, (50.0, 99.0)),
         "transport": stats.as_dict() if stats is not None else {},

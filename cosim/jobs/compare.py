@@ -43,10 +43,11 @@ import numpy as np
 from controller import ControllerLog
 from cosim.cell import wiring
 from cosim.cell.description import describe_cell
-from cosim.cell.evaluation import controller_log_columns, evaluate_run, recording_chunks
+from cosim.cell.evaluation import (controller_log_columns, deadline_basis, evaluate_run, recording_chunks,
+                                   timing_fields)
 from cosim.cell.mode_runs import CellSetup, mode_cell, prepare
-from cosim.cell.parts import (BUILTIN_MODES, CELL_FIELDS, can_log_path, check_cell_scenario, drive_speed_feedforward,
-                              fill_cell_defaults, mode_fmus)
+from cosim.cell.parts import (BUILTIN_MODES, CELL_FIELDS, TORQUE_FEEDFORWARD_MODES, can_log_path, check_cell_scenario,
+                              drive_speed_feedforward, fill_cell_defaults, mode_fmus)
 from cosim.cell.runner import CellRun, controller_info, run_cell
 from cosim.jobs import planners as planners_job
 from cosim.tracking.metrics import desired_joints, evaluate
@@ -80,7 +81,13 @@ METRICS: dict[str, str] = {
     "deadline_misses": "deadline misses [-]",
 }
 """The table's metrics (column -> label with unit); all: smaller is better except none."""
-TABLE_COLUMNS: tuple[str, ...] = ("trajectory", "controller", "rank", "status", *METRICS)
+TABLE_COLUMNS: tuple[str, ...] = ("trajectory", "controller", "rank", "status", *METRICS, "first_violation")
+"""compare.csv's columns: ``status`` is the entry's verdict (``ok``, ``limit``, ``fault``,
+``failed``, ``refused``, ``planner_<status>``); only ``ok`` entries are ranked and carry metrics
+in the table; the others follow the ranked rows with an empty rank, empty metric cells and
+their first violation (their metrics are in compare.json under ``unranked_metrics``)."""
+UNRANKED_NOTE = ("not ranked: the run did not end ok; its metrics cover the run up to its stop or with the "
+                 "violation in, and are not comparable")
 
 # ------------------------------------------------------------------------------------- schema
 
@@ -192,7 +199,7 @@ class TrajectoryEntry(Spec):
     }, one_of=[("path", "planner", "file")], doc="a trajectory table")
 
     # the trajectory file or planner file of an entry travels with a sweep's tasks
-    # (cosim.sweep.keypath.referenced_files)
+    # (cosim.scenario.keypath.referenced_files)
     def referenced_file(self, value: Any) -> str | None:
         if isinstance(value, dict):
             if isinstance(value.get("file"), str):
@@ -387,7 +394,12 @@ def _motions(ctx: RunContext, doc: dict[str, Any], setup: CellSetup, source: Pat
         summary = planner_summary(result, problem.limits, dynamics)
         info = {"planner": spec, "kind": planner.kind,
                 **{key: summary[key] for key in ("status", "duration_s", "solve_time_s", "max_constraint_ratio")}}
-        if result.ok:
+        refused = planners_job.refusal(spec, result, problem)
+        if refused is not None:  # beyond the robot's limits: not run (the other entries still run)
+            result.trajectory.write_csv(ctx.path(f"trajectory_{name}.csv"))
+            info.update(planners_job.refused_fields(refused))
+            out.append(_Motion(name, "planner", None, status="refused", message=str(refused), info=info))
+        elif result.ok:
             result.trajectory.write_csv(ctx.path(f"trajectory_{name}.csv"))
             out.append(_Motion(name, "planner", result.trajectory, info=info))
         else:
@@ -399,7 +411,8 @@ def _motions(ctx: RunContext, doc: dict[str, Any], setup: CellSetup, source: Pat
 # ------------------------------------------------------------------------------------- running
 def _controller_for(setup: CellSetup, ctrl: dict[str, Any], motion: _Motion, stop_time: float):
     """(document for the run, Controller) of a built-in mode on ``motion``."""
-    from controller import Controller, ControllerConfig, JointTrajectory
+    from controller import ControllerConfig, JointTrajectory
+    from controller.elastic import make_controller
 
     mode = ctrl["mode"]
     ctrl_t = setup.doc["controller"]
@@ -407,7 +420,7 @@ def _controller_for(setup: CellSetup, ctrl: dict[str, Any], motion: _Motion, sto
     if speed_ff is None:
         speed_ff = drive_speed_feedforward(ctrl_t, mode)
     settings = {"controller_mode": BUILTIN_MODES[mode].controller_mode, "drive_speed_feedforward": speed_ff,
-                "torque_feedforward": BUILTIN_MODES[mode].controller_mode == "model_based",
+                "torque_feedforward": BUILTIN_MODES[mode].controller_mode in TORQUE_FEEDFORWARD_MODES,
                 "description": BUILTIN_MODES[mode].description}
     run_doc = {**setup.doc, "fmus": mode_fmus(setup.doc["fmus"], speed_ff)}
     if motion.kind_of == "iso9283":
@@ -420,8 +433,10 @@ def _controller_for(setup: CellSetup, ctrl: dict[str, Any], motion: _Motion, sto
     config = ControllerConfig(mode=settings["controller_mode"], period_s=period,
                               lead_cycles=setup.fieldbus.lead_cycles,
                               compute_budget_s=ctrl_t["compute_budget"], settle_time_s=ctrl_t["settle_time"])
-    controller = Controller(reference, config, kinematic_model=setup.kinematics, dynamics=setup.dynamics,
-                            drive_model=drive_model, capacity=int(stop_time / period) + 16)
+    # the elastic mode inverts the flexible-joint model along the joint reference (controller/elastic.py):
+    # jerk and snap from the reference's accelerations on the controller grid, as on the ISO path
+    controller = make_controller(reference, config, kinematic_model=setup.kinematics, dynamics=setup.dynamics,
+                                 drive_model=drive_model, capacity=int(stop_time / period) + 16)
     return run_doc, controller
 
 
@@ -473,17 +488,22 @@ def _evaluate_joint(ctx: RunContext, label: str, cell: CellRun, controller: Any,
         series[f"lag{j + 1}"] = q_d[:, j] - q[:, j]
     tcp_file = ctx.write_series(f"tcp_{label}", series, series_units(series))
     timing = controller.timing() if builtin else cell.controller_timing
+    if timing is not None:
+        timing = timing.judged_on(deadline_basis(cell))
     entry = {"status": "ok" if cell.failure is None else "failed", **result.metrics([motion.name]),
-             "deadline_misses": getattr(timing, "deadline_misses", None),
-             "compute_budget_us": getattr(timing, "budget_us", None),
-             "cycle_compute_us": {k: getattr(timing, f"{k}_us", None) for k in ("p50", "p99", "max")},
+             **timing_fields(timing),
              "motion_start_s": start, "sim_time_s": cell.reached_s, "loop_wall_time_s": cell.loop_wall_time_s,
              "path_completed": bool(start is not None and t.size and t[-1] >= t_end - 1e-9),
              "stop_reason": getattr(controller, "stop_reason", None),
              "files": {"timeseries": ctx.series_name(f"timeseries_{label}"), "tcp": tcp_file,
-                       **({"controller": ctx.series_name(f"controller_{label}")} if builtin else {})}}
+                       "controller": ctx.series_name(f"controller_{label}") if builtin else (
+                           Path(cell.controller_record).name if cell.controller_record is not None else None)}}
     if cell.failure is not None:
         entry["failure"] = str(cell.failure)
+    from cosim.cell.verdict import record
+
+    record(entry, cell, timing)
+    ctx.note_verdict(label, entry)
     return entry, result
 
 
@@ -572,6 +592,7 @@ def run_entry(ctx: RunContext, setup: CellSetup, ctrl: dict[str, Any], motion: _
 
     doc = setup.doc
     label = f"{ctrl['name']}__{motion.name}"
+    ctx.begin(label)  # an error before the cell runs names this entry, not the previous one
     stop_time = _stop_time(doc, motion)
     demand = [f"{d}.current_demand" for d in wiring.DRIVES]
     if ctrl["kind"] == "mode":
@@ -588,8 +609,13 @@ def run_entry(ctx: RunContext, setup: CellSetup, ctrl: dict[str, Any], motion: _
         try:
             controller = make_user_controller(table, where)
         except ScenarioError as exc:
-            return {"status": "failed", "failure": str(exc), "trajectory": motion.name,
-                    "controller": {"kind": ctrl["kind"]}}, None
+            from cosim.cell.verdict import apply, failed_verdict
+
+            entry = apply({"status": "failed", "failure": str(exc), "trajectory": motion.name,
+                           "controller": {"kind": ctrl["kind"]}}, failed_verdict(f"the controller could not be made: "
+                                                                                 f"{exc}"))
+            ctx.note_verdict(label, entry)
+            return entry, None
         run_doc, description = _user_description(ctx, setup, ctrl, motion, controller, label, stop_time, demand)
     cell = run_cell(description, controller, ctx)
     if motion.kind_of == "iso9283":
@@ -610,35 +636,54 @@ def run_entry(ctx: RunContext, setup: CellSetup, ctrl: dict[str, Any], motion: _
                  trajectory=motion.name, duration_s=duration,
                  joint_lag_max_mrad=_largest(entry.get("joint_lag_max_rad")) * 1e3, stop_time_s=stop_time)
     if cell.failure is not None:
-        entry["status"] = "failed"
         entry.setdefault("failure", str(cell.failure))
     return entry, result
 
 
 # ------------------------------------------------------------------------------------- table
 def _row(ctrl: str, motion: _Motion, entry: dict[str, Any] | None) -> dict[str, Any]:
-    row: dict[str, Any] = {"trajectory": motion.name, "controller": ctrl, "rank": None,
-                           "status": entry["status"] if entry else motion.status}
+    """The table row of an entry: only an entry whose verdict is ``ok`` shows its metrics; the
+    others keep them under ``unranked_metrics`` (marked, never ranked) with their first violation."""
+    from cosim.cell.verdict import describe_violation
+
+    if entry:
+        status = entry.get("verdict") or entry["status"]
+        first = entry.get("first_violation")
+    else:
+        status = motion.status
+        first = motion.info.get("first_violation")
+    row: dict[str, Any] = {"trajectory": motion.name, "controller": ctrl, "rank": None, "status": status}
+    metrics: dict[str, Any] = {}
     for key in METRICS:
         value = entry.get(key) if entry else None
         if key == "duration_s" and value is None:
             value = motion.info.get("duration_s")
-        row[key] = None if value is None or (isinstance(value, float) and not math.isfinite(value)) else value
+        metrics[key] = None if value is None or (isinstance(value, float) and not math.isfinite(value)) else value
+    if status == "ok":
+        row.update(metrics)
+        row["first_violation"] = None
+    else:
+        row.update({key: None for key in METRICS})
+        row["first_violation"] = (describe_violation(first) if first else
+                                  (motion.message or (entry or {}).get("failure") or status))
+        row["unranked_metrics"] = metrics
+        row["note"] = UNRANKED_NOTE
     return row
 
 
 def rank_rows(rows: list[dict[str, Any]], rank_by: str) -> list[dict[str, Any]]:
-    """Rank the rows per trajectory by ``rank_by`` (smaller first; failed or missing values last, unranked);
-    returns them ordered by trajectory (as listed) then rank."""
+    """Rank the ``ok`` rows per trajectory by ``rank_by`` (smaller first); returns the ranked rows
+    (by trajectory as listed, then rank), then every row that is not ``ok`` or has no value of
+    ``rank_by`` (unranked, in the order given) below them."""
     order = list(dict.fromkeys(r["trajectory"] for r in rows))
-    out: list[dict[str, Any]] = []
+    ranked: list[dict[str, Any]] = []
     for traj in order:
         group = [r for r in rows if r["trajectory"] == traj]
         good = sorted((r for r in group if r["status"] == "ok" and r[rank_by] is not None), key=lambda r: r[rank_by])
         for k, r in enumerate(good, start=1):
             r["rank"] = k
-        out += good + [r for r in group if r not in good]
-    return out
+        ranked += good
+    return ranked + [r for r in rows if not any(r is g for g in ranked)]
 
 
 def write_table(out_dir: Path, rows: list[dict[str, Any]], rank_by: str) -> tuple[Path, Path]:
@@ -651,8 +696,32 @@ def write_table(out_dir: Path, rows: list[dict[str, Any]], rank_by: str) -> tupl
             writer.writerow(["" if r[c] is None else (repr(float(r[c])) if isinstance(r[c], float) else r[c])
                              for c in TABLE_COLUMNS])
     json_path.write_text(json.dumps({"rank_by": rank_by, "columns": {k: METRICS.get(k, k) for k in TABLE_COLUMNS},
-                                     "rows": rows}, indent=2), encoding="utf-8")
+                                     "ranking_rule": "only entries whose verdict is ok are ranked (per trajectory, "
+                                                     "smaller first); the others follow, unranked, with their "
+                                                     "verdict, first violation and unranked_metrics",
+                                     "rows": rows}, indent=2, default=_json_default), encoding="utf-8")
     return csv_path, json_path
+
+
+def _json_default(value: Any) -> Any:
+    if hasattr(value, "tolist"):
+        return value.tolist()
+    return str(value)
+
+
+def console_table(rows: list[dict[str, Any]], rank_by: str) -> list[str]:
+    """The ranking for the console: per trajectory the ranked entries with their ``rank_by``
+    value, then the entries not ranked with their verdict and first violation."""
+    lines = [f"ranking by {rank_by} ({METRICS[rank_by]}, smaller first; only entries whose verdict is ok):"]
+    for traj in dict.fromkeys(r["trajectory"] for r in rows):
+        ranked = [r for r in rows if r["trajectory"] == traj and r["rank"] is not None]
+        text = "  ".join(f"{r['rank']}. {r['controller']} {r[rank_by]:.6g}" for r in ranked) or "(none ranked)"
+        lines.append(f"  {traj}: {text}")
+    unranked = [r for r in rows if r["rank"] is None]
+    if unranked:
+        lines.append("not ranked:")
+        lines += [f"  {r['controller']} / {r['trajectory']}: {r['status']}: {r['first_violation']}" for r in unranked]
+    return lines
 
 
 # ------------------------------------------------------------------------------------- run
@@ -680,10 +749,18 @@ def run(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
                 entry, result = run_entry(ctx, setup, ctrl, motion, at)
                 entries[label] = entry
                 results[(motion.name, ctrl["name"])] = result
+            else:  # its trajectory was refused or not planned: the entry did not run
+                from cosim.cell.verdict import Verdict, violation
+
+                first = motion.info.get("first_violation") or violation(motion.status, None, motion.message)
+                ctx.note_verdict(label, Verdict("failed", [first], first, 1).fields())
             rows.append(_row(ctrl["name"], motion, entry))
             ctx.summary.update(entries=entries, table=rank_rows([dict(r) for r in rows], cmp_t["rank_by"]))
     rows = rank_rows(rows, cmp_t["rank_by"])
     write_table(ctx.out_dir, rows, cmp_t["rank_by"])
+    import sys
+
+    print("\n".join(console_table(rows, cmp_t["rank_by"])), file=sys.stderr)
     fields: dict[str, Any] = {"entries": entries, "table": rows, "rank_by": cmp_t["rank_by"],
                               "files": {"table_csv": "compare.csv", "table_json": "compare.json"}}
     if cmp_t["figures"]:
@@ -692,7 +769,10 @@ def run(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
         fields["figures"] = [p.name for p in write_figures(ctx.out_dir, rows, results, cmp_t["rank_by"])]
     failed = [label for label, e in entries.items() if e["status"] != "ok"]
     if failed:
-        fields["failed_entries"] = failed
+        fields["failed_entries"] = failed  # every entry whose verdict is not ok (the job's status says the worst)
+    unranked = [f"{r['controller']}__{r['trajectory']}" for r in rows if r["rank"] is None]
+    if unranked:
+        fields["unranked_entries"] = unranked
     return fields
 
 

@@ -2,6 +2,8 @@
 
 * ``compare_metrics.png``: one panel per metric of the table, one horizontal bar per entry
   (grouped by trajectory, one colour per controller), each bar labelled with its value;
+  an entry whose verdict is not ``ok`` is labelled with it and "not ranked" and shows no
+  value (its metrics are not comparable);
   a panel whose positive values span more than :data:`LOG_SPAN` uses a logarithmic axis
   (symmetric-log when some values are 0, e.g. no deadline miss).
 * ``compare_tcp_error.png``: per trajectory, the TCP error over the motion of every
@@ -56,7 +58,8 @@ def write_figures(out_dir: Path, rows: list[dict[str, Any]], results: dict[tuple
     written: list[Path] = []
     controllers = list(dict.fromkeys(r["controller"] for r in rows))
     colour = _colours(controllers)
-    labels = [f"{r['controller']} / {r['trajectory']}" + (f"  #{r['rank']}" if r["rank"] else "") for r in rows]
+    labels = [f"{r['controller']} / {r['trajectory']}" + (f"  #{r['rank']}" if r["rank"] else
+                                                            f"  [{r['status']}: not ranked]") for r in rows]
     metrics = list(METRICS)
     ncols = 3
     nrows = math.ceil(len(metrics) / ncols)
@@ -104,10 +107,12 @@ def write_figures(out_dir: Path, rows: list[dict[str, Any]], results: dict[tuple
             curves = [(c, results[(traj, c)]) for c in controllers
                       if (traj, c) in results and results[(traj, c)] is not None and results[(traj, c)].t.size]
             curves.sort(key=lambda cr: -float(cr[1].tcp_error.max()))
+            verdict = {r["controller"]: r["status"] for r in rows if r["trajectory"] == traj}
             for k, (ctrl, res) in enumerate(curves):
                 err = res.tcp_error * 1e3
+                mark = "" if verdict.get(ctrl, "ok") == "ok" else f" [{verdict[ctrl]}: not ranked]"
                 ax.plot(res.t - res.t[0], err, color=colour[ctrl], ls=LINE_STYLES[k % len(LINE_STYLES)],
-                        lw=max(0.6, 2.2 - 0.45 * k), label=f"{ctrl}: max {err.max():.3g} mm, "
+                        lw=max(0.6, 2.2 - 0.45 * k), label=f"{ctrl}{mark}: max {err.max():.3g} mm, "
                                                            f"RMS {math.sqrt(float((err ** 2).mean())):.3g} mm")
             ax.set_yscale("log")
             ax.set_ylabel("TCP error [mm] (log)")

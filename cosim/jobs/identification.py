@@ -84,8 +84,10 @@ MEASUREMENT_TABLE = Table({
                                         doc="added Gaussian current-measurement noise, sigma in % of rated torque"),
     "noise_seed": Field(Integer(min=0), default=0),
     "method": Field(String(choices=("wls", "ols")), default="wls"),
-    "position_lag_cycles": Field(Integer(min=0, max=10), default=1,
-                                 doc="cycles by which position actual lags torque actual (drive latching)"),
+    "position_lag_cycles": Field(Integer(min=0, max=10), default=0,
+                                 doc="cycles by which position actual lags torque actual (0: the drives latch "
+                                     "both at the SoC, as the servo_drive FMU does; 1: a drive that reports "
+                                     "the previous cycle's position)"),
     "consistent": Field(Boolean(), default=True,
                         doc="also fit a physically consistent parameter vector and validate it"),
     "kinematics": Field(String(choices=("calibrated", "nominal")), default="calibrated",
@@ -568,7 +570,12 @@ def _cell_experiment(doc, ctx, trajectory, duration, cell: _Cell, params, elasti
     reflector = tuple(doc["stiffness"]["reflector"]) if elastic else (0.0, 0.0, 0.0)
     run = cell.run(ctx, recorder, "excitation", stop_time, "excitation",
                    tracker=dataclasses.replace(tracker, reflector=reflector))
-    if run.failure is not None:
+    from cosim.cell.verdict import judge
+
+    verdict = judge(run).fields()  # the excitation run's verdict (cosim/cell/verdict.py)
+    ctx.note_verdict("excitation", verdict)
+    ctx.summary.update(excitation_verdict=verdict)
+    if run.failure is not None:  # stopped early: no complete excitation data to identify from
         raise run.failure
     start = controller.motion_start_s
     if start is None:

@@ -1,11 +1,12 @@
 """Figures of the identification campaign (paper Figure 5): excitation path, torque verification."""
 from __future__ import annotations
 
-import csv
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from robot.textfiles import csv_rows
 
 
 def _pyplot():
@@ -58,8 +59,7 @@ def figure_excitation_path(path: Path, excitation: Any, samples: int = 2000) -> 
 def figure_torques(path: Path, csv_path: Path) -> Path:
     """Figure 5(b): measured (fieldbus) and predicted joint torques on the ISO 9283 path."""
     plt = _pyplot()
-    with open(csv_path, newline="") as handle:
-        rows = list(csv.reader(handle))
+    rows = csv_rows(csv_path)
     header = rows[0]
     data = np.array(rows[1:], dtype=float)
     col = {name: k for k, name in enumerate(header)}

@@ -17,8 +17,9 @@ friction and rotor deviations, geometric errors, payload). The modes follow the 
   model torque as torque offset, plus the drive set-point shaping.
 
 A user's controller (``[controller] class = "file.py:Class"`` or ``fmu = "ctrl.fmu"``,
-the controller contract :mod:`controller.contract`) runs after the modes on the same
-robot as one more entry (``[controller] label``, default the class or FMU name).
+the controller contract :mod:`controller.contract`) runs on the same robot as one more
+entry (``[controller] label``, default the class or FMU name): alone, unless
+``[controller] modes`` lists built-in modes, which then run first.
 
 The drive speed feed-forward is the servo-drive FMU parameter ``speed_feedforward_gain``,
 set by the job per mode (``[controller.<mode>] drive_speed_feedforward`` overrides the
@@ -74,9 +75,14 @@ def run(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
         if outcome.entry is not None:
             modes[outcome.mode] = outcome.entry
             results[outcome.mode] = outcome.result
+            ctx.note_verdict(outcome.mode, outcome.entry)  # its verdict (the worker's ctx is not this one)
             ctx.summary.update(modes=modes)
-        if outcome.failure is not None:
-            failed.append(outcome)
+        elif outcome.failure is not None:
+            from cosim.cell.verdict import failed_verdict
+
+            ctx.note_verdict(outcome.mode, failed_verdict(str(outcome.failure), outcome.failure.time).fields())
+        if outcome.failure is not None and (outcome.entry is None or outcome.entry.get("verdict") == "failed"):
+            failed.append(outcome)  # a stop after a limit or fault reaction is that run's verdict, not a failure
     if failed:  # every mode that could run has run and is in the summary: fail naming the first that failed
         ctx.label = failed[0].mode
         raise failed[0].failure
@@ -88,7 +94,7 @@ def run(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
         modes[label] = entry
         results[label] = result
         ctx.summary.update(modes=modes)
-        if cell.failure is not None:
+        if cell.failure is not None and entry.get("verdict") == "failed":
             raise cell.failure
     fields: dict[str, Any] = {"modes": modes}
     if "standard" in modes and "model_based" in modes:

@@ -72,7 +72,7 @@ class PlannerEntry(Spec):
             return value
         raise where.error(self.expected, value)
 
-    # the file of a 'file.py:Class' entry travels with a sweep's tasks (cosim.sweep.keypath.referenced_files)
+    # the file of a 'file.py:Class' entry travels with a sweep's tasks (cosim.scenario.keypath.referenced_files)
     def referenced_file(self, value: Any) -> str | None:
         return class_spec_file(value)
 
@@ -317,6 +317,10 @@ def _execute(ctx: RunContext, doc: dict[str, Any], name: str, traj: Any, true_ro
     }
     if cell.failure is not None:
         entry["failure"] = str(cell.failure)
+    from cosim.cell.verdict import record
+
+    record(entry, cell, controller.timing())
+    ctx.note_verdict(name, entry)
     return entry
 
 
@@ -346,6 +350,44 @@ def plan_checked(planner: Any, problem: Any, entry: str):
                           message=f"{entry}: status {result.status.value} but trajectory is "
                                   f"{type(result.trajectory).__name__}, expected a planners.trajectory.Trajectory")
     return result
+
+
+def refusal(entry: str, result: Any, problem: Any) -> Any:
+    """Check a user planner's plan (``entry``: its class spec) before it runs, with the limit checker
+    of trajectory files (:func:`planners.trajectory_file.check_planned_trajectory`: the robot's
+    limits, and that it ends at the problem's goal): the :class:`~planners.trajectory_file.PlanLimitError`
+    that refuses it, or None. Built-in planners are not refused here (their report gives
+    ``max_constraint_ratio``; the drives judge what runs)."""
+    from planners.trajectory_file import PlanLimitError, check_planned_trajectory
+
+    if entry in PLANNERS or not result.ok or result.trajectory is None:
+        return None
+    goal = getattr(problem, "qe", None)
+    if goal is None:
+        path_q = getattr(getattr(problem, "path", None), "q", None)
+        goal = None if path_q is None else np.asarray(path_q)[-1]
+    try:
+        check_planned_trajectory(result.trajectory, entry, goal=goal)
+    except PlanLimitError as exc:
+        return exc
+    return None
+
+
+def refused_fields(exc: Any) -> dict[str, Any]:
+    """A refused plan's summary fields: ``status: "refused"``, the one-line reason and the violation
+    (kind ``refused``: planner, joint, limit and time), verdict ``failed``."""
+    from cosim.cell.verdict import Verdict, violation
+
+    unit = {"position": "rad", "velocity": "rad/s", "acceleration": "rad/s^2", "torque": "N.m",
+            "goal": "rad"}.get(exc.kind)
+    limit = exc.limit if not isinstance(exc.limit, tuple) else (exc.limit[1] if exc.value > exc.limit[1]
+                                                                  else exc.limit[0])
+    if exc.kind == "goal":  # the plan ends short of the goal: no limit to quote
+        v = violation("refused", exc.time, str(exc), joint=exc.joint, value=float(exc.value), unit=unit)
+    else:
+        v = violation("refused", exc.time, str(exc), joint=exc.joint, value=float(exc.value), limit=float(limit),
+                      unit=unit)
+    return {"status": "refused", "refused": str(exc), **Verdict("failed", [v], v, 1).fields()}
 
 
 def run(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
@@ -389,13 +431,18 @@ def run(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
         extras = {k: v for k, v in result.info.items() if isinstance(v, (bool, int, float, str))}
         if extras:
             entry["info"] = extras      # planner-specific scalars (e.g. ruckig_feasible's limit scale)
+        refused = refusal(run_entry, result, problem)
         if result.ok:
-            trajectories[name] = result.trajectory
-            result.trajectory.write_csv(ctx.path(f"trajectory_{name}.csv"))
+            if refused is None:
+                trajectories[name] = result.trajectory
+            result.trajectory.write_csv(ctx.path(f"trajectory_{name}.csv"))  # kept, refused or not
             entry["files"] = {"trajectory": f"trajectory_{name}.csv"}
+        if refused is not None:  # beyond the robot's limits: not run, not drawn; the job ends failed
+            entry.update(refused_fields(refused))
+            ctx.note_verdict(name, entry)
         entries[name] = entry
         ctx.summary.update(planners=entries, ratios=ratios(entries))
-        if run_entry in executed and result.ok:
+        if run_entry in executed and result.ok and refused is None:
             entry["execution"] = _execute(ctx, doc, name, result.trajectory, true_robot, fieldbus)
             entry["tcp_error_max_mm"] = entry["execution"]["tcp_error_max_mm"]
             entry["drive_saturated"] = entry["execution"]["drive_saturated"]

@@ -21,7 +21,7 @@ from functools import partial
 import numpy as np
 
 from cosim.master.errors import FmuEnded, FmuTerminated, SimulationError
-from cosim.master.kernel import (FAIL_ENDED, FAIL_GET, FAIL_NONFINITE, FAIL_SET, FAIL_STEP, CFailure, CPlan, CSlave,
+from cosim.master.kernel import (FAIL_ENDED, FAIL_GET, FAIL_NONFINITE, FAIL_SET, FAIL_STEP, CFailure, CPlan, CRefreshSet, CSlave,
                                  load_kernel)
 from native.calls import address_of, load_calls
 from fmus.fmu import VALUE_DTYPE, VALUE_TYPES, Fmu, status_name
@@ -164,6 +164,29 @@ class PythonEngine:
             if len(bad):
                 raise nonfinite_error(self.plan, slave, tick, int(bad[0]))
 
+    def refresher(self, indices: list[int]):
+        """A function ``refresh(tick)`` that sets the inputs of the slaves ``indices`` (stepping
+        order) due at ``tick`` as they are on the buses and publishes their outputs again
+        (kernel.c, cosim_refresh)."""
+        chosen = [self._prepared[k] for k in indices]
+        time_of = self.plan.time
+
+        def refresh(tick: int) -> None:
+            for prepared in chosen:
+                slave, comp, gathers, sets, _, _ = prepared
+                if tick % slave.step_ticks:
+                    continue
+                for bus, dst, src in gathers:
+                    bus[dst] = bus[src]
+                handle = comp.component
+                for fn, vrs, count, address, bus_type in sets:
+                    status = fn(handle, vrs, count, address)
+                    if status > 1:
+                        comp.check(f"{comp.api}Set{bus_type}", time_of(tick), status)
+                self._publish(prepared, tick)
+
+        return refresh
+
     def advance(self, n_from: int, n_to: int) -> None:
         """Step all due slaves for ticks n_from .. n_to-1 (see kernel.c for the exact order)."""
         plan = self.plan
@@ -214,6 +237,7 @@ class NativeEngine:
         self.plan = plan
         self.step_seconds = np.zeros(len(plan.slaves)) if profile else None
         self._advance = library.cosim_advance
+        self._library = library
         n = len(plan.slaves)
         self._slaves = (CSlave * max(n, 1))()
         for k, slave in enumerate(plan.slaves):
@@ -234,6 +258,25 @@ class NativeEngine:
         else:
             self._step = partial(self._advance, self._plan_ref)
             self._failure_arg = self._failure_ref
+
+    def refresher(self, indices: list[int]):
+        """As :meth:`PythonEngine.refresher`, one compiled call (kernel.c, cosim_refresh)."""
+        which = np.array(indices, dtype=np.int64)
+        chosen = CRefreshSet(plan=ctypes.pointer(self._plan), slaves=which.ctypes.data, n=len(which))
+        library = self._library
+        calls = load_calls()
+        if calls is not None:
+            call = partial(calls.int_p_ll_p, address_of(library.cosim_refresh), ctypes.addressof(chosen))
+            failure = ctypes.addressof(self._failure)
+        else:
+            call, failure = partial(library.cosim_refresh, ctypes.byref(chosen)), self._failure_ref
+        keep = (which, chosen)  # alive as long as the function
+
+        def refresh(tick: int, _keep=keep) -> None:
+            if call(tick, failure):
+                raise self._error()
+
+        return refresh
 
     @staticmethod
     def _fill(c: CSlave, slave: SlavePlan) -> None:

@@ -9,6 +9,8 @@
  * (outputs first, then probes) with fmi2Get* when it reaches its next communication
  * point: right after its own step in Gauss-Seidel mode, after all slaves of the tick
  * stepped in Jacobi mode. Real outputs are checked for NaN/Inf when read.
+ * cosim_refresh sets the inputs of chosen slaves and reads their outputs again between steps
+ * (direct feedthrough at a communication point).
  * The semantics are identical to PythonEngine in engines.py (tested).
  */
 #define _POSIX_C_SOURCE 199309L
@@ -93,7 +95,8 @@ static int publish(const cosim_plan *p, const cosim_slave *s, long long k, long 
     return 0;
 }
 
-static int step(const cosim_plan *p, const cosim_slave *s, long long k, long long n, cosim_failure *f)
+/* Copy the slave's connected inputs on the buses and set them (fmi2Set*). */
+static int set_inputs(const cosim_plan *p, const cosim_slave *s, long long k, long long n, cosim_failure *f)
 {
     int st;
     for (long long i = 0; i < s->n_gather[REAL]; ++i) p->real_bus[s->gather_dst[REAL][i]] = p->real_bus[s->gather_src[REAL][i]];
@@ -111,6 +114,13 @@ static int step(const cosim_plan *p, const cosim_slave *s, long long k, long lon
         st = s->set_boolean(s->component, s->vr_in[BOOLEAN], (size_t)s->n_in[BOOLEAN], p->bool_bus + s->in_offset[BOOLEAN]);
         if (fmi_failed(st)) { f->slave = k; f->tick = n; f->what = FAIL_SET; f->status = st; f->variable = -1; return 1; }
     }
+    return 0;
+}
+
+static int step(const cosim_plan *p, const cosim_slave *s, long long k, long long n, cosim_failure *f)
+{
+    int st;
+    if (set_inputs(p, s, k, n, f)) return 1;
     double t = p->start_time + (double)n * p->base_step;
     double h = (p->start_time + (double)(n + s->step_ticks) * p->base_step) - t;
     if (p->step_seconds) {
@@ -123,6 +133,29 @@ static int step(const cosim_plan *p, const cosim_slave *s, long long k, long lon
         st = s->do_step(s->component, t, h, 1);
     }
     if (fmi_failed(st)) { f->slave = k; f->tick = n; f->what = FAIL_STEP; f->status = st; f->variable = -1; return 1; }
+    return 0;
+}
+
+/* Slaves whose outputs depend directly on their inputs (cosim_refresh). */
+typedef struct {
+    const cosim_plan *plan;
+    const long long *slaves; /* indices into plan->slaves */
+    long long n;
+} cosim_refresh_set;
+
+/* At tick n, between steps: set the connected inputs of each listed slave at its communication
+ * point (n % step_ticks == 0) as they are on the buses now, and publish its outputs again (FMI
+ * direct feedthrough: outputs that depend on the inputs at the same instant). */
+int cosim_refresh(const cosim_refresh_set *r, long long n, cosim_failure *fail)
+{
+    const cosim_plan *p = r->plan;
+    for (long long i = 0; i < r->n; ++i) {
+        long long k = r->slaves[i];
+        const cosim_slave *s = p->slaves + k;
+        if (n % s->step_ticks) continue;
+        if (set_inputs(p, s, k, n, fail)) return 1;
+        if (publish(p, s, k, n, fail)) return 1;
+    }
     return 0;
 }
 

@@ -78,6 +78,16 @@ class CFailure(Structure):
     ]
 
 
+class CRefreshSet(Structure):
+    """Mirror of ``cosim_refresh_set`` in kernel.c."""
+
+    _fields_ = [
+        ("plan", POINTER(CPlan)),
+        ("slaves", c_void_p),
+        ("n", c_longlong),
+    ]
+
+
 CFLAGS = ("-O2", "-shared", "-fPIC", "-std=c99")
 
 
@@ -89,6 +99,8 @@ def load_kernel() -> ctypes.CDLL | None:
         return None
     lib.cosim_advance.argtypes = [POINTER(CPlan), c_longlong, c_longlong, POINTER(CFailure)]
     lib.cosim_advance.restype = c_int
+    lib.cosim_refresh.argtypes = [POINTER(CRefreshSet), c_longlong, POINTER(CFailure)]
+    lib.cosim_refresh.restype = c_int
     return lib
 
 
@@ -97,5 +109,5 @@ def address_of(array) -> int:
     return int(array.ctypes.data)
 
 
-__all__ = ["CFailure", "CPlan", "CSlave", "FAIL_ENDED", "FAIL_GET", "FAIL_NONFINITE", "FAIL_SET", "FAIL_STEP",
+__all__ = ["CFailure", "CPlan", "CRefreshSet", "CSlave", "FAIL_ENDED", "FAIL_GET", "FAIL_NONFINITE", "FAIL_SET", "FAIL_STEP",
            "load_kernel", "address_of", "c_uint"]

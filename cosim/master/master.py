@@ -496,6 +496,22 @@ class Master:
             if task.setup is not None:
                 task.setup(self)
 
+    def refresher(self, instances: Sequence[str]) -> Callable[[], None]:
+        """A function that, called by a task at tick ``n``, sets the connected inputs of the FMUs
+        ``instances`` whose communication point is ``t_n`` as they are on the buses now, and reads
+        their outputs again: for outputs that depend directly on the inputs at the same instant
+        (FMI direct feedthrough; e.g. a drive's position actual latched at the bus cycle's start).
+        The FMUs' steps from ``t_n`` set the inputs again as the tasks leave them. Call after
+        :meth:`initialize`."""
+        if self.plan is None or self.engine is None:
+            raise MasterConfigError("refresher() needs an initialized master")
+        order = [slave.component.name for slave in self.plan.slaves]
+        missing = [name for name in instances if name not in order]
+        if missing:
+            raise MasterConfigError(f"refresher(): {missing} are not FMU instances (have {order})")
+        refresh = self.engine.refresher([order.index(name) for name in instances])
+        return lambda: refresh(self._tick)
+
     @property
     def tick(self) -> int:
         """Current base tick n."""
@@ -516,6 +532,16 @@ class Master:
             events.append(_Event(first, rec.period_ticks, (1, 0, seq), rec))
         events.sort(key=lambda e: e.order)
         return events
+
+    def flush_recorders(self) -> None:
+        """Hand every recorder's buffered rows to its sink and have the sink write them now
+        (``sink.sync()`` where it has one, else its ``flush()``): what is on disk then holds every
+        sample taken so far."""
+        for recorder in self._recorders:
+            recorder.flush()
+            sync = getattr(recorder.sink, "sync", None)
+            if sync is not None:
+                sync()
 
     def run(self, until: float | None = None) -> float:
         """Advance the simulation to time ``until`` (s; default the stop_time given to initialize).

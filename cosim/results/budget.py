@@ -38,7 +38,7 @@ TCP_COLUMNS = 33
 CAN_BYTES_PER_CYCLE = 14 * 11
 """BLF CAN log bytes per cycle (19 frames; the main job: 172)."""
 COLUMNAR_CAN_BYTES_PER_CYCLE = 64
-"""Columnar CAN log (fieldbus.canlog) bytes per cycle (the main job: 45-50)."""
+"""Columnar CAN log (fieldbus.canlog) bytes per cycle (the main job: 46-51)."""
 EVAL_CHUNK_ROWS = 8192
 """Rows the cell's evaluation reads at once (cosim.cell.evaluation.EVAL_CHUNK_ROWS)."""
 ISO_PATH_S_AT_1_M_S = 12.3

@@ -4,10 +4,14 @@
  * a bug in a compiled helper) ends the process before Python can write anything. This handler,
  * installed for SIGSEGV, SIGBUS, SIGFPE, SIGILL and SIGABRT, writes a summary that Python prepared
  * beforehand (status "failed", the run's last known progress) with the signal's name in place of
- * every \x01 byte, using only async-signal-safe calls (open, write, close, rename), then hands the
- * signal to the previous handler (or the default action) so the process still dies from it. */
+ * every \x01 byte and the latest progress in place of every \x02 (simulated seconds in all) and
+ * \x03 (the running part's own time) byte, using only async-signal-safe calls (open, write, close,
+ * rename), then hands the signal to the previous handler (or the default action) so the process
+ * still dies from it. The progress is two doubles the run writes at every heartbeat
+ * (crashguard_progress), so the summary says where the run was to the heartbeat. */
 #define _XOPEN_SOURCE 700 /* sigaction, sigaltstack, SA_ONSTACK under -std=c99 */
 #include <fcntl.h>
+#include <stdio.h> /* rename */
 #include <signal.h>
 #include <stddef.h>
 #include <string.h>
@@ -23,6 +27,37 @@ static const int watched[] = {SIGSEGV, SIGBUS, SIGFPE, SIGILL, SIGABRT};
 static struct sigaction previous[N_WATCHED];
 static int installed;
 static char alt_stack[1 << 16];
+static volatile double progress[2] = {-1.0, -1.0}; /* sim_time_s, stopped_at_s; < 0: none yet */
+
+/* The two progress doubles (simulated seconds in all, the running part's time), written by the run. */
+volatile double *crashguard_progress(void) { return progress; }
+
+/* ``value`` as JSON text into ``out`` (at least 40 bytes): "null" when < 0 or not finite, else
+ * the number rounded to 1e-9 with its trailing zeros dropped (integer arithmetic only). */
+static size_t format_time(double value, char *out)
+{
+    if (!(value >= 0.0) || value > 9.0e15) {
+        memcpy(out, "null", 4);
+        return 4;
+    }
+    unsigned long long whole = (unsigned long long)value;
+    unsigned long long nano = (unsigned long long)((value - (double)whole) * 1e9 + 0.5);
+    if (nano >= 1000000000ULL) {
+        whole += 1;
+        nano -= 1000000000ULL;
+    }
+    char digits[24];
+    size_t n = 0, len = 0;
+    do {
+        digits[n++] = (char)('0' + whole % 10);
+        whole /= 10;
+    } while (whole);
+    while (n) out[len++] = digits[--n];
+    out[len++] = '.';
+    for (unsigned long long scale = 100000000ULL; scale; scale /= 10) out[len++] = (char)('0' + (nano / scale) % 10);
+    while (out[len - 1] == '0' && out[len - 2] != '.') --len;
+    return len;
+}
 
 static const char *name_of(int sig)
 {
@@ -43,11 +78,20 @@ static void on_fatal(int sig)
         int fd = open(temporary, O_WRONLY | O_CREAT | O_TRUNC, 0644);
         if (fd >= 0) {
             const char *name = name_of(sig);
+            char number[2][40];
+            size_t number_len[2] = {format_time(progress[0], number[0]), format_time(progress[1], number[1])};
             size_t start = 0, ok = 1;
             for (size_t i = 0; i <= text_len && ok; ++i) {
-                if (i == text_len || text[i] == '\x01') {
+                if (i == text_len || text[i] == '\x01' || text[i] == '\x02' || text[i] == '\x03') {
                     if (i > start && write(fd, text + start, i - start) < 0) ok = 0;
-                    if (i < text_len && write(fd, name, strlen(name)) < 0) ok = 0;
+                    if (i < text_len) {
+                        if (text[i] == '\x01') {
+                            if (write(fd, name, strlen(name)) < 0) ok = 0;
+                        } else {
+                            int k = text[i] - '\x02';
+                            if (write(fd, number[k], number_len[k]) < 0) ok = 0;
+                        }
+                    }
                     start = i + 1;
                 }
             }

@@ -3,9 +3,12 @@
 :class:`~cosim.results.summary.SummaryWriter` calls :func:`arm` after every write of a running
 summary with the ``failed`` summary to leave if the process died now from SIGSEGV, SIGBUS,
 SIGFPE, SIGILL or SIGABRT (an in-process FMU's NULL dereference or ``abort()``); the C handler
-writes it (async-signal-safe) and lets the signal end the process. What it records is the
-last progress the run reported (summary.json is rewritten every 2 s of wall time), and the
-time series up to their last flush (about 1 s of wall time). ``_exit()`` cannot be caught:
+writes it (async-signal-safe) and lets the signal end the process. Where the run was comes
+from two doubles the run writes at every heartbeat of the master (:func:`note`, 1000 per run):
+the handler writes them in place of the marker bytes of the prepared text (``\x02`` simulated
+seconds in all, ``\x03`` the running part's time). The time series hold what was flushed: a
+run with FMUs of the user's in its process writes them through at every heartbeat
+(:class:`cosim.scenario.context.RunContext`). ``_exit()`` cannot be caught:
 only running the FMU out of process (docs/robustness.md) reports that. Without compiled code
 nothing is installed: ``COSIM_NATIVE=off`` silently, no compiler or a failed build with a note
 said once (``COSIM_NATIVE=require`` makes that an error, :mod:`native`).
@@ -14,9 +17,11 @@ from __future__ import annotations
 
 import ctypes
 from pathlib import Path
+from typing import Any
 
 _SOURCE = Path(__file__).with_name("crashguard.c")
 _library: ctypes.CDLL | None | bool = None
+_progress: Any = None  # the library's two progress doubles (sim_time_s, stopped_at_s)
 
 
 def _load() -> ctypes.CDLL | None:
@@ -33,6 +38,9 @@ def _load() -> ctypes.CDLL | None:
             library.crashguard_install.argtypes = [ctypes.c_char_p]
             library.crashguard_arm.argtypes = [ctypes.c_char_p, ctypes.c_size_t]
             library.crashguard_disarm.argtypes = []
+            library.crashguard_progress.restype = ctypes.POINTER(ctypes.c_double)
+            global _progress
+            _progress = library.crashguard_progress()
         _library = library if library is not None else False
     return _library or None
 
@@ -49,6 +57,15 @@ def arm(summary_text: str) -> None:
     if library is not None:
         data = summary_text.encode("utf-8")
         library.crashguard_arm(data, len(data))
+
+
+def note(sim_time_s: float, stopped_at_s: float) -> None:
+    """Where the run is now (simulated seconds in all, the running part's own time), for the handler:
+    two doubles written in place, cheap enough for every heartbeat. No-op before :func:`install`."""
+    progress = _progress
+    if progress is not None:
+        progress[0] = sim_time_s
+        progress[1] = stopped_at_s
 
 
 def disarm() -> None:

@@ -1,7 +1,9 @@
 """``summary.json``: written when a run starts and rewritten atomically as it goes.
 
 Fields every run has: ``scenario``, ``job``, ``status`` (``"running"``, ``"ok"``,
-``"failed"`` or ``"interrupted"``), ``reason`` and ``stopped_at_s`` when failed or
+``"limit"``, ``"fault"``, ``"failed"`` or ``"interrupted"``: the most severe verdict of the
+job's cell runs, cosim/cell/verdict.py), ``verdicts`` (per cell run: its verdict and first
+violation), ``reason`` (also for ``limit``/``fault``), and ``stopped_at_s`` when failed or
 interrupted (plus ``signal`` and ``failed_in``/``interrupted_in``, the mode or part that
 was running), ``sim_time_s`` (simulated
 seconds reached), ``wall_time_s``, ``realtime_factor`` (= sim_time_s / wall_time_s, >1 is
@@ -24,6 +26,8 @@ from typing import Any
 
 #: Stands for the signal's name in the crash summary (crashguard.c writes the name there).
 _SIGNAL_MARK = "@@SIGNAL@@"
+#: Stand for the latest progress in the crash summary (crashguard.c writes the numbers there).
+_SIM_TIME_MARK, _AT_MARK = "@@SIM_TIME@@", "@@AT@@"
 
 
 def replace_text(path: Path, text: str) -> None:
@@ -144,15 +148,20 @@ class SummaryWriter:
     def note_time(self, sim_time_s: float, at_s: float) -> None:
         """The latest progress for the supervisor only (two numbers in shared memory: cheap enough for
         every heartbeat; cosim/results/lastwords.py). No file write."""
-        from cosim.results import lastwords
+        from cosim.results import crashguard, lastwords
 
         lastwords.note_time(self._key, sim_time_s, at_s)
+        self.where["stopped_at_s"] = at_s  # what the next prepared summary says (no rounding: every heartbeat)
+        self.where["sim_time_s"] = sim_time_s
+        if self._guarded:
+            crashguard.note(sim_time_s, at_s)
 
     def dying_words(self) -> dict[str, Any]:
         """The running summary with where the run is (``mode``, ``stopped_at_s``): the base of the
         ``failed`` summary the crash guard or the supervisor writes if the process dies now."""
         data = dict(self.data)
         data.setdefault("mode", self.where.get("mode"))
+        data["sim_time_s"] = round(float(self.where.get("sim_time_s", data["sim_time_s"])), 12)
         data["stopped_at_s"] = self.where.get("stopped_at_s", data.get("sim_time_s"))
         return data
 
@@ -171,14 +180,18 @@ class SummaryWriter:
             self._guarded = crashguard.install(self.path)
             if not self._guarded:
                 return
-        last, mode = words["stopped_at_s"], words.get("mode")
-        crash = dict(words, status="failed", signal=_SIGNAL_MARK,
+        crashguard.note(words.get("sim_time_s") or 0.0, words["stopped_at_s"] or 0.0)
+        mode = words.get("mode")
+        # the handler writes the latest heartbeat's times (crashguard.note) where the marks stand
+        crash = dict(words, status="failed", signal=_SIGNAL_MARK, sim_time_s=_SIM_TIME_MARK, stopped_at_s=_AT_MARK,
                      reason=f"the run's process died from {_SIGNAL_MARK} (a crash in native code: an in-process "
-                            f"FMU or a compiled helper); last progress recorded at t = {last} s"
-                            f"{f' in mode {mode}' if mode else ''}. Run third-party "
-                            f"FMUs out of process to isolate them (docs/robustness.md)")
+                            f"FMU or a compiled helper) at t = {_AT_MARK} s"
+                            f"{f' in mode {mode}' if mode else ''} (the last simulated time reached, to the "
+                            f"master's heartbeat). Run third-party FMUs out of process to isolate them "
+                            f"(docs/robustness.md)")
         text = json.dumps(_json_safe(crash), indent=2, allow_nan=False) + "\n"
-        crashguard.arm(text.replace(_SIGNAL_MARK, "\x01"))
+        text = text.replace(f'"{_SIM_TIME_MARK}"', "\x02").replace(f'"{_AT_MARK}"', "\x03")
+        crashguard.arm(text.replace(_AT_MARK, "\x03").replace(_SIGNAL_MARK, "\x01"))
 
     def write(self) -> None:
         """Rewrite the file atomically (temporary file + rename); no ``.tmp`` is left when it fails."""
@@ -197,6 +210,7 @@ class SummaryWriter:
         self.note_where(at_s=at_s)
         wall = self.wall_time_s
         self.data["sim_time_s"] = round(float(sim_time_s), 12)  # n * h0 carries float noise (0.49999999999999994)
+        self.where["sim_time_s"] = self.data["sim_time_s"]
         self.data["wall_time_s"] = wall
         self.data["realtime_factor"] = sim_time_s / wall if wall > 0 else None
         self.write()
@@ -207,6 +221,7 @@ class SummaryWriter:
         from cosim.results import lastwords
 
         self.data["sim_time_s"] = round(float(sim_time_s), 12)
+        self.where["sim_time_s"] = self.data["sim_time_s"]
         self.data["wall_time_s"] = self.wall_time_s
         self.note_where(at_s=at_s)
         if self._guarded or lastwords.active():
@@ -229,6 +244,19 @@ class SummaryWriter:
         self.data.update(fields)
         self.data["status"] = "ok"
         self.data.pop("reason", None)
+        self._finish(sim_time_s)
+        self.write()
+
+    def finish_verdict(self, status: str, sim_time_s: float, reason: str | None = None, **fields: Any) -> None:
+        """Final status of a run that completed: ``"ok"``, or the most severe verdict of its cell
+        runs (``"limit"``, ``"fault"``, ``"failed"``) with ``reason`` (the run and its first
+        violation). An OSError writing it propagates, as for :meth:`finish_ok`."""
+        if status == "ok":
+            self.finish_ok(sim_time_s, **fields)
+            return
+        self.data.update(fields)
+        self.data["status"] = status
+        self.data["reason"] = reason or status
         self._finish(sim_time_s)
         self.write()
 

@@ -4,9 +4,11 @@ Two sinks implement ``cosim.master.recorder.Sink`` (``open(columns, kinds)``,
 ``write(block)``, ``flush()``, ``close()``; column 0 is ``time`` in s):
 
 * :class:`ParquetSink` (default): one column per signal, ``float64`` for Real signals
-  and ``int64`` for Integer/Boolean ones (exact), zstd-compressed with the byte-stream-
-  split encoding for floats (lossless: every float64 comes back bit for bit), the unit
-  of each column in its field metadata (``b"unit"``). Rows are buffered in one
+  and ``int64`` for Integer/Boolean ones (exact), zstd-compressed; float64 columns
+  byte-stream-split, columns with few distinct values dictionary-encoded
+  (:func:`column_encodings`) - standard Parquet types and encodings only, so pandas, pyarrow,
+  polars and DuckDB read every value bit for bit; the unit of each column in its field
+  metadata (``b"unit"``). Rows are buffered in one
   preallocated block of at most ``buffer_rows`` rows (bounded memory, whatever the run's
   length) and streamed as an Arrow batch to ``<file>.partial`` when the block is full or,
   on ``flush()``, when ``flush_interval_s`` of wall time passed: readable while the run
@@ -15,13 +17,10 @@ Two sinks implement ``cosim.master.recorder.Sink`` (``open(columns, kinds)``,
 * :class:`CsvSink`: header ``time,<signal>,...``, Reals with ``repr`` (shortest
   round-trip decimal), Integer/Boolean columns as integers, flushed on every ``flush()``.
 
-Compact lossless layout (docs/output_format.md): a ParquetSink given ``scales`` stores float
-columns that are exactly integer counts times a scale as the counts (``cosim.encoding =
-scaled``), with ``float_delta`` smooth float columns as k-th differences of their float64 bit
-patterns (``delta<k>``, per row group) and columns equal to an earlier one not at all
-(``same``), with ``derived`` columns rebuilt from another file or from its own columns
-(``cosim.derived`` schema metadata); :func:`decode_column` / :func:`derived_spec` and every
-reader below undo it bit for bit. ``$COSIM_COMPACT=0`` writes plain columns.
+Files written by earlier versions in their compact layout (``cosim.encoding`` field metadata:
+``scaled``/``delta<k>`` columns; ``cosim.derived`` schema metadata: columns left out) are still
+read back bit for bit by :func:`read_series` and the other readers here (:func:`decode_column`,
+:func:`derived_spec`); nothing writes that layout any more.
 
 :func:`write_columns` writes named columns of equal length at once (format by suffix),
 :func:`read_series` reads either format back (column names, float64 array),
@@ -39,6 +38,8 @@ from pathlib import Path
 from typing import IO, Any
 
 import numpy as np
+
+from robot.textfiles import open_text
 
 FORMATS = ("parquet", "csv")
 SUFFIXES = {"parquet": ".parquet", "csv": ".csv"}
@@ -181,14 +182,39 @@ def _schema(columns: Sequence[str], integer: Sequence[bool], units: Mapping[str,
     return pa.schema(fields, metadata={b"writer": b"rx130l-cosim"})
 
 
-def _writer(path: Path, schema, plan: Mapping[str, tuple] | None = None):
+DICTIONARY_SAMPLE_ROWS = 4096
+"""Rows (the first of a file) on which each column's encoding is chosen (:func:`column_encodings`)."""
+DICTIONARY_MAX_SHARE = 1 / 8
+"""A column is dictionary-encoded when its first :data:`DICTIONARY_SAMPLE_ROWS` rows hold at most
+this share of distinct values (phases, iteration counts, segment numbers, a drive's constant
+following-error flag); the other float64 columns are byte-stream-split."""
+
+
+def column_encodings(names: Sequence[str], sample: np.ndarray | None, integer: Sequence[bool]) -> tuple[list[str], list[str]]:
+    """``(dictionary columns, byte-stream-split columns)`` for a time series whose first rows are
+    ``sample`` (float64, one column per name; None: no rows): dictionary where few distinct
+    values repeat, byte-stream split for the other float64 columns, plain for the other
+    integer ones. Standard Parquet encodings only: every reader decodes them."""
+    dictionary = []
+    if sample is not None and len(sample):
+        rows = sample[:DICTIONARY_SAMPLE_ROWS]
+        for i, name in enumerate(names):
+            if len(np.unique(rows[:, i])) <= DICTIONARY_MAX_SHARE * len(rows):
+                dictionary.append(name)
+    split = [n for n, is_int in zip(names, integer) if not is_int and n not in dictionary]
+    return dictionary, split
+
+
+def _writer(path: Path, schema, sample: np.ndarray | None = None):
+    """The Parquet writer of a time series: zstd, float64 columns byte-stream-split or (few
+    distinct values in ``sample``, the first rows) dictionary-encoded; no statistics."""
     import pyarrow.parquet as pq
 
-    floats = [f.name for f in schema if str(f.type) == "double"]
-    scaled = [name for name, how in (plan or {}).items() if how[0] == "scaled"]
+    integer = [str(f.type) != "double" for f in schema]
+    dictionary, split = column_encodings(schema.names, sample, integer)
     return pq.ParquetWriter(path, schema, compression=COMPRESSION, compression_level=COMPRESSION_LEVEL,
-                            use_dictionary=False, use_byte_stream_split=floats or False, write_statistics=False,
-                            column_encoding={name: "DELTA_BINARY_PACKED" for name in scaled} or None)
+                            use_dictionary=dictionary or False, use_byte_stream_split=split or False,
+                            write_statistics=False)
 
 
 PARTIAL_SUFFIX = ".partial"
@@ -215,14 +241,8 @@ class ParquetSink:
     of :data:`ROW_GROUP_ROWS` rows, streamed, then an atomic rename) and removes the stream."""
 
     def __init__(self, path: str | Path, units: Mapping[str, str] | None = None,
-                 buffer_rows: int = DEFAULT_BUFFER_ROWS, flush_interval_s: float | None = None, *,
-                 scales: Mapping[str, float] | None = None, float_delta: bool = False,
-                 derived: Mapping[str, Any] | None = None) -> None:
+                 buffer_rows: int = DEFAULT_BUFFER_ROWS, flush_interval_s: float | None = None) -> None:
         self.path = Path(path)
-        #: compact encodings applied when the stream becomes the Parquet file (:func:`encoding_plan`)
-        self.scales = dict(scales or {})
-        self.float_delta = bool(float_delta)
-        self.derived = dict(derived) if derived else None
         self.partial = self.path.with_name(self.path.name + PARTIAL_SUFFIX)
         self.units = dict(units or {})
         self.buffer_rows = int(buffer_rows)
@@ -235,7 +255,6 @@ class ParquetSink:
         self._fill = 0
         self._int_columns: list[int] = []
         self._last = time.perf_counter()
-        self._stats: _PlanStats | None = None
 
     def open(self, columns: Sequence[str], kinds: Sequence[str]) -> None:
         import pyarrow as pa
@@ -245,11 +264,6 @@ class ParquetSink:
         integer = [k in ("Integer", "Boolean") for k in kinds]
         self._int_columns = [i for i, flag in enumerate(integer) if flag]
         self._schema = _schema(columns, integer, self.units)
-        if self.derived:  # the reader rebuilds the derived columns from the partial stream too
-            import json
-
-            self._schema = self._schema.with_metadata({**(self._schema.metadata or {}),
-                                                       DERIVED_KEY: json.dumps(self.derived).encode()})
         self._file = pa.OSFile(str(self.partial), "wb")
         self._stream = pa.ipc.new_stream(self._file, self._schema,
                                          options=pa.ipc.IpcWriteOptions(compression=PARTIAL_COMPRESSION))
@@ -259,8 +273,6 @@ class ParquetSink:
         self._file.flush()
         self._buffer = np.empty((self.buffer_rows, len(columns)))
         self._fill = 0
-        self._stats = (_PlanStats(self._schema, self.scales, self.float_delta)
-                       if compact_enabled() and (self.scales or self.float_delta) else None)
 
     def write(self, block: np.ndarray) -> None:
         block = np.asarray(block, dtype=float)
@@ -284,8 +296,6 @@ class ParquetSink:
         arrays = [pa.array(columns[i].astype(np.int64) if i in ints else columns[i]) for i in range(len(columns))]
         self._stream.write_batch(pa.RecordBatch.from_arrays(arrays, schema=self._schema))
         self._file.flush()
-        if self._stats is not None:
-            self._stats.update(data)
         self.rows_written += self._fill
         self._fill = 0
         self._last = time.perf_counter()
@@ -293,6 +303,10 @@ class ParquetSink:
     def flush(self) -> None:
         if self._fill and time.perf_counter() - self._last >= self.flush_interval_s:
             self._write_batch()
+
+    def sync(self) -> None:
+        """Write the rows held to the stream now, whatever the flush interval."""
+        self._write_batch()
 
     def close(self) -> None:
         if self._stream is None:
@@ -304,7 +318,7 @@ class ParquetSink:
             self._file.close()
             self._stream = self._file = None
             self._buffer = None
-        _partial_to_parquet(self.partial, self.path, self._schema, self._stats, self.derived)
+        _partial_to_parquet(self.partial, self.path, self._schema)
 
 
 def _stream_batches(partial: Path):
@@ -314,29 +328,27 @@ def _stream_batches(partial: Path):
         yield from pa.ipc.open_stream(source)
 
 
-def _partial_to_parquet(partial: Path, path: Path, schema, stats: _PlanStats | None = None,
-                        derived: Mapping[str, Any] | None = None) -> None:
+def _partial_to_parquet(partial: Path, path: Path, schema) -> None:
     """Rewrite the Arrow stream ``partial`` as the Parquet file ``path`` (bounded memory), in one
     pass, in row groups of :data:`ROW_GROUP_ROWS` rows (the last one shorter; the same file for
-    the same rows, however the run's wall-clock flushes cut the stream), with the compact
-    encodings ``stats`` plans (None: plain columns) - what every row decides was gathered as
-    the rows were written; the delta coding is chosen on the first row group's rows
-    (:meth:`_PlanStats.plan`) before it is written."""
+    the same rows, however the run's wall-clock flushes cut the stream); each column's encoding
+    is chosen on the first rows (:func:`column_encodings`)."""
     import pyarrow as pa
 
     tmp = path.with_name(path.name + ".tmp")
     writer = None
-    plan: dict[str, tuple] = {}
-    out_schema = None
 
     def write(table) -> None:
-        nonlocal writer, plan, out_schema
+        nonlocal writer
         if writer is None:
-            plan = stats.plan(table) if stats is not None else {}
-            out_schema = _encoded_schema(schema, plan, derived)
-            writer = _writer(tmp, out_schema, plan)
+            sample = None
+            if table is not None and table.num_rows:
+                head = table.slice(0, DICTIONARY_SAMPLE_ROWS)
+                sample = np.column_stack([head.column(i).to_numpy().astype(float, copy=False)
+                                          for i in range(head.num_columns)])
+            writer = _writer(tmp, schema, sample)
         if table is not None:
-            writer.write_table(_encode_table(table, plan, out_schema))
+            writer.write_table(table)
 
     try:
         pending, rows = [], 0
@@ -361,42 +373,10 @@ def _partial_to_parquet(partial: Path, path: Path, schema, stats: _PlanStats | N
 
 
 # ---------------------------------------------------------------------------- compact encodings
-ENV_COMPACT = "COSIM_COMPACT"
-"""``$COSIM_COMPACT=0`` writes every column as plain float64/int64 (no scaled, delta or derived
-columns): the files as any Parquet reader sees them, at 1.5-2x the size."""
+# ------------------------------------------- reading files of earlier versions (compact layout)
 ENCODING_KEY = b"cosim.encoding"
 SCALE_KEY = b"cosim.scale"
 DERIVED_KEY = b"cosim.derived"
-DELTA_ORDERS = (1, 2, 3)
-DELTA_SAMPLE_ROWS = 4096
-"""Rows (the first of a series) on which each float column's delta coding is tried. On the main
-job's controller and TCP logs 4096 rows choose as 16384 did but for the three time columns
-(2nd instead of 3rd differences), which makes the six files 13 kB smaller (the rigid job's
-too), at a quarter of the cost (the trials were a quarter of writing the controller log)."""
-DELTA_MIN_GAIN = 0.9
-"""A float column is delta-coded only when that makes its sample at most this fraction of the plain size."""
-
-
-def compact_enabled() -> bool:
-    """False when ``$COSIM_COMPACT`` is ``0`` (plain columns only)."""
-    return os.environ.get(ENV_COMPACT, "1").strip().lower() not in ("0", "false", "no", "off")
-
-
-def _diff(x: np.ndarray) -> np.ndarray:
-    """``numpy.diff(x, prepend=0)`` of an int64 array (wrapping), without the prepended copy."""
-    out = np.empty_like(x)
-    if x.size:
-        out[0] = x[0]
-        np.subtract(x[1:], x[:-1], out=out[1:])
-    return out
-
-
-def _bits_delta(values: np.ndarray, order: int) -> np.ndarray:
-    """The float64 bit patterns (as int64) differenced ``order`` times (wrapping; first value kept)."""
-    x = np.ascontiguousarray(values, dtype=np.float64).view(np.int64)
-    for _ in range(order):
-        x = _diff(x)
-    return x
 
 
 def _bits_undelta(stored: np.ndarray, order: int) -> np.ndarray:
@@ -408,167 +388,9 @@ def _bits_undelta(stored: np.ndarray, order: int) -> np.ndarray:
     return x.view(np.float64)
 
 
-def _zstd_size(raw: bytes) -> int:
-    import pyarrow as pa
-
-    return len(pa.Codec("zstd").compress(raw))
-
-
-class _PlanStats:
-    """What the compact plan (:func:`encoding_plan`) needs to know of every row of a series,
-    gathered block by block as the rows are written (:meth:`update`): the float columns equal
-    to an earlier one in every row (with ``float_delta``), and the ``scales`` candidates that
-    stay exact integer counts times their scale (with their largest count). :meth:`plan` adds
-    the delta coding chosen on a sample of the first rows."""
-
-    def __init__(self, schema, scales: Mapping[str, float], float_delta: bool) -> None:
-        self.names = list(schema.names)
-        self.floats = [i for i, f in enumerate(schema) if str(f.type) == "double"]
-        self.scales = {i: float(scales[self.names[i]]) for i in self.floats if self.names[i] in scales}
-        self.float_delta = bool(float_delta)
-        self.same: dict[int, int] | None = None  # column -> an earlier column with the same bits in every row
-        self.exact = {i: True for i in self.scales}
-        self.peak = {i: 0.0 for i in self.scales}
-
-    def update(self, block: np.ndarray) -> None:
-        """Account for the rows ``block`` (float64, one column per schema field)."""
-        if not len(block):
-            return
-        if self.float_delta:
-            bits = np.ascontiguousarray(block).view(np.int64)
-            if self.same is None:
-                first: dict[bytes, int] = {}
-                self.same = {}
-                for i in self.floats:
-                    key = np.ascontiguousarray(bits[:, i]).tobytes()
-                    if key in first:
-                        self.same[i] = first[key]
-                    else:
-                        first[key] = i
-            else:
-                self.same = {c: o for c, o in self.same.items() if np.array_equal(bits[:, c], bits[:, o])}
-        for i, scale in self.scales.items():
-            if not self.exact[i]:
-                continue
-            v = block[:, i]
-            counts = np.rint(v / scale) + 0.0  # as stored: an integer count has no sign of zero
-            peak = float(np.abs(counts).max())
-            # exact: the value is what the reader computes from the stored integer, bit for bit
-            ok = peak <= 2.0 ** 53 and np.array_equal((counts * scale).view(np.int64),
-                                                      np.ascontiguousarray(v).view(np.int64))
-            self.exact[i] = bool(ok)
-            if ok:
-                self.peak[i] = max(self.peak[i], peak)
-
-    def plan(self, table=None) -> dict[str, tuple]:
-        """The plan (:func:`encoding_plan`) with the delta coding tried on the first
-        :data:`DELTA_SAMPLE_ROWS` rows of ``table`` (the first rows of the series; None: none)."""
-        names = self.names
-        plan: dict[str, tuple] = {names[c]: ("same", names[o]) for c, o in (self.same or {}).items()}
-        for i in self.floats:
-            name = names[i]
-            if name in plan:
-                continue
-            if self.exact.get(i):
-                plan[name] = ("scaled", self.scales[i], "int32" if self.peak[i] < 2 ** 31 - 1 else "int64")
-                continue
-            if not self.float_delta or table is None:
-                continue
-            v = table.column(name).to_numpy()[:DELTA_SAMPLE_ROWS]
-            if v.size < 16:
-                continue
-            plain = _zstd_size(np.ascontiguousarray(v).view(np.uint8).reshape(-1, 8).T.tobytes())  # byte-stream split
-            sizes, x = {}, np.ascontiguousarray(v).view(np.int64)
-            for k in range(1, max(DELTA_ORDERS) + 1):
-                x = _diff(x)
-                if k in DELTA_ORDERS:
-                    sizes[k] = _zstd_size(x.tobytes())
-            best = min(sizes, key=sizes.get)
-            if sizes[best] <= DELTA_MIN_GAIN * plain:
-                plan[name] = ("delta", best)
-        return plan
-
-
-def encoding_plan(batches, schema, scales: Mapping[str, float], float_delta: bool) -> dict[str, tuple]:
-    """Per float column: ``("same", other)`` when (with ``float_delta``) an earlier float column
-    has the same bits in every row; ``("scaled", scale, int type)`` when every value is
-    ``counts * scale`` exactly with integer counts (``scales`` names the candidates and their
-    scale), else, with ``float_delta``, ``("delta", k)`` when the k-th difference of the float64
-    bit patterns compresses best (checked on the first :data:`DELTA_SAMPLE_ROWS` rows, only if
-    at most :data:`DELTA_MIN_GAIN` of the plain size); plain otherwise. Reads ``batches`` (Arrow
-    record batches of ``schema``) once; a :class:`ParquetSink` gathers the same as it writes."""
-    import pyarrow as pa
-
-    stats = _PlanStats(schema, scales, float_delta)
-    sample, sampled = [], 0
-    for batch in batches:
-        if not batch.num_rows:
-            continue
-        stats.update(np.column_stack([batch.column(i).to_numpy(zero_copy_only=False).astype(float, copy=False)
-                                      for i in range(batch.num_columns)]))
-        if sampled < DELTA_SAMPLE_ROWS:
-            sample.append(batch)
-            sampled += batch.num_rows
-    return stats.plan(pa.Table.from_batches(sample, schema=schema) if sample else None)
-
-
-def _encoded_schema(schema, plan: Mapping[str, tuple], derived: Mapping[str, Any] | None = None):
-    """``schema`` with the planned columns' types and encoding metadata (units kept)."""
-    import json
-
-    import pyarrow as pa
-
-    fields = []
-    same = {name: how[1] for name, how in plan.items() if how[0] == "same"}
-    if same:
-        derived = dict(derived or {})
-        derived.setdefault("columns", list(schema.names))
-        derived["same"] = {**derived.get("same", {}), **same}
-        derived["units"] = {**derived.get("units", {}),
-                            **{name: (schema.field(name).metadata or {}).get(b"unit", b"").decode() for name in same}}
-    for f in schema:
-        how = plan.get(f.name)
-        if how is None:
-            fields.append(f)
-            continue
-        if how[0] == "same":
-            continue
-        meta = dict(f.metadata or {})
-        if how[0] == "scaled":
-            meta.update({ENCODING_KEY: b"scaled", SCALE_KEY: repr(how[1]).encode()})
-            fields.append(pa.field(f.name, pa.int32() if how[2] == "int32" else pa.int64(), metadata=meta))
-        else:
-            meta[ENCODING_KEY] = f"delta{how[1]}".encode()
-            fields.append(pa.field(f.name, pa.int64(), metadata=meta))
-    metadata = dict(schema.metadata or {})
-    if derived:
-        metadata[DERIVED_KEY] = json.dumps(derived).encode()
-    return pa.schema(fields, metadata=metadata)
-
-
-def _encode_table(table, plan: Mapping[str, tuple], out_schema):
-    """One row group's table with the planned columns encoded (delta chains restart per row group)."""
-    import pyarrow as pa
-
-    if not plan:
-        return table.replace_schema_metadata(out_schema.metadata)
-    arrays = []
-    for f in out_schema:  # columns the "same" plan leaves out are not in out_schema
-        column = table.column(f.name)
-        how = plan.get(f.name)
-        if how is None:
-            arrays.append(column)
-            continue
-        v = column.to_numpy()
-        if how[0] == "scaled":
-            arrays.append(pa.array(np.rint(v / how[1]).astype(np.int32 if how[2] == "int32" else np.int64)))
-        else:
-            arrays.append(pa.array(_bits_delta(v, how[1])))
-    return pa.Table.from_arrays(arrays, schema=out_schema)
-
-
 def decode_column(field, values: np.ndarray) -> np.ndarray:
-    """A stored column (one row group's values) as float64: plain columns as they are,
+    """A stored column (one row group's values) as float64: plain columns as they are (every
+    file written now), in files of earlier versions
     ``scaled`` ones ``counts * scale``, ``delta<k>`` ones by k cumulative sums of the int64
     values viewed as float64 bit patterns (the chain restarts in every row group)."""
     how = (field.metadata or {}).get(ENCODING_KEY)
@@ -605,22 +427,15 @@ def _read_partial(partial: Path) -> tuple[list[str], np.ndarray]:
     return names, (np.concatenate(rows) if rows else np.zeros((0, len(names))))
 
 
-def sink_for(path: str | Path, units: Mapping[str, str] | None = None, **encodings: Any):
-    """A :class:`ParquetSink` (``encodings``: its ``scales``, ``float_delta``, ``derived``) or
-    :class:`CsvSink` by the suffix of ``path``."""
+def sink_for(path: str | Path, units: Mapping[str, str] | None = None):
+    """A :class:`ParquetSink` or :class:`CsvSink` by the suffix of ``path``."""
     path = Path(path)
-    return CsvSink(path, units) if path.suffix == ".csv" else ParquetSink(path, units, **encodings)
-
-
-def _integral(column: np.ndarray) -> bool:
-    """True when every value is an integer a float64 represents exactly (and no -0.0)."""
-    return bool(column.size and np.all(np.isfinite(column)) and np.all(column == np.rint(column))
-                and np.all(np.abs(column) < 2.0 ** 53) and not np.any(np.signbit(column) & (column == 0.0)))
+    return CsvSink(path, units) if path.suffix == ".csv" else ParquetSink(path, units)
 
 
 def write_columns(path: str | Path, columns: Mapping[str, np.ndarray], units: Mapping[str, str] | None = None) -> Path:
-    """Write ``columns`` (name -> (n,) array) to ``path``: Parquet (``.parquet``; integral
-    float columns stored as exact int64) or CSV (``.csv``, floats with ``repr``, NaN as
+    """Write ``columns`` (name -> (n,) array) to ``path``: Parquet (``.parquet``, float64
+    columns, encoded as :class:`ParquetSink` encodes them) or CSV (``.csv``, floats with ``repr``, NaN as
     ``nan``); ``units`` into the Parquet column metadata. Returns the path."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -636,11 +451,10 @@ def write_columns(path: str | Path, columns: Mapping[str, np.ndarray], units: Ma
         return path
     import pyarrow as pa
 
-    integer = [_integral(a) for a in arrays]
-    schema = _schema(names, integer, dict(units or {}))
-    table = pa.Table.from_arrays([pa.array(a.astype(np.int64) if i else a) for a, i in zip(arrays, integer)],
-                                 schema=schema)
-    writer = _writer(path, schema)
+    schema = _schema(names, [False] * len(names), dict(units or {}))
+    table = pa.Table.from_arrays([pa.array(a) for a in arrays], schema=schema)
+    sample = np.column_stack([a[:DICTIONARY_SAMPLE_ROWS] for a in arrays]) if names and len(arrays[0]) else None
+    writer = _writer(path, schema, sample)
     try:
         writer.write_table(table, row_group_size=ROW_GROUP_ROWS)
     finally:
@@ -677,7 +491,7 @@ def read_series(path: str | Path) -> tuple[list[str], np.ndarray]:
         names = series_columns(path)
         blocks = [block for _, block in parquet_groups(path)]
         return names, (np.concatenate(blocks) if blocks else np.zeros((0, len(names))))
-    with open(path, encoding="utf-8", newline="") as f:
+    with open_text(path) as f:
         header = next(csv.reader(f))
     data = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
     if data.size == 0:
@@ -848,7 +662,7 @@ def _iter_stored(path: Path, columns: Sequence[str] | None, rows: int):
                 cols = [batch.column(batch.schema.get_field_index(n)).to_numpy(zero_copy_only=False) for n in names]
                 yield names, np.column_stack([c.astype(float, copy=False) for c in cols])
         return
-    with open(path, encoding="utf-8", newline="") as f:
+    with open_text(path) as f:
         header = next(csv.reader([f.readline()]))
         take = [header.index(n) for n in columns] if columns is not None else list(range(len(header)))
         names = [header[i] for i in take]
@@ -902,7 +716,7 @@ def series_columns(path: str | Path) -> list[str]:
                 return list(pa.ipc.open_stream(source).schema.names)
             except (pa.ArrowInvalid, OSError):
                 return []
-    with open(path, encoding="utf-8", newline="") as f:
+    with open_text(path) as f:
         return next(csv.reader([f.readline()]))
 
 

@@ -27,6 +27,22 @@ SUMMARY_INTERVAL_S = 2.0
 HEARTBEATS_PER_RUN = 1000
 
 
+def user_fmu_in_process(doc: dict) -> bool:
+    """Whether a scenario document runs an FMU that is not the project's own in the run's process: an
+    ``[[fmus]]`` table with ``path`` or ``source`` not run out of process, a ``[controller] fmu``, or a
+    ``compare`` controller FMU."""
+    from cosim.scenario.cosim_tables import out_of_process
+
+    sim = doc.get("simulation") or {}
+    for fmu in doc.get("fmus") or []:
+        if isinstance(fmu, dict) and "builtin" not in fmu and not out_of_process(fmu, sim):
+            return True
+    if (doc.get("controller") or {}).get("fmu"):
+        return True
+    entries = (doc.get("compare") or {}).get("controllers") or []
+    return any(isinstance(e, dict) and (e.get("fmu") or e.get("fmu_source")) for e in entries)
+
+
 class RunContext:
     """Output folder, summary and progress of one ``cosim run``.
 
@@ -41,6 +57,9 @@ class RunContext:
             split, paced) or None (one process, unpaced).
         timeseries_format: ``"parquet"`` (default, ``$COSIM_TIMESERIES``) or ``"csv"``: the
             format of every time series the run writes (:meth:`series_name`).
+        write_through: the scenario runs an FMU of the user's in this process (:func:`user_fmu_in_process`):
+            at every heartbeat (1000 per run) the recorders write what they hold, so a crash of that
+            FMU leaves the rows up to the last simulated time the summary reports.
 
     ``wall_origin``/``wall_time_from``: where summary.json's wall time starts
     (:class:`cosim.results.summary.SummaryWriter`; default: now, ``"run call"``).
@@ -50,6 +69,7 @@ class RunContext:
                  timeseries_format: str | None = None, wall_origin: float | None = None,
                  wall_time_from: str = "run call") -> None:
         self.scenario = scenario
+        self.write_through = user_fmu_in_process(getattr(scenario, "data", None) or {})
         self.timeseries_format = timeseries_format or default_format()
         if self.timeseries_format not in SUFFIXES:
             raise ValueError(f"timeseries format: expected one of {', '.join(SUFFIXES)}, got {self.timeseries_format!r}")
@@ -66,6 +86,17 @@ class RunContext:
         self._totals: dict[int, float] = {}
         self._running: Master | None = None
         self._last_time_s: float | None = None
+        self.verdicts: dict[str, dict] = {}
+        """label -> the verdict of each cell run of the job (:meth:`note_verdict`)."""
+
+    def note_verdict(self, label: str, entry: dict) -> None:
+        """Record the verdict of the cell run ``label`` from its summary record ``entry`` (its
+        ``verdict``, ``first_violation``, ``warnings``; cosim/cell/verdict.py). The job's final
+        status is the most severe of them; ``cosim run`` prints one line per run from them."""
+        verdict = entry.get("verdict") or ("failed" if entry.get("status") == "failed" else "ok")
+        self.verdicts[label] = {"verdict": verdict, "first_violation": entry.get("first_violation"),
+                                "violations_total": entry.get("violations_total", len(entry.get("violations") or ())),
+                                "warnings": list(entry.get("warnings") or ())}
 
     def note_position(self, label: str, time_s: float, covered_s: float = 0.0) -> None:
         """Record where a run that does not go through :meth:`execute` (the split cell) stopped:
@@ -74,6 +105,12 @@ class RunContext:
         self._last_time_s = float(time_s)
         self.summary.note_where(mode=label, at_s=time_s)
         self.sim_time_s += float(covered_s)
+
+    def begin(self, label: str) -> None:
+        """Name the part about to be built and run (a mode, an entry): an error before its master
+        starts is reported in ``label``, with no simulated time of an earlier part."""
+        self.label = label
+        self._last_time_s = None
 
     @property
     def stopped_at_s(self) -> float | None:
@@ -92,10 +129,9 @@ class RunContext:
         stem = name[:-len(Path(name).suffix)] if Path(name).suffix in (".csv", ".parquet") else name
         return stem + SUFFIXES[self.timeseries_format]
 
-    def series_sink(self, name: str, units: dict[str, str] | None = None, **encodings):
-        """A streaming recorder sink writing ``out_dir / series_name(name)`` (Parquet or CSV;
-        ``encodings``: the Parquet sink's compact encodings, cosim.results.timeseries)."""
-        return sink_for(self.path(self.series_name(name)), units, **encodings)
+    def series_sink(self, name: str, units: dict[str, str] | None = None):
+        """A streaming recorder sink writing ``out_dir / series_name(name)`` (Parquet or CSV)."""
+        return sink_for(self.path(self.series_name(name)), units)
 
     csv_sink = series_sink
     """Former name of :meth:`series_sink` (writes the run's format, Parquet by default)."""
@@ -113,8 +149,12 @@ class RunContext:
         self.label = label
         self.summary.note_where(mode=label, at_s=master.start_time)
 
+        write_through = self.write_through
+
         def heartbeat(t: float) -> None:
             now = time.perf_counter()
+            if write_through:  # an FMU of the user's in this process: a crash keeps the rows up to here
+                master.flush_recorders()
             self.summary.note_time(self._base + t - master.start_time, t)  # for the supervisor: two numbers
             if self._bar is not None and now - state["bar"] > PROGRESS_INTERVAL_S:
                 self._bar.update(t - master.start_time)

@@ -16,10 +16,14 @@ class ScenarioError(ValueError):
         given: the offending value (or None when a key is missing).
         expected: what was expected, in words.
         problem: what is wrong (``"unknown key"``, ...) or None.
+        line: the line of the key in ``file`` (1-based) when known, else None.
+        inherited_by: the scenario that was run when the key came from a base scenario it
+            ``extends`` (``file`` is then the base), else None.
     """
 
     def __init__(self, file: str | Path | None, key: str, expected: str, given: object = _MISSING,
-                 problem: str | None = None) -> None:
+                 problem: str | None = None, *, line: int | None = None,
+                 inherited_by: str | Path | None = None) -> None:
         if file is None or (isinstance(file, str) and file.startswith("<") and file.endswith(">")):
             self.file: Path | str | None = file
         else:
@@ -28,10 +32,17 @@ class ScenarioError(ValueError):
         self.expected = expected
         self.problem = problem
         self.given = None if given is _MISSING else given
+        self.line = line
+        self.inherited_by = None if inherited_by is None else Path(inherited_by)
         where = f"{self.file}" if self.file is not None else "<scenario>"
         if key:
             where += f": {key}"
         text = f"{where}: {problem + '; ' if problem else ''}expected {expected}"
         if given is not _MISSING:
             text += f", got {given!r}"
+        if line is not None or inherited_by is not None:
+            at = [f"line {line}"] if line is not None else []
+            if inherited_by is not None:
+                at.append(f"inherited by {inherited_by}")
+            text += f" ({', '.join(at)})"
         super().__init__(text)

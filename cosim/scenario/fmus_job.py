@@ -7,6 +7,7 @@ ends the simulation itself ends the run normally; ``summary.json`` then says who
 """
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
 from cosim.scenario.context import RunContext
@@ -27,7 +28,10 @@ def run_fmus_job(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
     ctx.attach(master, stop_time)
     with master:
         master.initialize(stop_time)
-        ctx.summary.update(engine=master.engine.name, fmus={f["name"]: str(f["path"]) for f in doc["fmus"]},
+        if doc.get("system"):  # FMUs from an SSP archive: the archive, and each FMU's path inside it
+            ctx.summary.update(system=str(Path(doc["system"]).resolve()))
+        ctx.summary.update(engine=master.engine.name,
+                           fmus={f["name"]: f.get("ssp_source") or str(f["path"]) for f in doc["fmus"]},
                            out_of_process=[f["name"] for f in doc["fmus"] if out_of_process(f, doc["simulation"])],
                            timeseries=None if recorder is None else recorder.sink.path.name)
         ctx.execute(master)

@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from cosim.scenario.errors import ScenarioError
+from cosim.scenario.inherit import Origins, resolve
 from cosim.scenario.registry import JobType, get_job, job_names
 from cosim.scenario.schema import Field, String, Table, Where, validate
 
@@ -41,7 +42,9 @@ class Scenario:
         name: ``[scenario] name``.
         job: the JobType.
         data: the validated, normalized document (defaults filled, quantities in SI, paths resolved).
-        raw: the document as parsed.
+        raw: the document as parsed, with its ``extends`` chain laid out (the base's relative
+            file paths made absolute; see :mod:`cosim.scenario.inherit`).
+        origins: where each key came from (file and line) when read from files, else None.
     """
 
     path: Path | None
@@ -49,16 +52,25 @@ class Scenario:
     job: JobType
     data: dict[str, Any]
     raw: dict[str, Any] = field(repr=False)
+    origins: Origins | None = field(default=None, repr=False, compare=False)
 
     @property
     def where(self) -> Where:
         """Root position in the document (for errors raised while running)."""
-        return Where(self.path)
+        return Where(self.path, (), self.origins)
 
 
-def load_document(document: dict[str, Any], path: str | Path | None = None) -> Scenario:
-    """Validate an already parsed document (``path`` only names it in errors and anchors relative paths)."""
-    where = Where(None if path is None else Path(path).resolve())
+def load_document(document: dict[str, Any], path: str | Path | None = None, *,
+                  origins: Origins | None = None) -> Scenario:
+    """Validate an already parsed document (``path`` only names it in errors and anchors relative paths).
+
+    A document with ``extends`` starts from that base scenario (:mod:`cosim.scenario.inherit`);
+    ``origins`` (given by :func:`load_scenario`) lets errors name the line of each key."""
+    file = None if path is None else Path(path).resolve()
+    document, inherited = resolve(document, file)
+    if inherited is not None:
+        origins = inherited
+    where = Where(file, (), origins)
     if "scenario" not in document:
         raise (where / "scenario").error(SCENARIO_FIELD.doc, problem="missing required table")
     if not isinstance(document["scenario"], dict):
@@ -78,7 +90,7 @@ def load_document(document: dict[str, Any], path: str | Path | None = None) -> S
             job.check(data, where)
     except ScenarioError as exc:
         raise _with_toml_hint(exc, job, document) from None
-    return Scenario(where.file, head["name"], job, data, document)
+    return Scenario(where.file, head["name"], job, data, document, origins)
 
 
 def _with_toml_hint(exc: ScenarioError, job: JobType | None, document: dict[str, Any]) -> ScenarioError:
@@ -87,7 +99,7 @@ def _with_toml_hint(exc: ScenarioError, job: JobType | None, document: dict[str,
     if job is not None and "." in exc.key and last in job.schema.fields and last not in document and "unknown key" in str(exc):
         hint = ScenarioError(exc.file, exc.key, f"'{last}' at the top level of the file, before the first [table] "
                              f"header (in TOML, keys after a header belong to that table)",
-                             problem="unknown key")
+                             problem="unknown key", line=exc.line, inherited_by=exc.inherited_by)
         return hint
     return exc
 
@@ -149,7 +161,7 @@ def load_scenario(path: str | Path) -> Scenario:
     """Read and validate the scenario file ``path`` (see :func:`resolve_path`); ScenarioError
     on any problem."""
     path = resolve_path(path)
-    return load_document(read_toml_file(path, "scenario"), path)
+    return load_document(read_toml_file(path, "scenario"), path, origins=Origins.of_file(Path(path).resolve()))
 
 
 __all__ = ["PACKAGED_SCENARIOS", "SCENARIO_FIELD", "SCENARIO_TABLE", "Scenario", "load_document", "load_scenario",

@@ -25,7 +25,7 @@ from __future__ import annotations
 import math
 import re
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -42,12 +42,15 @@ class Where:
 
     file: Path | str | None = None   # a str is a label such as "<dict>" (no folder: paths are relative to the cwd)
     keys: tuple[str | int, ...] = ()
+    origins: Any = field(default=None, compare=False, repr=False)
+    """A :class:`cosim.scenario.inherit.Origins` when the document was read from files: errors
+    then name the file each key came from (a base scenario's for an inherited key) and its line."""
 
     def __truediv__(self, key: str) -> "Where":
-        return Where(self.file, self.keys + (key,))
+        return Where(self.file, self.keys + (key,), self.origins)
 
     def __getitem__(self, index: int) -> "Where":
-        return Where(self.file, self.keys + (index,))
+        return Where(self.file, self.keys + (index,), self.origins)
 
     @property
     def key(self) -> str:
@@ -68,9 +71,15 @@ class Where:
 
     def error(self, expected: str, given: object = MISSING, problem: str | None = None) -> ScenarioError:
         """A ScenarioError at this position."""
+        file, place = self.file, {}
+        if self.origins is not None:
+            origin = self.origins.file_of(self.keys)
+            place["line"] = self.origins.line_of(self.keys)
+            if origin is not None and isinstance(self.file, Path) and origin != self.file:
+                file, place["inherited_by"] = origin, self.file
         if given is MISSING:
-            return ScenarioError(self.file, self.key, expected, problem=problem)
-        return ScenarioError(self.file, self.key, expected, given, problem=problem)
+            return ScenarioError(file, self.key, expected, problem=problem, **place)
+        return ScenarioError(file, self.key, expected, given, problem=problem, **place)
 
 
 class Spec:

@@ -38,7 +38,7 @@ def class_spec_file(text: Any) -> str | None:
     """The file of a ``"file.py:ClassName"`` spec as written (None for ``"module:ClassName"`` or other values).
 
     Used by specs that name user classes to tell a sweep which file to ship to its workers
-    (``referenced_file``, cosim.sweep.keypath.referenced_files).
+    (``referenced_file``, cosim.scenario.keypath.referenced_files).
     """
     if not is_class_spec(text):
         return None

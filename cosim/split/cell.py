@@ -22,7 +22,7 @@ from typing import Any, Callable
 
 from controller.port import ControllerFailure, ControllerPort
 from cosim.cell.description import CellDescription
-from cosim.cell.runner import CellRun, write_recording
+from cosim.cell.runner import CellRun, controller_record_name, write_recording
 from cosim.cell.wiring import N_JOINTS, joint_scaling
 from cosim.master import MemorySink, SimulationError
 from cosim.realtime.config import ExecutionOptions
@@ -100,6 +100,7 @@ def run_split_cell(cell: CellDescription, controller, ctx, *, options: Execution
     period = fb_config.cycle_time_s
     cinfo = cell.controller
     controller_port = ControllerPort(controller, N_JOINTS, q_start=cinfo.q_start)
+    command_log = controller_port.start_log()  # a user's controller: what it commanded, written after the loop
     port, up_port = free_udp_port(), free_udp_port()
     while up_port == port:
         up_port = free_udp_port()
@@ -256,6 +257,10 @@ def run_split_cell(cell: CellDescription, controller, ctx, *, options: Execution
     raw.parent.rmdir()
     record_file = ctx.series_name(record_file)
     write_recording(memory, ctx.series_sink(record_file))
+    controller_file = None
+    if command_log is not None:
+        controller_file = ctx.series_name(controller_record_name(cell))
+        command_log.close(ctx.series_sink(controller_file, command_log.units))
     if interrupted is not None:
         raise interrupted
     cycles = session.cycle + 1
@@ -278,7 +283,8 @@ def run_split_cell(cell: CellDescription, controller, ctx, *, options: Execution
     return CellRun(label, ctx.path(record_file), int(rows.shape[0]), reached, fieldbus_summary, wall,
                    ready.get("engine", ""), memory, failure, loop_cpu_time_s=cpu, pacer=pacer, scheduling=granted,
                    split=info, controller_timing=controller_port.timing(),
-                   port_overhead=controller_port.overhead())
+                   port_overhead=controller_port.overhead(), controller_close_error=controller_port.close_error,
+                   controller_record=ctx.path(controller_file) if controller_file else None)
 
 
 def _acknowledged(conn, cycle: int, timeout_s: float) -> bool:

@@ -2,16 +2,17 @@
 
 ``export_ssp(scenario, out)`` writes the scenario's FMUs, connections and parameter values
 as one ``.ssp`` archive: ``SystemStructure.ssd`` (components, connectors, connections, the
-default experiment), one ``.ssv`` parameter set per instance and the FMUs themselves in
-``resources/``. Inputs driven by the Python side (master variables: the controller's CiA
-402 telegrams over the emulated POWERLINK bus, the laser tracker) are system connectors
-of kind ``input`` whose annotation says who drives them. ``load_ssp(path)`` reads such an
-archive back (validated against the SSP 1.0 XML schemas that ship with fmpy) into
-``[[fmus]]`` tables and connections for the master. docs/cosim.md, "SSP", says what the
-export leaves out.
+default experiment), one ``.ssv`` parameter set per instance, all named ``PARAMETER_SET``,
+and the FMUs themselves in ``resources/``. FMU inputs driven by the Python side (master
+variables: the controller's CiA 402 telegrams over the emulated POWERLINK bus, the laser
+tracker) carry an annotation naming the master variable and who drives it; every SSD
+connection joins two components, so libcosim and Ecos load and run the archive as it is.
+``load_ssp(path)`` reads such an archive back (validated against the SSP 1.0 XML schemas
+that ship with fmpy) into ``[[fmus]]`` tables and connections for the master. docs/cosim.md,
+"SSP", says what the export leaves out.
 """
 from cosim.ssp.errors import SspError
 from cosim.ssp.read import SspSystem, load_ssp
-from cosim.ssp.write import export_document, export_ssp
+from cosim.ssp.write import PARAMETER_SET, export_document, export_ssp
 
-__all__ = ["SspError", "SspSystem", "export_document", "export_ssp", "load_ssp"]
+__all__ = ["PARAMETER_SET", "SspError", "SspSystem", "export_document", "export_ssp", "load_ssp"]

@@ -27,7 +27,7 @@ from cosim.master.errors import MasterConfigError
 from cosim.master.variables import check_start_value
 from cosim.ssp.errors import SspError
 from cosim.ssp.schema import NS, SSD_XSD, SSV_XSD, problems
-from cosim.ssp.write import ANNOTATION_TYPE, RX_NS
+from cosim.ssp.write import ANNOTATION_TYPE, OSP_NS, RX_NS
 
 SSD_MEMBER = "SystemStructure.ssd"
 _extracted: list[str] = []
@@ -46,11 +46,15 @@ class SspSystem:
     Attributes:
         path: the archive.
         name: the system's name.
-        fmus: ``[[fmus]]``-style tables: name, path (extracted FMU), parameters, step (s or None).
+        fmus: ``[[fmus]]``-style tables: name, path (extracted FMU), parameters, step (s or None),
+            ssp_source (the FMU's path inside the archive, the component's ``source``).
         connections: ``"a.x -> b.y"`` between components.
-        system_inputs: system input connector -> (bus type, who drives it), with the
-            connections they feed (``inputs_connections``: ``"bus.x -> drive1.y"``).
-        stop_time, macro_step: from the DefaultExperiment (and this project's annotation), or None.
+        system_inputs: inputs the Python side drives: master variable -> (bus type, who drives
+            it), with the connections they feed (``inputs_connections``: ``"bus.x -> drive1.y"``).
+            Read from this project's annotation on the FMU inputs (what ``export_ssp`` writes),
+            or from system input connectors and their connections (another SSP 1.0 writer's way).
+        stop_time, macro_step: from the DefaultExperiment (this project's annotation, else the
+            OSP fixed-step algorithm's base step), or None.
     """
 
     path: Path
@@ -135,6 +139,7 @@ def load_ssp(path: str | Path, extract_to: str | Path | None = None) -> SspSyste
             _extracted.append(str(target))
         fmus: list[dict[str, Any]] = []
         variables: dict[str, dict[str, Any]] = {}
+        driven_inputs: list[tuple[str, str, str, str]] = []  # (master variable, type, who, "comp.input")
         for comp in system.findall("ssd:Elements/ssd:Component", NS):
             label = _element_label(SSD_MEMBER, comp)
             name, source = comp.get("name"), comp.get("source")
@@ -163,6 +168,13 @@ def load_ssp(path: str | Path, extract_to: str | Path | None = None) -> SspSyste
                 if c.get("name") not in variables[name]:
                     raise SspError(path, _element_label(SSD_MEMBER, c), f"a variable of component '{name}' ({source})",
                                    problem=f"{source} has no variable {c.get('name')!r}")
+                signal = _info(c).get("masterVariable")
+                if signal is not None:  # an input the Python side drives (this project's annotation)
+                    if c.get("kind") != "input" or signal.split(".", 1)[0] in variables or "." not in signal:
+                        raise SspError(path, _element_label(SSD_MEMBER, c), "masterVariable = 'owner.name' (not a "
+                                       "component) on an input connector", problem=f"{signal!r} on kind {c.get('kind')!r}")
+                    typ = next((t for t in ("Real", "Integer", "Boolean") if c.find(f"ssc:{t}", NS) is not None), "Real")
+                    driven_inputs.append((signal, typ, _info(c).get("drivenBy", ""), f"{name}.{c.get('name')}"))
             parameters: dict[str, object] = {}
             for binding in comp.findall("ssd:ParameterBindings/ssd:ParameterBinding", NS):
                 blabel = _element_label(SSD_MEMBER, binding)
@@ -185,12 +197,16 @@ def load_ssp(path: str | Path, extract_to: str | Path | None = None) -> SspSyste
                     parameters[var_name] = value
             info = _info(comp)
             fmus.append({"name": name, "path": fmu_path, "parameters": parameters, "debug_logging": False,
+                         "ssp_source": source,
                          **({"step": float(info["step"])} if "step" in info else {})})
         system_inputs: dict[str, tuple[str, str]] = {}
         for c in system.findall("ssd:Connectors/ssd:Connector", NS):
             typ = next((t for t in ("Real", "Integer", "Boolean") if c.find(f"ssc:{t}", NS) is not None), "Real")
             system_inputs[c.get("name")] = (typ, _info(c).get("drivenBy", ""))
         connections, inputs_connections = [], []
+        for signal, typ, by, destination in driven_inputs:
+            system_inputs.setdefault(signal, (typ, by))
+            inputs_connections.append(f"{signal} -> {destination}")
         for conn in system.findall("ssd:Connections/ssd:Connection", NS):
             label = _element_label(SSD_MEMBER, conn)
             start_el, start_c = conn.get("startElement"), conn.get("startConnector")
@@ -214,5 +230,11 @@ def load_ssp(path: str | Path, extract_to: str | Path | None = None) -> SspSyste
         experiment = root.find("ssd:DefaultExperiment", NS)
         stop = None if experiment is None or experiment.get("stopTime") is None else float(experiment.get("stopTime"))
         info = {} if experiment is None else _info(experiment)
+        macro_step = float(info["macroStep"]) if "macroStep" in info else None
+        if macro_step is None and experiment is not None:
+            fixed = experiment.find(f"ssd:Annotations/ssc:Annotation/{{{OSP_NS}}}Algorithm/{{{OSP_NS}}}FixedStepAlgorithm",
+                                    NS)
+            if fixed is not None and fixed.get("baseStepSize") is not None:
+                macro_step = float(fixed.get("baseStepSize"))
         return SspSystem(path, system.get("name"), fmus, connections, system_inputs, inputs_connections, stop,
-                         float(info["macroStep"]) if "macroStep" in info else None)
+                         macro_step)

@@ -3,7 +3,8 @@ from __future__ import annotations
 
 import math
 import os
-import tempfile
+import secrets
+import time
 import zipfile
 from collections.abc import Mapping
 from pathlib import Path
@@ -17,9 +18,16 @@ from cosim.ssp.errors import SspError
 from cosim.ssp.schema import NS, SSD_XSD, SSV_XSD, problems
 
 SSD, SSC, SSV = NS["ssd"], NS["ssc"], NS["ssv"]
-#: Namespace of this project's annotations (master settings, who drives a system input).
+#: Namespace of this project's annotations (master settings, who drives an input).
 RX_NS = "urn:rx130l-cosim:ssp"
 ANNOTATION_TYPE = "org.rx130l-cosim"
+#: The Open Simulation Platform's annotations, read by libcosim and Ecos: the fixed-step
+#: algorithm's base step on the DefaultExperiment, an FMU's own step on its component.
+OSP_NS = "http://opensimulationplatform.com/SSP/OSPAnnotations"
+OSP_ANNOTATION_TYPE = "com.opensimulationplatform"
+#: The name of every component's parameter set: tools that apply one named set to all
+#: components (Ecos: ``init(parameter_set=...)``; libcosim: the first set is the default) get all.
+PARAMETER_SET = "initialValues"
 _SSC_TYPE = {"Real": "Real", "Integer": "Integer", "Boolean": "Boolean"}
 
 
@@ -39,10 +47,16 @@ def _q(ns: str, tag: str) -> str:
     return f"{{{ns}}}{tag}"
 
 
-def _annotation(parent: etree._Element, ns: str, attrs: Mapping[str, str]) -> None:
-    annotations = etree.SubElement(parent, _q(SSC, "Annotations") if ns == SSC else _q(ns, "Annotations"))
-    annotation = etree.SubElement(annotations, _q(SSC, "Annotation"), type=ANNOTATION_TYPE)
-    etree.SubElement(annotation, _q(RX_NS, "Info"), {k: str(v) for k, v in attrs.items()})
+def _annotations(parent: etree._Element, *entries: tuple[str, etree._Element]) -> None:
+    """``<ssd:Annotations>`` under ``parent`` with one ``<ssc:Annotation type=...>`` per (type, element)."""
+    annotations = etree.SubElement(parent, _q(SSD, "Annotations"))
+    for kind, element in entries:
+        etree.SubElement(annotations, _q(SSC, "Annotation"), type=kind).append(element)
+
+
+def _info(attrs: Mapping[str, object]) -> tuple[str, etree._Element]:
+    """This project's annotation: ``<rx:Info>`` with ``attrs``."""
+    return ANNOTATION_TYPE, etree.Element(_q(RX_NS, "Info"), {k: str(v) for k, v in attrs.items()})
 
 
 def _type_element(parent: etree._Element, fmi_type: str, unit: str | None = None) -> None:
@@ -63,8 +77,8 @@ def _value_text(value: object, fmi_type: str) -> tuple[str, str]:
     return "Integer", str(int(value))
 
 
-def _parameter_set(name: str, values: Mapping[str, object], variables: Mapping[str, Any]) -> etree._Element:
-    root = etree.Element(_q(SSV, "ParameterSet"), nsmap={"ssv": SSV, "ssc": SSC}, version="1.0", name=name)
+def _parameter_set(values: Mapping[str, object], variables: Mapping[str, Any]) -> etree._Element:
+    root = etree.Element(_q(SSV, "ParameterSet"), nsmap={"ssv": SSV, "ssc": SSC}, version="1.0", name=PARAMETER_SET)
     params = etree.SubElement(root, _q(SSV, "Parameters"))
     for var_name, value in values.items():
         kind, text = _value_text(value, variables[var_name].type)
@@ -85,9 +99,12 @@ def export_document(fmus: list[dict[str, Any]], connections: list[str], out: str
                     master_variables: Mapping[str, str] | None = None, description: str = "") -> Path:
     """Write ``out`` (.ssp) from resolved ``[[fmus]]`` tables (name, path, parameters, step) and connections.
 
-    ``master_variables`` (name -> bus type) are the connection sources the Python side writes;
-    they become system input connectors with an annotation saying who drives them.
-    Every XML document is validated against the SSP 1.0 schema before the archive is written.
+    ``master_variables`` (name -> bus type) are the connection sources the Python side writes.
+    Their connections are not SSD connections (libcosim and Ecos accept a connection only
+    between two components): the FMU input each one feeds carries an annotation naming the
+    master variable and who drives it, and keeps its start value in a tool that runs the
+    archive alone. Every XML document is validated against the SSP 1.0 schema before the
+    archive is written; the archive gets the mode the process's umask gives a new file.
     """
     out = Path(out)
     master_variables = dict(master_variables or {})
@@ -102,19 +119,14 @@ def export_document(fmus: list[dict[str, Any]], connections: list[str], out: str
         fmu["_member"] = next(m for m, p in files.items() if p.resolve() == path.resolve())
         descriptions[fmu["name"]] = variables_of(load_model_description(path))
     specs = [parse_connection(c) for c in connections]
+    driven = {s.destination: s.source for s in specs if s.source in master_variables}
 
     root = etree.Element(_q(SSD, "SystemStructureDescription"),
-                         nsmap={"ssd": SSD, "ssc": SSC, "ssv": SSV, "rx": RX_NS}, version="1.0", name=name)
+                         nsmap={"ssd": SSD, "ssc": SSC, "ssv": SSV, "osp": OSP_NS, "rx": RX_NS}, version="1.0",
+                         name=name)
     system = etree.SubElement(root, _q(SSD, "System"), name=name)
     if description:
         system.set("description", description)
-    sources = [s.source for s in specs if s.source in master_variables]
-    if sources:
-        connectors = etree.SubElement(system, _q(SSD, "Connectors"))
-        for signal in dict.fromkeys(sources):
-            c = etree.SubElement(connectors, _q(SSD, "Connector"), name=signal, kind="input")
-            _type_element(c, master_variables[signal])
-            _annotation(c, SSD, {"drivenBy": driven_by(signal)})
     elements = etree.SubElement(system, _q(SSD, "Elements"))
     ssv_docs: dict[str, etree._Element] = {}
     for fmu in fmus:
@@ -127,45 +139,49 @@ def export_document(fmus: list[dict[str, Any]], connections: list[str], out: str
                 continue
             c = etree.SubElement(connectors, _q(SSD, "Connector"), name=v.name, kind=v.causality)
             _type_element(c, v.type, _unit(v))
+            signal = driven.get(f"{fmu['name']}.{v.name}")
+            if signal is not None:
+                _annotations(c, _info({"masterVariable": signal, "drivenBy": driven_by(signal)}))
         params = dict(fmu.get("parameters") or {})
         if params:
             member = f"resources/{fmu['name']}.ssv"
             bindings = etree.SubElement(comp, _q(SSD, "ParameterBindings"))
             etree.SubElement(bindings, _q(SSD, "ParameterBinding"), type="application/x-ssp-parameter-set",
                              source=member)
-            ssv_docs[member] = _parameter_set(fmu["name"], params, variables)
+            ssv_docs[member] = _parameter_set(params, variables)
         info = {"fmu": Path(fmu["path"]).name}
+        entries = []
         if fmu.get("step") is not None:
             info["step"] = repr(float(fmu["step"]))
-        _annotation(comp, SSD, info)
-    if specs:
+            entries.append((OSP_ANNOTATION_TYPE, etree.Element(_q(OSP_NS, "StepSizeHint"), value=info["step"])))
+        _annotations(comp, _info(info), *entries)
+    between = [s for s in specs if s.source not in master_variables]
+    if between:
         conns = etree.SubElement(system, _q(SSD, "Connections"))
-        for s in specs:
+        for s in between:
+            src_inst, src_var = s.source.split(".", 1)
             dst_inst, dst_var = s.destination.split(".", 1)
-            attrs = {}
-            if s.source in master_variables:
-                attrs["startConnector"] = s.source
-            else:
-                src_inst, src_var = s.source.split(".", 1)
-                attrs["startElement"], attrs["startConnector"] = src_inst, src_var
-            attrs["endElement"], attrs["endConnector"] = dst_inst, dst_var
-            etree.SubElement(conns, _q(SSD, "Connection"), attrs)
+            etree.SubElement(conns, _q(SSD, "Connection"), startElement=src_inst, startConnector=src_var,
+                             endElement=dst_inst, endConnector=dst_var)
     experiment = etree.SubElement(root, _q(SSD, "DefaultExperiment"), startTime="0", stopTime=repr(float(stop_time)))
-    _annotation(experiment, SSD, {"macroStep": repr(float(macro_step)), "coupling": coupling})
+    algorithm = etree.Element(_q(OSP_NS, "Algorithm"))
+    etree.SubElement(algorithm, _q(OSP_NS, "FixedStepAlgorithm"), baseStepSize=repr(float(macro_step)))
+    _annotations(experiment, _info({"macroStep": repr(float(macro_step)), "coupling": coupling}),
+                 (OSP_ANNOTATION_TYPE, algorithm))
 
     for doc, xsd, member in [(root, SSD_XSD, "SystemStructure.ssd")] + [(d, SSV_XSD, m) for m, d in ssv_docs.items()]:
         found = problems(doc, xsd)
         if found:  # a bug of this writer, not of the user's input
             raise SspError(out, member, "a document valid against the SSP 1.0 schema", "; ".join(found[:5]))
     out.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(suffix=".ssp", dir=out.parent)
-    os.close(fd)
+    tmp = out.with_name(f".{out.name}.{secrets.token_hex(6)}.tmp")
     try:
-        with zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as zf:
-            zf.writestr("SystemStructure.ssd", etree.tostring(root, xml_declaration=True, encoding="UTF-8",
-                                                             pretty_print=True))
+        # a new file with the mode the umask gives (0644 under 022), written whole, then renamed over ``out``
+        with os.fdopen(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666), "wb") as f, \
+                zipfile.ZipFile(f, "w", zipfile.ZIP_DEFLATED) as zf:
+            _write_member(zf, "SystemStructure.ssd", root)
             for member, doc in ssv_docs.items():
-                zf.writestr(member, etree.tostring(doc, xml_declaration=True, encoding="UTF-8", pretty_print=True))
+                _write_member(zf, member, doc)
             for member, path in files.items():
                 zf.write(path, member)
         os.replace(tmp, out)
@@ -175,6 +191,14 @@ def export_document(fmus: list[dict[str, Any]], connections: list[str], out: str
     for fmu in fmus:
         fmu.pop("_member", None)
     return out
+
+
+def _write_member(zf: zipfile.ZipFile, member: str, doc: etree._Element) -> None:
+    """``doc`` as the archive member ``member``, readable by all once extracted (rw-r--r--)."""
+    info = zipfile.ZipInfo(member, date_time=time.localtime()[:6])
+    info.compress_type = zipfile.ZIP_DEFLATED
+    info.external_attr = 0o100644 << 16
+    zf.writestr(info, etree.tostring(doc, xml_declaration=True, encoding="UTF-8", pretty_print=True))
 
 
 def _cell_parameters(doc: dict[str, Any]) -> list[dict[str, Any]] | None:

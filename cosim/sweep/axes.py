@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from cosim.scenario.schema import Where
-from cosim.sweep.keypath import KeyPath
+from cosim.scenario.keypath import KeyPath
 
 #: The kinds of ``distribution`` and their parameters (all required).
 DISTRIBUTIONS: dict[str, tuple[str, ...]] = {

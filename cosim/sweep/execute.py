@@ -39,7 +39,7 @@ from typing import Any
 from tqdm import tqdm
 
 from cosim.results.summary import replace_text
-from cosim.sweep.keypath import referenced_files
+from cosim.scenario.keypath import referenced_files
 from cosim.sweep.loader import Sweep
 from cosim.sweep.table import write_table
 from cosim.sweep.task import (ShippedResult, VariantTask, make_row, receive_shipped, reuse_finished,
@@ -190,6 +190,41 @@ class SchedulerUnreachable(ConnectionError):
     """The --scheduler address did not answer (message names it and the timeout)."""
 
 
+def probe_scheduler(address: str, timeout_s: float = SCHEDULER_CONNECT_TIMEOUT_S) -> None:
+    """Connect to ``address``, do Dask's handshake and ask its ``identity`` within ``timeout_s`` (s) in
+    all: returns when a Dask scheduler answered, raises TimeoutError (a peer that accepts the
+    connection and never answers: ``dask.distributed.Client`` would wait for its handshake for
+    ever), OSError (refused, unknown host) or ValueError (a bad address, or a peer that is not a
+    Dask scheduler)."""
+    import asyncio
+
+    from distributed.comm import connect
+
+    stage = ["connecting"]
+
+    async def ask() -> Any:
+        comm = await connect(address, timeout=timeout_s)  # TCP connection, then Dask's handshake
+        stage[0] = "identity"
+        try:
+            await comm.write({"op": "identity", "reply": True})
+            return await comm.read()
+        finally:
+            comm.abort()
+
+    async def bounded() -> Any:
+        return await asyncio.wait_for(ask(), timeout_s)
+
+    try:
+        reply = asyncio.run(bounded())
+    except asyncio.TimeoutError:
+        what = "no answer" if stage[0] == "identity" else "no connection and handshake"
+        raise TimeoutError(f"{what} within {timeout_s:g} s (a peer that accepts the connection and never "
+                           "answers, or a firewall that drops it)") from None
+    kind = reply.get("type") if isinstance(reply, dict) else None
+    if kind != "Scheduler":
+        raise ValueError(f"the peer is not a Dask scheduler (identity type {kind!r})")
+
+
 @contextlib.contextmanager
 def _children_ignore_interrupts() -> Iterator[None]:
     """Processes started inside ignore SIGINT/SIGTERM (they inherit the disposition across exec):
@@ -218,6 +253,7 @@ def dask_client(workers: int | None = None, scheduler: str | None = None, retrie
 
     if scheduler:
         try:
+            probe_scheduler(scheduler)  # bounded: Client() itself may wait for ever on a silent peer
             client = Client(scheduler, timeout=SCHEDULER_CONNECT_TIMEOUT_S)
         except (OSError, TimeoutError, ValueError, TypeError) as exc:
             raise SchedulerUnreachable(f"--scheduler {scheduler!r}: no Dask scheduler answered within "

@@ -43,7 +43,7 @@ from cosim.scenario import ScenarioError, load_document, load_scenario
 from cosim.scenario.loader import NAME_PATTERN, Scenario, read_toml_file, resolve_path
 from cosim.scenario.schema import AnyValue, Field, FilePath, Integer, List, String, Table, Where, validate
 from cosim.sweep.axes import DISTRIBUTION, DISTRIBUTIONS, GRID, SEEDS, Axis, distribution_draws, seed_values
-from cosim.sweep.keypath import (KeyPath, KeyPathSyntaxError, absolute_paths, format_key_path, get_path,
+from cosim.scenario.keypath import (KeyPath, KeyPathSyntaxError, absolute_paths, format_key_path, get_path,
                                  overlapping, parse_key_path, spec_at, with_value)
 
 #: Key paths a sweep may not vary (they name the run, not the experiment).

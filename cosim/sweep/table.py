@@ -23,7 +23,7 @@ from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
-from cosim.sweep.keypath import format_key_path
+from cosim.scenario.keypath import format_key_path
 
 #: Default metrics skip the items of longer lists (candidate indices, per-pose residuals, ...).
 MAX_LIST_ITEMS = 16

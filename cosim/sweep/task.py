@@ -33,13 +33,14 @@ SCENARIO_FILE = "scenario.toml"
 SUMMARY_FILE = "summary.json"
 ROW_FILE = "sweep_row.json"
 LOG_FILE = "run.log"
-FINISHED = ("ok", "failed")
+FINISHED = ("ok", "limit", "fault", "failed")
 #: One variant at a time per process, even on a worker with several threads (an external
 #: cluster started without ``--nthreads 1``): FMU instances and the redirected stdout/stderr
 #: of a run are never shared between threads.
 _ONE_AT_A_TIME = threading.Lock()
 #: Exit codes of ``cosim run`` (cosim/commands/run.py) -> words for the reason column.
-EXIT_WORDS = {2: "invalid scenario", 3: "run failed", 130: "interrupted"}
+EXIT_WORDS = {2: "invalid scenario", 3: "run failed", 4: "a run hit a limit", 5: "a fault reaction",
+              130: "interrupted"}
 
 
 @dataclass(frozen=True)
@@ -104,7 +105,10 @@ def make_row(task: VariantTask, summary: dict[str, Any] | None, exit_code: int |
              worker: str, reason: str | None = None, cpu_time_s: float | None = None) -> dict[str, Any]:
     """The table row of a finished variant (times in s; CPU time of the worker process during the run)."""
     status = "ok" if exit_code == 0 and summary is not None and summary.get("status") == "ok" else "failed"
-    if status == "failed" and reason is None:
+    verdict = (summary or {}).get("status")
+    if exit_code in (4, 5) and verdict in ("limit", "fault"):  # completed, with that verdict (not ranked as ok)
+        status = verdict
+    if status != "ok" and reason is None:
         if summary is not None and summary.get("reason"):
             reason = str(summary["reason"])
         else:
@@ -116,7 +120,7 @@ def make_row(task: VariantTask, summary: dict[str, Any] | None, exit_code: int |
         "folder": task.folder,
         "values": dict(task.values),
         "status": status,
-        "reason": reason if status == "failed" else None,
+        "reason": reason if status != "ok" else None,
         "wall_time_s": wall_time_s,
         "cpu_time_s": cpu_time_s,
         "worker": worker,
@@ -153,7 +157,8 @@ def _run_variant(task: VariantTask) -> dict[str, Any]:
 def run_document(document: dict[str, Any], folder: Path, anchor: str | None) -> int:
     """Run a scenario document into ``folder`` with the public API (relative file references
     resolved against ``anchor``); messages to stdout/stderr; return ``cosim run``'s exit code
-    (0 ok, 2 invalid scenario or results folder, 3 the run failed)."""
+    (0 ok, 2 invalid scenario or results folder, 3 the run failed, 4/5 completed with verdict
+    limit/fault)."""
     import sys
     import traceback
 
@@ -169,6 +174,11 @@ def run_document(document: dict[str, Any], folder: Path, anchor: str | None) -> 
         return exc.code if isinstance(exc.code, int) else 3
     if result.ok:
         return 0
+    if result.status in ("limit", "fault"):  # completed with that verdict: exit 4 / 5 as cosim run
+        from cosim.cell.verdict import exit_code
+
+        print(f"{result.status}: {result.summary.reason}", file=sys.stderr)
+        return exit_code(result.status)
     print(f"error: run failed: {result.summary.reason}", file=sys.stderr)
     if result.error is not None and not isinstance(result.error, SimulationError):
         traceback.print_exception(result.error, file=sys.stderr)
@@ -209,7 +219,7 @@ def _materialize(task: VariantTask, blobs: tuple[bytes, ...]) -> tuple[dict[str,
     user's module file once), which the document is then run against.
     """
     from cosim.scenario import get_job
-    from cosim.sweep.keypath import get_path, relocate_file, spec_at, with_value
+    from cosim.scenario.keypath import get_path, relocate_file, spec_at, with_value
 
     if len(blobs) != len(task.inputs):
         raise ValueError(f"variant {task.id}: {len(task.inputs)} input files expected, {len(blobs)} received")

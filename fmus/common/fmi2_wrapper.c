@@ -188,6 +188,7 @@ fmi2Status fmi2SetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nv
             return fmi2Error;
     }
     for (k = 0; k < nvr; k++) inst->d.r[vr[k]] = value[k];
+    inputs_set(inst);
     return fmi2OK;
 }
 

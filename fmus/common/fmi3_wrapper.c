@@ -244,6 +244,7 @@ fmi3Status fmi3SetFloat64(fmi3Instance instance, const fmi3ValueReference vr[], 
         int j = (int)vr[k] - 1, e;
         for (e = 0; e < VAR3_COUNT[j]; e++) inst->d.r[VAR3_FIRST[j] + e] = values[n++];
     }
+    inputs_set(inst);
     return fmi3OK;
 }
 

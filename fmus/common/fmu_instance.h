@@ -94,6 +94,14 @@ int model_initial_outputs(Instance *inst);
 int model_lazy_outputs(Instance *inst, const unsigned int *vr, size_t nvr);
 #endif
 
+#ifdef MODEL_INPUTS_SET
+/* Optional (a model defines MODEL_INPUTS_SET in its model_state.h): called after every
+ * successful set of Real inputs in Step Mode, for outputs that depend directly on inputs
+ * (e.g. a value the model latches from an input at a communication point). Must not fail
+ * and logs nothing. */
+void model_inputs_set(Instance *inst);
+#endif
+
 /* Advance from time t by h > 0 (both already checked). Return 0 on success. Otherwise
  * log the reason and return MODEL_STEP_REJECTED (bad argument, nothing changed, the
  * instance stays usable) or MODEL_STEP_FAILED (numerical failure: error mode). */

@@ -150,6 +150,16 @@ static int initial_outputs(Instance *inst, const char *fn)
 
 /* Outside Initialization Mode, outputs a model leaves stale after a step are computed when
  * they are read (a model that defines MODEL_LAZY_OUTPUTS; vr = NULL: whatever is stale). */
+/* After a successful set of Real values: the model's direct feedthrough, if it has one (Step Mode). */
+static void inputs_set(Instance *inst)
+{
+#ifdef MODEL_INPUTS_SET
+    if (inst->d.mode == MODE_STEP) model_inputs_set(inst);
+#else
+    (void)inst;
+#endif
+}
+
 static int lazy_outputs(Instance *inst, const char *fn, const unsigned int *vr, size_t nvr)
 {
 #ifdef MODEL_LAZY_OUTPUTS

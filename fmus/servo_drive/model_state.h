@@ -6,6 +6,8 @@
 
 /* servo_drive.c computes its outputs in Initialization Mode (model_initial_outputs) */
 #define MODEL_INITIAL_OUTPUTS 1
+/* position_actual latches q_meas when it is set at a position sample (model_inputs_set) */
+#define MODEL_INPUTS_SET 1
 
 typedef struct {
     /* timing */
@@ -38,7 +40,7 @@ typedef struct {
     /* position loop */
     double speed_demand;     /* rad/s, speed set-point held until the next position sample */
     double target_prev;      /* rad, target at the previous position sample (speed feed-forward) */
-    double position_actual;  /* rad, quantised encoder position at the last position sample */
+    double position_actual;  /* rad, quantised encoder position latched at the last position sample */
     double following_error;  /* rad */
     double ramp_position;    /* rad, quick-stop / fault-reaction reference */
     double ramp_velocity;    /* rad/s */

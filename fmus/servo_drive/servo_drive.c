@@ -372,6 +372,19 @@ static void position_sample(Instance *inst)
     }
 }
 
+/* The encoder latch at the sync (SoC): q_meas set at a position-sample instant (before the
+ * step that starts there) is what position_actual reports from that instant on, so an importer
+ * that sets the inputs at t_k and reads the outputs gets the position at t_k (direct feedthrough,
+ * declared in the model structure). The step's position sample latches the same value. */
+void model_inputs_set(Instance *inst)
+{
+    ModelState *s = &inst->d.s;
+    if (s->n_position > 0 && s->tick % s->n_position == 0) {
+        s->position_actual = quantise(s, R(Q_MEAS));
+        R(POSITION_ACTUAL) = s->position_actual;
+    }
+}
+
 static void speed_sample(Instance *inst)
 {
     ModelState *s = &inst->d.s;

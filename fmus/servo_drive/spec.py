@@ -68,7 +68,8 @@ def servo_drive_spec() -> FmuSpec:
              unit="rad/s", start=0.0)
     spec.add("tau_out", "Real", OUTPUT, "joint-side motor torque N k_t i applied to the plant", unit="N.m")
     spec.add("position_actual", "Real", OUTPUT,
-             "CiA 402 0x6064 position actual: quantised encoder position latched at the last position sample",
+             "CiA 402 0x6064 position actual: quantised encoder position latched at the last position sample "
+             "(q_meas set at a position-sample instant shows at once: the latch at the sync)",
              unit="rad", depends_on=("q_meas", "gear_ratio", "encoder_counts_per_rev"))
     spec.add("velocity_actual", "Real", OUTPUT, "CiA 402 0x606C velocity actual: filtered measured speed",
              unit="rad/s", depends_on=("qd_meas",))

@@ -197,3 +197,22 @@ def test_compiled_and_python_paths_give_the_same_setpoints(tcp_ref):
             assert ctrl.kernel is None and ctrl.kernel_cycles == 0
     for name in ("q_d1", "q_d3", "qd_d2", "qdd_d5", "tau_ff2", "target4"):
         np.testing.assert_allclose(logs[True][name], logs[False][name], rtol=1e-6, atol=1e-6, err_msg=name)
+
+
+def test_deadline_misses_are_judged_on_the_clock_that_decides():
+    """Simulated time: a cycle misses its budget when the controller's own CPU time exceeds it (its
+    wall time also holds the time sibling processes took the core); real time: the wall time."""
+    from controller import CycleTimer
+
+    timer = CycleTimer(100e-6)
+    for wall_ns, cpu_ns in ((300_000, 20_000), (50_000, 40_000), (250_000, 150_000)):
+        timer.record(wall_ns, cpu_ns)
+    simulated = timer.summary()
+    assert (simulated.deadline_basis, simulated.deadline_misses) == ("cpu_time", 1)
+    assert (simulated.wall_over_budget, simulated.cpu_over_budget) == (2, 1)
+    real_time = simulated.judged_on("wall_time")
+    assert (real_time.deadline_basis, real_time.deadline_misses) == ("wall_time", 2)
+    assert real_time.as_dict()["deadline_basis"] == "wall_time"
+    wall_only = CycleTimer(100e-6)
+    wall_only.record(300_000)  # no CPU time measured: judged on the wall time
+    assert (wall_only.summary().deadline_basis, wall_only.summary().deadline_misses) == ("wall_time", 1)

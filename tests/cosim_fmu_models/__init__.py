@@ -4,7 +4,7 @@ from __future__ import annotations
 from pathlib import Path
 
 HERE = Path(__file__).parent
-MODELS = ("integrator", "sampler", "faulty")
+MODELS = ("integrator", "sampler", "faulty", "interrupter")
 
 
 def build_test_fmu(model: str, dest_dir: Path) -> Path:

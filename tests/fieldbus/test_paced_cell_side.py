@@ -3,6 +3,8 @@ virtual clock: a controller late by more than its slot in chosen cycles produces
 POWERLINK's lost frames and threshold-counter increments in those cycles."""
 from __future__ import annotations
 
+import re
+
 import can
 import numpy as np
 import pytest
@@ -153,7 +155,9 @@ def test_a_slower_controller_is_a_counted_logged_cycle_time_mismatch(caplog):
     cn = _self_clocked_run(1e-3, 1500)
     events = _mismatch_events(cn)
     assert len(events) == 1 and events[0].event == "error"  # one episode, logged once
-    assert "about 1 ms, the cell's 0.4 ms" in events[0].detail
+    # the estimate from blocks of 250 cell cycles is good to about one SoC group (0.4 of 100): ~1 %
+    estimate = re.search(r"its cycle is about ([0-9.]+) ms, the cell's 0.4 ms", events[0].detail)
+    assert estimate and float(estimate.group(1)) == pytest.approx(1.0, rel=0.01), events[0].detail
     report = cn.cadence.report()
     assert report["controller_cycle_time_s_estimate"] == pytest.approx(1e-3, rel=0.02)
     assert report["blocks"] == report["blocks_judged"] >= 4

@@ -323,6 +323,40 @@ def test_identify_non_utf8(tmp_path, capsys):
     assert code == 2 and "bad.csv" in one_error_line(err)
 
 
+def test_every_csv_reader_accepts_a_byte_order_mark(tmp_path, capsys, calibration_files):
+    """A UTF-8 CSV with a byte-order mark (Excel's "CSV UTF-8") reads as without it everywhere a CSV is
+    read (robot.textfiles): identify, calibrate, trajectory files, a run's CSV time series."""
+    from calibration.measurements import read_measurements_csv
+    from cosim.results import read_series
+    from identification.data import read_motion_csv
+    from planners.trajectory_file import load_trajectory_file
+
+    def with_bom(path: Path) -> Path:
+        marked = path.with_name("bom_" + path.name)
+        marked.write_bytes(b"\xef\xbb\xbf" + path.read_bytes())
+        return marked
+
+    record = _record(tmp_path / "rec.csv")
+    plain, marked = read_motion_csv(record), read_motion_csv(with_bom(record))
+    assert np.array_equal(plain.q, marked.q) and np.array_equal(plain.tau, marked.tau)
+    outcomes = []  # this record (gravity torques only) is refused by the plausibility check: the same for both
+    for path in (record, with_bom(record)):
+        code, err = cli(capsys, "identify", path, "--out", tmp_path / f"id_{path.stem}")
+        outcomes.append((code, one_error_line(err).replace(path.name, "<file>")))
+    assert outcomes[0] == outcomes[1] and outcomes[0][0] != 2, outcomes
+    good = calibration_files["good"]
+    assert np.array_equal(read_measurements_csv(with_bom(good)).q, read_measurements_csv(good).q)
+    assert cli(capsys, "calibrate", with_bom(good), "--out", tmp_path / "cal")[0] == 0
+    trajectory = ROOT / "examples" / "trajectories" / "pick_place_joint.csv"
+    copied = tmp_path / "traj.csv"
+    copied.write_bytes(trajectory.read_bytes())
+    assert np.array_equal(load_trajectory_file(with_bom(copied)).q, load_trajectory_file(copied).q)
+    series = tmp_path / "series.csv"
+    series.write_text("time,plant.q[1]\n0.0,1.5\n0.001,1.25\n", encoding="utf-8")
+    names, data = read_series(with_bom(series))
+    assert names == ["time", "plant.q[1]"] and data.tolist() == [[0.0, 1.5], [0.001, 1.25]]
+
+
 # ------------------------------------------------------------------------------------------ sweep
 SWEEP = """[sweep]
 name = "s"
@@ -363,6 +397,49 @@ def test_sweep_scheduler_that_does_not_answer(tmp_path, capsys):
     assert code == 2 and "--scheduler 'tcp://127.0.0.1:9'" in one_error_line(err) and "no Dask scheduler" in err
     assert time.perf_counter() - t0 < SCHEDULER_CONNECT_TIMEOUT_S + 45  # imports of dask on a loaded machine
     definition = json.loads((tmp_path / "o" / "sweep.json").read_text())  # not left "running"
+    assert definition["status"] == "failed" and "no Dask scheduler" in definition["reason"]
+
+
+def test_sweep_scheduler_that_accepts_and_never_answers(tmp_path, capsys):
+    """An address that accepts the TCP connection and then stays silent (a hung scheduler, another
+    service): a clear error within 10 s, not a wait for ever (dask's Client waits for its handshake)."""
+    import socket
+    import threading
+    import time
+
+    import dask.distributed  # noqa: F401 - imported before the clock starts: the wait is what is timed
+
+    plant(tmp_path, name="base.toml")
+    path = tmp_path / "sw.toml"
+    path.write_text(SWEEP.format(extra=""))
+    server = socket.socket()
+    server.bind(("127.0.0.1", 0))
+    server.listen(8)
+    accepted: list[socket.socket] = []
+
+    def accept() -> None:
+        while True:
+            try:
+                accepted.append(server.accept()[0])
+            except OSError:  # closed at the end of the test
+                return
+
+    threading.Thread(target=accept, daemon=True).start()
+    address = f"tcp://127.0.0.1:{server.getsockname()[1]}"
+    try:
+        t0 = time.perf_counter()
+        code, err = cli(capsys, "sweep", path, "--scheduler", address, "--out", tmp_path / "o", "--quiet")
+        elapsed = time.perf_counter() - t0
+    finally:
+        server.close()
+        for conn in accepted:
+            conn.close()
+    assert accepted, "the test server never saw the connection"
+    line = one_error_line(err)
+    assert code == 2 and f"--scheduler '{address}'" in line and "no Dask scheduler answered within 5 s" in line
+    assert "accepts the connection and never answers" in line
+    assert elapsed < 10.0, elapsed
+    definition = json.loads((tmp_path / "o" / "sweep.json").read_text())
     assert definition["status"] == "failed" and "no Dask scheduler" in definition["reason"]
 
 

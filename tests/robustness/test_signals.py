@@ -86,6 +86,65 @@ def test_fmus_job_interrupted_keeps_its_time_series(tmp_path, signum):
     assert again.returncode == 0, again.stderr
 
 
+PYTHON_FMUS = """
+connections = ["i.y -> s.u"]
+
+[scenario]
+name = "python_fmus"
+job = "fmus"
+
+[simulation]
+stop_time = 3000.0
+macro_step = 0.001
+
+[[fmus]]
+name = "i"
+path = "Integrator.fmu"
+[fmus.parameters]
+u = 1.0
+
+[[fmus]]
+name = "s"
+path = "Sampler.fmu"
+
+[[fmus]]
+name = "x"
+path = "Interrupter.fmu"
+[fmus.parameters]
+signal_time = 0.5
+
+[record]
+period = 0.01
+signals = ["i.y", "s.y", "x.y"]
+"""
+
+
+def test_ctrl_c_inside_a_python_fmu_is_an_interrupt(tmp_path):
+    """FMUs implemented in Python (pythonfmu) run their model in the run's interpreter: SIGINT that
+    arrives while one computes raises inside its do_step, which pythonfmu reports as an FMI error.
+    The run still ends as interrupted (exit 130, the signal, no FMU blamed), with its rows up to where
+    it stopped. The Interrupter FMU sends the SIGINT from inside its own do_step at 0.5 s."""
+    from cosim_fmu_models import build_test_fmu
+
+    for model in ("integrator", "sampler", "interrupter"):
+        build_test_fmu(model, tmp_path)
+    path = tmp_path / "python_fmus.toml"
+    path.write_text(PYTHON_FMUS, encoding="utf-8")
+    out = tmp_path / "out"
+    proc = start(path, out)
+    code, err = finish(proc)
+    assert code == 130, err
+    assert "interrupted by SIGINT" in err and "run failed" not in err
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["status"] == "interrupted" and summary["signal"] == "SIGINT", summary
+    assert "failed_component" not in summary or summary["failed_component"] is None
+    assert summary["stopped_at_s"] == pytest.approx(0.5, abs=1.5e-3)
+    header, data = read_csv(out / "timeseries.parquet")
+    assert header == ["time", "i.y", "s.y", "x.y"]
+    assert data[-1, 0] == pytest.approx(0.5) and data.shape[0] == 51  # every 10 ms sample up to 0.5 s
+    assert np.allclose(data[:, 1], data[:, 0], atol=1e-9)  # y = u t with u = 1, rows intact
+
+
 def test_main_job_ctrl_c_to_the_process_group(tmp_path):
     """Ctrl-C (SIGINT to the group) during the first mode of the ISO job with the CAN log written by a
     background process: the mode's time series and CAN log are complete up to the stop."""

@@ -36,9 +36,9 @@ def test_fieldbus_fault_job_runs_split(tmp_path):
     text = path.read_text().replace("figures = true", "figures = false")
     path.write_text(text)
     out = tmp_path / "out"
-    assert main(["run", str(path), "--out", str(out), "--quiet", "--split"]) == 0
+    assert main(["run", str(path), "--out", str(out), "--quiet", "--split"]) == 5  # verdict fault (exits.py)
     summary = json.loads((out / "summary.json").read_text())
-    assert summary["status"] == "ok" and summary["execution"]["mode"] == "split"
+    assert summary["status"] == "fault" and summary["execution"]["mode"] == "split"
     split = summary["execution"]["split"]["model_based"]
     assert split["drive_process_exit_code"] == 0
     assert all(e["tripped_as_expected"] for e in summary["expected_trips"])

@@ -118,7 +118,8 @@ def test_cycle_timer_folds_long_runs_into_a_histogram(monkeypatch):
         timer.record(int(d), int(d) // 2)
     assert timer.durations_ns.size <= 1000 and not timer.exact
     s = timer.summary()
-    assert s.cycles == 20000 and s.deadline_misses == int((durations > 50000).sum())
+    assert s.cycles == 20000 and s.wall_over_budget == int((durations > 50000).sum())
+    assert s.deadline_basis == "cpu_time" and s.deadline_misses == s.cpu_over_budget == int((durations // 2 > 50000).sum())
     assert s.max_us == durations.max() * 1e-3 and abs(s.mean_us - durations.mean() * 1e-3) < 1e-9 * s.mean_us
     assert abs(s.p50_us / (np.percentile(durations, 50) * 1e-3) - 1) < 0.005
     assert abs(s.p99_us / (np.percentile(durations, 99) * 1e-3) - 1) < 0.02

@@ -9,6 +9,7 @@ import json
 import re
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from cosim.cli import main
@@ -93,7 +94,7 @@ class NoStep:
 def scenario(tmp_path: Path, controller_lines: str, stop_time: str = "60 ms", extra: str = "") -> Path:
     (tmp_path / "my_ctrl.py").write_text(FOLLOW)
     text = short_scenario_text(stop_time, name="user_ctrl", extra=extra)
-    text, n = re.subn(r'modes = \["model_based"\]', 'modes = []\n' + controller_lines, text, count=1)
+    text, n = re.subn(r'modes = \["model_based"\]', controller_lines, text, count=1)
     assert n == 1
     text = text.replace("can_log = true", "can_log = false")
     path = tmp_path / "user_ctrl.toml"
@@ -115,8 +116,42 @@ def test_a_user_controller_class_runs_the_cell(tmp_path):
     assert entry["user_controller"] and entry["controller"] == "Follow" and entry["status"] == "ok"
     assert entry["motion_start_s"] == pytest.approx(0.0144, abs=2e-3)   # enabled ~3.6 ms + settle 10 + lead 0.8
     assert 0.0 < entry["tcp_error_max_mm"] < 5.0                        # it tracks the path
-    assert entry["controller_cycles_timed"] == 151 and entry["cycle_compute_us"]["p50"] > 0
+    assert entry["controller_cycles_timed"] == 151 and entry["cycle_wall_us"]["p50"] > 0
     assert (tmp_path / "out" / "timeseries_follow.parquet").is_file() and (tmp_path / "out" / "tcp_follow.parquet").is_file()
+    assert list(summary["modes"]) == ["follow"]  # a named controller without `modes` runs alone
+    # the per-cycle command log, as the built-in modes have: one row per cycle, what went to the drives
+    assert entry["files"]["controller"] == "controller_follow.parquet"
+    log = _command_log(tmp_path / "out" / "controller_follow.parquet", 151)
+    moving = log["t"] > entry["motion_start_s"] + 0.01
+    assert moving.sum() > 50 and np.all(log["controlword1"][moving] == 0x0F) and np.all(log["mode1"] == 8)
+    kp = 20.0  # the class's law, row by row: torque offset = kp (q_d - q_obs), target = q_d
+    for j in range(1, 7):
+        assert np.array_equal(log[f"tau_ff{j}"], kp * (log[f"target{j}"] - log[f"q_obs{j}"])), j
+    assert np.all(log["compute_us"] > 0) and np.all(np.isfinite(log["compute_cpu_us"]))
+
+
+def _command_log(path: Path, rows: int) -> dict:
+    """A user controller's command log as columns (checked: its columns, one row per cycle, every 400 us)."""
+    from controller.port import command_log_columns
+
+    columns, data = read_series(path)
+    assert columns == command_log_columns(6)[0] and data.shape[0] == rows
+    log = {name: data[:, k] for k, name in enumerate(columns)}
+    assert np.array_equal(log["cycle"], np.arange(rows)) and np.allclose(np.diff(log["t"]), 4e-4)
+    return log
+
+
+def test_a_named_controller_runs_alone_unless_modes_are_listed(pd_fmu):
+    """``[controller] class`` (or fmu) without ``modes``: the user's controller alone; ``modes`` listed:
+    those built-in modes too; neither: the default built-in modes."""
+    from cosim.cell.parts import CONTROLLER_TABLE, DEFAULT_MODES
+    from cosim.scenario.schema import Where
+
+    at = Where(None) / "controller"
+    assert CONTROLLER_TABLE.check({}, at)["modes"] == list(DEFAULT_MODES)
+    assert CONTROLLER_TABLE.check({"class": "my_ctrl.py:Follow"}, at)["modes"] == []
+    assert CONTROLLER_TABLE.check({"fmu": str(pd_fmu)}, at)["modes"] == []
+    assert CONTROLLER_TABLE.check({"class": "my_ctrl.py:Follow", "modes": ["standard"]}, at)["modes"] == ["standard"]
 
 
 @pytest.mark.parametrize("params, reason", [
@@ -176,6 +211,9 @@ def test_a_controller_fmu_runs_the_cell(tmp_path, pd_fmu):
     entry = summary["modes"]["pd_fmu"]
     assert entry["controller"] == "FmuController" and 0.0 < entry["tcp_error_max_mm"] < 5.0
     assert entry["controller_cycles_timed"] == 151
+    log = _command_log(tmp_path / "out" / "controller_pd_fmu.parquet", 151)
+    assert np.any(log["tau_ff1"] != 0.0) and np.all(log["target_torque1"] == 0.0)
+    assert np.all(log["compute_us"] > 0)
 
 
 def test_a_failing_controller_fmu_stops_the_run_cleanly(tmp_path, pd_fmu):

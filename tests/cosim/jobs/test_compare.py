@@ -164,7 +164,8 @@ def test_bad_entries_are_refused_before_running(tmp_path):
 
 def test_a_failing_user_controller_is_a_failed_entry_and_the_others_run(tmp_path):
     """A user controller that raises mid-run stops its own run cleanly (status failed, the reason,
-    its time series so far on disk); the comparison goes on and ranks the entries that ran."""
+    its time series so far on disk); the comparison goes on and ranks the entries that ended ok; the
+    command exits 3 (its most severe verdict, failed)."""
     _joint_csv(tmp_path / "wave.csv")
     (tmp_path / "flaky.py").write_text(
         "from controller import ControllerOutput\n"
@@ -184,7 +185,8 @@ def test_a_failing_user_controller_is_a_failed_entry_and_the_others_run(tmp_path
     path = _compare_toml(tmp_path, '["model_based", "flaky.py:Flaky"]', '["wave.csv"]',
                          [("figures = true", "figures = false")])
     code, summary = run_scenario(path, tmp_path / "out")
-    assert code == 0, summary.get("reason")
+    assert code == 3 and summary["status"] == "failed", summary.get("reason")  # not ok: exit non-zero
+    assert summary["reason"].startswith("Flaky__wave: failed: failure at t = 0.15")
     rows = {r["controller"]: r for r in summary["table"]}
     assert rows["model_based"]["status"] == "ok" and rows["model_based"]["rank"] == 1
     assert rows["Flaky"]["status"] == "failed" and rows["Flaky"]["rank"] is None
@@ -210,3 +212,26 @@ def test_split_execution_gives_the_in_process_numbers(tmp_path):
         tables.append(json.loads((out / "summary.json").read_text())["table"])
     assert tables[0][0]["status"] == tables[1][0]["status"] == "ok"
     assert tables[1][0]["tcp_error_max_mm"] == tables[0][0]["tcp_error_max_mm"]
+
+
+def test_model_based_elastic_runs_on_joint_and_cartesian_files(tmp_path):
+    """The flatness-based feed-forward for elastic gears is computed for any joint reference (jerk and
+    snap from its accelerations on the controller grid, controller/elastic.py), not only the ISO path:
+    on the elastic plant it beats eq. 7's rigid model on a joint CSV and on a Cartesian CSV."""
+    elastic = (ROOT / "scenarios" / "iso9283.toml").read_text(encoding="utf-8")
+    _joint_csv(tmp_path / "wave.csv")
+    line = ROOT / "examples" / "trajectories" / "line_cartesian.csv"
+    path = write_variant(elastic, tmp_path / "compare.toml", [
+        ('job = "iso9283"', 'job = "compare"'), *SHORT, ("figures = true", "figures = false"),
+        ("[results]", '[compare]\ncontrollers = ["model_based", "model_based_elastic"]\n'
+                      f'trajectories = ["wave.csv", {{ file = "{line}", name = "line", '
+                      'q_seed = [0.0, 0.4, 1.8, 0.0, 0.9, 3.1416] }]\n\n[results]')])
+    code, summary = run_scenario(path, tmp_path / "out")
+    assert code == 0 and summary["status"] == "ok", summary.get("reason")
+    rows = {(r["trajectory"], r["controller"]): r for r in summary["table"]}
+    for traj in ("wave", "line"):
+        flat, rigid = rows[(traj, "model_based_elastic")], rows[(traj, "model_based")]
+        assert flat["status"] == rigid["status"] == "ok" and flat["rank"] == 1, traj
+        assert flat["tcp_error_max_mm"] < rigid["tcp_error_max_mm"] / 5, traj
+        entry = summary["entries"][f"model_based_elastic__{traj}"]
+        assert entry["path_completed"] and entry["files"]["controller"] == f"controller_model_based_elastic__{traj}.parquet"

@@ -48,7 +48,13 @@ def test_the_scenario_is_valid_and_injects_a_burst():
 
 def test_threshold_trips_on_the_right_node_at_the_expected_cycle(loss_run):
     code, _, summary = loss_run
-    assert code == 0 and summary["status"] == "ok", summary.get("reason")
+    # the demonstrated fault reaction is the run's honest verdict: status "fault", exit code 5
+    assert code == 5 and summary["status"] == "fault", summary.get("reason")
+    assert summary["reaction_as_expected"] is True
+    first = summary["first_violation"]
+    assert first["kind"] == "fault_reaction" and first["joint"] == NODE
+    assert first["time_s"] == pytest.approx(TRIP * PERIOD)
+    assert summary["verdicts"]["model_based"]["verdict"] == "fault"
     trips = summary["trips"]
     assert {(t["side"], t["node"], t["kind"], t["cycle"]) for t in trips} == {
         ("cn", NODE, "loss_of_preq", TRIP), ("mn", NODE, "loss_of_pres", TRIP)}

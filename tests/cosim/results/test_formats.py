@@ -63,51 +63,51 @@ def test_flush_streams_buffered_rows_after_the_interval(tmp_path):
     assert read_series(tmp_path / "s.parquet")[1].shape == (10, 2)
 
 
+STANDARD_ENCODINGS = {"PLAIN", "RLE", "RLE_DICTIONARY", "PLAIN_DICTIONARY", "BYTE_STREAM_SPLIT", "DELTA_BINARY_PACKED"}
+
+
 @pytest.mark.parametrize("rows", [0, 10, 9000, 40000])
-def test_compact_sink_plans_as_one_pass_over_the_whole_stream(tmp_path, rows):
-    """The compact plan a sink gathers while it writes (same columns, exact counts, delta coding
-    on the first rows) is the one a pass over the whole stream gives, and every value comes back."""
-    from cosim.results.timeseries import _schema, encoding_plan
+def test_standard_readers_read_every_value_a_sink_wrote(tmp_path, rows):
+    """A sink's file holds its values in standard Parquet types and encodings: pandas, pyarrow,
+    polars and DuckDB give back every value bit for bit (-0.0, NaN, a column of few values
+    dictionary-encoded, the others byte-stream-split), as read_series does; units in the
+    field metadata."""
+    import duckdb
+    import pandas as pd
+    import polars as pl
 
     rng = np.random.default_rng(rows)
     t = np.arange(rows) * 4e-4
-    counts = np.cumsum(rng.integers(-3, 4, rows)).astype(float)
-    data = np.column_stack([t, np.sin(t), np.sin(t), counts * 2.5e-6, rng.normal(size=rows),
-                            rng.integers(0, 3, rows).astype(float), np.rint(np.cos(3 * t) * 1e3) * 1e-3 + 0.0,
-                            -np.zeros(rows)])  # -0.0 is no integer count: not scaled, its sign comes back
-    if rows > 20000:  # equal / exact counts up to the last row: decided on every row, not on the first ones
-        data[-1, 2] += 0.5
-        data[-1, 6] += 1e-7
-    names, kinds = ["time", "a", "a_copy", "obs", "noise", "n", "c", "z"], ["Real"] * 5 + ["Integer", "Real", "Real"]
-    scales = {"obs": 2.5e-6, "c": 1e-3, "z": 1.0}
-    sink = ParquetSink(tmp_path / "s.parquet", buffer_rows=1024, flush_interval_s=3600.0, scales=scales,
-                       float_delta=True)
+    data = np.column_stack([t, np.sin(t), np.cumsum(rng.integers(-3, 4, rows)) * 2.5e-6, rng.normal(size=rows),
+                            rng.integers(0, 3, rows).astype(float), -np.zeros(rows), np.full(rows, np.nan)])
+    names, kinds = ["time", "a", "obs", "noise", "n", "z", "nan"], ["Real"] * 4 + ["Integer", "Real", "Real"]
+    sink = ParquetSink(tmp_path / "s.parquet", units={"a": "rad", "n": "1"}, buffer_rows=1024, flush_interval_s=3600.0)
     sink.open(names, kinds)
     for start in range(0, rows, 700):
         sink.write(data[start:start + 700])
     sink.close()
-    import pyarrow as pa
-
-    schema = _schema(names, [k == "Integer" for k in kinds], {})
-    batches = [pa.RecordBatch.from_arrays([pa.array(data[s:s + 1024, i].astype(np.int64) if kinds[i] == "Integer"
-                                                    else np.ascontiguousarray(data[s:s + 1024, i]))
-                                           for i in range(len(names))], schema=schema)
-               for s in range(0, rows, 1024)]
-    plan = encoding_plan(batches, schema, scales, True)
-    stored = pq.read_schema(tmp_path / "s.parquet")
-    for name in names:
-        how = plan.get(name)
-        if how is not None and how[0] == "same":
-            assert name not in stored.names
-            continue
-        meta = (stored.field(name).metadata or {}).get(b"cosim.encoding")
-        assert meta == (None if how is None else b"scaled" if how[0] == "scaled" else f"delta{how[1]}".encode()), name
-    if rows:
-        assert (plan.get("a_copy", ("",))[0] == "same") == (rows <= 20000)
-        assert plan["obs"][0] == "scaled" and (plan.get("c", ("",))[0] == "scaled") == (rows <= 20000)
-        assert plan.get("z", ("",))[0] != "scaled"
-    back_names, back = read_series(tmp_path / "s.parquet")
+    path = tmp_path / "s.parquet"
+    back_names, back = read_series(path)
     assert back_names == names and np.array_equal(back.view(np.int64), data.view(np.int64))
+    frame = pd.read_parquet(path)
+    table = pq.read_table(path)
+    polars = pl.read_parquet(path)
+    duck = duckdb.connect().execute(f"SELECT * FROM read_parquet('{path}')").fetchnumpy()
+    assert list(frame.columns) == table.column_names == polars.columns == list(duck) == names
+    for i, name in enumerate(names):
+        want = data[:, i]
+        for got in (frame[name].to_numpy(), table.column(name).to_numpy(), polars[name].to_numpy(),
+                    np.asarray(duck[name])):
+            assert got.dtype == (np.int64 if kinds[i] == "Integer" else np.float64), name
+            assert np.array_equal(got.astype(np.float64).view(np.int64), want.view(np.int64)), name
+    assert read_units(path)["a"] == "rad" and table.schema.field("a").metadata[b"unit"] == b"rad"
+    meta = pq.ParquetFile(path).metadata
+    encodings = {meta.schema.column(c).name: set(meta.row_group(g).column(c).encodings)
+                 for g in range(meta.num_row_groups) for c in range(meta.num_columns)}
+    assert all(e <= STANDARD_ENCODINGS for e in encodings.values()), encodings
+    if rows >= 9000:
+        assert "BYTE_STREAM_SPLIT" in encodings["a"] and "RLE_DICTIONARY" in encodings["z"]
+        assert not any(b"cosim" in k for f in table.schema for k in (f.metadata or {}))
 
 
 def test_the_same_rows_make_the_same_file_however_the_stream_was_cut(tmp_path):
@@ -120,7 +120,7 @@ def test_the_same_rows_make_the_same_file_however_the_stream_was_cut(tmp_path):
     data = np.column_stack([t, np.sin(t), np.cos(7 * t)])
     files = []
     for k, cut in enumerate((1000, 777, 5000)):
-        sink = ParquetSink(tmp_path / f"s{k}.parquet", buffer_rows=4096, flush_interval_s=3600.0, float_delta=True)
+        sink = ParquetSink(tmp_path / f"s{k}.parquet", buffer_rows=4096, flush_interval_s=3600.0)
         sink.open(["time", "a", "b"], ["Real"] * 3)
         for start in range(0, rows, cut):
             sink.write(data[start:start + cut])
@@ -142,7 +142,7 @@ def test_write_columns_both_formats_are_exact(tmp_path):
         assert names == ["t", "x", "phase"]
         assert np.array_equal(back, data, equal_nan=True) and np.array_equal(np.signbit(back), np.signbit(data))
     schema = pq.read_schema(pq_path)
-    assert str(schema.field("phase").type) == "int64" and str(schema.field("x").type) == "double"
+    assert str(schema.field("phase").type) == str(schema.field("x").type) == "double"
     assert read_units(pq_path) == {"t": "s", "x": "m", "phase": ""}
     assert pq_path.stat().st_size < csv_path.stat().st_size
 

@@ -1,12 +1,14 @@
 """The reusable validation helper: specs, key paths, unit strings."""
 import math
+from decimal import Decimal
+from fractions import Fraction
 
 import pytest
 
 from cosim.scenario import ScenarioError
 from cosim.scenario.schema import (AnyValue, Boolean, Field, FilePath, Integer, List, Number, String, Table, Where,
                                    validate)
-from cosim.scenario.units import UnitError, to_si
+from cosim.scenario.units import UNITS, UnitError, to_si
 
 
 @pytest.mark.parametrize("text, unit, si", [
@@ -17,6 +19,23 @@ from cosim.scenario.units import UnitError, to_si
 ])
 def test_quantities_convert_to_si(text, unit, si):
     assert to_si(text, unit) == pytest.approx(si, rel=1e-12)
+
+
+def test_decimal_units_are_exact():
+    """A time with a unit is the same float as the plain number: "100 us" runs are "1e-4" runs."""
+    assert to_si("100 us", "s") == 1e-4 and to_si("400 us", "s") == 4e-4 and to_si("0.1 ms", "s") == 1e-4
+    assert to_si("200 us", "s") == 2e-4 and to_si("12.6 s", "s") == 12.6 and to_si("1.5 mm", "m") == 1.5e-3
+    numbers = ["1", "100", "400", "0.1", "12.6", "3e-7", "-2.5", "123456789.123456789", "7.2e+5"]
+    for si_unit, spellings in UNITS.items():
+        for spelling, factor in spellings.items():
+            if not isinstance(factor, Decimal):  # pi-based (deg, rpm): a float product
+                continue
+            for n in numbers:
+                # the exact product rounded once (Fraction -> float is correctly rounded)
+                assert to_si(f"{n} {spelling}", si_unit) == float(Fraction(n) * Fraction(factor)), (n, spelling)
+    assert to_si("90 deg", "rad") == 90.0 * (math.pi / 180.0)
+    with pytest.raises(UnitError, match="finite"):
+        to_si("1e400 h", "s")
 
 
 @pytest.mark.parametrize("text, unit", [("400 mm", "s"), ("fast", "s"), ("400", "s"), (True, "s"), ("1 kg", "m")])

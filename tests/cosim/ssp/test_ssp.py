@@ -5,6 +5,8 @@ naming the .ssp as its ``system`` runs the same system as the scenario it came f
 from __future__ import annotations
 
 import json
+import os
+import re
 import zipfile
 from pathlib import Path
 
@@ -15,7 +17,7 @@ from fmpy.ssp.ssd import read_ssd
 from cosim.cli import main
 from cosim.cell import wiring as robot_cell
 from cosim.results import read_csv
-from cosim.ssp import SspError, load_ssp
+from cosim.ssp import PARAMETER_SET, SspError, load_ssp
 
 REPO = Path(__file__).resolve().parents[3]
 
@@ -73,15 +75,41 @@ def iso_ssp(tmp_path_factory):
     return out
 
 
+def _documented(pattern: str) -> int:
+    """A figure docs/cosim.md's SSP section states (the number before ``pattern``)."""
+    text = (REPO / "docs" / "cosim.md").read_text()
+    section = text.split("## SSP: the cell as a system other tools can load", 1)[1].split("\n## ", 1)[0]
+    found = re.findall(r"(\d+) " + pattern, " ".join(section.split()))
+    assert found, pattern
+    return int(found[-1])
+
+
 def test_export_of_the_main_job_is_valid_and_loads_in_fmpy(iso_ssp):
     ssd = read_ssd(str(iso_ssp), validate=True)  # fmpy's SSP reader, schema validation on
     assert [e.name for e in ssd.system.elements] == ["plant", *robot_cell.DRIVES]
-    # the cell's generated wiring: 18 FMU-to-FMU connections and 8 bus inputs per drive (CiA 402 modes 8/9/10)
-    assert len(ssd.system.connections) == 66
+    # the cell's generated wiring: 18 FMU-to-FMU connections; 8 bus inputs per drive (CiA 402 modes 8/9/10)
+    # are FMU inputs annotated with the master variable that drives them, not SSD connections
     system = load_ssp(iso_ssp)
-    assert len(system.connections) == 18 and len(system.inputs_connections) == 48
+    assert len(ssd.system.connections) == len(system.connections) == 18 and len(system.inputs_connections) == 48
+    assert all(c.startElement for c in ssd.system.connections)  # every connection joins two components
     assert all("Python controller" in by and "CiA 402" in by for _, by in system.system_inputs.values())
     assert sorted(system.system_inputs) == sorted(c.split(" -> ")[0] for c in system.inputs_connections)
+    assert "bus.controlword[3] -> drive3.controlword" in system.inputs_connections
+    # what the docs say is what the export holds
+    assert _documented("components and") == len(ssd.system.elements)
+    assert _documented("connections between them") == len(system.connections)
+    assert _documented("FMU inputs as driven by the Python side") == len(system.inputs_connections)
+    assert _documented("inputs, 8 per drive") == len(system.inputs_connections)
+    # one parameter set name for all components (Ecos applies one named set to the whole system)
+    with zipfile.ZipFile(iso_ssp) as zf:
+        names = {m: re.search(rb'<ssv:ParameterSet [^>]*name="([^"]+)"', zf.read(m)).group(1).decode()
+                 for m in zf.namelist() if m.endswith(".ssv")}
+        assert len(names) == 7 and set(names.values()) == {PARAMETER_SET}
+        # extracted members are readable by all, like the archive itself (the umask's mode for a new file)
+        assert all((i.external_attr >> 16) & 0o777 == 0o644 for i in zf.infolist())
+    umask = os.umask(0)
+    os.umask(umask)
+    assert iso_ssp.stat().st_mode & 0o777 == 0o666 & ~umask
     params = {f["name"]: f["parameters"] for f in system.fmus}
     # the cell's values: the seeded true robot for the plant, each axis's drive parameters
     assert len([k for k in params["plant"] if k.startswith("p[")]) == 78 and params["plant"]["payload_mass"] == 8.0
@@ -100,6 +128,18 @@ def test_ssp_system_runs_like_the_scenario_it_came_from(tmp_path):
     cb, b = read_csv(tmp_path / "b" / "timeseries.csv")
     assert ca == cb and a.shape == b.shape == (201, len(ca))
     assert np.array_equal(a, b)
+    # "100 us" is 1e-4 exactly: the archive's step, and a run with the step written as a number, are the same
+    assert load_ssp(ssp).macro_step == 1e-4
+    plain = _from_ssp(tmp_path, ssp, "plain.toml")
+    plain.write_text(plain.read_text().replace('macro_step = "100 us"', "macro_step = 1e-4"))
+    assert main(["run", str(plain), "--out", str(tmp_path / "c"), "--quiet"]) == 0
+    cc, c = read_csv(tmp_path / "c" / "timeseries.csv")
+    assert cc == ca and np.array_equal(a, c)
+    # the run names the archive and each FMU's path inside it (not the temporary folder it was extracted to)
+    summary = json.loads((tmp_path / "b" / "summary.json").read_text())
+    assert summary["system"] == str(ssp.resolve())
+    assert summary["fmus"] == {"plant": "resources/rx130l_plant.fmu",
+                               **{d: "resources/servo_drive.fmu" for d in robot_cell.DRIVES}}
     # drives disabled (controlword held at 0): the brakes hold the arm, which settles by ~8e-5 rad
     assert np.ptp(a[:, ca.index("plant.q[2]")]) > 1e-5
     system = load_ssp(ssp)
@@ -116,6 +156,24 @@ def _rewrite(src: Path, dst: Path, member: str, edit) -> Path:
             if data is not None:
                 zout.writestr(item, data)
     return dst
+
+
+def test_system_input_connectors_of_another_writer_are_read(tmp_path):
+    """SSP 1.0's own way to say 'the system drives this input': a system connector and a connection
+    without startElement (what another tool may write; our export annotates the FMU input instead)."""
+    ssp = tmp_path / "cell.ssp"
+    assert main(["export-ssp", str(_cell_scenario(tmp_path)), str(ssp)]) == 0
+    assert load_ssp(ssp).system_inputs == {}  # an fmus scenario: no master variables
+
+    def edit(text: str) -> str:
+        text = text.replace("<ssd:Elements>", '<ssd:Connectors><ssd:Connector name="cw" kind="input"><ssc:Integer/>'
+                            "</ssd:Connector></ssd:Connectors><ssd:Elements>", 1)
+        return text.replace("</ssd:Connections>", '<ssd:Connection startConnector="cw" endElement="drive2" '
+                            'endConnector="controlword"/></ssd:Connections>', 1)
+
+    system = load_ssp(_rewrite(ssp, tmp_path / "other.ssp", "SystemStructure.ssd", edit))
+    assert system.system_inputs == {"cw": ("Integer", "")} and system.inputs_connections == ["cw -> drive2.controlword"]
+    assert len(system.connections) == 18
 
 
 @pytest.mark.parametrize("member, edit, words", [

@@ -183,7 +183,7 @@ def test_referenced_files_from_the_schema():
     """What a task ships: FilePath values, files of 'file.py:Class' in string fields, and what
     specs with referenced_file() name - found by walking the job's schema, nothing else."""
     from cosim.scenario.schema import AnyValue, Field, FilePath, List, String, Table
-    from cosim.sweep.keypath import referenced_files, relocate_file
+    from cosim.scenario.keypath import referenced_files, relocate_file
 
     schema = Table({
         "controller": Field(Table({"class": Field(String()), "fmu": Field(FilePath()),

@@ -14,7 +14,7 @@ import pytest
 
 from cosim.scenario import ScenarioError
 from cosim.sweep import load_sweep
-from cosim.sweep.keypath import KeyPathSyntaxError, format_key_path, parse_key_path, with_value
+from cosim.scenario.keypath import KeyPathSyntaxError, format_key_path, parse_key_path, with_value
 
 ROOT = Path(__file__).resolve().parents[3]
 PLANT_DROP = ROOT / "scenarios" / "plant_drop.toml"

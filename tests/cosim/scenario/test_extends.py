@@ -1,0 +1,172 @@
+"""``extends``: a scenario that says only what differs from another (cosim/scenario/inherit.py)."""
+from __future__ import annotations
+
+import json
+import shutil
+import textwrap
+from pathlib import Path
+
+import pytest
+
+from cosim.cli import main
+from cosim.scenario import ScenarioError, load_scenario
+from cosim.scenario.inherit import key_lines
+
+ROOT = Path(__file__).resolve().parents[3]
+MAIN_JOB = ROOT / "scenarios" / "iso9283.toml"
+SHORT = ROOT / "examples" / "my_controller_iso9283.toml"
+
+
+def _strip(data: dict) -> dict:
+    return {k: v for k, v in data.items() if k != "scenario"}
+
+
+def test_the_example_is_ten_lines_at_most():
+    assert len(SHORT.read_text().splitlines()) <= 10
+
+
+def test_short_form_validates_to_the_long_form(tmp_path):
+    """The ten-line example and the main job copied out with the same [controller] class added
+    validate to the same document (every value, defaults and SI conversion included)."""
+    shutil.copy(ROOT / "examples" / "pd_gravity_controller.py", tmp_path)
+    long_text = MAIN_JOB.read_text().replace('[controller]\n', '[controller]\nclass = "pd_gravity_controller.py:PDGravity"\n', 1)
+    assert long_text.count("pd_gravity_controller.py:PDGravity") == 1
+    (tmp_path / "long.toml").write_text(long_text)
+    short, long = load_scenario(SHORT), load_scenario(tmp_path / "long.toml")
+    assert short.name == "my_controller_iso9283" and short.job.name == long.job.name == "iso9283"
+    assert _strip(short.data) == _strip(long.data)
+    # the base's relative FMU/URDF paths were made absolute against the base's folder
+    assert short.raw["scenario"]["job"] == "iso9283" and "extends" not in short.raw
+
+
+def test_short_form_runs_with_the_long_forms_figures(tmp_path):
+    """The example runs (built-in modes and the user's controller side by side); the user's mode
+    gives, digit for digit, the figures of the same controller in the long form run alone."""
+    out_short = tmp_path / "short"
+    rc_short = main(["run", str(SHORT), "--out", str(out_short), "--quiet"])
+    shutil.copy(ROOT / "examples" / "pd_gravity_controller.py", tmp_path)
+    long_text = MAIN_JOB.read_text().replace(
+        '[controller]\n', '[controller]\nclass = "pd_gravity_controller.py:PDGravity"\n', 1)
+    long_text = long_text.replace('modes = ["standard", "model_based", "model_based_elastic"]', "modes = []", 1)
+    assert "modes = []" in long_text
+    (tmp_path / "long.toml").write_text(long_text)
+    out_long = tmp_path / "long"
+    rc_long = main(["run", str(tmp_path / "long.toml"), "--out", str(out_long), "--quiet"])
+    short = json.loads((out_short / "summary.json").read_text())
+    long = json.loads((out_long / "summary.json").read_text())
+    assert set(short["modes"]) == {"standard", "model_based", "model_based_elastic", "PDGravity"}
+    assert set(long["modes"]) == {"PDGravity"}
+    mine_short, mine_long = short["modes"]["PDGravity"], long["modes"]["PDGravity"]
+    for key in ("tcp_error_max_mm", "tcp_error_rms_mm", "tcp_error_max_noise_free_mm"):
+        assert mine_short[key] == mine_long[key] and mine_short[key] > 0
+    assert mine_short.get("verdict") == mine_long.get("verdict")
+    assert rc_long == (0 if mine_long.get("verdict", "ok") == "ok" else rc_long)
+    assert rc_short in (0, 4, 5) and rc_long in (0, 4, 5)
+
+
+def _write(folder: Path, name: str, text: str) -> Path:
+    path = folder / name
+    path.write_text(textwrap.dedent(text).lstrip())
+    return path
+
+
+def test_error_in_an_inherited_key_names_the_base_file_and_line(tmp_path):
+    base = _write(tmp_path, "base.toml", """
+        extends = "iso9283"
+
+        [scenario]
+        name = "base"
+
+        [controller]
+        period = "-400 us"
+        """)
+    derived = _write(tmp_path, "derived.toml", """
+        extends = "base.toml"
+        [scenario]
+        name = "derived"
+        """)
+    with pytest.raises(ScenarioError) as info:
+        load_scenario(derived)
+    err = info.value
+    assert err.file == base.resolve() and err.key == "controller.period" and err.line == 7
+    assert err.inherited_by == derived.resolve()
+    assert str(err).startswith(f"{base.resolve()}: controller.period: ")
+    assert str(err).endswith(f"(line 7, inherited by {derived.resolve()})")
+
+
+def test_error_in_the_derived_file_names_it_and_its_line(tmp_path):
+    derived = _write(tmp_path, "derived.toml", """
+        extends = "iso9283"
+        [scenario]
+        name = "derived"
+        [tracker]
+        nonsense = 3
+        """)
+    with pytest.raises(ScenarioError) as info:
+        load_scenario(derived)
+    assert info.value.file == derived.resolve() and info.value.line == 5 and info.value.inherited_by is None
+    assert "unknown key" in str(info.value)
+
+
+def test_a_value_of_the_main_job_named_by_its_line():
+    """Without extends too, an error names the line of the key (here: a key of the main job
+    made invalid by an override of the file's text)."""
+    lines = key_lines(MAIN_JOB.read_text())
+    number = lines[("controller", "period")]
+    assert MAIN_JOB.read_text().splitlines()[number - 1].lstrip().startswith("period")
+
+
+@pytest.mark.parametrize("text, problem", [
+    ('extends = "no_such_scenario"\n', "no such scenario"),
+    ('extends = 3\n', "expected the path of a scenario"),
+    ('extends = "loop.toml"\n', "circular extends"),
+])
+def test_bad_extends_is_one_clear_error(tmp_path, text, problem, capsys):
+    path = tmp_path / "loop.toml"
+    path.write_text(text)
+    assert main(["run", str(path), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "loop.toml: extends: " in err and problem in err
+
+
+def test_arrays_replace_and_tables_merge(tmp_path):
+    derived = _write(tmp_path, "derived.toml", """
+        extends = "iso9283"
+        [scenario]
+        name = "derived"
+        [controller]
+        compute_budget = "150 us"
+        [record]
+        signals = ["drive1.current_demand"]
+        """)
+    base, mine = load_scenario(MAIN_JOB), load_scenario(derived)
+    assert mine.data["controller"]["compute_budget"] == pytest.approx(150e-6)
+    assert mine.data["controller"]["period"] == base.data["controller"]["period"]
+    assert mine.data["controller"]["modes"] == base.data["controller"]["modes"]
+    assert mine.data["record"]["signals"] == ["drive1.current_demand"] != base.data["record"]["signals"]
+    assert mine.data["record"]["period"] == base.data["record"]["period"]
+    assert mine.data["fmus"] == base.data["fmus"]
+
+
+def test_key_lines_of_arrays_of_tables_and_multiline_values():
+    lines = key_lines(textwrap.dedent('''
+        top = [
+          1,
+          2,
+        ]
+        [[fmus]]
+        name = "a"
+        [[fmus]]
+        name = "b"
+        [fmus.parameters]
+        k = """x
+        y = 3
+        """
+        m = 1
+        [a."b.c"]
+        d = {e = 1}
+        ''').lstrip())
+    assert lines[("top",)] == 1 and lines[("fmus",)] == 5 and lines[("fmus", 0, "name")] == 6
+    assert lines[("fmus", 1, "name")] == 8 and lines[("fmus", 1, "parameters", "k")] == 10
+    assert lines[("fmus", 1, "parameters", "m")] == 13 and ("fmus", 1, "parameters", "y") not in lines
+    assert lines[("a", "b.c", "d")] == 15
