@@ -69,3 +69,15 @@ def summary_cells(driver: Any) -> list[tuple[str, Any, str]]:
         "return Array.from(document.querySelectorAll('td.fig')).map(function (td) {"
         " return [td.getAttribute('data-key'), td.getAttribute('data-value'), td.textContent]; });")
     return [(k, json.loads(v), text) for k, v, text in rows]
+
+
+def report_state(driver: Any) -> dict[str, Any]:
+    """What an opened report shows: its notes, run toggles, summary keys, ranking rows, events."""
+    return driver.execute_script("""
+        var q = function (s) { return Array.from(document.querySelectorAll(s)); };
+        return {notes: q('#notes div').map(function (d) { return d.textContent; }),
+                runs: q('#toggles label').map(function (l) { return l.getAttribute('data-run'); }),
+                keys: q('td.fig').map(function (td) { return td.getAttribute('data-key'); }),
+                ranking_rows: q('table.ranking tr').length - 1,
+                events: q('#events tr').slice(1).map(function (tr) { return Array.from(tr.cells).map(function (c) { return c.textContent; }); }),
+                plots: q('.plot').map(function (d) { return d.id; })};""")

@@ -482,9 +482,13 @@ def collect_light(folders: list[Path]) -> dict[str, Any]:
         folder_notes += status_notes(summary)
         if not found:
             folder_notes.append("no time series in the folder: summary only")
+        verdicts = (summary or {}).get("verdicts") if isinstance((summary or {}).get("verdicts"), dict) else {}
         for run, (label, _) in zip(found, labels):
-            events[label] = sorted(_entry_events(run.entry, summary, run.name), key=lambda e: e["time_s"])
-            statuses[label] = (run.entry.get("verdict") or run.entry.get("status")
+            judged = verdicts.get(run.name) if isinstance(verdicts.get(run.name), dict) else {}
+            entry = {**run.entry, **({"first_violation": judged["first_violation"]}
+                                     if judged.get("first_violation") and not run.entry.get("first_violation") else {})}
+            events[label] = sorted(_entry_events(entry, summary, run.name), key=lambda e: e["time_s"])
+            statuses[label] = (judged.get("verdict") or run.entry.get("verdict") or run.entry.get("status")
                                or ("running" if (summary or {}).get("status") == "running" else None))
         sources.append({"folder": str(folder), "name": folder.name, "summary": _clean(summary) if summary else None,
                         "notes": folder_notes, "compare": _compare_table(folder, summary)})
