@@ -35,7 +35,7 @@
 #define RECORD_SIZE 32       /* recorder record: timestamp, id, is_error_frame, dlc, 20 data bytes */
 #define RECORD_DATA 20
 
-enum { OK = 0, OUT_OF_RANGE = 1, UNSUPPORTED = 2, NOT_FINITE = -1 };
+enum { OK = 0, OUT_OF_RANGE = 1, UNSUPPORTED = 2, NOT_FINITE = -1, ERROR_CODE_CHANGED = 4 };
 
 static PyObject *s_timestamp, *s_data, *s_arbitration_id, *s_is_error_frame, *s_is_remote_frame,
     *s_is_extended_id, *s_sync_seen, *s_sync_ts;
@@ -356,7 +356,9 @@ done:
  *            a_pos) -> int
  * ControlledNodes.start_cycle's quantisation and ControlledNodes.responses' packing:
  * msgs1[i] (TPDO1) <- (statusword, floor(position*cpr+0.5), floor(torque*upn+0.5)),
- * msgs2[i] (TPDO2) <- (floor(velocity*cpr+0.5), error_code, mode_display); a_pos[i] = the position count. */
+ * msgs2[i] (TPDO2) <- (floor(velocity*cpr+0.5), error_code, mode_display); a_pos[i] = the position count.
+ * Returns ERROR_CODE_CHANGED (4) instead of OK when a drive's error code (0x603F) differs from the
+ * one its TPDO2 payload held (the last cycle's), so that the node can send its EMCY. */
 static PyObject *latch_pres(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
 {
     CHECK_ARGS(11);
@@ -399,6 +401,7 @@ static PyObject *latch_pres(PyObject *self, PyObject *const *args, Py_ssize_t na
         if (p1[i] == NULL || p2[i] == NULL) { status = UNSUPPORTED; goto done; }
     }
     for (Py_ssize_t i = 0; i < n; ++i) {
+        if (get_u16(p2[i] + 4) != errv[i]) status = ERROR_CODE_CHANGED;
         put_u16(p1[i], swv[i]);
         put_i32(p1[i] + 2, pc[i]);
         put_u16(p1[i] + 6, tc[i]);

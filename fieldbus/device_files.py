@@ -69,8 +69,7 @@ def to_eds(od: ObjectDictionary, file_name: str | None = None) -> str:
                            *[(f"BaudRate_{r}", 1 if r == 1000 else 0) for r in (10, 20, 50, 125, 250, 500, 800, 1000)],
                            ("SimpleBootUpMaster", 0), ("SimpleBootUpSlave", 1), ("Granularity", 8),
                            ("DynamicChannelsSupported", 0), ("CompactPDO", 0), ("GroupMessaging", 0),
-                           ("NrOfRXPDO", rx), ("NrOfTXPDO", len(od.pdos) - rx), ("LSS_Supported", 0),
-                           ("CANopenFD", 1)])
+                           ("NrOfRXPDO", rx), ("NrOfTXPDO", len(od.pdos) - rx), ("LSS_Supported", 0)])
     section("DummyUsage", [(f"Dummy{i:04X}", 1 if i == 0x0005 else 0) for i in range(1, 8)])
     comments = ["Virtual servo drive of the rx130l-cosim testbed (CiA 402, cyclic synchronous modes 8, 9, 10).",
                 "RPDO1 is a 20-byte CAN FD frame (CiA 1301); units: counts, counts/s, 0.1 % of rated torque.",

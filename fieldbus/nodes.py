@@ -58,6 +58,21 @@ if TYPE_CHECKING:
     from fieldbus.scaling import JointScaling
     from fieldbus.timing import CycleLayout
 
+_ERROR_CODE_CHANGED = 4  # codec.latch_pres: packed, and a drive's error code changed since the last cycle
+DRIVE_ERROR_TEXT = {0x0000: "error reset", 0x2310: "continuous over current: I2t derating",
+                    0x8400: "velocity speed controller: max motor speed exceeded",
+                    0x8611: "following error", 0x8612: "reference limit: software position limit"}
+"""Meaning of the CiA 402 error codes the drives' protection raises (docs/fmus.md "Protection")."""
+
+
+def _drive_error_register(code: int) -> int:
+    """Error register 0x1001 of a drive error's EMCY: 0 for the reset, else generic (bit 0) plus
+    current (bit 1) for 0x2xxx, device-profile specific (bit 5) for 0x8xxx."""
+    if not code:
+        return 0
+    return 0x01 | (0x02 if code >> 12 == 0x2 else 0x20 if code >> 12 == 0x8 else 0)
+
+
 _TPDO1_LEN = TPDO1.size
 _TPDO2_LEN = TPDO2.size
 _RPDO1_LEN = RPDO1_SIGNED.size
@@ -640,7 +655,9 @@ class ControlledNodes:
         self.comm_fault = [False] * n
         self._any_fault = False
         self._fault_shown = False  # applied arrays still show a fault that was cleared
-        self._emcy_due: list[ThresholdCounter] = []
+        self._emcy_due: list[ThresholdCounter | tuple[int, int]] = []  # tripped counters, (node, drive error)
+        self._errors_seen = [0] * n  # each drive's error code 0x603F at the last SoC
+        self._errors_announced = [False] * n  # an EMCY announced the node's present drive error
         self._ids: dict[int, int] = {RPDO1_BASE + i + 1: i for i in range(n)}
         self._tpdo1_ids = [TPDO1_BASE + i + 1 for i in range(n)]
         self._tpdo2_ids = [TPDO2_BASE + i + 1 for i in range(n)]
@@ -699,15 +716,20 @@ class ControlledNodes:
         self._next_soc = t + self._cycle_time
         codec, packed = self._codec, self._packed
         # latch actual values (quantised as they enter the PRes; range-checked when packed)
-        self._prepacked = codec is not None and codec.latch_pres(
+        latched = -1 if codec is None else codec.latch_pres(
             actuals.statusword, actuals.position, actuals.velocity, actuals.torque, actuals.error_code,
             actuals.modes_of_operation_display, packed["cpr"], packed["upn"], self._tpdo1_msgs, self._tpdo2_msgs,
-            self._a_pos) == 0
+            self._a_pos)
+        self._prepacked = latched == 0 or latched == _ERROR_CODE_CHANGED
         if self._prepacked:
             a_pos = self._a_pos
+            if latched == _ERROR_CODE_CHANGED:
+                self._drive_errors(actuals.error_code.tolist())
         else:
             self._a_sw = actuals.statusword.tolist()
             self._a_err = actuals.error_code.tolist()
+            if self._a_err != self._errors_seen:
+                self._drive_errors(self._a_err)
             self._a_mode = actuals.modes_of_operation_display.tolist()
             pos, vel, tq = actuals.position.tolist(), actuals.velocity.tolist(), actuals.torque.tolist()
             cpr = self._cpr
@@ -1087,11 +1109,20 @@ class ControlledNodes:
             self.counters.end_cycle(cycle, t)
 
     def emergency_messages(self, timestamp: float) -> list[FastMessage]:
-        """EMCY frames due in this cycle's asynchronous slot (one per tripped counter)."""
+        """EMCY frames due in this cycle's asynchronous slot: one per tripped counter (0x8100),
+        one per drive whose error code 0x603F changed at this cycle's SoC (:meth:`_drive_errors`)."""
         if not self._emcy_due:
             return []
         out = []
-        for counter in self._emcy_due:
+        for due in self._emcy_due:
+            if isinstance(due, tuple):
+                node, code = due
+                data = bytearray(EMCY.pack(code, _drive_error_register(code), 0, 0, 0))
+                out.append(FastMessage(timestamp, EMCY_BASE + node, data))
+                self.log.add(FieldbusEvent(timestamp, self.cycle, "cn", node, "drive_error", "emcy_sent", code, -1, -1,
+                                           f"EMCY 0x{code:04X} ({DRIVE_ERROR_TEXT.get(code, 'drive error')})"))
+                continue
+            counter = due
             data = bytearray(EMCY.pack(EMCY_COMMUNICATION, EMCY_ERROR_REGISTER_COMMUNICATION,
                                        COUNTER_IDS.get(f"cn_{counter.kind}", 0),
                                        min(counter.value, 0xFFFF), counter.threshold))
@@ -1101,6 +1132,26 @@ class ControlledNodes:
                                        f"EMCY 0x{EMCY_COMMUNICATION:04X}"))
         self._emcy_due = []
         return out
+
+    def _drive_errors(self, codes: list[int]) -> None:
+        """The drives' error codes (0x603F) latched at this SoC differ from the last ones: a node
+        whose drive shows a new error (a protection fault or warning, docs/fmus.md "Protection")
+        sends its EMCY with that code in this cycle's asynchronous slot, and EMCY 0x0000 (error
+        reset) when that error is gone. Codes the node presented to its drive itself (its
+        communication fault reaction, already announced by its own EMCY 0x8100) are not repeated."""
+        seen, announced = self._errors_seen, self._errors_announced
+        for i, code in enumerate(codes):
+            if code == seen[i]:
+                continue
+            if code and code != EMCY_COMMUNICATION and not self.comm_fault[i]:
+                self._emcy_due.append((i + 1, code))
+                announced[i] = True
+            elif not code and announced[i]:
+                self._emcy_due.append((i + 1, 0))
+                announced[i] = False
+            else:
+                announced[i] = False
+        self._errors_seen = list(codes)
 
     # ------------------------------------------------------------------ faults
     def _on_threshold(self, counter: ThresholdCounter, cycle: int, time_s: float) -> None:

@@ -217,6 +217,34 @@ def _document(path: str) -> dict[str, Any]:
     return doc
 
 
+def pdo_layout(name: str, *, setpoint_buffer: bool = False, path: str | Path | None = None) -> str:
+    """The ``struct`` format (little endian) of the PDO ``name`` as the data file maps it, from the
+    mapped objects' data types alone (no node, no parameters): what ``fieldbus.telegrams`` packs.
+    ``setpoint_buffer``: with the entries mapped when ``[fieldbus] setpoint_buffer > 0``."""
+    where = str(Path(path or DATA_PATH))
+    doc = _document(where)
+    objects = {o.get("index"): o for o in doc.get("objects", [])}
+    for item in doc.get("pdos", []):
+        if item.get("name") != name:
+            continue
+        codes = []
+        for text in list(item.get("map", [])) + (list(item.get("with_setpoint_buffer", [])) if setpoint_buffer else []):
+            if text == "dummy8":
+                codes.append("B")
+                continue
+            index_text, _, sub_text = str(text).partition(":")
+            obj = objects.get(int(index_text, 16), {})
+            entry = obj if obj.get("object", "VAR") == "VAR" else next(
+                (s for s in obj.get("subs", []) if s.get("sub") == int(sub_text or "0")), {})
+            code = DATA_TYPES.get(entry.get("data_type"), (0, None, None))[2]
+            if code is None:
+                raise ObjectDictionaryError(f"{where}: PDO {name} maps {text!r}: expected a mapped object with a "
+                                            "numeric data type")
+            codes.append(code)
+        return "<" + "".join(codes)
+    raise ObjectDictionaryError(f"{where}: no PDO {name!r} in [[pdos]]")
+
+
 def _round(x: float) -> int:
     return math.floor(x + 0.5)
 
@@ -245,7 +273,7 @@ class _Context:
             "torque": lambda: v / self.rated_torque * self.units,
             "motor_speed_rpm": lambda: v * abs(gear()) * 60.0 / (2.0 * math.pi),
             "milli": lambda: v * 1e3, "micro": lambda: v * 1e6,
-            "per_mille_rated_current": lambda: v / (self.rated_torque / abs(gear()) / kt()) * 1000.0,
+            "per_mille_rated_current": lambda: v / float(self._need(where, "rated_current")) * 1000.0,
             "motor_rated_current_ma": lambda: v / abs(gear()) / kt() * 1e3,
             "motor_rated_torque_mnm": lambda: v / abs(gear()) * 1e3,
             "interpolation_value": lambda: _interpolation(v)[0],
@@ -457,4 +485,4 @@ def _pdo(ctx: _Context, objects: Mapping[int, DictObject], item: Mapping[str, An
 
 
 __all__ = ["ACCESS", "DATA_PATH", "DATA_TYPES", "DictObject", "Entry", "ObjectDictionary", "ObjectDictionaryError",
-           "Pdo", "PdoField", "build"]
+           "Pdo", "PdoField", "build", "pdo_layout"]

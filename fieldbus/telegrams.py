@@ -42,6 +42,7 @@ from typing import NamedTuple
 import can
 
 from fieldbus.errors import FrameDecodeError
+from fieldbus.object_dictionary import pdo_layout
 
 SYNC_ID = 0x080
 EMCY_BASE = 0x080
@@ -52,10 +53,11 @@ MAX_NODE_ID = 127
 
 # controlword, target position, torque offset, modes of operation, reserved, target torque,
 # target velocity, velocity offset
-RPDO1_SIGNED = struct.Struct("<HihbBhii")
-RPDO1_CLASSIC = struct.Struct("<Hih")  # controlword, target position, torque offset (classic CAN, CSP only)
-TPDO1 = struct.Struct("<Hih")  # statusword, position actual, torque actual
-TPDO2 = struct.Struct("<iHb")  # velocity actual, error code, modes of operation display
+# the PDO layouts are the mappings of the drives' object dictionary (fieldbus/object_dictionary.toml)
+RPDO1_SIGNED = struct.Struct(pdo_layout("RPDO1"))  # "<HihbBhii"
+RPDO1_CLASSIC = struct.Struct(RPDO1_SIGNED.format[:4])  # controlword, target position, torque offset (classic CAN, CSP only)
+TPDO1 = struct.Struct(pdo_layout("TPDO1"))  # "<Hih": statusword, position actual, torque actual
+TPDO2 = struct.Struct(pdo_layout("TPDO2"))  # "<iHb": velocity actual, error code, modes of operation display
 EMCY = struct.Struct("<HBBHH")  # error code, error register, counter id, counter value, threshold
 
 PREQ_PAYLOAD_BYTES = RPDO1_SIGNED.size
@@ -79,7 +81,7 @@ RPDO1_LOOKAHEAD_LENGTHS = (32, 48, 64)  # the CAN FD lengths that hold 1..MAX_LO
 # set-points the drive holds for the cycles after the current one (0x60C4 sub 2, UINT8).
 RPDO1_BUFFER_SKIP = struct.Struct("<H")
 RPDO1_BUFFER_SKIP_OFFSET = RPDO1_MAX_BYTES - 4  # bytes 60-61, after 4 entries (20 + 4 * 10 = 60)
-TPDO2_BUFFERED = struct.Struct("<iHbB")  # TPDO2 + set-points held ahead (0x60C4 sub 2, UINT8)
+TPDO2_BUFFERED = struct.Struct(pdo_layout("TPDO2", setpoint_buffer=True))  # "<iHbB": TPDO2 + set-points held ahead (0x60C4 sub 2, UINT8)
 #: the deepest set-point buffer the telegrams can report (byte 7 of the TPDO2 is a UINT8
 #: holding buffer + dead time; 5 kept free for dead times of up to 5 cycles)
 MAX_SETPOINT_BUFFER = 250

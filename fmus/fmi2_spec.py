@@ -113,13 +113,14 @@ class FmuSpec:
 
     def add_array(self, base: str, starts: list[float], causality: str, description: str, *,
                   unit: str | None = None, min: float | None = None, max: float | None = None,
-                  descriptions: list[str] | None = None, units: list[str] | None = None) -> None:
-        """Add ``base[1]``..``base[n]`` (Real) with one start value (and optionally unit) per element."""
+                  descriptions: list[str] | None = None, units: list[str] | None = None,
+                  type_: str = "Real") -> None:
+        """Add ``base[1]``..``base[n]`` (Real, or ``type_``) with one start value (and optionally unit) per element."""
         n = len(starts)
         c_name = re.sub(r"[^A-Za-z0-9]", "_", base).upper()
         for k, start in enumerate(starts):
             text = descriptions[k] if descriptions else f"{description} (element {k + 1})"
-            self._append(Variable(f"{base}[{k + 1}]", c_name, "Real", causality, text,
+            self._append(Variable(f"{base}[{k + 1}]", c_name, type_, causality, text,
                                   units[k] if units else unit, start, min, max, index=k, array_length=n))
 
     def set_depends_on(self, name: str, knowns: tuple[str, ...]) -> None:

@@ -64,6 +64,9 @@ _SPECS: tuple[_Spec, ...] = (
     _Spec("elastic", "motor_friction_share", "motor_friction_share", N_JOINTS, "fraction"),
     _Spec("elastic", "stribeck_torque", "stribeck_torque", N_JOINTS, "nonnegative"),
     _Spec("elastic", "stribeck_velocity", "stribeck_velocity", N_JOINTS, "positive"),
+    _Spec("end_stops", "margin", "end_stop_margin", N_JOINTS, "nonnegative"),
+    _Spec("end_stops", "stiffness", "end_stop_stiffness", N_JOINTS, "positive"),
+    _Spec("end_stops", "damping", "end_stop_damping", N_JOINTS, "nonnegative"),
 )
 
 MAX_BACKLASH = 1e-3
@@ -113,12 +116,25 @@ class RobotParameters:
     motor_friction_share: np.ndarray  # 1, fraction of viscous/Coulomb friction on the motor side
     stribeck_torque: np.ndarray  # N m, static minus Coulomb friction (motor side, joint units)
     stribeck_velocity: np.ndarray  # rad/s, Stribeck velocity (joint side)
+    end_stop_margin: np.ndarray  # rad, mechanical end stop beyond each end of the URDF range
+    end_stop_stiffness: np.ndarray  # N m / rad, end-stop contact stiffness (joint side)
+    end_stop_damping: np.ndarray  # N m s / rad, end-stop contact damping (joint side)
     position_lower: np.ndarray  # rad, from the URDF
     position_upper: np.ndarray  # rad, from the URDF
     velocity_limit: np.ndarray  # rad/s, from the URDF
     effort_limit: np.ndarray  # N m, from the URDF
     units: Mapping[str, str]
     sources: Mapping[str, str]
+
+    @property
+    def end_stop_lower(self) -> np.ndarray:
+        """rad: the lower mechanical end stop of each joint (URDF lower limit - margin)."""
+        return self.position_lower - self.end_stop_margin
+
+    @property
+    def end_stop_upper(self) -> np.ndarray:
+        """rad: the upper mechanical end stop of each joint (URDF upper limit + margin)."""
+        return self.position_upper + self.end_stop_margin
 
     @property
     def payload(self) -> np.ndarray:

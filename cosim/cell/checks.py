@@ -15,6 +15,7 @@ from collections.abc import Iterable, Mapping
 from typing import Any
 
 from cosim.cell import wiring
+from cosim.cell.protection import check_protection_parameters
 from cosim.scenario.cosim_tables import check_cosim_tables
 from cosim.scenario.schema import Table, Where
 
@@ -52,7 +53,9 @@ def check_cell(doc: dict[str, Any], where: Where, job_set_drive_parameters: Mapp
     the FMUs have :data:`PLANT_VARIABLES` / :data:`DRIVE_VARIABLES`;
     no drive sets a parameter of ``job_set_drive_parameters`` (parameter name -> what is
     expected instead, for the message) and the plant none of
-    :data:`~cosim.cell.wiring.JOB_SET_PLANT_PARAMETERS`; the ``[fieldbus]`` table is
+    :data:`~cosim.cell.wiring.JOB_SET_PLANT_PARAMETERS`; the drives' and the plant's protection
+    parameters are within what the drive and the arm allow
+    (:func:`~cosim.cell.protection.check_protection_parameters`); the ``[fieldbus]`` table is
     valid and its cycle time equals ``[controller] period`` (s); the controller and
     ``[tracker]`` periods are whole multiples of ``[simulation] macro_step`` and of the cell's
     FMU steps; the ``[record]`` period is a whole multiple of ``macro_step``.
@@ -100,6 +103,7 @@ def check_cell(doc: dict[str, Any], where: Where, job_set_drive_parameters: Mapp
             raise (where / "fmus")[plant_i].error(
                 "no q0/qd0/p/payload/geometric_errors parameters: the job sets them from [true_robot] and the path start",
                 problem=f"parameter {key!r} is set by the job")
+    check_protection_parameters(doc, where)
     try:
         fb = FieldbusConfig.from_dict(doc["fieldbus"], source=str(where.file) if where.file else "<scenario>")
     except FieldbusConfigError as exc:

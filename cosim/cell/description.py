@@ -18,7 +18,8 @@ from types import MappingProxyType
 from typing import Any
 
 from controller import ControllerInfo
-from cosim.cell.wiring import DRIVES, RECORDED_SIGNALS, cell_fmus, drive_variables_of, merged_connections
+from cosim.cell.protection import PROTECTION_SIGNALS
+from cosim.cell.wiring import DRIVES, PLANT, RECORDED_SIGNALS, cell_fmus, drive_variables_of, merged_connections
 from cosim.tracking.laser_tracker import TrackerConfig
 from fieldbus import FieldbusConfig
 from robot.true_robot import TrueRobot
@@ -92,12 +93,23 @@ def describe_cell(doc: Mapping[str, Any], true_robot: TrueRobot, controller: Con
     signals = list(record["signals"])
     signals += [s for s in extra_signals if s not in signals]
     signals += [s for s in RECORDED_SIGNALS if s not in signals and _available(s, drive_variables)]
+    available = {**drive_variables, PLANT: _plant_variables(fmus)}
+    signals += [s for s in PROTECTION_SIGNALS if s not in signals and _available(s, available)]
     document = {"simulation": copy.deepcopy(doc["simulation"]), "fmus": fmus,
                 "connections": merged_connections(doc.get("connections") or [], drive_variables)}
     return CellDescription(label=label, document=MappingProxyType(document), true_robot=true_robot, fieldbus=fb,
                            tracker=tracker, signals=tuple(signals), record_period_s=record["period"],
                            stop_time_s=float(stop_time if stop_time is not None else doc["simulation"]["stop_time"]),
                            controller=controller, record_file=record_file, can_log=can_log)
+
+
+def _plant_variables(fmus: Sequence[Mapping[str, Any]]) -> set[str]:
+    """The variable names of the cell's plant FMU (its end-stop outputs are recorded where it has them)."""
+    from cosim.master import load_model_description
+    from fmus.fmu import variables_of
+
+    plant = next((f for f in fmus if f["name"] == PLANT), None)
+    return set(variables_of(load_model_description(plant["path"]))) if plant is not None else set()
 
 
 def _available(signal: str, drive_variables: Mapping[str, set[str]]) -> bool:

@@ -41,6 +41,7 @@ from controller.contract import DEFAULT_COMPUTE_BUDGET_S
 from controller.port import command_log_columns
 from cosim.cell.description import CellDescription
 from cosim.cell.link import FieldbusLink
+from cosim.cell.protection import protection_events
 from cosim.cell.wiring import N_JOINTS, cell_variables, joint_scaling
 from cosim.tracking.laser_tracker import TRACKER_VARIABLES, LaserTracker
 from cosim.master import Master, MemorySink, Recorder, SimulationError
@@ -89,7 +90,8 @@ class CellRun:
     or for a user's controller the cell's :class:`controller.port.CommandLog`."""
     protection_events: list[dict] = field(default_factory=list)
     """The drives' and the plant's protection events (limit reached, end stop hit; the record of
-    docs/robustness.md), judged by :func:`cosim.cell.verdict.judge`."""
+    docs/robustness.md), one per onset: :func:`cosim.cell.protection.protection_events`, filled by
+    :func:`run_cell` in every mode; judged by :func:`cosim.cell.verdict.judge`."""
     drives_checked: bool = False
     """Whether the run watched the drives' states (``drives_enabled_at_s`` is meaningful)."""
     drives_enabled_at_s: float | None = None
@@ -202,12 +204,23 @@ def run_cell(cell: CellDescription, controller: CellController, ctx: RunContext,
     the suffix follows the run's format) and ``CellRun.recording`` reads it back; paced and
     split runs sample into memory and write the file when the loop has ended (no file I/O
     inside a paced cycle).
+
+    Whatever the mode, ``CellRun.protection_events`` holds the drives' and the plant's protection
+    events of the run (:func:`cosim.cell.protection.protection_events`, from the recording).
     """
     if mode is None:
         execution = getattr(ctx, "execution", None)
         if execution is not None and execution.active:
-            return execution.run_cell(cell, controller, ctx)
+            return execution.run_cell(cell, controller, ctx)  # run_cell again, with its mode
         mode = "in_process"
+    run = _run_in_mode(cell, controller, ctx, mode, options, pacer, on_cycle)
+    run.protection_events = protection_events(cell, run.recording)
+    return run
+
+
+def _run_in_mode(cell: CellDescription, controller: CellController, ctx: RunContext, mode: str, options: Any,
+                 pacer: Any, on_cycle: Callable[[int, Any], None] | None) -> CellRun:
+    """:func:`run_cell` in the execution mode ``mode`` (before its protection events)."""
     if mode not in MODES:
         raise ValueError(f"cell execution mode {mode!r}: expected one of {MODES}")
     if options is None:
@@ -221,7 +234,8 @@ def run_cell(cell: CellDescription, controller: CellController, ctx: RunContext,
         controller_close = getattr(controller, "close", None)
         if callable(controller_close):
             controller_close()  # the job's own controller does not run: the controller is elsewhere
-        return run_served_cell(cell, ctx, getattr(options, "serve", None) or ServeSettings(), pacer=pacer)
+        settings = getattr(options, "serve", None) or ServeSettings()
+        return run_served_cell(cell, ctx, settings, pacer=pacer, start_on_first_frame_s=settings.wait_for_controller_s)
     if mode == "split":
         from cosim.split.cell import run_split_cell
 

@@ -51,6 +51,11 @@ WARNING_KINDS = frozenset({"budget"})
 CHRONIC_BUDGET_FRACTION = 0.01
 """Share of controller cycles over their compute budget above which a run gets a budget warning."""
 MOTION_STOPPED = "motion stopped"
+PROTECTION_CODES = {"0x8611": "following_error", "0x8612": "position_limit", "0x8400": "speed_limit",
+                    "0x2310": "i2t"}
+"""CiA 402 error codes (0x603F) of the drives' protection limits: a controller stop on a drive fault with
+one of these codes is the limit's reaction (verdict ``limit``), also when the run recorded no
+protection event for it."""
 """How :class:`cosim.cell.link.FieldbusLink` words the end of a run after the controller stopped."""
 
 
@@ -186,10 +191,15 @@ def judge(run: Any) -> Verdict:
     extra: list[dict[str, Any]] = []
     if failure is not None:
         if _is_controller_stop(failure):
-            if verdict == "ok":  # the controller stopped on a drive's fault, not on a limit or a bus fault
+            code = _error_code(str(failure.reason))
+            if verdict == "ok" and code in PROTECTION_CODES:  # a drive's protection reacted (e.g. 0x8611)
+                verdict = "limit"
+                extra.append(violation(PROTECTION_CODES[code], failure.time, str(failure.reason), error_code=code,
+                                       joint=_drive_of(str(failure.reason)), reaction="quick_stop"))
+            elif verdict == "ok":  # the controller stopped on a drive's fault, not on a limit or a bus fault
                 verdict = "fault"
-                extra.append(violation("controller_stop", failure.time, str(failure.reason),
-                                       reaction="quick_stop"))
+                extra.append(violation("controller_stop", failure.time, str(failure.reason), error_code=code,
+                                       joint=_drive_of(str(failure.reason)), reaction="quick_stop"))
         else:
             verdict = "failed"
             extra.append(violation("failure", getattr(failure, "time", None),
@@ -242,23 +252,26 @@ def overrun_note(run: Any) -> str | None:
 
 def budget_warning(timing: Any) -> dict[str, Any] | None:
     """A ``budget`` warning when more than :data:`CHRONIC_BUDGET_FRACTION` of the controller's timed
-    cycles (a :class:`controller.TimingSummary`) were over its compute budget, else None. Where
-    the timing has the controller's CPU time, the misses count only when that too is over the
-    budget in more than that share of cycles (CPU p99 above the budget): wall time alone also
-    holds the time other processes took the core."""
+    cycles (a :class:`controller.TimingSummary`) were over its compute budget, else None: the
+    misses as the timing judged them (``deadline_basis``: CPU time in a simulated-time run,
+    wall time in a real-time one). A timing without a basis counts its wall-time misses only
+    when the CPU time is over the budget too (CPU p99 above it)."""
     cycles = getattr(timing, "cycles", 0) or 0
     misses = getattr(timing, "deadline_misses", 0) or 0
     if cycles <= 0 or misses <= CHRONIC_BUDGET_FRACTION * cycles:
         return None
     budget = getattr(timing, "budget_us", float("nan"))
     cpu_p99 = getattr(timing, "cpu_p99_us", None)
-    if isinstance(cpu_p99, (int, float)) and math.isfinite(cpu_p99) and cpu_p99 <= budget:
-        return None  # the wall-time misses are time other processes took: the controller's own CPU time fits
+    basis = getattr(timing, "deadline_basis", None)
+    if basis is None and isinstance(cpu_p99, (int, float)) and math.isfinite(cpu_p99) and cpu_p99 <= budget:
+        return None  # wall-time misses only, and the controller's own CPU time fits: time other processes took
     share = 100.0 * misses / cycles
     p99 = getattr(timing, "p99_us", float("nan"))
     cpu = f", CPU p99 {cpu_p99:.4g} us" if isinstance(cpu_p99, (int, float)) and math.isfinite(cpu_p99) else ""
+    clock = {"cpu_time": "CPU time", "wall_time": "wall time"}.get(basis or "", "compute time")
     return violation("budget", None, f"the controller overran its compute budget of {budget:.6g} us in "
-                                     f"{misses} of {cycles} cycles ({share:.4g} %; p99 {p99:.4g} us{cpu})",
+                                     f"{misses} of {cycles} cycles ({share:.4g} %, judged on {clock}; wall p99 "
+                                     f"{p99:.4g} us{cpu})",
                      value=share, limit=100.0 * CHRONIC_BUDGET_FRACTION, unit="%")
 
 
@@ -275,6 +288,21 @@ def record(entry: dict[str, Any], run: Any, timing: Any = None) -> Verdict:
     if getattr(run, "controller_close_error", None):
         entry["close_error"] = run.controller_close_error
     return verdict
+
+
+def _error_code(text: str) -> str | None:
+    """The ``0x....`` error code a stop reason quotes (``drive 1 reports Fault, error code 0x8611``)."""
+    import re
+
+    found = re.search(r"error code (0x[0-9A-Fa-f]{4})", text)
+    return found.group(1).upper().replace("0X", "0x") if found else None
+
+
+def _drive_of(text: str) -> int | None:
+    import re
+
+    found = re.search(r"\bdrive (\d)\b", text)
+    return int(found.group(1)) if found else None
 
 
 def _time_key(v: dict[str, Any]) -> float:

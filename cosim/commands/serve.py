@@ -34,6 +34,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--scheduling", choices=("fifo", "normal"), default="fifo",
                         help="SCHED_FIFO when the OS grants it (default) or normal")
     parser.add_argument("--cpu", default=None, help="pin to this CPU ('auto': the last usable one)")
+    parser.add_argument("--wait-for-controller", type=float, default=None, metavar="S",
+                        help="wait up to S seconds for the controller's first datagram and start the run "
+                             "(cycle 0) then (default: start at once)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -46,7 +49,8 @@ def run(args: argparse.Namespace) -> int:
                                  accept_from=None if args.accept_from is None else
                                  tuple(x.strip() for x in args.accept_from.split(",") if x.strip()),
                                  window_fraction=args.window, spin_s=args.spin_us * 1e-6,
-                                 busy_poll_s=args.busy_poll_us * 1e-6, scheduling=args.scheduling, cpu=args.cpu)
+                                 busy_poll_s=args.busy_poll_us * 1e-6, scheduling=args.scheduling, cpu=args.cpu,
+                                 wait_for_controller_s=args.wait_for_controller)
     except ServeSettingsError as exc:
         raise InvalidInput(str(exc)) from None
     _check_address_free(settings.channel)
@@ -69,6 +73,7 @@ def run(args: argparse.Namespace) -> int:
         return 130
     _warn_cycle_time_mismatch(result.summary.raw.get("hil") or {})
     _warn_transport_faults(result.summary.raw.get("hil") or {})
+    _report_losses(result.summary.raw.get("hil") or {})
     from cosim.cell.verdict import exit_code
     from cosim.commands.run import print_run_lines
 
@@ -109,6 +114,20 @@ def _warn_cycle_time_mismatch(hil: dict) -> None:
                   f"{'?' if estimate is None else f'{estimate * 1e3:.4g}'} ms, the cell's "
                   f"{found['cell_cycle_time_s'] * 1e3:.4g} ms (hil_endpoint.json cycle_time_s); its frames were "
                   f"lost cycles for the threshold counters (summary.json hil.{label})", file=sys.stderr)
+
+
+def _report_losses(hil: dict) -> None:
+    """One line per served run: the cycles lost (their runs, the longest) and the drives' fault
+    reactions (loss-of-SoC/PReq trips), whatever the thresholds let through."""
+    for label, report in hil.items():
+        if not isinstance(report, dict) or "lost_cycles_total" not in report:
+            continue
+        runs = report.get("lost_cycle_runs") or {}
+        trips = [f for f in report.get("fault_reactions", []) if f.get("event") == "fault_reaction"]
+        first = f"; first at cycle {trips[0]['cycle']} (t = {trips[0]['time_s']:.4g} s)" if trips else ""
+        print(f"{label}: {report['lost_cycles_total']} lost cycles in {runs.get('count', 0)} runs (longest "
+              f"{runs.get('longest', 0)}), {report.get('fault_reactions_total', len(trips))} fault reaction "
+              f"events{first} (summary.json hil.{label})", file=sys.stderr)
 
 
 def _warn_transport_faults(hil: dict) -> None:

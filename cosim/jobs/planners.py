@@ -319,7 +319,9 @@ def _execute(ctx: RunContext, doc: dict[str, Any], name: str, traj: Any, true_ro
         entry["failure"] = str(cell.failure)
     from cosim.cell.verdict import record
 
-    record(entry, cell, controller.timing())
+    from cosim.cell.evaluation import deadline_basis
+
+    record(entry, cell, controller.timing().judged_on(deadline_basis(cell)))
     ctx.note_verdict(name, entry)
     return entry
 

@@ -372,7 +372,6 @@ def _partial_to_parquet(partial: Path, path: Path, schema) -> None:
     partial.unlink(missing_ok=True)
 
 
-# ---------------------------------------------------------------------------- compact encodings
 # ------------------------------------------- reading files of earlier versions (compact layout)
 ENCODING_KEY = b"cosim.encoding"
 SCALE_KEY = b"cosim.scale"
@@ -601,8 +600,7 @@ def _derived_chunks(path: Path, spec: Mapping[str, Any], columns: Sequence[str] 
     source = resolve_series(path.parent / spec["source"]) if source_columns else path
     if not source.exists():
         raise FileNotFoundError(f"{path}: its columns {', '.join(copies)} are the columns of {spec['source']}, which "
-                                f"is not in {path.parent} (keep the two files together; $COSIM_COMPACT=0 writes "
-                                "self-contained files)")
+                                f"is not in {path.parent} (a file of an earlier version: keep the two files together)")
     feeder = _RowFeeder(iter_series(source, source_columns, rows)) if source_columns else None
     for _, block in _iter_stored(path, stored, rows):
         n = len(block)

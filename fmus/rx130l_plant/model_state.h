@@ -22,6 +22,13 @@ typedef struct {
     /* elastic: the qdd output (links at x with step_inputs' tau_ext) holds for the next step's
      * first RK4 stage */
     int link_qdd_valid;
+    /* end stops: per joint, in contact at the end of the last sub-step, contacts so far, the
+     * last onset's speed (rad/s) and time (s), the largest penetration (rad) */
+    int in_contact[6];
+    int contacts[6];
+    double impact_speed[6];
+    double impact_time[6];
+    double max_penetration[6];
 } ModelState;
 
 #endif

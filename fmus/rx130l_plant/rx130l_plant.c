@@ -128,7 +128,30 @@ static double gear_torque(const Instance *inst, const double x[24], int j)
     return gear_spring(inst, j, x[12 + j] - x[j]) + inst->d.r[VR_DAMPING + j] * (x[18 + j] - x[6 + j]);
 }
 
-/* dx = f(x) with inputs tau (drive) and tau_ext (external, on the link) */
+/* Distance of joint j's link angle q beyond its end stop (> 0: in contact; upper or lower). */
+static double penetration(const Instance *inst, int j, double q)
+{
+    double up = q - inst->d.r[VR_END_STOP_UPPER + j], down = inst->d.r[VR_END_STOP_LOWER + j] - q;
+    return up > 0.0 ? up : (down > 0.0 ? down : 0.0);
+}
+
+/* End-stop contact torque on link j at (q, qd): a unilateral spring-damper beyond the stop that
+ * never pulls the link back into it; exactly 0.0 outside the stops. */
+static double end_stop_torque(const Instance *inst, int j, double q, double qd)
+{
+    double up = q - inst->d.r[VR_END_STOP_UPPER + j], down = inst->d.r[VR_END_STOP_LOWER + j] - q, tau;
+    double k = inst->d.r[VR_END_STOP_STIFFNESS + j], c = inst->d.r[VR_END_STOP_DAMPING + j];
+    if (up > 0.0) {
+        tau = -(k * up + c * qd);
+        return tau < 0.0 ? tau : 0.0;
+    }
+    if (down > 0.0) {
+        tau = k * down - c * qd;
+        return tau > 0.0 ? tau : 0.0;
+    }
+    return 0.0;
+}
+
 /* dx = f(x) with inputs tau (drive) and tau_ext (external, on the link). Elastic joints: the
  * links' accelerations do not depend on tau (only the motors' do), so a known link_qdd (the
  * links at this x with this tau_ext, e.g. the qdd output of the step that ended at x) replaces
@@ -136,16 +159,24 @@ static double gear_torque(const Instance *inst, const double x[24], int j)
 static int derivative(const Instance *inst, const double *x, const double tau[6], const double tau_ext[6],
                       double *dx, const double *link_qdd)
 {
-    double t[6];
+    double t[6], stop;
     int j;
     if (!is_elastic(inst)) {
-        for (j = 0; j < NJ; j++) t[j] = tau[j] + tau_ext[j];
+        for (j = 0; j < NJ; j++) {
+            t[j] = tau[j] + tau_ext[j];
+            stop = end_stop_torque(inst, j, x[j], x[6 + j]);
+            if (stop != 0.0) t[j] += stop;
+        }
         memcpy(dx, x + 6, 6 * sizeof(double));
         return fd(inst, x, x + 6, t, dx + 6);
     }
     for (j = 0; j < NJ; j++) {
         double tau_g = gear_torque(inst, x, j);
-        if (link_qdd == NULL) t[j] = tau_g + tau_ext[j] - link_friction(inst, j, x[6 + j]);
+        if (link_qdd == NULL) {
+            t[j] = tau_g + tau_ext[j] - link_friction(inst, j, x[6 + j]);
+            stop = end_stop_torque(inst, j, x[j], x[6 + j]);
+            if (stop != 0.0) t[j] += stop;
+        }
         dx[j] = x[6 + j];
         dx[12 + j] = x[18 + j];
         dx[18 + j] = (tau[j] - tau_g - motor_friction(inst, j, x[18 + j])) / inst->d.r[VR_P + P_IA + j];
@@ -187,6 +218,11 @@ static void write_state_outputs(Instance *inst)
         inst->d.r[VR_Q_MOTOR + j] = elastic ? x[12 + j] : x[j];
         inst->d.r[VR_QD_MOTOR + j] = elastic ? x[18 + j] : x[6 + j];
         if (elastic) inst->d.r[VR_TAU_GEAR + j] = gear_torque(inst, x, j);
+        inst->d.r[VR_END_STOP_PENETRATION + j] = penetration(inst, j, x[j]);
+        inst->d.r[VR_END_STOP_MAX_PENETRATION + j] = inst->d.s.max_penetration[j];
+        inst->d.r[VR_END_STOP_IMPACT_SPEED + j] = inst->d.s.impact_speed[j];
+        inst->d.r[VR_END_STOP_IMPACT_TIME + j] = inst->d.s.impact_time[j];
+        inst->d.i[VR_END_STOP_CONTACTS + j] = inst->d.s.contacts[j];
     }
     memcpy(inst->d.s.step_inputs, &inst->d.r[VR_TAU], 6 * sizeof(double));
     memcpy(inst->d.s.step_inputs + 6, &inst->d.r[VR_TAU_EXT], 6 * sizeof(double));
@@ -430,6 +466,33 @@ int model_initialize(Instance *inst)
     return 0;
 }
 
+/* After a sub-step from (q_before, qd_before) at time t0 to x: count end-stop contact onsets,
+ * their time (the crossing interpolated linearly over the sub-step) and impact speed (the speed
+ * at the end of the last free sub-step: off by at most the free acceleration times the sub-step),
+ * track the largest penetration, and log each onset. */
+static void track_end_stops(Instance *inst, const double q_before[6], const double qd_before[6], const double *x,
+                            double t0, double dt)
+{
+    ModelState *s = &inst->d.s;
+    int j;
+    for (j = 0; j < NJ; j++) {
+        double pen = penetration(inst, j, x[j]);
+        if (pen > s->max_penetration[j]) s->max_penetration[j] = pen;
+        if (pen > 0.0 && !s->in_contact[j]) {
+            int upper = x[j] > inst->d.r[VR_END_STOP_UPPER + j];
+            double stop = upper ? inst->d.r[VR_END_STOP_UPPER + j] : inst->d.r[VR_END_STOP_LOWER + j];
+            double gap = x[j] - q_before[j];
+            double frac = penetration(inst, j, q_before[j]) > 0.0 || gap == 0.0 ? 0.0 : (stop - q_before[j]) / gap;
+            s->contacts[j]++;
+            s->impact_time[j] = t0 + frac * dt;
+            s->impact_speed[j] = fabs(qd_before[j]); /* the speed at the end of the last free sub-step */
+            fmu_log(inst, fmi2OK, "logEvents", "t=%.6f s: joint %d hits its %s end stop (%.6g rad) at %.6g rad/s",
+                    s->impact_time[j], j + 1, upper ? "upper" : "lower", stop, s->impact_speed[j]);
+        }
+        s->in_contact[j] = pen > 0.0;
+    }
+}
+
 int model_do_step(Instance *inst, double t, double h)
 {
     double tau[6], tau_ext[6], x[24], n_real, dt;
@@ -451,8 +514,13 @@ int model_do_step(Instance *inst, double t, double h)
      * when it was computed (read) with the same tau_ext: reuse them for the first stage */
     reuse = inst->d.s.link_qdd_valid && !inst->d.s.outputs_stale
         && memcmp(tau_ext, inst->d.s.step_inputs + 6, sizeof tau_ext) == 0;
-    for (k = 0; k < n; k++)
+    for (k = 0; k < n; k++) {
+        double q_before[6], qd_before[6];
+        memcpy(q_before, x, sizeof q_before);
+        memcpy(qd_before, x + 6, sizeof qd_before);
         status |= rk4_step(inst, x, ns, tau, tau_ext, dt, k == 0 && reuse ? &inst->d.r[VR_QDD] : NULL);
+        track_end_stops(inst, q_before, qd_before, x, t + k * dt, dt);
+    }
     inst->d.s.link_qdd_valid = 0;
     memcpy(inst->d.s.x, x, sizeof x);
     if (status != 0 || !state_is_finite(inst)) {

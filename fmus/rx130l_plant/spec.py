@@ -57,6 +57,7 @@ def plant_spec() -> FmuSpec:
              unit="s", start=DEFAULT_INTEGRATION_STEP, min=1e-7, max=1e-2)
     _add_elastic_variables(spec, robot)
     _add_geometry_variables(spec)
+    _add_end_stop_variables(spec, robot)
     _declare_initial_dependencies(spec)
     return spec
 
@@ -112,6 +113,31 @@ def _add_geometry_variables(spec: FmuSpec) -> None:
         f"geometric error {name} (robot.geometric_errors.ERROR_PARAMETER_NAMES[{k}]), folded into the joint and "
         f"flange placements of the dynamics" for k, name in enumerate(ERROR_PARAMETER_NAMES)],
         units=["rad" if is_angle_parameter(name) else "m" for name in ERROR_PARAMETER_NAMES])
+
+
+def _add_end_stop_variables(spec: FmuSpec, robot) -> None:
+    """The mechanical end stops (robot/rx130l_params.toml [end_stops]) and their contact outputs
+    (appended last: earlier value references stay)."""
+    spec.add_array("end_stop_lower", [float(x) for x in robot.end_stop_lower], PARAMETER, "", unit="rad",
+                   descriptions=_joint_texts("joint {k} lower mechanical end stop (link angle)"))
+    spec.add_array("end_stop_upper", [float(x) for x in robot.end_stop_upper], PARAMETER, "", unit="rad",
+                   descriptions=_joint_texts("joint {k} upper mechanical end stop (link angle)"))
+    spec.add_array("end_stop_stiffness", [float(x) for x in robot.end_stop_stiffness], PARAMETER, "",
+                   unit="N.m/rad", min=0.0, descriptions=_joint_texts("joint {k} end-stop contact stiffness"))
+    spec.add_array("end_stop_damping", [float(x) for x in robot.end_stop_damping], PARAMETER, "",
+                   unit="N.m.s/rad", min=0.0, descriptions=_joint_texts(
+                       "joint {k} end-stop contact damping (the contact never pulls: torque clipped at 0)"))
+    zeros = [0.0] * 6
+    spec.add_array("end_stop_penetration", zeros, OUTPUT, "", unit="rad", descriptions=_joint_texts(
+        "joint {k} distance beyond its end stop at the end of the step (0: no contact)"))
+    spec.add_array("end_stop_max_penetration", zeros, OUTPUT, "", unit="rad", descriptions=_joint_texts(
+        "joint {k} largest distance beyond an end stop since the start"))
+    spec.add_array("end_stop_impact_speed", zeros, OUTPUT, "", unit="rad/s", descriptions=_joint_texts(
+        "joint {k} speed (magnitude) at the onset of its last end-stop contact"))
+    spec.add_array("end_stop_impact_time", zeros, OUTPUT, "", unit="s", descriptions=_joint_texts(
+        "joint {k} time of the onset of its last end-stop contact"))
+    spec.add_array("end_stop_contacts", [0] * 6, OUTPUT, "", type_="Integer", descriptions=_joint_texts(
+        "joint {k} number of end-stop contacts (onsets) since the start"))
 
 
 def _declare_initial_dependencies(spec: FmuSpec) -> None:

@@ -54,9 +54,18 @@ typedef struct {
     double brake_preload;    /* N m joint side: the motor's torque when the power stage switched off,
                                 taken over by the brake as it closes (0 at power-up) */
 
+    /* protection (docs/fmus.md "Protection") */
+    int active_bits;         /* LIMIT_* bits active as last evaluated */
+    int step_bits;           /* LIMIT_* bits active at any sample of the running step */
+    int history_bits;        /* every bit limit_status has had since the start */
+    int i2t_derated;         /* 1: current limited to rated_current by the I2t monitoring */
+    double i2t;              /* A^2 s, integral of (i^2 - rated^2), never below 0 */
+    int fe_samples;          /* position samples in a row with the following error beyond its window */
+
     /* constants derived from the parameters at initialization */
     double counts_per_rad;   /* encoder counts per joint rad */
     double current_max;      /* A, min(current_limit, torque_limit / (N kt)) */
+    double i2t_threshold;    /* A^2 s, (current_max^2 - rated_current^2) * peak_current_time (<= 0: off) */
     double voltage_max;      /* V, bus_voltage / sqrt(3) */
     double decay;            /* exp(-R Ts_i / L) */
     double filter_alpha;     /* 1 - exp(-Ts_w / T_filter) */

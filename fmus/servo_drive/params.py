@@ -9,8 +9,9 @@ limits). All values SI; joint side unless the name says motor.
 from __future__ import annotations
 
 import math
+import re
 import tomllib
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
 from types import MappingProxyType
@@ -49,8 +50,15 @@ _ENTRIES: tuple[tuple[str, str, int | None, str], ...] = (
     ("position_loop", "kv", N_AXES, "nonnegative"),
     ("position_loop", "speed_feedforward_gain", None, "nonnegative"),
     ("limits", "velocity_limit_factor", None, "positive"),
-    ("limits", "torque_limit_factor", None, "positive"),
-    ("limits", "following_error_window", None, "nonnegative"),
+    ("protection", "max_torque_factor", None, "positive"),
+    ("protection", "max_current_factor", None, "positive"),
+    ("protection", "rated_current_factor", None, "positive"),
+    ("protection", "peak_current_time", None, "positive"),
+    ("protection", "i2t_release", None, "fraction"),
+    ("protection", "max_motor_speed_factor", None, "positive"),
+    ("protection", "position_limit_margin", None, "nonnegative"),
+    ("protection", "following_error_window", None, "nonnegative"),
+    ("protection", "following_error_time", None, "nonnegative"),
     ("stops", "standstill_velocity", None, "nonnegative"),
     ("stops", "standstill_time", None, "nonnegative"),
     ("stops", "quick_stop_deceleration", N_AXES, "positive"),
@@ -68,13 +76,15 @@ class DriveParameters:
     """Validated contents of ``drive_params.toml``.
 
     ``values[("section", "key")]`` is a float or a read-only array of shape (6,);
-    ``units`` and ``sources`` map ``"section.key"`` to the file's texts.
+    ``units`` and ``sources`` map ``"section.key"`` to the file's texts, ``objects`` to the
+    CiA 402 object an entry stands for (``"0x6072"``; entries that have one).
     """
 
     source_path: Path
     values: Mapping[tuple[str, str], Any]
     units: Mapping[str, str]
     sources: Mapping[str, str]
+    objects: Mapping[str, str] = field(default_factory=lambda: MappingProxyType({}))
 
     def get(self, section: str, key: str) -> Any:
         """The value of ``[section] key`` (float, int or array (6,))."""
@@ -111,6 +121,7 @@ def _load_cached(path: str, _mtime_ns: int) -> DriveParameters:
     values: dict[tuple[str, str], Any] = {}
     units: dict[str, str] = {}
     sources: dict[str, str] = {}
+    objects: dict[str, str] = {}
     for section, key, length, rule in _ENTRIES:
         where = f"drive parameter file {path!r}: key '[{section}] {key}'"
         table = document.get(section)
@@ -124,7 +135,13 @@ def _load_cached(path: str, _mtime_ns: int) -> DriveParameters:
         values[(section, key)] = _check(where, entry["value"], length, rule)
         units[f"{section}.{key}"] = entry["unit"]
         sources[f"{section}.{key}"] = entry["source"]
-    return DriveParameters(Path(path), MappingProxyType(values), MappingProxyType(units), MappingProxyType(sources))
+        if "object" in entry:
+            if not isinstance(entry["object"], str) or not re.fullmatch(r"0x[0-9A-F]{4}", entry["object"]):
+                raise DriveParameterError(f"{where}: object = {entry['object']!r}, expected a CiA 402 object "
+                                          "index such as \"0x6072\"")
+            objects[f"{section}.{key}"] = entry["object"]
+    return DriveParameters(Path(path), MappingProxyType(values), MappingProxyType(units), MappingProxyType(sources),
+                           MappingProxyType(objects))
 
 
 def _check(where: str, raw: Any, length: int | None, rule: str) -> Any:
@@ -132,14 +149,16 @@ def _check(where: str, raw: Any, length: int | None, rule: str) -> Any:
         if isinstance(raw, bool) or raw not in (2, 6):
             raise DriveParameterError(f"{where}: value = {raw!r}, expected 2 or 6")
         return int(raw)
-    text = {"positive": "finite numbers > 0", "nonnegative": "finite numbers >= 0"}[rule]
+    text = {"positive": "finite numbers > 0", "nonnegative": "finite numbers >= 0",
+            "fraction": "numbers in (0, 1)"}[rule]
     expected = f"a list of {length} {text}" if length else f"a single number: {text}"
     items = raw if length else [raw]
     if length and (not isinstance(raw, list) or len(raw) != length):
         raise DriveParameterError(f"{where}: value = {raw!r}, expected {expected}")
     for item in items:
         bad = isinstance(item, bool) or not isinstance(item, (int, float)) or not math.isfinite(item)
-        if bad or (rule == "positive" and item <= 0) or (rule == "nonnegative" and item < 0):
+        if bad or (rule == "positive" and item <= 0) or (rule == "nonnegative" and item < 0) or (
+                rule == "fraction" and not 0 < item < 1):
             raise DriveParameterError(f"{where}: value = {raw!r}, expected {expected}")
     if not length:
         return float(raw)
@@ -164,14 +183,16 @@ def drive_start_values(axis: int, robot: RobotParameters | None = None,
     def d(section: str, key: str) -> float:
         return drive.axis_value(section, key, axis)
 
-    torque_limit = d("limits", "torque_limit_factor") * float(robot.effort_limit[j])
+    torque_limit = d("protection", "max_torque_factor") * float(robot.effort_limit[j])
+    motor_torque = float(robot.gear_ratio[j]) * float(robot.torque_constant[j])  # N m joint side per A
+    margin = d("protection", "position_limit_margin")
     j_max = d("tuning", "inertia_max")
     brake_stiffness = j_max * (2.0 * math.pi * d("brake", "natural_frequency")) ** 2
     return {
         "gear_ratio": float(robot.gear_ratio[j]),
         "torque_constant": float(robot.torque_constant[j]),
         "back_emf_constant": d("motor", "back_emf_ratio") * float(robot.torque_constant[j]),
-        "current_limit": float(robot.current_limit[j]),
+        "current_limit": d("protection", "max_current_factor") * float(robot.current_limit[j]),
         "torque_limit": torque_limit,
         "velocity_limit": d("limits", "velocity_limit_factor") * float(robot.velocity_limit[j]),
         "resistance": d("motor", "resistance"),
@@ -189,7 +210,7 @@ def drive_start_values(axis: int, robot: RobotParameters | None = None,
         "position_sample_time": d("sample_times", "position"),
         "quick_stop_deceleration": d("stops", "quick_stop_deceleration"),
         "fault_reaction_deceleration": d("stops", "fault_reaction_deceleration"),
-        "following_error_window": d("limits", "following_error_window"),
+        "following_error_window": d("protection", "following_error_window"),
         "standstill_velocity": d("stops", "standstill_velocity"),
         "standstill_time": d("stops", "standstill_time"),
         "brake_holding_torque": d("brake", "holding_torque_factor") * torque_limit,
@@ -198,4 +219,11 @@ def drive_start_values(axis: int, robot: RobotParameters | None = None,
         "encoder_counts_per_rev": int(robot.encoder_counts_per_motor_rev),
         "quick_stop_option_code": int(drive.get("stops", "quick_stop_option_code")),
         "brake_closing_time": d("brake", "closing_time"),
+        "rated_current": d("protection", "rated_current_factor") * float(robot.rated_torque[j]) / motor_torque,
+        "peak_current_time": d("protection", "peak_current_time"),
+        "i2t_release": d("protection", "i2t_release"),
+        "max_motor_speed": d("protection", "max_motor_speed_factor") * float(robot.velocity_limit[j]),
+        "position_limit_min": float(robot.position_lower[j]) - margin,
+        "position_limit_max": float(robot.position_upper[j]) + margin,
+        "following_error_time": d("protection", "following_error_time"),
     }

@@ -68,7 +68,16 @@ static const char *const CIA_NAME[] = {"Not ready to switch on", "Switch on disa
                                        "Switched on", "Operation enabled", "Quick stop active",
                                        "Fault reaction active", "Fault"};
 
-#define ERROR_FOLLOWING 0x8611
+#define ERROR_FOLLOWING 0x8611      /* CiA 402: following error */
+#define ERROR_POSITION_LIMIT 0x8612 /* CiA 402: reference (software position) limit */
+#define ERROR_OVERSPEED 0x8400      /* CiA 402: velocity speed controller (speed beyond max motor speed) */
+#define ERROR_I2T 0x2310            /* CiA 301/402: continuous over current (I2t: derated to the rated current) */
+/* bits of limit_status / limit_history (spec.py LIMIT_BITS); + 8: the fault reaction it caused */
+#define LIMIT_TORQUE 0x01
+#define LIMIT_I2T 0x02
+#define LIMIT_SPEED 0x04
+#define LIMIT_POSITION 0x08
+#define LIMIT_FOLLOWING 0x10
 #define MODE_CSP 8  /* cyclic synchronous position */
 #define MODE_CSV 9  /* cyclic synchronous velocity */
 #define MODE_CST 10 /* cyclic synchronous torque */
@@ -88,7 +97,7 @@ static int statusword(const ModelState *s)
     int sw = base[s->cia_state] | 0x0200; /* bit 9: remote */
     if (s->cia_state >= CIA_READY_TO_SWITCH_ON && s->cia_state <= CIA_FAULT_REACTION_ACTIVE)
         sw |= 0x0010; /* bit 4: voltage enabled */
-    if (s->mode_rejected) sw |= 0x0080;                               /* bit 7: warning (unsupported mode requested) */
+    if (s->mode_rejected || s->i2t_derated) sw |= 0x0080;             /* bit 7: warning (unsupported mode, I2t) */
     if (power_on(s->cia_state) && s->limit_active) sw |= 0x0800;   /* bit 11: internal limit active */
     if (s->cia_state == CIA_OPERATION_ENABLED) sw |= 0x1000;        /* bit 12 (CSx): drive follows the command value */
     if (s->following_error_flag) sw |= 0x2000;                      /* bit 13 (CSP): following error */
@@ -98,6 +107,18 @@ static int statusword(const ModelState *s)
 static double quantise(const ModelState *s, double q)
 {
     return floor(q * s->counts_per_rad) / s->counts_per_rad;
+}
+
+/* Protection bit `bit` (LIMIT_*) is active (on) or not, as evaluated at this sample: it stays in
+ * limit_status until a later evaluation clears it, and shows for the whole step in which it was set. */
+static void limit_bit(ModelState *s, int bit, int on)
+{
+    if (on) {
+        s->active_bits |= bit;
+        s->step_bits |= bit;
+    } else {
+        s->active_bits &= ~bit;
+    }
 }
 
 static void power_off(ModelState *s)
@@ -112,6 +133,7 @@ static void power_off(ModelState *s)
     s->limit_active = 0;
     s->following_error = 0.0;
     s->following_error_flag = 0;
+    s->active_bits &= LIMIT_I2T; /* the I2t state outlives the power stage */
 }
 
 /* Close the brake when the power stage is off (anchored at the next current sample: at
@@ -293,6 +315,65 @@ static int select_mode(Instance *inst)
     return switch_mode(inst, requested);
 }
 
+/* Software position limits (0x607D) and max motor speed (0x6080), at every position sample with
+ * the power stage on: the limit bit while the axis is beyond; in Operation enabled the fault
+ * reaction (fault 0x8612 / 0x8400: stop on the fault-reaction ramp, then the brake closes). */
+static void supervise(Instance *inst)
+{
+    ModelState *s = &inst->d.s;
+    const double lo = R(POSITION_LIMIT_MIN), hi = R(POSITION_LIMIT_MAX), p = s->position_actual;
+    int beyond_position, overspeed;
+    if (!power_on(s->cia_state)) return;
+    beyond_position = lo < hi && (p < lo || p > hi);
+    overspeed = fabs(s->speed_filtered) > R(MAX_MOTOR_SPEED);
+    limit_bit(s, LIMIT_POSITION, beyond_position);
+    limit_bit(s, LIMIT_SPEED, overspeed);
+    if (s->cia_state != CIA_OPERATION_ENABLED) return;
+    if (beyond_position) {
+        fmu_log(inst, fmi2Warning, "logStatusWarning",
+                "t=%.6f s: position actual %.6g rad outside the software position limits [%.6g, %.6g] rad (0x607D): "
+                "fault 0x%04X", inst->d.time, p, lo, hi, ERROR_POSITION_LIMIT);
+        raise_fault(inst, ERROR_POSITION_LIMIT);
+    } else if (overspeed) {
+        fmu_log(inst, fmi2Warning, "logStatusWarning",
+                "t=%.6f s: velocity actual %.6g rad/s beyond the max motor speed %.6g rad/s (0x6080): fault 0x%04X",
+                inst->d.time, s->speed_filtered, R(MAX_MOTOR_SPEED), ERROR_OVERSPEED);
+        raise_fault(inst, ERROR_OVERSPEED);
+    }
+}
+
+/* I2t monitoring at every speed sample: the integral of (i^2 - rated^2) (never below 0, so it
+ * cools at rated^2 with the power off) reaching (I_max^2 - rated^2) * peak_current_time derates
+ * the current limit to rated_current (warning 0x2310 in 0x603F, statusword bit 7) until it has
+ * fallen below i2t_release of that threshold. Returns the current limit to apply now. */
+static double current_limit_now(Instance *inst)
+{
+    ModelState *s = &inst->d.s;
+    const double rated = R(RATED_CURRENT);
+    if (s->i2t_threshold <= 0.0) return s->current_max;
+    s->i2t += (s->current * s->current - rated * rated) * R(SPEED_SAMPLE_TIME);
+    if (s->i2t < 0.0) s->i2t = 0.0;
+    if (!s->i2t_derated && s->i2t >= s->i2t_threshold) {
+        s->i2t_derated = 1;
+        if (s->error_code == 0) s->error_code = ERROR_I2T;
+        fmu_log(inst, fmi2Warning, "logStatusWarning",
+                "t=%.6f s: I2t %.6g A2s reached its threshold (peak current %.6g A for %.6g s): current limited to the "
+                "rated %.6g A, warning 0x%04X", inst->d.time, s->i2t, s->current_max, R(PEAK_CURRENT_TIME), rated,
+                ERROR_I2T);
+    } else if (s->i2t_derated && s->i2t <= R(I2T_RELEASE) * s->i2t_threshold) {
+        s->i2t_derated = 0;
+        if (s->error_code == ERROR_I2T) s->error_code = 0;
+        fmu_log(inst, fmi2OK, "logEvents", "t=%.6f s: I2t %.6g A2s below %.6g of its threshold: peak current allowed "
+                "again", inst->d.time, s->i2t, R(I2T_RELEASE));
+    }
+    limit_bit(s, LIMIT_I2T, s->i2t_derated);
+    if (s->i2t_derated) {
+        if (s->error_code == 0) s->error_code = ERROR_I2T; /* again after a fault reset while still derated */
+        return fmin(s->current_max, rated);
+    }
+    return s->current_max;
+}
+
 static void position_sample(Instance *inst)
 {
     ModelState *s = &inst->d.s;
@@ -302,6 +383,7 @@ static void position_sample(Instance *inst)
 
     s->position_actual = quantise(s, R(Q_MEAS));
     state_machine(inst);
+    supervise(inst);
     switched = select_mode(inst);
     if (!power_on(s->cia_state)) {
         s->target_prev = R(TARGET_POSITION);
@@ -311,6 +393,8 @@ static void position_sample(Instance *inst)
         s->target_prev = R(TARGET_POSITION);
         s->following_error = 0.0;
         s->following_error_flag = 0;
+        s->fe_samples = 0;
+        limit_bit(s, LIMIT_FOLLOWING, 0);
         if (s->mode == MODE_CSV) {
             v = R(TARGET_VELOCITY) + R(VELOCITY_OFFSET);
             if (v > R(VELOCITY_LIMIT)) v = R(VELOCITY_LIMIT);
@@ -348,11 +432,14 @@ static void position_sample(Instance *inst)
     s->speed_demand = v;
     s->following_error = error;
     s->following_error_flag = R(FOLLOWING_ERROR_WINDOW) > 0.0 && fabs(error) > R(FOLLOWING_ERROR_WINDOW);
+    s->fe_samples = s->following_error_flag ? s->fe_samples + 1 : 0;
+    limit_bit(s, LIMIT_FOLLOWING, s->following_error_flag);
 
-    if (s->cia_state == CIA_OPERATION_ENABLED && s->following_error_flag) {
+    if (s->cia_state == CIA_OPERATION_ENABLED && s->following_error_flag
+        && s->fe_samples * ts >= R(FOLLOWING_ERROR_TIME) - 1e-12) { /* window 0x6065 for time 0x6066 */
         fmu_log(inst, fmi2Warning, "logStatusWarning",
-                "t=%.6f s: following error %.6g rad exceeds the window %.6g rad: fault 0x%04X", inst->d.time,
-                error, R(FOLLOWING_ERROR_WINDOW), ERROR_FOLLOWING);
+                "t=%.6f s: following error %.6g rad beyond the window %.6g rad for %.6g s: fault 0x%04X", inst->d.time,
+                error, R(FOLLOWING_ERROR_WINDOW), s->fe_samples * ts, ERROR_FOLLOWING);
         raise_fault(inst, ERROR_FOLLOWING);
     } else if (s->cia_state != CIA_OPERATION_ENABLED) {
         /* standstill: ramp at zero and |speed| <= threshold for standstill_time (0x606F/0x6070);
@@ -389,22 +476,28 @@ static void speed_sample(Instance *inst)
 {
     ModelState *s = &inst->d.s;
     const double n = R(GEAR_RATIO), kp = R(SPEED_KP);
-    double error, feedforward, demand, limited;
+    double error, feedforward, demand, limited, imax;
 
     s->speed_filtered += s->filter_alpha * (R(QD_MEAS) - s->speed_filtered);
+    imax = current_limit_now(inst);
     if (!power_on(s->cia_state)) return;
     if (s->cia_state == CIA_OPERATION_ENABLED && s->mode == MODE_CST) {
         demand = (R(TARGET_TORQUE) + R(TORQUE_OFFSET)) / (n * R(TORQUE_CONSTANT));
-        limited = demand > s->current_max ? s->current_max : (demand < -s->current_max ? -s->current_max : demand);
+        limited = demand > imax ? imax : (demand < -imax ? -imax : demand);
         s->limit_active = limited != demand;
+        limit_bit(s, LIMIT_TORQUE, s->limit_active); /* the commanded torque is beyond max torque/current */
         s->current_demand = limited;
         return;
     }
     error = n * (s->speed_demand - s->speed_filtered); /* motor side, rad/s */
     feedforward = s->cia_state == CIA_OPERATION_ENABLED ? R(TORQUE_OFFSET) / (n * R(TORQUE_CONSTANT)) : 0.0;
     demand = kp * error + s->speed_integral + feedforward;
-    limited = demand > s->current_max ? s->current_max : (demand < -s->current_max ? -s->current_max : demand);
+    limited = demand > imax ? imax : (demand < -imax ? -imax : demand);
     s->limit_active = limited != demand;
+    /* a protection event only when the command itself asks for more (the torque offset 0x60B2):
+     * the speed loop's own saturation (e.g. taking the load over when the brake opens) is the
+     * drive's regulation, shown in statusword bit 11 only */
+    limit_bit(s, LIMIT_TORQUE, fabs(feedforward) > imax);
     /* conditional integration (anti-windup): no integration that drives further into the limit */
     if (!s->limit_active || (demand > 0.0) != (error > 0.0))
         s->speed_integral += kp * R(SPEED_SAMPLE_TIME) / R(SPEED_TN) * error;
@@ -438,6 +531,7 @@ static void current_sample(Instance *inst)
 static void write_outputs(Instance *inst)
 {
     ModelState *s = &inst->d.s;
+    int bits;
     const double torque = R(GEAR_RATIO) * R(TORQUE_CONSTANT) * s->current;
     R(TAU_OUT) = torque + s->brake_torque;
     R(BRAKE_TORQUE) = s->brake_torque;
@@ -451,6 +545,15 @@ static void write_outputs(Instance *inst)
     I(ERROR_CODE) = s->error_code;
     I(MODES_OF_OPERATION_DISPLAY) = s->mode;
     I(UNSUPPORTED_MODE_REQUESTS) = s->mode_rejections;
+    bits = s->active_bits | s->step_bits;
+    if (s->cia_state == CIA_FAULT_REACTION_ACTIVE || s->cia_state == CIA_FAULT)
+        bits |= s->error_code == ERROR_OVERSPEED ? LIMIT_SPEED << 8
+              : s->error_code == ERROR_POSITION_LIMIT ? LIMIT_POSITION << 8
+              : s->error_code == ERROR_FOLLOWING ? LIMIT_FOLLOWING << 8 : 0;
+    s->history_bits |= bits;
+    I(LIMIT_STATUS) = bits;
+    I(LIMIT_HISTORY) = s->history_bits;
+    R(I2T_LEVEL) = s->i2t_threshold > 0.0 ? s->i2t / s->i2t_threshold : 0.0;
 }
 
 void model_reset(Instance *inst)
@@ -491,9 +594,27 @@ static int initial_state(Instance *inst)
                 I(QUICK_STOP_OPTION_CODE));
         return 1;
     }
+    if (!(R(POSITION_LIMIT_MIN) <= R(POSITION_LIMIT_MAX)) || !(R(RATED_CURRENT) > 0.0) ||
+        !(R(PEAK_CURRENT_TIME) > 0.0) || !(R(MAX_MOTOR_SPEED) > 0.0) || !(R(FOLLOWING_ERROR_TIME) >= 0.0) ||
+        !(R(I2T_RELEASE) >= 0.0 && R(I2T_RELEASE) < 1.0)) {
+        fmu_log(inst, fmi2Error, "logStatusError",
+                "protection parameters: position_limit_min=%g rad must not exceed position_limit_max=%g rad; "
+                "rated_current=%g A, peak_current_time=%g s and max_motor_speed=%g rad/s must be > 0, "
+                "following_error_time=%g s >= 0, i2t_release=%g in [0, 1)", R(POSITION_LIMIT_MIN),
+                R(POSITION_LIMIT_MAX), R(RATED_CURRENT), R(PEAK_CURRENT_TIME), R(MAX_MOTOR_SPEED),
+                R(FOLLOWING_ERROR_TIME), R(I2T_RELEASE));
+        return 1;
+    }
     s->tick = 0;
     s->counts_per_rad = R(GEAR_RATIO) * (double)I(ENCODER_COUNTS_PER_REV) / (2.0 * PI);
     s->current_max = fmin(R(CURRENT_LIMIT), R(TORQUE_LIMIT) / (R(GEAR_RATIO) * R(TORQUE_CONSTANT)));
+    s->i2t_threshold = (s->current_max * s->current_max - R(RATED_CURRENT) * R(RATED_CURRENT)) * R(PEAK_CURRENT_TIME);
+    s->i2t = 0.0;
+    s->i2t_derated = 0;
+    s->step_bits = 0;
+    s->active_bits = 0;
+    s->history_bits = 0;
+    s->fe_samples = 0;
     s->voltage_max = R(BUS_VOLTAGE) / sqrt(3.0);
     s->decay = exp(-R(RESISTANCE) * ts_i / R(INDUCTANCE));
     s->filter_alpha = R(SPEED_FILTER_TIME) > 0.0 ? 1.0 - exp(-R(SPEED_SAMPLE_TIME) / R(SPEED_FILTER_TIME)) : 1.0;
@@ -546,6 +667,7 @@ int model_do_step(Instance *inst, double t, double h)
                 R(CURRENT_SAMPLE_TIME));
         return MODEL_STEP_REJECTED;
     }
+    s->step_bits = 0;
     for (k = 0; k < n_steps; k++) {
         if (s->tick % s->n_position == 0) position_sample(inst);
         if (s->tick % s->n_speed == 0) speed_sample(inst);

@@ -115,4 +115,45 @@ def servo_drive_spec() -> FmuSpec:
              "reaction, quick stop option 2) the brake is commanded closed and the motor holds the axis this "
              "long more before its power stage switches off; the brake then takes over the motor's torque",
              unit="s", start=defaults["brake_closing_time"], min=0.0, max=10.0)
+    _add_protection(spec, defaults)
     return spec
+
+
+#: (name, unit, min, description) of the protection parameters (appended last), docs/fmus.md "Protection"
+PROTECTION_PARAMETERS: tuple[tuple[str, str, float | None, str], ...] = (
+    ("rated_current", "A", 1e-9, "CiA 402 0x6075 motor rated current: the I2t monitoring derates the current "
+                                 "limit to it"),
+    ("peak_current_time", "s", 1e-9, "I2t: how long the peak current may flow from a cold state; the threshold is "
+                                     "(I_max^2 - rated_current^2) * peak_current_time, I_max = min(current_limit, "
+                                     "torque_limit / (N kt))"),
+    ("i2t_release", "1", 0.0, "I2t: the peak current is allowed again below this fraction of the threshold"),
+    ("max_motor_speed", "rad/s", 1e-9, "CiA 402 0x6080 max motor speed, joint side: beyond it the drive raises "
+                                       "fault 0x8400 (overspeed)"),
+    ("position_limit_min", "rad", None, "CiA 402 0x607D software position limit (min), joint side: position "
+                                        "actual below it raises fault 0x8612"),
+    ("position_limit_max", "rad", None, "CiA 402 0x607D software position limit (max), joint side: position "
+                                        "actual above it raises fault 0x8612"),
+    ("following_error_time", "s", 0.0, "CiA 402 0x6066 following error time-out: the following error must stay "
+                                       "beyond following_error_window this long before fault 0x8611"),
+)
+
+LIMIT_BITS: dict[str, int] = {"torque_limit": 0, "i2t": 1, "speed_limit": 2, "position_limit": 3,
+                              "following_error": 4}
+"""Bit of each protection in the ``limit_status`` / ``limit_history`` outputs; bit + 8: the drive is in
+fault reaction or Fault because of it (its code in 0x603F)."""
+
+
+def _add_protection(spec: FmuSpec, defaults: dict) -> None:
+    """The protection parameters and their status outputs (appended: earlier value references stay)."""
+    for name, unit, lo, text in PROTECTION_PARAMETERS:
+        spec.add(name, "Real", PARAMETER, text, unit=unit, start=defaults[name], min=lo,
+                 max=1.0 if name == "i2t_release" else None)
+    bits = ", ".join(f"bit {b} {name}" for name, b in LIMIT_BITS.items())
+    spec.add("limit_status", "Integer", OUTPUT,
+             f"protections active at any sample of the last step: {bits} (the commanded torque - target torque and "
+             "torque offset in CST, torque offset in CSP/CSV - beyond max torque/current, "
+             "derated by I2t, speed beyond max_motor_speed, position outside the software limits, following error "
+             "beyond its window); the same bit + 8 while the drive is in fault reaction or Fault because of it")
+    spec.add("limit_history", "Integer", OUTPUT, "every bit limit_status has had since the start (OR)")
+    spec.add("i2t_level", "Real", OUTPUT, "I2t integral as a fraction of its threshold (1: derated to rated_current)",
+             unit="1")

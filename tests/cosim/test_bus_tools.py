@@ -272,3 +272,10 @@ def test_tshark_finds_what_is_wrong_in_a_broken_capture(tmp_path):
             packet.packet_data = frame
             writer.write_block(packet)
     assert _problems(path) == (1, 2)
+
+
+def test_export_pcap_refuses_a_folder_without_a_can_log(tmp_path, capsys):
+    assert main(["export-pcap", str(tmp_path)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "can_*.parquet" in err[0]
+    assert main(["export-pcap", str(tmp_path / "can_nothing.parquet")]) == 2

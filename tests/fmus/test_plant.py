@@ -16,6 +16,9 @@ from robot.dynamics import RobotDynamics
 from robot.true_robot import make_true_robot
 
 Q0 = np.array([0.3, -0.6, 1.2, 0.4, 0.8, -0.2])
+# the reference has no mechanical end stops: they are moved out of reach here (a falling arm
+# passes its joint range within the second); tests/fmus/test_end_stops.py checks them
+FREE_JOINTS = {f"end_stop_{side}[{k}]": sign * 100.0 for k in range(1, 7) for side, sign in (("lower", -1), ("upper", 1))}
 H = 1e-3  # communication step, s
 DURATION = 1.0
 
@@ -34,7 +37,7 @@ def run_fmu(plant, tau_of_t, q0=Q0, start=None, duration=DURATION):
     fmu.setupExperiment(startTime=0.0)
     fmu.enterInitializationMode()
     fmu.setReal([vr[f"q0[{k}]"] for k in range(1, 7)], list(q0))
-    for name, value in (start or {}).items():
+    for name, value in {**FREE_JOINTS, **(start or {})}.items():
         fmu.setReal([vr[name]], [value])
     fmu.exitInitializationMode()
     tau_vr = [vr[f"tau[{k}]"] for k in range(1, 7)]

@@ -26,7 +26,8 @@ MODES_LINE = 'modes = ["standard", "standard_speed_ff", "model_based"]'
 ENV = {**os.environ, "PYTHONPATH": str(ROOT), "MPLBACKEND": "Agg"}
 #: Summary fields that are wall-clock measurements (or name the folder), not results.
 TIMING = {"cycle_wall_us", "cycle_compute_cpu_us", "deadline_misses", "cycles_over_budget_wall",
-          "cycles_over_budget_cpu", "loop_wall_time_s", "loop_realtime_factor", "controller_cycles_timed"}
+          "cycles_over_budget_cpu", "loop_wall_time_s", "loop_realtime_factor", "controller_cycles_timed",
+          "warnings"}  # warnings: compute-budget warnings quote timings
 
 
 def short(tmp_path: Path, name: str, stop: str = "0.5 s", modes: str | None = None) -> Path:

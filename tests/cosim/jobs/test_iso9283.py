@@ -136,7 +136,7 @@ def test_failing_fmu_stops_cleanly_with_partial_results(tmp_path):
     assert (out / "controller_model_based.parquet").is_file() and (out / "tcp_model_based.parquet").is_file()
 
 
-def test_drive_fault_stops_the_controller_and_fails_the_run(tmp_path):
+def test_drive_fault_stops_the_controller_and_is_a_limit(tmp_path):
     path = write_scenario(tmp_path, [
         ('stop_time = "12.6 s"', 'stop_time = "1.0 s"'),
         (MODES_LINE, 'modes = ["standard"]'),
@@ -148,11 +148,11 @@ def test_drive_fault_stops_the_controller_and_fails_the_run(tmp_path):
     ])
     out = tmp_path / "out"
     code, summary = run_scenario(path, out)
-    assert code == 3  # failed run (cosim/commands/exits.py)
-    assert summary["status"] == "failed" and summary["failed_component"] == "controller"
-    assert "motion stopped" in summary["reason"] and "drive 1" in summary["reason"]
-    assert "0x8611" in summary["reason"]  # CiA 402 following error
+    assert code == 4  # completed with verdict limit: the following-error supervision (cosim/commands/exits.py)
+    assert summary["status"] == "limit"
+    assert "following_error joint 1" in summary["reason"] and "0x8611" in summary["reason"]  # CiA 402
     entry = summary["modes"]["standard"]
+    assert entry["verdict"] == "limit" and entry["first_violation"]["error_code"] == "0x8611"
     assert entry["controller_phase"] == "stopped" and entry["stopped_at_s"] < 0.5
     header, data = read_csv(out / "controller_standard.csv")
     cw_quick_stop = data[:, header.index("phase")] == 4  # Phase.STOPPED
