@@ -141,6 +141,21 @@ def _command_log(path: Path, rows: int) -> dict:
     return log
 
 
+@pytest.mark.parametrize("option", ["--realtime", "--split"])
+def test_the_command_log_of_a_paced_or_split_run(tmp_path, option):
+    """Paced and split runs keep a user controller's command log in memory (no file I/O in the loop)
+    and write it when the loop has ended: the same columns, one row per cycle."""
+    path = scenario(tmp_path, 'class = "my_ctrl.py:Follow"\nlabel = "follow"',
+                    extra="[controller.parameters]\nkp = 20.0\n")
+    out = tmp_path / "out"
+    assert main(["run", str(path), "--out", str(out), "--quiet", option]) in (0, 4, 5)
+    summary = json.loads((out / "summary.json").read_text())
+    entry = summary["modes"]["follow"]
+    assert entry["files"]["controller"] == "controller_follow.parquet"
+    log = _command_log(out / "controller_follow.parquet", entry["controller_cycles_timed"])
+    assert np.array_equal(log["tau_ff1"], 20.0 * (log["target1"] - log["q_obs1"]))
+
+
 def test_a_named_controller_runs_alone_unless_modes_are_listed(pd_fmu):
     """``[controller] class`` (or fmu) without ``modes``: the user's controller alone; ``modes`` listed:
     those built-in modes too; neither: the default built-in modes."""
