@@ -1,5 +1,6 @@
 """A minimal external controller for ``python -m cosim serve``: python-can and the
-documented telegram layout only (no import of the project's packages).
+documented telegram layout only (no import of the project's packages). It asks for SCHED_FIFO
+(priority 10, the cell's) when the OS grants it, as a real-time controller would.
 
 It reads the cell's endpoint description (``hil_endpoint.json``, written by ``cosim
 serve`` before its first cycle), joins the bus through python-can's ``udpcycle``
@@ -22,7 +23,7 @@ cycle's set-points (the cell's threshold counters count it).
 
 Usage::
 
-    python -m cosim serve scenarios/hil.toml --out results/hil &
+    python -m cosim serve scenarios/hil.toml --out results/hil --wait-for-controller 60 &
     python examples/hil_external_controller.py results/hil/hil_endpoint.json --amplitude 0.2 --duration 2
 """
 from __future__ import annotations
@@ -30,6 +31,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import struct
 import sys
 import time
@@ -78,7 +80,15 @@ def main(argv: list[str] | None = None) -> int:
                         help="exit once the drives are disabled instead of cycling on until the cell stops")
     parser.add_argument("--stop-after", type=float, default=None,
                         help="go silent this many seconds into the motion (to show the cell's reaction)")
+    parser.add_argument("--normal-scheduling", action="store_true",
+                        help="do not ask for SCHED_FIFO (by default the controller runs real-time when the OS grants "
+                             "it, as the cell does: a normally scheduled process on a loaded machine misses cycles)")
     args = parser.parse_args(argv)
+    if not args.normal_scheduling and hasattr(os, "sched_setscheduler"):
+        try:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(10))  # the cell's priority (cosim serve)
+        except OSError:
+            print("SCHED_FIFO not granted: running normally scheduled", file=sys.stderr)
     with open(args.endpoint, encoding="utf-8") as file:
         desc = json.load(file)
     n = desc["nodes"]
