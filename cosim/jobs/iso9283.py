@@ -114,6 +114,11 @@ def run(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
             if base in tracked:
                 fields[f"improvement_factor_elastic_vs_{base}"] = _ratio(
                     modes[base]["tcp_error_max_mm"], modes["model_based_elastic"]["tcp_error_max_mm"])
+    if setup.doc["results"]["report"]:
+        from cosim.results import report
+
+        if report.wanted(scenario.data):  # every file is written: its time-series part, forked, while figures are drawn
+            report.start(ctx.out_dir)
     if setup.doc["results"]["figures"]:
         from cosim.jobs.iso9283_figures import write_figures
 
