@@ -42,6 +42,9 @@ main_job               ``python -m cosim run scenarios/iso9283.toml`` end to end
 output                 the main job's files (benchmarks/bench_output.py): size of each, the
                        total and its ratio to the 128 MB CSV output; write CPU per mode
                        (CAN log columnar vs BLF, time series compact vs plain)
+report                 report.html of a synthesized 600 s run at 1 ms (benchmarks/bench_report.py):
+                       its size, cosim view's time, and in headless Chromium the time to
+                       interactive (target < 5 s), to the 3D view, and of a zoom to every sample
 =====================  ==================================================================
 
 ``ratios``: own CP / TOPP-RA solve time and duration, own PtP / ruckig_feasible
@@ -102,6 +105,8 @@ class Sizes:
     hil_iso_without_lookahead: bool = True  # also the runs without the set-point look-ahead (for comparison)
     memory_short_s: float = 60.0
     memory_long_s: float = 600.0
+    report_seconds: float = 600.0
+    report_runs: int = 5
 
 
 FULL = Sizes(repeats=3, closed_loop_sim_s=2.0, split_sim_s=0.4, paced_sim_s=10.0, bus_cycles=5000, fmu_batches=60,
@@ -112,7 +117,7 @@ QUICK = Sizes(repeats=1, closed_loop_sim_s=0.1, split_sim_s=0.04, paced_sim_s=0.
               identification_samples=300, hil_seconds=0.3, hil_runs=1, hil_late_seconds=1.2,
               hil_late_cycles=(500, 1200, 1201), hil_iso_runs=1, hil_iso_stop_time_s=0.6, memory_short_s=1.0,
               memory_long_s=3.0, main_job_runs=1,
-              main_job_stop_time="0.3 s")
+              main_job_stop_time="0.3 s", report_seconds=10.0, report_runs=1)
 
 
 def _median(values: list[float]) -> float:
@@ -463,6 +468,17 @@ def output(sizes: Sizes, work: Path) -> dict[str, Any]:
             "files": out["files"], "load_average": list(out["load_average"])}
 
 
+def report(sizes: Sizes, work: Path) -> dict[str, Any]:
+    """bench_report.measure: report.html of a synthesized run of ``report_seconds`` at 1 ms opened
+    ``report_runs`` times in headless Chromium (medians)."""
+    import bench_report
+
+    out = bench_report.measure(sizes.report_seconds, sizes.report_runs)
+    return {key: out[key] for key in ("seconds", "runs", "report_mb", "view_wall_s", "view_cpu_s",
+                                      "interactive_s_median", "scene_s_median", "zoom_s_median", "target_s",
+                                      "load_average_before", "load_average_after")}
+
+
 def cli(sizes: Sizes, work: Path) -> dict[str, Any]:
     """``python -m cosim --help`` in fresh processes (the interpreter itself, no PATH shim): the
     median wall and CPU time of the whole process over 10 runs per repeat, and the load average."""
@@ -491,6 +507,7 @@ SECTIONS: dict[str, Callable[[Sizes, Path], dict[str, Any]]] = {
     "main_job": main_job,
     "cli": cli,
     "output": output,
+    "report": report,
 }
 
 #: The figures bench.json must hold (section -> keys), checked by the test and by run_suite.
@@ -515,6 +532,7 @@ REQUIRED: dict[str, tuple[str, ...]] = {
     "main_job": ("realtime_factor", "process_realtime_factor", "cpu_s"),
     "cli": ("help_wall_s", "help_cpu_s"),
     "output": ("total_mb", "ratio_to_csv_128mb", "can_columnar_cpu_s", "can_blf_cpu_s", "series_cpu_s"),
+    "report": ("report_mb", "view_cpu_s", "interactive_s_median", "scene_s_median", "zoom_s_median"),
 }
 RATIOS = ("own_cp_vs_toppra_solve_time", "own_cp_vs_toppra_duration", "own_ptp_vs_ruckig_feasible_duration",
           "own_ptp_vs_ruckig_feasible_solve_time", "in_process_vs_split_realtime_factor")
@@ -636,6 +654,11 @@ ROWS: tuple[tuple[str, str, str, str], ...] = (
     ("output", "can_columnar_cpu_s", "CAN log write CPU per mode, columnar", "s"),
     ("output", "can_blf_cpu_s", "CAN log write CPU per mode, BLF", "s"),
     ("output", "series_cpu_s", "time series write CPU per mode", "s"),
+    ("report", "report_mb", "report.html of a 600 s run at 1 ms (synthesized)", "MB"),
+    ("report", "view_cpu_s", "cosim view of it, CPU time", "s"),
+    ("report", "interactive_s_median", "its report in headless Chromium: open to interactive (target < 5 s)", "s"),
+    ("report", "scene_s_median", "its report: open to the 3D view built", "s"),
+    ("report", "zoom_s_median", "its report: zoom to 2 s at every sample", "s"),
     ("hil", "probe_gap_ms_per_s", "hil: machine stalls of a bare SCHED_FIFO loop (probe)", "ms/s"),
     ("hil", "probe_gaps_over_1ms_per_s", "hil: probe gaps over 1 ms", "1/s"),
     ("hil", "overrun_fraction", "hil: paced split 400 us, cell overrun fraction", ""),

@@ -696,7 +696,8 @@ def run(scenario: "str | Path | Mapping[str, Any] | Scenario", out: str | Path |
 def execute(scenario: Scenario, out: str | Path, *, quiet: bool = True, realtime: bool = False,
             split: bool = False, origin: str = "out", timeseries: str | None = None, serve: Any = None,
             max_output: str | float | None = None, max_memory: str | float | None = None,
-            ignore_budget: bool = False, clock_from_process_start: bool = False) -> RunResult:
+            ignore_budget: bool = False, clock_from_process_start: bool = False,
+            report: bool | None = None) -> RunResult:
     """Run an already loaded scenario into ``out`` and return the result whatever its status
     (the layer under :func:`run` and ``cosim run``; ``origin`` names where ``out`` came from in
     an OutputFolderError, e.g. ``"--out"``). ``serve`` (a :class:`cosim.hil.ServeSettings`):
@@ -704,7 +705,8 @@ def execute(scenario: Scenario, out: str | Path, *, quiet: bool = True, realtime
     (``cosim serve``). ``max_output``, ``max_memory``, ``ignore_budget``: as for :func:`run`.
     ``clock_from_process_start``: summary.json's ``wall_time_s`` and ``realtime_factor`` count
     from this process's start (``cosim run``: the whole command, interpreter start and imports
-    included; ``wall_time_from = "process start"``) instead of from this call.
+    included; ``wall_time_from = "process start"``) instead of from this call. ``report``: write
+    report.html (None: unless the scenario's ``[results] report`` is false; docs/viewing.md).
     Raises ScenarioError, OutputFolderError, KeyboardInterrupt as :func:`run` does (and
     BudgetError); never RunFailed."""
     if serve is not None:
@@ -714,7 +716,7 @@ def execute(scenario: Scenario, out: str | Path, *, quiet: bool = True, realtime
         options = _execution_options(scenario, realtime, split)
     return _execute_into(scenario, Path(out), options, quiet=quiet, origin=origin, temporary=False,
                          timeseries=timeseries, budget=None if ignore_budget else (max_output, max_memory),
-                         clock_from_process_start=clock_from_process_start)
+                         clock_from_process_start=clock_from_process_start, report=report)
 
 
 def _execution_options(sc: Scenario, realtime: bool, split: bool):
@@ -735,8 +737,10 @@ def _execution_options(sc: Scenario, realtime: bool, split: bool):
 
 def _execute_into(sc: Scenario, out_dir: Path, options, *, quiet: bool, origin: str, temporary: bool,
                   timeseries: str | None = None, budget: tuple | None = (None, None),
-                  clock_from_process_start: bool = False) -> RunResult:
-    """Lock ``out_dir``, run the job, finish summary.json; the result (``error``: what failed the run)."""
+                  clock_from_process_start: bool = False, report: bool | None = None) -> RunResult:
+    """Lock ``out_dir``, run the job, finish summary.json, write report.html (``report``: None = as the
+    scenario's ``[results] report`` says; never for a temporary folder); the result (``error``: what
+    failed the run)."""
     wall_origin, wall_time_from = None, "run call"
     if clock_from_process_start:
         from cosim.results.summary import process_started_perf_counter
@@ -766,8 +770,37 @@ def _execute_into(sc: Scenario, out_dir: Path, options, *, quiet: bool, origin: 
         except OSError as exc:
             raise OutputFolderError(describe_os_error(exc, f"{origin} {str(out_dir)!r}: cannot write summary.json"))\
                 from None
-        error = _run_job(sc, ctx)
+        try:
+            error = _run_job(sc, ctx)
+        except BaseException:
+            from cosim.results import report as report_module
+
+            report_module.cancel(out_dir)  # interrupted: 'cosim view' shows what is there
+            raise
+        if report is None:
+            from cosim.results import report as report_module
+
+            report = not temporary and report_module.wanted(sc.data)
+        _write_report(out_dir, report)
     return RunResult(out_dir, sc, temporary, error)
+
+
+def _write_report(out_dir: Path, wanted: bool) -> None:
+    """report.html in the results folder (``[results] report``, docs/viewing.md); a report that cannot
+    be written is a warning line, never a failed run (``cosim view`` writes it later)."""
+    import sys
+
+    from cosim.results import report
+
+    if not wanted:
+        report.cancel(out_dir)
+        return
+    try:
+        report.finish(out_dir)
+    except Exception as exc:  # noqa: BLE001 - the run's results are complete without it
+        report.cancel(out_dir)
+        print(f"warning: {out_dir / report.REPORT_NAME} not written ({type(exc).__name__}: {exc}); "
+              f"'python -m cosim view {out_dir}' writes it", file=sys.stderr)
 
 
 def _run_job(sc: Scenario, ctx) -> BaseException | None:

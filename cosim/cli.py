@@ -36,6 +36,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "cosim.commands.export_blf",
     "cosim.commands.device_files",
     "cosim.commands.export_pcap",
+    "cosim.commands.view",
     "cosim.commands.run",
     "cosim.commands.serve",
     "cosim.commands.calibrate",

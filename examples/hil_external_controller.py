@@ -1,5 +1,6 @@
 """A minimal external controller for ``python -m cosim serve``: python-can and the
-documented telegram layout only (no import of the project's packages).
+documented telegram layout only (no import of the project's packages). It asks for SCHED_FIFO
+(priority 10, the cell's) when the OS grants it, as a real-time controller would.
 
 It reads the cell's endpoint description (``hil_endpoint.json``, written by ``cosim
 serve`` before its first cycle), joins the bus through python-can's ``udpcycle``
@@ -20,9 +21,14 @@ per drive. The SoC counter is the cell's cycle (as the number of PRes batches se
 plus one, modulo 240, plus one: a batch that is missed or answered too late costs that
 cycle's set-points (the cell's threshold counters count it).
 
+A drive that reacts during the run (a fault reaction, e.g. the cell's threshold counters
+tripping on lost cycles) stops the motion: the program holds and cycles on until the cell
+stops. Exit codes: 0 the run went through, 2 no cell or the drives never enabled, 3 the drives
+were not enabled within --enable-timeout, 4 a drive faulted during the run.
+
 Usage::
 
-    python -m cosim serve scenarios/hil.toml --out results/hil &
+    python -m cosim serve scenarios/hil.toml --out results/hil --wait-for-controller 60 &
     python examples/hil_external_controller.py results/hil/hil_endpoint.json --amplitude 0.2 --duration 2
 """
 from __future__ import annotations
@@ -30,6 +36,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import struct
 import sys
 import time
@@ -78,7 +85,15 @@ def main(argv: list[str] | None = None) -> int:
                         help="exit once the drives are disabled instead of cycling on until the cell stops")
     parser.add_argument("--stop-after", type=float, default=None,
                         help="go silent this many seconds into the motion (to show the cell's reaction)")
+    parser.add_argument("--normal-scheduling", action="store_true",
+                        help="do not ask for SCHED_FIFO (by default the controller runs real-time when the OS grants "
+                             "it, as the cell does: a normally scheduled process on a loaded machine misses cycles)")
     args = parser.parse_args(argv)
+    if not args.normal_scheduling and hasattr(os, "sched_setscheduler"):
+        try:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(10))  # the cell's priority (cosim serve)
+        except OSError:
+            print("SCHED_FIFO not granted: running normally scheduled", file=sys.stderr)
     with open(args.endpoint, encoding="utf-8") as file:
         desc = json.load(file)
     n = desc["nodes"]
@@ -95,6 +110,7 @@ def main(argv: list[str] | None = None) -> int:
     cycles_seen = 0
     enabled_at = None
     disabled_at = None
+    faulted_at = None
     motion_cycles = int(round(args.duration / cycle_s))
     started = time.monotonic()
 
@@ -127,8 +143,10 @@ def main(argv: list[str] | None = None) -> int:
             msg = pending.pop() if pending else bus.recv(0.5)
             if msg is None:
                 print("no PRes from the cell for 0.5 s: the cell stopped", file=sys.stderr)
-                if enabled_at is not None and disabled_at is None:
+                if enabled_at is not None and disabled_at is None and faulted_at is None:
                     print("the cell stopped before the motion ended (the drives were not disabled)", file=sys.stderr)
+                if faulted_at is not None:
+                    return 4
                 return 0 if enabled_at is not None else 2
             batch = [msg]
             msg = bus.recv(0)
@@ -163,9 +181,16 @@ def main(argv: list[str] | None = None) -> int:
             else:
                 k = cycles_seen - enabled_at
                 rest = int(0.5 / cycle_s)
+                if faulted_at is None and any(state(s) == "fault" or s & 0x4F == 0x0F for s in status):
+                    faulted_at = cycles_seen  # a drive reacted (e.g. lost cycles): stop commanding motion
+                    print(f"drive fault at cycle {cycles_seen} (statuswords {[hex(s) for s in status]}): motion "
+                          f"stopped, holding until the cell stops", file=sys.stderr, flush=True)
+                if faulted_at is not None:
+                    k = motion_cycles + rest + 1  # no more motion: hold, disable what is still enabled
                 if k > motion_cycles + rest:  # motion done and 0.5 s of rest: disable the drives
                     controlword = [SHUTDOWN] * n  # Ready to switch on: power stage off, brakes closed
-                    if disabled_at is None and all(state(s) == "ready_to_switch_on" for s in status):
+                    if disabled_at is None and faulted_at is None and \
+                            all(state(s) == "ready_to_switch_on" for s in status):
                         disabled_at = cycles_seen
                         print(f"all {n} drives disabled at cycle {cycles_seen}", flush=True)
                     if disabled_at is not None and args.exit_when_disabled:

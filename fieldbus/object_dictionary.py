@@ -273,7 +273,7 @@ class _Context:
             "torque": lambda: v / self.rated_torque * self.units,
             "motor_speed_rpm": lambda: v * abs(gear()) * 60.0 / (2.0 * math.pi),
             "milli": lambda: v * 1e3, "micro": lambda: v * 1e6,
-            "per_mille_rated_current": lambda: v / (self.rated_torque / abs(gear()) / kt()) * 1000.0,
+            "per_mille_rated_current": lambda: v / float(self._need(where, "rated_current")) * 1000.0,
             "motor_rated_current_ma": lambda: v / abs(gear()) / kt() * 1e3,
             "motor_rated_torque_mnm": lambda: v / abs(gear()) * 1e3,
             "interpolation_value": lambda: _interpolation(v)[0],

@@ -32,3 +32,16 @@ def fmu_workdir(pythonfmu_models_dir: Path, tmp_path: Path) -> Path:
     for fmu in pythonfmu_models_dir.glob("*.fmu"):
         shutil.copy(fmu, tmp_path / fmu.name)
     return tmp_path
+
+
+@pytest.fixture(scope="session")
+def browser():
+    """One headless Chromium (Selenium) for every test of this process that opens a report; FAILS
+    (does not skip) when Chromium or chromedriver is missing (tests/browser_support.py)."""
+    from browser_support import start_browser
+
+    driver = start_browser()
+    try:
+        yield driver
+    finally:
+        driver.quit()

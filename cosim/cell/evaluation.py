@@ -401,7 +401,10 @@ def evaluate_run(ctx: RunContext, mode: str, cell: CellRun, controller: Any, ref
                   "tcp": tcp_file, "can_log": Path(cell.fieldbus["log_path"]).name
                   if cell.fieldbus.get("log_path") else None},
     }
-    if builtin:
+    external = getattr(cell, "external_controller", None)
+    if external is not None:  # cosim serve: the controller was another program; the job's did not run
+        entry = served_entry(entry, external)
+    elif builtin:
         entry.update(controller_phase=controller.phase.name.lower(),
                      ik_iterations_max=ik_max,
                      compiled_kernel=controller.kernel_note, kernel_cycles=controller.kernel_cycles,
@@ -425,6 +428,30 @@ def evaluate_run(ctx: RunContext, mode: str, cell: CellRun, controller: Any, ref
     if hasattr(ctx, "note_verdict"):
         ctx.note_verdict(mode, entry)
     return entry, result
+
+
+#: Keys of a run's summary entry that describe the job's own controller or the tracking of the
+#: job's reference; a served run's (cosim serve) controller is another program, so they do not apply.
+SERVED_DROPPED = ("tcp_error_max_mm", "tcp_error_rms_mm", "path_accuracy_AT_mm", "path_accuracy_AT_per_segment_mm",
+                  "joint_lag_max_rad", "tcp_error_max_noise_free_mm", "tcp_error_rms_noise_free_mm",
+                  "tcp_path_error_max_mm", "tcp_path_error_rms_mm", "path_accuracy_AT_vs_programmed_mm",
+                  "residual_vibration", "tcp_error_spectrum_peak_hz", "tcp_error_spectrum_peak_mm",
+                  "evaluated_samples", "evaluated_from_s", "evaluated_to_s", "cycle_compute_us",
+                  "cycle_compute_cpu_us", "cycle_wall_us", "deadline_misses", "compute_budget_us",
+                  "controller_cycles_timed", "drive_speed_feedforward", "torque_feedforward", "path_completed",
+                  "stop_reason", "motion_start_s", "enabled_at_s")
+
+
+def served_entry(entry: dict[str, Any], external: dict[str, Any]) -> dict[str, Any]:
+    """The summary entry of a served run (``cosim serve``): what the external controller did as
+    the drives saw it (:meth:`cosim.hil.cell_side.CellSideLink.controller_run`: when all drives
+    were enabled, when the applied targets moved, whether they were enabled at the end) in place
+    of the job controller's fields and the tracking of the job's reference, which the external
+    controller is not known to follow (its TCP is in the tcp file all the same)."""
+    kept = {k: v for k, v in entry.items() if k not in SERVED_DROPPED}
+    return {"status": kept.pop("status"), "controller": "external (cosim serve)", **external,
+            "tracking": "not evaluated: the external controller's motion is not the job's reference",
+            **kept}
 
 
 def deadline_basis(cell: Any) -> str:

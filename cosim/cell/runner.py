@@ -234,7 +234,8 @@ def _run_in_mode(cell: CellDescription, controller: CellController, ctx: RunCont
         controller_close = getattr(controller, "close", None)
         if callable(controller_close):
             controller_close()  # the job's own controller does not run: the controller is elsewhere
-        return run_served_cell(cell, ctx, getattr(options, "serve", None) or ServeSettings(), pacer=pacer)
+        settings = getattr(options, "serve", None) or ServeSettings()
+        return run_served_cell(cell, ctx, settings, pacer=pacer, start_on_first_frame_s=settings.wait_for_controller_s)
     if mode == "split":
         from cosim.split.cell import run_split_cell
 

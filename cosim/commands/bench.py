@@ -28,7 +28,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--section", action="append", default=None, metavar="NAME",
                         help="run only this section (repeatable); names: closed_loop, closed_loop_elastic, "
                              "closed_loop_split, paced, bus, fmu, planners, calibration, identification, hil, "
-                             "memory, main_job, output")
+                             "memory, main_job, output, report")
 
 
 def load_suite():

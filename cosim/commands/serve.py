@@ -34,6 +34,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--scheduling", choices=("fifo", "normal"), default="fifo",
                         help="SCHED_FIFO when the OS grants it (default) or normal")
     parser.add_argument("--cpu", default=None, help="pin to this CPU ('auto': the last usable one)")
+    parser.add_argument("--wait-for-controller", type=float, default=None, metavar="S",
+                        help="wait up to S seconds for the controller's first datagram and start the run "
+                             "(cycle 0) then (default: start at once)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -46,7 +49,8 @@ def run(args: argparse.Namespace) -> int:
                                  accept_from=None if args.accept_from is None else
                                  tuple(x.strip() for x in args.accept_from.split(",") if x.strip()),
                                  window_fraction=args.window, spin_s=args.spin_us * 1e-6,
-                                 busy_poll_s=args.busy_poll_us * 1e-6, scheduling=args.scheduling, cpu=args.cpu)
+                                 busy_poll_s=args.busy_poll_us * 1e-6, scheduling=args.scheduling, cpu=args.cpu,
+                                 wait_for_controller_s=args.wait_for_controller)
     except ServeSettingsError as exc:
         raise InvalidInput(str(exc)) from None
     _check_address_free(settings.channel)

@@ -74,6 +74,14 @@ class CellSideLink:
         self.after_wall_ns = np.zeros(cycles + 1, dtype=np.int64)
         self.after_cpu_ns = np.zeros(cycles + 1, dtype=np.int64)
         self._after = (0, 0)
+        # what the external controller did, seen from the drives: the cycles in which all drives
+        # reported Operation enabled (first, last) and in which an applied target position changed
+        # after the first of those (first, last)
+        self.enabled_first: int | None = None
+        self.enabled_last: int | None = None
+        self.motion_first: int | None = None
+        self.motion_last: int | None = None
+        self._target = np.full(N_JOINTS, np.nan)
 
     def setup(self, master: Master) -> None:
         from cosim.cell.link import CellBus
@@ -98,6 +106,16 @@ class CellSideLink:
         applied = endpoint.run_cycle_paced(k, self.actuals, deadline, clock=_now_s)
         if endpoint._last_taken == k:
             self.taken[min(k, self.taken.size - 1)] = True
+        if ((self.actuals.statusword & 0x6F) == 0x27).all():  # CiA 402 Operation enabled, every drive
+            if self.enabled_first is None:
+                self.enabled_first = k
+            self.enabled_last = k
+        if not np.array_equal(applied.position, self._target):
+            if self.enabled_first is not None and k > self.enabled_first:
+                if self.motion_first is None:
+                    self.motion_first = k
+                self.motion_last = k
+            self._target[:] = applied.position
         fresh = applied.fresh
         if not fresh.all():
             self.held += ~fresh
@@ -106,6 +124,18 @@ class CellSideLink:
                 self.held[covered] -= 1
         self.cycle = k + 1
         self._after = (time.perf_counter_ns(), time.thread_time_ns())
+
+    def controller_run(self, period_s: float) -> dict[str, Any]:
+        """What the external controller did as the drives saw it (times s = cycle x period; None:
+        never): ``enabled_at_s`` (all drives in Operation enabled), ``motion_start_s`` /
+        ``motion_end_s`` (the first / last cycle an applied target position changed after that),
+        ``enabled_until_s`` (the last cycle all drives were enabled) and ``enabled_at_end``."""
+        def at(k):
+            return None if k is None else k * period_s
+
+        return {"enabled_at_s": at(self.enabled_first), "motion_start_s": at(self.motion_first),
+                "motion_end_s": at(self.motion_last), "enabled_until_s": at(self.enabled_last),
+                "enabled_at_end": self.enabled_last is not None and self.enabled_last == self.cycle - 1}
 
 
 def endpoint_description(cell: CellDescription, settings: ServeSettings, config: FieldbusConfig,
@@ -178,30 +208,45 @@ STALL_CPU_FRACTION = 0.5
 
 
 def overrun_causes(link: CellSideLink, pacer: Any) -> dict[str, Any]:
-    """Why the cell started cycles late: for each overrun cycle k, the work after the bus
-    exchange of cycle k-1 (FMU steps, tracker, recorder) in wall and CPU time. ``stalled``:
-    the wall time was mostly not CPU time of the cell (the process was not running: the OS or
-    the hypervisor); ``own_work``: it was (the cell's own computation was too slow); ``other``:
-    that work was short (the lateness came from the bus exchange or the wait itself)."""
+    """Why the cell started cycles late, the machine or the model: for each overrun cycle k,
+    how late the OS woke the pacer from its sleep before W_k (wake-up time minus the requested
+    time) and the work after the bus exchange of cycle k-1 (FMU steps, tracker, recorder) in
+    wall and CPU time. ``stalled``: the whole process was held up - ``woken_late`` (asleep, it
+    was woken more than half the cycle's lateness late) or ``descheduled`` (the work's wall
+    time was mostly not CPU time of the cell); ``own_work``: the work was CPU time (the
+    cell's own computation was too slow); ``other``: neither (the bus exchange, the wait)."""
     log = pacer.log
-    over = log.cycles[:log.count][log.overrun[:log.count]]
+    n = log.count
+    overrun = log.overrun[:n]
+    over = log.cycles[:n][overrun]
+    oversleep = log.oversleep_ns[:n][overrun]
+    lateness = log.lateness_ns[:n][overrun]
     period = pacer.period_ns
     counts = {"stalled": 0, "own_work": 0, "other": 0}
+    stalls = {"woken_late": 0, "descheduled": 0}
     examples = []
-    for k in over.tolist():
-        if k < 1 or k - 1 >= link.after_wall_ns.size:
-            counts["other"] += 1
-            continue
-        wall, cpu = int(link.after_wall_ns[k - 1]), int(link.after_cpu_ns[k - 1])
-        if wall < period // 2:
-            kind = "other"
-        elif cpu < STALL_CPU_FRACTION * wall:
-            kind = "stalled"
+    for k, slept, late in zip(over.tolist(), oversleep.tolist(), lateness.tolist()):
+        wall = cpu = -1
+        if 1 <= k <= link.after_wall_ns.size:
+            wall, cpu = int(link.after_wall_ns[k - 1]), int(link.after_cpu_ns[k - 1])
+        if slept > 0 and 2 * slept >= late:
+            kind, detail = "stalled", "woken_late"
+        elif wall >= period // 2 and cpu < STALL_CPU_FRACTION * wall:
+            kind, detail = "stalled", "descheduled"
+        elif wall >= period // 2:
+            kind, detail = "own_work", None
         else:
-            kind = "own_work"
+            kind, detail = "other", None
         counts[kind] += 1
+        if detail is not None:
+            stalls[detail] += 1
         if len(examples) < 50:
-            examples.append({"cycle": k, "work_wall_us": wall * 1e-3, "work_cpu_us": cpu * 1e-3, "cause": kind})
+            examples.append({"cycle": k, "lateness_us": late * 1e-3, "woken_late_us": None if slept < 0 else slept * 1e-3,
+                             "work_wall_us": None if wall < 0 else wall * 1e-3,
+                             "work_cpu_us": None if cpu < 0 else cpu * 1e-3, "cause": detail or kind})
+    counts["stalls"] = stalls  # type: ignore[assignment]
+    slept_all = log.oversleep_ns[:n]
+    counts["woken_late_us"] = percentiles_us(slept_all[slept_all >= 0] * 1e-3)  # type: ignore[assignment]
     n = min(link.cycle, link.after_wall_ns.size)
     return {**counts, "work_after_bus_us": percentiles_us(link.after_wall_ns[:max(n - 1, 0)] * 1e-3),
             "work_after_bus_cpu_us": percentiles_us(link.after_cpu_ns[:max(n - 1, 0)] * 1e-3),
@@ -424,6 +469,7 @@ def run_served_cell(cell: CellDescription, ctx: Any, settings: ServeSettings, *,
     run = CellRun(cell.label, ctx.path(cell.record_file), recorder.rows_written, master.time, summary, wall, engine,
                   memory, failure, cpu, pacer=pacer, scheduling=granted)
     run.hil = report
+    run.external_controller = link.controller_run(period)
     run.preq_latency_us = [x * 1e-3 for x in getattr(endpoint.bus, "latency_ns", ())]
     return run
 

@@ -37,6 +37,10 @@ class ServeSettings:
     busy_poll_s: the cell's socket polling while it waits, s (0: sleep in select).
     scheduling: 'fifo' (SCHED_FIFO when granted) or 'normal'; cpu: pin to a CPU or None.
     lock_memory: mlockall the cell's process for the paced loop (no page faults from disk).
+    wait_for_controller_s: wait up to this many seconds, after the endpoint description is
+        written, for the controller's first datagram and make its arrival cycle 0 (the run then
+        lasts stop_time from the controller's start, as a cell whose managing node starts the
+        cycle); None: start at once, never wait.
     """
 
     channel: str = DEFAULT_CHANNEL
@@ -48,6 +52,7 @@ class ServeSettings:
     scheduling: str = "fifo"
     cpu: str | None = None
     lock_memory: bool = True
+    wait_for_controller_s: float | None = None
 
     def __post_init__(self) -> None:
         for name in ("channel",) + (("peer",) if self.peer is not None else ()):
@@ -62,6 +67,9 @@ class ServeSettings:
         if not 0.0 <= self.spin_s <= 0.01 or not 0.0 <= self.busy_poll_s <= 0.01:
             raise ServeSettingsError(f"spin {self.spin_s!r} s / busy poll {self.busy_poll_s!r} s: expected "
                                      f"0 .. 0.01 s")
+        if self.wait_for_controller_s is not None and not 0.0 < self.wait_for_controller_s <= 3600.0:
+            raise ServeSettingsError(f"--wait-for-controller {self.wait_for_controller_s!r}: expected seconds in "
+                                     f"(0, 3600]")
         if self.scheduling not in ("fifo", "normal"):
             raise ServeSettingsError(f"--scheduling {self.scheduling!r}: expected 'fifo' or 'normal'")
 
@@ -80,4 +88,4 @@ class ServeSettings:
                 "accept_from": None if self.accept_from is None else list(self.accept_from),
                 "window_fraction": self.window_fraction, "spin_us": self.spin_s * 1e6,
                 "busy_poll_us": self.busy_poll_s * 1e6, "scheduling": self.scheduling, "cpu": self.cpu,
-                "lock_memory": self.lock_memory}
+                "lock_memory": self.lock_memory, "wait_for_controller_s": self.wait_for_controller_s}

@@ -137,6 +137,7 @@ RESULTS_TABLE = Table({
     "can_log_format": CAN_LOG_FORMAT_FIELD,
     "figures": Field(Boolean(), default=True),
     "records": Field(Boolean(), default=True, doc="write the measured records as CSV"),
+    "report": Field(Boolean(), default=True, doc="write report.html, the interactive view of the run (docs/viewing.md)"),
 }, doc="the [results] table")
 
 SCHEMA = Table({

@@ -97,21 +97,28 @@ def run(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
         if cell.failure is not None and entry.get("verdict") == "failed":
             raise cell.failure
     fields: dict[str, Any] = {"modes": modes}
-    if "standard" in modes and "model_based" in modes:
+    # runs with tracking figures (a served run's controller is another program: none)
+    tracked = {m for m, e in modes.items() if "tcp_error_max_mm" in e}
+    if "standard" in tracked and "model_based" in tracked:
         fields["improvement_factor"] = _ratio(modes["standard"]["tcp_error_max_mm"],
                                               modes["model_based"]["tcp_error_max_mm"])
         fields["improvement_factor_rms"] = _ratio(modes["standard"]["tcp_error_rms_mm"],
                                                   modes["model_based"]["tcp_error_rms_mm"])
         fields["improvement_factor_noise_free"] = _ratio(modes["standard"]["tcp_error_max_noise_free_mm"],
                                                          modes["model_based"]["tcp_error_max_noise_free_mm"])
-    if "standard_speed_ff" in modes and "model_based" in modes:
+    if "standard_speed_ff" in tracked and "model_based" in tracked:
         fields["improvement_factor_vs_standard_speed_ff"] = _ratio(modes["standard_speed_ff"]["tcp_error_max_mm"],
                                                                    modes["model_based"]["tcp_error_max_mm"])
-    if "model_based_elastic" in modes:
+    if "model_based_elastic" in tracked:
         for base in ("standard", "model_based"):
-            if base in modes:
+            if base in tracked:
                 fields[f"improvement_factor_elastic_vs_{base}"] = _ratio(
                     modes[base]["tcp_error_max_mm"], modes["model_based_elastic"]["tcp_error_max_mm"])
+    if setup.doc["results"]["report"]:
+        from cosim.results import report
+
+        if report.wanted(scenario.data):  # every file is written: its time-series part, forked, while figures are drawn
+            report.start(ctx.out_dir)
     if setup.doc["results"]["figures"]:
         from cosim.jobs.iso9283_figures import write_figures
 

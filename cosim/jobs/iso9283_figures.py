@@ -31,13 +31,7 @@ import numpy as np
 
 from cosim.results import figure_process
 
-COLOURS = {"standard": "tab:red", "standard_speed_ff": "tab:orange", "model_based": "tab:blue",
-           "model_based_elastic": "tab:green"}
-LABELS = {"standard": "standard (drive cascade, position set-points)",
-          "standard_speed_ff": "cascade + drive speed feed-forward",
-          "model_based": "model-based (eq. 7 feed-forward)",
-          "model_based_elastic": "model-based, elastic gears (flatness feed-forward)"}
-
+from cosim.results.panels import COLOURS, ENVELOPE_COLUMNS, LABELS, PANEL, envelope  # noqa: F401 - the one description
 
 #: Fixed margins (figure fractions) of the 9 x 7.5 in and 9 x 4.5 in figures: what
 #: ``tight_layout`` gives for the main job's figures plus a little room for longer tick
@@ -48,39 +42,6 @@ MARGINS_WIDE = {"left": 0.09, "right": 0.98, "bottom": 0.13, "top": 0.915}
 #: label of the axes to see whether the title must move up (it never must here: no ticks on
 #: top), which was 40 % of the drawing time of the vibration figure. Same pixels.
 TITLE_Y = 1.0
-#: Columns of a line's x range in which its extremes are kept: about 2.6 per pixel of the
-#: ~770-pixel-wide axes, so a column never straddles more than two pixels
-#: (tests/test_iso9283_figures.py: under 1 % of the inked pixels change).
-ENVELOPE_COLUMNS = 2000
-
-
-def envelope(x: Any, y: Any, columns: int = ENVELOPE_COLUMNS, log_x: bool = False) -> tuple[np.ndarray, np.ndarray]:
-    """The points of the line ``(x, y)`` to draw: in each of ``columns`` equal columns of the x
-    range (of log10 x with ``log_x``) the first minimum and the first maximum of y, with the
-    line's first and last point, in their original order. The line is returned whole when it
-    has few points, its x is not non-decreasing or anything is not finite (a NaN is a gap)."""
-    x = np.asarray(x, dtype=float)
-    y = np.asarray(y, dtype=float)
-    if x.size <= 2 * columns or x.shape != y.shape:
-        return x, y
-    u = np.log10(x) if log_x and np.all(x > 0) else (None if log_x else x)
-    if u is None or not (np.all(np.isfinite(u)) and np.all(np.isfinite(y))) or np.any(np.diff(u) < 0):
-        return x, y
-    span = u[-1] - u[0]
-    if not span > 0:
-        return x, y
-    column = np.minimum(((u - u[0]) * (columns / span)).astype(np.int64), columns - 1)
-    starts = np.flatnonzero(np.r_[True, column[1:] != column[:-1]])  # x sorted: each column is one run
-    segment = np.repeat(np.arange(starts.size), np.diff(np.r_[starts, x.size]))
-    keep = [np.array([0, x.size - 1])]
-    for extreme in (np.minimum.reduceat(y, starts), np.maximum.reduceat(y, starts)):
-        hit = np.flatnonzero(y == extreme[segment])
-        first = np.r_[True, segment[hit[1:]] != segment[hit[:-1]]]
-        keep.append(hit[first])
-    index = np.unique(np.concatenate(keep))
-    return x[index], y[index]
-
-
 def _figure(**kwargs: Any) -> tuple[Any, Any]:
     """A figure on the Agg canvas and its axes (``Figure.subplots`` arguments)."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -222,20 +183,22 @@ def _draw_all(jobs: list[tuple], fork: bool = True) -> list[Path]:
 def _lag_axes() -> tuple[Any, Any]:
     fig, axes = _figure(nrows=3, ncols=1, figsize=(9, 7.5), sharex=True)
     for j, ax in enumerate(axes):
-        ax.set_ylabel(f"axis {j + 1} lag [mrad]")
+        ax.set_ylabel(f"axis {j + 1} {PANEL['lag'].ylabel}")
         ax.grid(True, alpha=0.3)
     axes[-1].set_xlabel("path time [s]")
-    fig.suptitle("Lag errors q_d - q of axes 1-3 on the ISO 9283 path (cf. paper Fig. 2a)")
+    fig.suptitle(PANEL["lag"].png_title)
     fig.subplots_adjust(**MARGINS_TALL, hspace=0.13)
     return fig, axes
 
 
 def _lag_figure(file: Path, results: dict[str, Any], modes: list[str], path: Any) -> Path:
     fig, axes = _axes("lag")
+    lag = PANEL["lag"].series[0]
     for j, ax in enumerate(axes):
         for mode in modes:
             r = results[mode]
-            ax.plot(*envelope(r.t - r.t[0], r.lag[:, j] * 1e3), color=COLOURS.get(mode, "tab:green"), lw=0.8,
+            ax.plot(*envelope(r.t - r.t[0], getattr(r, lag.field)[:, j] * lag.field_scale),
+                    color=COLOURS.get(mode, "tab:green"), lw=0.8,
                     label=LABELS.get(mode, mode))
     axes[0].legend(loc="upper right", fontsize=8)
     return _save(fig, file)
@@ -254,21 +217,22 @@ def _along_path_axes(ylabel: str, title: str, log: bool) -> tuple[Any, Any]:
 
 
 def _tcp_error_axes() -> tuple[Any, Any]:
-    return _along_path_axes("TCP error [mm] (log scale)",
-                            "TCP error along the ISO 9283 path, laser tracker at 1 ms (cf. paper Fig. 2b)", log=True)
+    panel = PANEL["tcp_error"]
+    return _along_path_axes(panel.ylabel, panel.png_title, log=panel.log)
 
 
 def _path_error_axes() -> tuple[Any, Any]:
-    return _along_path_axes("error to the programmed path [mm]",
-                            "Measured TCP vs programmed path (dynamic + geometric error of the controller's model)",
-                            log=False)
+    panel = PANEL["path_error"]
+    return _along_path_axes(panel.ylabel, panel.png_title, log=panel.log)
 
 
 def _tcp_error_figure(file: Path, results: dict[str, Any], modes: list[str], path: Any) -> Path:
     fig, ax = _axes("tcp_error")
+    series = PANEL["tcp_error"].series[0]
     for mode in modes:
         r = results[mode]
-        ax.plot(*envelope(r.arc_length, r.tcp_error * 1e3), color=COLOURS.get(mode, "tab:green"), lw=0.8,
+        values = getattr(r, series.field) * series.field_scale
+        ax.plot(*envelope(r.arc_length, values), color=COLOURS.get(mode, "tab:green"), lw=0.8,
                 label=f"{LABELS.get(mode, mode)}: max {r.tcp_error.max() * 1e3:.3f} mm")
     _segment_marks(ax, path)
     ax.legend(fontsize=8, loc="lower center")
@@ -277,9 +241,11 @@ def _tcp_error_figure(file: Path, results: dict[str, Any], modes: list[str], pat
 
 def _path_error_figure(file: Path, results: dict[str, Any], modes: list[str], path: Any) -> Path:
     fig, ax = _axes("path_error")
+    series = PANEL["path_error"].series[0]
     for mode in modes:
         r = results[mode]
-        ax.plot(*envelope(r.arc_length, r.path_error * 1e3), color=COLOURS.get(mode, "tab:green"), lw=0.8,
+        ax.plot(*envelope(r.arc_length, getattr(r, series.field) * series.field_scale),
+                color=COLOURS.get(mode, "tab:green"), lw=0.8,
                 label=f"{LABELS.get(mode, mode)}: max {r.path_error.max() * 1e3:.3f} mm")
     _segment_marks(ax, path)
     ax.legend(fontsize=8, loc="lower right")

@@ -51,27 +51,32 @@ class LatenessLog:
 
     ``cycles[i]`` is the cycle number of entry ``i``; ``work_ns[i]`` the wall time from the
     start of the previous cycle to the moment this one began waiting (the previous cycle's
-    work: bus, controller, FMU steps, tracker, recorder; -1 for the first)."""
+    work: bus, controller, FMU steps, tracker, recorder; -1 for the first); ``oversleep_ns[i]``
+    how late the OS woke the pacer from its sleep before this cycle's deadline (wake-up time
+    minus the requested time; -1: it did not sleep, the cycle was already due)."""
 
     def __init__(self, capacity: int = 65536) -> None:
         n = max(int(capacity), 16)
         self.cycles = np.zeros(n, dtype=np.int64)
         self.lateness_ns = np.zeros(n, dtype=np.int64)
         self.work_ns = np.zeros(n, dtype=np.int64)
+        self.oversleep_ns = np.full(n, -1, dtype=np.int64)
         self.overrun = np.zeros(n, dtype=bool)
         self.count = 0
         self.missed_ticks = 0  # wall ticks dropped by the pacer (cycles late by whole periods)
 
-    def append(self, cycle: int, lateness_ns: int, overrun: bool, work_ns: int = -1) -> None:
+    def append(self, cycle: int, lateness_ns: int, overrun: bool, work_ns: int = -1, oversleep_ns: int = -1) -> None:
         i = self.count
         if i == self.cycles.size:
             self.cycles = np.concatenate([self.cycles, np.zeros_like(self.cycles)])
             self.lateness_ns = np.concatenate([self.lateness_ns, np.zeros_like(self.lateness_ns)])
             self.work_ns = np.concatenate([self.work_ns, np.zeros_like(self.work_ns)])
+            self.oversleep_ns = np.concatenate([self.oversleep_ns, np.full_like(self.oversleep_ns, -1)])
             self.overrun = np.concatenate([self.overrun, np.zeros_like(self.overrun)])
         self.cycles[i] = cycle
         self.lateness_ns[i] = lateness_ns
         self.work_ns[i] = work_ns
+        self.oversleep_ns[i] = oversleep_ns
         self.overrun[i] = overrun
         self.count = i + 1
 
@@ -136,9 +141,11 @@ class Pacer:
             self.origin_ns = now - cycle * self.period_ns
         deadline = self.origin_ns + cycle * self.period_ns
         wake = deadline - self.spin_ns
+        oversleep = -1
         if now < wake:
             self._sleep((wake - now) * 1e-9)
             now = clock()
+            oversleep = now - wake  # > 0: the OS woke the process this late
         while now < deadline:
             now = clock()
         self._started = now
@@ -151,7 +158,7 @@ class Pacer:
             missed = lateness // self.period_ns
             self.origin_ns += missed * self.period_ns
             self.log.missed_ticks += missed
-        self.log.append(cycle, lateness, overrun, work)
+        self.log.append(cycle, lateness, overrun, work, oversleep)
         return overrun
 
 

@@ -372,7 +372,6 @@ def _partial_to_parquet(partial: Path, path: Path, schema) -> None:
     partial.unlink(missing_ok=True)
 
 
-# ---------------------------------------------------------------------------- compact encodings
 # ------------------------------------------- reading files of earlier versions (compact layout)
 ENCODING_KEY = b"cosim.encoding"
 SCALE_KEY = b"cosim.scale"

@@ -166,7 +166,7 @@ def run_document(document: dict[str, Any], folder: Path, anchor: str | None) -> 
     from cosim.master import SimulationError
 
     try:
-        result = execute(load_scenario(document, base_dir=anchor), folder)
+        result = execute(load_scenario(document, base_dir=anchor), folder, report=False)  # the sweep's table is its view
     except (ScenarioError, OutputFolderError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -21,14 +21,12 @@ def drive_values(axis: int, robot: RobotParameters | None = None, drive: DrivePa
                  overrides: Mapping[str, float] | None = None) -> dict[str, Any]:
     """The SI values the object dictionary of ``axis`` (1..6) takes its defaults from: the FMU's
     start values (``overrides``: a scenario's parameters of that drive on top), ``rated_torque``
-    (N·m, joint side), ``position_limit_min``/``_max`` (rad, URDF)."""
+    (N·m, joint side)."""
     robot = robot or load_parameters()
     values: dict[str, Any] = drive_start_values(axis, robot, drive or load_drive_parameters())
     values.update(overrides or {})
     j = axis - 1
     values["rated_torque"] = float(robot.rated_torque[j])
-    values["position_limit_min"] = float(robot.position_lower[j])
-    values["position_limit_max"] = float(robot.position_upper[j])
     return values
 
 

@@ -99,10 +99,14 @@ def test_defaults_come_from_the_drive_parameter_files(ods):
         assert od.entry(0x6065).default == round(start["following_error_window"] * abs(counts_per_rad))
         assert od.entry(0x6072).default == round(start["torque_limit"] / od.newton_metre_per_unit)
         assert od.entry(0x6085).default == round(start["quick_stop_deceleration"] * abs(counts_per_rad))
-        assert od.entry(0x6080).default == round(start["velocity_limit"] * start["gear_ratio"] * 60 / (2 * np.pi))
-        values = drive_values(od.node)
-        assert od.entry(0x607D, 1).default == round(values["position_limit_min"] * counts_per_rad)
-        assert od.entry(0x607D, 2).default == round(values["position_limit_max"] * counts_per_rad)
+        # the protection limits of [protection] in drive_params.toml (CiA objects named there)
+        assert od.entry(0x6080).default == round(start["max_motor_speed"] * start["gear_ratio"] * 60 / (2 * np.pi))
+        assert od.entry(0x607D, 1).default == round(start["position_limit_min"] * counts_per_rad)
+        assert od.entry(0x607D, 2).default == round(start["position_limit_max"] * counts_per_rad)
+        assert od.entry(0x6066).default == round(start["following_error_time"] * 1e3)
+        assert od.entry(0x6075).default == round(start["rated_current"] * 1e3)
+        assert od.entry(0x6073).default == round(start["current_limit"] / start["rated_current"] * 1e3)
+        assert (od.entry(0x2020).default, od.entry(0x2021).default) == (start["peak_current_time"], start["i2t_release"])
         assert od.entry(0x1006).default == 400 and od.entry(0x1019).default == 240
         assert od.entry(0x1014).default == 0x80 + od.node and od.entry(0x1018, 4).default == od.node
 
@@ -147,7 +151,7 @@ def test_the_canopen_library_loads_the_eds_with_every_object_equal(ods, tmp_path
                 assert (var.unit or "") == e.unit
                 assert (var.min, var.max) == (e.low, e.high)
                 compared += 1
-        assert compared == sum(1 for _ in od.entries()) == 94
+        assert compared == sum(1 for _ in od.entries()) == 96
 
 
 def test_the_canopen_library_reads_the_pdo_mappings_and_decodes_what_the_codec_packs(ods, tmp_path):

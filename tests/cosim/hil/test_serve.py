@@ -105,6 +105,22 @@ def test_external_controller_enables_and_moves_the_arm(served_then_killed):
     assert q1.max() - desc["q_start_rad"][0] > 0.1
 
 
+def test_the_served_runs_report_shows_where_it_stopped(served_then_killed, browser):
+    """report.html of the served run (verdict fault) in headless Chromium: the timing report, the
+    fault and where the run stopped (docs/viewing.md)."""
+    from browser_support import console_errors, open_report, report_state
+
+    out, _, _, _, _ = served_then_killed
+    open_report(browser, out / "report.html")
+    assert console_errors(browser) == []
+    state = report_state(browser)
+    assert state["runs"] == ["model_based"]
+    assert any(k.startswith("hil.model_based.") for k in state["keys"])  # the served run's timing report
+    assert any("ended 'fault'" in n for n in state["notes"]), state["notes"]
+    assert any(row[2] == "fault_reaction" for row in state["events"]), state["events"]
+    assert "plot-tcp_error" in state["plots"] and "plot-events" in state["plots"]
+
+
 def test_a_killed_controller_trips_the_counters_and_the_drives_stop_the_arm(served_then_killed):
     out, desc, _, _, _ = served_then_killed
     result = RunResult(out)
@@ -250,9 +266,12 @@ def test_a_controller_at_another_cycle_time_is_a_counted_logged_mismatch(tmp_pat
     finally:
         bus.shutdown()
     _, err = serve.communicate(timeout=120)
-    assert serve.returncode == 0, err
+    # two of every three cycles are lost for the cell: the counters trip, the drives react: verdict fault
+    assert serve.returncode == 5, err
     assert "Traceback" not in err and "cycle-time mismatch" in err
-    found = json.loads((out / "summary.json").read_text())["hil"]["model_based"]["cycle_time_mismatch"]
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["status"] == "fault" and summary["first_violation"]["kind"] == "fault_reaction"
+    found = summary["hil"]["model_based"]["cycle_time_mismatch"]
     assert found["controller_cycle_time_s_estimate"] == pytest.approx(6e-3, rel=0.15)
 
 

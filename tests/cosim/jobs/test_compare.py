@@ -77,6 +77,19 @@ def test_model_based_entry_equals_the_main_job(runs):
     assert summary["true_robot"] == main["true_robot"]
 
 
+def test_compare_report_overlays_the_entries_with_the_ranking(runs, browser):
+    """report.html of the compare run in headless Chromium: every entry, the ranking table (docs/viewing.md)."""
+    from browser_support import console_errors, open_report, report_state
+
+    summary, out, _ = runs
+    open_report(browser, out / "report.html")
+    assert console_errors(browser) == []
+    state = report_state(browser)
+    assert state["runs"] == list(summary["entries"])
+    assert state["ranking_rows"] == len(summary["table"])
+    assert any(k.startswith("entries.") and k.endswith(".tcp_error_max_mm") for k in state["keys"])
+
+
 TRAJECTORIES = ("iso9283", "pick_place_joint", "line", "ruckig_feasible", "quintic_ptp")
 CONTROLLERS = ("standard", "standard_speed_ff", "model_based", "pd_gravity", "feedforward_fmu")
 

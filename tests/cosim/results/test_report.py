@@ -1,0 +1,181 @@
+"""report.html and ``cosim view``: the main job's report opened in a real headless Chromium (no
+console errors, the summary figures shown are summary.json's, the timeline at the maximum TCP
+error reads back the recorded value, a mode toggled off, linked zoom down to every sample, a
+screenshot), several folders overlaid, and bad input (missing, empty, non-results folder, a
+corrupt Parquet file, a run still going)."""
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from browser_support import console_errors, open_report, summary_cells
+from cosim.cli import main
+from cosim.results import read_series
+from cosim.results.panels import PANEL, PANELS
+from scenario_files import run_scenario, write_variant
+
+ROOT = Path(__file__).resolve().parents[3]
+MAIN_JOB = (ROOT / "scenarios" / "iso9283.toml").read_text(encoding="utf-8")
+MODES = ("standard", "model_based", "model_based_elastic")
+
+
+@pytest.fixture(scope="module")
+def main_run(tmp_path_factory):
+    """The main job (scenarios/iso9283.toml, its three modes) cut at 1.2 s: 1 s of the path."""
+    tmp = tmp_path_factory.mktemp("report")
+    path = write_variant(MAIN_JOB, tmp / "iso.toml", [('stop_time = "12.6 s"', 'stop_time = "1.2 s"')])
+    out = tmp / "out"
+    code, summary = run_scenario(path, out)
+    assert code == 0 and summary["status"] == "ok", summary.get("reason")
+    return out, summary
+
+
+def _dig(summary: dict, key: str):
+    for part in key.split("."):
+        summary = summary[part]
+    return summary
+
+
+def _set_time(driver, t: float) -> None:
+    """Move the timeline as a user does (the slider's value and its input event); wait for the readout."""
+    driver.execute_script("var s = document.getElementById('timeline'); s.value = arguments[0];"
+                          "s.dispatchEvent(new Event('input')); return window.cosimReport.readoutDone;", repr(t))
+
+
+def test_every_run_writes_its_report(main_run):
+    out, summary = main_run
+    assert (out / "report.html").stat().st_size > 1_000_000  # Plotly's bundle is inlined
+    assert not (out / "report.html.part").exists()
+    text = (out / "report.html").read_text(encoding="utf-8")
+    assert "@@cosim-report" not in text and "<script src=" not in text  # filled in; nothing loaded from elsewhere
+    # (the browser tests resolve no host name at all: anything the page tried to fetch would fail)
+
+
+def test_main_job_report_in_chromium(main_run, browser, tmp_path):
+    out, summary = main_run
+    open_report(browser, out / "report.html")
+    assert console_errors(browser) == []
+    # every figure shown is summary.json's, shown to 6 significant digits
+    cells = summary_cells(browser)
+    keys = {k for k, _, _ in cells}
+    for mode in MODES:
+        assert f"modes.{mode}.tcp_error_max_mm" in keys and f"modes.{mode}.joint_lag_max_rad" in keys
+    assert "improvement_factor" in keys
+    for key, value, text in cells:
+        assert value == _dig(summary, key), key
+        if isinstance(value, float):
+            assert float(text) == pytest.approx(value, rel=5e-6), (key, text)
+    # the timeline at the largest TCP error of each mode reads back the recorded sample
+    for mode in MODES:
+        names, data = read_series(out / f"tcp_{mode}.parquet")
+        t, err = data[:, names.index("t")], data[:, names.index("tcp_error_mm")]
+        k = int(np.nanargmax(err))
+        _set_time(browser, float(t[k]))
+        shown = browser.execute_script(
+            "var td = document.querySelector('td.readout[data-run=\"' + arguments[0] + '\"][data-panel=\"tcp_error\"]');"
+            "return [td.getAttribute('data-value'), td.getAttribute('data-time'), td.textContent];", mode)
+        assert float(shown[0]) == err[k] and float(shown[1]) == t[k], (mode, shown, err[k])
+        assert float(shown[2]) == pytest.approx(err[k], rel=5e-6)
+    browser.execute_script("document.getElementById('player').scrollIntoView();")
+    browser.save_screenshot(str(tmp_path / "report_at_max_error.png"))
+    # a mode toggled off disappears from every plot and the 3D scene
+    browser.find_element("css selector", "#toggles input[data-run='standard']").click()
+    hidden = browser.execute_script(
+        "var out = [];"
+        "document.querySelectorAll('.plot').forEach(function (d) { (d.data || []).forEach(function (tr) {"
+        "  out.push([d.id, tr.name || '', tr.visible]); }); });"
+        "(document.getElementById('scene').data || []).forEach(function (tr) { out.push(['scene', tr.name || '', tr.visible]); });"
+        "return out;")
+    standard = [v for _, name, v in hidden if name.startswith("standard ") or name == "standard"]
+    others = [v for plot, name, v in hidden if name.startswith("model_based") and plot == "plot-tcp_error"]
+    assert standard and all(v is False for v in standard)
+    assert others and all(v is not False for v in others)
+    browser.find_element("css selector", "#toggles input[data-run='standard']").click()
+    # zooming one plot zooms all of them, down to every recorded sample
+    names, data = read_series(out / "tcp_model_based.parquet")
+    t = data[:, names.index("t")]
+    a, b = float(t[300]), float(t[500])
+    browser.execute_script("return window.cosimReport.setRange(arguments[0], arguments[1]);", a, b)
+    ranges = browser.execute_script(
+        "return Array.from(document.querySelectorAll('.plot')).filter(function (d) { return d.layout; })"
+        ".map(function (d) { return d.layout.xaxis.range; });")
+    assert len(ranges) >= 5 and all(r[0] == pytest.approx(a) and r[1] == pytest.approx(b) for r in ranges)
+    xs = browser.execute_script(
+        "var d = document.getElementById('plot-tcp_error');"
+        "var tr = d.data.find(function (tr) { return tr.name === 'model_based'; }); return Array.from(tr.x);")
+    inside = t[(t >= a) & (t <= b)]
+    assert set(inside.tolist()) <= set(xs) and len(xs) <= inside.size + 2
+    browser.save_screenshot(str(tmp_path / "report_zoomed.png"))
+    assert console_errors(browser) == []
+
+
+def test_panels_are_the_figures_description():
+    """The PNG figures' labels and the report's panels come from cosim.results.panels."""
+    from cosim.jobs import iso9283_figures as figures
+
+    _, ax = figures._tcp_error_axes()
+    assert ax.get_ylabel() == PANEL["tcp_error"].ylabel and ax.get_title() == PANEL["tcp_error"].png_title
+    assert ax.get_yscale() == ("log" if PANEL["tcp_error"].log else "linear")
+    fig, axes = figures._lag_axes()
+    assert axes[0].get_ylabel() == f"axis 1 {PANEL['lag'].ylabel}"
+    assert figures.envelope is __import__("cosim.results.panels", fromlist=["envelope"]).envelope
+    from cosim.results import report
+
+    assert report.PANELS is PANELS
+
+
+def test_several_folders_overlaid(main_run, browser, tmp_path):
+    out, _ = main_run
+    a, b = tmp_path / "run_a", tmp_path / "run_b"
+    for folder in (a, b):
+        shutil.copytree(out, folder)
+    target = tmp_path / "both.html"
+    assert main(["view", str(a), str(b), "-o", str(target)]) == 0
+    open_report(browser, target)
+    assert console_errors(browser) == []
+    labels = browser.execute_script(
+        "return Array.from(document.querySelectorAll('#toggles label')).map(function (l) { return l.getAttribute('data-run'); });")
+    assert labels == [f"{f}/{m}" for f in ("run_a", "run_b") for m in MODES]
+    traces = browser.execute_script("return document.getElementById('plot-tcp_error').data.length;")
+    assert traces == 6
+
+
+@pytest.mark.parametrize("case", ["missing", "empty", "not_results"])
+def test_view_bad_folder_is_one_line_exit_2(tmp_path, capsys, case):
+    folder = tmp_path / "x"
+    if case != "missing":
+        folder.mkdir()
+    if case == "not_results":
+        (folder / "notes.txt").write_text("hello", encoding="utf-8")
+    assert main(["view", str(folder)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error: ") and str(folder) in err[0]
+    assert {"missing": "no such folder", "empty": "empty folder", "not_results": "not a results folder"}[case] in err[0]
+    assert not (folder / "report.html").exists()
+
+
+def test_partial_reports_say_what_is_missing(main_run, browser, tmp_path):
+    """A corrupt Parquet file is left out and named; a run still going is shown and says so."""
+    out, summary = main_run
+    broken = tmp_path / "broken"
+    shutil.copytree(out, broken)
+    tcp = broken / "tcp_standard.parquet"
+    tcp.write_bytes(tcp.read_bytes()[: tcp.stat().st_size // 2])
+    running = {**summary, "status": "running"}
+    (broken / "summary.json").write_text(json.dumps(running), encoding="utf-8")
+    (broken / "report.html").unlink()
+    assert main(["view", str(broken)]) == 0
+    open_report(browser, broken / "report.html")
+    assert console_errors(browser) == []
+    notes = browser.execute_script(
+        "return Array.from(document.querySelectorAll('#notes div')).map(function (d) { return d.textContent; });")
+    assert any("tcp_standard.parquet not readable" in n for n in notes), notes
+    assert any("still going" in n for n in notes), notes
+    names = browser.execute_script("return document.getElementById('plot-tcp_error').data.map(function (t) { return t.name; });")
+    assert names == ["model_based", "model_based_elastic"]  # the standard mode's TCP error is missing, the rest shown
+    lag = browser.execute_script("return document.getElementById('plot-following_error').data.map(function (t) { return t.name; });")
+    assert any(n.startswith("standard") for n in lag)  # its drive signals are there
