@@ -138,35 +138,89 @@ def _cell(text: str) -> str:
     return text.replace("|", "\\|").replace("\n", " ").strip()
 
 
+def _text(text: str) -> str:
+    """Prose for a table cell: ``<key>`` shown as text, not taken for HTML."""
+    return _cell(text).replace("&", "&amp;").replace("<", "&lt;").replace(">", "&gt;")
+
+
+def _row(key: KeyDoc, link: str = "") -> str:
+    default = "required" if key.required else (f"`{_cell(key.default)}`" if key.default else "")
+    meaning = _text(key.doc) or "*(undocumented)*"
+    if key.accepts and key.accepts not in key.doc:
+        meaning += f" — accepts {_text(key.accepts)}"
+    if link:
+        meaning += f" ([keys]({link}))"
+    return f"| `{_cell(key.path)}` | {key.type} | {key.unit} | {default} | {meaning} |"
+
+
+_HEADER = ["| key | type | unit | default | meaning |", "|---|---|---|---|---|"]
+
+
+def _is_table(field: Field) -> bool:
+    spec = field.spec
+    return isinstance(spec, Table) or (isinstance(spec, List) and isinstance(spec.item, Table))
+
+
 def scenario_keys_markdown() -> str:
-    """The page ``reference/scenario_keys.md``: every key of every registered job type."""
+    """The page ``reference/scenario_keys.md``: every key of every registered job type.
+
+    Each job lists its top-level keys; a table (``[simulation]``, ``[[fmus]]``, ...) is listed
+    once with all its keys and linked from every job whose schema uses that same table."""
+    names = job_names()
+    tables: dict[tuple[str, int], list[str]] = {}   # (name, id(spec)) -> jobs using it
+    anchors: dict[tuple[str, int], str] = {}
+    fields: dict[tuple[str, int], Field] = {}
+    for name in names:
+        for key, field in get_job(name).schema.fields.items():
+            if _is_table(field):
+                ident = (key, id(field.spec))
+                if ident not in tables:
+                    count = sum(1 for other in tables if other[0] == key)
+                    anchors[ident] = f"table-{key}" + (f"-{count + 1}" if count else "")
+                    tables[ident] = []
+                    fields[ident] = field
+                tables[ident].append(name)
     lines = [
         "# Scenario keys (reference)",
         "",
-        "Generated from the job schemas (`cosim/scenario/reference.py`); the schemas are the truth.",
-        "A scenario file is a TOML document whose `[scenario] job` names one of the job types below;",
-        "each section lists every key that job's document accepts. Quantities with a unit accept an",
-        "SI number or a string with a unit (`\"400 us\"`, `\"2 ms\"`). Key paths: `a.b` is key `b` of",
-        "table `[a]`, `a[].b` is key `b` of every `[[a]]` item, `<key>` stands for a name you choose.",
+        "Generated from the job schemas by `cosim/scenario/reference.py` when the site is built; the",
+        "schemas are the truth. A scenario file is a TOML document whose `[scenario] job` names one of",
+        "the job types below; each job lists the keys and tables its document accepts, and each table",
+        "is listed once below with all its keys. Quantities with a unit accept an SI number or a string",
+        "with a unit (`\"400 us\"`, `\"2 ms\"`). Key paths: `a.b` is key `b` of table `[a]`, `a[].b`",
+        "is key `b` of every `[[a]]` item, `<key>` stands for a name you choose.",
         "",
         "| job | what it does |",
         "|---|---|",
     ]
-    names = job_names()
     for name in names:
-        lines.append(f"| [`{name}`](#job-{name}) | {_cell(get_job(name).description)} |")
+        lines.append(f"| [`{name}`](#job-{name}) | {_text(get_job(name).description)} |")
     for name in names:
         job = get_job(name)
         lines += ["", f"## Job `{name}` {{#job-{name}}}", ""]
         if job.description:
-            lines += [_cell(job.description[0].upper() + job.description[1:]) + ".", ""]
-        lines += ["| key | type | unit | default | meaning |", "|---|---|---|---|---|"]
+            lines += [_text(job.description[0].upper() + job.description[1:]) + ".", ""]
+        lines += _HEADER
         for key in scenario_keys(name):
-            default = "required" if key.required else (f"`{_cell(key.default)}`" if key.default else "")
-            meaning = _cell(key.doc) or "*(undocumented)*"
-            if key.accepts and key.accepts not in key.doc:
-                meaning += f" — accepts {_cell(key.accepts)}"
-            lines.append(f"| `{_cell(key.path)}` | {key.type} | {key.unit} | {default} | {meaning} |")
+            top = key.path.split(".")[0].split("[")[0]
+            field = job.schema.fields.get(top)
+            if key.path != top:
+                continue
+            link = ""
+            if field is not None and _is_table(field):
+                link = "#" + anchors[(top, id(field.spec))]
+            lines.append(_row(key, link))
+    lines += ["", "## Tables", ""]
+    for ident, jobs in tables.items():
+        key, _ = ident
+        field = fields[ident]
+        array = isinstance(field.spec, List)
+        title = f"[[{key}]]" if array else f"[{key}]"
+        lines += ["", f"### `{title}` ({', '.join(jobs)}) {{#{anchors[ident]}}}", ""]
+        rows = list(_walk_field(field, key))
+        if rows[0].doc:
+            lines += [_text(rows[0].doc[0].upper() + rows[0].doc[1:]) + ".", ""]
+        lines += _HEADER + [_row(row) for row in rows[1:]]
     return "\n".join(lines) + "\n"
 
 
