@@ -105,7 +105,7 @@ SIMULATION_TABLE = Table({
 
 FMU_TABLE = Table({
     "name": Field(String(pattern=INSTANCE_PATTERN, pattern_doc="of letters, digits and '_' (an identifier)"),
-                  required=True, doc="the FMU instance's name, used in connections and signal names"),
+                  required=True, doc="a string of letters, digits and '_' (an identifier): the FMU instance's name in connections and signals"),
     "path": Field(FilePath(must_exist=True, suffix=".fmu"), doc="an FMU file (one of path, builtin, source)"),
     "builtin": Field(String(), doc="the name of one of the project's FMUs"),
     "source": Field(String(), doc="a folder with modelDescription.xml and C files (relative to the scenario "

@@ -24,7 +24,9 @@ NAME_PATTERN = r"[A-Za-z0-9][A-Za-z0-9_.-]*"
 #: The ``[scenario]`` table every scenario has.
 SCENARIO_TABLE = Table({
     "name": Field(String(pattern=NAME_PATTERN, pattern_doc="of letters, digits, '_', '.', '-' (used as folder name)"),
-                  required=True, doc="the scenario's name: its results folder is results/<name>"),
+                  required=True,
+                  doc="a string of letters, digits, '_', '.', '-': the scenario's name and its results folder "
+                      "(results/<name>)"),
     "job": Field(String(), required=True, doc="a registered job type"),
     "description": Field(String(nonempty=False), default="", doc="free text for the reader of the scenario file"),
 }, doc="the [scenario] table")
