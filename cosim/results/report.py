@@ -43,8 +43,8 @@ REPORT_NAME = "report.html"
 #: Columns of the overview of each curve (min and max in each: <= 2 points per column).
 OVERVIEW_COLUMNS = 2000
 #: Samples of all curves embedded at full resolution (beyond the TCP error, always whole).
-#: 3 million float32 values: about 10 MB deflated and base64-coded at most.
-FULL_VALUES_BUDGET = 3_000_000
+#: 2 million float32 values: about 10 MB deflated and base64-coded at most.
+FULL_VALUES_BUDGET = 2_000_000
 #: Poses of the arm embedded per run for the 3D replay (evenly spaced in the rows).
 ARM_FRAMES = 4000
 #: Points of each 3D path (the TCP error's peaks and evenly spaced ones).
@@ -330,7 +330,7 @@ def _run_data(run: Run, label: str, colour: str, summary: dict[str, Any] | None,
                     full = _pack(y, "f8" if whole else "f4", deflate=True)
                 curves.append({"joint": j, "label": joint_names(series.label, j) if j else series.label,
                                "source": series.source, "column": column,
-                               "ox": _pack(t[index], "f8"), "oy": _pack(y[index], "f4"), "full": full})
+                               "ox": _pack(t[index], "f8"), "oy": _pack(y[index], "f8" if whole else "f4"), "full": full})
         if curves:
             out["series"][panel.key] = curves
     ts = columns.get("timeseries", {})
