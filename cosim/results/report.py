@@ -415,10 +415,11 @@ def _check_folder(folder: Path) -> None:
 def _labels(folders: list[Path], runs_by_folder: list[list[Run]]) -> list[list[tuple[str, str]]]:
     """(label, matplotlib colour) of every run: the mode's name and colour for one folder;
     ``<folder>/<mode>`` and colours in turn for several."""
-    if len(folders) == 1:
+    if len(folders) == 1:  # a compare entry <controller>__<trajectory> in its controller's colour
         names = [r.name for r in runs_by_folder[0]]
-        others = [n for n in names if n not in ("standard", "standard_speed_ff", "model_based", "model_based_elastic")]
-        return [[(n, colour_of(n, others)) for n in names]]
+        bases = list(dict.fromkeys(n.split("__")[0] for n in names))
+        others = [n for n in bases if n not in ("standard", "standard_speed_ff", "model_based", "model_based_elastic")]
+        return [[(n, colour_of(n.split("__")[0], others)) for n in names]]
     labels = [f"{f.name}/{r.name}" for f, found in zip(folders, runs_by_folder) for r in found]
     return [[(f"{f.name}/{r.name}", colour_of(f"{f.name}/{r.name}", labels)) for r in found]
             for f, found in zip(folders, runs_by_folder)]
