@@ -21,6 +21,11 @@ per drive. The SoC counter is the cell's cycle (as the number of PRes batches se
 plus one, modulo 240, plus one: a batch that is missed or answered too late costs that
 cycle's set-points (the cell's threshold counters count it).
 
+A drive that reacts during the run (a fault reaction, e.g. the cell's threshold counters
+tripping on lost cycles) stops the motion: the program holds and cycles on until the cell
+stops. Exit codes: 0 the run went through, 2 no cell or the drives never enabled, 3 the drives
+were not enabled within --enable-timeout, 4 a drive faulted during the run.
+
 Usage::
 
     python -m cosim serve scenarios/hil.toml --out results/hil --wait-for-controller 60 &
@@ -105,6 +110,7 @@ def main(argv: list[str] | None = None) -> int:
     cycles_seen = 0
     enabled_at = None
     disabled_at = None
+    faulted_at = None
     motion_cycles = int(round(args.duration / cycle_s))
     started = time.monotonic()
 
@@ -137,8 +143,10 @@ def main(argv: list[str] | None = None) -> int:
             msg = pending.pop() if pending else bus.recv(0.5)
             if msg is None:
                 print("no PRes from the cell for 0.5 s: the cell stopped", file=sys.stderr)
-                if enabled_at is not None and disabled_at is None:
+                if enabled_at is not None and disabled_at is None and faulted_at is None:
                     print("the cell stopped before the motion ended (the drives were not disabled)", file=sys.stderr)
+                if faulted_at is not None:
+                    return 4
                 return 0 if enabled_at is not None else 2
             batch = [msg]
             msg = bus.recv(0)
@@ -173,9 +181,16 @@ def main(argv: list[str] | None = None) -> int:
             else:
                 k = cycles_seen - enabled_at
                 rest = int(0.5 / cycle_s)
+                if faulted_at is None and any(state(s) == "fault" or s & 0x4F == 0x0F for s in status):
+                    faulted_at = cycles_seen  # a drive reacted (e.g. lost cycles): stop commanding motion
+                    print(f"drive fault at cycle {cycles_seen} (statuswords {[hex(s) for s in status]}): motion "
+                          f"stopped, holding until the cell stops", file=sys.stderr, flush=True)
+                if faulted_at is not None:
+                    k = motion_cycles + rest + 1  # no more motion: hold, disable what is still enabled
                 if k > motion_cycles + rest:  # motion done and 0.5 s of rest: disable the drives
                     controlword = [SHUTDOWN] * n  # Ready to switch on: power stage off, brakes closed
-                    if disabled_at is None and all(state(s) == "ready_to_switch_on" for s in status):
+                    if disabled_at is None and faulted_at is None and \
+                            all(state(s) == "ready_to_switch_on" for s in status):
                         disabled_at = cycles_seen
                         print(f"all {n} drives disabled at cycle {cycles_seen}", flush=True)
                     if disabled_at is not None and args.exit_when_disabled:

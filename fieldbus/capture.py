@@ -18,6 +18,8 @@ written twice, with the pcapng container of the ``python-pcapng`` library:
   the node that sent an EMCY in that cycle;
 * ASnd (0x06) StatusResponse from that node, at the EMCY's time, with one error entry: the EMCY's
   error code (device profile 402, "occurred"), its time, and the EMCY's five manufacturer bytes.
+  Several EMCYs in one cycle give one ASnd each after that cycle's SoA, which invites the first
+  node (a real MN would invite the others in the following cycles).
 
 Frames lost on the wire are not in the CAN log and so not in the capture; frames corrupted on the
 wire (error frames in the CAN log) are left out as well (a receiver discards a frame whose CRC is

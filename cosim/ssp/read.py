@@ -140,6 +140,7 @@ def load_ssp(path: str | Path, extract_to: str | Path | None = None) -> SspSyste
         fmus: list[dict[str, Any]] = []
         variables: dict[str, dict[str, Any]] = {}
         driven_inputs: list[tuple[str, str, str, str]] = []  # (master variable, type, who, "comp.input")
+        component_names = {comp.get("name") for comp in system.findall("ssd:Elements/ssd:Component", NS)}
         for comp in system.findall("ssd:Elements/ssd:Component", NS):
             label = _element_label(SSD_MEMBER, comp)
             name, source = comp.get("name"), comp.get("source")
@@ -170,7 +171,8 @@ def load_ssp(path: str | Path, extract_to: str | Path | None = None) -> SspSyste
                                    problem=f"{source} has no variable {c.get('name')!r}")
                 signal = _info(c).get("masterVariable")
                 if signal is not None:  # an input the Python side drives (this project's annotation)
-                    if c.get("kind") != "input" or signal.split(".", 1)[0] in variables or "." not in signal:
+                    owner = signal.split(".", 1)[0]
+                    if c.get("kind") != "input" or "." not in signal or owner in component_names:
                         raise SspError(path, _element_label(SSD_MEMBER, c), "masterVariable = 'owner.name' (not a "
                                        "component) on an input connector", problem=f"{signal!r} on kind {c.get('kind')!r}")
                     typ = next((t for t in ("Real", "Integer", "Boolean") if c.find(f"ssc:{t}", NS) is not None), "Real")

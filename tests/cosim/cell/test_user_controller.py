@@ -221,7 +221,8 @@ def test_a_failing_controller_fmu_stops_the_run_cleanly(tmp_path, pd_fmu):
     path = scenario(tmp_path, lines, extra=mapping + "[controller.parameters]\nfail_after = 0.02\n")
     code, summary = run(path, tmp_path / "out")
     assert code != 0 and summary["status"] == "failed"
-    assert "fmi2DoStep(t=0.0204 s, h=0.0004 s) returned fmi2Discard" in summary["reason"]
+    # the step from t = 0.02 s (50 exact 400 us periods) is the first with current_time >= fail_after
+    assert "fmi2DoStep(t=0.02 s, h=0.0004 s) returned fmi2Discard" in summary["reason"]
     assert summary["stopped_at_s"] == pytest.approx(0.02, abs=1e-3)
     assert (tmp_path / "out" / "timeseries_pd_fmu.parquet").is_file()
 

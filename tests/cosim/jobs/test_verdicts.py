@@ -349,3 +349,62 @@ def test_realtime_run_that_fails_by_overruns_says_so(tmp_path):
     assert "Operation enabled" in last and "controller overran" in last and "% of cycles" in last, done.stderr
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
     assert "controller overran" in summary["reason"]
+
+
+BRUTE = '''
+import numpy as np
+from controller import ControllerOutput
+from controller.contract import MODE_CST
+from controller.tracking_clock import TrackingClock
+
+
+class Brute:
+    """Enables the drives, then commands 1e6 N.m on joint 3 in cyclic synchronous torque."""
+
+    def setup(self, info):
+        self.clock = TrackingClock(info, settle_time_s=0.02)
+        self.out = ControllerOutput.zeros(info.n_joints, mode=MODE_CST)
+
+    def step(self, inputs):
+        tau = self.clock.update(inputs, self.out.controlword)
+        self.out.target_torque[:] = 0.0
+        if tau is not None:
+            self.out.target_torque[2] = 1e6
+        return self.out
+
+    def close(self):
+        pass
+
+    motion_start_s = property(lambda self: self.clock.motion_start_s)
+    stop_reason = property(lambda self: self.clock.stop_reason)
+    stopped_at_s = property(lambda self: self.clock.stopped_at_s)
+'''
+
+
+def test_a_controller_commanding_1e6_nm_ends_with_verdict_limit(tmp_path):
+    """python -m cosim run: the drives clamp the torque and stop the axis; verdict limit, exit 4."""
+    (tmp_path / "brute.py").write_text(BRUTE, encoding="utf-8")
+    path = write_variant(ISO_TEXT, tmp_path / "brute.toml", [
+        *SHORT, ('modes = ["standard", "standard_speed_ff", "model_based"]', 'modes = []\nclass = "brute.py:Brute"')])
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    done = subprocess.run([sys.executable, "-m", "cosim", "run", str(path), "--out", str(tmp_path / "out"), "--quiet"],
+                          capture_output=True, text=True, cwd=ROOT, env=env, timeout=600)
+    assert done.returncode == 4, done.stderr
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    entry = summary["modes"]["Brute"]
+    assert summary["status"] == "limit" and entry["verdict"] == "limit"
+    kinds = {v["kind"] for v in entry["violations"]}
+    assert "torque_limit" in kinds, entry["violations"]
+    first = entry["first_violation"]
+    assert first["kind"] == "torque_limit" and first["joint"] == 3
+    assert "Brute: limit: torque_limit joint 3" in done.stderr and "exit code 4" in done.stderr
+    # no joint beyond its end stop by more than the contact's deflection (the plant's end-stop record)
+    from cosim.results import read_series
+
+    columns, data = read_series(tmp_path / "out" / "timeseries_Brute.parquet")
+    stops = [v for v in entry["violations"] if v["kind"] == "end_stop"]
+    assert stops and {v["joint"] for v in stops} == {3}
+    for stop in stops:
+        q = data[:, columns.index(f"plant.q[{stop['joint']}]")]
+        beyond = q.max() - stop["stop_rad"] if stop["stop_rad"] > 0 else stop["stop_rad"] - q.min()
+        assert beyond <= stop["max_penetration_rad"] + 1e-9, stop

@@ -95,6 +95,11 @@ def test_export_of_the_main_job_is_valid_and_loads_in_fmpy(iso_ssp):
     assert all("Python controller" in by and "CiA 402" in by for _, by in system.system_inputs.values())
     assert sorted(system.system_inputs) == sorted(c.split(" -> ")[0] for c in system.inputs_connections)
     assert "bus.controlword[3] -> drive3.controlword" in system.inputs_connections
+    bad = _rewrite(iso_ssp, iso_ssp.with_name("bad_master_variable.ssp"), "SystemStructure.ssd",
+                   lambda t: t.replace('masterVariable="bus.controlword[2]"', 'masterVariable="plant.controlword[2]"'))
+    with pytest.raises(SspError, match=r"<ssd:Connector name='controlword'> \(line \d+\): 'plant.controlword\[2\]' on "
+                       r"kind 'input'; expected masterVariable = 'owner.name' \(not a component\)"):
+        load_ssp(bad)
     # what the docs say is what the export holds
     assert _documented("components and") == len(ssd.system.elements)
     assert _documented("connections between them") == len(system.connections)
