@@ -16,8 +16,7 @@ from urllib.parse import unquote, urlsplit
 import pytest
 
 from cosim.cli_reference import cli_markdown, undocumented_arguments
-from cosim.scenario.reference import scenario_keys, scenario_keys_markdown, undocumented_keys
-from cosim.scenario.registry import job_names
+from cosim.scenario.reference import job_names, scenario_keys, scenario_keys_markdown, undocumented_keys
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -133,6 +132,7 @@ def test_generated_reference_pages_are_in_the_site(site):
 
 
 def test_every_scenario_key_is_documented():
+    assert {"fmus", "iso9283", "compare", "calibration", "identification", "planners", "fieldbus_fault"} <= set(job_names())
     total = sum(len(scenario_keys(job)) for job in job_names())
     assert total > 300
     missing = undocumented_keys()
@@ -151,11 +151,13 @@ def test_scenario_key_page_lists_every_key_with_its_unit_and_default():
 
 def test_undocumented_key_is_found():
     """The check itself: a schema key without doc= is reported."""
-    from cosim.scenario.reference import _walk
+    from cosim.scenario.reference import _PLACEHOLDER, _walk
     from cosim.scenario.schema import Field, Integer, Table
 
     keys = list(_walk(Table({"a": Field(Table({"b": Field(Integer()), "c": Field(Integer(), doc="c")}))}), ""))
     assert [(k.path, bool(k.doc)) for k in keys] == [("a", False), ("a.b", False), ("a.c", True)]
+    # a doc that only names the table counts as none
+    assert _PLACEHOLDER.fullmatch("the [controller.standard] table") and not _PLACEHOLDER.fullmatch("the tracker")
 
 
 def test_every_command_line_argument_is_documented():

@@ -136,7 +136,7 @@ CONTROLLER_TABLE = Table({
     "drive_compensation": CONTROLLER_CONFIG_FIELDS["drive_compensation"],
     "compute_budget": CONTROLLER_CONFIG_FIELDS["compute_budget"],
     "settle_time": CONTROLLER_CONFIG_FIELDS["settle_time"],
-    **{mode: Field(_mode_table(mode)) for mode in BUILTIN_MODES},
+    **{mode: Field(_mode_table(mode), doc=f"settings of the built-in mode {mode!r}") for mode in BUILTIN_MODES},
     "class": Field(String(pattern=r"^[^:]+:[A-Za-z_][A-Za-z0-9_.]*$",
                           pattern_doc="'path/to/file.py:ClassName' or 'package.module:ClassName'"),
                    doc="a user controller run besides the modes: 'path/to/file.py:Class' or 'package.module:Class' "
@@ -189,13 +189,15 @@ def can_log_path(ctx: Any, results: dict[str, Any], name: str) -> Any:
     return ctx.path(f"can_{name}{CAN_LOG_FORMATS[results.get('can_log_format', 'parquet')]}")
 
 CELL_FIELDS: dict[str, Field] = {
-    "true_robot": Field(TRUE_ROBOT_TABLE, default={}),
-    "controller": Field(CONTROLLER_TABLE, default={}),
-    "path": Field(PATH_TABLE, default={}),
-    "tracker": Field(TRACKER_TABLE, default={}),
+    "true_robot": Field(TRUE_ROBOT_TABLE, default={},
+                        doc="the simulated robot: seed of its deviations from the nominal model, payload"),
+    "controller": Field(CONTROLLER_TABLE, default={},
+                        doc="the controller: built-in modes or a user class/FMU, cycle, compute budget"),
+    "path": Field(PATH_TABLE, default={}, doc="the ISO 9283 test path's speed and acceleration"),
+    "tracker": Field(TRACKER_TABLE, default={}, doc="the laser tracker measuring the TCP: sample period, noise"),
     "fieldbus": Field(Table({}, extra=AnyValue(), doc="a [fieldbus] table (fieldbus/powerlink_defaults.toml keys)"),
                       default={}),
-    "results": Field(RESULTS_TABLE, default={}),
+    "results": Field(RESULTS_TABLE, default={}, doc="which result files the run writes"),
 }
 """The scenario tables of a job that runs the cell (besides [scenario] and the co-simulation tables)."""
 _CELL_TABLES = ("true_robot", "controller", "path", "tracker", "results")

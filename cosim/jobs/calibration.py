@@ -69,7 +69,14 @@ VALIDATION = Table({
 SECTIONS = {"true_robot": TRUE_ROBOT, "tracker": TRACKER, "candidates": CANDIDATES,
             "selection": SELECTION, "validation": VALIDATION}
 
-SCHEMA = Table({"scenario": SCENARIO_FIELD, **{name: Field(spec) for name, spec in SECTIONS.items()}},
+SECTION_DOCS = {"true_robot": "the simulated robot whose geometry is calibrated",
+                "tracker": "the optical tracker: placement, field of view, probe, noise",
+                "candidates": "the grid of candidate measurement configurations",
+                "selection": "the choice of optimal measurement configurations",
+                "validation": "the poses the calibrated model is checked on"}
+
+SCHEMA = Table({"scenario": SCENARIO_FIELD,
+                **{name: Field(spec, doc=SECTION_DOCS[name]) for name, spec in SECTIONS.items()}},
                doc="a calibration scenario document")
 
 

@@ -145,16 +145,19 @@ RESULTS_TABLE = Table({
 SCHEMA = Table({
     "scenario": SCENARIO_FIELD,
     **COSIM_FIELDS,
-    "true_robot": Field(TRUE_ROBOT_TABLE, default={}),
-    "controller": Field(CONTROLLER_TABLE, default={}),
-    "excitation": Field(EXCITATION_TABLE, default={}),
-    "measurement": Field(MEASUREMENT_TABLE, default={}),
+    "true_robot": Field(TRUE_ROBOT_TABLE, default={},
+                        doc="the simulated robot whose parameters are identified"),
+    "controller": Field(CONTROLLER_TABLE, default={},
+                        doc="the controller during the excitation run and the ISO 9283 validation runs"),
+    "excitation": Field(EXCITATION_TABLE, default={}, doc="the optimal exciting trajectory"),
+    "measurement": Field(MEASUREMENT_TABLE, default={},
+                         doc="how the drives' records are measured, filtered and fitted"),
     "stiffness": Field(STIFFNESS_TABLE, default={}),
-    "path": Field(PATH_TABLE, default={}),
-    "tracker": Field(TRACKER_TABLE, default={}),
+    "path": Field(PATH_TABLE, default={}, doc="the ISO 9283 validation path's speed and acceleration"),
+    "tracker": Field(TRACKER_TABLE, default={}, doc="the laser tracker measuring the TCP: sample period, noise"),
     "fieldbus": Field(Table({}, extra=AnyValue(), doc="a [fieldbus] table (fieldbus/powerlink_defaults.toml keys)"),
                       default={}),
-    "results": Field(RESULTS_TABLE, default={}),
+    "results": Field(RESULTS_TABLE, default={}, doc="which result files the campaign writes"),
 }, doc="an identification scenario document")
 
 _TABLES = ("true_robot", "controller", "excitation", "measurement", "stiffness", "path", "tracker", "results")

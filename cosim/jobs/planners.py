@@ -113,12 +113,14 @@ PROBLEM_TABLE = Table({
                            "or 'all' (plus jerk and torque rate)"),
     "ptp_limits": Field(String(choices=("eq40", "all")), default="eq40",
                         doc="PtP limits: 'eq40' (torque, torque rate, velocity, position) or 'all'"),
-    "limit_scale": Field(SCALE_TABLE, default={}),
+    "limit_scale": Field(SCALE_TABLE, default={}, doc="factors <= 1 on the robot's limits, per kind of limit"),
 }, doc="the [problem] table")
 
 SCHEMA = Table({"scenario": SCENARIO_FIELD, **COSIM_FIELDS, **CELL_FIELDS,
-                "planners": Field(PLANNERS_TABLE, required=True),
-                "problem": Field(PROBLEM_TABLE, default={})},
+                "planners": Field(PLANNERS_TABLE, required=True,
+                                  doc="the [planners] table: which planners run and are compared"),
+                "problem": Field(PROBLEM_TABLE, default={},
+                                 doc="the planning problem: motion, weights, transcription, friction, limits")},
                doc="a planners scenario document")
 
 

@@ -140,8 +140,8 @@ COSIM_FIELDS: dict[str, Field] = {
     "system": Field(FilePath(must_exist=True, suffix=".ssp"),
                     doc="an .ssp file (SSP 1.0) whose FMUs, connections and parameter values replace [[fmus]]"),
     "connections": Field(List(String()), default=[], doc="connections \"fmu.output -> fmu.input\""),
-    "record": Field(RECORD_TABLE),
-    "output": Field(OUTPUT_TABLE, default={}),
+    "record": Field(RECORD_TABLE, doc="which signals are recorded, how often, into which file"),
+    "output": Field(OUTPUT_TABLE, default={}, doc="where the results go"),
     **execution_fields(),  # [execution], [realtime]: cosim/scenario/execution_tables.py
 }
 

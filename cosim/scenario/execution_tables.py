@@ -83,7 +83,8 @@ def execution_fields() -> dict[str, Any]:
     (cosim.scenario.cosim_tables.COSIM_FIELDS does)."""
 
     execution, realtime = _tables()
-    return {"execution": Field(execution, default={}), "realtime": Field(realtime, default={})}
+    return {"execution": Field(execution, default={}, doc="how the run is executed: one process or split, paced or not"),
+            "realtime": Field(realtime, default={}, doc="pacing of a wall-clock run: overruns, scheduling, statistics")}
 
 
 def execution_tables(doc: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:

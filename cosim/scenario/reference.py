@@ -11,12 +11,13 @@ item of an array of tables), ``fmus[].parameters.<key>`` (free-form keys of a ta
 """
 from __future__ import annotations
 
+import re
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from cosim.scenario.registry import get_job, job_names
+from cosim.scenario.registry import JOB_MODULES, get_job, job_names as _all_job_names
 from cosim.scenario.schema import MISSING, AnyValue, Boolean, Field, FilePath, Integer, List, Number, Spec, String, Table
 
 
@@ -31,6 +32,12 @@ class KeyDoc:
     required: bool
     doc: str           # the Field's doc ("" when the schema gives none)
     accepts: str       # what the validator accepts (the spec's ``expected`` text)
+
+
+def job_names() -> list[str]:
+    """The job types the reference documents: those the modules of ``JOB_MODULES`` register (a job
+    registered at run time by a script or a test is not part of it)."""
+    return [name for name in _all_job_names() if get_job(name).runner.__module__ in JOB_MODULES]
 
 
 def _type_of(spec: Spec) -> str:
@@ -128,10 +135,14 @@ def scenario_keys(job: str) -> list[KeyDoc]:
     return keys
 
 
+#: A doc that only names the table ("the [tracker] table") says nothing about it.
+_PLACEHOLDER = re.compile(r"(the|a) \[+[A-Za-z0-9_.]+\]+ table")
+
+
 def undocumented_keys() -> list[tuple[str, str]]:
-    """(job, key path) of every schema key without a ``doc`` text."""
+    """(job, key path) of every schema key without a ``doc`` text (or only a table's name as one)."""
     return [(job, key.path) for job in job_names() for key in scenario_keys(job)
-            if not key.doc.strip()]
+            if not key.doc.strip() or _PLACEHOLDER.fullmatch(key.doc.strip())]
 
 
 def _cell(text: str) -> str:
@@ -224,4 +235,4 @@ def scenario_keys_markdown() -> str:
     return "\n".join(lines) + "\n"
 
 
-__all__ = ["KeyDoc", "scenario_keys", "scenario_keys_markdown", "toml_text", "undocumented_keys"]
+__all__ = ["KeyDoc", "job_names", "scenario_keys", "scenario_keys_markdown", "toml_text", "undocumented_keys"]
