@@ -56,11 +56,9 @@ def protection_events(cell: Any, recording: Any) -> list[dict[str, Any]]:
     brake), ``detail``; ``duration_s`` once it has ended (``active_at_end`` True otherwise).
     End stops add ``impact_speed_rad_s``, ``stop_rad``, ``max_penetration_rad`` and ``contacts``.
     """
-    columns = list(getattr(recording, "columns", None) or [])
-    data = getattr(recording, "data", None)
+    columns, data = _read(recording)
     if not columns or data is None or len(data) == 0 or "time" not in columns:
         return []
-    data = np.asarray(data)
     index = {name: k for k, name in enumerate(columns)}
     time = data[:, index["time"]]
     params = {fmu["name"]: fmu.get("parameters", {}) for fmu in cell.document["fmus"]}
@@ -74,6 +72,28 @@ def protection_events(cell: Any, recording: Any) -> list[dict[str, Any]]:
     events += _end_stop_events(data, index, time, params.get(PLANT, {}))
     events.sort(key=lambda e: (e["time_s"], e["joint"] or 0))
     return events
+
+
+def _read(recording: Any) -> tuple[list[str], np.ndarray | None]:
+    """The columns the events need (time, the protection signals, joint angles and speeds, drive
+    torques, currents and following errors) of a recording; a streamed file is read in chunks of
+    those columns only."""
+    columns = list(getattr(recording, "columns", None) or [])
+    if not any(name in columns for name in PROTECTION_SIGNALS):
+        return [], None
+    wanted = [name for name in columns if name == "time" or name in PROTECTION_SIGNALS
+              or name.startswith((f"{PLANT}.q[", f"{PLANT}.qd["))
+              or name.endswith((".tau_out", ".current_actual", ".following_error"))]
+    chunks = getattr(recording, "chunks", None)
+    loaded = getattr(recording, "_loaded", None) is not None
+    if callable(chunks) and not loaded:
+        parts = [block for _, block in chunks(wanted)]
+        return wanted, (np.concatenate(parts) if parts else np.zeros((0, len(wanted))))
+    data = getattr(recording, "data", None)
+    if data is None:
+        return [], None
+    take = [columns.index(name) for name in wanted]
+    return wanted, np.asarray(data)[:, take]
 
 
 def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
