@@ -89,8 +89,10 @@ TRUE_ROBOT_TABLE = Table({
     "payload_com": Field(List(Number(unit="m", min=-MAX_PAYLOAD_COM_M, max=MAX_PAYLOAD_COM_M), length=3),
                          default=[0.0, 0.0, 0.0],
                          doc="the payload's centre of mass in tool0: 3 numbers in m"),
-    "dynamic_deviations": Field(Boolean(), default=True),
-    "geometric_errors": Field(Boolean(), default=True),
+    "dynamic_deviations": Field(Boolean(), default=True,
+                                doc="the true robot's inertial and friction deviations from the nominal model"),
+    "geometric_errors": Field(Boolean(), default=True,
+                              doc="the true robot's geometric errors (false: nominal geometry)"),
 }, doc="the [true_robot] table")
 
 CONTROLLER_CONFIG_FIELDS: dict[str, Field] = {
@@ -152,14 +154,16 @@ CONTROLLER_TABLE = Table({
 }, check_fn=_default_modes, doc="the [controller] table")
 
 TRACKER_TABLE = Table({
-    "period": Field(Number(unit="s", gt=0), default=1e-3),
-    "noise_sigma": Field(Number(unit="m", min=0, max=1e-3), default=DEFAULT_POSITION_SIGMA_M),
-    "seed": Field(Integer(min=0), default=0),
+    "period": Field(Number(unit="s", gt=0), default=1e-3, doc="the laser tracker's sample period"),
+    "noise_sigma": Field(Number(unit="m", min=0, max=1e-3), default=DEFAULT_POSITION_SIGMA_M,
+                         doc="standard deviation of the tracker's position noise per axis"),
+    "seed": Field(Integer(min=0), default=0, doc="seed of the tracker noise"),
 }, doc="the [tracker] table")
 
 PATH_TABLE = Table({
-    "speed": Field(Number(unit="m/s", gt=0, max=2.0), default=1.0),
-    "acceleration": Field(Number(unit="m/s^2", gt=0, max=20.0), default=5.0),
+    "speed": Field(Number(unit="m/s", gt=0, max=2.0), default=1.0, doc="TCP speed along the ISO 9283 path"),
+    "acceleration": Field(Number(unit="m/s^2", gt=0, max=20.0), default=5.0,
+                          doc="TCP acceleration along the ISO 9283 path"),
 }, doc="the [path] table")
 
 CAN_LOG_FORMATS = {"parquet": ".parquet", "blf": ".blf"}

@@ -106,7 +106,8 @@ PROBLEM_TABLE = Table({
     "k2": Field(Number(min=0), default=0.0, doc="energy weight of eq. 36 (tau^T tau): a number >= 0"),
     "n_intervals": Field(Integer(min=2, max=5000), default=200, doc="CP transcription intervals: an integer >= 2"),
     "ptp_intervals": Field(Integer(min=4, max=1000), default=100, doc="PtP transcription intervals: an integer >= 4"),
-    "friction": Field(String(choices=("full", "coulomb", "none")), default="full"),
+    "friction": Field(String(choices=("full", "coulomb", "none")), default="full",
+                      doc="friction in the planners' torque model: 'full' (viscous and Coulomb), 'coulomb' or 'none'"),
     "cp_limits": Field(String(choices=("eq38", "all")), default="eq38",
                        doc="CP limits: 'eq38' (velocity, acceleration, torque: what TOPP-RA can represent) "
                            "or 'all' (plus jerk and torque rate)"),
