@@ -153,9 +153,10 @@ def envelope_index(x: Any, y: Any, columns: int = ENVELOPE_COLUMNS, log_x: bool 
     column = np.minimum(((u - u[0]) * (columns / span)).astype(np.int64), columns - 1)
     starts = np.flatnonzero(np.r_[True, column[1:] != column[:-1]])  # x sorted: each column is one run
     segment = np.repeat(np.arange(starts.size), np.diff(np.r_[starts, x.size]))
-    keep = [np.array([0, x.size - 1])]
+    keep = np.zeros(x.size, dtype=bool)  # sorted and unique without sorting
+    keep[[0, x.size - 1]] = True
     for extreme in (np.minimum.reduceat(y, starts), np.maximum.reduceat(y, starts)):
         hit = np.flatnonzero(y == extreme[segment])
         first = np.r_[True, segment[hit[1:]] != segment[hit[:-1]]]
-        keep.append(hit[first])
-    return np.unique(np.concatenate(keep))
+        keep[hit[first]] = True
+    return np.flatnonzero(keep)

@@ -43,8 +43,8 @@ REPORT_NAME = "report.html"
 #: Columns of the overview of each curve (min and max in each: <= 2 points per column).
 OVERVIEW_COLUMNS = 2000
 #: Samples of all curves embedded at full resolution (beyond the TCP error, always whole).
-#: 3 million float32 values: about 10 MB deflated and base64-coded at most.
-FULL_VALUES_BUDGET = 3_000_000
+#: 2 million float32 values: about 10 MB deflated and base64-coded at most.
+FULL_VALUES_BUDGET = 2_000_000
 #: Poses of the arm embedded per run for the 3D replay (evenly spaced in the rows).
 ARM_FRAMES = 4000
 #: Points of each 3D path (the TCP error's peaks and evenly spaced ones).
@@ -52,6 +52,9 @@ PATH_POINTS = 1500
 #: Where the EMCY frames are (CiA 301: 0x080 + node id).
 EMCY_IDS = (0x081, 0x0FF)
 SOURCES = ("tcp", "timeseries", "controller")
+#: zlib level of the embedded full-resolution arrays: 1 is about 3x faster to write than 6 for
+#: a few per cent more bytes (float samples hardly compress either way).
+ZLIB_LEVEL = 1
 SOURCE_TIME = {"tcp": ("t", "time"), "timeseries": ("time", "t"), "controller": ("t", "time")}
 _SERIES_FILE = re.compile(r"^(tcp|timeseries|controller)_(.+?)\.(parquet|csv|parquet\.partial)$")
 
@@ -156,6 +159,9 @@ def _emcy_events(path: Path, notes: list[str], label: str) -> list[dict[str, Any
         names = set(pf.schema_arrow.names)
         if not {"seq", "dt_ns", "id"} <= names:
             return []
+        ids = pf.read(columns=["id"]).column("id").to_numpy()
+        if not np.any((ids >= EMCY_IDS[0]) & (ids <= EMCY_IDS[1])):
+            return []  # no EMCY frame: the frames' times are not needed
         extra = [c for c in ("error_code", "counter_id", "counter_value") if c in names]
         events: list[dict[str, Any]] = []
         previous = 0
@@ -216,7 +222,7 @@ def _pack(values: np.ndarray, dtype: str = "f4", deflate: bool = False) -> dict[
     """An array as base64 little-endian ``dtype`` (``f4``/``f8``), optionally zlib-deflated."""
     raw = np.ascontiguousarray(values, dtype="<" + dtype).tobytes()
     if deflate:
-        raw = zlib.compress(raw, 6)
+        raw = zlib.compress(raw, ZLIB_LEVEL)
     return {"dtype": dtype, "n": int(values.size), "z": deflate, "b64": base64.b64encode(raw).decode("ascii")}
 
 
@@ -324,7 +330,7 @@ def _run_data(run: Run, label: str, colour: str, summary: dict[str, Any] | None,
                     full = _pack(y, "f8" if whole else "f4", deflate=True)
                 curves.append({"joint": j, "label": joint_names(series.label, j) if j else series.label,
                                "source": series.source, "column": column,
-                               "ox": _pack(t[index], "f8"), "oy": _pack(y[index], "f4"), "full": full})
+                               "ox": _pack(t[index], "f8"), "oy": _pack(y[index], "f8" if whole else "f4"), "full": full})
         if curves:
             out["series"][panel.key] = curves
     ts = columns.get("timeseries", {})
@@ -409,10 +415,11 @@ def _check_folder(folder: Path) -> None:
 def _labels(folders: list[Path], runs_by_folder: list[list[Run]]) -> list[list[tuple[str, str]]]:
     """(label, matplotlib colour) of every run: the mode's name and colour for one folder;
     ``<folder>/<mode>`` and colours in turn for several."""
-    if len(folders) == 1:
+    if len(folders) == 1:  # a compare entry <controller>__<trajectory> in its controller's colour
         names = [r.name for r in runs_by_folder[0]]
-        others = [n for n in names if n not in ("standard", "standard_speed_ff", "model_based", "model_based_elastic")]
-        return [[(n, colour_of(n, others)) for n in names]]
+        bases = list(dict.fromkeys(n.split("__")[0] for n in names))
+        others = [n for n in bases if n not in ("standard", "standard_speed_ff", "model_based", "model_based_elastic")]
+        return [[(n, colour_of(n.split("__")[0], others)) for n in names]]
     labels = [f"{f.name}/{r.name}" for f, found in zip(folders, runs_by_folder) for r in found]
     return [[(f"{f.name}/{r.name}", colour_of(f"{f.name}/{r.name}", labels)) for r in found]
             for f, found in zip(folders, runs_by_folder)]
@@ -491,9 +498,26 @@ def collect_light(folders: list[Path]) -> dict[str, Any]:
             statuses[label] = (judged.get("verdict") or run.entry.get("verdict") or run.entry.get("status")
                                or ("running" if (summary or {}).get("status") == "running" else None))
         sources.append({"folder": str(folder), "name": folder.name, "summary": _clean(summary) if summary else None,
-                        "notes": folder_notes, "compare": _compare_table(folder, summary)})
+                        "notes": folder_notes, "compare": _compare_table(folder, summary),
+                        "figures": _figures(folder)})
         notes += [f"{folder.name}: {n}" if len(folders) > 1 else n for n in folder_notes]
     return {"sources": sources, "notes": notes, "run_events": events, "run_status": statuses}
+
+
+#: The run's PNG figures embedded in the report (e.g. the lateness histogram of a paced run), at most.
+FIGURES_MAX_BYTES = 4_000_000
+
+
+def _figures(folder: Path) -> list[dict[str, str]]:
+    """The folder's PNG figures (name, base64), smallest first, up to :data:`FIGURES_MAX_BYTES` in all."""
+    out, used = [], 0
+    for path in sorted(folder.glob("*.png"), key=lambda p: (p.stat().st_size, p.name)):
+        size = path.stat().st_size
+        if used + size > FIGURES_MAX_BYTES:
+            continue
+        used += size
+        out.append({"name": path.name, "b64": base64.b64encode(path.read_bytes()).decode("ascii")})
+    return sorted(out, key=lambda f: f["name"])
 
 
 def status_notes(summary: dict[str, Any] | None) -> list[str]:

@@ -168,6 +168,16 @@
         });
         box.appendChild(rt);
       }
+      if (src.figures && src.figures.length) {
+        var fig = el('details', { 'class': 'figures' });
+        fig.appendChild(el('summary', {}, 'The run\'s figures (' + src.figures.map(function (f) { return f.name; }).join(', ') + ')'));
+        src.figures.forEach(function (f) {
+          var img = el('img', { alt: f.name, title: f.name, src: 'data:image/png;base64,' + f.b64 });
+          img.style.maxWidth = '48%'; img.style.margin = '0.3em'; img.style.verticalAlign = 'top';
+          fig.appendChild(img);
+        });
+        box.appendChild(fig);
+      }
       body.appendChild(box);
     });
     var notes = document.getElementById('notes');
@@ -492,7 +502,7 @@
     });
   }
   var readToken = 0;
-  function updateReadout() {
+  function updateReadout(quick) {          // quick: from the overview where its sample is the cursor's (no decoding)
     var t = R.time, token = ++readToken, jobs = [];
     readout.querySelectorAll('td.readout').forEach(function (td) {
       var k = runs.findIndex(function (r) { return r.label === td.getAttribute('data-run'); });
@@ -501,11 +511,15 @@
       var joint = plot && plot.joint ? plot.joint : 1;
       var c = (r.series[key] || []).find(function (c) { return !c.joint || c.joint === joint; });
       if (!c) { td.textContent = '-'; return; }
-      var tx = r.times[c.source];
-      jobs.push(Promise.all([full(tx.full), c.full ? full(c.full) : Promise.resolve(null)]).then(function (xy) {
+      var tx = r.times[c.source], tr0 = plot.traces.find(function (q) { return q.curve === c; });
+      var io = quick ? nearest(t, tr0.ox) : -1;
+      var fromOverview = quick && io >= 0 && tr0.ox[io] === t && (!c.full || c.full.dtype === c.oy.dtype);
+      var data = fromOverview ? Promise.resolve([null, null])
+        : Promise.all([full(tx.full), c.full ? full(c.full) : Promise.resolve(null)]);
+      jobs.push(data.then(function (xy) {
         if (token !== readToken) return;
-        var x = xy[0], y = xy[1], exact = !!y;
-        if (!y) { var tr = plot.traces.find(function (q) { return q.curve === c; }); x = tr.ox; y = tr.oy; }
+        var x = xy[0], y = xy[1], exact = !!y || fromOverview;
+        if (!y) { x = tr0.ox; y = tr0.oy; }
         var i = nearest(t, x);
         if (i < 0 || t < x[0] - 1e-9 || t > x[x.length - 1] + 1e-9) { td.textContent = 'not recorded'; td.setAttribute('data-value', 'null'); return; }
         td.textContent = fmt(y[i]) + (exact ? '' : ' (decimated)');
@@ -518,14 +532,14 @@
   }
 
   // ---------------------------------------------------------------- time
-  function setTime(t) {
+  function setTime(t, quick) {
     t = Math.min(tMax, Math.max(tMin, Number(t)));
     R.time = t;
     slider.value = t;
     document.getElementById('time-now').textContent = 't = ' + t.toFixed(4) + ' s';
     placeCursors();
     updateScene();
-    R.readoutDone = updateReadout();
+    R.readoutDone = updateReadout(quick);
     return R.readoutDone;
   }
   R.setTime = setTime;
@@ -620,7 +634,7 @@
   // a WebGL scene takes seconds in a software renderer (headless browsers) and must not hold the rest up
   scene.textContent = 'building the 3D view ...';
   Promise.all([buildPlots().then(function () { mark('plots'); }), Promise.resolve(buildEvents())]).then(function () {
-    return setTime(tMin);
+    return setTime(tMin, true);
   }).then(function () {
     mark('readout');
     R.ready = true;
@@ -630,6 +644,9 @@
     return new Promise(function (resolve) { setTimeout(resolve, 0); });
   }).then(function () {
     scene.textContent = '';
+    setTimeout(function () {              // decode the readout's full-resolution curves while the user looks
+      plots.forEach(function (p) { p.traces.forEach(function (tr) { if (tr.curve.full && (!tr.joint || tr.joint === 1)) { full(runs[tr.run].times[tr.curve.source].full); full(tr.curve.full); } }); });
+    }, 0);
     return buildScene();
   }).then(function () {
     mark('scene');
