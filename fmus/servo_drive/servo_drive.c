@@ -494,10 +494,10 @@ static void speed_sample(Instance *inst)
     demand = kp * error + s->speed_integral + feedforward;
     limited = demand > imax ? imax : (demand < -imax ? -imax : demand);
     s->limit_active = limited != demand;
-    /* in CSP/CSV the drive's own loops decide the current: their saturation (the speed loop taking
-     * the load over when the brake opens, a torque feed-forward beyond the limit) is the drive's
-     * regulation, shown in statusword bit 11; the protection event is the torque mode's command */
-    limit_bit(s, LIMIT_TORQUE, 0);
+    /* a protection event only when the command itself asks for more (the torque offset 0x60B2):
+     * the speed loop's own saturation (e.g. taking the load over when the brake opens) is the
+     * drive's regulation, shown in statusword bit 11 only */
+    limit_bit(s, LIMIT_TORQUE, fabs(feedforward) > imax);
     /* conditional integration (anti-windup): no integration that drives further into the limit */
     if (!s->limit_active || (demand > 0.0) != (error > 0.0))
         s->speed_integral += kp * R(SPEED_SAMPLE_TIME) / R(SPEED_TN) * error;

@@ -150,8 +150,8 @@ def _add_protection(spec: FmuSpec, defaults: dict) -> None:
                  max=1.0 if name == "i2t_release" else None)
     bits = ", ".join(f"bit {b} {name}" for name, b in LIMIT_BITS.items())
     spec.add("limit_status", "Integer", OUTPUT,
-             f"protections active at any sample of the last step: {bits} (the commanded torque - target torque plus "
-             "torque offset in CST - beyond max torque/current, "
+             f"protections active at any sample of the last step: {bits} (the commanded torque - target torque and "
+             "torque offset in CST, torque offset in CSP/CSV - beyond max torque/current, "
              "derated by I2t, speed beyond max_motor_speed, position outside the software limits, following error "
              "beyond its window); the same bit + 8 while the drive is in fault reaction or Fault because of it")
     spec.add("limit_history", "Integer", OUTPUT, "every bit limit_status has had since the start (OR)")
