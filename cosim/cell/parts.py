@@ -89,8 +89,10 @@ TRUE_ROBOT_TABLE = Table({
     "payload_com": Field(List(Number(unit="m", min=-MAX_PAYLOAD_COM_M, max=MAX_PAYLOAD_COM_M), length=3),
                          default=[0.0, 0.0, 0.0],
                          doc="the payload's centre of mass in tool0: 3 numbers in m"),
-    "dynamic_deviations": Field(Boolean(), default=True),
-    "geometric_errors": Field(Boolean(), default=True),
+    "dynamic_deviations": Field(Boolean(), default=True,
+                                doc="the true robot's inertial and friction deviations from the nominal model"),
+    "geometric_errors": Field(Boolean(), default=True,
+                              doc="the true robot's geometric errors (false: nominal geometry)"),
 }, doc="the [true_robot] table")
 
 CONTROLLER_CONFIG_FIELDS: dict[str, Field] = {
@@ -134,7 +136,7 @@ CONTROLLER_TABLE = Table({
     "drive_compensation": CONTROLLER_CONFIG_FIELDS["drive_compensation"],
     "compute_budget": CONTROLLER_CONFIG_FIELDS["compute_budget"],
     "settle_time": CONTROLLER_CONFIG_FIELDS["settle_time"],
-    **{mode: Field(_mode_table(mode)) for mode in BUILTIN_MODES},
+    **{mode: Field(_mode_table(mode), doc=f"settings of the built-in mode {mode!r}") for mode in BUILTIN_MODES},
     "class": Field(String(pattern=r"^[^:]+:[A-Za-z_][A-Za-z0-9_.]*$",
                           pattern_doc="'path/to/file.py:ClassName' or 'package.module:ClassName'"),
                    doc="a user controller run besides the modes: 'path/to/file.py:Class' or 'package.module:Class' "
@@ -152,14 +154,16 @@ CONTROLLER_TABLE = Table({
 }, check_fn=_default_modes, doc="the [controller] table")
 
 TRACKER_TABLE = Table({
-    "period": Field(Number(unit="s", gt=0), default=1e-3),
-    "noise_sigma": Field(Number(unit="m", min=0, max=1e-3), default=DEFAULT_POSITION_SIGMA_M),
-    "seed": Field(Integer(min=0), default=0),
+    "period": Field(Number(unit="s", gt=0), default=1e-3, doc="the laser tracker's sample period"),
+    "noise_sigma": Field(Number(unit="m", min=0, max=1e-3), default=DEFAULT_POSITION_SIGMA_M,
+                         doc="standard deviation of the tracker's position noise per axis"),
+    "seed": Field(Integer(min=0), default=0, doc="seed of the tracker noise"),
 }, doc="the [tracker] table")
 
 PATH_TABLE = Table({
-    "speed": Field(Number(unit="m/s", gt=0, max=2.0), default=1.0),
-    "acceleration": Field(Number(unit="m/s^2", gt=0, max=20.0), default=5.0),
+    "speed": Field(Number(unit="m/s", gt=0, max=2.0), default=1.0, doc="TCP speed along the ISO 9283 path"),
+    "acceleration": Field(Number(unit="m/s^2", gt=0, max=20.0), default=5.0,
+                          doc="TCP acceleration along the ISO 9283 path"),
 }, doc="the [path] table")
 
 CAN_LOG_FORMATS = {"parquet": ".parquet", "blf": ".blf"}
@@ -185,13 +189,15 @@ def can_log_path(ctx: Any, results: dict[str, Any], name: str) -> Any:
     return ctx.path(f"can_{name}{CAN_LOG_FORMATS[results.get('can_log_format', 'parquet')]}")
 
 CELL_FIELDS: dict[str, Field] = {
-    "true_robot": Field(TRUE_ROBOT_TABLE, default={}),
-    "controller": Field(CONTROLLER_TABLE, default={}),
-    "path": Field(PATH_TABLE, default={}),
-    "tracker": Field(TRACKER_TABLE, default={}),
+    "true_robot": Field(TRUE_ROBOT_TABLE, default={},
+                        doc="the simulated robot: seed of its deviations from the nominal model, payload"),
+    "controller": Field(CONTROLLER_TABLE, default={},
+                        doc="the controller: built-in modes or a user class/FMU, cycle, compute budget"),
+    "path": Field(PATH_TABLE, default={}, doc="the ISO 9283 test path's speed and acceleration"),
+    "tracker": Field(TRACKER_TABLE, default={}, doc="the laser tracker measuring the TCP: sample period, noise"),
     "fieldbus": Field(Table({}, extra=AnyValue(), doc="a [fieldbus] table (fieldbus/powerlink_defaults.toml keys)"),
                       default={}),
-    "results": Field(RESULTS_TABLE, default={}),
+    "results": Field(RESULTS_TABLE, default={}, doc="which result files the run writes"),
 }
 """The scenario tables of a job that runs the cell (besides [scenario] and the co-simulation tables)."""
 _CELL_TABLES = ("true_robot", "controller", "path", "tracker", "results")

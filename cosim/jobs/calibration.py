@@ -28,44 +28,55 @@ TRACKER = Table({
     "position_sigma": Field(Number(unit="m", min=0, max=0.01), doc="position noise per axis"),
     "orientation_sigma": Field(Number(unit="rad", min=0, max=0.1), doc="orientation noise (rotation vector)"),
     "measure_orientation": Field(Boolean(), doc="measure orientation as well as position"),
-    "noise_seed": Field(Integer(min=0)),
+    "noise_seed": Field(Integer(min=0), doc="seed of the simulated tracker noise"),
     "position": Field(List(Number(unit="m"), length=3), doc="camera bar position in base_link"),
     "target": Field(List(Number(unit="m"), length=3), doc="point the cameras look at"),
-    "fov_half_angle": Field(Number(unit="rad", gt=0, max=1.5707963267948966)),
-    "range_min": Field(Number(unit="m", min=0)),
-    "range_max": Field(Number(unit="m", gt=0)),
+    "fov_half_angle": Field(Number(unit="rad", gt=0, max=1.5707963267948966),
+                            doc="half angle of the cameras' field-of-view cone"),
+    "range_min": Field(Number(unit="m", min=0), doc="nearest distance from the camera bar it measures at"),
+    "range_max": Field(Number(unit="m", gt=0), doc="farthest distance from the camera bar it measures at"),
     "probe_normal": Field(List(Number(), length=3), doc="LED facing direction in the flange frame"),
-    "probe_max_angle": Field(Number(unit="rad", gt=0, max=3.141592653589793)),
-    "floor_clearance": Field(Number(unit="m")),
-    "base_keepout_radius": Field(Number(unit="m", min=0)),
-    "base_keepout_height": Field(Number(unit="m")),
+    "probe_max_angle": Field(Number(unit="rad", gt=0, max=3.141592653589793),
+                             doc="largest angle between probe_normal and the direction to the cameras"),
+    "floor_clearance": Field(Number(unit="m"), doc="lowest flange height above the floor (z = 0) for a candidate"),
+    "base_keepout_radius": Field(Number(unit="m", min=0),
+                                 doc="radius of the cylinder around axis 1 the flange stays out of"),
+    "base_keepout_height": Field(Number(unit="m"), doc="height up to which that keep-out cylinder reaches"),
 }, doc="the [tracker] table")
 
 CANDIDATES = Table({
-    "values_per_axis": Field(Integer(min=2, max=25)),
+    "values_per_axis": Field(Integer(min=2, max=25),
+                             doc="grid values per joint axis (limits included) the candidate configurations are cut from"),
     "max_candidates": Field(Integer(min=0), doc="0: keep every visible configuration"),
 }, doc="the [candidates] table")
 
 SELECTION = Table({
-    "configurations": Field(Integer(min=1)),
-    "index": Field(String(choices=tuple(OBSERVATION_INDICES))),
-    "restarts": Field(Integer(min=1)),
-    "seed": Field(Integer(min=0)),
+    "configurations": Field(Integer(min=1), doc="how many measurement configurations to select"),
+    "index": Field(String(choices=tuple(OBSERVATION_INDICES)), doc="the observation index the selection maximizes"),
+    "restarts": Field(Integer(min=1), doc="restarts of the exchange search from random start sets"),
+    "seed": Field(Integer(min=0), doc="seed of the random start sets and of the random baseline draws"),
     "start_size": Field(Integer(min=0), doc="0: default start size"),
-    "random_draws": Field(Integer(min=1)),
+    "random_draws": Field(Integer(min=1), doc="random selections drawn as the baseline the optimum is compared with"),
     "scaling": Field(String(choices=COLUMN_SCALINGS), doc="units of the selection problem"),
     "compare_indices": Field(Boolean(), doc="select for every observation index and report the ratios"),
 }, doc="the [selection] table")
 
 VALIDATION = Table({
-    "poses": Field(Integer(min=1)),
-    "seed": Field(Integer(min=0)),
+    "poses": Field(Integer(min=1), doc="validation poses, drawn from the visible candidates not selected"),
+    "seed": Field(Integer(min=0), doc="seed of the validation pose draw"),
 }, doc="the [validation] table")
 
 SECTIONS = {"true_robot": TRUE_ROBOT, "tracker": TRACKER, "candidates": CANDIDATES,
             "selection": SELECTION, "validation": VALIDATION}
 
-SCHEMA = Table({"scenario": SCENARIO_FIELD, **{name: Field(spec) for name, spec in SECTIONS.items()}},
+SECTION_DOCS = {"true_robot": "the simulated robot whose geometry is calibrated",
+                "tracker": "the optical tracker: placement, field of view, probe, noise",
+                "candidates": "the grid of candidate measurement configurations",
+                "selection": "the choice of optimal measurement configurations",
+                "validation": "the poses the calibrated model is checked on"}
+
+SCHEMA = Table({"scenario": SCENARIO_FIELD,
+                **{name: Field(spec, doc=SECTION_DOCS[name]) for name, spec in SECTIONS.items()}},
                doc="a calibration scenario document")
 
 

@@ -257,8 +257,10 @@ COMPARE_TABLE = Table({
 }, doc="the [compare] table")
 
 SCHEMA = Table({"scenario": SCENARIO_FIELD, **COSIM_FIELDS, **CELL_FIELDS,
-                "compare": Field(COMPARE_TABLE, required=True),
-                "problem": Field(planners_job.PROBLEM_TABLE, default={})},
+                "compare": Field(COMPARE_TABLE, required=True,
+                                 doc="the [compare] table: the controllers and trajectories compared, the ranking"),
+                "problem": Field(planners_job.PROBLEM_TABLE, default={},
+                                 doc="the planning problem of planned trajectories (as in the planners job)")},
                doc="a compare scenario document")
 
 

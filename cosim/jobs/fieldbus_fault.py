@@ -55,7 +55,8 @@ REST_TABLE = Table({
                     doc="over the last ... of the run: a number in s > 0"),
 }, doc="the [rest] table")
 
-SCHEMA = Table({"scenario": SCENARIO_FIELD, **COSIM_FIELDS, **CELL_FIELDS, "rest": Field(REST_TABLE, default={})},
+SCHEMA = Table({"scenario": SCENARIO_FIELD, **COSIM_FIELDS, **CELL_FIELDS,
+                "rest": Field(REST_TABLE, default={}, doc="when the robot counts as at rest at the end")},
                doc="a fieldbus_fault scenario document")
 
 #: Drive signals recorded besides the cell's own (state, fault code, brake), i = 1..6.

@@ -82,8 +82,9 @@ MEASUREMENT_TABLE = Table({
     "cutoff": Field(Number(unit="Hz", gt=0), default=20.0, doc="low-pass cut-off for differentiating q"),
     "torque_noise_percent_rated": Field(Number(min=0, max=10), default=0.1,
                                         doc="added Gaussian current-measurement noise, sigma in % of rated torque"),
-    "noise_seed": Field(Integer(min=0), default=0),
-    "method": Field(String(choices=("wls", "ols")), default="wls"),
+    "noise_seed": Field(Integer(min=0), default=0, doc="seed of the added torque measurement noise"),
+    "method": Field(String(choices=("wls", "ols")), default="wls",
+                     doc="least squares of the base parameters: 'wls' (weighted by each axis' noise) or 'ols'"),
     "position_lag_cycles": Field(Integer(min=0, max=10), default=0,
                                  doc="cycles by which position actual lags torque actual (0: the drives latch "
                                      "both at the SoC, as the servo_drive FMU does; 1: a drive that reports "
@@ -128,14 +129,15 @@ STIFFNESS_TABLE = Table({
 }, doc="the [stiffness] table (gear stiffness and damping; used when the plant has elastic_joints = 1)")
 
 PATH_TABLE = Table({
-    "speed": Field(Number(unit="m/s", gt=0, max=2.0), default=1.0),
-    "acceleration": Field(Number(unit="m/s^2", gt=0, max=20.0), default=5.0),
+    "speed": Field(Number(unit="m/s", gt=0, max=2.0), default=1.0, doc="TCP speed along the ISO 9283 path"),
+    "acceleration": Field(Number(unit="m/s^2", gt=0, max=20.0), default=5.0,
+                          doc="TCP acceleration along the ISO 9283 path"),
 }, doc="the [path] table")
 
 RESULTS_TABLE = Table({
     "can_log": Field(Boolean(), default=False, doc="write can_<run>.parquet (or .blf) for every run"),
     "can_log_format": CAN_LOG_FORMAT_FIELD,
-    "figures": Field(Boolean(), default=True),
+    "figures": Field(Boolean(), default=True, doc="draw the figures (PNG) of the campaign"),
     "records": Field(Boolean(), default=True, doc="write the measured records as CSV"),
     "report": Field(Boolean(), default=True, doc="write report.html, the interactive view of the run (docs/viewing.md)"),
 }, doc="the [results] table")
@@ -143,16 +145,19 @@ RESULTS_TABLE = Table({
 SCHEMA = Table({
     "scenario": SCENARIO_FIELD,
     **COSIM_FIELDS,
-    "true_robot": Field(TRUE_ROBOT_TABLE, default={}),
-    "controller": Field(CONTROLLER_TABLE, default={}),
-    "excitation": Field(EXCITATION_TABLE, default={}),
-    "measurement": Field(MEASUREMENT_TABLE, default={}),
+    "true_robot": Field(TRUE_ROBOT_TABLE, default={},
+                        doc="the simulated robot whose parameters are identified"),
+    "controller": Field(CONTROLLER_TABLE, default={},
+                        doc="the controller during the excitation run and the ISO 9283 validation runs"),
+    "excitation": Field(EXCITATION_TABLE, default={}, doc="the optimal exciting trajectory"),
+    "measurement": Field(MEASUREMENT_TABLE, default={},
+                         doc="how the drives' records are measured, filtered and fitted"),
     "stiffness": Field(STIFFNESS_TABLE, default={}),
-    "path": Field(PATH_TABLE, default={}),
-    "tracker": Field(TRACKER_TABLE, default={}),
+    "path": Field(PATH_TABLE, default={}, doc="the ISO 9283 validation path's speed and acceleration"),
+    "tracker": Field(TRACKER_TABLE, default={}, doc="the laser tracker measuring the TCP: sample period, noise"),
     "fieldbus": Field(Table({}, extra=AnyValue(), doc="a [fieldbus] table (fieldbus/powerlink_defaults.toml keys)"),
                       default={}),
-    "results": Field(RESULTS_TABLE, default={}),
+    "results": Field(RESULTS_TABLE, default={}, doc="which result files the campaign writes"),
 }, doc="an identification scenario document")
 
 _TABLES = ("true_robot", "controller", "excitation", "measurement", "stiffness", "path", "tracker", "results")

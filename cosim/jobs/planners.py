@@ -106,18 +106,21 @@ PROBLEM_TABLE = Table({
     "k2": Field(Number(min=0), default=0.0, doc="energy weight of eq. 36 (tau^T tau): a number >= 0"),
     "n_intervals": Field(Integer(min=2, max=5000), default=200, doc="CP transcription intervals: an integer >= 2"),
     "ptp_intervals": Field(Integer(min=4, max=1000), default=100, doc="PtP transcription intervals: an integer >= 4"),
-    "friction": Field(String(choices=("full", "coulomb", "none")), default="full"),
+    "friction": Field(String(choices=("full", "coulomb", "none")), default="full",
+                      doc="friction in the planners' torque model: 'full' (viscous and Coulomb), 'coulomb' or 'none'"),
     "cp_limits": Field(String(choices=("eq38", "all")), default="eq38",
                        doc="CP limits: 'eq38' (velocity, acceleration, torque: what TOPP-RA can represent) "
                            "or 'all' (plus jerk and torque rate)"),
     "ptp_limits": Field(String(choices=("eq40", "all")), default="eq40",
                         doc="PtP limits: 'eq40' (torque, torque rate, velocity, position) or 'all'"),
-    "limit_scale": Field(SCALE_TABLE, default={}),
+    "limit_scale": Field(SCALE_TABLE, default={}, doc="factors <= 1 on the robot's limits, per kind of limit"),
 }, doc="the [problem] table")
 
 SCHEMA = Table({"scenario": SCENARIO_FIELD, **COSIM_FIELDS, **CELL_FIELDS,
-                "planners": Field(PLANNERS_TABLE, required=True),
-                "problem": Field(PROBLEM_TABLE, default={})},
+                "planners": Field(PLANNERS_TABLE, required=True,
+                                  doc="the [planners] table: which planners run and are compared"),
+                "problem": Field(PROBLEM_TABLE, default={},
+                                 doc="the planning problem: motion, weights, transcription, friction, limits")},
                doc="a planners scenario document")
 
 

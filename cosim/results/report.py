@@ -498,9 +498,26 @@ def collect_light(folders: list[Path]) -> dict[str, Any]:
             statuses[label] = (judged.get("verdict") or run.entry.get("verdict") or run.entry.get("status")
                                or ("running" if (summary or {}).get("status") == "running" else None))
         sources.append({"folder": str(folder), "name": folder.name, "summary": _clean(summary) if summary else None,
-                        "notes": folder_notes, "compare": _compare_table(folder, summary)})
+                        "notes": folder_notes, "compare": _compare_table(folder, summary),
+                        "figures": _figures(folder)})
         notes += [f"{folder.name}: {n}" if len(folders) > 1 else n for n in folder_notes]
     return {"sources": sources, "notes": notes, "run_events": events, "run_status": statuses}
+
+
+#: The run's PNG figures embedded in the report (e.g. the lateness histogram of a paced run), at most.
+FIGURES_MAX_BYTES = 4_000_000
+
+
+def _figures(folder: Path) -> list[dict[str, str]]:
+    """The folder's PNG figures (name, base64), smallest first, up to :data:`FIGURES_MAX_BYTES` in all."""
+    out, used = [], 0
+    for path in sorted(folder.glob("*.png"), key=lambda p: (p.stat().st_size, p.name)):
+        size = path.stat().st_size
+        if used + size > FIGURES_MAX_BYTES:
+            continue
+        used += size
+        out.append({"name": path.name, "b64": base64.b64encode(path.read_bytes()).decode("ascii")})
+    return sorted(out, key=lambda f: f["name"])
 
 
 def status_notes(summary: dict[str, Any] | None) -> list[str]:

@@ -89,9 +89,14 @@ ISOLATIONS = ("none", "third_party", "all")
 SIMULATION_TABLE = Table({
     "stop_time": Field(Number(unit="s", gt=0), required=True, doc="the simulated duration: a number in s > 0"),
     "macro_step": Field(Number(unit="s", gt=0), required=True, doc="the base macro step: a number in s > 0"),
-    "coupling": Field(String(choices=COUPLINGS), default="jacobi"),
-    "order": Field(List(String(pattern=INSTANCE_PATTERN, pattern_doc="naming an FMU instance"), unique=True)),
-    "engine": Field(String(choices=ENGINES), default="auto"),
+    "coupling": Field(String(choices=COUPLINGS), default="jacobi",
+                      doc="'jacobi': FMUs due together see each other's outputs of the step start; "
+                          "'gauss_seidel': later FMUs see earlier ones' new outputs"),
+    "order": Field(List(String(pattern=INSTANCE_PATTERN, pattern_doc="naming an FMU instance"), unique=True),
+                   doc="the stepping order of the FMU instances (default: the order of [[fmus]])"),
+    "engine": Field(String(choices=ENGINES), default="auto",
+                    doc="the master's loop: 'native' (compiled kernel), 'python', or 'auto' (native when a C "
+                        "compiler is available)"),
     "max_base_steps": Field(Integer(min=1), default=MAX_BASE_STEPS,
                             doc="the largest stop_time / macro_step accepted (a guard against typos)"),
     "isolation": Field(String(choices=ISOLATIONS), default="none",
@@ -100,14 +105,15 @@ SIMULATION_TABLE = Table({
 
 FMU_TABLE = Table({
     "name": Field(String(pattern=INSTANCE_PATTERN, pattern_doc="of letters, digits and '_' (an identifier)"),
-                  required=True),
-    "path": Field(FilePath(must_exist=True, suffix=".fmu")),
+                  required=True, doc="a string of letters, digits and '_' (an identifier): the FMU instance's name in connections and signals"),
+    "path": Field(FilePath(must_exist=True, suffix=".fmu"), doc="an FMU file (one of path, builtin, source)"),
     "builtin": Field(String(), doc="the name of one of the project's FMUs"),
     "source": Field(String(), doc="a folder with modelDescription.xml and C files (relative to the scenario "
                                   "file's folder): the FMU is built from it with the system C compiler"),
-    "step": Field(Number(unit="s", gt=0)),
+    "step": Field(Number(unit="s", gt=0), doc="this FMU's communication step, a whole multiple of macro_step "
+                                           "(default: macro_step)"),
     "parameters": Field(Table({}, extra=AnyValue(), doc="a table of <variable> = <start value>"), default={}),
-    "debug_logging": Field(Boolean(), default=False),
+    "debug_logging": Field(Boolean(), default=False, doc="instantiate the FMU with loggingOn and print its log"),
     "out_of_process": Field(Boolean(), doc="run this FMU in a child process (default from [simulation] isolation)"),
     "step_timeout": Field(Number(unit="s", gt=0),
                           doc="longest wall time of one step of an out-of-process FMU before it counts as hung"),
@@ -133,9 +139,9 @@ COSIM_FIELDS: dict[str, Field] = {
     "fmus": Field(List(FMU_TABLE, min_len=1), default=[], doc="at least one [[fmus]] table"),
     "system": Field(FilePath(must_exist=True, suffix=".ssp"),
                     doc="an .ssp file (SSP 1.0) whose FMUs, connections and parameter values replace [[fmus]]"),
-    "connections": Field(List(String()), default=[]),
-    "record": Field(RECORD_TABLE),
-    "output": Field(OUTPUT_TABLE, default={}),
+    "connections": Field(List(String()), default=[], doc="connections \"fmu.output -> fmu.input\""),
+    "record": Field(RECORD_TABLE, doc="which signals are recorded, how often, into which file"),
+    "output": Field(OUTPUT_TABLE, default={}, doc="where the results go"),
     **execution_fields(),  # [execution], [realtime]: cosim/scenario/execution_tables.py
 }
 

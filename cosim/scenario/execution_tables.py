@@ -66,11 +66,14 @@ def _tables() -> tuple[Any, Any]:
                                 doc="what a late cycle's telegrams carry: 'hold', 'skip' or 'lost_frame'"),
         "spin": Field(Number(unit="s", min=0, max=0.1), default=DEFAULT_SPIN_S,
                       doc="busy-wait before each wall deadline: a time in s in [0, 0.1]"),
-        "scheduling": Field(String(choices=SCHEDULING), default="fifo"),
-        "fifo_priority": Field(Integer(min=1, max=99), default=10),
-        "cpu": Field(Cpu(), default="auto"),
-        "tolerance": Field(Tolerance(), default="auto"),
-        "histogram_bins": Field(Integer(min=5, max=1000), default=60),
+        "scheduling": Field(String(choices=SCHEDULING), default="fifo",
+                            doc="'fifo': ask for SCHED_FIFO (falls back to normal, reported) or 'normal'"),
+        "fifo_priority": Field(Integer(min=1, max=99), default=10, doc="the SCHED_FIFO priority asked for"),
+        "cpu": Field(Cpu(), default="auto", doc="the CPU the paced loop is pinned to"),
+        "tolerance": Field(Tolerance(), default="auto",
+                           doc="lateness above which a cycle is an overrun; 'auto': the cycle time minus the "
+                               "isochronous phase"),
+        "histogram_bins": Field(Integer(min=5, max=1000), default=60, doc="bins of the lateness histogram"),
     }, doc="the [realtime] table")
     return execution, realtime
 
@@ -80,7 +83,8 @@ def execution_fields() -> dict[str, Any]:
     (cosim.scenario.cosim_tables.COSIM_FIELDS does)."""
 
     execution, realtime = _tables()
-    return {"execution": Field(execution, default={}), "realtime": Field(realtime, default={})}
+    return {"execution": Field(execution, default={}, doc="how the run is executed: one process or split, paced or not"),
+            "realtime": Field(realtime, default={}, doc="pacing of a wall-clock run: overruns, scheduling, statistics")}
 
 
 def execution_tables(doc: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:

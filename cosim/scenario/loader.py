@@ -24,9 +24,11 @@ NAME_PATTERN = r"[A-Za-z0-9][A-Za-z0-9_.-]*"
 #: The ``[scenario]`` table every scenario has.
 SCENARIO_TABLE = Table({
     "name": Field(String(pattern=NAME_PATTERN, pattern_doc="of letters, digits, '_', '.', '-' (used as folder name)"),
-                  required=True),
+                  required=True,
+                  doc="a string of letters, digits, '_', '.', '-': the scenario's name and its results folder "
+                      "(results/<name>)"),
     "job": Field(String(), required=True, doc="a registered job type"),
-    "description": Field(String(nonempty=False), default=""),
+    "description": Field(String(nonempty=False), default="", doc="free text for the reader of the scenario file"),
 }, doc="the [scenario] table")
 
 #: Field to put under "scenario" in a job's document schema.

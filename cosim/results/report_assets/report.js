@@ -168,6 +168,16 @@
         });
         box.appendChild(rt);
       }
+      if (src.figures && src.figures.length) {
+        var fig = el('details', { 'class': 'figures' });
+        fig.appendChild(el('summary', {}, 'The run\'s figures (' + src.figures.map(function (f) { return f.name; }).join(', ') + ')'));
+        src.figures.forEach(function (f) {
+          var img = el('img', { alt: f.name, title: f.name, src: 'data:image/png;base64,' + f.b64 });
+          img.style.maxWidth = '48%'; img.style.margin = '0.3em'; img.style.verticalAlign = 'top';
+          fig.appendChild(img);
+        });
+        box.appendChild(fig);
+      }
       body.appendChild(box);
     });
     var notes = document.getElementById('notes');

@@ -65,6 +65,10 @@ def test_main_job_report_in_chromium(main_run, browser, tmp_path):
     for mode in MODES:
         assert f"modes.{mode}.tcp_error_max_mm" in keys and f"modes.{mode}.joint_lag_max_rad" in keys
     assert "improvement_factor" in keys
+    # the PNG figures the run drew are embedded (and decode as images)
+    images = browser.execute_script("return Array.from(document.querySelectorAll('details.figures img'))"
+                                    ".map(function (i) { return [i.alt, i.naturalWidth > 0]; });")
+    assert images == [[name, True] for name in sorted(summary["figures"])]
     for key, value, text in cells:
         assert value == _dig(summary, key), key
         if isinstance(value, float):

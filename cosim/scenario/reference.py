@@ -1,0 +1,238 @@
+"""The scenario-key reference, generated from the job schemas (the schemas are the truth).
+
+``scenario_keys(job)`` walks a registered job type's document schema (:mod:`cosim.scenario.schema`)
+and lists every key with its type, unit, default, whether it is required and its ``doc`` text;
+``scenario_keys_markdown()`` renders all job types as the page ``reference/scenario_keys.md``
+of the docs site (built by the MkDocs hook ``docs/hooks/reference.py``);
+``undocumented_keys()`` lists the keys whose ``Field`` has no ``doc`` (a test keeps it empty).
+
+Key paths are written the TOML way: ``simulation.stop_time``, ``fmus[].parameters`` (``[]``: every
+item of an array of tables), ``fmus[].parameters.<key>`` (free-form keys of a table).
+"""
+from __future__ import annotations
+
+import re
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from cosim.scenario.registry import JOB_MODULES, get_job, job_names as _all_job_names
+from cosim.scenario.schema import MISSING, AnyValue, Boolean, Field, FilePath, Integer, List, Number, Spec, String, Table
+
+
+@dataclass(frozen=True)
+class KeyDoc:
+    """One key of a scenario document, as the schema declares it."""
+
+    path: str          # "simulation.stop_time", "fmus[].name", "fmus[].parameters.<key>"
+    type: str          # "number", "string", "table", "array of tables", ...
+    unit: str          # SI unit of a Number ("" when none)
+    default: str       # the default as TOML text ("" when none)
+    required: bool
+    doc: str           # the Field's doc ("" when the schema gives none)
+    accepts: str       # what the validator accepts (the spec's ``expected`` text)
+
+
+def job_names() -> list[str]:
+    """The job types the reference documents: those the modules of ``JOB_MODULES`` register (a job
+    registered at run time by a script or a test is not part of it)."""
+    return [name for name in _all_job_names() if get_job(name).runner.__module__ in JOB_MODULES]
+
+
+def _type_of(spec: Spec) -> str:
+    if isinstance(spec, Table):
+        return "table"
+    if isinstance(spec, List):
+        if isinstance(spec.item, Table):
+            return "array of tables"
+        return f"array of {_type_of(spec.item)}"
+    if isinstance(spec, Number):
+        return "number"
+    if isinstance(spec, Integer):
+        return "integer"
+    if isinstance(spec, Boolean):
+        return "boolean"
+    if isinstance(spec, FilePath):
+        return "path"
+    if isinstance(spec, String):
+        return "string"
+    if isinstance(spec, AnyValue):
+        return "any"
+    return "value"
+
+
+def _unit_of(spec: Spec) -> str:
+    if isinstance(spec, Number):
+        return spec.unit or ""
+    if isinstance(spec, List):
+        return _unit_of(spec.item)
+    return ""
+
+
+def toml_text(value: Any) -> str:
+    """A default value written as it would be in a TOML file."""
+    if value is MISSING:
+        return ""
+    if value is None:
+        return "(none)"
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, (int, float)):
+        return repr(value)
+    if isinstance(value, (str, Path)):
+        return '"' + str(value).replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(toml_text(v) for v in value) + "]"
+    if isinstance(value, dict):
+        return "{" + ", ".join(f"{k} = {toml_text(v)}" for k, v in value.items()) + "}"
+    return str(value)
+
+
+def _accepts(spec: Spec) -> str:
+    try:
+        return str(spec.expected)
+    except Exception:  # noqa: BLE001 - a custom spec whose description needs more context
+        return ""
+
+
+def _walk(table: Table, prefix: str) -> Iterator[KeyDoc]:
+    for name, field in table.fields.items():
+        yield from _walk_field(field, f"{prefix}{name}")
+    if table.extra is not None:
+        yield from _walk_field(Field(table.extra, doc=_EXTRA_DOC), f"{prefix}<key>")
+
+
+_EXTRA_DOC = "free-form keys of this table"
+
+
+def _walk_field(field: Field, path: str) -> Iterator[KeyDoc]:
+    spec = field.spec
+    doc = field.doc
+    if not doc and isinstance(spec, Table) and spec.doc not in ("", "a table"):
+        doc = spec.doc
+    yield KeyDoc(path, _type_of(spec), _unit_of(spec), toml_text(field.default), field.required, doc,
+                 "" if isinstance(spec, Table) or (isinstance(spec, List) and isinstance(spec.item, Table))
+                 else _accepts(spec))
+    if isinstance(spec, Table):
+        yield from _walk(spec, path + ".")
+    elif isinstance(spec, List) and isinstance(spec.item, Table):
+        yield from _walk(spec.item, path + "[].")
+
+
+def scenario_keys(job: str) -> list[KeyDoc]:
+    """Every key of the document schema of job type ``job``, in declaration order."""
+    job_type = get_job(job)
+    if job_type is None:
+        raise KeyError(job)
+    keys = list(_walk(job_type.schema, ""))
+    # the base-scenario key is read before validation (cosim/scenario/inherit.py), not by the schema
+    if not any(k.path == "extends" for k in keys):
+        keys.insert(0, KeyDoc("extends", "string", "", "", False,
+                              "a base scenario this one starts from: a path relative to this file, or the "
+                              "name of an installed scenario (\"iso9283\"); every key given here overrides "
+                              "the base's", "a path or a scenario name"))
+    return keys
+
+
+#: A doc that only names the table ("the [tracker] table") says nothing about it.
+_PLACEHOLDER = re.compile(r"(the|a) \[+[A-Za-z0-9_.]+\]+ table")
+
+
+def undocumented_keys() -> list[tuple[str, str]]:
+    """(job, key path) of every schema key without a ``doc`` text (or only a table's name as one)."""
+    return [(job, key.path) for job in job_names() for key in scenario_keys(job)
+            if not key.doc.strip() or _PLACEHOLDER.fullmatch(key.doc.strip())]
+
+
+def _cell(text: str) -> str:
+    return text.replace("|", "\\|").replace("\n", " ").strip()
+
+
+def _text(text: str) -> str:
+    """Prose for a table cell: ``<key>`` shown as text, not taken for HTML."""
+    return _cell(text).replace("&", "&amp;").replace("<", "&lt;").replace(">", "&gt;")
+
+
+def _row(key: KeyDoc, link: str = "") -> str:
+    default = "required" if key.required else (f"`{_cell(key.default)}`" if key.default else "")
+    meaning = _text(key.doc) or "*(undocumented)*"
+    if key.accepts and key.accepts not in key.doc:
+        meaning += f" — accepts {_text(key.accepts)}"
+    if link:
+        meaning += f" ([keys]({link}))"
+    return f"| `{_cell(key.path)}` | {key.type} | {key.unit} | {default} | {meaning} |"
+
+
+_HEADER = ["| key | type | unit | default | meaning |", "|---|---|---|---|---|"]
+
+
+def _is_table(field: Field) -> bool:
+    spec = field.spec
+    return isinstance(spec, Table) or (isinstance(spec, List) and isinstance(spec.item, Table))
+
+
+def scenario_keys_markdown() -> str:
+    """The page ``reference/scenario_keys.md``: every key of every registered job type.
+
+    Each job lists its top-level keys; a table (``[simulation]``, ``[[fmus]]``, ...) is listed
+    once with all its keys and linked from every job whose schema uses that same table."""
+    names = job_names()
+    tables: dict[tuple[str, int], list[str]] = {}   # (name, id(spec)) -> jobs using it
+    anchors: dict[tuple[str, int], str] = {}
+    fields: dict[tuple[str, int], Field] = {}
+    for name in names:
+        for key, field in get_job(name).schema.fields.items():
+            if _is_table(field):
+                ident = (key, id(field.spec))
+                if ident not in tables:
+                    count = sum(1 for other in tables if other[0] == key)
+                    anchors[ident] = f"table-{key}" + (f"-{count + 1}" if count else "")
+                    tables[ident] = []
+                    fields[ident] = field
+                tables[ident].append(name)
+    lines = [
+        "# Scenario keys (reference)",
+        "",
+        "Generated from the job schemas by `cosim/scenario/reference.py` when the site is built; the",
+        "schemas are the truth. A scenario file is a TOML document whose `[scenario] job` names one of",
+        "the job types below; each job lists the keys and tables its document accepts, and each table",
+        "is listed once below with all its keys. Quantities with a unit accept an SI number or a string",
+        "with a unit (`\"400 us\"`, `\"2 ms\"`). Key paths: `a.b` is key `b` of table `[a]`, `a[].b`",
+        "is key `b` of every `[[a]]` item, `<key>` stands for a name you choose.",
+        "",
+        "| job | what it does |",
+        "|---|---|",
+    ]
+    for name in names:
+        lines.append(f"| [`{name}`](#job-{name}) | {_text(get_job(name).description)} |")
+    for name in names:
+        job = get_job(name)
+        lines += ["", f"## Job `{name}` {{#job-{name}}}", ""]
+        if job.description:
+            lines += [_text(job.description[0].upper() + job.description[1:]) + ".", ""]
+        lines += _HEADER
+        for key in scenario_keys(name):
+            top = key.path.split(".")[0].split("[")[0]
+            field = job.schema.fields.get(top)
+            if key.path != top:
+                continue
+            link = ""
+            if field is not None and _is_table(field):
+                link = "#" + anchors[(top, id(field.spec))]
+            lines.append(_row(key, link))
+    lines += ["", "## Tables", ""]
+    for ident, jobs in tables.items():
+        key, _ = ident
+        field = fields[ident]
+        array = isinstance(field.spec, List)
+        title = f"[[{key}]]" if array else f"[{key}]"
+        lines += ["", f"### `{title}` ({', '.join(jobs)}) {{#{anchors[ident]}}}", ""]
+        rows = list(_walk_field(field, key))
+        if rows[0].doc:
+            lines += [_text(rows[0].doc[0].upper() + rows[0].doc[1:]) + ".", ""]
+        lines += _HEADER + [_row(row) for row in rows[1:]]
+    return "\n".join(lines) + "\n"
+
+
+__all__ = ["KeyDoc", "job_names", "scenario_keys", "scenario_keys_markdown", "toml_text", "undocumented_keys"]
