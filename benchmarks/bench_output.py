@@ -75,11 +75,14 @@ def can_write_cpu(log: Path, work: Path, repeats: int) -> dict[str, float]:
     sync = np.flatnonzero(rec["id"] == 0x080)
     cuts = sync[::FLUSH_CYCLES][1:]
     batches = np.split(rec, cuts)
+    # each frame's cell cycle (as the recorder hands it over): the log's, else counted from the SoCs
+    cycles = frames.cycles if frames.cycles is not None else np.cumsum(rec["id"] == 0x080) - 1
+    cycle_batches = np.split(np.asarray(cycles, dtype=np.int64), cuts)
 
     def write(path: Path, columnar: bool) -> None:
         sink = _BlfSink(str(path), columnar=columnar)
-        for b in batches:
-            sink.feed(b.tobytes(), float(b["t"][-1]) if b.size else None)
+        for b, c in zip(batches, cycle_batches):
+            sink.feed(b.tobytes(), float(b["t"][-1]) if b.size else None, c)
         sink.close()
 
     out = {"frames": int(rec.size)}

@@ -9,11 +9,15 @@ zstd): pandas, pyarrow, polars or DuckDB read each frame right without this modu
 stored in row groups of at most :data:`ROW_GROUP_ROWS` frames; inside a row group they are
 sorted by arbitration id (stably; the row group's ``sorting_columns`` say so), so each
 telegram's fields form long smooth runs that delta-encode to a few bits. ``seq`` is the
-frame's position in the log: sort by it for the frames in log (time) order. Columns:
+frame's position in the log: sort by it for the frames in log (time) order; ``cycle`` is the
+cell's cycle of the frame (null where the writer did not know it). Columns:
 
 =========================  =======  ============================================================
 ``seq``                    int64    position of the frame in the whole log (0, 1, ...: time order)
 ``t_ns``                   int64    the frame's time in ns since ``start_s`` (BLF's object time)
+``cycle``                  int64    the cell's POWERLINK cycle in which the frame was on the bus (0, 1,
+                                    ...: the cycle that sent or took it; the SYNC's ``sync_counter``
+                                    is the byte on the wire, e.g. an external controller's counter)
 ``id``                     uint16   arbitration id (11-bit, standard frames)
 ``error``                  bool     error frame
 ``length``                 uint8    data bytes (0..20; more than 8: a CAN FD frame)
@@ -66,7 +70,9 @@ import numpy as np
 if TYPE_CHECKING:
     import can
 
-FORMAT = "rx130l-cosim CAN log 2"
+FORMAT = "rx130l-cosim CAN log 3"
+FORMAT_2 = "rx130l-cosim CAN log 2"
+"""Files of the previous version (still read): no ``cycle`` column."""
 FORMAT_1 = "rx130l-cosim CAN log 1"
 """Files of earlier versions (still read): ``seq`` the position within the row group, ``dt_ns`` the
 difference to the previous frame's ``t_ns`` instead of ``t_ns``."""
@@ -111,7 +117,9 @@ FIELDS: dict[str, np.dtype] = {}
 for _lo, _hi, _n, _dt in LAYOUTS:
     for _name in _dt.names:
         FIELDS.setdefault(_name, _dt[_name].newbyteorder("="))
-INT_COLUMNS = ("seq", "t_ns", "id", "length", *FIELDS)
+INT_COLUMNS = ("seq", "t_ns", "cycle", "id", "length", *FIELDS)
+CYCLE_DESCRIPTION = ("the cell's POWERLINK cycle (0, 1, ...) in which the frame was on the bus; the SYNC's "
+                     "sync_counter is the counter byte on the wire (in a served run the controller's)")
 
 
 def blf_start(t0: float) -> float:
@@ -129,15 +137,17 @@ def _schema():
     import pyarrow as pa
 
     fields = [pa.field("seq", pa.int64()), pa.field("t_ns", pa.int64(), metadata={b"unit": b"ns"}),
+              pa.field("cycle", pa.int64(), metadata={b"description": CYCLE_DESCRIPTION.encode()}),
               pa.field("id", pa.uint16()), pa.field("error", pa.bool_()), pa.field("length", pa.uint8()),
               pa.field("data", pa.binary())]
     fields += [pa.field(name, pa.from_numpy_dtype(dtype)) for name, dtype in FIELDS.items()]
     return pa.schema(fields)
 
 
-PARTIAL_FORMAT = FORMAT_1 + " partial 2"
-"""``format`` of the partial stream: one column ``record`` of whole recorder records (the stream
-of ``FORMAT_1 + " partial"`` had the columns ``t``, ``id``, ``error``, ``length``, ``data``; still read)."""
+PARTIAL_FORMAT = FORMAT_1 + " partial 3"
+"""``format`` of the partial stream: a column ``record`` of whole recorder records and ``cycle``
+(int64, the cell's cycle; -1: not known). Read too: ``partial 2`` (``record`` only) and the stream
+of ``FORMAT_1 + " partial"`` (the columns ``t``, ``id``, ``error``, ``length``, ``data``)."""
 
 
 def _partial_schema(data_bytes: int = MAX_DATA):
@@ -145,7 +155,8 @@ def _partial_schema(data_bytes: int = MAX_DATA):
 
     layout = f"<f8 t (s), <u2 id, u1 error, u1 length, {data_bytes} bytes data (the first length of them)"
     return pa.schema([pa.field("record", pa.binary(record_dtype(data_bytes).itemsize),
-                               metadata={b"layout": layout.encode()})],
+                               metadata={b"layout": layout.encode()}),
+                      pa.field("cycle", pa.int64(), metadata={b"description": CYCLE_DESCRIPTION.encode()})],
                      metadata={b"format": PARTIAL_FORMAT.encode(), b"data_bytes": str(data_bytes).encode()})
 
 
@@ -183,8 +194,9 @@ class CanLogWriter:
         self._file.flush()
         self._groups = _RowGroups(self.path, self.data_bytes)
 
-    def write_records(self, records: bytes | np.ndarray) -> int:
-        """Append frames given as recorder records (in log order); returns their number."""
+    def write_records(self, records: bytes | np.ndarray, cycles: np.ndarray | None = None) -> int:
+        """Append frames given as recorder records (in log order) and each one's cell cycle
+        (``cycles``, int64; None or -1: not known, null in the file); returns their number."""
         import pyarrow as pa
 
         rec = (np.frombuffer(records, dtype=record_dtype(self.data_bytes)) if not isinstance(records, np.ndarray)
@@ -192,11 +204,12 @@ class CanLogWriter:
         if rec.size == 0:
             return 0
         rec = np.ascontiguousarray(rec)
+        cycles = _cycles_or_unknown(cycles, rec.size)
         whole = pa.FixedSizeBinaryArray.from_buffers(self._schema.field(0).type, rec.size,
                                                      [None, pa.py_buffer(rec.view(np.uint8))])
-        self._stream.write_batch(pa.RecordBatch.from_arrays([whole], schema=self._schema))
+        self._stream.write_batch(pa.RecordBatch.from_arrays([whole, pa.array(cycles)], schema=self._schema))
         self._file.flush()
-        self._groups.add(rec, self.row_group_rows)
+        self._groups.add(rec, self.row_group_rows, cycles)
         self.object_count += rec.size
         return rec.size
 
@@ -215,6 +228,16 @@ class CanLogWriter:
         self.partial.unlink(missing_ok=True)
 
 
+def _cycles_or_unknown(cycles: np.ndarray | None, n: int) -> np.ndarray:
+    """``cycles`` as n int64 values (-1 each where None)."""
+    if cycles is None:
+        return np.full(n, -1, dtype=np.int64)
+    cycles = np.ascontiguousarray(cycles, dtype=np.int64)
+    if cycles.size != n:
+        raise ValueError(f"{cycles.size} cycle numbers for {n} frames")
+    return cycles
+
+
 class _RowGroups:
     """Recorder records (log order) encoded into the row groups of the columnar CAN log ``path``
     as they fill (written to ``<path>.tmp``); :meth:`finish` adds the metadata and renames."""
@@ -227,14 +250,17 @@ class _RowGroups:
         self.stop: float | None = None
         self.frames = 0  # frames encoded so far: the next one's seq
         self._buffer = np.empty(0, dtype=record_dtype(self.data_bytes))
+        self._cycles = np.empty(0, dtype=np.int64)
         self._rows = 0
         self._writer = None
         self._scratch: dict = {}
 
-    def add(self, rec: np.ndarray, row_group_rows: int) -> None:
-        """Take ``rec`` (copied); encode and write every row group of ``row_group_rows`` that fills."""
+    def add(self, rec: np.ndarray, row_group_rows: int, cycles: np.ndarray | None = None) -> None:
+        """Take ``rec`` and their ``cycles`` (copied; None: not known); encode and write every row
+        group of ``row_group_rows`` that fills."""
         if rec.size == 0:
             return
+        cycles = _cycles_or_unknown(cycles, rec.size)
         width = rec.dtype["data"].shape[0]
         if width != self.data_bytes:
             raise ValueError(f"records of {width} data bytes for a CAN log of {self.data_bytes}")
@@ -244,20 +270,24 @@ class _RowGroups:
         if self._buffer.size != row_group_rows:
             self._encode()  # (a new group size: what is buffered forms its own group)
             self._buffer = np.empty(row_group_rows, dtype=rec.dtype)
+            self._cycles = np.empty(row_group_rows, dtype=np.int64)
         size = rec.dtype.itemsize  # whole records as bytes: a memcpy (numpy's structured copy is ~8x slower)
         buffer, raw = self._buffer.view(np.uint8), np.ascontiguousarray(rec).view(np.uint8)
         while raw.size:
             take = min(raw.size // size, row_group_rows - self._rows)
             buffer[self._rows * size:(self._rows + take) * size] = raw[:take * size]
+            self._cycles[self._rows:self._rows + take] = cycles[:take]
             self._rows += take
             raw = raw[take * size:]
+            cycles = cycles[take:]
             if self._rows == row_group_rows:
                 self._encode()
 
     def _encode(self) -> None:
         if not self._rows:
             return
-        table = _encode_records(self._buffer[:self._rows], self.start, self.frames, self._scratch)
+        table = _encode_records(self._buffer[:self._rows], self.start, self.frames, self._scratch,
+                                self._cycles[:self._rows])
         self.frames += self._rows
         if self._writer is None:
             self._writer = _parquet_writer(self.tmp, table.schema)
@@ -281,8 +311,9 @@ class _RowGroups:
         os.replace(self.tmp, self.path)
 
 
-def _partial_records(partial: Path) -> Iterator[np.ndarray]:
-    """The complete batches of a partial stream as record arrays (a torn last batch is skipped)."""
+def _partial_records(partial: Path) -> Iterator[tuple[np.ndarray, np.ndarray | None]]:
+    """The complete batches of a partial stream as record arrays and their cell cycles (None:
+    a stream without them; -1: not known); a torn last batch is skipped."""
     import pyarrow as pa
 
     with pa.OSFile(str(partial), "rb") as source:
@@ -292,12 +323,14 @@ def _partial_records(partial: Path) -> Iterator[np.ndarray]:
                 batch = reader.read_next_batch()
                 if not batch.num_rows:
                     continue
-                if batch.schema.names == ["record"]:
+                if batch.schema.names[0] == "record":
                     whole = batch.column(0)
                     size = whole.type.byte_width
                     raw = np.frombuffer(whole.buffers()[1], dtype=np.uint8)
+                    cycles = (batch.column(1).to_numpy(zero_copy_only=False).astype(np.int64)
+                              if batch.num_columns > 1 else None)
                     yield raw[whole.offset * size:(whole.offset + len(whole)) * size].view(
-                        record_dtype(size - RECORD_DTYPE.itemsize + MAX_DATA))
+                        record_dtype(size - RECORD_DTYPE.itemsize + MAX_DATA)), cycles
                     continue
                 data = batch.column("data")  # the first partial stream: the record's fields as columns
                 width = data.type.byte_width
@@ -306,7 +339,7 @@ def _partial_records(partial: Path) -> Iterator[np.ndarray]:
                     rec[name] = batch.column(name).to_numpy()
                 raw = np.frombuffer(data.buffers()[1], dtype=np.uint8)
                 rec["data"] = raw[data.offset * width:(data.offset + len(data)) * width].reshape(-1, width)
-                yield rec
+                yield rec, None
         except (StopIteration, pa.ArrowInvalid, OSError):
             return
 
@@ -356,9 +389,11 @@ def _field_arrays(scratch: dict | None, name: str, n: int) -> tuple[np.ndarray, 
     return arrays
 
 
-def _encode_records(rec: np.ndarray, start: float, first_seq: int, scratch: dict | None = None):
+def _encode_records(rec: np.ndarray, start: float, first_seq: int, scratch: dict | None = None,
+                    cycles: np.ndarray | None = None):
     """One row group (a pyarrow Table) of recorder records ``rec`` (log order, contiguous, the
-    first one frame ``first_seq`` of the log): the rows sorted by id (stably). ``scratch``: the
+    first one frame ``first_seq`` of the log) and their cell ``cycles`` (-1 or None: not known,
+    null): the rows sorted by id (stably). ``scratch``: the
     field columns' arrays are reused from it (and kept in it) - the table must then be written
     before the next call."""
     import pyarrow as pa
@@ -372,7 +407,10 @@ def _encode_records(rec: np.ndarray, start: float, first_seq: int, scratch: dict
     sid = np.ascontiguousarray(srec["id"])
     serr = np.ascontiguousarray(srec["error"])
     slen = np.ascontiguousarray(srec["length"])
-    columns = {"seq": pa.array(order.astype(np.int64) + np.int64(first_seq)), "t_ns": pa.array(ns[order]), "id": pa.array(sid),
+    cycles = _cycles_or_unknown(cycles, n)[order]
+    unknown = cycles < 0
+    columns = {"seq": pa.array(order.astype(np.int64) + np.int64(first_seq)), "t_ns": pa.array(ns[order]),
+               "cycle": pa.array(cycles, mask=unknown) if unknown.any() else pa.array(cycles), "id": pa.array(sid),
                "error": pa.array(serr != 0), "length": pa.array(slen)}
     spans: dict[str, list] = {}  # field -> (first row, end row, values, rows picked in between or None: all)
     picked: list = []
@@ -444,10 +482,10 @@ def partial_to_parquet(partial: Path, path: Path, row_group_rows: int = ROW_GROU
     """Rewrite the partial stream ``partial`` (e.g. left by a killed run) as the columnar CAN log
     ``path`` (bounded memory) and remove the stream."""
     groups = None
-    for rec in _partial_records(partial):
+    for rec, cycles in _partial_records(partial):
         if groups is None:
             groups = _RowGroups(path, rec.dtype["data"].shape[0])
-        groups.add(rec, row_group_rows)
+        groups.add(rec, row_group_rows, cycles)
     (groups or _RowGroups(path)).finish()
     partial.unlink(missing_ok=True)
 
@@ -476,12 +514,15 @@ def _frames_of(rec: np.ndarray, start: float) -> np.ndarray:
 @dataclass
 class CanLog:
     """A CAN log read back: ``frames`` (:data:`FRAME_DTYPE`, log order), the BLF start and stop
-    times (s); ``complete`` is False for a run's partial stream (the run is going or died)."""
+    times (s); ``complete`` is False for a run's partial stream (the run is going or died);
+    ``cycles`` each frame's cell cycle (int64, -1 where not known; None: a log from before the
+    ``cycle`` column)."""
 
     frames: np.ndarray
     start_s: float
     stop_s: float
     complete: bool = True
+    cycles: np.ndarray | None = None
 
     @property
     def timestamps(self) -> np.ndarray:
@@ -503,25 +544,30 @@ def read_frames(path: str | Path) -> CanLog:
     """Every frame of a columnar CAN log (or of its partial stream) in log order."""
     path = resolve(path)
     if path.name.endswith(PARTIAL_SUFFIX):
-        recs = list(_partial_records(path))
-        if not recs:
+        batches = list(_partial_records(path))
+        if not batches:
             return CanLog(np.zeros(0, dtype=FRAME_DTYPE), 0.0, 0.0, complete=False)
-        rec = np.concatenate(recs)
+        rec = np.concatenate([r for r, _c in batches])
+        cycles = (None if all(c is None for _r, c in batches)
+                  else np.concatenate([_cycles_or_unknown(c, r.size) for r, c in batches]))
         start = blf_start(rec["t"][0])
-        return CanLog(_frames_of(rec, start), start, float(rec["t"][-1]), complete=False)
-    return CanLog(*_read_parquet(path))
+        return CanLog(_frames_of(rec, start), start, float(rec["t"][-1]), complete=False, cycles=cycles)
+    frames, start, stop, cycles = _read_parquet(path)
+    return CanLog(frames, start, stop, cycles=cycles)
 
 
-def _read_parquet(path: Path) -> tuple[np.ndarray, float, float]:
+def _read_parquet(path: Path) -> tuple[np.ndarray, float, float, np.ndarray | None]:
     import pyarrow.parquet as pq
 
     pf = pq.ParquetFile(path)
     meta = {k.decode(): v.decode() for k, v in (pf.metadata.metadata or {}).items()}
-    if meta.get("format") not in (FORMAT, FORMAT_1):
+    if meta.get("format") not in (FORMAT, FORMAT_2, FORMAT_1):
         raise ValueError(f"{path}: not a CAN log of this format (metadata format = {meta.get('format')!r}, "
                          f"expected {FORMAT!r})")
     version_1 = meta["format"] == FORMAT_1
     parts = []
+    cycle_parts = []
+    has_cycles = "cycle" in pf.schema_arrow.names
     previous = 0
     first = 0
     width = int(meta.get("data_bytes", MAX_DATA))
@@ -558,9 +604,14 @@ def _read_parquet(path: Path) -> tuple[np.ndarray, float, float]:
                 previous = int(frames["t_ns"][-1])
         else:
             frames["t_ns"][seq] = table.column("t_ns").to_numpy()
+        if has_cycles:
+            cycles = np.empty(n, dtype=np.int64)
+            cycles[seq] = table.column("cycle").fill_null(-1).to_numpy()
+            cycle_parts.append(cycles)
         parts.append(frames)
     frames = np.concatenate(parts) if parts else np.zeros(0, dtype=frame_dtype(width))
-    return frames, float(meta["start_s"]), float(meta["stop_s"])
+    cycles = (np.concatenate(cycle_parts) if cycle_parts else np.zeros(0, dtype=np.int64)) if has_cycles else None
+    return frames, float(meta["start_s"]), float(meta["stop_s"]), cycles
 
 
 def iter_messages(path: str | Path) -> Iterator["can.Message"]:
@@ -647,7 +698,7 @@ def to_blf(path: str | Path, out: str | Path, chunk: int = 1 << 16) -> Path:
     return out
 
 
-__all__ = ["CanLog", "CanLogReader", "CanLogWriter", "FIELDS", "FORMAT", "FRAME_DTYPE", "LAYOUTS", "RECORD_DTYPE",
+__all__ = ["CYCLE_DESCRIPTION", "CanLog", "CanLogReader", "CanLogWriter", "FIELDS", "FORMAT", "FRAME_DTYPE", "LAYOUTS", "RECORD_DTYPE",
            "frame_dtype", "record_dtype",
            "PARTIAL_FORMAT", "ROW_GROUP_ROWS", "blf_nanoseconds", "blf_start", "is_columnar", "iter_messages", "open_log",
            "partial_to_parquet", "read_frames", "resolve", "to_blf"]

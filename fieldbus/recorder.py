@@ -59,7 +59,8 @@ class _LogSink:
             return _BlfSink(path, data_bytes, columnar=suffix == ".parquet")
         return _LogSink(path, data_bytes)
 
-    def feed(self, records: bytes, watermark_s: float | None) -> None:
+    def feed(self, records: bytes, watermark_s: float | None, cycles: np.ndarray | None = None) -> None:
+        # (python-can's formats have no place for the cell's cycle: ``cycles`` is not kept)
         self.pending.extend((t, i, bool(e), d[:n]) for t, i, e, n, d in self._record.iter_unpack(records))
         pending = self.pending
         pending.sort(key=lambda r: r[0])
@@ -98,19 +99,34 @@ class _BlfSink:
             from fieldbus.blf import BlfRecordWriter
 
             self.writer = BlfRecordWriter(path)
+        self.columnar = columnar
         self.pending = np.empty(0, dtype=self._void)
+        self.pending_cycles = np.empty(0, dtype=np.int64)
         self.written = 0
 
-    def feed(self, records: bytes, watermark_s: float | None) -> None:
+    def feed(self, records: bytes, watermark_s: float | None, cycles: np.ndarray | None = None) -> None:
+        """Take ``records`` and their cell ``cycles`` (int64, one per record; None: -1, not known)
+        and write those older than ``watermark_s`` (all: None)."""
         void = self._void  # whole records: copies and takes at memcpy speed (numpy's structured ones are ~8x slower)
         new = np.frombuffer(records, dtype=void)
         pending = np.concatenate([self.pending, new]) if self.pending.size else new
+        if self.columnar:  # the cycles travel with their records
+            new_cycles = np.full(new.size, -1, dtype=np.int64) if cycles is None else np.asarray(cycles, dtype=np.int64)
+            pending_cycles = (np.concatenate([self.pending_cycles, new_cycles]) if self.pending_cycles.size
+                              else new_cycles)
         t = pending.view(self._dtype)["t"]
         if t.size > 1 and not (t[1:] >= t[:-1]).all():  # a cycle's frames interleave: sort (stably, as list.sort)
-            pending = pending[np.argsort(t, kind="stable")]
+            order = np.argsort(t, kind="stable")
+            pending = pending[order]
+            if self.columnar:
+                pending_cycles = pending_cycles[order]
             t = pending.view(self._dtype)["t"]
         count = pending.size if watermark_s is None else int(np.searchsorted(t, watermark_s, "left"))
-        self.written += _whole(self.writer.write_records, pending[:count].view(self._dtype))
+        if self.columnar:
+            self.written += _whole(self.writer.write_records, pending[:count].view(self._dtype), pending_cycles[:count])
+            self.pending_cycles = pending_cycles[count:].copy()
+        else:
+            self.written += _whole(self.writer.write_records, pending[:count].view(self._dtype))
         self.pending = pending[count:].copy()
 
     def close(self) -> None:
@@ -184,6 +200,9 @@ def _writer_process(path: str, connection: Any, data_bytes: int = 20) -> None:
 class FrameRecorder(Closeable):
     """Collects sent frames and writes them, time-ordered, with ``can.Logger``.
 
+    Each frame's cell cycle is the ``cycle`` of the next :meth:`end_cycle` call after it was
+    added (the cycle it was sent or taken in); the columnar log keeps it in its ``cycle`` column.
+
     Args:
         path: log file; the suffix selects the format (.blf, .asc, ...).
         flush_every_cycles: hand-over period in cycles.
@@ -213,6 +232,9 @@ class FrameRecorder(Closeable):
             self.add_many = functools.partial(append, self._records, self._add_packed)  # type: ignore[method-assign]
         self.frames_recorded = 0
         self.frames_written = 0
+        # (bytes of records at an end_cycle, its cycle) since the last flush: the records' cell cycles
+        self._cycle_ends: list[tuple[int, int]] = []
+        self._next_cycle = 0  # the cycle of records added after the last end_cycle
         self._sink: _LogSink | _BlfSink | None = None
         if background:
             context = multiprocessing.get_context("spawn")
@@ -249,7 +271,9 @@ class FrameRecorder(Closeable):
                                        for m in frames]))
 
     def end_cycle(self, cycle: int, watermark_s: float) -> None:
-        """Called once per cycle; hands over frames older than ``watermark_s`` periodically."""
+        """Called once per cycle, after the cycle's frames were added (they are this ``cycle``'s);
+        hands over frames older than ``watermark_s`` periodically."""
+        self._cycle_ends.append((len(self._records), cycle))
         if cycle % self.flush_every_cycles == 0:
             self.flush(watermark_s)
 
@@ -258,15 +282,29 @@ class FrameRecorder(Closeable):
         are written, later ones wait for the next flush."""
         records = bytes(self._records)
         self._records.clear()  # in place: the compiled add_many holds this bytearray
-        self.frames_recorded += len(records) // self._record_struct.size
+        size = self._record_struct.size
+        cycles = self._take_cycles(len(records) // size, size)
+        self.frames_recorded += len(records) // size
         if self._sink is not None:
-            self._sink.feed(records, watermark_s)
+            self._sink.feed(records, watermark_s, cycles)
             self.frames_written = self._sink.written
             return
         try:
-            _send_whole(self._conn, (records, watermark_s))
+            _send_whole(self._conn, (records, watermark_s, cycles))
         except (BrokenPipeError, OSError) as error:
             raise RuntimeError(f"fieldbus recorder process for {self.path} died: {error}") from error
+
+    def _take_cycles(self, count: int, size: int) -> np.ndarray:
+        """The cell cycle of each of the ``count`` records handed over now (int64)."""
+        ends = self._cycle_ends
+        if not ends:
+            return np.full(count, self._next_cycle, dtype=np.int64)
+        marks = np.array(ends, dtype=np.int64)
+        self._cycle_ends = []
+        self._next_cycle = int(marks[-1, 1]) + 1
+        bounds = np.append(marks[:, 0] // size, count)
+        values = np.append(marks[:, 1], self._next_cycle)
+        return np.repeat(values, np.diff(bounds, prepend=0))
 
     def _release(self) -> None:
         """Write everything and close the file."""

@@ -201,3 +201,73 @@ def test_export_blf_command(tmp_path, capsys):
     assert main(["export-blf", str(tmp_path / "not_a_log.parquet")]) == 2
     assert main(["export-blf", str(tmp_path / "missing.parquet")]) == 2
     assert "not a CAN log" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("background", [False, True])
+def test_cycle_column_is_the_cells_cycle_of_every_frame(tmp_path, background):
+    """In process (the recorder in this process or in its writer process), every frame's
+    ``cycle`` is the cycle that sent it; pandas reads the column as int64; the BLF export is
+    unchanged by it."""
+    import pandas as pd
+
+    from fieldbus import PowerlinkNetwork
+    from tests.fieldbus.test_network import drive, scaling
+
+    path = tmp_path / "run.parquet"
+    with PowerlinkNetwork({"recording": {"flush_every_cycles": 37, "background": background}}, scaling(),
+                          log_path=path) as network:
+        drive(network, 120)
+        period, t0 = network.config.cycle_time_s, network.config.start_time_s
+    log = read_frames(path)
+    assert np.array_equal(np.bincount(log.cycles), [19] * 120) and (np.diff(log.cycles) >= 0).all()
+    # each frame within its cycle's window (a jittered SoC may be stamped just before the cycle's
+    # nominal start: floor(t / cycle_time) would put it into the cycle before)
+    phase = (log.timestamps - t0) / period - log.cycles
+    assert phase.min() > -0.01 and phase.max() < 1 and (np.floor(phase) < 0).any()
+    table = pd.read_parquet(path).sort_values("seq")
+    assert str(table["cycle"].dtype) == "int64" and table["cycle"].tolist() == log.cycles.tolist()
+    socs = table[table["id"] == 0x080]
+    assert (socs["sync_counter"] == socs["cycle"] % network.config.scaling.sync_counter_overflow + 1).all()
+    field = pq.read_schema(path).field("cycle")
+    assert b"POWERLINK cycle" in field.metadata[b"description"]
+    assert pq.ParquetFile(path).metadata.metadata[b"format"] == FORMAT.encode()
+
+
+def test_split_endpoints_log_their_cycle(tmp_path):
+    """Managing node and drives as separate endpoints, each writing its own columnar log (as
+    in split processes): each frame's ``cycle`` is the cycle of the endpoint that logged it,
+    in the partial stream while the run goes and in the file after."""
+    from fieldbus.config import FieldbusConfig
+    from fieldbus.endpoints import DriveEndpoint, ManagingNodeEndpoint, default_channel
+    from fieldbus import DriveActuals, Setpoints
+    from tests.fieldbus.test_network import scaling
+
+    config = FieldbusConfig.from_dict({"recording": {"flush_every_cycles": 10}})
+    channel = default_channel(config)
+    setpoints, actuals = Setpoints.zeros(6), DriveActuals.zeros(6)
+    with ManagingNodeEndpoint(config, scaling(), channel=channel, log_path=tmp_path / "mn.parquet") as mn, \
+            DriveEndpoint(config, scaling(), channel=channel, log_path=tmp_path / "cn.parquet") as cn:
+        for k in range(50):
+            mn.send_setpoints(k, setpoints)
+            cn.run_cycle(k, actuals)
+            mn.collect_actuals(k)
+        going = read_frames(tmp_path / "mn.parquet")
+        phase = going.timestamps / config.cycle_time_s - going.cycles
+        assert not going.complete and going.cycles.size and phase.min() > -0.01 and phase.max() < 1
+    for side, per_cycle in (("mn", 7), ("cn", 12)):
+        log = read_frames(tmp_path / f"{side}.parquet")
+        assert np.array_equal(np.bincount(log.cycles), [per_cycle] * 50), side
+
+
+def test_a_log_without_the_cycle_column_still_reads(tmp_path):
+    """A format-2 file (before the ``cycle`` column) reads as the same frames, ``cycles`` None."""
+    from fieldbus.canlog import FORMAT_2
+
+    ref, log = _log_both(tmp_path, [(_telegram_records(100), None)])
+    table = pq.read_table(log).drop_columns(["cycle"])
+    meta = dict(pq.ParquetFile(log).metadata.metadata)
+    meta[b"format"] = FORMAT_2.encode()
+    pq.write_table(table.replace_schema_metadata(meta), tmp_path / "old.parquet")
+    old = read_frames(tmp_path / "old.parquet")
+    assert old.cycles is None and np.array_equal(old.frames, read_frames(log).frames)
+    assert to_blf(tmp_path / "old.parquet", tmp_path / "old.blf").read_bytes() == ref.read_bytes()

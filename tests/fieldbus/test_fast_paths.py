@@ -142,7 +142,8 @@ def test_recorder_add_many_appends_compiled_records_in_order_with_the_python_fal
     """The recorder's compiled add_many (pack_records_append into one bytearray) hands over the
     bytes the Python add_many hands over, in call order, also when a frame the codec declines
     (a NumPy timestamp) is packed in Python between compiled calls; a frame that fits no record
-    raises struct.error as in Python and records nothing of its call."""
+    raises struct.error as in Python and records nothing of its call. Each record's cell cycle is
+    the cycle of the next end_cycle (records after the last one: the cycle after it)."""
     import struct
 
     import numpy as np
@@ -156,12 +157,14 @@ def test_recorder_add_many_appends_compiled_records_in_order_with_the_python_fal
     expected = b"".join(RECORD.pack(m.timestamp, m.arbitration_id, m.is_error_frame, len(m.data), m.data)
                         for batch in batches for m in batch)
     handed: list[bytes] = []
+    handed_cycles: list[list[int]] = []
 
     class Sink:
         written = 0
 
-        def feed(self, records, watermark_s):
+        def feed(self, records, watermark_s, cycles):
             handed.append(records)
+            handed_cycles.append(cycles.tolist())
 
         def close(self):
             pass
@@ -169,14 +172,17 @@ def test_recorder_add_many_appends_compiled_records_in_order_with_the_python_fal
     recorder = FrameRecorder(tmp_path / "can.parquet")
     assert not hasattr(recorder.add_many, "__func__")  # the compiled one: no Python method
     recorder._sink = Sink()
-    for batch in batches:
+    for k, batch in enumerate(batches):
         recorder.add_many(batch)
+        if k == 0:
+            recorder.end_cycle(3, 0.0)  # (not a hand-over cycle)
     with pytest.raises(struct.error):
         recorder.add_many([FastMessage(1.0, 0x181, bytearray(2)), FastMessage(1.0, 0x1_0000, bytearray(8))])
     recorder.flush(None)
     recorder.add_many(batches[0])
     recorder.flush(None)
     assert handed == [expected, expected[:2 * RECORD.size]]
+    assert handed_cycles == [[3, 3, 4, 4, 4], [4, 4]]
     assert recorder.frames_recorded == 7
 
 

@@ -138,12 +138,38 @@ def test_the_can_log_keeps_the_counter_the_controller_sent(plain_run):
     frames = log.frames
     socs = frames[frames["id"] == 0x080]
     counters = socs["data"][:, 0].tolist()
-    cycles = np.floor((log.start_s + socs["t_ns"] / 1e9) / period + 1e-6).astype(int)
+    # the cycle column is the cell's own cycle of every frame: each frame lies in that cycle's
+    # window of the cell's schedule (a jittered SoC up to a few us before its nominal start)
+    phase = log.timestamps / period - log.cycles
+    assert log.cycles is not None and phase.min() > -0.01 and phase.max() < 1
+    assert (np.diff(log.cycles) >= 0).all() and np.array_equal(np.unique(log.cycles), np.arange(log.cycles[-1] + 1))
+    soc_cycles = log.cycles[frames["id"] == 0x080]
+    assert np.unique(soc_cycles).size == soc_cycles.size  # one SoC per cell cycle at most
+    cycles = log.cycles[frames["id"] == 0x080]
     own = ((cycles % desc["sync_counter_overflow"]) + 1).tolist()
     assert counters[0] == FIRST_COUNTER != own[0]  # the first group fixes the mapping; logged as sent
+    assert cycles[0] > 0  # the first group landed in a later cell cycle
     assert set(counters) <= set(sent)  # every logged SoC carries a counter the controller sent
     # (where the controller's counter drifts from the cell's cycles - a stall of either - the cell
     # re-synchronises the mapping; the log still shows the counters as they were on the wire)
+
+
+def test_pandas_reads_the_wire_counter_beside_the_cells_cycle(plain_run):
+    """pandas alone (no project code) lines up the SoC counter on the wire with the cell's cycle."""
+    import pandas as pd
+
+    out, desc, _, _, _ = plain_run
+    (can_path,) = out.glob("can_*.parquet")
+    table = pd.read_parquet(can_path, columns=["seq", "cycle", "id", "sync_counter"]).sort_values("seq")
+    socs = table[table["id"] == 0x080]
+    log = read_frames(can_path)
+    wire = log.frames["data"][log.frames["id"] == 0x080, 0]
+    assert str(table["cycle"].dtype) == "int64" and not table["cycle"].isna().any()
+    assert socs["sync_counter"].tolist() == wire.tolist()
+    assert socs["cycle"].tolist() == log.cycles[log.frames["id"] == 0x080].tolist()
+    assert int(socs["sync_counter"].iloc[0]) == FIRST_COUNTER
+    assert int(socs["cycle"].iloc[0]) % desc["sync_counter_overflow"] + 1 != FIRST_COUNTER
+    assert table["cycle"].is_monotonic_increasing  # in log (time) order
 
 
 def test_the_plain_controller_enables_and_disables_without_a_fault(plain_run):
