@@ -149,39 +149,30 @@ def _read_columns(path: Path, wanted: list[str], notes: list[str], label: str) -
 
 
 def _emcy_events(path: Path, notes: list[str], label: str) -> list[dict[str, Any]]:
-    """EMCY frames of a columnar CAN log (``can_<run>.parquet``): time, node, error code."""
+    """EMCY frames of a columnar CAN log (``can_<run>.parquet``, any format the project's reader
+    reads): time, node, error code."""
     try:
         import pyarrow.parquet as pq
 
-        pf = pq.ParquetFile(path)
-        meta = {k.decode(): v.decode() for k, v in (pf.metadata.metadata or {}).items()}
-        start = float(meta.get("start_s", 0.0))
-        names = set(pf.schema_arrow.names)
-        if not {"seq", "dt_ns", "id"} <= names:
-            return []
-        ids = pf.read(columns=["id"]).column("id").to_numpy()
+        from fieldbus.canlog import read_frames
+
+        ids = pq.ParquetFile(path).read(columns=["id"]).column("id").to_numpy()
         if not np.any((ids >= EMCY_IDS[0]) & (ids <= EMCY_IDS[1])):
             return []  # no EMCY frame: the frames' times are not needed
-        extra = [c for c in ("error_code", "counter_id", "counter_value") if c in names]
+        log = read_frames(path)
+        frames = log.frames
+        hit = np.flatnonzero((frames["id"] >= EMCY_IDS[0]) & (frames["id"] <= EMCY_IDS[1]) & (frames["error"] == 0))
+        times = log.timestamps
         events: list[dict[str, Any]] = []
-        previous = 0
-        for g in range(pf.metadata.num_row_groups):
-            table = pf.read_row_group(g, columns=["seq", "dt_ns", "id", *extra])
-            n = table.num_rows
-            seq = table.column("seq").to_numpy()
-            dt = np.empty(n, dtype=np.int64)
-            dt[seq] = table.column("dt_ns").to_numpy()
-            t_ns = previous + np.cumsum(dt)
-            if n:
-                previous = int(t_ns[-1])
-            ids = table.column("id").to_numpy()
-            hit = np.flatnonzero((ids >= EMCY_IDS[0]) & (ids <= EMCY_IDS[1]))
-            for i in hit[:200]:
-                code = table.column("error_code")[int(i)].as_py() if "error_code" in extra else None
-                events.append({"kind": "emcy", "time_s": start + float(t_ns[seq[i]]) / 1e9, "joint": int(ids[i]) - 0x80,
-                               "error_code": None if code is None else f"0x{int(code):04X}",
-                               "detail": f"EMCY node {int(ids[i]) - 0x80}"
-                                         + ("" if code is None else f" error code 0x{int(code):04X}")})
+        for i in hit[:200]:
+            node = int(frames["id"][i]) - 0x80
+            data = frames["data"][i]
+            code = int(data[0]) | (int(data[1]) << 8) if int(frames["length"][i]) >= 2 else None
+            events.append({"kind": "emcy", "time_s": float(times[i]), "joint": node,
+                           "error_code": None if code is None else f"0x{code:04X}",
+                           "detail": f"EMCY node {node}" + ("" if code is None else f" error code 0x{code:04X}")})
+        if hit.size > 200:
+            notes.append(f"{label}: {hit.size} EMCY frames, the first 200 shown")
         return events
     except Exception as exc:  # noqa: BLE001
         notes.append(f"{label}: {path.name} not readable ({type(exc).__name__}: {_first_line(exc)}): bus events missing")
@@ -370,9 +361,9 @@ KEY_FIGURES: tuple[tuple[str, str, str], ...] = (
     ("joint_lag_max_rad", "max lag per joint", "rad"),
     ("residual_vibration.peak_mm", "residual vibration peak", "mm"),
     ("residual_vibration.settling_time_s", "settling time", "s"),
-    ("cycle_compute_us.p50", "controller compute p50 (wall)", "us"),
-    ("cycle_compute_us.p99", "controller compute p99 (wall)", "us"),
-    ("cycle_compute_us.max", "controller compute max (wall)", "us"),
+    ("cycle_wall_us.p50", "controller compute p50 (wall)", "us"),
+    ("cycle_wall_us.p99", "controller compute p99 (wall)", "us"),
+    ("cycle_wall_us.max", "controller compute max (wall)", "us"),
     ("cycle_compute_cpu_us.p99", "controller compute p99 (CPU)", "us"),
     ("deadline_misses", "deadline misses", "cycles"),
     ("path_completed", "path completed", ""), ("stop_reason", "stop reason", ""),

@@ -9,7 +9,7 @@ import math
 from collections import defaultdict
 from pathlib import Path
 
-from fieldbus.canlog import open_log
+from fieldbus.canlog import open_log, read_frames
 import numpy as np
 import pytest
 
@@ -142,6 +142,18 @@ def test_nothing_is_lost_time_series_and_can_log(loss_run):
         assert node_frames <= set(cycles[k])
     emcy = [k for k, ids in cycles.items() if 0x080 + NODE in ids]
     assert emcy == [TRIP]
+
+
+def test_the_report_marks_the_emcy_of_the_tripped_node(loss_run):
+    """report.html lists the EMCY the CAN log holds (read through the project's CAN-log reader,
+    whatever the log's format), with the node and the error code, at the frame's time."""
+    _code, out, _summary = loss_run
+    log = read_frames(out / "can_model_based.parquet")
+    emcy = [i for i in range(len(log)) if 0x081 <= int(log.frames["id"][i]) <= 0x0FF]
+    assert emcy, "the trip sends an EMCY"
+    html = (out / "report.html").read_text(encoding="utf-8")
+    assert "EMCY node 3 error code 0x8100" in html
+    assert f"{float(log.timestamps[emcy[0]])!r}" in html
 
 
 def test_a_scenario_without_faults_is_rejected(tmp_path):
