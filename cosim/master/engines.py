@@ -16,6 +16,7 @@ import ctypes
 import math
 import time
 from dataclasses import dataclass, field
+from typing import Any
 from functools import partial
 
 import numpy as np
@@ -28,6 +29,18 @@ from fmus.fmu import VALUE_DTYPE, VALUE_TYPES, Fmu, status_name
 
 BUS_ORDER = VALUE_TYPES  # the value types an Fmu exchanges, one bus each
 BUS_DTYPE = VALUE_DTYPE
+
+
+def _write_inputs(comp: Any, gathers: Any, sets: Any, t: float) -> None:
+    """Copy a slave's connected values into its input buffers and set its inputs (one FMI call per
+    variable type); a status above fmi2Warning fails with the time ``t``."""
+    for bus, dst, src in gathers:
+        bus[dst] = bus[src]
+    handle = comp.component
+    for fn, vrs, count, address, bus_type in sets:
+        status = fn(handle, vrs, count, address)
+        if status > 1:
+            comp.check(f"{comp.api}Set{bus_type}", t, status)
 
 
 @dataclass
@@ -176,13 +189,7 @@ class PythonEngine:
                 slave, comp, gathers, sets, _, _ = prepared
                 if tick % slave.step_ticks:
                     continue
-                for bus, dst, src in gathers:
-                    bus[dst] = bus[src]
-                handle = comp.component
-                for fn, vrs, count, address, bus_type in sets:
-                    status = fn(handle, vrs, count, address)
-                    if status > 1:
-                        comp.check(f"{comp.api}Set{bus_type}", time_of(tick), status)
+                _write_inputs(comp, gathers, sets, time_of(tick))
                 self._publish(prepared, tick)
 
         return refresh
@@ -200,13 +207,8 @@ class PythonEngine:
                 m = slave.step_ticks
                 if n % m:
                     continue
-                for bus, dst, src in gathers:
-                    bus[dst] = bus[src]
+                _write_inputs(comp, gathers, sets, t)
                 handle = comp.component
-                for fn, vrs, count, address, bus_type in sets:
-                    status = fn(handle, vrs, count, address)
-                    if status > 1:
-                        comp.check(f"{comp.api}Set{bus_type}", t, status)
                 h = (t0 + float(n + m) * h0) - t
                 if profile is not None:
                     w0 = time.perf_counter()
