@@ -21,6 +21,20 @@ def _strip(data: dict) -> dict:
     return {k: v for k, v in data.items() if k != "scenario"}
 
 
+def _long_form(tmp_path: Path, *, modes: str | None = None) -> Path:
+    """The main job copied out with the example's [controller] class added (and its built-in
+    ``modes`` replaced by ``modes``), next to a copy of the controller's file."""
+    shutil.copy(ROOT / "examples" / "pd_gravity_controller.py", tmp_path)
+    text = MAIN_JOB.read_text().replace('[controller]\n', '[controller]\nclass = "pd_gravity_controller.py:PDGravity"\n', 1)
+    assert text.count("pd_gravity_controller.py:PDGravity") == 1
+    if modes is not None:
+        text = text.replace('modes = ["standard", "model_based", "model_based_elastic"]', modes, 1)
+        assert modes in text
+    path = tmp_path / "long.toml"
+    path.write_text(text)
+    return path
+
+
 def test_the_example_is_ten_lines_at_most():
     assert len(SHORT.read_text().splitlines()) <= 10
 
