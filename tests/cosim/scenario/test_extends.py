@@ -25,7 +25,8 @@ def _long_form(tmp_path: Path, *, modes: str | None = None) -> Path:
     """The main job copied out with the example's [controller] class added (and its built-in
     ``modes`` replaced by ``modes``), next to a copy of the controller's file."""
     shutil.copy(ROOT / "examples" / "pd_gravity_controller.py", tmp_path)
-    text = MAIN_JOB.read_text().replace('[controller]\n', '[controller]\nclass = "pd_gravity_controller.py:PDGravity"\n', 1)
+    text = MAIN_JOB.read_text().replace('[controller]\n', '[controller]\nclass = "pd_gravity_controller.py:PDGravity"\n'
+                                        'parameters = { bandwidth_hz = 3.0, model_feedforward = true }\n', 1)
     assert text.count("pd_gravity_controller.py:PDGravity") == 1
     if modes is not None:
         text = text.replace('modes = ["standard", "model_based", "model_based_elastic"]', modes, 1)
@@ -42,12 +43,7 @@ def test_the_example_is_ten_lines_at_most():
 def test_short_form_validates_to_the_long_form(tmp_path):
     """The ten-line example and the main job copied out with the same [controller] class added
     validate to the same document (every value, defaults and SI conversion included)."""
-    shutil.copy(ROOT / "examples" / "pd_gravity_controller.py", tmp_path)
-    long_text = MAIN_JOB.read_text().replace('[controller]\n', '[controller]\nclass = "pd_gravity_controller.py:PDGravity"\n'
-                                          'parameters = { bandwidth_hz = 3.0, model_feedforward = true }\n', 1)
-    assert long_text.count("pd_gravity_controller.py:PDGravity") == 1
-    (tmp_path / "long.toml").write_text(long_text)
-    short, long = load_scenario(SHORT), load_scenario(tmp_path / "long.toml")
+    short, long = load_scenario(SHORT), load_scenario(_long_form(tmp_path))
     assert short.name == "my_controller_iso9283" and short.job.name == long.job.name == "iso9283"
     assert _strip(short.data) == _strip(long.data)
     # the base's relative FMU/URDF paths were made absolute against the base's folder
@@ -59,15 +55,8 @@ def test_short_form_runs_with_the_long_forms_figures(tmp_path):
     gives, digit for digit, the figures of the same controller in the long form run alone."""
     out_short = tmp_path / "short"
     rc_short = main(["run", str(SHORT), "--out", str(out_short), "--quiet"])
-    shutil.copy(ROOT / "examples" / "pd_gravity_controller.py", tmp_path)
-    long_text = MAIN_JOB.read_text().replace(
-        '[controller]\n', '[controller]\nclass = "pd_gravity_controller.py:PDGravity"\n'
-                                          'parameters = { bandwidth_hz = 3.0, model_feedforward = true }\n', 1)
-    long_text = long_text.replace('modes = ["standard", "model_based", "model_based_elastic"]', "modes = []", 1)
-    assert "modes = []" in long_text
-    (tmp_path / "long.toml").write_text(long_text)
     out_long = tmp_path / "long"
-    rc_long = main(["run", str(tmp_path / "long.toml"), "--out", str(out_long), "--quiet"])
+    rc_long = main(["run", str(_long_form(tmp_path, modes="modes = []")), "--out", str(out_long), "--quiet"])
     short = json.loads((out_short / "summary.json").read_text())
     long = json.loads((out_long / "summary.json").read_text())
     assert set(short["modes"]) == {"standard", "model_based", "model_based_elastic", "PDGravity"}
