@@ -235,6 +235,10 @@ def _run_in_mode(cell: CellDescription, controller: CellController, ctx: RunCont
         if callable(controller_close):
             controller_close()  # the job's own controller does not run: the controller is elsewhere
         settings = getattr(options, "serve", None) or ServeSettings()
+        if settings.canopen:  # a CANopen master on a python-can bus drives the cell with its SYNC
+            from cosim.hil.can_side import run_can_served_cell
+
+            return run_can_served_cell(cell, ctx, settings)
         return run_served_cell(cell, ctx, settings, pacer=pacer, start_on_first_frame_s=settings.wait_for_controller_s)
     if mode == "split":
         from cosim.split.cell import run_split_cell

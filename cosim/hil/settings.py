@@ -17,6 +17,13 @@ DEFAULT_WINDOW_FRACTION = 0.5
 DEFAULT_SPIN_S = 150e-6
 #: Name of the endpoint description written into the results folder before the first cycle.
 ENDPOINT_FILE = "hil_endpoint.json"
+#: The cell's own interface: one datagram per POWERLINK cycle (fieldbus/udpcycle.py). Any other
+#: python-can interface serves the cell frame by frame to a CANopen master (cosim/hil/can_side.py).
+UDPCYCLE = "udpcycle"
+#: Seconds without a SYNC, after the master's first, that end a run on a python-can bus (the
+#: master stopped its SYNC: its session is over). Class value: 100 cycles of a slow CANopen
+#: master (10 ms), far beyond any stall of a Python master measured here.
+DEFAULT_SYNC_TIMEOUT_S = 1.0
 
 
 class ServeSettingsError(ValueError):
@@ -40,7 +47,12 @@ class ServeSettings:
     wait_for_controller_s: wait up to this many seconds, after the endpoint description is
         written, for the controller's first datagram and make its arrival cycle 0 (the run then
         lasts stop_time from the controller's start, as a cell whose managing node starts the
-        cycle); None: start at once, never wait.
+        cycle); None: start at once, never wait. On a python-can bus: wait up to this many seconds
+        for the master's first SYNC (None: as long as it takes).
+    interface: ``udpcycle`` (the cell's own datagrams) or any python-can interface; then the
+        cell is six CANopen drives driven by the master's SYNC (cosim/hil/can_side.py) on
+        ``can.Bus(interface, channel, bitrate=bitrate, **bus_kwargs)``.
+    sync_timeout_s: on a python-can bus, the run ends this long after the master's last SYNC.
     """
 
     channel: str = DEFAULT_CHANNEL
@@ -53,8 +65,30 @@ class ServeSettings:
     cpu: str | None = None
     lock_memory: bool = True
     wait_for_controller_s: float | None = None
+    interface: str = UDPCYCLE
+    bitrate: int | None = None
+    bus_kwargs: dict | None = None
+    sync_timeout_s: float = DEFAULT_SYNC_TIMEOUT_S
+
+    @property
+    def canopen(self) -> bool:
+        """True: the cell is a CANopen network on a python-can bus (any interface but udpcycle)."""
+        return self.interface != UDPCYCLE
 
     def __post_init__(self) -> None:
+        if not isinstance(self.interface, str) or not self.interface.strip():
+            raise ServeSettingsError(f"--interface {self.interface!r}: expected a python-can interface name, e.g. "
+                                     f"udp_multicast, virtual, socketcan, pcan (default {UDPCYCLE})")
+        if self.bitrate is not None and (isinstance(self.bitrate, bool) or not isinstance(self.bitrate, int)
+                                         or not 10_000 <= self.bitrate <= 8_000_000):
+            raise ServeSettingsError(f"--bitrate {self.bitrate!r}: expected bit/s in 10000..8000000, e.g. 1000000")
+        if not 0.01 <= self.sync_timeout_s <= 3600.0:
+            raise ServeSettingsError(f"--sync-timeout {self.sync_timeout_s!r}: expected seconds in [0.01, 3600]")
+        if self.canopen:
+            if not str(self.channel).strip():
+                raise ServeSettingsError(f"--channel {self.channel!r}: expected the channel of interface "
+                                         f"{self.interface!r}, e.g. 239.74.163.2 (udp_multicast), can0 (socketcan)")
+            return
         for name in ("channel",) + (("peer",) if self.peer is not None else ()):
             value = getattr(self, name)
             host, sep, port = str(value).rpartition(":")
@@ -88,4 +122,6 @@ class ServeSettings:
                 "accept_from": None if self.accept_from is None else list(self.accept_from),
                 "window_fraction": self.window_fraction, "spin_us": self.spin_s * 1e6,
                 "busy_poll_us": self.busy_poll_s * 1e6, "scheduling": self.scheduling, "cpu": self.cpu,
-                "lock_memory": self.lock_memory, "wait_for_controller_s": self.wait_for_controller_s}
+                "lock_memory": self.lock_memory, "wait_for_controller_s": self.wait_for_controller_s,
+                "interface": self.interface, "bitrate": self.bitrate, "bus_options": dict(self.bus_kwargs or {}),
+                "sync_timeout_s": self.sync_timeout_s}
