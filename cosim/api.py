@@ -23,7 +23,7 @@ value}`` with the syntax and the code of sweep axes (``cosim.scenario.keypath``:
 unit strings such as ``"5 kg"``), relative file paths in them are relative to the working
 directory (as are those of a dict or TOML text).
 
-Errors (documented in docs/scripting.md):
+Errors (documented in docs/how-to/scripting.md):
 
 * :class:`ScenarioError` (a ``ValueError``): invalid scenario, override or sweep, raised
   before anything is written; ``.file`` (a Path, or ``"<dict>"``/``"<string>"``/
@@ -706,7 +706,7 @@ def execute(scenario: Scenario, out: str | Path, *, quiet: bool = True, realtime
     ``clock_from_process_start``: summary.json's ``wall_time_s`` and ``realtime_factor`` count
     from this process's start (``cosim run``: the whole command, interpreter start and imports
     included; ``wall_time_from = "process start"``) instead of from this call. ``report``: write
-    report.html (None: unless the scenario's ``[results] report`` is false; docs/viewing.md).
+    report.html (None: unless the scenario's ``[results] report`` is false; docs/how-to/view_results.md).
     Raises ScenarioError, OutputFolderError, KeyboardInterrupt as :func:`run` does (and
     BudgetError); never RunFailed."""
     if serve is not None:
@@ -786,7 +786,7 @@ def _execute_into(sc: Scenario, out_dir: Path, options, *, quiet: bool, origin: 
 
 
 def _write_report(out_dir: Path, wanted: bool) -> None:
-    """report.html in the results folder (``[results] report``, docs/viewing.md); a report that cannot
+    """report.html in the results folder (``[results] report``, docs/how-to/view_results.md); a report that cannot
     be written is a warning line, never a failed run (``cosim view`` writes it later)."""
     import sys
 
@@ -880,7 +880,7 @@ def _first_line(text: str) -> str:
 
 # ------------------------------------------------------------------------------------------ sweeps
 def load_sweep(sweep: "str | Path | Mapping[str, Any]", on_count=None) -> "Sweep":
-    """Read and validate a sweep (a sweep TOML file, its text, or its parsed dict; docs/sweeps.md).
+    """Read and validate a sweep (a sweep TOML file, its text, or its parsed dict; docs/how-to/sweep_cluster.md).
 
     Every variant is validated by the base job; ScenarioError on any problem, nothing runs.
     A dict or text names its base scenario relative to the working directory. ``on_count(n)`` is
@@ -912,7 +912,7 @@ def build_sweep(base: "str | Path | Mapping[str, Any] | Scenario", axes: "Mappin
                 metrics: Sequence[str] | None = None, report: Mapping[str, Any] | None = None,
                 collect: Sequence[str] = (), store: str | None = None, retries: int = 2,
                 description: str = "") -> "Sweep":
-    """A sweep built in Python around a base scenario (validated like a sweep file, docs/sweeps.md).
+    """A sweep built in Python around a base scenario (validated like a sweep file, docs/how-to/sweep_cluster.md).
 
     Args:
         base: the base scenario (as for :func:`load_scenario`; its overrides are kept).

@@ -24,7 +24,7 @@ PLANT_VARIABLES = frozenset({"tau[1]", "q[6]", "p[78]", "payload_mass"})
 
 DRIVE_VARIABLES = wiring.REQUIRED_DRIVE_VARIABLES
 """Variables the cell needs of every drive FMU: the required ones of the minimal drive
-interface (``fmus.servo_drive.interface``, docs/fmus.md)."""
+interface (``fmus.servo_drive.interface``, docs/explanation/fmus.md)."""
 
 
 def fill_defaults(doc: dict[str, Any], schema: Table, keys: Iterable[str]) -> None:

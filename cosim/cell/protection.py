@@ -2,7 +2,7 @@
 and the check of the protection parameters a scenario sets.
 
 The servo drives enforce CiA 402 limits (max torque/current with I2t derating, max motor speed,
-software position limits, following error window and time; docs/fmus.md "Protection") and report
+software position limits, following error window and time; docs/explanation/fmus.md "Protection") and report
 them in their ``limit_status`` / ``limit_history`` outputs; the plant reports end-stop contacts
 (``end_stop_contacts``, ``end_stop_impact_speed``, ``end_stop_impact_time``,
 ``end_stop_max_penetration``). The cell records these with every run

@@ -9,7 +9,8 @@ fields: ``execution`` (the options) and, for paced runs, ``realtime``::
                  "lateness": {"p50_us", "p99_us", "max_us", "mean_us"},   # all runs of the job
                  "histogram": "jitter.png", "policy", "scheduling", "tolerance_us", "spin_us",
                  "load_average_before", "load_average_after",
-                 "runs": {<label>: {same statistics, "histogram": "jitter_<label>.png", ...}}}
+                 "runs": {<label>: {same statistics, "histogram": "jitter_<label>.png",
+                                    "series": "lateness_<label>.parquet" (every cycle), ...}}}
 """
 from __future__ import annotations
 
@@ -17,7 +18,8 @@ from typing import Any
 
 from cosim.execution.config import ExecutionOptions
 from cosim.execution.timing.pacer import LatenessLog
-from cosim.execution.timing.stats import combine, lateness_summary, load_average, write_histogram
+from cosim.execution.timing.stats import (LATENESS_UNITS, combine, lateness_columns, lateness_summary, load_average,
+                                          write_histogram)
 
 #: Jobs whose runs go through cosim.execution.run_cell (and so honour --realtime/--split).
 CELL_JOBS = frozenset({"iso9283", "fieldbus_fault", "identification", "planners", "compare"})
@@ -63,6 +65,7 @@ class CellExecution:
         log = pacer.log
         self.logs[label] = log
         run = lateness_summary(log, pacer.thresholds)
+        run["series"] = ctx.write_series(f"lateness_{label}", lateness_columns(log, period, tolerance), LATENESS_UNITS)
         run["histogram"] = write_histogram(ctx.path(f"jitter_{label}.png"), log, period_s=period,
                                            tolerance_s=tolerance, bins=s.histogram_bins,
                                            title=f"{label}: {log.count} paced cycles, "

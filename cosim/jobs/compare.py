@@ -1,6 +1,6 @@
 """Job ``compare``: N controllers x M trajectories on the same seeded true robot, one ranked table.
 
-A scenario lists the controllers and the trajectories (``[compare]``, docs/bring_your_own.md):
+A scenario lists the controllers and the trajectories (``[compare]``, docs/how-to/own_controller.md):
 
 * controllers: the built-in modes of the main job (``standard``, ``standard_speed_ff``,
   ``model_based``, :data:`cosim.cell.parts.BUILTIN_MODES`) and users' controllers;
@@ -352,7 +352,7 @@ def _load_file(doc: dict[str, Any], entry: dict[str, Any], at: Where, check_only
                                     kinematic_model=kinematic_model,
                                     q_seed=entry.get("q_seed") or list(ISO_Q_HINT))
     except TrajectoryFileError as exc:
-        raise (at / "file").error("a trajectory file within the robot's limits (docs/bring_your_own.md)",
+        raise (at / "file").error("a trajectory file within the robot's limits (docs/how-to/own_controller.md)",
                                   str(entry["file"]), problem=str(exc)) from None
 
 

@@ -21,7 +21,7 @@ current set-point ``current_demand`` reached its clamp min(current_limit, torque
 Results: ``summary.json`` (updated after every planner), ``trajectory_<name>.csv``,
 ``timeseries_<name>.parquet`` (or .csv on request) when executed, figures ``figure7_velocity_profile.png`` (CP
 planners), ``figure8_active_constraints.png`` (own_cp), ``figure9_ptp.png`` (own_ptp).
-See docs/planners.md.
+See docs/explanation/planners.md.
 """
 from __future__ import annotations
 

@@ -52,6 +52,25 @@ def lateness_summary(log: LatenessLog, thresholds: dict[str, float] | None = Non
             "overrun_cycles": log.overrun_cycles[:LISTED_OVERRUNS]}
 
 
+#: Columns of the per-cycle timing series ``lateness_<label>`` (docs/output_format.md) and their units.
+LATENESS_UNITS = {"t": "s", "cycle": "1", "lateness_us": "us", "work_us": "us", "overrun": "1", "tolerance_us": "us"}
+
+
+def lateness_columns(log: LatenessLog, period_s: float, tolerance_s: float) -> dict[str, np.ndarray]:
+    """The per-cycle timing series of a paced, split or served run: ``t`` (the cycle's simulated
+    time, cycle x period, s), ``cycle``, ``lateness_us`` (wall start minus the cycle's wall
+    deadline), ``work_us`` (wall time of the previous cycle's work; NaN for the first),
+    ``overrun`` (1 when the lateness exceeded ``tolerance_us``) and ``tolerance_us`` (the
+    overrun tolerance: the deadline the lateness is judged against)."""
+    n = log.count
+    cycles = log.cycles[:n]
+    work = log.work_ns[:n].astype(float) * 1e-3
+    work[log.work_ns[:n] < 0] = np.nan
+    return {"t": cycles * float(period_s), "cycle": cycles.astype(float), "lateness_us": log.lateness_ns[:n] * 1e-3,
+            "work_us": work, "overrun": log.overrun[:n].astype(float),
+            "tolerance_us": np.full(n, float(tolerance_s) * 1e6)}
+
+
 def combine(logs: list[LatenessLog]) -> LatenessLog:
     """One log holding the entries of several (e.g. the modes of a job)."""
     total = LatenessLog(sum(log.count for log in logs) + 16)
