@@ -700,7 +700,7 @@ def execute(scenario: Scenario, out: str | Path, *, quiet: bool = True, realtime
             report: bool | None = None) -> RunResult:
     """Run an already loaded scenario into ``out`` and return the result whatever its status
     (the layer under :func:`run` and ``cosim run``; ``origin`` names where ``out`` came from in
-    an OutputFolderError, e.g. ``"--out"``). ``serve`` (a :class:`cosim.hil.ServeSettings`):
+    an OutputFolderError, e.g. ``"--out"``). ``serve`` (a :class:`cosim.execution.served.ServeSettings`):
     run only the cell side of each robot-cell run, paced, for a controller elsewhere on the bus
     (``cosim serve``). ``max_output``, ``max_memory``, ``ignore_budget``: as for :func:`run`.
     ``clock_from_process_start``: summary.json's ``wall_time_s`` and ``realtime_factor`` count
@@ -721,8 +721,8 @@ def execute(scenario: Scenario, out: str | Path, *, quiet: bool = True, realtime
 
 def _execution_options(sc: Scenario, realtime: bool, split: bool):
     """The cell execution options, or None (one process, unpaced); ScenarioError for a job without a cell."""
-    from cosim.realtime.config import execution_options
-    from cosim.realtime.execution import CELL_JOBS
+    from cosim.execution.config import execution_options
+    from cosim.execution.cell_execution import CELL_JOBS
 
     options = execution_options(sc.data, realtime=realtime or None, split=split or None)
     if not options.active:
@@ -754,7 +754,7 @@ def _execute_into(sc: Scenario, out_dir: Path, options, *, quiet: bool, origin: 
 
     execution = None
     if options is not None:
-        from cosim.realtime.execution import CellExecution
+        from cosim.execution.cell_execution import CellExecution
 
         execution = CellExecution(options)
     with open_results_folder(out_dir, origin):

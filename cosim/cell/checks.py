@@ -1,6 +1,6 @@
 """Checks of a robot-cell scenario document, shared by the jobs that run the cell.
 
-A job that runs the cell (:func:`cosim.cell.runner.run_cell`: ``iso9283``,
+A job that runs the cell (:func:`cosim.execution.run_cell`: ``iso9283``,
 ``fieldbus_fault``, ``identification``, ``planners``) calls :func:`check_cell` from its
 own ``check``: the cell's FMUs, their variables and parameters, its connections (the
 generated ones plus the scenario's own), the ``[fieldbus]`` table and the periods (s) of

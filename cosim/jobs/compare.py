@@ -45,10 +45,11 @@ from cosim.cell import wiring
 from cosim.cell.description import describe_cell
 from cosim.cell.evaluation import (controller_log_columns, deadline_basis, evaluate_run, recording_chunks,
                                    timing_fields)
-from cosim.cell.mode_runs import CellSetup, mode_cell, prepare
+from cosim.execution.mode_runs import CellSetup, mode_cell, prepare
 from cosim.cell.parts import (BUILTIN_MODES, CELL_FIELDS, TORQUE_FEEDFORWARD_MODES, can_log_path, check_cell_scenario,
                               drive_speed_feedforward, fill_cell_defaults, mode_fmus)
-from cosim.cell.runner import CellRun, controller_info, run_cell
+from cosim.cell.run import CellRun
+from cosim.execution.runner import controller_info, run_cell
 from cosim.jobs import planners as planners_job
 from cosim.tracking.metrics import desired_joints, evaluate
 from cosim.scenario.context import RunContext

@@ -1,6 +1,6 @@
 """Job ``fieldbus_fault``: a fieldbus fault during the ISO 9283 motion, and the cell's reaction.
 
-The cell of the main job (:mod:`cosim.cell.mode_runs`: true robot, controller, POWERLINK
+The cell of the main job (:mod:`cosim.execution.mode_runs`: true robot, controller, POWERLINK
 fieldbus, six servo-drive FMUs, plant FMU, tracker) runs ONE mode of ``[controller] modes``
 on the ISO 9283 path while ``[fieldbus.faults]`` injects faults (e.g. a burst of lost
 PReq frames to one node). What must happen, and what the job checks and reports:
@@ -34,9 +34,9 @@ from typing import Any
 import numpy as np
 
 from cosim.cell import wiring
-from cosim.cell.mode_runs import prepare, run_mode
+from cosim.execution.mode_runs import prepare, run_mode
 from cosim.cell.parts import CELL_FIELDS, check_cell_scenario
-from cosim.cell.runner import CellRun
+from cosim.cell.run import CellRun
 from cosim.scenario.cosim_tables import COSIM_FIELDS
 from cosim.scenario.loader import SCENARIO_FIELD
 from cosim.master import SimulationError

@@ -53,7 +53,7 @@ class RunContext:
         summary: the SummaryWriter of ``out_dir/summary.json``.
         sim_time_s: simulated seconds completed so far over all executed masters.
         label: label of the master being executed (shown in the bar, reported on failure).
-        execution: how robot cells run (:class:`cosim.realtime.execution.CellExecution`:
+        execution: how robot cells run (:class:`cosim.execution.cell_execution.CellExecution`:
             split, paced) or None (one process, unpaced).
         timeseries_format: ``"parquet"`` (default, ``$COSIM_TIMESERIES``) or ``"csv"``: the
             format of every time series the run writes (:meth:`series_name`).
@@ -73,7 +73,7 @@ class RunContext:
         self.timeseries_format = timeseries_format or default_format()
         if self.timeseries_format not in SUFFIXES:
             raise ValueError(f"timeseries format: expected one of {', '.join(SUFFIXES)}, got {self.timeseries_format!r}")
-        self.execution = execution  # cosim.realtime.CellExecution (--realtime/--split) or None
+        self.execution = execution  # cosim.execution.timing.CellExecution (--realtime/--split) or None
         self.out_dir = Path(out_dir)
         self.out_dir.mkdir(parents=True, exist_ok=True)
         self.quiet = quiet

@@ -1,10 +1,10 @@
 """The drive process of a split run: plant + six drive FMUs, the POWERLINK controlled
 nodes, the laser tracker and the recorder, driven by the controller process's frames.
 
-Started by :func:`cosim.split.cell.run_split_cell` with :func:`drive_side_main` as the
+Started by :func:`cosim.execution.split.controller_side.run_split_cell` with :func:`drive_side_main` as the
 target of a ``spawn`` process. Its controller-cycle task (:class:`DriveLink`) does, at
 cycle k (time t_k): read the drives' actual values at t_k, wait for the cycle marker of
-k through the pipe (:mod:`cosim.split.protocol`), run the controlled nodes' cycle k
+k through the pipe (:mod:`cosim.execution.split.protocol`), run the controlled nodes' cycle k
 (``fieldbus.DriveEndpoint.run_cycle``: SoC, PReqs in, PRes out) and write what the
 drives apply from t_k to the ``bus.*`` master variables - the same values the
 one-process cell's :class:`~cosim.cell.link.FieldbusLink` writes. The master then
@@ -27,10 +27,10 @@ from cosim.cell import wiring
 from cosim.cell.link import CellBus
 from cosim.tracking.laser_tracker import LaserTracker, TrackerConfig
 from cosim.master import EndSimulation, Master, SimulationError
-from cosim.realtime.pacer import no_cyclic_gc, realtime_scheduling
-from cosim.realtime.policy import OverrunFaultPlan
+from cosim.execution.timing.pacer import no_cyclic_gc, realtime_scheduling
+from cosim.execution.timing.policy import OverrunFaultPlan
 from cosim.results.timeseries import FileSink
-from cosim.split.protocol import END, LOST, pres_expected, unpack_marker, use_directional_bus
+from cosim.execution.split.protocol import END, LOST, pres_expected, unpack_marker, use_directional_bus
 from fieldbus import DriveActuals, DriveEndpoint, FieldbusConfig
 
 
@@ -45,7 +45,7 @@ class DriveSideSpec:
     raw_path: file of recorded rows (float64, row-major). marker_timeout_s: wall seconds
     to wait for a cycle marker before giving up. scheduling: 'fifo'/'normal' (None =
     'normal') with fifo_priority. can_log: the drive side's own CAN log or None.
-    ports: the (down, up) multicast ports (:func:`cosim.split.protocol.use_directional_bus`).
+    ports: the (down, up) multicast ports (:func:`cosim.execution.split.protocol.use_directional_bus`).
     """
 
     cell_doc: dict[str, Any]
@@ -140,7 +140,7 @@ def drive_side_main(spec: DriveSideSpec, conn) -> None:
     report ``("done", {...})`` (or ``("error", text)``) on the duplex pipe ``conn``."""
     import signal
 
-    from cosim.cell.runner import build_cell_master
+    from cosim.execution.runner import build_cell_master
     from fieldbus.network import network_summary
 
     # Ctrl-C reaches the whole process group: the parent ends this side (END marker, or kill after
@@ -166,7 +166,7 @@ def drive_side_main(spec: DriveSideSpec, conn) -> None:
             master.initialize(spec.stop_time_s)
             conn.send(("ready", {"columns": sink.columns, "kinds": sink.kinds, "engine": master.engine.name}))
             wall0 = time.perf_counter()
-            policy = spec.scheduling or "normal"  # SCHED_FIFO when asked, paced or not (see cosim.split.cell)
+            policy = spec.scheduling or "normal"  # SCHED_FIFO when asked, paced or not (see cosim.execution.split.controller_side)
             with realtime_scheduling(policy, spec.fifo_priority) as granted, no_cyclic_gc():
                 try:
                     master.run(spec.stop_time_s)

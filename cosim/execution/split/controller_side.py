@@ -1,7 +1,7 @@
 """The controller side of a split run: the controller and the POWERLINK managing node in
-this process, the drives and plant in a spawned drive process (:mod:`cosim.split.drive_side`).
+this process, the drives and plant in a spawned drive process (:mod:`cosim.execution.split.drive_side`).
 
-Per cycle k (t_k = k T), optionally paced (:class:`cosim.realtime.pacer.Pacer`):
+Per cycle k (t_k = k T), optionally paced (:class:`cosim.execution.timing.pacer.Pacer`):
 cycle marker (pipe) -> SoC + PReqs carrying the set-points of cycle k-1 (through the overrun
 policy when late) -> wait for the PRes frames of cycle k -> ``Controller.step`` -> the
 set-points for cycle k+1. The run ends at ``stop_time`` (both sides run cycles
@@ -22,17 +22,18 @@ from typing import Any, Callable
 
 from controller.port import ControllerFailure, ControllerPort
 from cosim.cell.description import CellDescription
-from cosim.cell.runner import CellRun, controller_record_name, write_recording
+from cosim.cell.run import CellRun
+from cosim.execution.runner import controller_record_name, write_recording
 from cosim.cell.wiring import N_JOINTS, joint_scaling
 from cosim.master import MemorySink, SimulationError
-from cosim.realtime.config import ExecutionOptions
-from cosim.realtime.network import auto_tolerance_s, deferred_recording, lateness_thresholds
-from cosim.realtime.pacer import Pacer, no_cyclic_gc, realtime_scheduling
-from cosim.realtime.policy import OverrunFaultPlan, SetpointGate
-from cosim.realtime.schedule import precompute_schedules
+from cosim.execution.config import ExecutionOptions
+from cosim.execution.timing.network import auto_tolerance_s, deferred_recording, lateness_thresholds
+from cosim.execution.timing.pacer import Pacer, no_cyclic_gc, realtime_scheduling
+from cosim.execution.timing.policy import OverrunFaultPlan, SetpointGate
+from cosim.execution.timing.schedule import precompute_schedules
 from cosim.results.progress import ProgressBar
-from cosim.split.drive_side import DriveSideSpec, drive_side_main, read_raw_rows
-from cosim.split.protocol import (END, LOST, free_udp_port, pack_marker, pres_expected, side_configs,
+from cosim.execution.split.drive_side import DriveSideSpec, drive_side_main, read_raw_rows
+from cosim.execution.split.protocol import (END, LOST, free_udp_port, pack_marker, pres_expected, side_configs,
                                   use_directional_bus)
 from fieldbus import ManagingNodeEndpoint
 from fieldbus.network import network_summary
@@ -81,14 +82,14 @@ def _merge_fieldbus(mn: dict[str, Any], cn: dict[str, Any] | None) -> dict[str, 
 
 def run_split_cell(cell: CellDescription, controller, ctx, *, options: ExecutionOptions, pacer: Pacer | None = None,
                    on_cycle: Callable[[int, SplitSession], None] | None = None) -> CellRun:
-    """Run ``cell`` split over two processes (the ``split`` mode of :func:`cosim.cell.runner.run_cell`);
+    """Run ``cell`` split over two processes (the ``split`` mode of :func:`cosim.execution.run_cell`);
     returns the CellRun with ``pacer`` (None unless paced), ``scheduling`` and ``split`` =
     {"port", "drive_process_exit_code", "controller_stop_cycle", "drive_side_wall_s", "loop_wall_s"
     (cycles only, after the drive process is ready), "realtime_factor" (incl. start-up),
     "loop_realtime_factor", "frames_missing_*", ...}."""
     if options.realtime and pacer is None and on_cycle is None:
         # paced split: the served cell keeps the time in its own process, this one follows it
-        from cosim.hil.split import run_hil_split
+        from cosim.execution.split.paced import run_hil_split
 
         return run_hil_split(cell, controller, ctx, options=options)
     label, stop_time, stop_grace_s = cell.label, cell.stop_time_s, cell.stop_grace_s

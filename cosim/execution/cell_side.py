@@ -1,9 +1,9 @@
 """The served cell: plant + drives + controlled nodes + tracker + recorder, paced at the bus
 cycle, answering whatever controller is on the bus (the ``serve`` mode of
-:func:`cosim.cell.runner.run_cell`).
+:func:`cosim.execution.run_cell`).
 
 Per bus cycle k, :class:`CellSideLink` (master task, priority 0): wait for the cycle's wall
-deadline ``W_k`` (:class:`cosim.realtime.pacer.Pacer`: sleep, then spin), latch the drives'
+deadline ``W_k`` (:class:`cosim.execution.timing.pacer.Pacer`: sleep, then spin), latch the drives'
 actual values at ``t_k``, run the controlled nodes' cycle with a window that closes at
 ``W_k + window`` (:meth:`fieldbus.DriveEndpoint.run_cycle_paced`: the controller's SoC +
 PReqs of cycle k if they came in time, else a lost cycle for the threshold counters; the
@@ -27,7 +27,7 @@ import numpy as np
 
 from cosim.cell.description import CellDescription
 from cosim.cell.wiring import N_JOINTS, joint_scaling
-from cosim.hil.settings import ENDPOINT_FILE, ServeSettings
+from cosim.execution.served import ENDPOINT_FILE, ServeSettings
 from cosim.master import Master, MemorySink, SimulationError
 from fieldbus import DriveActuals, DriveEndpoint, FieldbusConfig
 from fieldbus.telegrams import RPDO1_BASE, RPDO1_MAX_BYTES, SYNC_ID, TPDO1_BASE, TPDO2_BASE
@@ -373,16 +373,17 @@ def write_timing_figure(path: Path, link: CellSideLink, pacer: Any, title: str) 
 def run_served_cell(cell: CellDescription, ctx: Any, settings: ServeSettings, *, pacer: Any = None,
                     on_ready: Any = None, start_on_first_frame_s: float | None = None):
     """Serve ``cell`` until its stop time (wall = simulated time, paced) or an interrupt;
-    returns the :class:`cosim.cell.runner.CellRun` (``pacer`` set, ``hil`` = the report).
+    returns the :class:`cosim.cell.run.CellRun` (``pacer`` set, ``hil`` = the report).
 
     ``on_ready()`` is called when the bus is open and the FMUs are initialised;
     ``start_on_first_frame_s``: then wait up to this many wall seconds for the controller's
     first datagram and make it cycle 0 (a split run, whose controller starts with the cell),
     instead of starting at once (``cosim serve``)."""
-    from cosim.cell.runner import CellRun, build_cell_master, write_recording
+    from cosim.cell.run import CellRun
+    from cosim.execution.runner import build_cell_master, write_recording
     from cosim.tracking.laser_tracker import LaserTracker
-    from cosim.realtime.pacer import Pacer, locked_memory, no_cyclic_gc, realtime_scheduling
-    from cosim.realtime.schedule import precompute_schedules
+    from cosim.execution.timing.pacer import Pacer, locked_memory, no_cyclic_gc, realtime_scheduling
+    from cosim.execution.timing.schedule import precompute_schedules
 
     base = cell.fieldbus
     options = {**dict(base.bus.options), **settings.bus_options()}
@@ -396,7 +397,7 @@ def run_served_cell(cell: CellDescription, ctx: Any, settings: ServeSettings, *,
     # small batches (one of 250 cycles, ~150 kB, never fits the pipe).
     frames_per_cycle = 3 * base.nodes + 1
     if stop_time / period * frames_per_cycle * RECORD_BYTES <= DEFERRED_RECORDING_BYTES:
-        from cosim.realtime.network import DEFERRED_FLUSH_CYCLES
+        from cosim.execution.timing.network import DEFERRED_FLUSH_CYCLES
 
         recording = dataclasses.replace(recording, flush_every_cycles=DEFERRED_FLUSH_CYCLES)
     elif recording.background and recording.flush_every_cycles > SERVED_FLUSH_CYCLES:

@@ -4,16 +4,16 @@
 :class:`fieldbus.PowerlinkNetwork`, so the robot cell's bus-cycle task
 (:class:`cosim.cell.link.FieldbusLink`) drives it unchanged: before the cycle's
 frames go out it waits for the cycle's wall deadline (:class:`Pacer`); a late cycle
-gets the scenario's overrun policy (:mod:`cosim.realtime.policy`).
+gets the scenario's overrun policy (:mod:`cosim.execution.timing.policy`).
 """
 from __future__ import annotations
 
 import dataclasses
 from typing import Any
 
-from cosim.realtime.pacer import Pacer
-from cosim.realtime.policy import SetpointGate, install_overrun_plan
-from cosim.realtime.schedule import precompute_schedules
+from cosim.execution.timing.pacer import Pacer
+from cosim.execution.timing.policy import SetpointGate, install_overrun_plan
+from cosim.execution.timing.schedule import precompute_schedules
 from fieldbus import DriveActuals, FieldbusConfig, PowerlinkNetwork, Setpoints
 from fieldbus.process_data import CycleResult
 

@@ -3,8 +3,8 @@
 A cycle is an *overrun* when its telegrams (SoC, the PReqs carrying the set-points the
 controller computed in the previous cycle, the PRes frames) are not all on the bus by
 the next SoC: it starts later than its wall deadline by more than the tolerance (the
-cycle time minus the isochronous phase, :func:`cosim.realtime.network.auto_tolerance_s`;
-:class:`cosim.realtime.pacer.Pacer` judges it before the cycle's frames are sent). The
+cycle time minus the isochronous phase, :func:`cosim.execution.timing.network.auto_tolerance_s`;
+:class:`cosim.execution.timing.pacer.Pacer` judges it before the cycle's frames are sent). The
 scenario chooses the reaction (``[realtime] overrun_policy``):
 
 ``hold``
@@ -30,13 +30,13 @@ scenario chooses the reaction (``[realtime] overrun_policy``):
 :class:`SetpointGate` applies ``hold``/``skip`` on the managing-node side;
 :class:`OverrunFaultPlan` wraps each endpoint's fault plan for ``lost_frame`` (in the
 split mode the drive side learns the lost cycles from the cycle marker, see
-:mod:`cosim.split.protocol`).
+:mod:`cosim.execution.split.protocol`).
 """
 from __future__ import annotations
 
 import numpy as np
 
-from cosim.realtime.config import OVERRUN_POLICIES
+from cosim.execution.config import OVERRUN_POLICIES
 from fieldbus import Setpoints
 from fieldbus.faults import CycleFaults
 

@@ -3,9 +3,9 @@
 The modes of the main job (``standard``, ``standard_speed_ff``, ``model_based``) are
 independent closed-loop runs of the same cell on the same true robot: nothing one mode
 computes enters another. :func:`run_modes` runs each in a worker process forked from this
-one after the shared set-up (:func:`cosim.cell.mode_runs.prepare`), so the set-up, the
+one after the shared set-up (:func:`cosim.execution.mode_runs.prepare`), so the set-up, the
 imports and the compiled helpers are inherited, not redone. Each worker runs
-:func:`cosim.cell.mode_runs.run_mode` exactly as the one-process run does - the same cell,
+:func:`cosim.execution.mode_runs.run_mode` exactly as the one-process run does - the same cell,
 controller, FMUs, evaluation and files (``timeseries_<mode>``, ``controller_<mode>``,
 ``tcp_<mode>``, ``can_<mode>.blf``, streamed to disk as the run goes) - so the results are
 bit for bit those of a run in this process (``tests/test_iso9283_parallel.py``). The worker
@@ -103,11 +103,11 @@ def worker_count(modes: int, ctx: Any = None) -> int:
 def run_modes(ctx: Any, setup: Any, modes: Sequence[str], extra_signals: Sequence[str] = (),
               processes: int | None = None, while_waiting: Callable[[], Any] | None = None,
               niceness: Mapping[str, int] | None = None) -> Iterator[ModeOutcome]:
-    """Run ``modes`` of ``setup`` (:func:`cosim.cell.mode_runs.prepare`) and yield their
+    """Run ``modes`` of ``setup`` (:func:`cosim.execution.mode_runs.prepare`) and yield their
     :class:`ModeOutcome` in the order of ``modes``. ``processes``: worker processes (default
     :func:`worker_count`; 0: one after another in this process, where a failed mode ends the
     sequence as before). A failure before a mode's first sample raises as
-    :func:`cosim.cell.mode_runs.run_mode` does. ``while_waiting``: called once in a thread of
+    :func:`cosim.execution.mode_runs.run_mode` does. ``while_waiting``: called once in a thread of
     this process once every worker has been forked (this process then only relays their
     progress), e.g. to import what comes after the modes; joined when the outcomes run out
     (before the caller's loop over them ends); an exception from it is ignored (the work is redone later). Not called when the
@@ -116,7 +116,7 @@ def run_modes(ctx: Any, setup: Any, modes: Sequence[str], extra_signals: Sequenc
     priority of its worker is (``nice`` increment, 0 if not given): the modes known to take
     less CPU yield some of the cores to a longer one, so that all end about together instead
     of the longest running alone on one core at the end (results unchanged)."""
-    from cosim.cell.mode_runs import run_mode
+    from cosim.execution.mode_runs import run_mode
 
     modes = list(modes)
     count = worker_count(len(modes), ctx) if processes is None else processes
@@ -240,7 +240,7 @@ def _worker(connection: Any, ctx: Any, setup: Any, mode: str, extra_signals: Seq
         crashguard.disarm()  # a crash here is reported by the parent, not by the parent's summary file
     except Exception:  # noqa: BLE001 - no guard in this build
         pass
-    from cosim.cell.mode_runs import run_mode
+    from cosim.execution.mode_runs import run_mode
 
     ctx.summary = _WorkerSummary(connection, mode)
     ctx.quiet = True

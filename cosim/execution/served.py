@@ -1,4 +1,14 @@
-"""Settings of the served (hardware-in-the-loop) cell side: addresses, window, polling.
+"""The served execution mode (hardware in the loop): the robot cell as the drives' side of a
+real-time bus, for a controller that is another program on it.
+
+``python -m cosim serve SCENARIO`` runs the cell side of every robot-cell run of the
+scenario's job - plant and drive FMUs, the POWERLINK controlled nodes, the laser tracker,
+the recorder - paced by the wall clock at the bus cycle (:mod:`cosim.execution.cell_side`).
+It never waits for the controller: the controller is any program on the bus (``udpcycle``
+interface, wire format in ``fieldbus/README.md``) that answers the cell's PRes frames with
+SoC + PReqs in time. See ``docs/hil.md``.
+
+This module holds the served cell side's settings: addresses, window, polling.
 
 Every default lives here with its unit; ``python -m cosim serve`` options override them.
 """

@@ -70,7 +70,7 @@ class ExecutionOptions:
 
     Built by ``python -m cosim run`` from the scenario's tables and its flags and handed
     to the job through ``RunContext.execution``; jobs that run a robot cell
-    (:func:`cosim.cell.runner.run_cell`) honour it.
+    (:func:`cosim.execution.run_cell`) honour it.
     """
 
     mode: str = "in_process"
@@ -78,7 +78,7 @@ class ExecutionOptions:
     receive_timeout_s: float = DEFAULT_RECEIVE_TIMEOUT_S
     settings: RealtimeSettings = field(default_factory=RealtimeSettings)
     #: ``cosim serve``: the cell side only, paced, for a controller elsewhere on the bus
-    #: (:class:`cosim.hil.settings.ServeSettings`; mode ``"serve"``)
+    #: (:class:`cosim.execution.served.ServeSettings`; mode ``"serve"``)
     serve: Any = None
 
     @property

@@ -1,7 +1,7 @@
 """Running a robot cell as the options say: one process or split, paced or not.
 
 ``python -m cosim run`` puts a :class:`CellExecution` on ``RunContext.execution``;
-:func:`cosim.cell.runner.run_cell` hands every cell run to
+:func:`cosim.execution.run_cell` hands every cell run to
 :meth:`CellExecution.run_cell` when it is active. The execution writes two summary
 fields: ``execution`` (the options) and, for paced runs, ``realtime``::
 
@@ -16,12 +16,12 @@ from __future__ import annotations
 
 from typing import Any
 
-from cosim.realtime.config import ExecutionOptions
-from cosim.realtime.pacer import LatenessLog
-from cosim.realtime.stats import (LATENESS_UNITS, combine, lateness_columns, lateness_summary, load_average,
-                                  write_histogram)
+from cosim.execution.config import ExecutionOptions
+from cosim.execution.timing.pacer import LatenessLog
+from cosim.execution.timing.stats import (LATENESS_UNITS, combine, lateness_columns, lateness_summary, load_average,
+                                          write_histogram)
 
-#: Jobs whose runs go through cosim.cell.runner.run_cell (and so honour --realtime/--split).
+#: Jobs whose runs go through cosim.execution.run_cell (and so honour --realtime/--split).
 CELL_JOBS = frozenset({"iso9283", "fieldbus_fault", "identification", "planners", "compare"})
 
 
@@ -42,8 +42,8 @@ class CellExecution:
 
     def run_cell(self, cell, controller, ctx):
         """Run one :class:`cosim.cell.description.CellDescription` as configured (paced and/or
-        split, :func:`cosim.cell.runner.run_cell`); returns its ``CellRun`` and reports lateness."""
-        from cosim.cell.runner import run_cell
+        split, :func:`cosim.execution.run_cell`); returns its ``CellRun`` and reports lateness."""
+        from cosim.execution.runner import run_cell
 
         opts = self.options
         load_before = load_average()

@@ -10,7 +10,7 @@ steps its FMUs to t_k+1; the controller side waits for the PRes frames of cycle 
 before it computes the set-points for cycle k+1. Unpaced, a split run gives the same
 trajectory as the one-process run (tests/cosim/split/test_equivalence.py).
 
-Modules: :mod:`~cosim.split.protocol` (cycle marker, per-side bus configuration),
-:mod:`~cosim.split.drive_side` (the drive process), :mod:`~cosim.split.cell`
+Modules: :mod:`~cosim.execution.split.protocol` (cycle marker, per-side bus configuration),
+:mod:`~cosim.execution.split.drive_side` (the drive process), :mod:`~cosim.execution.split.controller_side`
 (:func:`run_split_cell`, the controller side).
 """

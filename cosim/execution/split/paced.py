@@ -1,5 +1,5 @@
 """``cosim run SCENARIO --split --realtime``: our own controller in this process, the served
-cell (:func:`cosim.hil.cell_side.run_served_cell`) in another, both on the wall clock.
+cell (:func:`cosim.execution.cell_side.run_served_cell`) in another, both on the wall clock.
 
 The cell side keeps the time, as real drives do, and never waits for the controller; this
 process follows it (:meth:`fieldbus.ManagingNodeEndpoint.follow`): each batch of the cell's
@@ -28,9 +28,9 @@ from typing import Any
 import numpy as np
 
 from cosim.cell.description import CellDescription
-from cosim.hil.cell_side import longest_run, percentiles_us
-from cosim.hil.settings import ServeSettings
-from cosim.split.protocol import free_udp_port
+from cosim.execution.cell_side import longest_run, percentiles_us
+from cosim.execution.served import ServeSettings
+from cosim.execution.split.protocol import free_udp_port
 
 #: Wall seconds to wait for the cell process to come up (imports, FMU instantiation).
 START_TIMEOUT_S = 180.0
@@ -232,7 +232,7 @@ def picklable_cell(cell: CellDescription) -> CellDescription:
     """``cell`` with what the cell side needs only (read-only views and controller models dropped)."""
     import copy
 
-    from cosim.realtime.network import deferred_recording
+    from cosim.execution.timing.network import deferred_recording
 
     info = dataclasses.replace(cell.controller, reference=None, kinematic_model=None, dynamics=None, parameters={})
     # the CAN log is buffered for the whole (bounded) run, as in the paced one-process run:
@@ -259,7 +259,7 @@ class _Scenario:
 def cell_side_main(cell: CellDescription, settings: ServeSettings, out_dir: str, conn) -> None:
     """Process target: serve ``cell`` into ``out_dir``; ``("ready", {})`` when it can take the
     controller's first datagram, then ``("done", {...})`` or ``("error", text)``."""
-    from cosim.hil.cell_side import run_served_cell
+    from cosim.execution.cell_side import run_served_cell
     from cosim.scenario.context import RunContext
 
     try:
@@ -293,7 +293,7 @@ class _PacerRecord:
     """The cell side's pacer as the execution report reads it (period, tolerance, log)."""
 
     def __init__(self, data: dict) -> None:
-        from cosim.realtime.pacer import LatenessLog
+        from cosim.execution.timing.pacer import LatenessLog
 
         self.period_ns = data["period_ns"]
         self.tolerance_ns = data["tolerance_ns"]
@@ -308,13 +308,14 @@ class _PacerRecord:
 
 def run_hil_split(cell: CellDescription, controller: Any, ctx: Any, *, options: Any) -> Any:
     """Run ``cell`` with ``controller`` split and paced as the module docstring says; returns
-    the :class:`cosim.cell.runner.CellRun` (recording from the cell side)."""
+    the :class:`cosim.cell.run.CellRun` (recording from the cell side)."""
     from controller.port import ControllerFailure, ControllerPort
-    from cosim.cell.runner import CellRun, write_recording
+    from cosim.cell.run import CellRun
+    from cosim.execution.runner import write_recording
     from cosim.cell.wiring import N_JOINTS, joint_scaling
     from cosim.master import MemorySink, SimulationError
-    from cosim.realtime.pacer import locked_memory, no_cyclic_gc, realtime_scheduling
-    from cosim.realtime.schedule import precompute_schedules
+    from cosim.execution.timing.pacer import locked_memory, no_cyclic_gc, realtime_scheduling
+    from cosim.execution.timing.schedule import precompute_schedules
     from fieldbus import ManagingNodeEndpoint
 
     label, period, stop_time = cell.label, cell.period_s, cell.stop_time_s
@@ -337,7 +338,7 @@ def run_hil_split(cell: CellDescription, controller: Any, ctx: Any, *, options: 
     bus = dataclasses.replace(cell.fieldbus.bus, interface="udpcycle", channel=f"127.0.0.1:{ctrl_port}",
                               options={**dict(cell.fieldbus.bus.options), "peer": f"127.0.0.1:{cell_port}",
                                        "latency_samples": 1 << 20, "busy_poll_s": 0.0})
-    from cosim.realtime.network import deferred_recording
+    from cosim.execution.timing.network import deferred_recording
 
     # no CAN-log hand-over in the loop; no injected faults: the cell applies the scenario's faults
     # by its own cycle numbers (a controller counting cycles otherwise would misplace them)

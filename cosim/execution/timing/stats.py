@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from cosim.realtime.pacer import LatenessLog
+from cosim.execution.timing.pacer import LatenessLog
 
 #: At most this many overrun cycle numbers are listed in a summary.
 LISTED_OVERRUNS = 200

@@ -8,20 +8,20 @@ Modes (``mode`` of :func:`run_cell`):
     (:class:`cosim.cell.link.FieldbusLink`) in simulated time;
 ``paced``
     the same, held to the wall clock at the bus cycle (``cosim run --realtime``): every bus
-    cycle waits for its wall deadline (:class:`cosim.realtime.network.PacedNetwork`), late
+    cycle waits for its wall deadline (:class:`cosim.execution.timing.network.PacedNetwork`), late
     cycles get the overrun policy; the CAN log is buffered until the end; the loop runs
     without cyclic GC, pinned and, when granted, under SCHED_FIFO;
 ``split``
     controller and managing node in this process, drives and plant in a spawned process,
     frames over UDP multicast (``cosim run --split``; paced too with ``--realtime``):
-    :func:`cosim.split.cell.run_split_cell`;
+    :func:`cosim.execution.split.controller_side.run_split_cell`;
 ``serve``
     the cell side only, paced, for a controller that is another program on the bus
-    (``cosim serve``): :func:`cosim.hil.cell_side.run_served_cell`; the job's controller
+    (``cosim serve``): :func:`cosim.execution.cell_side.run_served_cell`; the job's controller
     is not run.
 
 Without a ``mode`` the run follows ``ctx.execution`` (the ``cosim run`` options,
-:class:`cosim.realtime.execution.CellExecution`, which also reports lateness), else
+:class:`cosim.execution.cell_execution.CellExecution`, which also reports lateness), else
 ``in_process``. Every mode builds the cell from the same description, drives the
 controller through the controller contract and returns a :class:`CellRun`; a
 SimulationError (failing FMU, NaN output, failing or stopped controller) ends a run
@@ -33,7 +33,6 @@ import contextlib
 import time
 from pathlib import Path
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
 from typing import Any, Callable
 
 from controller import CellController, ControllerInfo
@@ -42,10 +41,11 @@ from controller.port import command_log_columns
 from cosim.cell.description import CellDescription
 from cosim.cell.link import FieldbusLink
 from cosim.cell.protection import protection_events
+from cosim.cell.run import CellRun
 from cosim.cell.wiring import N_JOINTS, cell_variables, joint_scaling
 from cosim.tracking.laser_tracker import TRACKER_VARIABLES, LaserTracker
 from cosim.master import Master, MemorySink, Recorder, SimulationError
-from cosim.realtime.pacer import no_cyclic_gc
+from cosim.execution.timing.pacer import no_cyclic_gc
 from cosim.results.timeseries import SeriesFile
 from cosim.scenario.context import RunContext
 from cosim.scenario.cosim_tables import build_master
@@ -54,50 +54,6 @@ from robot.parameters import load_parameters
 
 MODES = ("in_process", "paced", "split", "serve")
 """The execution modes of :func:`run_cell`."""
-
-
-@dataclass
-class CellRun:
-    """What one cell run produced: the recorder file and its rows (also in memory), the
-    simulated time reached (s), the fieldbus summary, the wall time of the run (s), the
-    stepping engine, the SimulationError that ended it (None: ran to the end), the CPU
-    time of this process over the same span as the wall time (s, process_time); for paced
-    runs the :class:`cosim.realtime.pacer.Pacer` (lateness per cycle) and the scheduling
-    granted; for split runs what the two processes reported (``split``); for a user's
-    controller its compute time per cycle as the cell measured it (``controller_timing``,
-    a :class:`controller.TimingSummary`; None for the built-in controller, which times itself)
-    and what the controller contract itself cost per cycle (``port_overhead``, µs:
-    :meth:`controller.port.ControllerPort.overhead`)."""
-
-    label: str
-    record_path: Any
-    rows_recorded: int
-    reached_s: float
-    fieldbus: dict[str, Any]
-    loop_wall_time_s: float
-    engine: str
-    recording: MemorySink | SeriesFile
-    failure: SimulationError | None = None
-    loop_cpu_time_s: float = float("nan")
-    pacer: Any = None
-    scheduling: str = "normal"
-    split: dict[str, Any] | None = field(default=None)
-    controller_timing: Any = None
-    port_overhead: dict[str, float] | None = None
-    controller_record: Any = None
-    """The controller's log as the run went (``controller_<name>`` in the results folder, Parquet or
-    CSV): the built-in controller's own log (None when it stayed in memory: paced and split runs),
-    or for a user's controller the cell's :class:`controller.port.CommandLog`."""
-    protection_events: list[dict] = field(default_factory=list)
-    """The drives' and the plant's protection events (limit reached, end stop hit; the record of
-    docs/robustness.md), one per onset: :func:`cosim.cell.protection.protection_events`, filled by
-    :func:`run_cell` in every mode; judged by :func:`cosim.cell.verdict.judge`."""
-    drives_checked: bool = False
-    """Whether the run watched the drives' states (``drives_enabled_at_s`` is meaningful)."""
-    drives_enabled_at_s: float | None = None
-    """Simulated time the six drives first all reported Operation enabled (None: never)."""
-    controller_close_error: str | None = None
-    """What the controller's ``close()`` raised (one line), None when it closed cleanly."""
 
 
 def master_units(master: Master, signals: Sequence[str]) -> dict[str, str]:
@@ -195,8 +151,8 @@ def run_cell(cell: CellDescription, controller: CellController, ctx: RunContext,
     """Run ``cell`` with ``controller`` (a :class:`controller.CellController`) from 0 to its
     stop time in ``mode`` (:data:`MODES`; None: as ``ctx.execution`` says, else in process).
 
-    ``options`` is a :class:`cosim.realtime.config.ExecutionOptions` for ``paced``/``split``
-    (default: the defaults); ``pacer`` a :class:`~cosim.realtime.pacer.Pacer` to use (tests:
+    ``options`` is a :class:`cosim.execution.config.ExecutionOptions` for ``paced``/``split``
+    (default: the defaults); ``pacer`` a :class:`~cosim.execution.timing.pacer.Pacer` to use (tests:
     one on a virtual clock); ``on_cycle(cycle, session)`` a hook of split runs.
 
     In process, the recorder streams to ``cell.record_file`` in the results folder as the
@@ -224,12 +180,12 @@ def _run_in_mode(cell: CellDescription, controller: CellController, ctx: RunCont
     if mode not in MODES:
         raise ValueError(f"cell execution mode {mode!r}: expected one of {MODES}")
     if options is None:
-        from cosim.realtime.config import ExecutionOptions
+        from cosim.execution.config import ExecutionOptions
 
         options = ExecutionOptions(mode="split" if mode == "split" else "in_process", realtime=(mode == "paced"))
     if mode == "serve":  # the cell side only: the controller is another program on the bus (cosim serve)
-        from cosim.hil.cell_side import run_served_cell
-        from cosim.hil.settings import ServeSettings
+        from cosim.execution.cell_side import run_served_cell
+        from cosim.execution.served import ServeSettings
 
         controller_close = getattr(controller, "close", None)
         if callable(controller_close):
@@ -237,7 +193,7 @@ def _run_in_mode(cell: CellDescription, controller: CellController, ctx: RunCont
         settings = getattr(options, "serve", None) or ServeSettings()
         return run_served_cell(cell, ctx, settings, pacer=pacer, start_on_first_frame_s=settings.wait_for_controller_s)
     if mode == "split":
-        from cosim.split.cell import run_split_cell
+        from cosim.execution.split.controller_side import run_split_cell
 
         return run_split_cell(cell, controller, ctx, options=options, pacer=pacer, on_cycle=on_cycle)
     return _run_on_master(cell, controller, ctx, paced=(mode == "paced"), settings=options.settings, pacer=pacer)
@@ -248,7 +204,7 @@ def _run_on_master(cell: CellDescription, controller: CellController, ctx: RunCo
     """The in-process and paced modes: the whole cell on one master in this process."""
     fb_config = cell.fieldbus
     if paced:
-        from cosim.realtime.network import deferred_recording
+        from cosim.execution.timing.network import deferred_recording
 
         fb_config = deferred_recording(fb_config)
     period, stop_time = cell.period_s, cell.stop_time_s
@@ -278,8 +234,8 @@ def _run_on_master(cell: CellDescription, controller: CellController, ctx: RunCo
         bus: Any = network
         scheduling: Any = contextlib.nullcontext("normal")
         if paced:
-            from cosim.realtime.network import PacedNetwork, auto_tolerance_s, lateness_thresholds
-            from cosim.realtime.pacer import Pacer, realtime_scheduling
+            from cosim.execution.timing.network import PacedNetwork, auto_tolerance_s, lateness_thresholds
+            from cosim.execution.timing.pacer import Pacer, realtime_scheduling
 
             tolerance = settings.tolerance_s if settings.tolerance_s is not None else auto_tolerance_s(network.layout)
             if pacer is None:
