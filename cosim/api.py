@@ -860,7 +860,7 @@ def _job_verdict(ctx) -> tuple[str, str | None, dict[str, Any]]:
     verdicts = dict(getattr(ctx, "verdicts", None) or {})
     if not verdicts:
         return "ok", None, {}
-    status = most_severe(v["verdict"] for v in verdicts.values())
+    status = most_severe([v["verdict"] for v in verdicts.values()])
     fields: dict[str, Any] = {"verdicts": verdicts}
     if status == "ok":
         return status, None, fields
