@@ -700,7 +700,7 @@ def execute(scenario: Scenario, out: str | Path, *, quiet: bool = True, realtime
             report: bool | None = None) -> RunResult:
     """Run an already loaded scenario into ``out`` and return the result whatever its status
     (the layer under :func:`run` and ``cosim run``; ``origin`` names where ``out`` came from in
-    an OutputFolderError, e.g. ``"--out"``). ``serve`` (a :class:`cosim.execution.served.ServeSettings`):
+    an OutputFolderError, e.g. ``"--out"``). ``serve`` (a :class:`cosim.execution.serve_settings.ServeSettings`):
     run only the cell side of each robot-cell run, paced, for a controller elsewhere on the bus
     (``cosim serve``). ``max_output``, ``max_memory``, ``ignore_budget``: as for :func:`run`.
     ``clock_from_process_start``: summary.json's ``wall_time_s`` and ``realtime_factor`` count
@@ -860,7 +860,7 @@ def _job_verdict(ctx) -> tuple[str, str | None, dict[str, Any]]:
     verdicts = dict(getattr(ctx, "verdicts", None) or {})
     if not verdicts:
         return "ok", None, {}
-    status = most_severe(v["verdict"] for v in verdicts.values())
+    status = most_severe([v["verdict"] for v in verdicts.values()])
     fields: dict[str, Any] = {"verdicts": verdicts}
     if status == "ok":
         return status, None, fields

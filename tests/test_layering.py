@@ -146,3 +146,35 @@ def test_the_cell_imports_nothing_of_its_execution():
                  for p in (ROOT / "cosim" / "cell").rglob("*.py")}
     offenders = {k: v for k, v in offenders.items() if v}
     assert not offenders, f"cosim/cell imports cosim/execution: {offenders}"
+
+
+EXECUTION_MODES = ("cosim.execution.simulated", "cosim.execution.paced", "cosim.execution.split",
+                   "cosim.execution.served")
+EXECUTION_SHARED = ("cosim.execution.cell_master", "cosim.execution.cell_side", "cosim.execution.timing",
+                    "cosim.execution.config", "cosim.execution.serve_settings", "cosim.execution.cell_execution")
+
+
+def _within(module: str, packages) -> str | None:
+    return next((p for p in packages if module == p or module.startswith(p + ".")), None)
+
+
+def test_one_execution_modes_share_floors_and_never_import_each_other():
+    """cosim/execution/: the entry (cosim.execution.run_cell) picks one mode module; a mode imports
+    the shared floors (the cell on one master, the served cell side, timing, options) and the
+    cell's data, never another mode; the shared floors import neither a mode nor the entry; no
+    circle of imports goes through cosim/execution/ (imports inside functions count)."""
+    graph = _module_graph(("cosim",))
+    offenders = {}
+    for module, imported in graph.items():
+        own = _within(module, EXECUTION_MODES)
+        if own:
+            bad = [m for m in imported if _within(m, EXECUTION_MODES) not in (None, own)]
+        elif _within(module, EXECUTION_SHARED):
+            bad = [m for m in imported if m == "cosim.execution" or _within(m, EXECUTION_MODES)]
+        else:
+            continue
+        if bad:
+            offenders[module] = sorted(bad)
+    assert not offenders, f"execution floors calling up or sideways: {offenders}"
+    cycles = [c for c in _cycles(graph) if any(m.startswith("cosim.execution") for m in c)]
+    assert not cycles, f"import circles through cosim/execution: {cycles[:3]}"

@@ -13,7 +13,7 @@ HELP = ("Run the cell side of the scenario's robot-cell runs (plant, drives, con
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from cosim.execution.served import DEFAULT_CHANNEL, DEFAULT_SPIN_S, DEFAULT_WINDOW_FRACTION
+    from cosim.execution.serve_settings import DEFAULT_CHANNEL, DEFAULT_SPIN_S, DEFAULT_WINDOW_FRACTION
 
     parser.add_argument("scenario", type=Path, help="scenario TOML file of a robot-cell job (e.g. scenarios/hil.toml)")
     parser.add_argument("--out", type=Path, default=None, help="results folder (default results/<scenario name>/)")
@@ -42,7 +42,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from cosim.api import OutputFolderError, RunResult, ScenarioError, execute, load_scenario
     from cosim.commands.exits import InvalidInput, signal_name_of
-    from cosim.execution.served import ServeSettings, ServeSettingsError
+    from cosim.execution.serve_settings import ServeSettings, ServeSettingsError
 
     try:
         settings = ServeSettings(channel=args.channel, peer=args.peer,

@@ -1,9 +1,10 @@
-"""Running a robot cell as the options say: one process or split, paced or not.
+"""The execution one ``cosim run`` chose: its mode and options, and what its runs measured.
 
-``python -m cosim run`` puts a :class:`CellExecution` on ``RunContext.execution``;
-:func:`cosim.execution.run_cell` hands every cell run to
-:meth:`CellExecution.run_cell` when it is active. The execution writes two summary
-fields: ``execution`` (the options) and, for paced runs, ``realtime``::
+``python -m cosim run`` puts a :class:`CellExecution` on ``RunContext.execution`` when the run
+is not the plain simulated one; :func:`cosim.execution.run_cell` runs every cell of the job in
+its :attr:`~CellExecution.mode` with its options and tells it when a run starts and when it has
+ended (it observes, it runs nothing). The execution writes two summary fields: ``execution``
+(the options) and, for paced runs, ``realtime``::
 
     "realtime": {"cycles", "overruns", "overrun_fraction",
                  "lateness": {"p50_us", "p99_us", "max_us", "mean_us"},   # all runs of the job
@@ -35,27 +36,32 @@ class CellExecution:
         self.period_s: float | None = None
         self.tolerance_s: float | None = None
         self.split_runs: dict[str, dict[str, Any]] = {}
+        self._load_before: dict[str, Any] = {}
 
     @property
     def active(self) -> bool:
         return self.options.active
 
-    def run_cell(self, cell, controller, ctx):
-        """Run one :class:`cosim.cell.description.CellDescription` as configured (paced and/or
-        split, :func:`cosim.execution.run_cell`); returns its ``CellRun`` and reports lateness."""
-        from cosim.execution.runner import run_cell
+    @property
+    def mode(self) -> str:
+        """The execution mode of the cells (:data:`cosim.execution.MODES`)."""
+        return self.options.cell_mode
 
+    def started(self, cell) -> None:
+        """A run of ``cell`` starts (:func:`cosim.execution.run_cell`): the load average before it."""
+        self._load_before[cell.label] = load_average()
+
+    def finished(self, cell, run, ctx) -> None:
+        """The run of ``cell`` has ended (``run`` its :class:`cosim.cell.run.CellRun`): the summary's
+        ``execution`` and, for a paced run, its lateness report (``realtime``)."""
         opts = self.options
-        load_before = load_average()
-        mode = "serve" if opts.serve is not None else "split" if opts.split else "paced"
-        run = run_cell(cell, controller, ctx, mode=mode, options=opts)
+        load_before = self._load_before.pop(cell.label, None)
         if opts.split:
             self.split_runs[cell.label] = run.split
         fields: dict[str, Any] = {"execution": {**opts.as_dict(), **({"split": self.split_runs} if opts.split else {})}}
         if run.pacer is not None:
             fields["realtime"] = self._report(ctx, cell.label, run.pacer, run.scheduling, load_before)
         ctx.summary.update(**fields)
-        return run
 
     def _report(self, ctx, label: str, pacer, granted: str, load_before) -> dict[str, Any]:
         s = self.options.settings

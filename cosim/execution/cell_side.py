@@ -27,7 +27,7 @@ import numpy as np
 
 from cosim.cell.description import CellDescription
 from cosim.cell.wiring import N_JOINTS, joint_scaling
-from cosim.execution.served import ENDPOINT_FILE, ServeSettings
+from cosim.execution.serve_settings import ENDPOINT_FILE, ServeSettings
 from cosim.master import Master, MemorySink, SimulationError
 from fieldbus import DriveActuals, DriveEndpoint, FieldbusConfig
 from fieldbus.telegrams import RPDO1_BASE, RPDO1_MAX_BYTES, SYNC_ID, TPDO1_BASE, TPDO2_BASE
@@ -380,7 +380,7 @@ def run_served_cell(cell: CellDescription, ctx: Any, settings: ServeSettings, *,
     first datagram and make it cycle 0 (a split run, whose controller starts with the cell),
     instead of starting at once (``cosim serve``)."""
     from cosim.cell.run import CellRun
-    from cosim.execution.runner import build_cell_master, write_recording
+    from cosim.execution.cell_master import build_cell_master, write_recording
     from cosim.tracking.laser_tracker import LaserTracker
     from cosim.execution.timing.pacer import Pacer, locked_memory, no_cyclic_gc, realtime_scheduling
     from cosim.execution.timing.schedule import precompute_schedules

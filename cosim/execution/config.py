@@ -78,12 +78,21 @@ class ExecutionOptions:
     receive_timeout_s: float = DEFAULT_RECEIVE_TIMEOUT_S
     settings: RealtimeSettings = field(default_factory=RealtimeSettings)
     #: ``cosim serve``: the cell side only, paced, for a controller elsewhere on the bus
-    #: (:class:`cosim.execution.served.ServeSettings`; mode ``"serve"``)
+    #: (:class:`cosim.execution.serve_settings.ServeSettings`; mode ``"serve"``)
     serve: Any = None
 
     @property
     def split(self) -> bool:
         return self.mode == "split"
+
+    @property
+    def cell_mode(self) -> str:
+        """The execution mode of :func:`cosim.execution.run_cell` these options ask for."""
+        if self.serve is not None:
+            return "serve"
+        if self.split:
+            return "split"
+        return "paced" if self.realtime else "in_process"
 
     @property
     def active(self) -> bool:

@@ -23,7 +23,8 @@ from cosim.cell.evaluation import DEFINITIONS, evaluate_run
 from cosim.cell.parts import (BUILTIN_MODES, TORQUE_FEEDFORWARD_MODES, can_log_path, controller_models,
                               drive_speed_feedforward, fill_cell_defaults, make_true_robot, mode_fmus, tracker_config)
 from cosim.cell.run import CellRun
-from cosim.execution.runner import controller_info, run_cell
+from cosim.cell.info import controller_info
+from cosim.execution import run_cell
 from cosim.tracking.laser_tracker import TrackerConfig
 from cosim.tracking.metrics import TrackingResult
 from cosim.scenario.context import RunContext

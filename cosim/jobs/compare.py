@@ -49,7 +49,8 @@ from cosim.execution.mode_runs import CellSetup, mode_cell, prepare
 from cosim.cell.parts import (BUILTIN_MODES, CELL_FIELDS, TORQUE_FEEDFORWARD_MODES, can_log_path, check_cell_scenario,
                               drive_speed_feedforward, fill_cell_defaults, mode_fmus)
 from cosim.cell.run import CellRun
-from cosim.execution.runner import controller_info, run_cell
+from cosim.cell.info import controller_info
+from cosim.execution import run_cell
 from cosim.jobs import planners as planners_job
 from cosim.tracking.metrics import desired_joints, evaluate
 from cosim.scenario.context import RunContext

@@ -46,7 +46,8 @@ from cosim.cell.description import describe_cell
 from cosim.cell.evaluation import evaluate_run
 from cosim.cell.parts import (CAN_LOG_FORMAT_FIELD, CONTROLLER_CONFIG_FIELDS, TRACKER_TABLE, TRUE_ROBOT_TABLE,
                               can_log_path, make_true_robot, tracker_config)
-from cosim.execution.runner import controller_info, run_cell
+from cosim.cell.info import controller_info
+from cosim.execution import run_cell
 from cosim.scenario.context import RunContext
 from cosim.scenario.cosim_tables import COSIM_FIELDS
 from cosim.scenario.loader import SCENARIO_FIELD, Scenario

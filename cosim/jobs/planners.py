@@ -35,7 +35,8 @@ from cosim.cell.parts import (BUILTIN_MODES, CELL_FIELDS, can_log_path, check_ce
                               drive_speed_feedforward, fill_cell_defaults, make_true_robot, mode_fmus,
                               tracker_config)
 from cosim.cell.evaluation import controller_log_columns
-from cosim.execution.runner import controller_info, run_cell
+from cosim.cell.info import controller_info
+from cosim.execution import run_cell
 from cosim.scenario.cosim_tables import COSIM_FIELDS
 from cosim.scenario.loader import SCENARIO_FIELD
 from cosim.tracking.metrics import desired_joints, residual_vibration

@@ -14,3 +14,15 @@ Modules: :mod:`~cosim.execution.split.protocol` (cycle marker, per-side bus conf
 :mod:`~cosim.execution.split.drive_side` (the drive process), :mod:`~cosim.execution.split.controller_side`
 (:func:`run_split_cell`, the controller side).
 """
+from __future__ import annotations
+
+from typing import Any
+
+
+def run(cell: Any, controller: Any, ctx: Any, options: Any, *, pacer: Any = None, on_cycle: Any = None) -> Any:
+    """The :class:`cosim.execution.Mode` ``run`` of the split mode:
+    :func:`cosim.execution.split.controller_side.run_split_cell` (paced too when
+    ``options.realtime``: :mod:`cosim.execution.split.paced`)."""
+    from cosim.execution.split.controller_side import run_split_cell
+
+    return run_split_cell(cell, controller, ctx, options=options, pacer=pacer, on_cycle=on_cycle)

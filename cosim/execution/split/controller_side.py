@@ -23,7 +23,7 @@ from typing import Any, Callable
 from controller.port import ControllerFailure, ControllerPort
 from cosim.cell.description import CellDescription
 from cosim.cell.run import CellRun
-from cosim.execution.runner import controller_record_name, write_recording
+from cosim.execution.cell_master import controller_record_name, write_recording
 from cosim.cell.wiring import N_JOINTS, joint_scaling
 from cosim.master import MemorySink, SimulationError
 from cosim.execution.config import ExecutionOptions

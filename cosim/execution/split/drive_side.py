@@ -140,7 +140,7 @@ def drive_side_main(spec: DriveSideSpec, conn) -> None:
     report ``("done", {...})`` (or ``("error", text)``) on the duplex pipe ``conn``."""
     import signal
 
-    from cosim.execution.runner import build_cell_master
+    from cosim.execution.cell_master import build_cell_master
     from fieldbus.network import network_summary
 
     # Ctrl-C reaches the whole process group: the parent ends this side (END marker, or kill after

@@ -29,7 +29,7 @@ import numpy as np
 
 from cosim.cell.description import CellDescription
 from cosim.execution.cell_side import longest_run, percentiles_us
-from cosim.execution.served import ServeSettings
+from cosim.execution.serve_settings import ServeSettings
 from cosim.execution.split.protocol import free_udp_port
 
 #: Wall seconds to wait for the cell process to come up (imports, FMU instantiation).
@@ -311,7 +311,7 @@ def run_hil_split(cell: CellDescription, controller: Any, ctx: Any, *, options: 
     the :class:`cosim.cell.run.CellRun` (recording from the cell side)."""
     from controller.port import ControllerFailure, ControllerPort
     from cosim.cell.run import CellRun
-    from cosim.execution.runner import write_recording
+    from cosim.execution.cell_master import write_recording
     from cosim.cell.wiring import N_JOINTS, joint_scaling
     from cosim.master import MemorySink, SimulationError
     from cosim.execution.timing.pacer import locked_memory, no_cyclic_gc, realtime_scheduling

@@ -11,7 +11,7 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
-from cosim.execution.timing.pacer import Pacer
+from cosim.execution.timing.pacer import Pacer, realtime_scheduling
 from cosim.execution.timing.policy import SetpointGate, install_overrun_plan
 from cosim.execution.timing.schedule import precompute_schedules
 from fieldbus import DriveActuals, FieldbusConfig, PowerlinkNetwork, Setpoints
@@ -81,3 +81,29 @@ class PacedNetwork:
 
     def close(self) -> None:
         self.network.close()
+
+
+class Pacing:
+    """How a cell on one master is held to the wall clock (the paced mode of
+    :func:`cosim.execution.run_cell`; :func:`cosim.execution.cell_master.run_on_master` asks it):
+    the CAN log buffered for the run (:meth:`fieldbus`), the network wrapped in a
+    :class:`PacedNetwork` with its :class:`Pacer` and the loop's scheduling (:meth:`bus`).
+    ``settings`` is a :class:`cosim.execution.config.RealtimeSettings`; ``pacer`` a Pacer to use
+    (tests: one on a virtual clock), else one is made for the run (:attr:`pacer` afterwards)."""
+
+    def __init__(self, settings: Any, pacer: Pacer | None = None) -> None:
+        self.settings = settings
+        self.pacer = pacer
+
+    def fieldbus(self, config: FieldbusConfig) -> FieldbusConfig:
+        return deferred_recording(config)
+
+    def bus(self, network: PowerlinkNetwork, period: float, stop_time: float) -> tuple[PacedNetwork, Any]:
+        """The paced network around ``network`` and the scheduling context of the loop."""
+        settings = self.settings
+        tolerance = settings.tolerance_s if settings.tolerance_s is not None else auto_tolerance_s(network.layout)
+        if self.pacer is None:
+            self.pacer = Pacer(period, settings.spin_s, tolerance, capacity=int(stop_time / period) + 16)
+        self.pacer.thresholds = lateness_thresholds(network.layout)
+        bus = PacedNetwork(network, self.pacer, settings.overrun_policy, cycles=int(round(stop_time / period)) + 1)
+        return bus, realtime_scheduling(settings.scheduling, settings.fifo_priority, settings.cpu)
