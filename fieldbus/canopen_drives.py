@@ -39,9 +39,11 @@ from typing import Any
 import can
 import numpy as np
 
-from fieldbus.object_dictionary import DATA_TYPES, ObjectDictionary
+from fieldbus.canopen_node import CanopenNode
+from fieldbus.object_dictionary import DATA_TYPES, Entry, ObjectDictionary
 from fieldbus.process_data import AppliedSetpoints, DriveActuals
 from fieldbus.scaling import JointScaling
+from fieldbus.sdo import MAPPING_TOO_LONG, SdoAbort
 
 SYNC_ID = 0x080
 NMT_ID = 0x000
@@ -161,6 +163,24 @@ def node_values(node: Any) -> dict[tuple[int, int], Any]:
         if isinstance(obj, dict):
             return obj
     raise TypeError(f"{type(node).__name__}: no value table (values / sdo.values)")
+
+
+class FreeMappingNode(CanopenNode):
+    """A :class:`CanopenNode` whose PDOs a CANopen master maps as it likes (any PDO-mappable
+    objects of the right length, up to :data:`MAX_PDO_BYTES`; CiA 301 abort 0x06040041 /
+    0x06040042 otherwise): on a bus carried frame by frame the PDOs are packed from the mapping
+    itself, not from the POWERLINK cycle's fixed telegram layout."""
+
+    def _check_mapping(self, entry: Entry, value: int) -> None:
+        index, sub = entry.index, entry.subindex
+        if sub != 0:
+            self._mapped_bits(index, sub, value)
+            return
+        mapped = [self.sdo.values.get((index, k)) for k in range(1, value + 1)]
+        if any(m is None for m in mapped):
+            raise SdoAbort(MAPPING_TOO_LONG, index, sub)
+        if sum(self._mapped_bits(index, k, m) for k, m in enumerate(mapped, start=1)) > MAX_PDO_BYTES * 8:
+            raise SdoAbort(MAPPING_TOO_LONG, index, sub)
 
 
 class CanopenDrives:
@@ -355,6 +375,6 @@ def applied_setpoints(n: int) -> AppliedSetpoints:
                             velocity_offset=z(n), target_torque=z(n))
 
 
-__all__ = ["CanopenDrives", "EMCY_PDO_LENGTH", "MAX_PDO_BYTES", "PdoMap", "applied_setpoints", "node_values",
+__all__ = ["CanopenDrives", "EMCY_PDO_LENGTH", "FreeMappingNode", "MAX_PDO_BYTES", "PdoMap", "applied_setpoints", "node_values",
            "pdo_maps"]
 

@@ -13,8 +13,8 @@ HELP = ("Run the cell side of the scenario's robot-cell runs (plant, drives, con
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from cosim.hil.settings import (DEFAULT_CHANNEL, DEFAULT_SPIN_S, DEFAULT_SYNC_TIMEOUT_S, DEFAULT_WINDOW_FRACTION,
-                                    UDPCYCLE)
+    from cosim.execution.serve_settings import (DEFAULT_CHANNEL, DEFAULT_SPIN_S, DEFAULT_SYNC_TIMEOUT_S,
+                                                DEFAULT_WINDOW_FRACTION, UDPCYCLE)
 
     parser.add_argument("scenario", type=Path, help="scenario TOML file of a robot-cell job (e.g. scenarios/hil.toml)")
     parser.add_argument("--out", type=Path, default=None, help="results folder (default results/<scenario name>/)")
@@ -58,9 +58,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from cosim.api import OutputFolderError, RunResult, ScenarioError, execute, load_scenario
     from cosim.commands.exits import InvalidInput, signal_name_of
-    from cosim.hil.settings import ServeSettings, ServeSettingsError
+    from cosim.execution.serve_settings import ServeSettings, ServeSettingsError
 
-    from cosim.hil.settings import DEFAULT_CHANNEL, UDPCYCLE
+    from cosim.execution.serve_settings import DEFAULT_CHANNEL, UDPCYCLE
 
     interface = str(args.interface).strip()
     if interface != UDPCYCLE and args.channel is None:
@@ -146,7 +146,7 @@ def _check_can_bus(settings) -> None:
     """--interface/--channel (and the bus options) must open now: python-can opens and closes the
     bus once (exit 2 with python-can's reason otherwise, before anything runs)."""
     from cosim.commands.exits import InvalidInput
-    from cosim.hil.can_side import BusOpenError, open_can_bus
+    from cosim.execution.can_side import BusOpenError, open_can_bus
 
     try:
         open_can_bus(settings).shutdown()

@@ -9,7 +9,7 @@ the two cannot disagree on what a curve is or how it was decimated.
 
 A :class:`Panel` is a list of :class:`Series`; a series names where its values come from
 twice, for the two readers: ``column`` in a results file (``tcp_<mode>``,
-``timeseries_<mode>``, ``controller_<mode>``; ``{j}`` is the joint number) times ``scale``,
+``timeseries_<mode>``, ``controller_<mode>``, ``lateness_<mode>``; ``{j}`` is the joint number) times ``scale``,
 and ``field`` of the in-memory tracking result the figures draw (``None``: not drawn
 in a PNG) times ``field_scale``. This module imports nothing heavy (numpy only when
 :func:`envelope` is called).
@@ -43,7 +43,7 @@ ENVELOPE_COLUMNS = 2000
 @dataclass(frozen=True)
 class Series:
     """One curve (per joint when its names hold ``{j}``): ``column`` of file ``source``
-    (``"tcp"``, ``"timeseries"``, ``"controller"``) times ``scale`` is the value in the panel's
+    (``"tcp"``, ``"timeseries"``, ``"controller"``, ``"lateness"``) times ``scale`` is the value in the panel's
     unit; ``field`` of a tracking result times ``field_scale`` is the same for the PNG figures."""
 
     source: str
@@ -58,7 +58,9 @@ class Series:
 class Panel:
     """One plot: ``title``, ``ylabel`` (with the unit), ``unit``, ``log`` (log y), the curves,
     ``joints`` (the joints a ``{j}`` series is drawn for), ``limit`` (a per-joint limit drawn
-    as a dashed line: ``"current_limit"`` from the robot's drive-train parameters)."""
+    as a dashed line: ``"current_limit"`` from the robot's drive-train parameters),
+    ``limit_column`` (a per-run limit drawn as a dashed line: this column of the series' file,
+    constant over the run, e.g. the overrun tolerance of the lateness) with ``limit_label``."""
 
     key: str
     title: str
@@ -68,6 +70,8 @@ class Panel:
     log: bool = False
     joints: tuple[int, ...] = ()
     limit: str | None = None
+    limit_column: str | None = None
+    limit_label: str = ""
     png_title: str | None = None
     png_joints: tuple[int, ...] = ()
     extra: dict[str, Any] = field(default_factory=dict)
@@ -92,6 +96,11 @@ PANELS: tuple[Panel, ...] = (
           (Series("timeseries", "drive{j}.following_error", 1e3, "axis {j}"),), joints=(1, 2, 3, 4, 5, 6)),
     Panel("compute", "Controller compute time per 400 us cycle (wall clock)", "compute time [us] (log scale)", "us",
           (Series("controller", "compute_us", 1.0, "compute time"),), log=True),
+    Panel("lateness", "Cycle start lateness vs its wall deadline (paced, split and served runs)",
+          "cycle start lateness [us] (log scale)", "us",
+          (Series("lateness", "lateness_us", 1.0, "lateness"),), log=True,
+          limit_column="tolerance_us", limit_label="overrun tolerance",
+          png_title="Cycle start lateness vs its wall deadline"),
 )
 PANEL = {p.key: p for p in PANELS}
 

@@ -51,12 +51,12 @@ ARM_FRAMES = 4000
 PATH_POINTS = 1500
 #: Where the EMCY frames are (CiA 301: 0x080 + node id).
 EMCY_IDS = (0x081, 0x0FF)
-SOURCES = ("tcp", "timeseries", "controller")
+SOURCES = ("tcp", "timeseries", "controller", "lateness")
 #: zlib level of the embedded full-resolution arrays: 1 is about 3x faster to write than 6 for
 #: a few per cent more bytes (float samples hardly compress either way).
 ZLIB_LEVEL = 1
-SOURCE_TIME = {"tcp": ("t", "time"), "timeseries": ("time", "t"), "controller": ("t", "time")}
-_SERIES_FILE = re.compile(r"^(tcp|timeseries|controller)_(.+?)\.(parquet|csv|parquet\.partial)$")
+SOURCE_TIME = {"tcp": ("t", "time"), "timeseries": ("time", "t"), "controller": ("t", "time"), "lateness": ("t",)}
+_SERIES_FILE = re.compile(r"^(tcp|timeseries|controller|lateness)_(.+?)\.(parquet|csv|parquet\.partial)$")
 
 
 #: The robot description files (robot/: the one place for them; read as files here, no pinocchio).
@@ -283,7 +283,7 @@ def _run_data(run: Run, label: str, colour: str, summary: dict[str, Any] | None,
     for panel in PANELS:
         for series in panel.series:
             names = [joint_names(series.column, j) for j in panel.joints] if panel.joints else [series.column]
-            wanted[series.source] += names
+            wanted[series.source] += names + ([panel.limit_column] if panel.limit_column else [])
     wanted["tcp"] += [f"{a}_{w}" for w in ("programmed", "measured") for a in "xyz"]
     wanted["timeseries"] += [f"plant.q[{j}]" for j in range(1, 7)]
     columns: dict[str, dict[str, np.ndarray]] = {}
@@ -319,8 +319,13 @@ def _run_data(run: Run, label: str, colour: str, summary: dict[str, Any] | None,
                 full = None
                 if whole or budget.take(int(y.size)):
                     full = _pack(y, "f8" if whole else "f4", deflate=True)
+                limit = None
+                if panel.limit_column and panel.limit_column in columns.get(series.source, {}):
+                    finite = columns[series.source][panel.limit_column]
+                    finite = finite[np.isfinite(finite)]
+                    limit = float(finite[0] * series.scale) if finite.size else None
                 curves.append({"joint": j, "label": joint_names(series.label, j) if j else series.label,
-                               "source": series.source, "column": column,
+                               "source": series.source, "column": column, "limit": limit,
                                "ox": _pack(t[index], "f8"), "oy": _pack(y[index], "f8" if whole else "f4"), "full": full})
         if curves:
             out["series"][panel.key] = curves
@@ -455,7 +460,7 @@ def collect_series(folders: list[Path]) -> dict[str, Any]:
     return {"format": "rx130l-cosim report 1", "generated": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
             "runs": runs, "notes": notes,
             "panels": [{"key": p.key, "title": p.title, "ylabel": p.ylabel, "unit": p.unit, "log": p.log,
-                        "joints": list(p.joints), "limit": p.limit} for p in PANELS],
+                        "joints": list(p.joints), "limit": p.limit, "limit_label": p.limit_label} for p in PANELS],
             "limits": {"current_limit": _current_limits()},
             "urdf": _urdf_chain(), "key_figures": [list(k) for k in KEY_FIGURES], "timing_keys": list(TIMING_KEYS),
             "overview_columns": OVERVIEW_COLUMNS}

@@ -108,8 +108,9 @@ def test_refused_requests_get_their_abort_codes(master):
 
 
 def test_protocol_errors_without_a_client_library():
-    """Requests the library would never send: a wrong length, an unknown command, a segmented
-    download, a broken toggle; a stopped node does not answer."""
+    """Requests the library would never send: a wrong length, an unknown command, a segment
+    without a transfer, a segmented download of the wrong size, a broken toggle; a stopped node
+    does not answer."""
     server = SdoServer(drive_object_dictionary(1))
 
     def code(answer: bytes) -> int:
@@ -118,7 +119,10 @@ def test_protocol_errors_without_a_client_library():
 
     assert code(server.handle(b"\x40\x00\x10")) == COMMAND_UNKNOWN
     assert code(server.handle(bytes((0xE0, 0, 0x10, 0, 0, 0, 0, 0)))) == COMMAND_UNKNOWN
-    assert code(server.handle(bytes((0x21, 0x65, 0x60, 0, 4, 0, 0, 0)))) == COMMAND_UNKNOWN
+    assert code(server.handle(bytes((0x00, 1, 2, 3, 4, 5, 6, 7)))) == COMMAND_UNKNOWN  # no download initiated
+    assert server.handle(bytes((0x21, 0x65, 0x60, 0, 4, 0, 0, 0)))[0] == 0x60  # segmented, 4 bytes announced
+    assert code(server.handle(bytes((0x0B, 1, 2, 3, 4, 0, 0, 0)))) == 0x06070010  # last segment with 2 bytes
+    assert server.malformed == 3 and server.transfers == 0  # short request, command 7, stray segment
     assert code(server.handle(bytes((0x2B, 0x65, 0x60, 0, 1, 0, 0, 0)))) == 0x06070010  # 2 bytes for a UNSIGNED32
     first = server.handle(bytes((0x40, 0x08, 0x10, 0, 0, 0, 0, 0)))
     assert first[0] == 0x41 and struct.unpack_from("<I", first, 4)[0] == 26

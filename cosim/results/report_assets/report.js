@@ -213,6 +213,16 @@
       var v = D.limits[p.panel.limit].value[p.joint - 1];
       [v, -v].forEach(function (y) { shapes.push({ type: 'line', xref: 'paper', x0: 0, x1: 1, y0: y, y1: y, line: { color: '#d62728', dash: 'dash', width: 1.2 } }); });
     }
+    var drawn = {};
+    p.traces.forEach(function (tr) {         // a per-run limit of the series' file (e.g. the overrun tolerance)
+      var v = tr.curve.limit;
+      if (typeof v !== 'number' || !visibleFor(p, tr) || drawn[v]) return;
+      drawn[v] = true;
+      shapes.push({ type: 'line', xref: 'paper', x0: 0, x1: 1, y0: v, y1: v, name: 'limit',
+                    line: { color: '#d62728', dash: 'dash', width: 1.2 },
+                    label: { text: (p.panel.limit_label || 'limit') + ' ' + fmt(v) + ' ' + p.panel.unit,
+                             textposition: 'end', yanchor: 'bottom', font: { size: 10, color: '#d62728' } } });
+    });
     if (p.panel.key === 'compute') {
       runs.forEach(function (r, k) {
         var src = D.sources.find(function (s) { return s.folder === r.folder; }), S = (src && src.summary) || {};

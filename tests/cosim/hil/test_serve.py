@@ -22,6 +22,7 @@ import can
 
 from fieldbus.canlog import open_log
 import numpy as np
+import pandas as pd
 import pytest
 
 from cosim.api import RunResult
@@ -107,7 +108,7 @@ def test_external_controller_enables_and_moves_the_arm(served_then_killed):
 
 def test_the_served_runs_report_shows_where_it_stopped(served_then_killed, browser):
     """report.html of the served run (verdict fault) in headless Chromium: the timing report, the
-    fault and where the run stopped (docs/viewing.md)."""
+    fault and where the run stopped (docs/how-to/view_results.md)."""
     from browser_support import console_errors, open_report, report_state
 
     out, _, _, _, _ = served_then_killed
@@ -119,6 +120,15 @@ def test_the_served_runs_report_shows_where_it_stopped(served_then_killed, brows
     assert any("ended 'fault'" in n for n in state["notes"]), state["notes"]
     assert any(row[2] == "fault_reaction" for row in state["events"]), state["events"]
     assert "plot-tcp_error" in state["plots"] and "plot-events" in state["plots"]
+    # every served cycle's lateness, with the window's end (the overrun tolerance) as a line
+    hil = RunResult(out).summary.raw["hil"]["model_based"]
+    plotted = browser.execute_script(
+        "var d = document.getElementById('plot-lateness'); var x = d.data[0].x;"
+        "return [d.data.length, d.layout.shapes.map(function (s) { return s.y0; }), x.length];")
+    cycles = pd.read_parquet(out / "lateness_model_based.parquet")
+    assert plotted[0] == 1 and len(cycles) == hil["cycles"]
+    assert plotted[1] == [cycles["tolerance_us"].iloc[0]]
+    assert cycles["overrun"].sum() == hil["overruns"]
 
 
 def test_a_killed_controller_trips_the_counters_and_the_drives_stop_the_arm(served_then_killed):

@@ -7,7 +7,7 @@ import sys
 
 import pytest
 
-from cosim.realtime.config import execution_options
+from cosim.execution.config import execution_options
 from cosim.results import read_series
 from cosim.scenario import ScenarioError, load_scenario
 from realtime_support import ROOT, write_scenario
@@ -40,6 +40,16 @@ def test_paced_run_writes_realtime_statistics_and_histogram(tmp_path):
     assert summary["execution"]["realtime"] is True and summary["execution"]["mode"] == "in_process"
     assert summary["status"] == "ok" and summary["modes"]["model_based"]["status"] == "ok"
     assert read_series(out / "timeseries_model_based.parquet")[1].shape[0] == 101   # 400 us rows
+    # every cycle's lateness, read back by pandas (report.html plots it against the tolerance)
+    import numpy as np
+    import pandas as pd
+
+    assert rt["runs"]["model_based"]["series"] == "lateness_model_based.parquet"
+    cycles = pd.read_parquet(out / "lateness_model_based.parquet")
+    assert list(cycles.columns) == ["t", "cycle", "lateness_us", "work_us", "overrun", "tolerance_us"]
+    assert len(cycles) == 101 and np.array_equal(cycles["t"], cycles["cycle"] * 400e-6)
+    assert cycles["lateness_us"].max() == lat["max_us"] and cycles["overrun"].sum() == rt["overruns"]
+    assert (cycles["tolerance_us"] == rt["tolerance_us"]).all()
 
 
 def test_bad_realtime_settings_name_the_key(tmp_path):

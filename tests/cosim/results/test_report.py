@@ -183,3 +183,40 @@ def test_partial_reports_say_what_is_missing(main_run, browser, tmp_path):
     assert names == ["model_based", "model_based_elastic"]  # the standard mode's TCP error is missing, the rest shown
     lag = browser.execute_script("return document.getElementById('plot-following_error').data.map(function (t) { return t.name; });")
     assert any(n.startswith("standard") for n in lag)  # its drive signals are there
+
+
+def test_paced_split_run_plots_compute_time_and_lateness_against_the_tolerance(browser, tmp_path):
+    """A paced split run (--realtime --split): its report plots the controller's compute time and every
+    cycle's lateness (lateness_<mode>.parquet) with the overrun tolerance as a line, and the timeline
+    at the latest cycle reads back the file's value."""
+    import subprocess
+    import sys
+
+    from realtime_support import write_scenario
+
+    scenario = write_scenario(tmp_path, "200 ms", extra='[realtime]\nscheduling = "normal"\ncpu = "none"\n')
+    out = tmp_path / "out"
+    done = subprocess.run([sys.executable, "-m", "cosim", "run", str(scenario), "--realtime", "--split", "--quiet",
+                           "--out", str(out)], cwd=ROOT, capture_output=True, text=True, timeout=600)
+    # a loaded machine may make the drives trip on late cycles (verdict fault, exit 5): the report is the same
+    assert done.returncode in (0, 4, 5), done.stderr
+    summary = json.loads((out / "summary.json").read_text(encoding="utf-8"))
+    names, data = read_series(out / "lateness_model_based.parquet")
+    t, late = data[:, names.index("t")], data[:, names.index("lateness_us")]
+    assert t.size == summary["realtime"]["cycles"] > 100
+    open_report(browser, out / "report.html")
+    assert console_errors(browser) == []
+    lines = browser.execute_script(
+        "var d = document.getElementById('plot-lateness');"
+        "return [d.data.map(function (tr) { return tr.name; }), d.layout.shapes.map(function (s) { return s.y0; }),"
+        " document.getElementById('plot-compute').data.length];")
+    assert lines[0] == ["model_based"] and lines[2] == 1
+    assert lines[1] == [summary["realtime"]["tolerance_us"]]  # the deadline the lateness is judged against
+    k = int(np.argmax(late))
+    _set_time(browser, float(t[k]))
+    shown = browser.execute_script(
+        "var td = document.querySelector('td.readout[data-run=\"model_based\"][data-panel=\"lateness\"]');"
+        "return [td.getAttribute('data-value'), td.getAttribute('data-time')];")
+    assert float(shown[1]) == t[k] and float(shown[0]) == pytest.approx(late[k], rel=1e-6)  # float32 embedded
+    browser.execute_script("document.getElementById('plot-lateness').scrollIntoView();")
+    browser.save_screenshot(str(tmp_path / "report_lateness.png"))
