@@ -117,6 +117,19 @@ class Cycle(threading.Thread):
         self.join(timeout=2.0)
 
 
+def set_state(node, target, attempts=5):
+    """``BaseNode402.state = target``, tried again from where it stopped when the library's time-out
+    ran out first (a loaded machine delays the statuswords); returns the state reached."""
+    for attempt in range(attempts):
+        try:
+            node.state = target
+            break
+        except RuntimeError:
+            if attempt == attempts - 1:
+                raise
+    return node.state
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--eds", type=Path, required=True, help="folder with servo_drive_node<N>.eds")
@@ -244,6 +257,10 @@ def main(argv=None):
                     report["sdo_round_trips"].append({"node": node.id, "index": f"0x{index:04X}", "sub": sub,
                                                       "written": value, "read": back, "ok": back == value})
             node.setup_402_state_machine(read_pdos=False)
+            # the library also listens to the RPDO's COB-ID; a bus that echoes our own frames
+            # (udp_multicast) would then write an old RPDO of ours back into the map we send from
+            if network.subscribers.get(rpdo.cob_id):
+                network.unsubscribe(rpdo.cob_id)
 
         # --- operational, the cycle runs
         network.nmt.state = "OPERATIONAL"
@@ -276,13 +293,10 @@ def main(argv=None):
         report["nmt"] = {str(n.id): n.nmt.state for n in nodes}
 
         # --- CiA 402: enable every drive in cyclic synchronous position
-        enabled_at = {}
         for node in nodes:
             node.op_mode = CSP
             report["states"].setdefault("mode", {})[str(node.id)] = node.op_mode
-            node.state = "OPERATION ENABLED"
-            enabled_at[node.id] = time.monotonic()
-            report["states"].setdefault("enabled", {})[str(node.id)] = node.state
+            report["states"].setdefault("enabled", {})[str(node.id)] = set_state(node, "OPERATION ENABLED")
 
         # --- the motion: every axis out and back, a raised cosine in position
         hold = [node.rpdo[1]["Target position"].raw for node in nodes]
@@ -306,8 +320,7 @@ def main(argv=None):
 
         # --- disable
         for node in nodes:
-            node.state = "SWITCH ON DISABLED"
-            report["states"].setdefault("disabled", {})[str(node.id)] = node.state
+            report["states"].setdefault("disabled", {})[str(node.id)] = set_state(node, "SWITCH ON DISABLED")
         cycle.stop()
         intervals = [b - a for a, b in zip(cycle.sent_at, cycle.sent_at[1:])]
         late = [x for x in intervals if x > 1.5 * period]

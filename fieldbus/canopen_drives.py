@@ -245,7 +245,7 @@ class CanopenDrives:
             for d in self.drives:
                 out += d.node.receive(msg, time_s)
             for d, state in zip(self.drives, before):
-                if d.node.nmt_state != state:
+                if cob == NMT_ID or d.node.nmt_state != state:  # a reset restores the PDO objects too
                     d.got_rpdo = False
                     d.pending.clear()
                     d.dirty = True
