@@ -9,6 +9,10 @@ At each build, ``on_files`` adds to the site, without writing into docs/:
 * ``reference/fieldbus.md``: ``fieldbus/README.md`` (the bus, its frames and the udpcycle wire
   format), which lives beside the package it documents.
 
+and ``on_page_markdown`` puts the object table of ``fieldbus/object_dictionary.toml`` (axis 1,
+:func:`fieldbus.device_files.reference_markdown`) into ``reference/object_dictionary.md`` in place
+of its marker line (:data:`OBJECT_DICTIONARY_MARKER`).
+
 The checkout holding this file is put first on ``sys.path``, so the pages describe its code
 (not another installed copy).
 """
@@ -35,3 +39,23 @@ def on_files(files, config):
     for uri, build in GENERATED.items():
         files.append(File.generated(config, uri, content=build()))
     return files
+
+
+#: the line of docs/reference/object_dictionary.md the generated object table replaces
+OBJECT_DICTIONARY_MARKER = "<!-- generated: the table of fieldbus/object_dictionary.toml, axis 1 (mkdocs_hooks.py) -->"
+
+
+def object_dictionary_markdown(markdown: str) -> str:
+    """``markdown`` with the marker line replaced by the object table of axis 1's drive."""
+    from fieldbus.device_files import reference_markdown
+    from fmus.servo_drive.object_dictionary import drive_object_dictionary
+
+    if OBJECT_DICTIONARY_MARKER not in markdown:
+        raise ValueError(f"reference/object_dictionary.md: the marker {OBJECT_DICTIONARY_MARKER!r} is missing")
+    return markdown.replace(OBJECT_DICTIONARY_MARKER, reference_markdown(drive_object_dictionary(1)))
+
+
+def on_page_markdown(markdown, page, config, files):
+    if page.file.src_uri == "reference/object_dictionary.md":
+        return object_dictionary_markdown(markdown)
+    return markdown

@@ -9,8 +9,8 @@ Each run builds the cell of ``scenarios/iso9283_rigid.toml`` (the main job on th
 where the figures of docs/main_job.md "Speed" were taken; ``--scenario scenarios/iso9283.toml``:
 the main job itself, elastic plant) (true robot, macro step, plant
 parameters, drive gains and the mode's drive speed feed-forward, fieldbus defaults)
-exactly as ``python -m cosim run`` does (``cosim.cell.mode_runs.prepare`` and ``mode_cell``
-as ``run_mode`` uses them, ``cosim.cell.run_cell``), with ``stop_time`` = 2 s, into a
+exactly as ``python -m cosim run`` does (``cosim.execution.mode_runs.prepare`` and ``mode_cell``
+as ``run_mode`` uses them, ``cosim.execution.run_cell``), with ``stop_time`` = 2 s, into a
 temporary results folder; the CAN log is off unless ``--can-log`` (its BLF encoding is
 file output, not loop work), and the time-series CSV is written after the loop.
 
@@ -62,11 +62,11 @@ ELASTIC_SCENARIO = ROOT / "scenarios" / "iso9283.toml"
 
 def build(sim_time: float, mode: str, can_log: Path | None = None, scenario_path: Path | None = None):
     """Scenario, cell description and built-in controller of one run:
-    ``cosim.cell.mode_runs.prepare`` and ``mode_cell`` (as ``run_mode``); ``scenario_path``
+    ``cosim.execution.mode_runs.prepare`` and ``mode_cell`` (as ``run_mode``); ``scenario_path``
     defaults to :data:`SCENARIO`."""
     import dataclasses
 
-    from cosim.cell.mode_runs import mode_cell, prepare
+    from cosim.execution.mode_runs import mode_cell, prepare
     from cosim.scenario import load_scenario
 
     scenario = load_scenario(scenario_path or SCENARIO)
@@ -81,7 +81,7 @@ def build(sim_time: float, mode: str, can_log: Path | None = None, scenario_path
 def one_run(sim_time: float, mode: str, can_log: bool, out_dir: Path,
             scenario_path: Path | None = None) -> dict[str, float]:
     """One closed-loop run; real-time factors, controller timing, load average."""
-    from cosim.cell import run_cell
+    from cosim.execution import run_cell
     from cosim.scenario import RunContext
 
     scenario, cell, controller = build(sim_time, mode, out_dir / "can.blf" if can_log else None, scenario_path)

@@ -118,8 +118,8 @@ def closed_loop(sim_time: float = 2.0) -> dict[str, dict[str, float]]:
     directly in the running cell (:meth:`controller.port.ControllerPort.overhead`)."""
     import bench_closed_loop
 
-    from cosim.cell import run_cell
-    from cosim.cell.mode_runs import prepare, user_cell
+    from cosim.execution import run_cell
+    from cosim.execution.mode_runs import prepare, user_cell
     from cosim.scenario import RunContext, load_scenario
 
     out: dict[str, dict[str, float]] = {}

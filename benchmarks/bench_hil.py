@@ -3,7 +3,7 @@ processes over the ``udpcycle`` interface.
 
 ``python benchmarks/bench_hil.py [--seconds 10] [--runs 5]`` runs, per run, a cell-side
 process (the POWERLINK controlled nodes of ``fieldbus.DriveEndpoint.run_cycle_paced``,
-paced at 400 µs by ``cosim.realtime.pacer.Pacer``) and a controller-side process
+paced at 400 µs by ``cosim.execution.timing.pacer.Pacer``) and a controller-side process
 (``ManagingNodeEndpoint.follow`` / ``send_following``), both on loopback, and prints per
 run and as medians over runs: overrun fraction and longest run of consecutive overruns
 of the cell's pacing, lateness p50/p99/p99.9/max, one-way datagram latency both ways
@@ -68,7 +68,7 @@ def stall_probe(seconds: float = 8.0, period_s: float = 400e-6, work_s: float = 
 
 
 def _stall_probe_child(seconds: float, period_s: float, work_s: float, queue) -> None:
-    from cosim.realtime.pacer import realtime_scheduling
+    from cosim.execution.timing.pacer import realtime_scheduling
 
     period, work, limit = int(period_s * 1e9), int(work_s * 1e9), 100_000
     gaps = []
@@ -114,8 +114,8 @@ def _scaling():
 
 
 def cell_side(seconds: float, ports: tuple[int, int], window_s: float, queue) -> None:
-    from cosim.realtime.pacer import Pacer, no_cyclic_gc
-    from cosim.realtime.schedule import precompute_schedules
+    from cosim.execution.timing.pacer import Pacer, no_cyclic_gc
+    from cosim.execution.timing.schedule import precompute_schedules
     from fieldbus import DriveActuals, DriveEndpoint
 
     cell, ctrl = ports
@@ -130,7 +130,7 @@ def cell_side(seconds: float, ports: tuple[int, int], window_s: float, queue) ->
     import select
 
     select.select([endpoint.bus.fileno()], [], [], 120.0)  # start with the controller's first datagram
-    from cosim.realtime.pacer import realtime_scheduling
+    from cosim.execution.timing.pacer import realtime_scheduling
 
     with realtime_scheduling(SCHEDULING, 10) as granted, no_cyclic_gc():
         for k in range(cycles):
@@ -152,7 +152,7 @@ def controller_side(seconds: float, ports: tuple[int, int], queue) -> None:
 
     cell, ctrl = ports
     endpoint = ManagingNodeEndpoint(_config(f"127.0.0.1:{ctrl}", f"127.0.0.1:{cell}", 200e-6), _scaling())
-    from cosim.realtime.schedule import precompute_schedules
+    from cosim.execution.timing.schedule import precompute_schedules
 
     precompute_schedules((endpoint,), int(round(seconds / endpoint.config.cycle_time_s)) + 16, False, compact=True)
     setpoints = Setpoints.zeros(6)
@@ -161,7 +161,7 @@ def controller_side(seconds: float, ports: tuple[int, int], queue) -> None:
     end = time.monotonic() + seconds + 1.0
     skipped = 0
     last = -1
-    from cosim.realtime.pacer import no_cyclic_gc, realtime_scheduling
+    from cosim.execution.timing.pacer import no_cyclic_gc, realtime_scheduling
 
     with realtime_scheduling(SCHEDULING, 10), no_cyclic_gc():
         skipped, last = _follow(endpoint, setpoints, end)
@@ -202,7 +202,7 @@ def run_once(seconds: float, base_port: int, window_s: float = 200e-6) -> dict:
     steal = (steal_ms() - steal0) / (time.monotonic() - wall0)
     lateness = np.asarray(c["lateness_us"])
     overrun = np.asarray(c["overrun"], dtype=bool)
-    from cosim.hil.cell_side import longest_run
+    from cosim.execution.cell_side import longest_run
 
     longest = longest_run(overrun)
     up = np.asarray(c["latency_in_us"])  # controller -> cell
@@ -279,8 +279,8 @@ def late_controller(endpoint_file: str, late: tuple[int, ...], seconds: float, q
     import logging
 
     from cosim.cell.wiring import joint_scaling
-    from cosim.realtime.pacer import no_cyclic_gc, realtime_scheduling
-    from cosim.realtime.schedule import precompute_schedules
+    from cosim.execution.timing.pacer import no_cyclic_gc, realtime_scheduling
+    from cosim.execution.timing.schedule import precompute_schedules
     from fieldbus import EnableSequencer, ManagingNodeEndpoint, Setpoints
 
     logging.getLogger("fieldbus").setLevel(logging.ERROR)  # its own view of the skipped cycles: not needed here
@@ -622,7 +622,7 @@ def iso_split_run(scenario: Path, out: Path, split: bool) -> dict:
                     "controller_compute_step_us": hil["controller_side"].get("compute_step"),
                     "controller_compute_send_us": hil["controller_side"].get("compute_send"),
                     "controller_wakeup_after_pres_us": hil["controller_side"].get("wakeup_after_pres"),
-                    # each lost cycle's cause as the controller side attributes it (cosim.hil.split)
+                    # each lost cycle's cause as the controller side attributes it (cosim.execution.split.paced)
                     "lost_cycle_causes": {k: v for k, v in (hil.get("lost_cycle_causes") or {}).items()
                                           if k != "examples"},
                     "frames_late": cell["frames_late"], "scheduling": hil["controller_side"]["scheduling"],

@@ -2,7 +2,7 @@
 
 A 600 s run at 1 ms is not simulated here (the main job takes about a minute per 12.6 s of three
 modes on this machine): its results folder is synthesized from the file format
-(docs/output_format.md) — one mode, ``tcp_<mode>`` and ``timeseries_<mode>`` at 1 ms (600 001
+(docs/reference/output_files.md) — one mode, ``tcp_<mode>`` and ``timeseries_<mode>`` at 1 ms (600 001
 rows: joint angles sweeping the workspace, the TCP on the true kinematics, a TCP error with
 peaks, lags, currents, following errors), ``controller_<mode>`` at 400 us (1.5 million rows of
 its time and compute time), a ``summary.json`` with one violation. Then ``cosim view`` writes the

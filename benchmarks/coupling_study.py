@@ -1,4 +1,4 @@
-"""Coupling study and drive-response figures for docs/fmus.md.
+"""Coupling study and drive-response figures for docs/explanation/fmus.md.
 
     MPLBACKEND=Agg python benchmarks/coupling_study.py [--duration 0.6] [--figures docs/figures]
 

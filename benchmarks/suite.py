@@ -184,12 +184,12 @@ def closed_loop_elastic(sizes: Sizes, work: Path) -> dict[str, Any]:
 
 
 def closed_loop_split(sizes: Sizes, work: Path) -> dict[str, Any]:
-    """The bench_closed_loop cell split over two processes (cosim.split), unpaced."""
+    """The bench_closed_loop cell split over two processes (cosim.execution.split), unpaced."""
     import bench_closed_loop
 
-    from cosim.realtime.config import ExecutionOptions
+    from cosim.execution.config import ExecutionOptions
     from cosim.scenario import RunContext
-    from cosim.cell import run_cell
+    from cosim.execution import run_cell
 
     rtf, startup = [], []
     for k in range(sizes.repeats):
@@ -210,9 +210,9 @@ def paced(sizes: Sizes, work: Path) -> dict[str, Any]:
     medians over runs of the overrun fraction and the lateness p99, and every run's figures."""
     import bench_closed_loop
 
-    from cosim.cell import run_cell
-    from cosim.realtime.config import ExecutionOptions, RealtimeSettings
-    from cosim.realtime.stats import lateness_summary, load_average
+    from cosim.execution import run_cell
+    from cosim.execution.config import ExecutionOptions, RealtimeSettings
+    from cosim.execution.timing.stats import lateness_summary, load_average
     from cosim.scenario import RunContext
 
     runs = []

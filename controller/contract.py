@@ -30,7 +30,7 @@ What "late" means
 In simulated time (``cosim run`` without ``--realtime``) the controller is never late:
 its compute time is measured, not waited for. Under ``--realtime`` / ``--split`` the cell
 runs on the wall clock: a cycle whose frames cannot all be on the bus by the next SoC is
-an *overrun* (``[realtime] overrun_policy``, :mod:`cosim.realtime.policy`); the output the
+an *overrun* (``[realtime] overrun_policy``, :mod:`cosim.execution.timing.policy`); the output the
 controller computed in the previous cycle then does not go out as computed:
 ``hold`` / ``skip`` send the previous (or extrapolated) set-points instead - the next
 ``step`` sees ``previous_output_late`` True; ``lost_frame`` drops the cycle's PReqs as

@@ -61,7 +61,7 @@ class FeedForward:
 # Elastic joints: flatness-based feed-forward (mode model_based_elastic)
 # ----------------------------------------------------------------------------------
 #
-# The plant's flexible-joint model (fmus/rx130l_plant, docs/fmus.md), per axis, joint side:
+# The plant's flexible-joint model (fmus/rx130l_plant, docs/explanation/fmus.md), per axis, joint side:
 #     link:   tau_g = M(q) qdd + c(q, qd) + g(q) + f_l(qd)          (link side, no rotor)
 #     gear:   tau_g = k d + k3 d^3 + c_g dd/dt,   d = q_m - q
 #     motor:  tau_m = Ia qdd_m + f_m(qd_m) + tau_g

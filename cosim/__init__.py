@@ -6,7 +6,7 @@ The public Python API for scripts lives in :mod:`cosim.api` and is re-exported h
     import cosim
     result = cosim.run("scenarios/iso9283.toml", overrides={"controller.modes": ["standard"]})
 
-See docs/scripting.md.
+See docs/how-to/scripting.md.
 """
 from __future__ import annotations
 

@@ -23,7 +23,7 @@ value}`` with the syntax and the code of sweep axes (``cosim.scenario.keypath``:
 unit strings such as ``"5 kg"``), relative file paths in them are relative to the working
 directory (as are those of a dict or TOML text).
 
-Errors (documented in docs/scripting.md):
+Errors (documented in docs/how-to/scripting.md):
 
 * :class:`ScenarioError` (a ``ValueError``): invalid scenario, override or sweep, raised
   before anything is written; ``.file`` (a Path, or ``"<dict>"``/``"<string>"``/
@@ -700,13 +700,13 @@ def execute(scenario: Scenario, out: str | Path, *, quiet: bool = True, realtime
             report: bool | None = None) -> RunResult:
     """Run an already loaded scenario into ``out`` and return the result whatever its status
     (the layer under :func:`run` and ``cosim run``; ``origin`` names where ``out`` came from in
-    an OutputFolderError, e.g. ``"--out"``). ``serve`` (a :class:`cosim.hil.ServeSettings`):
+    an OutputFolderError, e.g. ``"--out"``). ``serve`` (a :class:`cosim.execution.serve_settings.ServeSettings`):
     run only the cell side of each robot-cell run, paced, for a controller elsewhere on the bus
     (``cosim serve``). ``max_output``, ``max_memory``, ``ignore_budget``: as for :func:`run`.
     ``clock_from_process_start``: summary.json's ``wall_time_s`` and ``realtime_factor`` count
     from this process's start (``cosim run``: the whole command, interpreter start and imports
     included; ``wall_time_from = "process start"``) instead of from this call. ``report``: write
-    report.html (None: unless the scenario's ``[results] report`` is false; docs/viewing.md).
+    report.html (None: unless the scenario's ``[results] report`` is false; docs/how-to/view_results.md).
     Raises ScenarioError, OutputFolderError, KeyboardInterrupt as :func:`run` does (and
     BudgetError); never RunFailed."""
     if serve is not None:
@@ -721,8 +721,8 @@ def execute(scenario: Scenario, out: str | Path, *, quiet: bool = True, realtime
 
 def _execution_options(sc: Scenario, realtime: bool, split: bool):
     """The cell execution options, or None (one process, unpaced); ScenarioError for a job without a cell."""
-    from cosim.realtime.config import execution_options
-    from cosim.realtime.execution import CELL_JOBS
+    from cosim.execution.config import execution_options
+    from cosim.execution.cell_execution import CELL_JOBS
 
     options = execution_options(sc.data, realtime=realtime or None, split=split or None)
     if not options.active:
@@ -754,7 +754,7 @@ def _execute_into(sc: Scenario, out_dir: Path, options, *, quiet: bool, origin: 
 
     execution = None
     if options is not None:
-        from cosim.realtime.execution import CellExecution
+        from cosim.execution.cell_execution import CellExecution
 
         execution = CellExecution(options)
     with open_results_folder(out_dir, origin):
@@ -786,7 +786,7 @@ def _execute_into(sc: Scenario, out_dir: Path, options, *, quiet: bool, origin: 
 
 
 def _write_report(out_dir: Path, wanted: bool) -> None:
-    """report.html in the results folder (``[results] report``, docs/viewing.md); a report that cannot
+    """report.html in the results folder (``[results] report``, docs/how-to/view_results.md); a report that cannot
     be written is a warning line, never a failed run (``cosim view`` writes it later)."""
     import sys
 
@@ -860,7 +860,7 @@ def _job_verdict(ctx) -> tuple[str, str | None, dict[str, Any]]:
     verdicts = dict(getattr(ctx, "verdicts", None) or {})
     if not verdicts:
         return "ok", None, {}
-    status = most_severe(v["verdict"] for v in verdicts.values())
+    status = most_severe([v["verdict"] for v in verdicts.values()])
     fields: dict[str, Any] = {"verdicts": verdicts}
     if status == "ok":
         return status, None, fields
@@ -880,7 +880,7 @@ def _first_line(text: str) -> str:
 
 # ------------------------------------------------------------------------------------------ sweeps
 def load_sweep(sweep: "str | Path | Mapping[str, Any]", on_count=None) -> "Sweep":
-    """Read and validate a sweep (a sweep TOML file, its text, or its parsed dict; docs/sweeps.md).
+    """Read and validate a sweep (a sweep TOML file, its text, or its parsed dict; docs/how-to/sweep_cluster.md).
 
     Every variant is validated by the base job; ScenarioError on any problem, nothing runs.
     A dict or text names its base scenario relative to the working directory. ``on_count(n)`` is
@@ -912,7 +912,7 @@ def build_sweep(base: "str | Path | Mapping[str, Any] | Scenario", axes: "Mappin
                 metrics: Sequence[str] | None = None, report: Mapping[str, Any] | None = None,
                 collect: Sequence[str] = (), store: str | None = None, retries: int = 2,
                 description: str = "") -> "Sweep":
-    """A sweep built in Python around a base scenario (validated like a sweep file, docs/sweeps.md).
+    """A sweep built in Python around a base scenario (validated like a sweep file, docs/how-to/sweep_cluster.md).
 
     Args:
         base: the base scenario (as for :func:`load_scenario`; its overrides are kept).

@@ -3,7 +3,7 @@ EN ISO 9283 path, run as a sweep on a local Dask cluster, printed as a table and
 
     python examples/payload_deadtime_study.py [--out DIR] [--workers N] [--stop-time "0.5 s"]
 
-It uses only the public API (``import cosim``; docs/scripting.md): the main job's path and
+It uses only the public API (``import cosim``; docs/how-to/scripting.md): the main job's path and
 robot on the rigid plant, ``scenarios/iso9283_rigid.toml`` (eq. 7 then removes the lag down to
 micrometres, so the payload and the dead time are what the table shows; on the main job's
 elastic plant the gear deflection would dominate), is loaded with overrides that shorten it (the first 0.3 s of the

@@ -8,7 +8,7 @@ sent to every drive as its target torque (0x6071) in modes of operation 10 (CST)
 position and speed loops are bypassed, the controller closes the loops itself over the
 fieldbus at the bus cycle. An example of the controller contract
 (``controller.CellController``: ``setup(info)``, ``step(inputs) -> ControllerOutput``,
-``close()``; docs/bring_your_own.md "Your own controller"). It imports only the contract's
+``close()``; docs/how-to/own_controller.md). It imports only the contract's
 plain-data types and the building block ``controller.tracking_clock.TrackingClock``, which
 does what every tracking controller needs around its law: the CiA 402 enable sequence,
 the settle time, the trajectory time and the joint reference at the time an output acts.
@@ -40,7 +40,7 @@ AXIS_INERTIA = (27.0, 35.8, 19.9, 0.390, 0.469, 0.0508)          # kg m^2
 # The defaults: f = 10 Hz (rounded), for the rigid plant (scenarios/iso9283_rigid.toml,
 # examples/compare.toml). On the elastic-gear plant (scenarios/iso9283.toml) 10 Hz is too close to
 # the gears' resonance for a loop closed over 1.2 ms of bus delay on the motor encoders: use
-# bandwidth_hz = 3 with model_feedforward = true there (docs/bring_your_own.md, "What to expect").
+# bandwidth_hz = 3 with model_feedforward = true there (docs/how-to/own_controller.md, "On the elastic plant").
 DEFAULT_KP = (1.07e5, 1.41e5, 7.86e4, 1.54e3, 1.85e3, 2.01e2)   # N m / rad
 DEFAULT_KD = (3.40e3, 4.50e3, 2.50e3, 49.0, 59.0, 6.38)          # N m s / rad
 

@@ -13,7 +13,7 @@ Used in a scenario as::
     [planners.parameters."examples/quintic_planner.py:QuinticPtP"]
     speed_factor = 0.8
 
-It imports only the public planner types (docs/bring_your_own.md, "Your own planner").
+It imports only the public planner types (docs/how-to/own_planner.md).
 """
 from __future__ import annotations
 

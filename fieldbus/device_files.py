@@ -9,7 +9,7 @@
   PRes payload TPDO1 followed by TPDO2.
 * :func:`to_dbc`: the signal database of the whole bus (SYNC, and per node RPDO1, TPDO1,
   TPDO2, EMCY), signals scaled to rad, rad/s and N·m, written with ``cantools``.
-* :func:`reference_markdown`: the reference table of docs/object_dictionary.md.
+* :func:`reference_markdown`: the reference table of docs/reference/object_dictionary.md.
 """
 from __future__ import annotations
 

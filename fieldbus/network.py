@@ -93,7 +93,7 @@ class PowerlinkNetwork(Closeable):
                              and self.mn_side._send_many is not None and self.drive_side._send_many is not None
                              and self.mn_side._drain is not None and self.drive_side._drain is not None)
         # the endpoints' fault plans when neither injects anything (a wrapper installed later, e.g.
-        # cosim.realtime's overrun plan, is asked every cycle)
+        # cosim.execution.timing's overrun plan, is asked every cycle)
         quiet = not (self.mn_side.plan.enabled or self.drive_side.plan.enabled)
         self._quiet_plans = (self.mn_side.plan, self.drive_side.plan) if quiet else (None, None)
         self._checked_integers: tuple = ()  # (controlword, modes) arrays whose dtypes were checked

@@ -62,7 +62,7 @@ _ERROR_CODE_CHANGED = 4  # codec.latch_pres: packed, and a drive's error code ch
 DRIVE_ERROR_TEXT = {0x0000: "error reset", 0x2310: "continuous over current: I2t derating",
                     0x8400: "velocity speed controller: max motor speed exceeded",
                     0x8611: "following error", 0x8612: "reference limit: software position limit"}
-"""Meaning of the CiA 402 error codes the drives' protection raises (docs/fmus.md "Protection")."""
+"""Meaning of the CiA 402 error codes the drives' protection raises (docs/explanation/fmus.md "Protection")."""
 
 
 def _drive_error_register(code: int) -> int:
@@ -1135,7 +1135,7 @@ class ControlledNodes:
 
     def _drive_errors(self, codes: list[int]) -> None:
         """The drives' error codes (0x603F) latched at this SoC differ from the last ones: a node
-        whose drive shows a new error (a protection fault or warning, docs/fmus.md "Protection")
+        whose drive shows a new error (a protection fault or warning, docs/explanation/fmus.md "Protection")
         sends its EMCY with that code in this cycle's asynchronous slot, and EMCY 0x0000 (error
         reset) when that error is gone. Codes the node presented to its drive itself (its
         communication fault reaction, already announced by its own EMCY 0x8100) are not repeated."""

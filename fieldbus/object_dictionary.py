@@ -15,7 +15,7 @@ values). From the result come:
   :func:`to_xdd`),
 * the signal database: a DBC of every cyclic telegram with scaling to rad, rad/s and N·m
   (:func:`to_dbc`, written with ``cantools``),
-* the reference page ``docs/object_dictionary.md`` (:func:`reference_markdown`).
+* the reference page ``docs/reference/object_dictionary.md`` (:func:`reference_markdown`).
 
 Defaults are in the bus units (counts, 0.1 % of rated torque, ms, ...), rounded to the nearest
 integer (ties upwards) from the SI value for integer objects.

@@ -3,7 +3,7 @@
 An :class:`~fmus.fmu.Fmu` exchanges three value types, the ones the master's buses carry
 (Real = float64, Integer = 32-bit int, Boolean). An FMI 3.0 variable is flattened into
 bus elements, one per scalar or array element: ``u`` (scalar), ``u[2]`` (1-D, 1-based
-like FMI 2.0 structured names), ``M[1,2]`` (n-D, row-major). Each element travels on the bus of its type (conversion rules, docs/fmus.md
+like FMI 2.0 structured names), ``M[1,2]`` (n-D, row-major). Each element travels on the bus of its type (conversion rules, docs/explanation/fmus.md
 "FMI 3.0 in the master"):
 
 =================================  ============  ===============================================

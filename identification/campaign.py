@@ -35,7 +35,7 @@ about the same axis: only the sums are identifiable; Ia3-Ia6 are base parameters
 
 WITHIN_PERCENT = 10.0
 """The acceptance band for the identified gear stiffness and rotor inertias, % of the true value
-(docs/identification.md)."""
+(docs/explanation/identification.md)."""
 
 
 # ------------------------------------------------------------------------------------------ settings

@@ -348,7 +348,7 @@ def identify_periodic(q: ArrayLike, tau: ArrayLike, sample_time: float, samples_
 
     ``torque_acceleration_bias``: (6,) N m per rad/s^2, a known measurement term ``b_i qdd_i``
     in joint i's torque besides the rigid-body torque (a drive that samples its torque in step
-    with its speed loop reports ``b_i qdd_i`` too, ``b_i < 0``; see docs/identification.md). It
+    with its speed loop reports ``b_i qdd_i`` too, ``b_i < 0``; see docs/explanation/identification.md). It
     is subtracted from the averaged torque, with qdd the Fourier derivative: the term is exactly
     collinear with the rotor-inertia column of joint i, so no excitation can separate it and,
     uncorrected, it is identified as rotor inertia ``Ia_i + b_i``.

@@ -160,7 +160,7 @@ class Planner(Protocol):
 
     A scenario names a user planner in ``[planners] run`` as ``"file.py:MyPlanner"`` or
     ``"package.module:MyPlanner"``; it is instantiated with the keyword arguments of
-    ``[planners.parameters."<that entry>"]`` (docs/bring_your_own.md).
+    ``[planners.parameters."<that entry>"]`` (docs/how-to/own_controller.md).
     """
 
     name: str = "planner"

@@ -84,7 +84,7 @@ class PtPDynamics:
         Kinds: velocity, acceleration, jerk and torque_rate (finite differences between
         samples; the torque rate without the Coulomb term), torque, position (as in
         ``planners.trajectory.constraint_ratios``: 1 + excursion beyond the range /
-        half range). Sample at 1 ms for ``max_constraint_ratio`` (docs/planners.md).
+        half range). Sample at 1 ms for ``max_constraint_ratio`` (docs/explanation/planners.md).
         """
         step = np.diff(t)[:, None]
         tau = self.torques(q, qd, qdd)

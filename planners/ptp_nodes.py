@@ -52,7 +52,7 @@ NODE_CODE_VERSION = "ptp-nodes-3"
 """Change when the node expressions change (part of the cache key)."""
 CFLAGS: tuple[str, ...] = ("-O0", "-fPIC", "-shared", "-std=c99")
 """gcc flags of the node library: -O0 compiles in ~10 s; -O1 code runs ~1.7x faster but
-takes minutes to compile the 68k-instruction Hessian (docs/planners_ptp.md)."""
+takes minutes to compile the 68k-instruction Hessian (docs/explanation/planners.md)."""
 NAMES = ("ptp_node_f", "ptp_node_j", "ptp_node_h", "ptp_node_e")
 
 

@@ -20,7 +20,7 @@ constant jerk per interval, linked by the exact integrator of q''' = jerk (no
 integration error). The dynamics enter implicitly: tau = ID(q, qd, qdd) is evaluated,
 not integrated, so no mass-matrix inverse or forward simulation is needed (implicit
 collocation solved PtP problems 25-50x faster than multiple shooting in the project's first
-trials; not re-measured, docs/planners_ptp.md).
+trials; not re-measured, docs/explanation/planners.md).
 Because the motion is an explicit polynomial, the dense output at 1 ms is the
 optimiser's own motion, and its torque is the inverse dynamics of the dense (q, qd, qdd)
 -- exactly what the constraints saw at the nodes. Acceleration is piecewise linear, so
@@ -45,7 +45,7 @@ are NLP parameters) and is cached. A tiny jerk regularisation (``jerk_regularisa
 x the mean squared scaled jerk, default 1e-5) makes the time-optimal solution unique
 (joints that do not limit the motion have a free path otherwise) and IPOPT converge in
 fewer iterations (paper line: 36 instead of 53); it lengthens T by about 0.06 %
-(docs/planners_ptp.md). The
+(docs/explanation/planners.md). The
 warm start is Ruckig tuned to the torque limits (``planners.ruckig_baseline``), sampled
 at the nodes. The Coulomb term fc tanh(qd / v_s) with v_s = 0.01 rad/s is nearly a
 step, which makes IPOPT crawl (100-200 iterations instead of 20-40 without it), so the
@@ -80,7 +80,7 @@ from robot.symbolic import chain_structure
 
 RATIO_TOLERANCE = 1.001
 """Largest accepted |value| / limit of the dense trajectory; above it the offending joints' limits are
-tightened and the problem is solved again (docs/planners_ptp.md)."""
+tightened and the problem is solved again (docs/explanation/planners.md)."""
 CHECKED_KINDS: tuple[str, ...] = ("velocity", "acceleration", "jerk", "torque", "torque_rate", "position")
 """Limit kinds checked on the dense trajectory (each only where its limit is finite)."""
 DEFAULT_JERK_REGULARISATION = 1e-5
@@ -92,7 +92,7 @@ IPOPT_DEFAULTS: dict[str, Any] = {
     # AMD ordering: fewer inertia corrections than MUMPS' automatic choice on this KKT structure
     "mumps_pivot_order": 0,
 }
-"""IPOPT options (73 -> 56 iterations on the paper-like line with bound_push/frac, docs/planners_ptp.md)."""
+"""IPOPT options (73 -> 56 iterations on the paper-like line with bound_push/frac, docs/explanation/planners.md)."""
 IPOPT_WARM_RESTART: dict[str, Any] = {
     "warm_start_init_point": "yes", "mu_init": 1e-6, "warm_start_bound_push": 1e-9,
     "warm_start_bound_frac": 1e-9, "warm_start_slack_bound_push": 1e-9, "warm_start_slack_bound_frac": 1e-9,

@@ -32,7 +32,7 @@ if TYPE_CHECKING:  # pragma: no cover
 JOINT_GROUPS: tuple[str, ...] = ("q", "qd", "qdd", "tau")
 DEFAULT_CHECK_DT = 1e-3
 """Sample time [s] at which constraint ratios are evaluated: 1 ms, as ``max_constraint_ratio``
-is defined in docs/planners.md."""
+is defined in docs/explanation/planners.md."""
 RATIO_KINDS: tuple[str, ...] = ("velocity", "acceleration", "torque", "torque_rate")
 """Limit kinds that enter ``max_constraint_ratio`` by default (the paper's section 5 limits)."""
 
@@ -330,7 +330,7 @@ def max_constraint_ratio(
     dynamics: Any = None,
     kinds: Iterable[str] = RATIO_KINDS,
 ) -> float:
-    """Largest |value| / limit over ``kinds`` and joints (the definition in docs/planners.md).
+    """Largest |value| / limit over ``kinds`` and joints (the definition in docs/explanation/planners.md).
 
     Default kinds: velocity, acceleration, torque and torque rate, resampled at 1 ms.
     Kinds whose limits are infinite contribute 0. See :func:`constraint_ratios`.

@@ -1,6 +1,6 @@
 """User trajectory files: joint-space or Cartesian CSV in, a checked :class:`Trajectory` out.
 
-The file format (docs/bring_your_own.md, "Trajectory files") in short:
+The file format (docs/how-to/own_controller.md, "Trajectory files") in short:
 
 * UTF-8 CSV, ``,`` separated. Lines starting with ``#`` and blank lines are ignored.
   The first other line is the header; every following line is one sample.

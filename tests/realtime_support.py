@@ -43,8 +43,8 @@ def write_scenario(tmp_path: Path, stop_time: str, dead_time: int = 1, extra: st
 
 def build_cell(scenario_path: Path, out_dir: Path):
     """(cell description, built-in controller, ctx) of the scenario's model_based mode, built
-    by the one cell builder the jobs use (:func:`cosim.cell.mode_runs.mode_cell`)."""
-    from cosim.cell.mode_runs import mode_cell, prepare
+    by the one cell builder the jobs use (:func:`cosim.execution.mode_runs.mode_cell`)."""
+    from cosim.execution.mode_runs import mode_cell, prepare
     from cosim.scenario import RunContext, load_scenario
 
     scenario = load_scenario(scenario_path)

@@ -43,10 +43,10 @@ def test_imports_point_down(package):
 
 
 # Inside cosim/: the master, the results and the scenario layer know nothing of the jobs, the
-# robot cell, the laser tracker and tracking metrics, the execution modes (realtime, split, hil)
-# or the commands built on them.
+# robot cell, the laser tracker and tracking metrics, the execution of a cell (cosim/execution/:
+# simulated, paced, split, served) or the commands built on them.
 COSIM_LOWER = ("master", "results", "scenario")
-COSIM_UPPER = {"jobs", "cell", "tracking", "realtime", "split", "hil", "commands", "sweep", "api", "cli"}
+COSIM_UPPER = {"jobs", "cell", "tracking", "execution", "commands", "sweep", "api", "cli"}
 
 
 def _all_imports(path: Path) -> set[str]:
@@ -109,7 +109,7 @@ def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
     return found
 
 
-@pytest.mark.parametrize("pairs", [("cosim.scenario", "cosim.realtime"), ("planners.base", "planners.trajectory"),
+@pytest.mark.parametrize("pairs", [("cosim.scenario", "cosim.execution"), ("planners.base", "planners.trajectory"),
                                    ("fieldbus.config", "fieldbus.timing")])
 def test_former_import_cycles_stay_removed(pairs):
     graph = _module_graph(("cosim", "planners", "fieldbus"))
@@ -136,3 +136,45 @@ def test_fieldbus_config_imports_the_timing_model_at_module_level():
     function (which is how a cycle would come back unnoticed)."""
     assert "fieldbus.timing" in _module_level_imports(ROOT / "fieldbus" / "config.py")
     assert "fieldbus.config" not in _all_imports(ROOT / "fieldbus" / "timing.py")
+
+
+def test_the_cell_imports_nothing_of_its_execution():
+    """cosim/cell/ says what a cell IS (description, parts, wiring, checks, evaluation, the data
+    a run yields); how it runs is cosim/execution/, which imports the cell, never the reverse
+    (imports inside functions count)."""
+    offenders = {str(p.relative_to(ROOT)): sorted(m for m in _all_imports(p) if m.startswith("cosim.execution"))
+                 for p in (ROOT / "cosim" / "cell").rglob("*.py")}
+    offenders = {k: v for k, v in offenders.items() if v}
+    assert not offenders, f"cosim/cell imports cosim/execution: {offenders}"
+
+
+EXECUTION_MODES = ("cosim.execution.simulated", "cosim.execution.paced", "cosim.execution.split",
+                   "cosim.execution.served")
+EXECUTION_SHARED = ("cosim.execution.cell_master", "cosim.execution.cell_side", "cosim.execution.timing",
+                    "cosim.execution.config", "cosim.execution.serve_settings", "cosim.execution.cell_execution")
+
+
+def _within(module: str, packages) -> str | None:
+    return next((p for p in packages if module == p or module.startswith(p + ".")), None)
+
+
+def test_one_execution_modes_share_floors_and_never_import_each_other():
+    """cosim/execution/: the entry (cosim.execution.run_cell) picks one mode module; a mode imports
+    the shared floors (the cell on one master, the served cell side, timing, options) and the
+    cell's data, never another mode; the shared floors import neither a mode nor the entry; no
+    circle of imports goes through cosim/execution/ (imports inside functions count)."""
+    graph = _module_graph(("cosim",))
+    offenders = {}
+    for module, imported in graph.items():
+        own = _within(module, EXECUTION_MODES)
+        if own:
+            bad = [m for m in imported if _within(m, EXECUTION_MODES) not in (None, own)]
+        elif _within(module, EXECUTION_SHARED):
+            bad = [m for m in imported if m == "cosim.execution" or _within(m, EXECUTION_MODES)]
+        else:
+            continue
+        if bad:
+            offenders[module] = sorted(bad)
+    assert not offenders, f"execution floors calling up or sideways: {offenders}"
+    cycles = [c for c in _cycles(graph) if any(m.startswith("cosim.execution") for m in c)]
+    assert not cycles, f"import circles through cosim/execution: {cycles[:3]}"

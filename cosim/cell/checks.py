@@ -1,6 +1,6 @@
 """Checks of a robot-cell scenario document, shared by the jobs that run the cell.
 
-A job that runs the cell (:func:`cosim.cell.runner.run_cell`: ``iso9283``,
+A job that runs the cell (:func:`cosim.execution.run_cell`: ``iso9283``,
 ``fieldbus_fault``, ``identification``, ``planners``) calls :func:`check_cell` from its
 own ``check``: the cell's FMUs, their variables and parameters, its connections (the
 generated ones plus the scenario's own), the ``[fieldbus]`` table and the periods (s) of
@@ -24,7 +24,7 @@ PLANT_VARIABLES = frozenset({"tau[1]", "q[6]", "p[78]", "payload_mass"})
 
 DRIVE_VARIABLES = wiring.REQUIRED_DRIVE_VARIABLES
 """Variables the cell needs of every drive FMU: the required ones of the minimal drive
-interface (``fmus.servo_drive.interface``, docs/fmus.md)."""
+interface (``fmus.servo_drive.interface``, docs/explanation/fmus.md)."""
 
 
 def fill_defaults(doc: dict[str, Any], schema: Table, keys: Iterable[str]) -> None:

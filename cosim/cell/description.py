@@ -6,7 +6,7 @@ and fills in everything the builder needs: the FMU instances with their start va
 (the true robot at rest at the controller's start pose, the drives' axis parameters),
 the connections (generated plus the scenario's own, :func:`cosim.cell.wiring.merged_connections`),
 the fieldbus configuration, the laser tracker, what is recorded and how often.
-:func:`cosim.cell.runner.run_cell` runs a description in any execution mode.
+:func:`cosim.execution.run_cell` runs a description in any execution mode.
 """
 from __future__ import annotations
 

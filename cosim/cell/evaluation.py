@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 
 from controller import Controller, ControllerLog
-from cosim.cell.runner import CellRun
+from cosim.cell.run import CellRun
 from cosim.tracking.metrics import TrackingResult, desired_joints, evaluate
 from cosim.scenario.context import RunContext
 
@@ -444,7 +444,7 @@ SERVED_DROPPED = ("tcp_error_max_mm", "tcp_error_rms_mm", "path_accuracy_AT_mm",
 
 def served_entry(entry: dict[str, Any], external: dict[str, Any]) -> dict[str, Any]:
     """The summary entry of a served run (``cosim serve``): what the external controller did as
-    the drives saw it (:meth:`cosim.hil.cell_side.CellSideLink.controller_run`: when all drives
+    the drives saw it (:meth:`cosim.execution.cell_side.CellSideLink.controller_run`: when all drives
     were enabled, when the applied targets moved, whether they were enabled at the end) in place
     of the job controller's fields and the tracking of the job's reference, which the external
     controller is not known to follow (its TCP is in the tcp file all the same)."""

@@ -2,7 +2,7 @@
 
 :class:`FieldbusLink` runs once per bus cycle at priority 0 on the master (one-process
 and paced runs; the split run's controller side does the same steps in its own loop,
-:mod:`cosim.split.cell`). The controller is driven through the controller contract
+:mod:`cosim.execution.split.controller_side`). The controller is driven through the controller contract
 (:class:`controller.port.ControllerPort`), whatever it is.
 """
 from __future__ import annotations
@@ -122,7 +122,7 @@ class FieldbusLink:
         self.bus = CellBus(master)
         self.actuals = self.bus.actuals
         # a PowerlinkNetwork writes what the drives apply straight into the bus.* variables;
-        # other networks (e.g. cosim.realtime's PacedNetwork wrapper) get it copied each cycle
+        # other networks (e.g. cosim.execution.timing's PacedNetwork wrapper) get it copied each cycle
         bind = getattr(self.network, "bind_applied", None)
         self._copy_applied = bind is None
         if bind is not None:
@@ -135,7 +135,7 @@ class FieldbusLink:
         if self._copy_applied:
             bus.write(result.applied)
         try:
-            if self._paced:  # a wall-clock network (cosim.realtime.network.PacedNetwork) says whether it was late
+            if self._paced:  # a wall-clock network (cosim.execution.timing.network.PacedNetwork) says whether it was late
                 network = self.network
                 self.setpoints = self.port.step(self.cycle, t, result.observed, network.last_late, network.last_lost)
             else:

@@ -177,7 +177,7 @@ RESULTS_TABLE = Table({
     "can_log": Field(Boolean(), default=True, doc="write the CAN log can_<mode>.parquet (or .blf)"),
     "can_log_format": CAN_LOG_FORMAT_FIELD,
     "figures": Field(Boolean(), default=True, doc="write the PNG figures"),
-    "report": Field(Boolean(), default=True, doc="write report.html, the interactive view of the run (docs/viewing.md)"),
+    "report": Field(Boolean(), default=True, doc="write report.html, the interactive view of the run (docs/how-to/view_results.md)"),
 }, doc="the [results] table")
 
 

@@ -2,13 +2,13 @@
 and the check of the protection parameters a scenario sets.
 
 The servo drives enforce CiA 402 limits (max torque/current with I2t derating, max motor speed,
-software position limits, following error window and time; docs/fmus.md "Protection") and report
+software position limits, following error window and time; docs/explanation/fmus.md "Protection") and report
 them in their ``limit_status`` / ``limit_history`` outputs; the plant reports end-stop contacts
 (``end_stop_contacts``, ``end_stop_impact_speed``, ``end_stop_impact_time``,
 ``end_stop_max_penetration``). The cell records these with every run
 (:data:`PROTECTION_SIGNALS`); :func:`protection_events` turns the recording into one event per
 onset (the record of docs/ARCHITECTURE.md / the verdict contract), which
-:func:`cosim.cell.runner.run_cell` stores in ``CellRun.protection_events`` in every execution mode.
+:func:`cosim.execution.run_cell` stores in ``CellRun.protection_events`` in every execution mode.
 
 Resolution: the drives' bits hold what was active at any sample of the last co-simulation step, the
 recorder samples them every record period (1 ms by default): an event's ``time_s`` is the first

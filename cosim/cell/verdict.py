@@ -173,7 +173,7 @@ def _bus_faults(fieldbus: dict[str, Any] | None) -> list[dict[str, Any]]:
 
 
 def judge(run: Any) -> Verdict:
-    """The verdict of a :class:`cosim.cell.runner.CellRun` (see the module docstring): from
+    """The verdict of a :class:`cosim.cell.run.CellRun` (see the module docstring): from
     ``run.failure``, ``run.protection_events``, the fault reactions in ``run.fieldbus`` and
     whether the drives were ever enabled (``run.drives_enabled_at_s`` where the run knows)."""
     failure = getattr(run, "failure", None)

@@ -51,7 +51,7 @@ APPLIED_FIELD = {"target_position": "position"}
 
 REQUIRED_DRIVE_VARIABLES: frozenset[str] = DRIVE_REQUIRED
 """Variables every drive FMU of the cell has (the minimal drive interface,
-``fmus.servo_drive.interface``, docs/fmus.md); the cell connects, reads and records every
+``fmus.servo_drive.interface``, docs/explanation/fmus.md); the cell connects, reads and records every
 optional one a drive FMU has and leaves out the others."""
 
 

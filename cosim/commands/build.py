@@ -19,7 +19,7 @@ What it builds (:data:`PARTS`, then per scenario):
 * the PtP planner's node functions (CasADi-generated C);
 * for each SCENARIO (default: the main job, ``scenarios/iso9283.toml``, in the working
   directory or the installed copy of the scenarios) of a robot-cell job: the generated code its built-in controller modes load, made
-  exactly as a run makes it (:func:`cosim.cell.mode_runs.prepare` and ``mode_cell`` per mode:
+  exactly as a run makes it (:func:`cosim.execution.mode_runs.prepare` and ``mode_cell`` per mode:
   the compiled controller cycle, the elastic link-torque function), so the run finds them
   under the same cache keys;
 * the Python bytecode of the project's packages (``compileall``), which pip writes for a
@@ -51,7 +51,7 @@ EXIT_BUILD_FAILED = 3
 #: The main job: built for when no SCENARIO is named and this file exists (relative to the
 #: working directory, as ``python -m cosim run scenarios/iso9283.toml`` reads it).
 MAIN_SCENARIO = Path("scenarios") / "iso9283.toml"
-#: Jobs whose built-in controller modes are made by :mod:`cosim.cell.mode_runs`.
+#: Jobs whose built-in controller modes are made by :mod:`cosim.execution.mode_runs`.
 CELL_MODE_JOBS = ("iso9283", "fieldbus_fault", "compare")
 #: The project's packages whose bytecode is compiled.
 PACKAGES = ("native", "robot", "fieldbus", "fmus", "controller", "planners", "calibration", "identification",
@@ -182,7 +182,7 @@ def scenario_part(path: Path) -> tuple[str, Callable[[], Any], bool] | None:
         return None
 
     def build() -> Any:
-        from cosim.cell.mode_runs import mode_cell, prepare
+        from cosim.execution.mode_runs import mode_cell, prepare
 
         setup = prepare(copy.deepcopy(scenario.data), str(scenario.path))
         return [mode_cell(setup, mode)[1] for mode in setup.doc["controller"]["modes"]]

@@ -30,7 +30,7 @@ def _positive_float(option: str):
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """MEASUREMENTS, --out, --urdf, noise options."""
-    parser.add_argument("measurements", type=Path, help="measurement CSV file (see docs/calibration.md)")
+    parser.add_argument("measurements", type=Path, help="measurement CSV file (see docs/how-to/calibrate.md)")
     parser.add_argument("--out", type=Path, default=None,
                         help="output folder (default: results/calibrate-<csv name>/)")
     parser.add_argument("--urdf", type=Path, default=None,

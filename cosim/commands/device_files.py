@@ -1,5 +1,5 @@
 """``python -m cosim device-files OUT``: the drives' device descriptions and the bus's signal database,
-generated from the object dictionary (fieldbus/object_dictionary.toml; docs/object_dictionary.md)."""
+generated from the object dictionary (fieldbus/object_dictionary.toml; docs/reference/object_dictionary.md)."""
 from __future__ import annotations
 
 import argparse
@@ -18,8 +18,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="take the [fieldbus] settings and the drives' numeric [fmus.parameters] from this "
                              "scenario (default: fieldbus/powerlink_defaults.toml and the drive parameter files)")
     parser.add_argument("--reference", type=Path, default=None,
-                        help="also rewrite the generated table (axis 1) between the markers of this Markdown page "
-                             "(docs/object_dictionary.md)")
+                        help="also rewrite the generated table (axis 1) between the BEGIN/END generated markers "
+                             "of this Markdown page (the docs site generates its own: docs/reference/object_dictionary.md)")
 
 
 def _scenario_inputs(path: Path):
@@ -80,7 +80,7 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-BEGIN, END = "<!-- BEGIN generated: python -m cosim device-files OUT --reference docs/object_dictionary.md -->", \
+BEGIN, END = "<!-- BEGIN generated: python -m cosim device-files OUT --reference docs/reference/object_dictionary.md -->", \
     "<!-- END generated -->"
 
 

@@ -74,7 +74,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     """DATA, --validate, --out, --method, --cutoff-hz, --max-condition, --torque-sampling-bias."""
     from identification.defaults import DEFAULT_CUTOFF_HZ, MAX_CONDITION_NUMBER
 
-    parser.add_argument("data", type=Path, help="identification record CSV (see docs/identification.md)")
+    parser.add_argument("data", type=Path, help="identification record CSV (see docs/how-to/identify.md)")
     parser.add_argument("--validate", type=Path, default=None, metavar="VAL.csv",
                         help="a second record (same columns) on which the identified model predicts the torques")
     parser.add_argument("--out", type=Path, default=None,
@@ -96,7 +96,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "B = six comma-separated b_i in N m per rad/s^2 (e.g. from a test bench; negative values: "
                              "--torque-sampling-bias=-0.2,...), 'drives' "
                              "(measured on the built-in servo-drive FMU with its default parameters) or a scenario "
-                             "file SCENARIO.toml (its drives' parameters); see docs/identification.md")
+                             "file SCENARIO.toml (its drives' parameters); see docs/explanation/identification.md")
 
 
 def run(args: argparse.Namespace) -> int:

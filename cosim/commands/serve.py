@@ -13,13 +13,29 @@ HELP = ("Run the cell side of the scenario's robot-cell runs (plant, drives, con
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from cosim.hil.settings import DEFAULT_CHANNEL, DEFAULT_SPIN_S, DEFAULT_WINDOW_FRACTION
+    from cosim.execution.serve_settings import (DEFAULT_CHANNEL, DEFAULT_SPIN_S, DEFAULT_SYNC_TIMEOUT_S,
+                                                DEFAULT_WINDOW_FRACTION, UDPCYCLE)
 
     parser.add_argument("scenario", type=Path, help="scenario TOML file of a robot-cell job (e.g. scenarios/hil.toml)")
     parser.add_argument("--out", type=Path, default=None, help="results folder (default results/<scenario name>/)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
-    parser.add_argument("--channel", default=DEFAULT_CHANNEL,
-                        help=f"the cell's address host:port, unicast or a multicast group (default {DEFAULT_CHANNEL})")
+    parser.add_argument("--interface", default=UDPCYCLE,
+                        help=f"the bus: {UDPCYCLE} (default; one datagram per POWERLINK cycle for a controller of "
+                             "docs/hil.md) or any python-can interface (udp_multicast, virtual, socketcan, pcan, "
+                             "kvaser, ...): then the six drives are CANopen devices and a CANopen master's SYNC "
+                             "drives the cell (docs/how-to/can_master.md)")
+    parser.add_argument("--channel", default=None,
+                        help=f"udpcycle: the cell's address host:port, unicast or a multicast group (default "
+                             f"{DEFAULT_CHANNEL}); another interface: its channel (e.g. 239.74.163.2 for "
+                             "udp_multicast, can0 for socketcan, PCAN_USBBUS1 for pcan), required")
+    parser.add_argument("--bitrate", type=int, default=None,
+                        help="python-can interfaces: the bus bit rate, bit/s (e.g. 1000000); passed to can.Bus")
+    parser.add_argument("--bus-option", action="append", default=[], metavar="KEY=VALUE",
+                        help="python-can interfaces: one more keyword of can.Bus (repeatable), e.g. port=43113, "
+                             "fd=true, data_bitrate=5000000; numbers and true/false are converted")
+    parser.add_argument("--sync-timeout", type=float, default=DEFAULT_SYNC_TIMEOUT_S, metavar="S",
+                        help="python-can interfaces: end the run S seconds after the master's last SYNC (default "
+                             f"{DEFAULT_SYNC_TIMEOUT_S:g})")
     parser.add_argument("--peer", default=None,
                         help="the controller's host:port (default: learned from the first valid datagram; from then on "
                              "only that sender is accepted unless --accept-from lists more)")
@@ -42,10 +58,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from cosim.api import OutputFolderError, RunResult, ScenarioError, execute, load_scenario
     from cosim.commands.exits import InvalidInput, signal_name_of
-    from cosim.hil.settings import ServeSettings, ServeSettingsError
+    from cosim.execution.serve_settings import ServeSettings, ServeSettingsError
 
+    from cosim.execution.serve_settings import DEFAULT_CHANNEL, UDPCYCLE
+
+    interface = str(args.interface).strip()
+    if interface != UDPCYCLE and args.channel is None:
+        raise InvalidInput(f"--interface {interface!r}: expected --channel too (the interface's channel, e.g. "
+                           f"239.74.163.2 for udp_multicast, can0 for socketcan)")
     try:
-        settings = ServeSettings(channel=args.channel, peer=args.peer,
+        settings = ServeSettings(channel=args.channel if args.channel is not None else DEFAULT_CHANNEL,
+                                 interface=interface, bitrate=args.bitrate, bus_kwargs=_bus_options(args.bus_option),
+                                 sync_timeout_s=args.sync_timeout, peer=args.peer,
                                  accept_from=None if args.accept_from is None else
                                  tuple(x.strip() for x in args.accept_from.split(",") if x.strip()),
                                  window_fraction=args.window, spin_s=args.spin_us * 1e-6,
@@ -53,7 +77,10 @@ def run(args: argparse.Namespace) -> int:
                                  wait_for_controller_s=args.wait_for_controller)
     except ServeSettingsError as exc:
         raise InvalidInput(str(exc)) from None
-    _check_address_free(settings.channel)
+    if settings.canopen:
+        _check_can_bus(settings)
+    else:
+        _check_address_free(settings.channel)
     _check_cpu_and_hosts(args.cpu, settings.accept_from, settings.peer)
     try:
         scenario = load_scenario(args.scenario)
@@ -89,6 +116,42 @@ def run(args: argparse.Namespace) -> int:
         return exit_code(status)
     print(f"error: {scenario.name}: served run failed: {(result.summary.reason or '').strip()}", file=sys.stderr)
     return 3
+
+
+def _bus_options(items: list[str]) -> dict:
+    """``--bus-option KEY=VALUE`` items as can.Bus keywords (int, float, true/false converted)."""
+    from cosim.commands.exits import InvalidInput
+
+    options: dict = {}
+    for item in items:
+        key, sep, text = str(item).partition("=")
+        key = key.strip()
+        if not sep or not key.isidentifier():
+            raise InvalidInput(f"--bus-option {item!r}: expected KEY=VALUE, e.g. port=43113")
+        value: object = text.strip()
+        if value.lower() in ("true", "false"):
+            value = value.lower() == "true"
+        else:
+            for kind in (int, float):
+                try:
+                    value = kind(text.strip())
+                    break
+                except ValueError:
+                    pass
+        options[key] = value
+    return options
+
+
+def _check_can_bus(settings) -> None:
+    """--interface/--channel (and the bus options) must open now: python-can opens and closes the
+    bus once (exit 2 with python-can's reason otherwise, before anything runs)."""
+    from cosim.commands.exits import InvalidInput
+    from cosim.execution.can_side import BusOpenError, open_can_bus
+
+    try:
+        open_can_bus(settings).shutdown()
+    except BusOpenError as exc:
+        raise InvalidInput(str(exc)) from None
 
 
 def _check_address_free(channel: str) -> None:

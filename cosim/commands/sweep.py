@@ -27,7 +27,7 @@ def _positive_int(text: str) -> int:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """SWEEP, --scheduler, --workers, --out, --fresh, --quiet."""
-    parser.add_argument("sweep", type=Path, help="sweep TOML file (see docs/sweeps.md)")
+    parser.add_argument("sweep", type=Path, help="sweep TOML file (see docs/how-to/sweep_cluster.md)")
     parser.add_argument("--scheduler", default=None, metavar="ADDRESS",
                         help="address of an existing Dask scheduler (e.g. tcp://10.0.0.5:8786); "
                         "default: an embedded LocalCluster on the local machine")

@@ -8,7 +8,7 @@ from pathlib import Path
 NAME = "view"
 HELP = ("Write report.html, one self-contained HTML file (works offline, from the file system) of one or more "
         "results folders: summary, the arm in 3D replaying the run, TCP path coloured by the TCP error, linked "
-        "plots on one timeline, several folders overlaid (docs/viewing.md).")
+        "plots on one timeline, several folders overlaid (docs/how-to/view_results.md).")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

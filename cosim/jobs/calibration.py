@@ -2,7 +2,7 @@
 
 Runs :func:`calibration.campaign.run_calibration_campaign` with the
 scenario's tables (all optional; defaults and meaning in that module and in
-docs/calibration.md) and puts its summary into ``summary.json``: Table 2 figures
+docs/explanation/calibration.md) and puts its summary into ``summary.json``: Table 2 figures
 (``uncalibrated``/``calibrated``), identifiable parameters, observation-index ratios
 against a linear scan and random selections (per index: ``observation_index_ratios``),
 selection time. Files written next to

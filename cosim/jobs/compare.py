@@ -1,6 +1,6 @@
 """Job ``compare``: N controllers x M trajectories on the same seeded true robot, one ranked table.
 
-A scenario lists the controllers and the trajectories (``[compare]``, docs/bring_your_own.md):
+A scenario lists the controllers and the trajectories (``[compare]``, docs/how-to/own_controller.md):
 
 * controllers: the built-in modes of the main job (``standard``, ``standard_speed_ff``,
   ``model_based``, :data:`cosim.cell.parts.BUILTIN_MODES`) and users' controllers;
@@ -45,10 +45,12 @@ from cosim.cell import wiring
 from cosim.cell.description import describe_cell
 from cosim.cell.evaluation import (controller_log_columns, deadline_basis, evaluate_run, recording_chunks,
                                    timing_fields)
-from cosim.cell.mode_runs import CellSetup, mode_cell, prepare
+from cosim.execution.mode_runs import CellSetup, mode_cell, prepare
 from cosim.cell.parts import (BUILTIN_MODES, CELL_FIELDS, TORQUE_FEEDFORWARD_MODES, can_log_path, check_cell_scenario,
                               drive_speed_feedforward, fill_cell_defaults, mode_fmus)
-from cosim.cell.runner import CellRun, controller_info, run_cell
+from cosim.cell.run import CellRun
+from cosim.cell.info import controller_info
+from cosim.execution import run_cell
 from cosim.jobs import planners as planners_job
 from cosim.tracking.metrics import desired_joints, evaluate
 from cosim.scenario.context import RunContext
@@ -351,7 +353,7 @@ def _load_file(doc: dict[str, Any], entry: dict[str, Any], at: Where, check_only
                                     kinematic_model=kinematic_model,
                                     q_seed=entry.get("q_seed") or list(ISO_Q_HINT))
     except TrajectoryFileError as exc:
-        raise (at / "file").error("a trajectory file within the robot's limits (docs/bring_your_own.md)",
+        raise (at / "file").error("a trajectory file within the robot's limits (docs/how-to/own_controller.md)",
                                   str(entry["file"]), problem=str(exc)) from None
 
 

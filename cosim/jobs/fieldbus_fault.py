@@ -1,6 +1,6 @@
 """Job ``fieldbus_fault``: a fieldbus fault during the ISO 9283 motion, and the cell's reaction.
 
-The cell of the main job (:mod:`cosim.cell.mode_runs`: true robot, controller, POWERLINK
+The cell of the main job (:mod:`cosim.execution.mode_runs`: true robot, controller, POWERLINK
 fieldbus, six servo-drive FMUs, plant FMU, tracker) runs ONE mode of ``[controller] modes``
 on the ISO 9283 path while ``[fieldbus.faults]`` injects faults (e.g. a burst of lost
 PReq frames to one node). What must happen, and what the job checks and reports:
@@ -11,7 +11,7 @@ PReq frames to one node). What must happen, and what the job checks and reports:
 2. the controlled node presents fault code 0x8100 to its drive (abort option
    ``fault``), which runs its CiA 402 fault reaction (ramp at
    ``fault_reaction_deceleration``) and ends in Fault, power stage off, holding brake
-   closed (docs/fmus.md); the managing node reports ``node_fault``, the controller stops
+   closed (docs/explanation/fmus.md); the managing node reports ``node_fault``, the controller stops
    commanding motion (quick stop to every drive: ramp, then Quick stop active holding
    position, option code 6);
 3. the robot comes to rest: every joint speed below ``[rest] speed_tolerance`` over the
@@ -24,7 +24,7 @@ PReq frames to one node). What must happen, and what the job checks and reports:
    with node, cycle and counter values; counters; node/comm faults).
 
 ``status`` is ``ok`` when 1-3 hold (the fault was handled), else ``failed`` with the
-reason. See docs/fieldbus_fault.md.
+reason. See docs/explanation/fieldbus_fault.md.
 """
 from __future__ import annotations
 
@@ -34,9 +34,9 @@ from typing import Any
 import numpy as np
 
 from cosim.cell import wiring
-from cosim.cell.mode_runs import prepare, run_mode
+from cosim.execution.mode_runs import prepare, run_mode
 from cosim.cell.parts import CELL_FIELDS, check_cell_scenario
-from cosim.cell.runner import CellRun
+from cosim.cell.run import CellRun
 from cosim.scenario.cosim_tables import COSIM_FIELDS
 from cosim.scenario.loader import SCENARIO_FIELD
 from cosim.master import SimulationError

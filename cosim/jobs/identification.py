@@ -46,7 +46,8 @@ from cosim.cell.description import describe_cell
 from cosim.cell.evaluation import evaluate_run
 from cosim.cell.parts import (CAN_LOG_FORMAT_FIELD, CONTROLLER_CONFIG_FIELDS, TRACKER_TABLE, TRUE_ROBOT_TABLE,
                               can_log_path, make_true_robot, tracker_config)
-from cosim.cell.runner import controller_info, run_cell
+from cosim.cell.info import controller_info
+from cosim.execution import run_cell
 from cosim.scenario.context import RunContext
 from cosim.scenario.cosim_tables import COSIM_FIELDS
 from cosim.scenario.loader import SCENARIO_FIELD, Scenario
@@ -139,7 +140,7 @@ RESULTS_TABLE = Table({
     "can_log_format": CAN_LOG_FORMAT_FIELD,
     "figures": Field(Boolean(), default=True, doc="draw the figures (PNG) of the campaign"),
     "records": Field(Boolean(), default=True, doc="write the measured records as CSV"),
-    "report": Field(Boolean(), default=True, doc="write report.html, the interactive view of the run (docs/viewing.md)"),
+    "report": Field(Boolean(), default=True, doc="write report.html, the interactive view of the run (docs/how-to/view_results.md)"),
 }, doc="the [results] table")
 
 SCHEMA = Table({
@@ -441,7 +442,7 @@ def run(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
             ctx.summary.update(phase="identifying", excitation_run=fields["data"].info)
 
     # the plant's own model: the true parameters on the true geometry, the payload folded into link 6
-    # through the true flange (docs/fmus.md); compared in the regressor's base parameters
+    # through the true flange (docs/explanation/fmus.md); compared in the regressor's base parameters
     truth_p = RobotDynamics(true_robot.dynamic_parameters, true_robot.payload,
                             model=true_robot.kinematic_model()).parameter_vector(include_payload=True)
     truth_k, truth_b = _true_gears(doc, true_robot, params) if elastic else (None, None)
@@ -528,7 +529,7 @@ STIFFNESS_ASSUMPTIONS = (
 def _gear_models(campaign, true_k, true_b) -> dict[str, Any]:
     """The elastic feed-forward's gear model per compared model: the catalogue's (nominal), the
     campaign's identified stiffness (catalogue value where an axis was not identifiable; catalogue
-    damping: the identified damping is not reliable, docs/identification.md) and the plant's (true)."""
+    damping: the identified damping is not reliable, docs/explanation/identification.md) and the plant's (true)."""
     from controller.feedforward import GearModel
 
     nominal = GearModel.from_parameters()

@@ -40,8 +40,8 @@ import math
 import os
 from typing import Any
 
-from cosim.cell.mode_pool import run_modes
-from cosim.cell.mode_runs import prepare, run_user
+from cosim.execution.mode_pool import run_modes
+from cosim.execution.mode_runs import prepare, run_user
 from cosim.cell.parts import CELL_FIELDS, check_cell_scenario
 from cosim.cell.user_controller import make_user_controller, user_controller_label
 from cosim.results import figure_process
@@ -70,7 +70,7 @@ def run(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
         figure_process.stop()
     elif figure_process.current() is None:  # no figure process warming up matplotlib already:
         from cosim.jobs.iso9283_figures import warm_up  # import it here while the workers run
-    for outcome in run_modes(ctx, setup, setup.doc["controller"]["modes"],  # side by side: cosim.cell.mode_pool
+    for outcome in run_modes(ctx, setup, setup.doc["controller"]["modes"],  # side by side: cosim.execution.mode_pool
                              while_waiting=warm_up, niceness=_niceness(setup.doc["controller"]["modes"])):
         if outcome.entry is not None:
             modes[outcome.mode] = outcome.entry

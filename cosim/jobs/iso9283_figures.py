@@ -61,7 +61,7 @@ def warm_up(prepare: bool = True) -> None:
     :func:`write_figures` (about a third of its drawing time). Run by the figure process forked
     at the start of ``cosim run`` (:mod:`cosim.results.figure_process`) while the command imports
     the cell, else by the job while the modes' worker processes run and its process only waits
-    for them (:func:`cosim.cell.mode_pool.run_modes` ``while_waiting``). Nothing is written."""
+    for them (:func:`cosim.execution.mode_pool.run_modes` ``while_waiting``). Nothing is written."""
     import io
 
     os.environ.setdefault("MPLBACKEND", "Agg")

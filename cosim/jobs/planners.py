@@ -21,7 +21,7 @@ current set-point ``current_demand`` reached its clamp min(current_limit, torque
 Results: ``summary.json`` (updated after every planner), ``trajectory_<name>.csv``,
 ``timeseries_<name>.parquet`` (or .csv on request) when executed, figures ``figure7_velocity_profile.png`` (CP
 planners), ``figure8_active_constraints.png`` (own_cp), ``figure9_ptp.png`` (own_ptp).
-See docs/planners.md.
+See docs/explanation/planners.md.
 """
 from __future__ import annotations
 
@@ -35,7 +35,8 @@ from cosim.cell.parts import (BUILTIN_MODES, CELL_FIELDS, can_log_path, check_ce
                               drive_speed_feedforward, fill_cell_defaults, make_true_robot, mode_fmus,
                               tracker_config)
 from cosim.cell.evaluation import controller_log_columns
-from cosim.cell.runner import controller_info, run_cell
+from cosim.cell.info import controller_info
+from cosim.execution import run_cell
 from cosim.scenario.cosim_tables import COSIM_FIELDS
 from cosim.scenario.loader import SCENARIO_FIELD
 from cosim.tracking.metrics import desired_joints, residual_vibration

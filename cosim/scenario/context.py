@@ -18,11 +18,9 @@ from cosim.master import Master
 from cosim.results.progress import ProgressBar
 from cosim.results.summary import SummaryWriter
 from cosim.results.timeseries import SUFFIXES, default_format, sink_for, write_columns
+from cosim.scenario.heartbeat import PROGRESS_INTERVAL_S, SUMMARY_INTERVAL_S, Heartbeat  # noqa: F401
 from cosim.scenario.loader import Scenario
 
-#: Wall-time intervals between progress-bar and summary.json updates, s.
-PROGRESS_INTERVAL_S = 0.2
-SUMMARY_INTERVAL_S = 2.0
 #: The heartbeat task runs about this many times per attached run.
 HEARTBEATS_PER_RUN = 1000
 
@@ -53,7 +51,7 @@ class RunContext:
         summary: the SummaryWriter of ``out_dir/summary.json``.
         sim_time_s: simulated seconds completed so far over all executed masters.
         label: label of the master being executed (shown in the bar, reported on failure).
-        execution: how robot cells run (:class:`cosim.realtime.execution.CellExecution`:
+        execution: how robot cells run (:class:`cosim.execution.cell_execution.CellExecution`:
             split, paced) or None (one process, unpaced).
         timeseries_format: ``"parquet"`` (default, ``$COSIM_TIMESERIES``) or ``"csv"``: the
             format of every time series the run writes (:meth:`series_name`).
@@ -73,7 +71,7 @@ class RunContext:
         self.timeseries_format = timeseries_format or default_format()
         if self.timeseries_format not in SUFFIXES:
             raise ValueError(f"timeseries format: expected one of {', '.join(SUFFIXES)}, got {self.timeseries_format!r}")
-        self.execution = execution  # cosim.realtime.CellExecution (--realtime/--split) or None
+        self.execution = execution  # cosim.execution.timing.CellExecution (--realtime/--split) or None
         self.out_dir = Path(out_dir)
         self.out_dir.mkdir(parents=True, exist_ok=True)
         self.quiet = quiet
@@ -145,28 +143,9 @@ class RunContext:
     def attach(self, master: Master, total_s: float, label: str = "") -> None:
         """Add the heartbeat task (progress bar, summary.json sim_time_s) to ``master`` (before initialize)."""
         period = master.base_step * max(1, math.floor(total_s / HEARTBEATS_PER_RUN / master.base_step))
-        state = {"bar": 0.0, "summary": time.perf_counter(), "guard": 0.0}
         self.label = label
         self.summary.note_where(mode=label, at_s=master.start_time)
-
-        write_through = self.write_through
-
-        def heartbeat(t: float) -> None:
-            now = time.perf_counter()
-            if write_through:  # an FMU of the user's in this process: a crash keeps the rows up to here
-                master.flush_recorders()
-            self.summary.note_time(self._base + t - master.start_time, t)  # for the supervisor: two numbers
-            if self._bar is not None and now - state["bar"] > PROGRESS_INTERVAL_S:
-                self._bar.update(t - master.start_time)
-                state["bar"] = now
-            if now - state["summary"] > SUMMARY_INTERVAL_S:
-                self.summary.progress(self._base + t - master.start_time, at_s=t)
-                state["summary"] = now
-            elif now - state["guard"] > PROGRESS_INTERVAL_S:  # what a crash would leave (crashguard)
-                self.summary.note_progress(self._base + t - master.start_time, at_s=t)
-                state["guard"] = now
-
-        master.add_task(heartbeat, period, priority=1_000_000, name="cosim.heartbeat")
+        master.add_task(Heartbeat(self, master), period, priority=1_000_000, name="cosim.heartbeat")
         self._totals[id(master)] = total_s
 
     def execute(self, master: Master, until: float | None = None) -> float:

@@ -1,8 +1,8 @@
 """The schema of the ``[execution]`` and ``[realtime]`` tables of a scenario (the tables
-themselves are documented, and turned into run options, in :mod:`cosim.realtime.config`).
+themselves are documented, and turned into run options, in :mod:`cosim.execution.config`).
 
 It lives with the other table schemas so that ``cosim.scenario`` needs nothing from
-``cosim.realtime`` (imports inside ``cosim/`` point from the jobs and execution modes to
+``cosim.execution.timing`` (imports inside ``cosim/`` point from the jobs and execution modes to
 the scenario layer, not back).
 """
 from __future__ import annotations

@@ -4,7 +4,7 @@
 anything runs; ``run_sweep(sweep, out_dir, workers=..., scheduler=...)`` runs the
 variants as independent tasks (``run_variant``: the ordinary scenario runner in a
 worker process) and writes the table, the figure and each variant's folder.
-See docs/sweeps.md.
+See docs/how-to/sweep_cluster.md.
 """
 from cosim.sweep.axes import Axis
 from cosim.sweep.execute import SweepResult, dask_client, run_sweep, variant_tasks

@@ -1,6 +1,6 @@
 """Sweep files: read, validate, and expand into validated variant scenario documents.
 
-A sweep file names a base scenario and the axes to vary (docs/sweeps.md)::
+A sweep file names a base scenario and the axes to vary (docs/how-to/sweep_cluster.md)::
 
     [sweep]
     name = "calibration_noise_mc"

@@ -1,5 +1,5 @@
 /*
- * A minimal FMI 2.0 co-simulation implementation for small example FMUs (docs/bring_your_own.md,
+ * A minimal FMI 2.0 co-simulation implementation for small example FMUs (docs/how-to/controller_fmu.md,
  * "Your own FMU"). A model file defines, before including this header:
  *
  *   MODEL_IDENTIFIER   the modelIdentifier of modelDescription.xml (also the .so name)

@@ -1,6 +1,6 @@
 """Single-axis test bench: the servo-drive FMU driving a rigid inertia.
 
-Used by the drive's step/ramp tests and the figures of docs/fmus.md. The load is
+Used by the drive's step/ramp tests and the figures of docs/explanation/fmus.md. The load is
 ``J qdd = tau_out - load_torque(t)``, integrated exactly over each communication step
 (torque constant over the step). The drive is enabled with the CiA 402 sequence
 shutdown (0x06) then enable operation (0x0F) during the first two position samples;

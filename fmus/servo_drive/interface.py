@@ -10,7 +10,7 @@ connects every optional variable the FMU has and leaves out the others.
     report = check_drive_fmu("my_drive.fmu", modes=(8, 10))   # DriveInterfaceError if unusable
     report.present                                            # the optional variables it has
 
-:data:`DRIVE_INTERFACE` is the machine-readable list (documented in docs/fmus.md,
+:data:`DRIVE_INTERFACE` is the machine-readable list (documented in docs/explanation/fmus.md,
 "Your own drive FMU"); :func:`check_drive_fmu` checks a ``modelDescription.xml`` (in an
 ``.fmu``, a folder or the XML file itself) against it and raises
 :class:`DriveInterfaceError` naming the file, the variable and what was expected.
@@ -91,7 +91,7 @@ DRIVE_INTERFACE: tuple[DriveVariable, ...] = (
     DriveVariable("following_error", REAL, OUTPUT, "rad", False, "the drive's own following error",
                   (), "not recorded"),
 )
-"""The drive interface, in the order of docs/fmus.md."""
+"""The drive interface, in the order of docs/explanation/fmus.md."""
 
 BY_NAME: dict[str, DriveVariable] = {v.name: v for v in DRIVE_INTERFACE}
 REQUIRED: frozenset[str] = frozenset(v.name for v in DRIVE_INTERFACE if v.required)

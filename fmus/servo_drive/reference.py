@@ -1,6 +1,6 @@
 """Test oracle: the servo drive's discrete controllers re-implemented in Python.
 
-Written from the drive's specification (docs/fmus.md), not from the C code, for two
+Written from the drive's specification (docs/explanation/fmus.md), not from the C code, for two
 uses: the monolithic reference of the coupling study (the winding current is then a
 continuous state integrated together with the arm; the oracle only turns sampled
 measurements into the voltage of the next current period) and direct comparison with

@@ -116,7 +116,7 @@ def elastic_axis_speed_kp(drive: DriveParameters | None = None, robot: RobotPara
     sees only the rotor: with the rigid gain its crossover moves ~14x higher (axis 2), past
     the loop's delays, and the current saturates in a limit cycle; with the rotor-only gain
     the loop is too soft to hold the link (TCP vibration of ~20 mm on the ISO path). The
-    geometric mean keeps both in check (docs/fmus.md, elastic plant)."""
+    geometric mean keeps both in check (docs/explanation/fmus.md, elastic plant)."""
     drive = drive or load_drive_parameters()
     robot = robot or load_parameters()
     rigid = cascade_gains(drive, robot)

@@ -39,7 +39,7 @@ def test_campaign_summary_and_accuracy(campaign):
     # the paper's index (lambda_min of Lambda, whitened units) on this 434-candidate set:
     # measured 2.19x the linear scan, 2.70x the median random selection, 0.93 of the
     # certified upper bound with 2 restarts (the 18.5 of the paper is out of reach here:
-    # the bound allows at most 2.35x; docs/calibration.md)
+    # the bound allows at most 2.35x; docs/explanation/calibration.md)
     assert summary["observation_index"] == "min_eigenvalue"
     assert summary["observation_index_scaling"] == "whitened"
     assert summary["observation_index_ratio_vs_linear_scan"] > 2.0

@@ -21,7 +21,7 @@ ROOT = Path(__file__).resolve().parents[2]
 @pytest.fixture(scope="module")
 def main_job_setup():
     from cosim.api import load_scenario
-    from cosim.cell.mode_runs import prepare
+    from cosim.execution.mode_runs import prepare
 
     scenario = load_scenario(ROOT / "scenarios" / "iso9283.toml")
     return prepare(copy.deepcopy(scenario.data), str(scenario.path))

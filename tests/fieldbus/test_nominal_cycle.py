@@ -122,7 +122,7 @@ def test_inline_nominal_cycle_only_where_it_applies():
 
 @needs_codec
 def test_a_fault_plan_installed_later_is_asked_every_cycle(tmp_path):
-    """A plan wrapper given to both endpoints after construction (as cosim.realtime's overrun
+    """A plan wrapper given to both endpoints after construction (as cosim.execution.timing's overrun
     policy does) takes its cycles away from the inline path: the PReqs it drops are lost."""
     from fieldbus.faults import CycleFaults
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 
-from cosim.hil.split import controller_faults
+from cosim.execution.split.paced import controller_faults
 from fieldbus import DriveActuals, DriveEndpoint, FieldbusConfig, JointScaling, ManagingNodeEndpoint, Setpoints
 from fieldbus.simbus import unique_channel
 

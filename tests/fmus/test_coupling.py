@@ -1,6 +1,6 @@
 """Coupling study on a short horizon: plant + six drive FMUs co-simulated at macro steps
 of 400/200/100/50 us against the monolithic reference (oracle drives, continuous winding
-currents and arm in solve_ivp). See docs/fmus.md for the full 0.6 s table."""
+currents and arm in solve_ivp). See docs/explanation/fmus.md for the full 0.6 s table."""
 import numpy as np
 import pytest
 

@@ -1,5 +1,5 @@
 """Servo-drive FMU on a rigid inertia: step and ramp responses against the values
-documented in docs/fmus.md, feed-forward channels, limits, quantisation, internal
+documented in docs/explanation/fmus.md, feed-forward channels, limits, quantisation, internal
 sub-stepping, and bit-identity with the Python oracle of the discrete controllers."""
 import math
 
@@ -18,7 +18,7 @@ J_DESIGN = np.sqrt(J_MIN * J_MAX)
 STEP = 1e-4  # rad, small enough to stay linear (no current limit)
 T0 = 2e-3  # s, motion start of the bench
 
-# docs/fmus.md, "Step response": rise time 10-90 % (ms), overshoot (%), 2 % settling time (ms)
+# docs/explanation/fmus.md, "Step response": rise time 10-90 % (ms), overshoot (%), 2 % settling time (ms)
 DOCUMENTED_STEP = {
     1: (36.55, 0.48, 70.45),
     2: (8.75, 0.69, 23.9),
@@ -27,7 +27,7 @@ DOCUMENTED_STEP = {
     5: (3.05, 4.93, 13.85),
     6: (3.05, 5.43, 14.0),
 }
-# docs/fmus.md, "Ramp response": peak following error while accelerating at 5 rad/s^2 to
+# docs/explanation/fmus.md, "Ramp response": peak following error while accelerating at 5 rad/s^2 to
 # 1 rad/s with speed feed-forward, no torque feed-forward (rad)
 DOCUMENTED_RAMP_PEAK = {1: 8.31e-5, 2: 2.27e-5, 3: 1.42e-5, 4: 1.43e-5, 5: 1.43e-5, 6: 1.41e-5}
 

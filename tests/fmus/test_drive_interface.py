@@ -107,8 +107,8 @@ def test_the_documented_table_is_the_machine_readable_list():
     import re
     from pathlib import Path
 
-    text = (Path(__file__).resolve().parents[2] / "docs" / "fmus.md").read_text()
-    section = text.split("## Your own drive FMU: the minimal interface", 1)[1].split("\n## ", 1)[0]
+    text = (Path(__file__).resolve().parents[2] / "docs" / "how-to" / "own_drive.md").read_text()
+    section = text.split("## The minimal interface", 1)[1].split("\n## ", 1)[0]
     rows = re.findall(r"^\| `(\w+)` \| (\w+) (\w+) \| ([^|]*) \| ([^|]*) \|", section, flags=re.M)
     assert [(name, type_, causality, unit.strip() or None, "required" in need) for name, type_, causality, unit, need
             in rows] == [(v.name, v.type, v.causality, v.unit, v.required) for v in DRIVE_INTERFACE]

@@ -353,7 +353,7 @@ def test_quick_stop_from_cst_and_csv_is_the_same_ramp_as_from_csp():
 def test_modes_and_switches_are_bit_identical_to_the_python_oracle(axis_number):
     """CSP with a velocity offset, then CSV, CST and back to CSP, with changing set-points:
     the FMU's torque equals the oracle's (fmus/servo_drive/reference.py, written from
-    docs/fmus.md) to the last bits."""
+    docs/explanation/fmus.md) to the last bits."""
     from fmus.servo_drive.reference import DriveReference
 
     values = drive_start_values(axis_number)

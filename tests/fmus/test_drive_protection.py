@@ -1,4 +1,4 @@
-"""The servo drive's protection (docs/fmus.md "Protection"), one axis on a simple load, stepped by
+"""The servo drive's protection (docs/explanation/fmus.md "Protection"), one axis on a simple load, stepped by
 the project's FMU wrapper: I2t derating to the rated current and back (0x2310), max motor speed
 (fault 0x8400), software position limits (fault 0x8612), each with its fault reaction and its
 bits in limit_status / limit_history."""

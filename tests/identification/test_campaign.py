@@ -2,7 +2,7 @@
 the 'identification' scenario's validation and the fieldbus recorder.
 
 The full campaign (about 10 min) is run by ``python -m cosim run scenarios/identification.toml``;
-its figures are in docs/identification.md.
+its figures are in docs/explanation/identification.md.
 """
 from __future__ import annotations
 

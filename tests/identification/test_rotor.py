@@ -1,6 +1,6 @@
 """Rotor inertias in the dynamic identification: the drives' torque-actual sampling
 term b_i qdd_i, measured on the drive FMU, removed before identifying; the per-parameter error
-table against the true robot. Figures of the full campaign: docs/identification.md."""
+table against the true robot. Figures of the full campaign: docs/explanation/identification.md."""
 from __future__ import annotations
 
 import json
@@ -122,5 +122,5 @@ def test_short_campaign_reports_every_parameter_and_the_rotor_inertias(tmp_path)
     print({k: round(r["error_percent"], 2) for k, r in rotors.items()})
     assert ident["rotor_inertias_within_10_percent"]
     assert all(abs(r["error_percent"]) < 10.0 for r in rotors.values()), rotors
-    assert rotors["Ia3"]["uncorrected_error_percent"] < -40.0  # Ia3 came out 61 % low before the correction (docs/identification.md)
+    assert rotors["Ia3"]["uncorrected_error_percent"] < -40.0  # Ia3 came out 61 % low before the correction (docs/explanation/identification.md)
     assert rotors["Ia1"]["base_parameter"] == "Izz1R" and rotors["Ia3"]["base_parameter"] == "Ia3"

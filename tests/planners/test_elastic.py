@@ -21,5 +21,5 @@ def test_jerk_limited_cp_leaves_less_residual_vibration_than_toppra(tmp_path):
           f"{own['residual_vibration']['settling_time_s']}), toppra {toppra_peak:.4f} mm; "
           f"durations {summary['planners']['own_cp']['duration_s']:.4f} / "
           f"{summary['planners']['toppra']['duration_s']:.4f} s")
-    # measured 2.216 / 0.279 mm = 7.95x (true gears +-10 % off nominal, true geometry in the plant; docs/planners.md)
+    # measured 2.216 / 0.279 mm = 7.95x (true gears +-10 % off nominal, true geometry in the plant; docs/explanation/planners.md)
     assert toppra_peak > 5 * own_peak

@@ -562,7 +562,7 @@ def test_options_and_environment_named_in_errors(tmp_path, capsys, monkeypatch):
 @pytest.mark.parametrize("option, value, fragment", [("--cpu", "999", "--cpu"), ("--cpu", "abc", "--cpu"),
                                                      ("--accept-from", "no.such.host.invalid", "--accept-from")])
 def test_serve_options_refused_before_serving(tmp_path, capsys, option, value, fragment):
-    from cosim.split.protocol import free_udp_port
+    from cosim.execution.split.protocol import free_udp_port
 
     code, err = cli(capsys, "serve", ROOT / "scenarios" / "hil.toml", option, value, "--out", tmp_path / "o",
                     "--quiet", "--channel", f"127.0.0.1:{free_udp_port()}")

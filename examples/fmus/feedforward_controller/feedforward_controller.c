@@ -1,6 +1,6 @@
 /*
  * feedforward_controller: a controller FMU in C (FMI 2.0 co-simulation), stepped by the cell
- * once per bus cycle (docs/bring_your_own.md, "A controller FMU").
+ * once per bus cycle (docs/how-to/controller_fmu.md).
  *
  * Cyclic synchronous position (CiA 402 mode 8) with a decoupled feed-forward torque, the
  * classic industrial step between the bare drive cascade and a full model-based controller:

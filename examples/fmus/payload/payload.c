@@ -1,6 +1,6 @@
 /*
  * payload: the weight of a part gripped by the robot, as joint torques for the plant's
- * external-torque input (docs/bring_your_own.md, "Your own FMU in the cell").
+ * external-torque input (docs/how-to/fmu_in_cell.md).
  *
  * A point mass `mass` (kg) at `com` (m, in the flange frame tool0) hangs on the flange
  * from `pick_time` to `release_time` (s). Its weight F = (0, 0, -mass * gravity) in
@@ -12,7 +12,7 @@
  * Quasi-static: the part's inertia and the Coriolis terms are neglected.
  *
  * Connections: plant.q[i] -> payload.q[i], payload.tau[i] -> plant.tau_ext[i].
- * Build: python examples/fmus/build_fmus.py (or the gcc line in docs/bring_your_own.md).
+ * Build: a scenario's [[fmus]] source = "fmus/payload", or fmus.source_fmu.build_source_fmu (docs/how-to/fmu_in_cell.md).
  */
 #define MODEL_IDENTIFIER payload
 #define MODEL_GUID "{5b1f0a52-9a1e-4c0d-9d1e-13001a000001}"

@@ -1,6 +1,6 @@
 """--realtime and --split apply to every job that runs the robot cell: each such job runs its
-cells through cosim.cell.run_cell (which hands them to the execution) - directly, through
-cosim.cell.mode_runs.run_mode, or through cosim.cell.mode_pool.run_modes (which runs run_mode
+cells through cosim.execution.run_cell (which hands them to the execution) - directly, through
+cosim.execution.mode_runs.run_mode, or through cosim.execution.mode_pool.run_modes (which runs run_mode
 in its workers, or in this process under --realtime/--split) - and a job other than
 the main one - the fieldbus fault job - runs split over two processes with the same reaction."""
 from __future__ import annotations
@@ -10,7 +10,7 @@ import json
 from pathlib import Path
 
 from cosim.cli import main
-from cosim.realtime.execution import CELL_JOBS
+from cosim.execution.cell_execution import CELL_JOBS
 from scenario_files import write_variant
 
 ROOT = Path(__file__).resolve().parents[3]

@@ -1,4 +1,4 @@
-"""The main job's modes side by side in worker processes (cosim/cell/mode_pool.py): the same
+"""The main job's modes side by side in worker processes (cosim/execution/mode_pool.py): the same
 results bit for bit as one after another in one process, and #17's guarantees kept - Ctrl-C or
 SIGTERM to the process group stops every worker in order with summary.json ``interrupted``
 (mode, stopped_at_s, every unfinished mode's time) and their files readable; a worker that dies

@@ -7,7 +7,7 @@ from __future__ import annotations
 import multiprocessing
 from types import SimpleNamespace
 
-from cosim.cell import mode_pool
+from cosim.execution import mode_pool
 
 
 class _Summary:
@@ -65,7 +65,7 @@ def test_not_called_when_the_modes_run_in_this_process(monkeypatch):
     def run_mode(ctx, setup, mode, extra_signals):
         return {"mode": mode}, None, SimpleNamespace(failure=None), None
 
-    import cosim.cell.mode_runs as mode_runs
+    import cosim.execution.mode_runs as mode_runs
 
     monkeypatch.setattr(mode_runs, "run_mode", run_mode)
     outcomes = list(mode_pool.run_modes(_context(), SimpleNamespace(doc={}), ["a", "b"], processes=0,

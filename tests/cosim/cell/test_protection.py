@@ -1,4 +1,4 @@
-"""The machine's protection in whole cell runs (docs/fmus.md "Protection"): a user's controller
+"""The machine's protection in whole cell runs (docs/explanation/fmus.md "Protection"): a user's controller
 commanding 1e6 N·m in torque mode is clamped at the drive's max torque, faulted at the software
 position limit (0x8612, EMCY on the bus) and stopped by the end stop within its contact
 deflection; a following error beyond its window for its time faults with 0x8611 and an EMCY;

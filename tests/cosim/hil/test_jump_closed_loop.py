@@ -107,7 +107,7 @@ def buffered_scenario(tmp_path: Path, name: str, stalls: dict[int, int]) -> Path
 
 def run_stalled(tmp_path: Path, name: str, stalls: dict[int, int], monkeypatch) -> dict:
     """The closed loop with the controller stalled in ``stalls`` (first cycle: cycles): it computes
-    and sends nothing there, then, as the split controller does (cosim.hil.split), computes the
+    and sends nothing there, then, as the split controller does (cosim.execution.split.paced), computes the
     outputs of the cycles it skipped into the managing node's plan
     (``ManagingNodeEndpoint.plan_ahead``) before its step for the current cycle."""
     skipped = {start + i for start, n in stalls.items() for i in range(n)}

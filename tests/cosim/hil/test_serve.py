@@ -108,7 +108,7 @@ def test_external_controller_enables_and_moves_the_arm(served_then_killed):
 
 def test_the_served_runs_report_shows_where_it_stopped(served_then_killed, browser):
     """report.html of the served run (verdict fault) in headless Chromium: the timing report, the
-    fault and where the run stopped (docs/viewing.md)."""
+    fault and where the run stopped (docs/how-to/view_results.md)."""
     from browser_support import console_errors, open_report, report_state
 
     out, _, _, _, _ = served_then_killed

@@ -216,8 +216,8 @@ def test_the_overrun_report_tells_a_stall_of_the_process_from_its_own_work():
     (the cell's own work); cycle 4: late with neither (other)."""
     from types import SimpleNamespace
 
-    from cosim.hil.cell_side import overrun_causes
-    from cosim.realtime.pacer import LatenessLog
+    from cosim.execution.cell_side import overrun_causes
+    from cosim.execution.timing.pacer import LatenessLog
 
     log = LatenessLog(16)
     us = 1000

@@ -1,4 +1,4 @@
-"""The split controller side's bookkeeping (cosim/hil/split.py): preallocated per-cycle
+"""The split controller side's bookkeeping (cosim/execution/split/paced.py): preallocated per-cycle
 timing, its report, and the attribution of every cycle the cell lost to the cell, the
 controller (not running / its own work) or the transport."""
 from __future__ import annotations
@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from cosim.hil.split import CONTROLLER_SPIN_S, LOST_CAUSES, ControllerTimes, controller_spin_s, lost_cycle_causes
+from cosim.execution.split.paced import CONTROLLER_SPIN_S, LOST_CAUSES, ControllerTimes, controller_spin_s, lost_cycle_causes
 
 PERIOD = 400e-6
 US = 1000  # ns

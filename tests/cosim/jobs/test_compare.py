@@ -85,7 +85,7 @@ def test_model_based_entry_equals_the_main_job(runs):
 
 
 def test_compare_report_overlays_the_entries_with_the_ranking(runs, browser):
-    """report.html of the compare run in headless Chromium: every entry, the ranking table (docs/viewing.md)."""
+    """report.html of the compare run in headless Chromium: every entry, the ranking table (docs/how-to/view_results.md)."""
     from browser_support import console_errors, open_report, report_state
 
     summary, out, _ = runs

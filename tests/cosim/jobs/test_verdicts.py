@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cosim.cell.runner import CellRun
+from cosim.cell.run import CellRun
 from cosim.cell.verdict import MAX_VIOLATIONS, judge, most_severe
 from cosim.master import SimulationError
 from scenario_files import run_scenario, write_variant

@@ -7,7 +7,7 @@ import sys
 
 import pytest
 
-from cosim.realtime.config import execution_options
+from cosim.execution.config import execution_options
 from cosim.results import read_series
 from cosim.scenario import ScenarioError, load_scenario
 from realtime_support import ROOT, write_scenario

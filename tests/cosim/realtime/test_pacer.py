@@ -6,9 +6,9 @@ import time
 import numpy as np
 import pytest
 
-from cosim.realtime.pacer import LatenessLog, Pacer, VirtualClock
-from cosim.realtime.policy import OverrunFaultPlan, SetpointGate
-from cosim.realtime.stats import combine, lateness_summary, write_histogram
+from cosim.execution.timing.pacer import LatenessLog, Pacer, VirtualClock
+from cosim.execution.timing.policy import OverrunFaultPlan, SetpointGate
+from cosim.execution.timing.stats import combine, lateness_summary, write_histogram
 from fieldbus import FieldbusConfig, Setpoints
 from fieldbus.faults import FaultPlan
 

@@ -9,9 +9,9 @@ import time
 import numpy as np
 import pytest
 
-from cosim.realtime.config import ExecutionOptions, RealtimeSettings
-from cosim.realtime.network import auto_tolerance_s
-from cosim.realtime.pacer import Pacer, VirtualClock
+from cosim.execution.config import ExecutionOptions, RealtimeSettings
+from cosim.execution.timing.network import auto_tolerance_s
+from cosim.execution.timing.pacer import Pacer, VirtualClock
 from realtime_support import BUS_TARGETS, PERIOD, build_cell, column_block, write_scenario
 
 SLOW_AT = (150, 200)        # controller cycles that take 700 us of (virtual) wall time
@@ -32,7 +32,7 @@ def _slow_down(controller, delays: dict[int, float], advance) -> None:
 
 
 def _run(tmp_path, policy: str, delays: dict[int, int], stop_time: str = "100 ms"):
-    from cosim.cell import run_cell
+    from cosim.execution import run_cell
     from fieldbus.timing import check_cycle_budget
 
     cell, controller, ctx = build_cell(write_scenario(tmp_path, stop_time), tmp_path / "out")
@@ -133,7 +133,7 @@ def test_real_wall_clock_slowed_controller_overruns_after_each_slow_cycle(tmp_pa
     """On the real clock (machine-independent assertions only): busy-waiting 1.5 ms in two
     controller cycles makes each following cycle late by at least 1.1 ms, and a paced run
     never runs faster than the wall clock."""
-    from cosim.cell import run_cell
+    from cosim.execution import run_cell
 
     cell, controller, ctx = build_cell(write_scenario(tmp_path, "60 ms"), tmp_path / "out")
 
@@ -162,7 +162,7 @@ def test_a_substituted_setpoint_keeps_the_mode_and_its_setpoints():
     """hold/skip repeat the last cycle's mode of operation and velocity/torque set-points:
     a late controller never switches a drive out of the mode it commanded."""
     from fieldbus import Setpoints
-    from cosim.realtime.policy import SetpointGate
+    from cosim.execution.timing.policy import SetpointGate
 
     for policy in ("hold", "skip"):
         gate = SetpointGate(policy, 6)

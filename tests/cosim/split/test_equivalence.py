@@ -9,7 +9,7 @@ import sys
 
 import numpy as np
 
-from cosim.realtime.deadtime import handshake_dead_times
+from cosim.execution.timing.deadtime import handshake_dead_times
 from cosim.results.timeseries import read_csv
 from realtime_support import ROOT, write_scenario
 

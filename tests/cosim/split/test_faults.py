@@ -9,10 +9,10 @@ import signal
 
 import pytest
 
-from cosim.realtime.config import ExecutionOptions, RealtimeSettings
-from cosim.realtime.network import auto_tolerance_s
-from cosim.realtime.pacer import Pacer, VirtualClock
-from cosim.cell import run_cell
+from cosim.execution.config import ExecutionOptions, RealtimeSettings
+from cosim.execution.timing.network import auto_tolerance_s
+from cosim.execution.timing.pacer import Pacer, VirtualClock
+from cosim.execution import run_cell
 from realtime_support import PERIOD, build_cell, write_scenario
 
 KILL_AT = 60
