@@ -82,6 +82,8 @@ def session(tmp_path_factory):
 def test_sdo_round_trips_identity_and_boot_up(session):
     report, *_ = session
     assert all(report["boot_up"].values()) and len(report["boot_up"]) == 6
+    # the library sets a node's own NMT state only from that node's heartbeats (0x05: operational)
+    assert set(report["nmt"].values()) == {"OPERATIONAL"}
     trips = report["sdo_round_trips"]
     assert trips and all(t["ok"] for t in trips), [t for t in trips if not t["ok"]]
     touched = {(t["node"], t["index"]) for t in trips}
@@ -141,6 +143,8 @@ def test_bad_input_gets_the_protocols_answer_and_is_counted(session):
     hil = next(iter(RunResult(out).summary.raw["hil"].values()))
     bad = hil["bad_input"]
     assert bad["nmt_to_missing_node"] == 1 and bad["sdo_malformed"] >= 1 and bad["sdo_unknown_object"] >= 1
+    nodes = hil["nodes"]
+    assert all(nodes[str(n)]["heartbeats"] > 0 and nodes[str(n)]["boot_ups"] >= 2 for n in range(1, 7))
     assert hil["sdo_aborts"]["0x06090031"] >= 1 and hil["sdo_aborts"]["0x06090032"] >= 1
 
 
