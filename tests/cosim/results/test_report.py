@@ -117,6 +117,58 @@ def test_main_job_report_in_chromium(main_run, browser, tmp_path):
     assert console_errors(browser) == []
 
 
+@pytest.fixture(scope="module")
+def firefox():
+    """One Firefox (Marionette, on a private Xvfb display) for this module; FAILS when Firefox, Xvfb or
+    marionette_driver is missing (tests/browser_support.py)."""
+    from browser_support import start_firefox
+
+    driver = start_firefox()
+    try:
+        yield driver
+    finally:
+        driver.quit()
+
+
+def test_main_job_report_in_firefox(main_run, firefox, tmp_path):
+    """The same report from the file system in Firefox: no console errors, the summary figures are
+    summary.json's, the timeline at the largest TCP error reads back the recorded sample, the 3D
+    view is drawn (WebGL), a mode toggles off everywhere, a screenshot."""
+    out, summary = main_run
+    firefox.console_errors()  # what the browser logged before the report was opened
+    open_report(firefox, out / "report.html")
+    assert firefox.console_errors() == []
+    cells = summary_cells(firefox)
+    assert {f"modes.{m}.tcp_error_max_mm" for m in MODES} <= {k for k, _, _ in cells}
+    for key, value, text in cells:
+        assert value == _dig(summary, key), key
+        if isinstance(value, float):
+            assert float(text) == pytest.approx(value, rel=5e-6), (key, text)
+    for mode in MODES:
+        names, data = read_series(out / f"tcp_{mode}.parquet")
+        t, err = data[:, names.index("t")], data[:, names.index("tcp_error_mm")]
+        k = int(np.nanargmax(err))
+        _set_time(firefox, float(t[k]))
+        shown = firefox.execute_script(
+            "var td = document.querySelector('td.readout[data-run=\"' + arguments[0] + '\"][data-panel=\"tcp_error\"]');"
+            "return [td.getAttribute('data-value'), td.getAttribute('data-time')];", mode)
+        assert float(shown[0]) == err[k] and float(shown[1]) == t[k], (mode, shown, err[k])
+    scene = firefox.execute_script(
+        "var s = document.getElementById('scene'); var c = s.querySelector('canvas');"
+        "var gl = c && (c.getContext('webgl') || c.getContext('experimental-webgl'));"
+        "return [s.data.length, !!gl, c ? c.width : 0];")
+    assert scene[0] > 0 and scene[1] and scene[2] > 100, scene  # the arm and paths drawn with WebGL
+    firefox.execute_script("document.getElementById('player').scrollIntoView();")
+    firefox.save_screenshot(str(tmp_path / "report_in_firefox.png"))
+    assert (tmp_path / "report_in_firefox.png").read_bytes()[:4] == b"\x89PNG"
+    firefox.execute_script("document.querySelector(\"#toggles input[data-run='standard']\").click();")
+    visible = firefox.execute_script(
+        "return document.getElementById('plot-tcp_error').data.map(function (tr) { return [tr.name, tr.visible]; });")
+    assert [v for n, v in visible if n == "standard"] == [False]
+    assert all(v is not False for n, v in visible if n != "standard")
+    assert firefox.console_errors() == []
+
+
 def test_panels_are_the_figures_description():
     """The PNG figures' labels and the report's panels come from cosim.results.panels."""
     from cosim.jobs import iso9283_figures as figures
