@@ -283,7 +283,12 @@ class _Transfer:
             self.answer = int.from_bytes(data, "little")
 
 
-# ---------------------------------------------------------------------------- the phase
+# ---------------------------------------------------------------------------- the two halves
+#: what became of a slot (:meth:`AsyncNodes.slot`): the MN's frame went out ("taken"), a node
+#: answered ("answer", with its 8 bytes), the addressed node did not ("silent"), an EMCY had the slot
+TAKEN, ANSWER, SILENT, EMCY = "taken", "answer", "silent", "emcy"
+
+
 @dataclass
 class _Counts:
     requests: int = 0
@@ -293,29 +298,138 @@ class _Counts:
     nmt_commands: int = 0
     nmt_to_missing_node: int = 0
     frames: int = 0
-    slots_used: int = 0
     slots_taken_by_emcy: int = 0
 
 
-class AsynchronousPhase:
-    """The asynchronous slot of every cycle with the drives' CANopen nodes (module docstring).
+class AsyncClient:
+    """The managing node's half: the scripted and submitted requests, its SDO client, the
+    results and counts. Per slot: :meth:`offer` (the frame it would send) before the slot,
+    :meth:`outcome` after it (what happened, from :meth:`AsyncNodes.slot`), which returns the
+    frames the slot carried (for the CAN log)."""
+
+    def __init__(self, requests: Sequence[AsyncRequest], node_ids: Sequence[int], offsets: tuple[float, float],
+                 t0: float, cycle_time: float, ods: Sequence[ObjectDictionary] = ()) -> None:
+        self.node_ids = set(node_ids)
+        self.ods = {od.node: od for od in ods}
+        self._mn_offset, self._cn_offset = offsets
+        self._t0, self._cycle_time = t0, cycle_time
+        self._script = deque(requests)
+        self._queue: deque[AsyncRequest] = deque()
+        self._transfer: _Transfer | None = None
+        self._result: AsyncResult | None = None
+        self._frame: tuple[int, bytes] | None = None  # the frame offered and not yet sent
+        self._offered: AsyncRequest | None = None  # the request the offered frame starts (None: a segment)
+        self.awaiting = False  # a request went out: the node answers in the next slot
+        self.results: list[AsyncResult] = []
+        self.counts = _Counts()
+        self.next_cycle: float = self._idle_next()
+
+    def _idle_next(self) -> float:
+        if self._queue or self._transfer is not None or self._frame is not None or self.awaiting:
+            return 0
+        if self._script:
+            return max(0, math.ceil((self._script[0].time_s - self._t0) / self._cycle_time - 1e-9))
+        return math.inf
+
+    def submit(self, request: AsyncRequest) -> None:
+        """Queue a request (a controller's): offered in the first slot from now on that is free."""
+        self._queue.append(request)
+        self.next_cycle = 0
+
+    def offer(self, cycle: int) -> tuple[int, bytes] | None:
+        """The frame (COB-ID, data) the MN sends in the slot of ``cycle`` if the slot is free
+        for it; None when it has none or a node's answer is due in it."""
+        t = self._t0 + cycle * self._cycle_time
+        while self._script and self._script[0].time_s <= t + 1e-12:
+            self._queue.append(self._script.popleft())
+        if self.awaiting:
+            return None
+        if self._frame is None and self._queue:
+            request = self._queue.popleft()
+            if request.service == "nmt":
+                self._frame = (NMT_ID, bytes((NMT_BY_NAME[request.command], request.node)))
+            else:
+                self._transfer = _Transfer(request, self.ods.get(request.node))
+                self._frame = (SDO_RX_BASE + request.node, self._transfer.first())
+            self._offered = request
+        return self._frame
+
+    def outcome(self, cycle: int, kind: str | None, data: bytes | None = None) -> list[can.Message]:
+        """Take what the slot of ``cycle`` carried; returns its frames (MN frame or answer)."""
+        t = self._t0 + cycle * self._cycle_time
+        out: list[can.Message] = []
+        if kind == EMCY:
+            self.counts.slots_taken_by_emcy += 1
+        elif kind == TAKEN and self._frame is not None:
+            cob, payload = self._frame
+            out.append(can.Message(timestamp=t + self._mn_offset, arbitration_id=cob, data=payload,
+                                   is_extended_id=False))
+            self._frame = None
+            request, self._offered = self._offered, None
+            if request is not None:
+                self.counts.requests += 1
+                result = AsyncResult(request, cycle)
+                self.results.append(result)
+                if request.service == "nmt":
+                    self.counts.nmt_commands += 1
+                    missing = request.node != 0 and request.node not in self.node_ids
+                    self.counts.nmt_to_missing_node += missing  # no node reacts (CiA 301)
+                    result.answer, result.answered_cycle = ("no node" if missing else "ok"), cycle
+                else:
+                    self._result = result
+            if cob != NMT_ID:
+                self.awaiting = True
+        elif kind in (ANSWER, SILENT) and self.awaiting and self._transfer is not None:
+            self.awaiting = False
+            transfer, result = self._transfer, self._result
+            assert result is not None
+            if kind == SILENT:
+                self.counts.no_answer += 1
+                result.answer, result.answered_cycle = "no answer", cycle
+                self._transfer = self._result = None
+            else:
+                answer = bytes(data or b"")
+                out.append(can.Message(timestamp=t + self._cn_offset, arbitration_id=SDO_TX_BASE + transfer.request.node,
+                                       data=answer, is_extended_id=False))
+                self.counts.answers += 1
+                following = transfer.take(answer)
+                if transfer.done:
+                    result.answered_cycle, result.answer, result.abort = cycle, transfer.answer, transfer.abort
+                    if transfer.abort is not None:
+                        self.counts.aborts[transfer.abort] = self.counts.aborts.get(transfer.abort, 0) + 1
+                    self._transfer = self._result = None
+                elif following is not None:
+                    self._frame = (SDO_RX_BASE + transfer.request.node, following)
+        self.counts.frames += len(out)
+        self.next_cycle = cycle + 1 if (self._queue or self._transfer is not None or self._frame is not None
+                                        or self.awaiting) else self._idle_next()
+        return out
+
+    def summary(self) -> dict[str, Any]:
+        c = self.counts
+        unknown = sum(v for k, v in c.aborts.items() if k in UNKNOWN_OBJECT_ABORTS)
+        return {"requests": c.requests, "answers": c.answers, "no_answer": c.no_answer,
+                "aborts": {f"0x{k:08X}": v for k, v in sorted(c.aborts.items())},
+                "nmt_commands": c.nmt_commands, "frames": c.frames, "slots_taken_by_emcy": c.slots_taken_by_emcy,
+                "bad_input": {"unknown_object": unknown, "nmt_to_missing_node": c.nmt_to_missing_node},
+                "results": [r.as_dict() for r in self.results]}
+
+
+class AsyncNodes:
+    """The controlled nodes' half: one :class:`CanopenNode` per drive (NMT, SDO server, EMCY
+    history), the set-points held while a node takes no PDO. :meth:`slot` decides each slot.
 
     Args:
         ods: the nodes' object dictionaries (node ids 1..N).
-        offsets: (MN frame, CN frame) start after the SoC, s (:func:`slot_offsets`).
-        t0, cycle_time: the cycle grid (SoC of cycle k at ``t0 + k * cycle_time``).
-        requests: the scripted requests (:func:`parse_requests`).
         abort_connection_option: "fault" or "quick_stop" (what NMT stop presents to the drive).
         on_write: ``on_write(node, entry, value)`` for every value an SDO download or a reset
-            changes (bus unit), at the cycle the answer is sent; may raise ``SdoAbort``.
+            changes (bus unit), in the slot the answer is sent; may raise ``SdoAbort``.
         scaling: a :class:`fieldbus.scaling.JointScaling` (actual values into the dictionary
             before an SDO request is handled), or None.
     """
 
-    def __init__(self, ods: Sequence[ObjectDictionary], offsets: tuple[float, float], t0: float, cycle_time: float,
-                 requests: Sequence[AsyncRequest] = (), abort_connection_option: str = "fault",
+    def __init__(self, ods: Sequence[ObjectDictionary], t0: float = 0.0, abort_connection_option: str = "fault",
                  on_write: Callable[[int, Entry, Any], None] | None = None, scaling: Any = None) -> None:
-        self.ods = {od.node: od for od in ods}
         self.on_write = on_write
         self.nodes: dict[int, CanopenNode] = {}
         for od in ods:
@@ -323,21 +437,10 @@ class AsynchronousPhase:
             node.boot(t0)
             node._enter("operational")  # started by the MN before cycle 0 (module docstring)
             self.nodes[od.node] = node
-        self._mn_offset, self._cn_offset = offsets
-        self._t0, self._cycle_time = t0, cycle_time
-        self._script = deque(requests)
-        self._queue: deque[AsyncRequest] = deque()
-        self._transfer: _Transfer | None = None
-        self._result: AsyncResult | None = None
-        self._pending: bytes | None = None  # the request the node answers in the next slot
-        self._next_request: bytes | None = None  # the client's next frame (a segment)
-        self.results: list[AsyncResult] = []
-        self.counts = _Counts()
         self._quick_stop = abort_connection_option == "quick_stop"
         self._held: dict[int, dict[str, Any]] = {}  # node -> set-points it holds (not operational)
+        self._pending: tuple[int, bytes] | None = None  # the SDO request a node answers in the next slot
         self.scaling = scaling
-        self.frames_log: list[can.Message] = []  # this cycle's frames (recorded by the caller)
-        self.next_cycle = self._first_cycle()
 
     def _writer(self, node_id: int) -> Callable[[Entry, Any], None] | None:
         if self.on_write is None:
@@ -347,109 +450,50 @@ class AsynchronousPhase:
             self.on_write(node_id, entry, value)  # type: ignore[misc]
         return write
 
-    def _first_cycle(self) -> float:
-        if self._queue or self._transfer is not None or self._held:
-            return 0
-        if self._script:
-            return max(0, math.ceil((self._script[0].time_s - self._t0) / self._cycle_time - 1e-9))
-        return math.inf
-
-    # ------------------------------------------------------------------ requests
-    def submit(self, request: AsyncRequest) -> None:
-        """Queue a request (a controller's): sent in the first free slot from now on."""
-        self._queue.append(request)
-        self.next_cycle = 0
+    @property
+    def owes_answer(self) -> bool:
+        """An SDO request went out: its node answers in the next slot."""
+        return self._pending is not None
 
     @property
     def busy(self) -> bool:
-        """A transfer, a queued or a scripted request is pending, or a node holds its set-points."""
-        return bool(self._script or self._queue or self._transfer is not None or self._held)
+        """An SDO request waits for its answer, or a node holds its set-points."""
+        return self._pending is not None or bool(self._held)
 
-    # ------------------------------------------------------------------ the cycle
-    def run(self, cycle: int, applied: Any, actuals: Any = None, emcy_sent: bool = False) -> list[can.Message]:
-        """The asynchronous slot of ``cycle`` (after its isochronous part): first the set-points
-        of nodes that take no PDO are held (in ``applied``, what the drives apply from this SoC),
-        then at most one SDO/NMT frame is sent (none if an EMCY took the slot). Returns the frames
-        sent (for the CAN log)."""
+    def slot(self, cycle: int, t: float, applied: Any, actuals: Any, offer: tuple[int, bytes] | None,
+             emcy_sent: bool = False) -> tuple[str, bytes | None] | None:
+        """The slot of ``cycle`` (SoC at ``t``), after its isochronous part: the set-points of
+        nodes that take no PDO are held (in ``applied``), then the slot goes to an EMCY sent in
+        it, else to the answer of the pending SDO request, else to the MN's ``offer``. Returns
+        (kind, answer bytes) or None (nothing was due)."""
         if self._held:
             self._hold(applied)
-        t = self._t0 + cycle * self._cycle_time
-        while self._script and self._script[0].time_s <= t + 1e-12:
-            self._queue.append(self._script.popleft())
-        frames: list[can.Message] = []
+        pending = self._pending
         if emcy_sent:
-            if self._pending is not None or self._next_request is not None or self._queue:
-                self.counts.slots_taken_by_emcy += 1
-        elif self._pending is not None:
-            frames = self._answer(cycle, t, applied, actuals)
-        elif self._next_request is not None:
-            frames = self._send_sdo(self._next_request, t)
-            self._next_request = None
-        elif self._queue:
-            frames = self._start(cycle, t, applied)
-        if frames:
-            self.counts.frames += len(frames)
-            self.counts.slots_used += 1
-        self.next_cycle = cycle + 1 if self.busy else self._first_cycle()
-        return frames
-
-    def _start(self, cycle: int, t: float, applied: Any) -> list[can.Message]:
-        request = self._queue.popleft()
-        self.counts.requests += 1
-        result = AsyncResult(request, cycle)
-        self.results.append(result)
-        if request.service == "nmt":
-            self.counts.nmt_commands += 1
-            data = bytes((NMT_BY_NAME[request.command], request.node))
-            msg = can.Message(timestamp=t + self._mn_offset, arbitration_id=NMT_ID, data=data, is_extended_id=False)
-            if request.node and request.node not in self.nodes:
-                self.counts.nmt_to_missing_node += 1  # no node reacts (CiA 301)
-                result.answer = "no node"
-            else:
-                result.answer = "ok"
-            result.answered_cycle = cycle
-            out = [msg]
+            return (EMCY, None) if (offer is not None or pending is not None) else None
+        if pending is not None:
+            self._pending = None
+            cob, data = pending
+            node = self.nodes.get(cob - SDO_RX_BASE)
+            if node is None:
+                return SILENT, None
+            if actuals is not None and self.scaling is not None:
+                self._latch(node.node_id, actuals)
+            request = can.Message(timestamp=t, arbitration_id=cob, data=data, is_extended_id=False)
+            answers = node.receive(request, t)
+            return (ANSWER, bytes(answers[0].data)) if answers else (SILENT, None)
+        if offer is None:
+            return None
+        cob, data = offer
+        if cob == NMT_ID:
+            msg = can.Message(timestamp=t, arbitration_id=NMT_ID, data=data, is_extended_id=False)
             for node_id, node in self.nodes.items():
                 before = node.nmt_state
-                out += node.receive(msg, t + self._cn_offset)  # a reset's boot-up message
+                node.receive(msg, t)  # a reset's boot-up message stays off POWERLINK: the PRes carries the state
                 self._state_changed(node_id, before, node.nmt_state, applied)
-            return out
-        self._transfer = _Transfer(request, self.ods.get(request.node))
-        self._result = result
-        return self._send_sdo(self._transfer.first(), t)
-
-    def _send_sdo(self, data: bytes, t: float) -> list[can.Message]:
-        request = self._transfer.request  # type: ignore[union-attr]
-        self._pending = data
-        return [can.Message(timestamp=t + self._mn_offset, arbitration_id=SDO_RX_BASE + request.node, data=data,
-                            is_extended_id=False)]
-
-    def _answer(self, cycle: int, t: float, applied: Any, actuals: Any) -> list[can.Message]:
-        transfer, result, data = self._transfer, self._result, self._pending
-        assert transfer is not None and result is not None and data is not None
-        self._pending = None
-        node = self.nodes.get(transfer.request.node)
-        if node is not None and actuals is not None and self.scaling is not None:
-            self._latch(transfer.request.node, actuals)
-        request = can.Message(timestamp=t + self._mn_offset, arbitration_id=SDO_RX_BASE + transfer.request.node,
-                              data=data, is_extended_id=False)
-        answers = [] if node is None else node.receive(request, t + self._cn_offset)
-        if not answers:  # no node, stopped, or a client abort: nothing comes back
-            self.counts.no_answer += 1
-            result.answer, result.answered_cycle = "no answer", cycle
-            self._transfer = self._result = None
-            return []
-        answer = bytes(answers[0].data)
-        self.counts.answers += 1
-        following = transfer.take(answer)
-        if transfer.done:
-            result.answered_cycle, result.answer, result.abort = cycle, transfer.answer, transfer.abort
-            if transfer.abort is not None:
-                self.counts.aborts[transfer.abort] = self.counts.aborts.get(transfer.abort, 0) + 1
-            self._transfer = self._result = None
         else:
-            self._next_request = following
-        return answers[:1]
+            self._pending = offer
+        return TAKEN, None
 
     def _latch(self, node_id: int, actuals: Any) -> None:
         """The drive's actual values at this SoC into its dictionary (what an upload of
@@ -463,7 +507,6 @@ class AsynchronousPhase:
         values[(0x6077, 0)] = s.torque_unit(i, float(actuals.torque[i]))
         values[(0x603F, 0)] = int(actuals.error_code[i]) & 0xFFFF
 
-    # ------------------------------------------------------------------ NMT effects on the PDOs
     def _state_changed(self, node_id: int, before: str, after: str, applied: Any) -> None:
         if after == "operational":
             self._held.pop(node_id, None)
@@ -484,29 +527,61 @@ class AsynchronousPhase:
                 elif not applied.fault_code[i]:
                     applied.fault_code[i] = ABORT_CONNECTION_FAULT
 
-    # ------------------------------------------------------------------ figures
     def note_emcy(self, frames: Sequence[Any]) -> None:
         """EMCY frames the nodes sent (fieldbus.nodes): into each node's error register 0x1001
         and error history 0x1003 (what an SDO upload of them reads)."""
         for msg in frames:
             node = self.nodes.get(msg.arbitration_id - 0x080)
             if node is not None and len(msg.data) >= 3:
-                code = msg.data[0] | (msg.data[1] << 8)
-                node.emcy(code, msg.data[2], msg.timestamp)
+                node.emcy(msg.data[0] | (msg.data[1] << 8), msg.data[2], msg.timestamp)
 
     def summary(self) -> dict[str, Any]:
-        """JSON-ready: requests, answers, aborts by code, NMT commands, bad input, every result."""
-        c = self.counts
-        malformed = sum(n.sdo.malformed for n in self.nodes.values())
-        unknown = sum(v for k, v in c.aborts.items() if k in UNKNOWN_OBJECT_ABORTS)
-        return {"requests": c.requests, "answers": c.answers, "no_answer": c.no_answer,
-                "aborts": {f"0x{k:08X}": v for k, v in sorted(c.aborts.items())},
-                "nmt_commands": c.nmt_commands, "frames": c.frames, "slots_used": c.slots_used,
-                "slots_taken_by_emcy": c.slots_taken_by_emcy,
-                "bad_input": {"malformed_sdo": malformed, "unknown_object": unknown,
-                              "nmt_to_missing_node": c.nmt_to_missing_node},
-                "nmt_state": {str(k): n.nmt_state for k, n in self.nodes.items()},
-                "results": [r.as_dict() for r in self.results]}
+        return {"malformed_sdo": sum(n.sdo.malformed for n in self.nodes.values()),
+                "nmt_state": {str(k): n.nmt_state for k, n in self.nodes.items()}}
+
+
+def merged_summary(client: dict[str, Any], nodes: dict[str, Any] | None) -> dict[str, Any]:
+    """One summary of the two halves (summary.json ``fieldbus.asynchronous``)."""
+    out = dict(client)
+    out["bad_input"] = {"malformed_sdo": (nodes or {}).get("malformed_sdo"), **client["bad_input"]}
+    out["nmt_state"] = (nodes or {}).get("nmt_state")
+    results = out.pop("results")
+    out["results"] = results
+    return out
+
+
+class AsynchronousPhase:
+    """Both halves in one process (the in-process and paced cell): :meth:`run` is one slot."""
+
+    def __init__(self, client: AsyncClient, nodes: AsyncNodes, t0: float, cycle_time: float) -> None:
+        self.client, self.nodes = client, nodes
+        self._t0, self._cycle_time = t0, cycle_time
+
+    @property
+    def next_cycle(self) -> float:
+        return 0 if self.nodes.busy else self.client.next_cycle
+
+    def run(self, cycle: int, applied: Any, actuals: Any = None, emcy_sent: bool = False) -> list[can.Message]:
+        """The slot of ``cycle``; returns the frames it carried (for the CAN log)."""
+        client = self.client
+        offer = client.offer(cycle) if cycle >= client.next_cycle else None
+        outcome = self.nodes.slot(cycle, self._t0 + cycle * self._cycle_time, applied, actuals, offer, emcy_sent)
+        if outcome is None:
+            return []
+        return client.outcome(cycle, *outcome)
+
+    def submit(self, request: AsyncRequest) -> None:
+        self.client.submit(request)
+
+    @property
+    def results(self) -> list[AsyncResult]:
+        return self.client.results
+
+    def note_emcy(self, frames: Sequence[Any]) -> None:
+        self.nodes.note_emcy(frames)
+
+    def summary(self) -> dict[str, Any]:
+        return merged_summary(self.client.summary(), self.nodes.summary())
 
 
 def slot_offsets(layout: Any, node: int = 0) -> tuple[float, float]:
@@ -518,5 +593,5 @@ def slot_offsets(layout: Any, node: int = 0) -> tuple[float, float]:
     return soa_end + layout.mn_turnaround, soa_end + layout.cn_response
 
 
-__all__ = ["AsyncRequest", "AsyncResult", "AsynchronousPhase", "NMT_BY_NAME", "SERVICES", "parse_requests",
-           "slot_offsets"]
+__all__ = ["ANSWER", "AsyncClient", "AsyncNodes", "AsyncRequest", "AsyncResult", "AsynchronousPhase", "EMCY",
+           "NMT_BY_NAME", "SERVICES", "SILENT", "TAKEN", "merged_summary", "parse_requests", "slot_offsets"]

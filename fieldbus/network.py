@@ -33,7 +33,7 @@ from typing import Any
 
 import numpy as np
 
-from fieldbus.asynchronous import AsynchronousPhase, slot_offsets
+from fieldbus.asynchronous import AsyncClient, AsyncNodes, AsynchronousPhase, slot_offsets
 from fieldbus.config import FieldbusConfig
 from fieldbus.endpoints import (_NO_FAULTS, SYNCHRONOUS_INTERFACES, DriveEndpoint,
                                 ManagingNodeEndpoint, default_channel)
@@ -107,9 +107,10 @@ class PowerlinkNetwork(Closeable):
         self.asynchronous: AsynchronousPhase | None = None
         self._async_next: float = math.inf  # the next cycle whose asynchronous slot has work
         if canopen is not None:
-            self.asynchronous = AsynchronousPhase(
-                canopen, slot_offsets(self.layout), self._t0, self._cycle_time, config.asynchronous,
-                config.reaction.abort_connection_option, on_write, scaling)
+            client = AsyncClient(config.asynchronous, config.node_ids, slot_offsets(self.layout), self._t0,
+                                 self._cycle_time, canopen)
+            nodes = AsyncNodes(canopen, self._t0, config.reaction.abort_connection_option, on_write, scaling)
+            self.asynchronous = AsynchronousPhase(client, nodes, self._t0, self._cycle_time)
             self.cn.on_emcy = self.asynchronous.note_emcy
             self._async_next = self.asynchronous.next_cycle
 
