@@ -426,11 +426,15 @@ class AsyncNodes:
             changes (bus unit), in the slot the answer is sent; may raise ``SdoAbort``.
         scaling: a :class:`fieldbus.scaling.JointScaling` (actual values into the dictionary
             before an SDO request is handled), or None.
+        invalidate: called after the held set-points were written into the applied arrays (the
+            bus's ``ControlledNodes.invalidate_applied``: its next cycle writes every field).
     """
 
     def __init__(self, ods: Sequence[ObjectDictionary], t0: float = 0.0, abort_connection_option: str = "fault",
-                 on_write: Callable[[int, Entry, Any], None] | None = None, scaling: Any = None) -> None:
+                 on_write: Callable[[int, Entry, Any], None] | None = None, scaling: Any = None,
+                 invalidate: Callable[[], None] | None = None) -> None:
         self.on_write = on_write
+        self.invalidate = invalidate
         self.nodes: dict[int, CanopenNode] = {}
         for od in ods:
             node = CanopenNode(od.node, od, on_write=self._writer(od.node))
@@ -526,6 +530,8 @@ class AsyncNodes:
                     applied.controlword[i] = QUICK_STOP_CONTROLWORD
                 elif not applied.fault_code[i]:
                     applied.fault_code[i] = ABORT_CONNECTION_FAULT
+        if self.invalidate is not None:
+            self.invalidate()
 
     def note_emcy(self, frames: Sequence[Any]) -> None:
         """EMCY frames the nodes sent (fieldbus.nodes): into each node's error register 0x1001

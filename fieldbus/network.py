@@ -109,7 +109,8 @@ class PowerlinkNetwork(Closeable):
         if canopen is not None:
             client = AsyncClient(config.asynchronous, config.node_ids, slot_offsets(self.layout), self._t0,
                                  self._cycle_time, canopen)
-            nodes = AsyncNodes(canopen, self._t0, config.reaction.abort_connection_option, on_write, scaling)
+            nodes = AsyncNodes(canopen, self._t0, config.reaction.abort_connection_option, on_write, scaling,
+                               self.cn.invalidate_applied)
             self.asynchronous = AsynchronousPhase(client, nodes, self._t0, self._cycle_time)
             self.cn.on_emcy = self.asynchronous.note_emcy
             self._async_next = self.asynchronous.next_cycle

@@ -1111,6 +1111,14 @@ class ControlledNodes:
         if self.counters.busy:
             self.counters.end_cycle(cycle, t)
 
+    def invalidate_applied(self) -> None:
+        """Someone else wrote into the applied arrays after this cycle's :meth:`start_cycle`
+        (fieldbus.asynchronous: a node that takes no PDO holds its set-points): the next
+        start_cycle writes every field again instead of only those that changed."""
+        self._last_app_cw = self._last_app_mode = self._last_app_tv = self._last_app_vo = self._last_app_tt = None
+        self._all_fresh = False
+        self._fault_shown = True
+
     def emergency_messages(self, timestamp: float) -> list[FastMessage]:
         """EMCY frames due in this cycle's asynchronous slot: one per tripped counter (0x8100),
         one per drive whose error code 0x603F changed at this cycle's SoC (:meth:`_drive_errors`)."""

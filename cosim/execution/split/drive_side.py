@@ -171,7 +171,7 @@ def drive_side_main(spec: DriveSideSpec, conn) -> None:
         ods = cell_object_dictionaries(spec.config)
         writer = DriveParameterWriter(ods, lambda instance, name, value: master.fmus[instance].set_value(name, value))
         nodes = AsyncNodes(ods, spec.config.start_time_s, spec.config.reaction.abort_connection_option, writer,
-                           wiring.joint_scaling())
+                           wiring.joint_scaling(), endpoint.nodes.invalidate_applied)
         endpoint.nodes.on_emcy = nodes.note_emcy
         link = DriveLink(endpoint, plan, conn, spec.marker_timeout_s, nodes)
         laser = LaserTracker(spec.true_model, spec.tracker)
