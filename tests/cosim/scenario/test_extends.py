@@ -311,6 +311,7 @@ def test_error_in_the_elastic_cell_two_levels_up_names_its_line(tmp_path):
     with pytest.raises(ScenarioError) as info:
         load_scenario(derived)
     err = info.value
-    line = 1 + CELL_ELASTIC.read_text().splitlines().index("speed_kp = 0.06539269976263902")
+    line = 1 + next(i for i, text in enumerate(CELL_ELASTIC.read_text().splitlines())
+                    if text.startswith("speed_kp = 0.06539269976263902"))
     assert err.file == CELL_ELASTIC and err.key == "fmus[4].parameters.speed_kp" and err.line == line
     assert err.inherited_by == derived.resolve() and "unknown key" in str(err)
