@@ -7,7 +7,9 @@ At each build, ``on_files`` adds to the site, without writing into docs/:
 * ``reference/cli.md``: every command and argument, from argparse
   (:func:`cosim.cli_reference.cli_markdown`);
 * ``reference/fieldbus.md``: ``fieldbus/README.md`` (the bus, its frames and the udpcycle wire
-  format), which lives beside the package it documents.
+  format), which lives beside the package it documents;
+* ``reference/benchmarks.md``: ``benchmarks/RESULTS.md``, the results page ``python -m cosim
+  bench`` writes (every figure of its last full run, with the machine, its load and the date).
 
 and ``on_page_markdown`` puts the object table of ``fieldbus/object_dictionary.toml`` (axis 1,
 :func:`fieldbus.device_files.reference_markdown`) into ``reference/object_dictionary.md`` in place
@@ -32,6 +34,7 @@ GENERATED = {
     "reference/scenario_keys.md": lambda: __import__("cosim.scenario.reference", fromlist=["_"]).scenario_keys_markdown(),
     "reference/cli.md": lambda: __import__("cosim.cli_reference", fromlist=["_"]).cli_markdown(),
     "reference/fieldbus.md": lambda: (ROOT / "fieldbus" / "README.md").read_text(encoding="utf-8"),
+    "reference/benchmarks.md": lambda: (ROOT / "benchmarks" / "RESULTS.md").read_text(encoding="utf-8"),
 }
 
 

@@ -77,7 +77,8 @@ def test_site_builds_without_warnings(site):
     site_dir, log = site
     assert "WARNING" not in log, log
     for page in ("index.html", "tutorial.html", "reference/scenario_keys.html", "reference/cli.html",
-                 "reference/api.html", "reference/contracts.html", "reference/fieldbus.html"):
+                 "reference/api.html", "reference/contracts.html", "reference/fieldbus.html",
+                 "reference/benchmarks.html"):
         assert (site_dir / page).is_file(), page
 
 
