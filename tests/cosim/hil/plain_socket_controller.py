@@ -1,6 +1,6 @@
 """An external controller for ``cosim serve`` written from the docs alone: ``socket`` and
 ``struct`` of the standard library, nothing of the project (docs/hil.md, the udpcycle wire
-format and the frames in fieldbus/README.md).
+format and the frames in docs/reference/fieldbus.md).
 
     python plain_socket_controller.py CELL_HOST:PORT BIND_HOST:PORT NODES FIRST_COUNTER HOLD_CYCLES OUT
 
