@@ -6,11 +6,14 @@ At each build, ``on_files`` adds to the site, without writing into docs/:
   (:func:`cosim.scenario.reference.scenario_keys_markdown`);
 * ``reference/cli.md``: every command and argument, from argparse
   (:func:`cosim.cli_reference.cli_markdown`);
+
 and ``on_page_markdown`` puts generated tables into hand-written pages in place of their marker
 lines: the object table of ``fieldbus/object_dictionary.toml`` (axis 1,
 :func:`fieldbus.device_files.reference_markdown`) into ``reference/object_dictionary.md``
 (:data:`OBJECT_DICTIONARY_MARKER`), and the identifiers, telegram layouts and udpcycle datagram
-layout (:mod:`fieldbus.reference`) into ``reference/fieldbus.md`` (:data:`FIELDBUS_MARKERS`).
+layout (:mod:`fieldbus.reference`) into ``reference/fieldbus.md`` (:data:`FIELDBUS_MARKERS`), and
+the tables of exit codes, violation kinds and drive protection limits into
+``reference/verdicts.md`` (:func:`cosim.verdict_reference.fill`).
 
 The checkout holding this file is put first on ``sys.path``, so the pages describe its code
 (not another installed copy).
@@ -84,4 +87,8 @@ def on_page_markdown(markdown, page, config, files):
         return object_dictionary_markdown(markdown)
     if page.file.src_uri == "reference/fieldbus.md":
         return fieldbus_markdown(markdown)
+    if page.file.src_uri == "reference/verdicts.md":
+        from cosim.verdict_reference import fill
+
+        return fill(markdown)
     return markdown
