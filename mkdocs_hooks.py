@@ -6,6 +6,8 @@ At each build, ``on_files`` adds to the site, without writing into docs/:
   (:func:`cosim.scenario.reference.scenario_keys_markdown`);
 * ``reference/cli.md``: every command and argument, from argparse
   (:func:`cosim.cli_reference.cli_markdown`);
+* ``reference/benchmarks.md``: ``benchmarks/RESULTS.md``, the results page ``python -m cosim
+  bench`` writes (every figure of its last full run, with the machine, its load and the date).
 
 and ``on_page_markdown`` puts generated tables into hand-written pages in place of their marker
 lines: the object table of ``fieldbus/object_dictionary.toml`` (axis 1,
@@ -31,6 +33,7 @@ if str(ROOT) not in sys.path:
 GENERATED = {
     "reference/scenario_keys.md": lambda: __import__("cosim.scenario.reference", fromlist=["_"]).scenario_keys_markdown(),
     "reference/cli.md": lambda: __import__("cosim.cli_reference", fromlist=["_"]).cli_markdown(),
+    "reference/benchmarks.md": lambda: (ROOT / "benchmarks" / "RESULTS.md").read_text(encoding="utf-8"),
 }
 
 
