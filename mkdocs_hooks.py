@@ -9,9 +9,11 @@ At each build, ``on_files`` adds to the site, without writing into docs/:
 * ``reference/fieldbus.md``: ``fieldbus/README.md`` (the bus, its frames and the udpcycle wire
   format), which lives beside the package it documents.
 
-and ``on_page_markdown`` puts the object table of ``fieldbus/object_dictionary.toml`` (axis 1,
-:func:`fieldbus.device_files.reference_markdown`) into ``reference/object_dictionary.md`` in place
-of its marker line (:data:`OBJECT_DICTIONARY_MARKER`).
+and ``on_page_markdown`` puts tables built from the code into hand-written pages in place of
+their marker line (:data:`MARKERS`): the object table of ``fieldbus/object_dictionary.toml``
+(axis 1, :func:`fieldbus.device_files.reference_markdown`) into ``reference/object_dictionary.md``,
+the drive FMU interface (:func:`fmus.servo_drive.interface.reference_markdown`) into
+``how-to/own_drive.md``.
 
 The checkout holding this file is put first on ``sys.path``, so the pages describe its code
 (not another installed copy).
@@ -55,7 +57,26 @@ def object_dictionary_markdown(markdown: str) -> str:
     return markdown.replace(OBJECT_DICTIONARY_MARKER, reference_markdown(drive_object_dictionary(1)))
 
 
+#: the line of docs/how-to/own_drive.md the generated drive interface table replaces
+DRIVE_INTERFACE_MARKER = "<!-- generated: the table of fmus.servo_drive.interface.DRIVE_INTERFACE (mkdocs_hooks.py) -->"
+
+
+def drive_interface_markdown(markdown: str) -> str:
+    """``markdown`` with the marker line replaced by the table of the drive FMU interface."""
+    from fmus.servo_drive.interface import reference_markdown
+
+    if DRIVE_INTERFACE_MARKER not in markdown:
+        raise ValueError(f"how-to/own_drive.md: the marker {DRIVE_INTERFACE_MARKER!r} is missing")
+    return markdown.replace(DRIVE_INTERFACE_MARKER, reference_markdown())
+
+
+#: page -> the function putting its generated table in place of its marker
+MARKERS = {
+    "reference/object_dictionary.md": object_dictionary_markdown,
+    "how-to/own_drive.md": drive_interface_markdown,
+}
+
+
 def on_page_markdown(markdown, page, config, files):
-    if page.file.src_uri == "reference/object_dictionary.md":
-        return object_dictionary_markdown(markdown)
-    return markdown
+    fill = MARKERS.get(page.file.src_uri)
+    return fill(markdown) if fill else markdown

@@ -126,6 +126,9 @@ def test_generated_reference_pages_are_in_the_site(site):
     contracts = (site_dir / "reference" / "contracts.html").read_text(encoding="utf-8")
     assert 'id="controller.contract.CellController"' in contracts
     assert 'id="planners.base.Planner"' in contracts
+    drive = (site_dir / "how-to" / "own_drive.html").read_text(encoding="utf-8")
+    # the drive FMU interface table, generated from fmus.servo_drive.interface.DRIVE_INTERFACE
+    assert "<code>q_meas</code>" in drive and "<code>following_error</code>" in drive and "generated:" not in drive
     tutorial = (site_dir / "tutorial.html").read_text(encoding="utf-8")
     # the nine-line scenario is the repository's file itself, not a copy
     assert "my_controller_iso9283" in tutorial and "pd_gravity_controller.py:PDGravity" in tutorial
