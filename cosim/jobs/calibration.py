@@ -15,7 +15,7 @@ from typing import Any
 
 from cosim.scenario.context import RunContext
 from cosim.scenario.loader import SCENARIO_FIELD, Scenario
-from cosim.scenario.registry import register_job
+from cosim.scenario.job_type import JobType
 from cosim.scenario.schema import Boolean, Field, Integer, List, Number, String, Table
 from calibration.observability import OBSERVATION_INDICES
 from calibration.scaling import COLUMN_SCALINGS
@@ -88,5 +88,5 @@ def run_calibration_job(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
     return run_calibration_campaign(config, ctx.out_dir, write_summary=False)
 
 
-register_job("calibration", run_calibration_job, SCHEMA, None,
-             "simulated geometric calibration: optimal tracker configurations, identification, Table 2")
+JOB = JobType("calibration", run_calibration_job, SCHEMA, None,
+              "simulated geometric calibration: optimal tracker configurations, identification, Table 2")

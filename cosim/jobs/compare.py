@@ -56,7 +56,7 @@ from cosim.tracking.metrics import desired_joints, evaluate
 from cosim.scenario.context import RunContext
 from cosim.scenario.cosim_tables import COSIM_FIELDS
 from cosim.scenario.loader import SCENARIO_FIELD, Scenario
-from cosim.scenario.registry import register_job
+from cosim.scenario.job_type import JobType
 from cosim.scenario.schema import (AnyValue, Boolean, Field, List, Number, Spec, String, Table, Where)
 from cosim.scenario.user_class import (SPEC_FORM, class_spec_file, instantiate, is_class_spec, load_user_class,
                                       with_class_file)
@@ -770,7 +770,7 @@ def run(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
     if cmp_t["figures"]:
         from cosim.jobs.compare_figures import write_figures
 
-        fields["figures"] = [p.name for p in write_figures(ctx.out_dir, rows, results, cmp_t["rank_by"])]
+        fields["figures"] = [p.name for p in write_figures(ctx.out_dir, rows, results, cmp_t["rank_by"], METRICS)]
     failed = [label for label, e in entries.items() if e["status"] != "ok"]
     if failed:
         fields["failed_entries"] = failed  # every entry whose verdict is not ok (the job's status says the worst)
@@ -780,6 +780,6 @@ def run(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
     return fields
 
 
-register_job(JOB_NAME, run, SCHEMA, check,
-             "N controllers x M trajectories (built-in modes, planners, trajectory files) on one seeded robot: "
-             "one ranked table")
+JOB = JobType(JOB_NAME, run, SCHEMA, check,
+              "N controllers x M trajectories (built-in modes, planners, trajectory files) on one seeded robot: "
+              "one ranked table")

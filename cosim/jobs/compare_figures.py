@@ -49,18 +49,17 @@ def axis_scale(values: list[float]) -> str:
 
 
 def write_figures(out_dir: Path, rows: list[dict[str, Any]], results: dict[tuple[str, str], Any],
-                  rank_by: str) -> list[Path]:
+                  rank_by: str, metric_labels: dict[str, str]) -> list[Path]:
     """Write both figures from the table ``rows`` and the tracking results ((trajectory, controller) ->
-    TrackingResult); return the files written."""
-    from cosim.jobs.compare import METRICS
-
+    TrackingResult); ``metric_labels``: the table's metrics, column -> label with unit
+    (:data:`cosim.jobs.compare.METRICS`, which passes them down); return the files written."""
     plt = _pyplot()
     written: list[Path] = []
     controllers = list(dict.fromkeys(r["controller"] for r in rows))
     colour = _colours(controllers)
     labels = [f"{r['controller']} / {r['trajectory']}" + (f"  #{r['rank']}" if r["rank"] else
                                                             f"  [{r['status']}: not ranked]") for r in rows]
-    metrics = list(METRICS)
+    metrics = list(metric_labels)
     ncols = 3
     nrows = math.ceil(len(metrics) / ncols)
     height = max(2.2, 0.28 * len(rows) + 1.0)
@@ -88,7 +87,7 @@ def write_figures(out_dir: Path, rows: list[dict[str, Any]], results: dict[tuple
             ax.text(anchor, yy, " " + text, va="center", ha="left", fontsize=7)
         ax.set_yticks(y)
         ax.set_yticklabels(labels, fontsize=7)
-        ax.set_title(METRICS[key] + (" (log)" if scale != "linear" else "") + ("  - ranked by" if key == rank_by
+        ax.set_title(metric_labels[key] + (" (log)" if scale != "linear" else "") + ("  - ranked by" if key == rank_by
                                                                               else ""), fontsize=9)
         ax.grid(True, axis="x", alpha=0.3, which="both")
     for ax in list(axes.flat)[len(metrics):]:

@@ -42,7 +42,7 @@ from cosim.scenario.loader import SCENARIO_FIELD
 from cosim.master import SimulationError
 from cosim.scenario.context import RunContext
 from cosim.scenario.loader import Scenario
-from cosim.scenario.registry import register_job
+from cosim.scenario.job_type import JobType
 from cosim.scenario.schema import Field, Number, Table, Where
 from fieldbus import decode_statusword
 
@@ -210,5 +210,5 @@ def run(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
     return fields
 
 
-register_job(JOB_NAME, run, SCHEMA, check,
-             "a fieldbus fault during the ISO 9283 motion: threshold trip, CiA 402 fault reaction, robot at rest")
+JOB = JobType(JOB_NAME, run, SCHEMA, check,
+              "a fieldbus fault during the ISO 9283 motion: threshold trip, CiA 402 fault reaction, robot at rest")

@@ -51,7 +51,7 @@ from cosim.execution import run_cell
 from cosim.scenario.context import RunContext
 from cosim.scenario.cosim_tables import COSIM_FIELDS
 from cosim.scenario.loader import SCENARIO_FIELD, Scenario
-from cosim.scenario.registry import register_job
+from cosim.scenario.job_type import JobType
 from cosim.scenario.schema import AnyValue, Boolean, Field, Integer, List, Number, String, Table, Where
 
 JOB_NAME = "identification"
@@ -691,6 +691,6 @@ def _noise_assumptions(params, fb, sigma: np.ndarray, meas: dict[str, Any]) -> d
     }
 
 
-register_job(JOB_NAME, run, SCHEMA, check,
-             "Dynamic identification campaign: optimal excitation, closed-loop data over the fieldbus, "
-             "identification, ISO 9283 validation and model comparison")
+JOB = JobType(JOB_NAME, run, SCHEMA, check,
+              "Dynamic identification campaign: optimal excitation, closed-loop data over the fieldbus, "
+              "identification, ISO 9283 validation and model comparison")

@@ -49,7 +49,7 @@ from cosim.tracking.metrics import TrackingResult
 from cosim.scenario.context import RunContext
 from cosim.scenario.cosim_tables import COSIM_FIELDS
 from cosim.scenario.loader import SCENARIO_FIELD, Scenario
-from cosim.scenario.registry import register_job
+from cosim.scenario.job_type import JobType
 from cosim.scenario.schema import Table, Where
 
 JOB_NAME = "iso9283"
@@ -155,5 +155,5 @@ def _ratio(a: float, b: float) -> float:
     return a / b if (b and math.isfinite(a) and math.isfinite(b)) else float("nan")
 
 
-register_job(JOB_NAME, run, SCHEMA, check_cell_scenario,
-             "ISO 9283 path through controller, fieldbus, drive and plant FMUs: standard vs model-based")
+JOB = JobType(JOB_NAME, run, SCHEMA, check_cell_scenario,
+              "ISO 9283 path through controller, fieldbus, drive and plant FMUs: standard vs model-based")

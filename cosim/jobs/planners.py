@@ -42,7 +42,7 @@ from cosim.scenario.loader import SCENARIO_FIELD
 from cosim.tracking.metrics import desired_joints, residual_vibration
 from cosim.scenario.context import RunContext
 from cosim.scenario.loader import Scenario
-from cosim.scenario.registry import register_job
+from cosim.scenario.job_type import JobType
 from cosim.scenario.schema import AnyValue, Boolean, Field, Integer, List, Number, Spec, String, Table, Where
 from cosim.scenario.user_class import (SPEC_FORM, class_spec_file, instantiate, is_class_spec, load_user_class,
                                       with_class_file)
@@ -479,5 +479,5 @@ def _figures(ctx: RunContext, trajectories: dict[str, Any], cp: Any, ptp: Any, d
     return [p.name for p in written]
 
 
-register_job(JOB_NAME, run, SCHEMA, check,
-             "time/energy-optimal CP and PtP planners vs TOPP-RA and Ruckig, optionally executed on the cell")
+JOB = JobType(JOB_NAME, run, SCHEMA, check,
+              "time/energy-optimal CP and PtP planners vs TOPP-RA and Ruckig, optionally executed on the cell")

@@ -13,7 +13,7 @@ from typing import Any
 from cosim.scenario.context import RunContext
 from cosim.scenario.cosim_tables import COSIM_FIELDS, add_record, build_master, check_cosim_tables, out_of_process
 from cosim.scenario.loader import SCENARIO_FIELD, Scenario
-from cosim.scenario.registry import register_job
+from cosim.scenario.job_type import JobType
 from cosim.scenario.schema import Table
 
 SCHEMA = Table({"scenario": SCENARIO_FIELD, **COSIM_FIELDS}, doc="a scenario document")
@@ -41,5 +41,5 @@ def run_fmus_job(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
     return fields
 
 
-register_job("fmus", run_fmus_job, SCHEMA, check_cosim_tables,
-             "co-simulate the listed FMUs (FMI 2.0/3.0) and connections and record signals (no controller)")
+JOB = JobType("fmus", run_fmus_job, SCHEMA, check_cosim_tables,
+              "co-simulate the listed FMUs (FMI 2.0/3.0) and connections and record signals (no controller)")

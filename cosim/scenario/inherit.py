@@ -29,6 +29,7 @@ from pathlib import Path
 from typing import Any
 
 from cosim.scenario.errors import ScenarioError
+from cosim.scenario.files import packaged_scenarios_dir, read_toml_file
 
 KeyPath = tuple[str | int, ...]
 
@@ -184,8 +185,6 @@ def find_base(name: Any, derived: Path | None, where_key: str = EXTENDS) -> Path
                 "project's scenarios, e.g. \"iso9283\"")
     if not isinstance(name, str) or not name.strip():
         raise ScenarioError(derived, where_key, expected, name)
-    from cosim.scenario.loader import packaged_scenarios_dir
-
     text = name.strip()
     candidates: list[Path] = []
     given = Path(text).expanduser()
@@ -229,7 +228,6 @@ def resolve(document: dict[str, Any], path: Path | None,
     if EXTENDS not in document:
         return document, None
     from cosim.scenario.keypath import absolute_paths
-    from cosim.scenario.loader import read_toml_file
     from cosim.scenario.registry import get_job
 
     base_path = find_base(document[EXTENDS], path)

@@ -1,21 +1,23 @@
 """Job types: what ``python -m cosim run`` does with a scenario, chosen by ``[scenario] job``.
 
-A job module calls ``register_job`` at import time; the modules are listed in
-``JOB_MODULES`` (add yours with a one-line edit) and imported on first lookup.
+The job modules are listed in ``JOB_MODULES`` (add yours with a one-line edit) and imported on
+first lookup; each defines its job type as the module attribute ``JOB`` (a
+:class:`~cosim.scenario.job_type.JobType`), which the registry reads, so a job module never calls
+back into the registry while it is imported. Code outside ``JOB_MODULES`` (a script, a test) adds
+a job type with ``register_job``.
 """
 from __future__ import annotations
 
 import importlib
 from collections.abc import Callable
-from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
+
+from cosim.scenario.job_type import JobRunner, JobType
 
 if TYPE_CHECKING:
-    from cosim.scenario.context import RunContext
-    from cosim.scenario.loader import Scenario
     from cosim.scenario.schema import Table, Where
 
-#: Modules that register job types when imported.
+#: Modules that define a job type as their attribute ``JOB``.
 JOB_MODULES: tuple[str, ...] = (
     "cosim.scenario.fmus_job",
     "cosim.jobs.calibration",
@@ -25,31 +27,6 @@ JOB_MODULES: tuple[str, ...] = (
     "cosim.jobs.planners",
     "cosim.jobs.compare",
 )
-
-#: runner(scenario, context) -> extra summary.json fields (or None)
-JobRunner = Callable[["Scenario", "RunContext"], "dict[str, Any] | None"]
-
-
-@dataclass(frozen=True)
-class JobType:
-    """A registered job type.
-
-    Attributes:
-        name: the value of ``[scenario] job``.
-        runner: runs a validated scenario; returns extra summary fields.
-        schema: Table spec of the WHOLE document (including the ``scenario`` table,
-            e.g. ``Table({"scenario": SCENARIO_FIELD, ...})``).
-        check: optional semantic check ``check(document, where)`` after the schema
-            (files, model descriptions, connections), raising ScenarioError.
-        description: one line for ``--help``.
-    """
-
-    name: str
-    runner: JobRunner
-    schema: "Table"
-    check: "Callable[[dict, Where], None] | None" = None
-    description: str = ""
-
 
 _JOBS: dict[str, JobType] = {}
 _loaded = False
@@ -68,7 +45,8 @@ def _load() -> None:
     if not _loaded:
         _loaded = True
         for module in JOB_MODULES:
-            importlib.import_module(module)
+            job = importlib.import_module(module).JOB
+            _JOBS[job.name] = job
 
 
 def get_job(name: str) -> JobType | None:
@@ -81,3 +59,6 @@ def job_names() -> list[str]:
     """Names of all registered job types."""
     _load()
     return sorted(_JOBS)
+
+
+__all__ = ["JOB_MODULES", "JobRunner", "JobType", "get_job", "job_names", "register_job"]

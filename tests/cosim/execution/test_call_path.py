@@ -18,15 +18,15 @@ after another (the master's step loop calling the bus-cycle task every cycle, a 
 calling a helper twice) is one entry per call path and allowed; only a file met again on
 the way down of the same path counts.
 
-The cell's call paths are the file paths that hold the execution's entry
-(``execution/__init__.py``, :func:`cosim.execution.run_cell`): every call made while the cell
-runs, with the chain above it from the command line. On them the test asserts no return to a
-file already left. ``returns`` = the number of calls that pushed a file already on the file
-path (each one a return to a file already left); ``files`` = the ``cosim/`` files entered.
-Before the cell runs, loading the scenario imports the job modules, which register themselves
-with the job registry (``scenario/registry.py > jobs/... > scenario/registry.py``), and the
-loader reads a base scenario through ``scenario/inherit.py``: those paths are not the cell's;
-the test counts them apart (``tracer.returns``) without asserting on them.
+The test asserts it on every file path of the command, from ``cli.py`` down: loading the
+scenario (the loader reads a base scenario through ``scenario/inherit.py``, which reads files
+with ``scenario/files.py``, never the loader; the job registry imports the job modules and reads
+their ``JOB``, a job module never calls the registry back), the job, the cell's execution, the
+master, the FMUs and the way back up. ``returns`` = the number of calls that pushed a file
+already on the file path (each one a return to a file already left); ``files`` = the ``cosim/``
+files entered. The cell's call paths, those that hold the execution's entry
+(``execution/__init__.py``, :func:`cosim.execution.run_cell`), are also counted apart
+(``cell_returns``, ``cell_files``) to show the cell was followed all the way down.
 """
 from __future__ import annotations
 
@@ -115,12 +115,18 @@ def test_a_simulated_cell_enters_each_file_once_per_direction(tmp_path, monkeypa
     monkeypatch.setenv("MPLBACKEND", "Agg")
     code, tracer = trace_cli(["run", str(scenario), "--out", str(tmp_path / "out"), "--quiet"])
     assert code == 0
-    # the cell was followed all the way: the CLI, the job, the execution, the master, the bus-cycle task
-    for name in ("cli.py", "api.py", "jobs/iso9283.py", "execution/__init__.py", "master/master.py", "cell/link.py"):
+    # the cell was followed all the way: the CLI, the scenario loading (extends), the job, the execution, the master, the bus-cycle task
+    for name in ("cli.py", "api.py", "scenario/loader.py", "scenario/inherit.py", "scenario/files.py",
+                 "scenario/registry.py", "jobs/iso9283.py", "execution/__init__.py", "master/master.py", "cell/link.py"):
         assert name in tracer.files, sorted(tracer.files)
     for name in ("execution/simulated.py", "execution/cell_master.py", "master/master.py", "master/access.py",
                  "cell/link.py", "tracking/laser_tracker.py"):
         assert name in tracer.cell_files, sorted(tracer.cell_files)
-    distinct = sorted({path[-1] for path in tracer.cell_returns})
-    assert not tracer.cell_returns, (f"{len(tracer.cell_returns)} returns into a file already left ({distinct}); "
-                                     f"first: {' > '.join(tracer.cell_returns[0])}")
+    assert not tracer.cell_returns, _first_return(tracer.cell_returns)
+    assert not tracer.returns, _first_return(tracer.returns)
+
+
+def _first_return(returns: list[tuple[str, ...]]) -> str:
+    distinct = sorted({path[-1] for path in returns})
+    return (f"{len(returns)} returns into a file already left ({distinct}); "
+            f"first: {' > '.join(returns[0])}")
