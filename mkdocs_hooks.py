@@ -3,7 +3,8 @@
 At each build, ``on_files`` adds to the site, without writing into docs/:
 
 * ``reference/scenario_keys.md``: every key of every job type, from the schemas
-  (:func:`cosim.scenario.reference.scenario_keys_markdown`);
+  (:func:`cosim.scenario.reference.scenario_keys_markdown`), and every key of a sweep file
+  (:func:`sweep_keys_markdown`, from ``cosim.sweep.loader.SWEEP_SCHEMA``);
 * ``reference/cli.md``: every command and argument, from argparse
   (:func:`cosim.cli_reference.cli_markdown`);
 * ``reference/fieldbus.md``: ``fieldbus/README.md`` (the bus, its frames and the udpcycle wire
@@ -27,9 +28,21 @@ ROOT = Path(__file__).resolve().parent
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
+def sweep_keys_markdown() -> str:
+    """The section of the scenario-key page listing every key of a sweep file."""
+    from cosim.scenario.reference import table_keys_markdown
+    from cosim.sweep.loader import SWEEP_SCHEMA
+
+    return ("\n## Sweep files {#sweep-file}\n\n"
+            "The keys of a sweep file (`cosim sweep`, [Run a sweep on a cluster](../how-to/sweep_cluster.md)),\n"
+            "generated from `cosim.sweep.loader.SWEEP_SCHEMA`. `[overrides]` keys and `[[axes]] key` are key\n"
+            "paths of the base scenario's keys above.\n\n" + table_keys_markdown(SWEEP_SCHEMA))
+
+
 #: site path -> (function building the page's Markdown)
 GENERATED = {
-    "reference/scenario_keys.md": lambda: __import__("cosim.scenario.reference", fromlist=["_"]).scenario_keys_markdown(),
+    "reference/scenario_keys.md": lambda: (__import__("cosim.scenario.reference", fromlist=["_"]).scenario_keys_markdown()
+                                           + sweep_keys_markdown()),
     "reference/cli.md": lambda: __import__("cosim.cli_reference", fromlist=["_"]).cli_markdown(),
     "reference/fieldbus.md": lambda: (ROOT / "fieldbus" / "README.md").read_text(encoding="utf-8"),
 }

@@ -142,6 +142,19 @@ def test_every_scenario_key_is_documented():
     assert not missing, "keys without a doc= text in their schema: " + ", ".join(f"{j}: {k}" for j, k in missing)
 
 
+def test_every_sweep_file_key_is_documented():
+    """The sweep file's keys are on the scenario-key page (mkdocs_hooks.sweep_keys_markdown), each with a text."""
+    from cosim.scenario.reference import table_keys
+    from cosim.sweep.loader import SWEEP_SCHEMA
+    from mkdocs_hooks import sweep_keys_markdown
+
+    keys = table_keys(SWEEP_SCHEMA)
+    assert {"sweep.base", "axes[].seeds", "axes[].distribution.kind", "report.kind"} <= {k.path for k in keys}
+    assert not [k.path for k in keys if not k.doc.strip()]
+    page = sweep_keys_markdown()
+    assert all(f"`{k.path}`" in page for k in keys) and "{#sweep-file}" in page
+
+
 def test_scenario_key_page_lists_every_key_with_its_unit_and_default():
     page = scenario_keys_markdown()
     for job in job_names():
