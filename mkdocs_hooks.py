@@ -8,13 +8,16 @@ At each build, ``on_files`` adds to the site, without writing into docs/:
 * ``reference/cli.md``: every command and argument, from argparse
   (:func:`cosim.cli_reference.cli_markdown`);
 * ``reference/fieldbus.md``: ``fieldbus/README.md`` (the bus, its frames and the udpcycle wire
-  format), which lives beside the package it documents.
+  format), which lives beside the package it documents;
+* ``reference/benchmarks.md``: ``benchmarks/RESULTS.md``, the results page ``python -m cosim
+  bench`` writes (every figure of its last full run, with the machine, its load and the date).
 
 and ``on_page_markdown`` puts tables built from the code into hand-written pages in place of
-their marker line (:data:`MARKERS`): the object table of ``fieldbus/object_dictionary.toml``
+their marker lines (:data:`MARKERS`): the object table of ``fieldbus/object_dictionary.toml``
 (axis 1, :func:`fieldbus.device_files.reference_markdown`) into ``reference/object_dictionary.md``,
-the drive FMU interface (:func:`fmus.servo_drive.interface.reference_markdown`) into
-``how-to/own_drive.md``.
+the tables of exit codes, violation kinds and drive protection limits into
+``reference/verdicts.md`` (:func:`cosim.verdict_reference.fill`), and the drive FMU interface
+(:func:`fmus.servo_drive.interface.reference_markdown`) into ``how-to/own_drive.md``.
 
 The checkout holding this file is put first on ``sys.path``, so the pages describe its code
 (not another installed copy).
@@ -45,6 +48,7 @@ GENERATED = {
                                            + sweep_keys_markdown()),
     "reference/cli.md": lambda: __import__("cosim.cli_reference", fromlist=["_"]).cli_markdown(),
     "reference/fieldbus.md": lambda: (ROOT / "fieldbus" / "README.md").read_text(encoding="utf-8"),
+    "reference/benchmarks.md": lambda: (ROOT / "benchmarks" / "RESULTS.md").read_text(encoding="utf-8"),
 }
 
 
@@ -87,6 +91,7 @@ def drive_interface_markdown(markdown: str) -> str:
 MARKERS = {
     "reference/object_dictionary.md": object_dictionary_markdown,
     "how-to/own_drive.md": drive_interface_markdown,
+    "reference/verdicts.md": lambda markdown: __import__("cosim.verdict_reference", fromlist=["_"]).fill(markdown),
 }
 
 

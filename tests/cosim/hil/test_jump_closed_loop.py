@@ -28,7 +28,7 @@ SKIPPED = {start + i for start, n in STALLS.items() for i in range(n)}
 
 
 def scenario(tmp_path: Path, stalls: bool) -> Path:
-    text = (ROOT / "scenarios" / "iso9283_rigid.toml").read_text()
+    text = (ROOT / "tests" / "long_forms" / "iso9283_rigid.toml").read_text()
     for pattern, new in ((r"^modes = \[.*$", 'modes = ["model_based"]'), (r'^stop_time = ".*"', 'stop_time = "2.8 s"'),
                          (r"^figures = true", "figures = false"),
                          (r"^cycle_time_us = 400.*$",
@@ -91,7 +91,7 @@ BUFFER = ("cycle_time_us = 400\nsetpoint_lookahead = 4\nsetpoint_buffer = 64\n[f
 
 
 def buffered_scenario(tmp_path: Path, name: str, stalls: dict[int, int]) -> Path:
-    text = (ROOT / "scenarios" / "iso9283_rigid.toml").read_text()
+    text = (ROOT / "tests" / "long_forms" / "iso9283_rigid.toml").read_text()
     for pattern, new in ((r"^modes = \[.*$", 'modes = ["model_based"]'), (r'^stop_time = ".*"', 'stop_time = "2.8 s"'),
                          (r"^figures = true", "figures = false"), (r"^cycle_time_us = 400.*$", BUFFER)):
         text, count = re.subn(pattern, new, text, count=1, flags=re.MULTILINE)

@@ -207,7 +207,7 @@ def test_a_bad_channel_is_refused_before_anything_runs(tmp_path):
 def test_split_realtime_runs_our_controller_against_the_served_cell(tmp_path):
     """``cosim run --split --realtime``: our controller follows the served cell in another
     process; the run completes and tracks the ISO path like the in-process run."""
-    text = (ROOT / "scenarios" / "iso9283_rigid.toml").read_text()
+    text = (ROOT / "tests" / "long_forms" / "iso9283_rigid.toml").read_text()
     text = text.replace('stop_time = "12.6 s"', 'stop_time = "1 s"')
     text = text.replace('modes = ["standard", "standard_speed_ff", "model_based"]', 'modes = ["model_based"]')
     text = text.replace('period = "400 us"            # paper section 2.3.2', 'period = "2 ms"')
@@ -333,7 +333,7 @@ def test_a_controller_killed_mid_motion_stops_the_arm(tmp_path):
     assert again.returncode == 0, again.stderr
     assert "drives enabled" in again.stdout
     _, err = serve.communicate(timeout=180)
-    assert serve.returncode == 5, err  # the drives' fault reactions on the kill: verdict fault (docs/robustness.md)
+    assert serve.returncode == 5, err  # the drives' fault reactions on the kill: verdict fault (docs/reference/verdicts.md)
     assert "Traceback" not in err
     assert "datagrams dropped by the cell: 2 malformed, 50 foreign" in err
     result = RunResult(out)
