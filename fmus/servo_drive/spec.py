@@ -119,7 +119,7 @@ def servo_drive_spec() -> FmuSpec:
     return spec
 
 
-#: (name, unit, min, description) of the protection parameters (appended last), docs/fmus.md "Protection"
+#: (name, unit, min, description) of the protection parameters (appended last), docs/explanation/fmus.md "Protection"
 PROTECTION_PARAMETERS: tuple[tuple[str, str, float | None, str], ...] = (
     ("rated_current", "A", 1e-9, "CiA 402 0x6075 motor rated current: the I2t monitoring derates the current "
                                  "limit to it"),
