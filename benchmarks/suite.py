@@ -397,7 +397,7 @@ def hil(sizes: Sizes, work: Path) -> dict[str, Any]:
     m = out["median"]
     late = bench_hil.late_run(work / "late", sizes.hil_late_seconds, sizes.hil_late_cycles)
     # the ISO comparison in the HIL configuration of scenarios/hil.toml: drives extrapolating a
-    # missing set-point, our controller sending the set-point look-ahead (docs/hil.md)
+    # missing set-point, our controller sending the set-point look-ahead (docs/explanation/timing.md)
     lookahead, buffer = bench_hil.hil_lookahead(), bench_hil.hil_buffer()
     iso = bench_hil.iso_split(work / "iso", sizes.hil_iso_runs, sizes.hil_iso_stop_time_s, "extrapolate", lookahead,
                               buffer)
@@ -409,7 +409,7 @@ def hil(sizes: Sizes, work: Path) -> dict[str, Any]:
                       "iso_no_lookahead_tcp_error_ratio": plain["tcp_error_ratio"],
                       "iso_no_lookahead_lost_fraction": plain["lost_fraction"], "iso_no_lookahead": plain})
     m_iso = iso["tcp_error_ratio"]
-    # the HIL targets (docs/hil.md, meant for a quiet machine): <= 1 % overruns, round trip p99
+    # the HIL targets (meant for a quiet machine): <= 1 % overruns, round trip p99
     # <= 100 us, ISO error within 10 %
     targets = {"overruns_at_most_1_percent": m["overrun_fraction"] is not None and m["overrun_fraction"] <= 0.01,
                "round_trip_p99_at_most_100_us": m["round_trip_p99_us"] is not None and m["round_trip_p99_us"] <= 100.0,
@@ -727,7 +727,7 @@ def format_table(result: dict[str, Any]) -> str:
         lines.append(f"  {key:56s} {_fmt(value):>12s}")
     targets = result["figures"].get("hil", {}).get("issue_targets_met")
     if targets:
-        lines.append("hil targets (docs/hil.md, meant for a quiet machine): " + ", ".join(
+        lines.append("hil targets (meant for a quiet machine): " + ", ".join(
             f"{key} {'yes' if ok else 'NO'}" for key, ok in targets.items()))
     for name, error in result["errors"].items():
         lines.append(f"ERROR in {name}: {error.splitlines()[0]}")

@@ -24,10 +24,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="results folder (default: [output] dir of the scenario, else results/<scenario name>/)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     parser.add_argument("--realtime", action="store_true",
-                        help="pace the run at the controller cycle (wall clock); see docs/timing.md")
+                        help="pace the run at the controller cycle (wall clock); see docs/how-to/served_cell.md")
     parser.add_argument("--split", action="store_true",
                         help="controller in this process, drives and plant in another: in lock-step over python-can "
-                             "udp_multicast; with --realtime both paced, the cell served over udpcycle (docs/hil.md)")
+                             "udp_multicast; with --realtime both paced, the cell served over udpcycle (docs/how-to/served_cell.md)")
     parser.add_argument("--max-output", default=None, metavar="SIZE",
                         help="refuse a run estimated to write more (e.g. '5 GB'; default: $COSIM_MAX_OUTPUT, else the "
                              "free disk space)")

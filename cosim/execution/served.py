@@ -7,7 +7,7 @@ the recorder - paced by the wall clock at the bus cycle (:mod:`cosim.execution.c
 settings in :mod:`cosim.execution.serve_settings`). It never waits for the controller: the
 controller is any program on the bus (``udpcycle`` interface, wire format in
 ``fieldbus/README.md``) that answers the cell's PRes frames with SoC + PReqs in time. See
-``docs/hil.md``.
+``docs/how-to/served_cell.md``.
 """
 from __future__ import annotations
 

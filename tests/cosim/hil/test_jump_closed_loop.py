@@ -6,7 +6,7 @@ take the lost set-points from their buffer, the managing node interpolates the s
 controller never computed, and the set-point shaper shapes over the jump: the ISO 9283
 model-based TCP error is the run's without stalls to the last digit. Before the shaper knew
 the jump (it shaped the new target as one sample after the last), the same stalls on the whole
-path cost 0.34 mm against 0.0104 mm (docs/hil.md, "Jumped cycles and the set-point shaper").
+path cost 0.34 mm against 0.0104 mm (the set-point shaper after a jumped cycle).
 
 Deterministic: the stalls are injected in process (no wall clock); the served cell and the split
 controller use the same managing node, controlled nodes and controller code."""
