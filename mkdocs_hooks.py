@@ -7,17 +7,18 @@ At each build, ``on_files`` adds to the site, without writing into docs/:
   (:func:`sweep_keys_markdown`, from ``cosim.sweep.loader.SWEEP_SCHEMA``);
 * ``reference/cli.md``: every command and argument, from argparse
   (:func:`cosim.cli_reference.cli_markdown`);
-* ``reference/fieldbus.md``: ``fieldbus/README.md`` (the bus, its frames and the udpcycle wire
-  format), which lives beside the package it documents;
 * ``reference/benchmarks.md``: ``benchmarks/RESULTS.md``, the results page ``python -m cosim
   bench`` writes (every figure of its last full run, with the machine, its load and the date).
 
 and ``on_page_markdown`` puts tables built from the code into hand-written pages in place of
 their marker lines (:data:`MARKERS`): the object table of ``fieldbus/object_dictionary.toml``
-(axis 1, :func:`fieldbus.device_files.reference_markdown`) into ``reference/object_dictionary.md``,
-the tables of exit codes, violation kinds and drive protection limits into
-``reference/verdicts.md`` (:func:`cosim.verdict_reference.fill`), and the drive FMU interface
-(:func:`fmus.servo_drive.interface.reference_markdown`) into ``how-to/own_drive.md``.
+(axis 1, :func:`fieldbus.device_files.reference_markdown`) into ``reference/object_dictionary.md``
+(:data:`OBJECT_DICTIONARY_MARKER`); the identifiers, telegram layouts and udpcycle datagram
+layout (:mod:`fieldbus.reference`) into ``reference/fieldbus.md`` (:data:`FIELDBUS_MARKERS`); the
+tables of exit codes, violation kinds and drive protection limits into ``reference/verdicts.md``
+(:func:`cosim.verdict_reference.fill`); and the drive FMU interface
+(:func:`fmus.servo_drive.interface.reference_markdown`) into ``how-to/own_drive.md``
+(:data:`DRIVE_INTERFACE_MARKER`).
 
 The checkout holding this file is put first on ``sys.path``, so the pages describe its code
 (not another installed copy).
@@ -47,7 +48,6 @@ GENERATED = {
     "reference/scenario_keys.md": lambda: (__import__("cosim.scenario.reference", fromlist=["_"]).scenario_keys_markdown()
                                            + sweep_keys_markdown()),
     "reference/cli.md": lambda: __import__("cosim.cli_reference", fromlist=["_"]).cli_markdown(),
-    "reference/fieldbus.md": lambda: (ROOT / "fieldbus" / "README.md").read_text(encoding="utf-8"),
     "reference/benchmarks.md": lambda: (ROOT / "benchmarks" / "RESULTS.md").read_text(encoding="utf-8"),
 }
 
@@ -74,6 +74,32 @@ def object_dictionary_markdown(markdown: str) -> str:
     return markdown.replace(OBJECT_DICTIONARY_MARKER, reference_markdown(drive_object_dictionary(1)))
 
 
+def _axis1_dictionary():
+    from fmus.servo_drive.object_dictionary import drive_object_dictionary
+
+    return drive_object_dictionary(1)
+
+
+#: marker line of docs/reference/fieldbus.md -> the function building the table that replaces it
+FIELDBUS_MARKERS = {
+    "<!-- generated: fieldbus.reference.identifiers_markdown (mkdocs_hooks.py) -->":
+        lambda: __import__("fieldbus.reference", fromlist=["_"]).identifiers_markdown(),
+    "<!-- generated: fieldbus.reference.telegrams_markdown (mkdocs_hooks.py) -->":
+        lambda: __import__("fieldbus.reference", fromlist=["_"]).telegrams_markdown(_axis1_dictionary()),
+    "<!-- generated: fieldbus.reference.udpcycle_markdown (mkdocs_hooks.py) -->":
+        lambda: __import__("fieldbus.reference", fromlist=["_"]).udpcycle_markdown(),
+}
+
+
+def fieldbus_markdown(markdown: str) -> str:
+    """``markdown`` with each of :data:`FIELDBUS_MARKERS` replaced by its generated table."""
+    for marker, build in FIELDBUS_MARKERS.items():
+        if markdown.count(marker) != 1:
+            raise ValueError(f"reference/fieldbus.md: the marker {marker!r} must appear once")
+        markdown = markdown.replace(marker, build())
+    return markdown
+
+
 #: the line of docs/how-to/own_drive.md the generated drive interface table replaces
 DRIVE_INTERFACE_MARKER = "<!-- generated: the table of fmus.servo_drive.interface.DRIVE_INTERFACE (mkdocs_hooks.py) -->"
 
@@ -90,6 +116,7 @@ def drive_interface_markdown(markdown: str) -> str:
 #: page -> the function putting its generated table in place of its marker
 MARKERS = {
     "reference/object_dictionary.md": object_dictionary_markdown,
+    "reference/fieldbus.md": fieldbus_markdown,
     "how-to/own_drive.md": drive_interface_markdown,
     "reference/verdicts.md": lambda markdown: __import__("cosim.verdict_reference", fromlist=["_"]).fill(markdown),
 }

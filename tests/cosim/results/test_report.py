@@ -263,6 +263,11 @@ def test_paced_split_run_plots_compute_time_and_lateness_against_the_tolerance(b
         "return [d.data.map(function (tr) { return tr.name; }), d.layout.shapes.map(function (s) { return s.y0; }),"
         " document.getElementById('plot-compute').data.length];")
     assert lines[0] == ["model_based"] and lines[2] == 1
+    cells = summary_cells(browser)  # the timing report: summary.json's realtime section, every figure as written
+    timing = [(k, v) for k, v, _ in cells if k.startswith("realtime.")]
+    assert {"realtime.cycles", "realtime.tolerance_us"} <= {k for k, _ in timing}, [k for k, _, _ in cells]
+    for key, value in timing:
+        assert value == _dig(summary, key), key
     assert lines[1] == [summary["realtime"]["tolerance_us"]]  # the deadline the lateness is judged against
     k = int(np.argmax(late))
     _set_time(browser, float(t[k]))
@@ -398,3 +403,57 @@ def test_limit_run_report_shows_what_stopped_it_where_and_when(limit_run, browse
     browser.execute_script("document.getElementById('player').scrollIntoView();")
     browser.save_screenshot(str(tmp_path / "report_limit_run.png"))
     assert console_errors(browser) == []
+
+
+CRASHING = """
+
+class Crashing(RunawayTorque):
+    \"\"\"PD + gravity on every joint (no runaway torque) until t = 0.15 s, then a bug: an exception.\"\"\"
+
+    def __init__(self) -> None:
+        super().__init__(joint=3, torque=0.0)
+
+    def step(self, inputs):
+        if inputs.time_s >= 0.15:
+            raise IndexError("axis 7 of 6: a bug in the user's controller")
+        out = super().step(inputs)
+        return out
+"""
+
+
+def test_failed_run_and_report_off(tmp_path, browser, monkeypatch):
+    """A run whose controller raises ends ``failed`` and still gets its report (the note says where
+    and why it stopped; the stop is an event at its time); ``[results] report = false`` and
+    ``COSIM_REPORT=0`` write none (``cosim view`` writes it later)."""
+    text = (ROOT / "tests" / "cosim" / "cell" / "runaway_torque.py").read_text(encoding="utf-8")
+    text = text.replace("tau[self.joint - 1] = self.torque", "pass")  # no runaway: a plain PD + gravity
+    (tmp_path / "crashing.py").write_text(text + CRASHING, encoding="utf-8")
+    path = write_variant(MAIN_JOB, tmp_path / "crash.toml", [
+        ('stop_time = "12.6 s"', 'stop_time = "0.4 s"'),
+        ('modes = ["standard", "model_based", "model_based_elastic"]', 'modes = []\nclass = "crashing.py:Crashing"'),
+        ("figures = true", "figures = false")])
+    code, summary = run_scenario(path, tmp_path / "out")
+    assert code != 0 and summary["status"] == "failed", summary
+    where = summary["stopped_at_s"]
+    assert 0.15 <= where < 0.16 and "axis 7 of 6" in summary["reason"]
+    open_report(browser, tmp_path / "out" / "report.html")
+    assert console_errors(browser) == []
+    from browser_support import report_state
+
+    state = report_state(browser)
+    assert any(n.startswith(f"the run ended 'failed' at t = {where:.6g} s") and "axis 7 of 6" in n
+               for n in state["notes"]), state["notes"]
+    assert any(r[2] == "stopped" and r[0] == f"{where:.4f}" and "axis 7 of 6" in r[8] for r in state["events"])
+    names, data = read_series(tmp_path / "out" / "tcp_Crashing.parquet")
+    assert data[:, names.index("t")].max() <= where + 1e-3  # what the run recorded before it stopped is drawn
+    assert browser.execute_script("return document.getElementById('plot-tcp_error').data.length;") == 1
+    # no report when the scenario or the environment says so
+    off = write_variant(path.read_text(encoding="utf-8"), tmp_path / "off.toml",
+                        [("[results]", "[results]\nreport = false")])
+    run_scenario(off, tmp_path / "off")
+    assert (tmp_path / "off" / "summary.json").exists() and not (tmp_path / "off" / "report.html").exists()
+    monkeypatch.setenv("COSIM_REPORT", "0")
+    run_scenario(path, tmp_path / "env")
+    assert (tmp_path / "env" / "summary.json").exists() and not (tmp_path / "env" / "report.html").exists()
+    assert not list((tmp_path / "env").glob("report.html*"))
+    assert main(["view", str(tmp_path / "off")]) == 0 and (tmp_path / "off" / "report.html").exists()
