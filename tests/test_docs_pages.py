@@ -71,8 +71,6 @@ def test_no_user_page_above_15_kb():
     assert not big, f"user pages above {MAX_PAGE_BYTES} bytes (split or trim them):\n" + "\n".join(big)
 
 
-@pytest.mark.xfail(strict=True, reason="issue 28 not met yet: 178.5 KB of hand-written user docs on 2026-12-04 "
-                   "14:55 UTC, trimming under way (docstrim); strict: remove this mark when it passes")
 def test_user_docs_together_below_150_kb():
     total = sum(p.stat().st_size for p in _pages())
     assert total < MAX_TOTAL_BYTES, f"hand-written user docs: {total} bytes, expected below {MAX_TOTAL_BYTES}"
