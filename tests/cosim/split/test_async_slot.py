@@ -87,7 +87,7 @@ subindex = 1
 def _run(scenario, out, *flags):
     done = subprocess.run([sys.executable, "-m", "cosim", "run", str(scenario), "--quiet", "--out", str(out), *flags],
                           cwd=ROOT, capture_output=True, text=True, timeout=600)
-    assert done.returncode == 4, done.stderr  # 4: the drive tripped (docs/robustness.md), as the test wants
+    assert done.returncode == 4, done.stderr  # 4: the drive tripped (docs/reference/verdicts.md), as the test wants
     return json.loads((out / "summary.json").read_text())["modes"]["model_based"]
 
 
