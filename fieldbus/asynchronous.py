@@ -50,6 +50,7 @@ import can
 from fieldbus.canopen_node import NMT_COMMANDS, NMT_ID, CanopenNode
 from fieldbus.object_dictionary import DATA_TYPES, Entry, ObjectDictionary
 from fieldbus.sdo import NO_OBJECT, NO_SUBINDEX, SDO_RX_BASE, SDO_TX_BASE, encode_value
+from fieldbus.telegrams import FastMessage
 
 #: NMT commands by the name a scenario gives (CiA 301 command specifiers, fieldbus.canopen_node)
 NMT_BY_NAME = {"start": 0x01, "stop": 0x02, "pre-operational": 0x80, "reset-node": 0x81,
@@ -373,8 +374,7 @@ class AsyncClient:
             self.counts.slots_taken_by_emcy += 1
         elif kind == TAKEN and self._frame is not None:
             cob, payload = self._frame
-            out.append(can.Message(timestamp=t + self._mn_offset, arbitration_id=cob, data=payload,
-                                   is_extended_id=False))
+            out.append(FastMessage(t + self._mn_offset, cob, bytearray(payload)))
             self._frame = None
             offered, self._offered = self._offered, None
             if offered is not None:
@@ -403,8 +403,7 @@ class AsyncClient:
                 self._transfer = self._result = None
             else:
                 answer = bytes(data or b"")
-                out.append(can.Message(timestamp=t + self._cn_offset, arbitration_id=SDO_TX_BASE + transfer.request.node,
-                                       data=answer, is_extended_id=False))
+                out.append(FastMessage(t + self._cn_offset, SDO_TX_BASE + transfer.request.node, bytearray(answer)))
                 self.counts.answers += 1
                 following = transfer.take(answer)
                 if transfer.done:
@@ -497,14 +496,14 @@ class AsyncNodes:
                 return SILENT, None
             if actuals is not None and self.scaling is not None:
                 self._latch(node.node_id, actuals)
-            request = can.Message(timestamp=t, arbitration_id=cob, data=data, is_extended_id=False)
+            request = FastMessage(t, cob, bytearray(data))
             answers = node.receive(request, t)
             return (ANSWER, bytes(answers[0].data)) if answers else (SILENT, None)
         if offer is None:
             return None
         cob, data = offer
         if cob == NMT_ID:
-            msg = can.Message(timestamp=t, arbitration_id=NMT_ID, data=data, is_extended_id=False)
+            msg = FastMessage(t, NMT_ID, bytearray(data))
             for node_id, node in self.nodes.items():
                 before = node.nmt_state
                 node.receive(msg, t)  # a reset's boot-up message stays off POWERLINK: the PRes carries the state
