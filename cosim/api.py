@@ -55,7 +55,7 @@ if TYPE_CHECKING:  # pragma: no cover
 
 #: Labels used as ``ScenarioError.file`` for documents that are no file.
 DICT_LABEL, STRING_LABEL, PYTHON_LABEL = "<dict>", "<string>", "<python>"
-#: File name patterns of what a run writes, by kind (cosim.results; docs/cosim.md).
+#: File name patterns of what a run writes, by kind (cosim.results; docs/reference/output_files.md).
 TIMESERIES_SUFFIXES = (".parquet", ".csv")
 FIGURE_SUFFIXES = (".png", ".svg", ".pdf")
 CAN_LOG_SUFFIXES = (".blf", ".asc", ".trc", ".mf4")

@@ -92,7 +92,7 @@ _UNPACK_SKIP = RPDO1_BUFFER_SKIP.unpack_from
 def _lookahead_entry(raw: bytes) -> bytes:
     """The 10-byte look-ahead entry of a packed 20-byte RPDO1: the set-point of its mode
     (target position / velocity INT32, target torque INT16 widened), torque offset,
-    velocity offset (fieldbus/README.md, Frames)."""
+    velocity offset (docs/reference/fieldbus.md, Telegrams)."""
     mode = raw[8]
     if mode == 9:
         target = raw[12:16]
@@ -106,7 +106,7 @@ def _lookahead_entry(raw: bytes) -> bytes:
 def _entry_setpoint(due: tuple[int, ...], data: bytes, j: int) -> tuple[int, ...]:
     """The pipe tuple (cw, pos, tq, mode, 0, tt, tv, vo) of look-ahead entry ``j`` (1..k) of an
     RPDO1 whose own set-point is ``due``: controlword and mode are the PReq's, the entry's
-    value is the set-point of that mode (fieldbus/README.md, Frames)."""
+    value is the set-point of that mode (docs/reference/fieldbus.md, Telegrams)."""
     cw, pos, _, mode, _, tt, tv, _ = due
     target, offset, velocity = _UNPACK_ENTRY(data, 20 + _ENTRY_LEN * (j - 1))
     if mode == 9:

@@ -19,7 +19,7 @@ EXIT_INTERNAL = EXIT_FAILED  # an unexpected error is a failed run too
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """SCENARIO, --out, --quiet, --realtime, --split."""
-    parser.add_argument("scenario", type=Path, help="scenario TOML file (see docs/cosim.md)")
+    parser.add_argument("scenario", type=Path, help="scenario TOML file (see docs/reference/scenario_keys.md)")
     parser.add_argument("--out", type=Path, default=None,
                         help="results folder (default: [output] dir of the scenario, else results/<scenario name>/)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -37,7 +37,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--ignore-budget", action="store_true", help="run even above --max-output/--max-memory")
     parser.add_argument("--timeseries", choices=("parquet", "csv"), default=None,
                         help="format of the time-series files (default: parquet, or $COSIM_TIMESERIES); "
-                             "see docs/ARCHITECTURE.md")
+                             "see docs/reference/output_files.md")
 
 
 def run(args: argparse.Namespace) -> int:

@@ -172,6 +172,48 @@ def _is_table(field: Field) -> bool:
     return isinstance(spec, Table) or (isinstance(spec, List) and isinstance(spec.item, Table))
 
 
+#: How a scenario combines with the one it ``extends`` (cosim/scenario/inherit.py).
+_EXTENDS = [
+    "",
+    "## Starting from another scenario: `extends` {#extends}",
+    "",
+    "The top-level key `extends` names a base scenario: a path relative to the file, or the name of",
+    "one of the project's scenarios (`\"iso9283\"`, also after a non-editable install); the robot",
+    "cell's own bases are [`cell` and `cell_elastic`](#cell-defaults). Top-level keys come before the",
+    "first `[table]` header.",
+    "",
+    "- tables merge key by key at any depth: `[controller] compute_budget = \"150 us\"` changes that key",
+    "  and keeps the base's other `[controller]` keys;",
+    "- `[[fmus]]` merges FMU by FMU on `name`: a table named like one of the base's FMUs changes only",
+    "  the keys it gives, a new name adds an FMU after the base's;",
+    "- every other value replaces the base's whole, lists included (`[record] signals`);",
+    "- the base may extend another scenario; a circle is an error;",
+    "- file paths written in the base stay relative to the base's folder; a user class",
+    "  `\"file.py:Class\"` is looked up next to the scenario you run;",
+    "- give `[scenario] name`, so the results go to a folder of their own.",
+    "",
+    "An error in a key that came from the base names the base file and line and the file that",
+    "inherited it, e.g. `base.toml: controller.period: expected a number in s > 0, got '-400 us'",
+    "(line 7, inherited by derived.toml)`.",
+]
+
+
+def units_markdown() -> list[str]:
+    """The section on quantities with a unit, from :data:`cosim.scenario.units.UNITS`."""
+    from cosim.scenario.units import UNITS
+
+    lines = ["", "## Quantities with a unit {#units}", "",
+             "A number is in the SI unit the key's row names. A string `\"<number> <unit>\"` with a unit of",
+             "the same dimension is converted when the file loads (decimal factors exactly: `\"100 us\"` is",
+             "the same float as `1e-4`); a unit of another dimension is an error. FMU parameters are plain",
+             "numbers in the FMU's own units.", "",
+             "| SI unit | also accepted |", "|---|---|"]
+    for si, spellings in UNITS.items():
+        others = ", ".join(f"`{name}`" for name in spellings if name != si)
+        lines.append(f"| `{si}` | {others} |")
+    return lines
+
+
 def scenario_keys_markdown() -> str:
     """The page ``reference/scenario_keys.md``: every key of every registered job type.
 
@@ -206,6 +248,7 @@ def scenario_keys_markdown() -> str:
     ]
     for name in names:
         lines.append(f"| [`{name}`](#job-{name}) | {_text(get_job(name).description)} |")
+    lines += _EXTENDS + units_markdown()
     for name in names:
         job = get_job(name)
         lines += ["", f"## Job `{name}` {{#job-{name}}}", ""]
@@ -234,6 +277,16 @@ def scenario_keys_markdown() -> str:
         lines += _HEADER + [_row(row) for row in rows[1:]]
     lines += cell_defaults_markdown()
     return "\n".join(lines) + "\n"
+
+
+def table_keys(table: Table) -> list[KeyDoc]:
+    """Every key of a schema outside the job registry (e.g. the sweep file's), in declaration order."""
+    return list(_walk(table, ""))
+
+
+def table_keys_markdown(table: Table) -> str:
+    """The keys of ``table`` as the key table of the scenario-key page (key, type, unit, default, meaning)."""
+    return "\n".join(_HEADER + [_row(key) for key in table_keys(table)]) + "\n"
 
 
 CELL_BASES = ("cell", "cell_elastic")
@@ -295,4 +348,5 @@ def cell_defaults_markdown() -> list[str]:
     return lines
 
 
-__all__ = ["CELL_BASES", "KeyDoc", "cell_defaults_markdown", "job_names", "scenario_keys", "scenario_keys_markdown", "toml_text", "undocumented_keys"]
+__all__ = ["CELL_BASES", "KeyDoc", "cell_defaults_markdown", "job_names", "scenario_keys", "scenario_keys_markdown",
+           "table_keys", "table_keys_markdown", "toml_text", "undocumented_keys"]

@@ -286,7 +286,7 @@ def test_a_controller_at_another_cycle_time_is_a_counted_logged_mismatch(tmp_pat
 
 
 def _stranger_datagram(sequence: int) -> bytes:
-    """A valid udpcycle datagram (fieldbus/README.md) with a SoC and six PReqs that would
+    """A valid udpcycle datagram (docs/reference/fieldbus.md) with a SoC and six PReqs that would
     disable every drive (controlword 0), from a program that is not the cell's controller."""
     frames = [(0x080, bytes([sequence % 240 + 1]))] + [(0x200 + n, struct.pack("<Hih", 0, 0, 0)) for n in range(1, 7)]
     body = b"".join(struct.pack(">IBBHd", can_id, len(data), 0, 0, 0.0) + data for can_id, data in frames)
