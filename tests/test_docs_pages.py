@@ -76,9 +76,9 @@ def test_user_docs_together_below_150_kb():
     assert total < MAX_TOTAL_BYTES, f"hand-written user docs: {total} bytes, expected below {MAX_TOTAL_BYTES}"
 
 
-def test_no_measurement_narrative_in_user_pages():
+def test_no_measurement_narrative_in_user_pages_and_readme():
     hits = [f"{page_id(p)}:{n}: {what}: {line[:120]}"
-            for p in _pages() for n, what, line in narrative_lines(p.read_text(encoding="utf-8"))]
+            for p in _pages() + [ROOT / "README.md"] for n, what, line in narrative_lines(p.read_text(encoding="utf-8"))]
     assert not hits, ("measurement narrative in user pages (measured figures belong in the benchmark "
                       "results page `cosim bench` writes):\n" + "\n".join(hits))
 
