@@ -11,7 +11,9 @@ At each build, ``on_files`` adds to the site, without writing into docs/:
 
 and ``on_page_markdown`` puts the object table of ``fieldbus/object_dictionary.toml`` (axis 1,
 :func:`fieldbus.device_files.reference_markdown`) into ``reference/object_dictionary.md`` in place
-of its marker line (:data:`OBJECT_DICTIONARY_MARKER`).
+of its marker line (:data:`OBJECT_DICTIONARY_MARKER`), and the tables of exit codes, violation kinds
+and drive protection limits into ``reference/verdicts.md`` in place of theirs
+(:func:`cosim.verdict_reference.fill`).
 
 The checkout holding this file is put first on ``sys.path``, so the pages describe its code
 (not another installed copy).
@@ -58,4 +60,8 @@ def object_dictionary_markdown(markdown: str) -> str:
 def on_page_markdown(markdown, page, config, files):
     if page.file.src_uri == "reference/object_dictionary.md":
         return object_dictionary_markdown(markdown)
+    if page.file.src_uri == "reference/verdicts.md":
+        from cosim.verdict_reference import fill
+
+        return fill(markdown)
     return markdown

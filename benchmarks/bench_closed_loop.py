@@ -6,7 +6,7 @@ Target: at least 3x faster than real time on one core (median of 5 runs of
 <= 100 us.
 
 Each run builds the cell of ``scenarios/iso9283_rigid.toml`` (the main job on the rigid plant,
-where the figures of docs/main_job.md "Speed" were taken; ``--scenario scenarios/iso9283.toml``:
+the suite's closed_loop section of benchmarks/RESULTS.md; ``--scenario scenarios/iso9283.toml``:
 the main job itself, elastic plant) (true robot, macro step, plant
 parameters, drive gains and the mode's drive speed feed-forward, fieldbus defaults)
 exactly as ``python -m cosim run`` does (``cosim.execution.mode_runs.prepare`` and ``mode_cell``
@@ -28,8 +28,8 @@ Printed per run and as medians:
 CPU-time clock (fieldbus ``run_cycle``, ``Controller.step``, the stepping kernel
 ``advance`` = the seven FMUs, the tracker task, the recorder's ``sample``/``flush``; the
 rest of ``Master.run`` is the master's own Python and the fieldbus task's glue). Each
-wrapper costs two ``thread_time_ns`` calls (about 1-2 us per wrapper at load 0.6-0.9,
-docs/main_job.md), so the parts
+wrapper costs two ``thread_time_ns`` calls (about 1-2 us per wrapper at load 0.6-0.9),
+so the parts
 add up to more than an unwrapped run. Each part is exclusive of the other parts nested
 in it (the recorder's flush inside its sample). Shown per 400 us controller cycle.
 
@@ -55,7 +55,7 @@ TARGET_P99_US = 100.0
 
 SCENARIO = ROOT / "scenarios" / "iso9283_rigid.toml"
 """The default cell: the main job's path, robot and drives on the rigid plant (the figures of
-docs/main_job.md "Speed" and of the suite's closed_loop, closed_loop_split and paced sections)."""
+the suite's closed_loop, closed_loop_split and paced sections)."""
 ELASTIC_SCENARIO = ROOT / "scenarios" / "iso9283.toml"
 """The main job: the elastic plant (the suite's closed_loop_elastic section)."""
 

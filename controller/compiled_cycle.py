@@ -10,7 +10,7 @@ instead of a dozen pinocchio/LAPACK calls and numpy temporaries, which matters m
 the FMUs and the fieldbus have evicted the interpreter's caches between two cycles. With the
 whole cycle around it in C too (``fast_cycle.c``) the controller step of the closed loop takes
 21 us thread CPU per 400 us cycle (``benchmarks/bench_closed_loop.py --breakdown``, load
-0.6-0.9, docs/main_job.md).
+0.6-0.9).
 
 Kernel ``f(state[18], ref[24], h)`` returns ``state_out[18], tau[6], info[3]``:
 ``state = (q, qd, qdd)`` of the previous cycle (rad, rad/s, rad/s^2), ``ref`` the desired

@@ -14,7 +14,7 @@ waits for the wall clock; wall time there measures the siblings too), in a real-
 :meth:`TimingSummary.judged_on`. Both counts are kept (``cpu_over_budget``,
 ``wall_over_budget``). On a real industrial PC the
 budget is what the 400 µs cycle leaves for the controller; here it is a scenario
-value (default 100 µs, the main job's target for the p99 compute time, docs/main_job.md).
+value (default 100 µs, the main job's target for the p99 compute time).
 """
 from __future__ import annotations
 

@@ -4,7 +4,7 @@ Each command lives in its own module under ``cosim/commands/`` exposing
 ``NAME``, ``HELP``, ``add_arguments(parser)`` and ``run(args) -> int``.
 Register a new command by adding its module name to ``COMMAND_MODULES``.
 
-Errors and exit codes (cosim/results/exits.py, docs/robustness.md): whatever a command
+Errors and exit codes (cosim/results/exits.py, docs/reference/verdicts.md): whatever a command
 raises becomes one ``error: ...`` line on stderr and a documented exit code (2 bad input
 or unusable output folder, 3 failed run, 130 interrupted); the traceback is printed only
 with ``--debug``. SIGTERM and SIGHUP are handled like Ctrl-C (SIGINT): the command stops,
@@ -23,7 +23,7 @@ import traceback
 from collections.abc import Sequence
 
 from cosim.results.exits import (EXIT_FAILED, EXIT_INTERRUPTED, EXIT_INVALID, CommandError, describe_decode_error,
-                                  describe_os_error, signal_name_of)
+                                  describe_os_error, exit_codes_line, signal_name_of)
 from cosim.results.interrupts import install_signal_handlers, restore_signal_handlers
 
 COMMAND_MODULES: tuple[str, ...] = (
@@ -57,8 +57,7 @@ def build_parser() -> argparse.ArgumentParser:
     for module_name in COMMAND_MODULES:
         module = importlib.import_module(module_name)
         cmd = sub.add_parser(module.NAME, help=module.HELP, description=module.HELP,
-                             epilog="exit codes: 0 ok, 1 partly failed (sweep, bench), 2 bad input or unusable "
-                                    "output folder, 3 failed run, 130 interrupted (docs/robustness.md)")
+                             epilog=f"exit codes: {exit_codes_line()} (docs/reference/verdicts.md)")
         module.add_arguments(cmd)
         cmd.add_argument("--debug", action="store_true", default=argparse.SUPPRESS,
                          help="print the Python traceback of an error")

@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 
 from cosim.cli import build_parser
+from cosim.results.exits import exit_codes_line
 
 
 def _commands(parser: argparse.ArgumentParser) -> dict[str, argparse.ArgumentParser]:
@@ -76,9 +77,8 @@ def cli_markdown() -> str:
         "",
         "Generated from the argparse parser (`cosim/cli.py`, `cosim/commands/*.py`) by",
         "`cosim/cli_reference.py` when the site is built. `python -m cosim` and the installed `cosim`",
-        "script are the same program. Every command exits with 0 (ok), 1 (partly failed: sweep, bench),",
-        "2 (bad input or unusable output folder), 3 (failed run) or 130 (interrupted); see",
-        "[Robustness](../robustness.md).",
+        "script are the same program. Exit codes: " + exit_codes_line() + "; see",
+        "[Verdicts and exit codes](verdicts.md).",
         "",
         "```text",
         parser.format_usage().strip(),

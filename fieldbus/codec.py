@@ -6,7 +6,7 @@ to SI) through this CPython extension when it is available; each function change
 nothing and returns a status when it meets anything unusual, and the nodes then run
 their Python code, which stays the reference (identical results, tested in
 ``tests/fieldbus/test_fast_paths.py``). The fieldbus cycle of six nodes costs
-254 000 instructions in Python and 100 000 with the codec (callgrind, docs/main_job.md).
+254 000 instructions in Python and 100 000 with the codec (callgrind).
 
 The extension is built against this interpreter's headers and cached by the project's
 native layer (:mod:`native`: per-user cache, lock, atomic replacement; ``COSIM_NATIVE=require``

@@ -8,24 +8,29 @@ cosim may import everything.
 Inside cosim/, its subpackages stand on floors (``COSIM_FLOORS``), bottom first; a module imports
 its own subpackage and the floors below, never a floor above nor a neighbour on its own floor:
 
-====  ==========================================  =============================================
-0     ``master``, ``results``, ``tracking``         the FMU master; result files, exit codes and
-                                                   interrupts; the laser tracker and its metrics
-1     ``ssp``                                      SSP archives of FMUs and connections
-2     ``scenario``                                 scenario files, schema, validation, job registry
-3     ``cell``                                     what the robot cell is (parts, wiring, checks,
-                                                   evaluation, its SSP export)
-4     ``execution``                                how a cell runs (simulated, paced, split, served)
-5     ``jobs``, ``coupling_study``                 the jobs of ``cosim run``; the coupling study
-6     ``runs``                                     one run of a scenario: load, run into a folder,
-                                                   read what it wrote
-7     ``sweep``                                    many runs of a scenario
-8     ``api``                                      the public module for scripts
-9     ``commands``                                 one module per CLI command
-10    ``cli``                                      the command line (``cosim.cli.main``)
-11    ``__main__``, ``cli_reference``              ``python -m cosim``; the CLI reference page
-12    ``cosim`` (the package's ``__init__``)       re-exports ``cosim.api`` on first use
-====  ==========================================  =============================================
+=====  ======================================================  ======================================
+0      ``master``, ``results``, ``tracking``                   the FMU master; result files, exit
+                                                               codes and interrupts; the laser
+                                                               tracker and its metrics
+1      ``ssp``                                                 SSP archives of FMUs and connections
+2      ``scenario``                                            scenario files, schema, validation,
+                                                               the job registry
+3      ``cell``                                                what the robot cell is (parts, wiring,
+                                                               checks, evaluation, its SSP export)
+4      ``execution``                                           how a cell runs (simulated, paced,
+                                                               split, served)
+5      ``jobs``, ``coupling_study``                            the jobs of ``cosim run``; the
+                                                               coupling study
+6      ``runs``                                                one run of a scenario: load it, run it
+                                                               into a folder, read what it wrote
+7      ``sweep``                                               many runs of a scenario
+8      ``api``                                                 the public module for scripts
+9      ``commands``                                            one module per CLI command
+10     ``cli``                                                 the command line (``cosim.cli.main``)
+11     ``__main__``, ``cli_reference``, ``verdict_reference``  ``python -m cosim``; the generated
+                                                               reference pages
+12     ``cosim`` (the package's ``__init__``)                  re-exports ``cosim.api`` on first use
+=====  ======================================================  ======================================
 
 The job registry (scenario floor) imports the job modules it lists by name and reads their
 ``JOB``; that is how a lower floor finds the jobs without importing them. Imports inside
@@ -313,7 +318,7 @@ def test_no_circle_of_imports_in_a_package(package):
 COSIM_FLOORS: tuple[tuple[str, ...], ...] = (
     ("master", "results", "tracking"), ("ssp",), ("scenario",), ("cell",), ("execution",),
     ("jobs", "coupling_study"), ("runs",), ("sweep",), ("api",), ("commands",), ("cli",),
-    ("__main__", "cli_reference"), ("cosim",))
+    ("__main__", "cli_reference", "verdict_reference"), ("cosim",))
 """cosim's subpackages (and top-level modules) by floor, bottom first (the module docstring)."""
 
 

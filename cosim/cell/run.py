@@ -45,7 +45,7 @@ class CellRun:
     or for a user's controller the cell's :class:`controller.port.CommandLog`."""
     protection_events: list[dict] = field(default_factory=list)
     """The drives' and the plant's protection events (limit reached, end stop hit; the record of
-    docs/robustness.md), one per onset: :func:`cosim.cell.protection.protection_events`, filled by
+    docs/reference/verdicts.md), one per onset: :func:`cosim.cell.protection.protection_events`, filled by
     :func:`cosim.execution.run_cell` in every mode; judged by :func:`cosim.cell.verdict.judge`."""
     drives_checked: bool = False
     """Whether the run watched the drives' states (``drives_enabled_at_s`` is meaningful)."""

@@ -1,4 +1,4 @@
-"""The verdict of a cell run: ``ok``, ``limit``, ``fault`` or ``failed`` (docs/robustness.md).
+"""The verdict of a cell run: ``ok``, ``limit``, ``fault`` or ``failed`` (docs/reference/verdicts.md).
 
 Every cell run (each mode of a job, each entry of ``compare``, a served, paced or split run)
 is judged here and nowhere else, by :func:`judge`, from what the run itself recorded:
@@ -43,8 +43,29 @@ SEVERITY = {"ok": 0, "limit": 1, "fault": 2, "failed": 3, "interrupted": 4}
 """Rank of each verdict and job status (higher is more severe)."""
 MAX_VIOLATIONS = 200
 """Violations kept in a run's record (``violations_total`` counts them all)."""
-LIMIT_KINDS = frozenset({"torque_limit", "current_limit", "i2t", "speed_limit", "position_limit",
-                         "following_error", "end_stop"})
+VIOLATION_KINDS: dict[str, tuple[str, str]] = {
+    "torque_limit": ("limit", "a drive clamped the commanded torque at its max torque / max current"),
+    "current_limit": ("limit", "a drive clamped the current at its limit"),
+    "i2t": ("limit", "a drive's I2t monitoring derated its current limit to the rated current"),
+    "speed_limit": ("limit", "a joint ran faster than its drive's max motor speed; the drive's fault reaction "
+                             "stops it"),
+    "position_limit": ("limit", "a joint left its drive's software position limits; the drive's fault reaction "
+                                "stops it"),
+    "following_error": ("limit", "a drive's following error stayed beyond its window for its time-out; the "
+                                 "drive's fault reaction stops it"),
+    "end_stop": ("limit", "a joint of the plant hit its mechanical end stop"),
+    "fault_reaction": ("fault", "a fieldbus threshold counter tripped: the managing node reports the node "
+                                "faulted, the drive its communication fault"),
+    "controller_stop": ("fault", "the controller stopped commanding motion because a drive reported a fault "
+                                 "no protection limit caused"),
+    "not_enabled": ("fault", "the drives never reached Operation enabled"),
+    "failure": ("failed", "the run itself failed: an FMU failed, the controller raised or returned an "
+                          "unusable output, the run could not start"),
+    "close_error": ("failed", "the user controller's close() raised after the motion"),
+    "refused": ("failed", "the run was refused before it started (a plan beyond the robot's limits)"),
+}
+"""Every ``kind`` of a violation: (the verdict it gives, what happened)."""
+LIMIT_KINDS = frozenset(kind for kind, (verdict, _) in VIOLATION_KINDS.items() if verdict == "limit")
 """Protection event kinds of a drive limit or a plant end stop (verdict ``limit``)."""
 WARNING_KINDS = frozenset({"budget"})
 """Event kinds that are warnings only (they do not change the verdict)."""
@@ -339,5 +360,5 @@ def run_line(label: str, entry: dict[str, Any]) -> str:
     return f"{label}: {verdict}" + (f": {describe_violation(first)}" if first else "")
 
 
-__all__ = ["CHRONIC_BUDGET_FRACTION", "budget_warning", "record", "LIMIT_KINDS", "MAX_VIOLATIONS", "SEVERITY", "VERDICTS", "Verdict", "apply", "describe_violation",
+__all__ = ["CHRONIC_BUDGET_FRACTION", "VIOLATION_KINDS", "budget_warning", "record", "LIMIT_KINDS", "MAX_VIOLATIONS", "SEVERITY", "VERDICTS", "Verdict", "apply", "describe_violation",
            "exit_code", "failed_verdict", "judge", "most_severe", "refused_verdict", "run_line", "violation"]

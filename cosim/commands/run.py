@@ -10,7 +10,7 @@ NAME = "run"
 HELP = ("Validate a scenario TOML file, then run its job ([scenario] job, e.g. 'fmus') and write "
         "summary.json and time series to results/<scenario name>/ (or --out DIR).")
 
-#: Exit codes (cosim/results/exits.py, docs/robustness.md): 0 ok, 2 invalid scenario or unusable results
+#: Exit codes (cosim/results/exits.py, docs/reference/verdicts.md): 0 ok, 2 invalid scenario or unusable results
 #: folder, 3 the run failed (summary.json "failed"), 4 a run hit a limit ("limit"), 5 a run faulted
 #: ("fault"), 130 interrupted (summary.json "interrupted").
 EXIT_OK, EXIT_INVALID, EXIT_FAILED, EXIT_INTERRUPTED = 0, 2, 3, 130
@@ -135,7 +135,7 @@ def _run(args: argparse.Namespace) -> int:
         data = summary.raw
         print(f"{scenario.name}: {summary.status}: {_first_line(summary.reason or '')}; "
               f"{data['sim_time_s']:.6g} s simulated; results in {out_dir}/ (summary.json: {summary.status}, "
-              f"exit code {exit_code(summary.status)}, docs/robustness.md)", file=sys.stderr)
+              f"exit code {exit_code(summary.status)}, docs/reference/verdicts.md)", file=sys.stderr)
         return exit_code(summary.status)
     exc = result.error
     debug = getattr(args, "debug", False)

@@ -112,7 +112,7 @@ def run(args: argparse.Namespace) -> int:
     status = result.summary.status
     if status in ("limit", "fault"):  # completed, but the drives reacted (e.g. tripped on lost cycles)
         print(f"{scenario.name}: served, {status}: {(result.summary.reason or '').strip()}; results in {out_dir}/ "
-              f"(summary.json: {status}, exit code {exit_code(status)}, docs/robustness.md)", file=sys.stderr)
+              f"(summary.json: {status}, exit code {exit_code(status)}, docs/reference/verdicts.md)", file=sys.stderr)
         return exit_code(status)
     print(f"error: {scenario.name}: served run failed: {(result.summary.reason or '').strip()}", file=sys.stderr)
     return 3

@@ -2,7 +2,7 @@
 
 ``python -m cosim run|serve|sweep`` forks once, right after the command line is parsed (before
 any heavy import): the child runs the command as before, the parent only waits for it
-(docs/robustness.md, "A run's process that dies"). Whatever ends the child, a status file it
+(docs/reference/verdicts.md, "What stops a run"). Whatever ends the child, a status file it
 left at ``"running"`` gets a final one:
 
 * the child ends normally (it wrote its status): the parent exits with the child's code;
@@ -182,7 +182,7 @@ def _parent(pid: int, table, oom_before: int | None) -> int:
         how = {"ended": f"did not end after {INSIST} interrupts and was killed", "status": "interrupted",
                "fields": {"signal": forwarder.forced},
                "cause": "stuck in native code, e.g. an FMU hanging in fmi2DoStep in process: run it out of process "
-                        "with a step_timeout, docs/robustness.md"}
+                        "with a step_timeout, docs/reference/verdicts.md"}
         written = [str(path) for path in _write_last_words(left_running, how)]
         print(f"interrupted by {forwarder.forced}: the run's process {how['ended']}"
               f"{_where(left_running[0]['data']) if left_running else ''}"
@@ -193,7 +193,7 @@ def _parent(pid: int, table, oom_before: int | None) -> int:
         written = [str(path) for path in _write_last_words(left_running, how)]
         where = _where(left_running[0]["data"])
         print(f"error: the run's process {how['ended']} without writing its final status{where}; "
-              f"{', '.join(written)}: {how['status']} (docs/robustness.md)", file=sys.stderr, flush=True)
+              f"{', '.join(written)}: {how['status']} (docs/reference/verdicts.md)", file=sys.stderr, flush=True)
         if signum is None:
             code = EXIT_FAILED
     if signum is not None:
@@ -275,14 +275,14 @@ def _how_it_ended(signum: int | None, code: int, oom_before: int | None, receive
     if signum is None:
         return {"ended": f"exited with code {code}", "fields": {"exit_code": code}, "status": "failed",
                 "cause": "native code called exit() or _exit(), e.g. an FMU running in process: run FMUs you do "
-                         "not trust out of process, docs/robustness.md"}
+                         "not trust out of process, docs/reference/verdicts.md"}
     name = _signal_name(signum)
     fields: dict[str, Any] = {"signal": name, "exit_code": 128 + signum}
     if signum == signal.SIGKILL:
         oom_after = _oom_kills()
         if oom_before is not None and oom_after is not None and oom_after > oom_before:
             cause = (f"the kernel's out-of-memory killer (the oom_kill count of this memory cgroup rose from "
-                     f"{oom_before} to {oom_after}); lower the run's memory (docs/robustness.md) or free memory")
+                     f"{oom_before} to {oom_after}); lower the run's memory (docs/reference/verdicts.md) or free memory")
             fields["out_of_memory"] = True
         else:
             cause = "sent by another process or the kernel's out-of-memory killer (check dmesg)"

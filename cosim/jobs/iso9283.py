@@ -15,6 +15,8 @@ friction and rotor deviations, geometric errors, payload). The modes follow the 
 * ``model_based``: eq. 7, ``Q_M = M(q_d) qdd_d + g(q_d, qd_d) + K_p (q_d - q) + K_d (qd_d - qd)``:
   the velocity reference enters through the drives' speed feed-forward (gain 1), the
   model torque as torque offset, plus the drive set-point shaping.
+* ``model_based_elastic``: flatness-based feed-forward for elastic gears (``controller/elastic.py``):
+  the motor reference as target, the motor torque as torque offset.
 
 A user's controller (``[controller] class = "file.py:Class"`` or ``fmu = "ctrl.fmu"``,
 the controller contract :mod:`controller.contract`) runs on the same robot as one more
@@ -24,7 +26,7 @@ entry (``[controller] label``, default the class or FMU name): alone, unless
 The drive speed feed-forward is the servo-drive FMU parameter ``speed_feedforward_gain``,
 set by the job per mode (``[controller.<mode>] drive_speed_feedforward`` overrides the
 mode's default). A laser tracker samples the true flange every 1 ms. The cell is built
-and run by :mod:`cosim.cell` (``--realtime`` / ``--split`` apply). See docs/main_job.md.
+and run by :mod:`cosim.cell` (``--realtime`` / ``--split`` apply). See docs/explanation/main_job.md.
 
 Results (``results/<name>/`` or ``--out``): ``summary.json``; per mode
 ``timeseries_<mode>.csv`` (1 ms: plant q, qd, drive torques and currents, drive
@@ -128,7 +130,7 @@ def run(scenario: Scenario, ctx: RunContext) -> dict[str, Any]:
 
 #: The mode whose worker takes the most CPU: its set-up inverts the elastic model along all
 #: 30 520 knots of the path (joint table and flatness-based feed-forward, about 0.2 CPU-s more
-#: than another mode's set-up; docs/main_job.md) and its cycle costs more.
+#: than another mode's set-up) and its cycle costs more.
 LONGEST_MODE = "model_based_elastic"
 #: ``nice`` increment of the other modes' workers when it runs (``run_modes(niceness=...)``);
 #: ``$COSIM_MODE_NICENESS`` (a whole number >= 0) overrides it, e.g. 0 to compare.

@@ -207,7 +207,7 @@ def _lag_figure(file: Path, results: dict[str, Any], modes: list[str], path: Any
 def _along_path_axes(ylabel: str, title: str, log: bool) -> tuple[Any, Any]:
     fig, ax = _figure(figsize=(9, 4.5))
     if log:
-        ax.set_yscale("log")  # the modes differ by orders of magnitude (docs/main_job.md)
+        ax.set_yscale("log")  # the modes differ by orders of magnitude (docs/explanation/main_job.md)
     ax.set_xlabel("path length [m]")
     ax.set_ylabel(ylabel)
     ax.set_title(title, y=TITLE_Y)

@@ -19,7 +19,7 @@ pointers" are ctypes callbacks that forward the call):
   are kept.
 
 Cost: one socket round trip per step (the outputs come back with the step's reply);
-docs/robustness.md has the measured figures. FMI 3.0 FMUs run in process only.
+benchmarks/bench_out_of_process.py measures what it costs per step. FMI 3.0 FMUs run in process only.
 """
 from __future__ import annotations
 

@@ -9,7 +9,7 @@ the handler writes them in place of the marker bytes of the prepared text (``\x0
 seconds in all, ``\x03`` the running part's time). The time series hold what was flushed: a
 run with FMUs of the user's in its process writes them through at every heartbeat
 (:class:`cosim.scenario.context.RunContext`). ``_exit()`` cannot be caught:
-only running the FMU out of process (docs/robustness.md) reports that. Without compiled code
+only running the FMU out of process (docs/reference/verdicts.md) reports that. Without compiled code
 nothing is installed: ``COSIM_NATIVE=off`` silently, no compiler or a failed build with a note
 said once (``COSIM_NATIVE=require`` makes that an error, :mod:`native`).
 """

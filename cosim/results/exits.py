@@ -1,28 +1,9 @@
-"""Exit codes of ``python -m cosim`` and the errors that carry them (docs/robustness.md).
+"""Exit codes of ``python -m cosim`` and the errors that carry them.
 
-Every command returns one of these codes; ``cosim.cli.main`` turns any exception that
-escapes a command into a one-line ``error: ...`` message and the matching code (the
-traceback only with ``--debug``):
-
-====  =========================================================================
-0     ok
-1     partial: some sweep variants failed, a benchmark figure is missing
-2     bad input: scenario/sweep/CSV file, option value, or an unusable output
-      folder (read-only, no permission, a file, locked by another run)
-3     failed run: a simulation, a fit or an evaluation failed, or the disk
-      filled up; ``summary.json`` says ``failed`` and why
-4     completed with verdict ``limit``: a run hit a drive protection limit or a
-      plant end stop (``summary.json`` status ``limit``, the first violation)
-5     completed with verdict ``fault``: a drive or fieldbus fault reaction not
-      caused by a limit, or drives never enabled (status ``fault``)
-130   interrupted by SIGINT (Ctrl-C), SIGTERM or SIGHUP; ``summary.json`` says
-      ``interrupted`` with the signal and where the run stopped
-128+n the run's process was killed by signal n (137 SIGKILL: a user or the
-      out-of-memory killer; 139 SIGSEGV); ``python -m cosim`` ends by the same
-      signal after its supervisor wrote ``failed`` with the signal and where
-      (cosim/commands/supervisor.py); an exit without a status (``_exit()``
-      in an in-process FMU) is 3
-====  =========================================================================
+Every command returns one of the codes of :data:`EXIT_CODES`; ``cosim.cli.main`` turns any
+exception that escapes a command into a one-line ``error: ...`` message and the matching code
+(the traceback only with ``--debug``). :data:`EXIT_CODES` is the one description of the codes:
+the command-line help and the docs page docs/reference/verdicts.md are generated from it.
 """
 from __future__ import annotations
 
@@ -37,6 +18,44 @@ EXIT_FAILED = 3
 EXIT_LIMIT = 4
 EXIT_FAULT = 5
 EXIT_INTERRUPTED = 130
+
+#: (code, short name, when, what ``summary.json`` says): the documentation of every exit code
+#: (the command-line help's epilog and docs/reference/verdicts.md are generated from it).
+EXIT_CODES: tuple[tuple[str, str, str, str], ...] = (
+    (str(EXIT_OK), "ok", "the command did what it was asked; every run it made has verdict `ok`",
+     "`status: \"ok\"`"),
+    (str(EXIT_PARTIAL), "partly failed",
+     "some variants of a `sweep` failed (the others are written), or a figure of `bench` is missing",
+     "`sweep.json` per variant"),
+    (str(EXIT_INVALID), "bad input",
+     "a scenario, sweep or CSV file, a key or an option value is wrong, or the results folder is unusable "
+     "(read-only, no permission, a file, locked by another run); nothing ran",
+     "not written"),
+    (str(EXIT_FAILED), "failed run",
+     "a run failed (an FMU failed or crashed, the controller raised, the disk filled up), a fit of `calibrate` "
+     "or `identify` did not converge or is implausible, or the run's process exited without writing its status",
+     "`status: \"failed\"`, `reason`, `stopped_at_s`"),
+    (str(EXIT_LIMIT), "limit",
+     "the runs completed, and the most severe verdict is `limit`: a drive protection limit or a plant end stop "
+     "was hit",
+     "`status: \"limit\"`, `reason`, `first_violation`"),
+    (str(EXIT_FAULT), "fault",
+     "the runs completed, and the most severe verdict is `fault`: a drive or fieldbus fault reaction no limit "
+     "caused, or the drives never enabled",
+     "`status: \"fault\"`, `reason`, `first_violation`"),
+    (str(EXIT_INTERRUPTED), "interrupted",
+     "SIGINT (Ctrl-C), SIGTERM or SIGHUP: the command stopped, flushed what it had and wrote its final status",
+     "`status: \"interrupted\"`, `signal`, `stopped_at_s`"),
+    ("128 + n", "killed",
+     "the run's process was killed by signal n (137: SIGKILL, by a user or the out-of-memory killer; 139: a "
+     "segmentation fault in native code); `python -m cosim` ends by the same signal",
+     "`status: \"failed\"`, `signal`, written by the crash guard or the supervisor"),
+)
+
+
+def exit_codes_line() -> str:
+    """``0 ok, 1 partly failed, ...``: every exit code with its short name, on one line."""
+    return ", ".join(f"{code} {name}" for code, name, _, _ in EXIT_CODES)
 
 
 class CommandError(Exception):

@@ -1,4 +1,4 @@
-"""Interrupts of a command: SIGINT, SIGTERM and SIGHUP end it cleanly (docs/robustness.md).
+"""Interrupts of a command: SIGINT, SIGTERM and SIGHUP end it cleanly (docs/reference/verdicts.md).
 
 ``install_signal_handlers`` (``cosim.cli.main``) makes the first such signal raise
 :class:`~cosim.results.exits.Interrupted` (a KeyboardInterrupt) in the main thread; while the

@@ -188,7 +188,7 @@ class SummaryWriter:
                             f"FMU or a compiled helper) at t = {_AT_MARK} s"
                             f"{f' in mode {mode}' if mode else ''} (the last simulated time reached, to the "
                             f"master's heartbeat). Run third-party FMUs out of process to isolate them "
-                            f"(docs/robustness.md)")
+                            f"(docs/reference/verdicts.md)")
         text = json.dumps(_json_safe(crash), indent=2, allow_nan=False) + "\n"
         text = text.replace(f'"{_SIM_TIME_MARK}"', "\x02").replace(f'"{_AT_MARK}"', "\x03")
         crashguard.arm(text.replace(_AT_MARK, "\x03").replace(_SIGNAL_MARK, "\x01"))

@@ -83,7 +83,7 @@ def _multiple_check(value: float, base: float) -> bool:
 #: macro_step = 5e-324) more often than a plan. Raise it per scenario with [simulation] max_base_steps.
 MAX_BASE_STEPS = 1_000_000_000
 
-#: [simulation] isolation: which FMUs run in a child process by default (docs/robustness.md).
+#: [simulation] isolation: which FMUs run in a child process by default (docs/reference/verdicts.md).
 ISOLATIONS = ("none", "third_party", "all")
 
 SIMULATION_TABLE = Table({
@@ -149,7 +149,7 @@ COSIM_FIELDS: dict[str, Field] = {
 def _isolate_if_only_once(fmu: dict, md, where: Where, sim: dict, in_process_once: dict[str, str]) -> None:
     """An FMU whose modelDescription says ``canBeInstantiatedOnlyOncePerProcess="true"`` keeps global state:
     a second instance in the master's process would share it (silently wrong results). Every further
-    in-process instance of it runs out of process automatically (its own process, docs/robustness.md);
+    in-process instance of it runs out of process automatically (its own process, docs/reference/verdicts.md);
     ``out_of_process = false`` on one, or an FMI 3.0 FMU (in process only), is refused."""
     if not getattr(md.coSimulation, "canBeInstantiatedOnlyOncePerProcess", False):
         return

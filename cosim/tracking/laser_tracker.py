@@ -95,7 +95,7 @@ resolutions - interferometer 1.26 µm along the beam, angle encoders 0.14 arc s
 +-10 ppm coordinate accuracy (2 sigma, 15-25 µm at 1.5-2.5 m) is a slowly varying
 systematic error (angle-encoder and registration errors) that does not change within a
 path run; it is not modelled. Scenario key ``[tracker] noise_sigma``; the maximum TCP
-error over ~12 000 samples contains about 4.5 sigma of noise (see docs/main_job.md)."""
+error over ~12 000 samples contains about 4.5 sigma of noise (see docs/explanation/main_job.md)."""
 
 
 class TrackerConfigError(ValueError):

@@ -25,7 +25,7 @@ HEAVY = ("numpy", "scipy", "casadi", "pinocchio", "fmpy", "matplotlib", "dask", 
 def test_help_imports_nothing_heavy():
     """``python -m cosim --help`` and every command's ``--help`` answer from the parser alone:
     no numerical library, no job, no robot cell is imported (what they cost is measured in
-    benchmarks, docs/main_job.md)."""
+    benchmarks/RESULTS.md)."""
     program = ("import contextlib, io, runpy, sys\n"
                "for command in ([], ['run'], ['serve'], ['sweep'], ['bench'], ['identify'], ['calibrate'],\n"
                "                ['build'], ['build-fmus'], ['export-ssp'], ['robot-info']):\n"

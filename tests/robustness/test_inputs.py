@@ -1,6 +1,6 @@
 """Bad input gets one clear line naming file/option/key and the documented exit code, never a traceback.
 
-Exit codes (cosim/results/exits.py, docs/robustness.md): 2 bad input or unusable output
+Exit codes (cosim/results/exits.py, docs/reference/verdicts.md): 2 bad input or unusable output
 folder, 3 failed run. Most cases run ``cosim.cli.main`` in this process (a traceback would
 fail the test as an exception); a few run ``python -m cosim`` to check stderr as a user sees it.
 """
@@ -460,7 +460,7 @@ def test_identify_refuses_physically_impossible_parameters():
 
 
 # ------------------------------------------------------------------------------------------ second pass
-# Neighbours of the bad-input cases above (docs/robustness.md), found by a fresh pass on the CLI: each is
+# Neighbours of the bad-input cases above (docs/reference/verdicts.md), found by a fresh pass on the CLI: each is
 # refused before anything runs, exit 2, one line naming the file and key (or option).
 @pytest.mark.parametrize("old, new, fragments", [
     ("stop_time = 0.5", "stop_time = nan", ["simulation.stop_time"]),

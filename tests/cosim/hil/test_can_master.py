@@ -154,7 +154,7 @@ def test_bad_input_gets_the_protocols_answer_and_is_counted(session):
 def test_a_bad_interface_or_channel_is_refused_in_one_line(interface, channel):
     run = subprocess.run([sys.executable, "-m", "cosim", "serve", str(SCENARIO), "--interface", interface, "--channel",
                           channel, "--quiet"], env=_env(), cwd=ROOT, capture_output=True, text=True, timeout=120)
-    assert run.returncode == 2, run.stderr  # docs/robustness.md: bad input
+    assert run.returncode == 2, run.stderr  # docs/reference/verdicts.md: bad input
     lines = run.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("error: --interface") and "Traceback" not in run.stderr, run.stderr
     assert interface in lines[0] and channel in lines[0]

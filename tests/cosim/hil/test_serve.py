@@ -333,7 +333,7 @@ def test_a_controller_killed_mid_motion_stops_the_arm(tmp_path):
     assert again.returncode == 0, again.stderr
     assert "drives enabled" in again.stdout
     _, err = serve.communicate(timeout=180)
-    assert serve.returncode == 5, err  # the drives' fault reactions on the kill: verdict fault (docs/robustness.md)
+    assert serve.returncode == 5, err  # the drives' fault reactions on the kill: verdict fault (docs/reference/verdicts.md)
     assert "Traceback" not in err
     assert "datagrams dropped by the cell: 2 malformed, 50 foreign" in err
     result = RunResult(out)

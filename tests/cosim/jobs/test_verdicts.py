@@ -1,4 +1,4 @@
-"""Verdicts of cell runs (cosim/cell/verdict.py, docs/robustness.md): a comparison with a failing,
+"""Verdicts of cell runs (cosim/cell/verdict.py, docs/reference/verdicts.md): a comparison with a failing,
 a faulting, a refused and a good entry exits non-zero, ranks only the good one and says why for
 each; close() exceptions and chronic budget overruns are reported; a user planner beyond the
 robot's limits is refused before it runs; exit codes 4/5 of ``python -m cosim run``."""
