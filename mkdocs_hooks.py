@@ -6,14 +6,16 @@ At each build, ``on_files`` adds to the site, without writing into docs/:
   (:func:`cosim.scenario.reference.scenario_keys_markdown`);
 * ``reference/cli.md``: every command and argument, from argparse
   (:func:`cosim.cli_reference.cli_markdown`);
-* ``reference/fieldbus.md``: ``fieldbus/README.md`` (the bus, its frames and the udpcycle wire
-  format), which lives beside the package it documents.
+* ``reference/benchmarks.md``: ``benchmarks/RESULTS.md``, the results page ``python -m cosim
+  bench`` writes (every figure of its last full run, with the machine, its load and the date).
 
-and ``on_page_markdown`` puts the object table of ``fieldbus/object_dictionary.toml`` (axis 1,
-:func:`fieldbus.device_files.reference_markdown`) into ``reference/object_dictionary.md`` in place
-of its marker line (:data:`OBJECT_DICTIONARY_MARKER`), and the tables of exit codes, violation kinds
-and drive protection limits into ``reference/verdicts.md`` in place of theirs
-(:func:`cosim.verdict_reference.fill`).
+and ``on_page_markdown`` puts generated tables into hand-written pages in place of their marker
+lines: the object table of ``fieldbus/object_dictionary.toml`` (axis 1,
+:func:`fieldbus.device_files.reference_markdown`) into ``reference/object_dictionary.md``
+(:data:`OBJECT_DICTIONARY_MARKER`), and the identifiers, telegram layouts and udpcycle datagram
+layout (:mod:`fieldbus.reference`) into ``reference/fieldbus.md`` (:data:`FIELDBUS_MARKERS`), and
+the tables of exit codes, violation kinds and drive protection limits into
+``reference/verdicts.md`` (:func:`cosim.verdict_reference.fill`).
 
 The checkout holding this file is put first on ``sys.path``, so the pages describe its code
 (not another installed copy).
@@ -31,7 +33,7 @@ if str(ROOT) not in sys.path:
 GENERATED = {
     "reference/scenario_keys.md": lambda: __import__("cosim.scenario.reference", fromlist=["_"]).scenario_keys_markdown(),
     "reference/cli.md": lambda: __import__("cosim.cli_reference", fromlist=["_"]).cli_markdown(),
-    "reference/fieldbus.md": lambda: (ROOT / "fieldbus" / "README.md").read_text(encoding="utf-8"),
+    "reference/benchmarks.md": lambda: (ROOT / "benchmarks" / "RESULTS.md").read_text(encoding="utf-8"),
 }
 
 
@@ -57,9 +59,37 @@ def object_dictionary_markdown(markdown: str) -> str:
     return markdown.replace(OBJECT_DICTIONARY_MARKER, reference_markdown(drive_object_dictionary(1)))
 
 
+def _axis1_dictionary():
+    from fmus.servo_drive.object_dictionary import drive_object_dictionary
+
+    return drive_object_dictionary(1)
+
+
+#: marker line of docs/reference/fieldbus.md -> the function building the table that replaces it
+FIELDBUS_MARKERS = {
+    "<!-- generated: fieldbus.reference.identifiers_markdown (mkdocs_hooks.py) -->":
+        lambda: __import__("fieldbus.reference", fromlist=["_"]).identifiers_markdown(),
+    "<!-- generated: fieldbus.reference.telegrams_markdown (mkdocs_hooks.py) -->":
+        lambda: __import__("fieldbus.reference", fromlist=["_"]).telegrams_markdown(_axis1_dictionary()),
+    "<!-- generated: fieldbus.reference.udpcycle_markdown (mkdocs_hooks.py) -->":
+        lambda: __import__("fieldbus.reference", fromlist=["_"]).udpcycle_markdown(),
+}
+
+
+def fieldbus_markdown(markdown: str) -> str:
+    """``markdown`` with each of :data:`FIELDBUS_MARKERS` replaced by its generated table."""
+    for marker, build in FIELDBUS_MARKERS.items():
+        if markdown.count(marker) != 1:
+            raise ValueError(f"reference/fieldbus.md: the marker {marker!r} must appear once")
+        markdown = markdown.replace(marker, build())
+    return markdown
+
+
 def on_page_markdown(markdown, page, config, files):
     if page.file.src_uri == "reference/object_dictionary.md":
         return object_dictionary_markdown(markdown)
+    if page.file.src_uri == "reference/fieldbus.md":
+        return fieldbus_markdown(markdown)
     if page.file.src_uri == "reference/verdicts.md":
         from cosim.verdict_reference import fill
 

@@ -8,7 +8,9 @@ uses - in this process, CPU time (``time.process_time``), median of ``--repeats`
 * CAN log: the recorder's sink (sorting, watermarks) into the columnar log
   (``fieldbus.canlog``) vs the BLF writer (``fieldbus.blf``, python-can's bytes);
 * time series: ``cosim.results.ParquetSink`` streaming and closing each file (standard
-  encodings: byte-stream-split or dictionary float64 columns, zstd).
+  encodings: byte-stream-split or dictionary float64 columns, zstd);
+* the run's ``report.html`` (all modes, :func:`cosim.results.report.write_report`): what the
+  report adds to a run's CPU time (a run forks it beside its figures: the same work).
 
 Run: python benchmarks/bench_output.py [--results results/iso9283] [--repeats 3]
 """
@@ -116,6 +118,14 @@ def series_write_cpu(folder: Path, mode: str, work: Path, repeats: int) -> dict[
     return {"cpu_s": _cpu(write, repeats)}
 
 
+def report_write_cpu(folder: Path, work: Path, repeats: int) -> dict[str, float]:
+    """CPU s to write the folder's report.html (every mode), and its size."""
+    from cosim.results.report import write_report
+
+    out = work / "report.html"
+    return {"cpu_s": _cpu(lambda: write_report([folder], out), repeats), "bytes": out.stat().st_size}
+
+
 def measure(results: Path | None = None, repeats: int = 3, stop_time: str | None = None,
             work: Path | None = None) -> dict:
     with tempfile.TemporaryDirectory(prefix="bench-output-") as tmp:
@@ -128,7 +138,9 @@ def measure(results: Path | None = None, repeats: int = 3, stop_time: str | None
         for mode in modes:
             per_mode[mode] = {"can": can_write_cpu(folder / f"can_{mode}.parquet", tmp, repeats),
                               "series": series_write_cpu(folder, mode, tmp, repeats)}
-        return {"files": sizes, "total_bytes": total, "total_mb": total / 1e6,
+        html = report_write_cpu(folder, tmp, repeats)
+        return {"files": sizes, "total_bytes": total, "total_mb": total / 1e6, "report_cpu_s": html["cpu_s"],
+                "report_mb": html["bytes"] / 1e6,
                 "ratio_to_csv_128mb": CSV_BASELINE_MB * 1e6 / total if total else None, "modes": per_mode,
                 "load_average": os.getloadavg()}
 
@@ -142,6 +154,7 @@ def report(out: dict) -> str:
         c, s = m["can"], m["series"]
         lines.append(f"  {mode:28s} {c['columnar_cpu_s']:7.3f} / {c['blf_cpu_s']:7.3f}"
                      f"   {s['cpu_s']:7.3f}")
+    lines.append(f"report.html (all modes): {out['report_mb']:.2f} MB, written in {out['report_cpu_s']:.2f} CPU-s")
     lines.append("load average: " + " ".join(f"{x:.2f}" for x in out["load_average"]))
     return "\n".join(lines)
 

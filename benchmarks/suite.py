@@ -19,6 +19,9 @@ closed_loop_split      the same cell split over two processes (udp_multicast): R
                        cycles (without process start-up), start-up time
 paced                  the in-process cell paced at 400 µs (10 s runs): overrun fraction,
                        lateness p99
+controller_port        the user-controller contract: its overhead per cycle for a plain-Python
+                       controller (isolated, 20 µs of own work), and the closed loop with the
+                       built-in vs a user controller (real-time factors)
 bus                    one POWERLINK cycle with six nodes (simbus, no recording): µs
 fmu                    plant and drive doStep (fast path, 100 µs and 400 µs steps): µs; the
                        plant also as the main job runs it (elastic joints, 100 µs sub-steps)
@@ -36,12 +39,15 @@ memory                 peak RSS of a short and a 10x longer run, each in a fresh
                        measured in that process (VmHWM), not inherited from the suite:
                        the plain-FMU job and the robot cell (ISO path, then holding;
                        benchmarks/bench_memory.py): ratio long/short (target <= 1.10)
+cli                    ``python -m cosim --help`` in fresh processes: wall and CPU time of the
+                       whole process (the import cost every command pays)
 main_job               ``python -m cosim run scenarios/iso9283.toml`` end to end, fresh
                        processes (benchmarks/bench_main_job.py): summary.json's real-time
                        factor (from the process start), the whole process's, its CPU time
 output                 the main job's files (benchmarks/bench_output.py): size of each, the
                        total and its ratio to the 128 MB CSV output; write CPU per mode
-                       (CAN log columnar vs BLF, time series compact vs plain)
+                       (CAN log columnar vs BLF, time series compact vs plain) and of the
+                       run's report.html
 report                 report.html of a synthesized 600 s run at 1 ms (benchmarks/bench_report.py):
                        its size, cosim view's time, and in headless Chromium the time to
                        interactive (target < 5 s), to the 3D view, and of a zoom to every sample
@@ -49,6 +55,12 @@ report                 report.html of a synthesized 600 s run at 1 ms (benchmark
 
 ``ratios``: own CP / TOPP-RA solve time and duration, own PtP / ruckig_feasible
 duration and solve time, in-process / split real-time factor.
+
+The results page: :func:`results_page` writes every figure of ``bench.json`` as Markdown (the
+machine, its load average before and after, the date and git commit, each section's
+description from the table above and its figures with units, the ratios);
+``python -m cosim bench`` writes it beside ``bench.json`` and, for a full run of every section,
+to ``benchmarks/RESULTS.md`` (the "Benchmark results" page of the docs site).
 
 BLAS runs single-threaded during the suite (threadpoolctl). Wall times on a shared
 machine depend on its load: ``machine.load_average`` (before) and
@@ -148,6 +160,23 @@ def machine() -> dict[str, Any]:
             "scipy": scipy.__version__, "pinocchio": pinocchio.__version__, "casadi": casadi.__version__,
             "fmpy": fmpy.__version__, "python_can": can.__version__,
             "load_average": [round(x, 2) for x in os.getloadavg()]}
+
+
+def git_state() -> dict[str, Any]:
+    """The commit of the checkout the suite runs from and whether tracked files differ from it
+    (None values when it is not a git checkout)."""
+    import subprocess
+
+    def git(*args: str) -> str | None:
+        try:
+            done = subprocess.run(["git", "-C", str(ROOT), *args], capture_output=True, text=True, timeout=30)
+        except (OSError, subprocess.SubprocessError):
+            return None
+        return done.stdout.strip() if done.returncode == 0 else None
+
+    commit = git("rev-parse", "HEAD")
+    status = git("status", "--porcelain", "--untracked-files=no") if commit else None
+    return {"commit": commit, "dirty": None if status is None else bool(status)}
 
 
 # ------------------------------------------------------------------------------------ sections
@@ -369,7 +398,7 @@ def hil(sizes: Sizes, work: Path) -> dict[str, Any]:
     m = out["median"]
     late = bench_hil.late_run(work / "late", sizes.hil_late_seconds, sizes.hil_late_cycles)
     # the ISO comparison in the HIL configuration of scenarios/hil.toml: drives extrapolating a
-    # missing set-point, our controller sending the set-point look-ahead (docs/hil.md)
+    # missing set-point, our controller sending the set-point look-ahead (docs/explanation/timing.md)
     lookahead, buffer = bench_hil.hil_lookahead(), bench_hil.hil_buffer()
     iso = bench_hil.iso_split(work / "iso", sizes.hil_iso_runs, sizes.hil_iso_stop_time_s, "extrapolate", lookahead,
                               buffer)
@@ -381,7 +410,7 @@ def hil(sizes: Sizes, work: Path) -> dict[str, Any]:
                       "iso_no_lookahead_tcp_error_ratio": plain["tcp_error_ratio"],
                       "iso_no_lookahead_lost_fraction": plain["lost_fraction"], "iso_no_lookahead": plain})
     m_iso = iso["tcp_error_ratio"]
-    # the HIL targets (docs/hil.md, meant for a quiet machine): <= 1 % overruns, round trip p99
+    # the HIL targets (meant for a quiet machine): <= 1 % overruns, round trip p99
     # <= 100 us, ISO error within 10 %
     targets = {"overruns_at_most_1_percent": m["overrun_fraction"] is not None and m["overrun_fraction"] <= 0.01,
                "round_trip_p99_at_most_100_us": m["round_trip_p99_us"] is not None and m["round_trip_p99_us"] <= 100.0,
@@ -464,7 +493,7 @@ def output(sizes: Sizes, work: Path) -> dict[str, Any]:
         return _median([m[group][key] for m in modes])
     return {"total_mb": out["total_mb"], "ratio_to_csv_128mb": out["ratio_to_csv_128mb"],
             "can_columnar_cpu_s": med("can", "columnar_cpu_s"), "can_blf_cpu_s": med("can", "blf_cpu_s"),
-            "series_cpu_s": med("series", "cpu_s"),
+            "series_cpu_s": med("series", "cpu_s"), "report_cpu_s": out["report_cpu_s"],
             "files": out["files"], "load_average": list(out["load_average"])}
 
 
@@ -475,7 +504,8 @@ def report(sizes: Sizes, work: Path) -> dict[str, Any]:
 
     out = bench_report.measure(sizes.report_seconds, sizes.report_runs)
     return {key: out[key] for key in ("seconds", "runs", "report_mb", "view_wall_s", "view_cpu_s",
-                                      "interactive_s_median", "scene_s_median", "zoom_s_median", "target_s",
+                                      "interactive_s_median", "interactive_first_s", "scene_s_median",
+                                      "zoom_s_median", "target_s",
                                       "load_average_before", "load_average_after")}
 
 
@@ -531,7 +561,8 @@ REQUIRED: dict[str, tuple[str, ...]] = {
     "memory": ("cell_ratio", "cell_short_peak_rss_mib", "cell_long_peak_rss_mib"),
     "main_job": ("realtime_factor", "process_realtime_factor", "cpu_s"),
     "cli": ("help_wall_s", "help_cpu_s"),
-    "output": ("total_mb", "ratio_to_csv_128mb", "can_columnar_cpu_s", "can_blf_cpu_s", "series_cpu_s"),
+    "output": ("total_mb", "ratio_to_csv_128mb", "can_columnar_cpu_s", "can_blf_cpu_s", "series_cpu_s",
+               "report_cpu_s"),
     "report": ("report_mb", "view_cpu_s", "interactive_s_median", "scene_s_median", "zoom_s_median"),
 }
 RATIOS = ("own_cp_vs_toppra_solve_time", "own_cp_vs_toppra_duration", "own_ptp_vs_ruckig_feasible_duration",
@@ -582,7 +613,7 @@ def run_suite(out_dir: str | Path, quick: bool = False, sections: list[str] | No
     out_dir.mkdir(parents=True, exist_ok=True)
     result: dict[str, Any] = {"suite": "cosim bench", "quick": quick, "started_at": time.strftime(
         "%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "sizes": sizes.__dict__, "machine": machine(), "figures": {},
-        "section_wall_s": {}, "errors": {}}
+        "section_wall_s": {}, "errors": {}, "git": git_state()}
     t_start = time.perf_counter()
     from threadpoolctl import threadpool_limits
 
@@ -654,10 +685,12 @@ ROWS: tuple[tuple[str, str, str, str], ...] = (
     ("output", "can_columnar_cpu_s", "CAN log write CPU per mode, columnar", "s"),
     ("output", "can_blf_cpu_s", "CAN log write CPU per mode, BLF", "s"),
     ("output", "series_cpu_s", "time series write CPU per mode", "s"),
+    ("output", "report_cpu_s", "the run's report.html (all modes): write CPU time", "s"),
     ("report", "report_mb", "report.html of a 600 s run at 1 ms (synthesized)", "MB"),
     ("report", "view_cpu_s", "cosim view of it, CPU time", "s"),
     ("report", "interactive_s_median", "its report in headless Chromium: open to interactive (target < 5 s)", "s"),
-    ("report", "scene_s_median", "its report: open to the 3D view built", "s"),
+    ("report", "interactive_first_s", "its report: the first open of a just-started browser, to interactive", "s"),
+    ("report", "scene_s_median", "its report: open to the 3D view built (WebGL; software-rendered headless)", "s"),
     ("report", "zoom_s_median", "its report: zoom to 2 s at every sample", "s"),
     ("hil", "probe_gap_ms_per_s", "hil: machine stalls of a bare SCHED_FIFO loop (probe)", "ms/s"),
     ("hil", "probe_gaps_over_1ms_per_s", "hil: probe gaps over 1 ms", "1/s"),
@@ -699,13 +732,161 @@ def format_table(result: dict[str, Any]) -> str:
         lines.append(f"  {key:56s} {_fmt(value):>12s}")
     targets = result["figures"].get("hil", {}).get("issue_targets_met")
     if targets:
-        lines.append("hil targets (docs/hil.md, meant for a quiet machine): " + ", ".join(
+        lines.append("hil targets (meant for a quiet machine): " + ", ".join(
             f"{key} {'yes' if ok else 'NO'}" for key, ok in targets.items()))
     for name, error in result["errors"].items():
         lines.append(f"ERROR in {name}: {error.splitlines()[0]}")
     lines.append(f"suite wall time {result['wall_time_s']:.1f} s ({'quick' if result['quick'] else 'full'}); "
                  f"repetitions {result['sizes']['repeats']}")
     return "\n".join(lines)
+
+
+# ------------------------------------------------------------------------------------ results page
+#: The page ``cosim bench`` writes for a full run of every section (the docs site's "Benchmark results").
+RESULTS_PAGE = BENCH_DIR / "RESULTS.md"
+RATIO_LABELS = {
+    "own_cp_vs_toppra_solve_time": "own CP / TOPP-RA, solve time",
+    "own_cp_vs_toppra_duration": "own CP / TOPP-RA, trajectory duration",
+    "own_ptp_vs_ruckig_feasible_duration": "own PtP / Ruckig torque-feasible, trajectory duration",
+    "own_ptp_vs_ruckig_feasible_solve_time": "own PtP / Ruckig torque-feasible, solve time",
+    "in_process_vs_split_realtime_factor": "in-process / split real-time factor",
+}
+#: Units of figures without a row in :data:`ROWS`, by the end of their key (first match).
+UNIT_SUFFIXES = (("_ms_per_s", "ms/s"), ("_per_s", "1/s"), ("_us", "µs"), ("_ms", "ms"), ("_mib", "MiB"),
+                 ("_mb", "MB"), ("_mm", "mm"), ("_rad", "rad"), ("_hz", "Hz"), ("realtime_factor", "x"),
+                 ("_ratio", "x"), ("ratio_target", "x"), ("_s", "s"), ("seconds", "s"))
+
+
+def section_descriptions() -> dict[str, str]:
+    """Each section's description: the table of this module's docstring (one text per section)."""
+    out: dict[str, str] = {}
+    lines = __doc__.splitlines()
+    rules = [k for k, line in enumerate(lines) if line.strip() and set(line.strip()) <= {"=", " "}]
+    name = None
+    for line in lines[rules[0] + 1:rules[-1]]:
+        if not line.strip():
+            continue
+        if not line.startswith(" "):
+            name, _, text = line.partition(" ")
+            out[name] = text.strip()
+        elif name:
+            out[name] += " " + line.strip()
+    return {k: v.replace("``", "`") for k, v in out.items()}
+
+
+def _leaves(value: Any, prefix: str = "") -> list[tuple[str, Any]]:
+    """(dotted key, value) of every scalar or list of scalars in ``value``; the objects of a list
+    (e.g. each run's figures) as ``key[i].name``."""
+    if isinstance(value, dict):
+        return [leaf for k, v in value.items() for leaf in _leaves(v, f"{prefix}.{k}" if prefix else str(k))]
+    if isinstance(value, (list, tuple)) and any(isinstance(v, (dict, list, tuple)) for v in value):
+        return [leaf for i, v in enumerate(value) for leaf in _leaves(v, f"{prefix}[{i}]")]
+    return [(prefix, value)]
+
+
+def page_value(value: Any) -> str:
+    """A figure as the page shows it: numbers to 4 significant digits (integers whole), lists of
+    numbers in brackets, text on one line."""
+    if isinstance(value, bool):
+        return "yes" if value else "no"
+    if isinstance(value, int):
+        return str(value)
+    if isinstance(value, float):
+        return f"{value:.4g}" if math.isfinite(value) else str(value)
+    if value is None:
+        return "-"
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(page_value(v) for v in value) + "]"
+    text = str(value).strip().splitlines()
+    text = text[-1] if text else ""
+    return (text[:77] + "...") if len(text) > 80 else text
+
+
+def _unit(section: str, key: str) -> str:
+    row = next((r for r in ROWS if r[0] == section and r[1] == key), None)
+    if row is not None:
+        return "µs" if row[3] == "us" else row[3]
+    if key.split(".")[-2:-1] == ["files"]:
+        return "bytes"
+    last = key.split(".")[-1].lower()
+    return next((unit for suffix, unit in UNIT_SUFFIXES if last.endswith(suffix)), "")
+
+
+def _cell(text: str) -> str:
+    return text.replace("|", "\\|")
+
+
+def results_page(result: dict[str, Any]) -> str:
+    """The results page of one suite run (``bench.json``'s content) as Markdown: the machine and
+    load, the date and commit, the ratios, then each section's description and every figure."""
+    m = result.get("machine", {})
+    git = result.get("git") or {}
+    sizes = result.get("sizes", {})
+    load0, load1 = m.get("load_average"), m.get("load_average_after")
+    usable = m.get("cpus_usable") or m.get("logical_cpus")
+    lines = [
+        "# Benchmark results", "",
+        "<!-- written by `python -m cosim bench` from its bench.json (benchmarks/suite.py, results_page); "
+        "do not edit: run the suite again -->", "",
+        "What `python -m cosim bench` measured in one run on one machine: every figure of its `bench.json`, "
+        "each a median over the section's repeated runs unless its key says otherwise. Wall-clock figures "
+        "depend on how busy the machine was: the load average before and after the run is given below, "
+        "CPU-time figures less so. Run `python -m cosim bench` to measure your machine; "
+        "`python -m cosim bench --page-from results/bench/bench.json` writes this page again from a "
+        "`bench.json`.", ""]
+    if result.get("quick"):
+        lines += ["**A `--quick` run**: tiny problems, one repetition each. It shows that every figure is "
+                  "produced; its numbers are not the project's performance.", ""]
+    busy = [x for x in (load0, load1) if isinstance(x, list) and x and usable and x[0] > usable]
+    if busy:
+        lines += [f"**A busy machine**: the 1-minute load average was above its {usable} usable CPUs "
+                  f"({page_value(load0)} before, {page_value(load1)} after): wall-clock figures are slower "
+                  f"than on a quiet machine.", ""]
+    commit = git.get("commit")
+    rows = [("date (UTC)", result.get("started_at", "-")),
+            ("git commit", (f"`{commit}`" + (" (with uncommitted changes)" if git.get("dirty") else ""))
+             if commit else "not recorded"),
+            ("CPU", m.get("cpu_model", "-")),
+            ("cores", f"{m.get('cpus_usable', '-')} usable of {m.get('logical_cpus', '-')} logical CPUs"),
+            ("platform", m.get("platform", "-")),
+            ("software", ", ".join(f"{k} {m[k]}" for k in ("python", "numpy", "scipy", "pinocchio", "casadi",
+                                                           "fmpy", "python_can") if k in m)),
+            ("load average before (1, 5, 15 min)", page_value(load0)),
+            ("load average after (1, 5, 15 min)", page_value(load1)),
+            ("suite", f"{'quick' if result.get('quick') else 'full'}, repetitions: {sizes.get('repeats', '-')}, "
+                      f"{page_value(result.get('wall_time_s'))} s wall time"),
+            ("sections run", ", ".join(result.get("figures", {})) or "none")]
+    lines += ["## Machine and run", "", "| | |", "|---|---|"]
+    lines += [f"| {name} | {_cell(str(value))} |" for name, value in rows]
+    lines += ["", "## Ratios (same run)", "", "| ratio | key | value |", "|---|---|---:|"]
+    for key, value in (result.get("ratios") or {}).items():
+        lines.append(f"| {RATIO_LABELS.get(key, key)} | `ratios.{key}` | {page_value(value)} |")
+    problems = [f"section `{name}` failed: {_cell(page_value(error.splitlines()[0]))}"
+                for name, error in (result.get("errors") or {}).items()]
+    problems += [f"missing figure `{key}`" for key in result.get("missing") or []]
+    if problems:
+        lines += ["", "## Not measured", ""] + [f"- {p}" for p in problems]
+    descriptions = section_descriptions()
+    for section, figures in (result.get("figures") or {}).items():
+        wall = (result.get("section_wall_s") or {}).get(section)
+        lines += ["", f"## {section}", "", descriptions.get(section, "(no description)")
+                  + (f" The section took {page_value(wall)} s." if isinstance(wall, (int, float)) else ""), "",
+                  "| figure | key | value | unit |", "|---|---|---:|---|"]
+        leaves = dict(_leaves(figures))
+        labelled = [(r[1], r[2]) for r in ROWS if r[0] == section and r[1] in leaves]
+        order = labelled + [(k, "") for k in leaves if k not in dict(labelled)]
+        for key, label in order:
+            lines.append(f"| {_cell(label)} | `{section}.{key}` | {_cell(page_value(leaves[key]))} | "
+                         f"{_unit(section, key)} |")
+    return "\n".join(lines) + "\n"
+
+
+def write_results_page(result: dict[str, Any], path: str | Path) -> Path:
+    """Write :func:`results_page` of ``result`` to ``path``; return the path."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(results_page(result), encoding="utf-8")
+    return path
 
 
 if __name__ == "__main__":

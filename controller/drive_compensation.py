@@ -33,7 +33,7 @@ the new target is ``(r_k - r_old) / G``: the recursion then uses ``g / (G T)`` i
 apart, ``delta`` would absorb ``G - 1`` samples of motion, about ``-(G - 1) qd T`` (0.6 mrad
 on axis 1 at 1.5 rad/s per skipped cycle), decaying by ``g / (Kv T + g)`` per cycle: 0.34 mm
 at the tool in the in-process ISO run with 22 jumps of 2-4 cycles, against 0.0104 mm without
-(docs/hil.md, "Jumped cycles and the set-point shaper").
+(tests/controller/test_jump_shaping.py).
 """
 from __future__ import annotations
 

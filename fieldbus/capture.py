@@ -20,6 +20,16 @@ written twice, with the pcapng container of the ``python-pcapng`` library:
   error code (device profile 402, "occurred"), its time, and the EMCY's five manufacturer bytes.
   Several EMCYs in one cycle give one ASnd each after that cycle's SoA, which invites the first
   node (a real MN would invite the others in the following cycles).
+* the asynchronous slot's SDO and NMT frames (``fieldbus.asynchronous``): an NMT command (CAN id
+  0x000) as the MN's ASnd NMTCommand (service 0x04; start, stop, enter pre-operational, reset
+  node, reset communication as NMTStartNode 0x21, NMTStopNode 0x22, NMTEnterPreOperational2
+  0x23, NMTResetNode 0x28, NMTResetCommunication 0x29) to the node (255: all) after a SoA
+  without service; an SDO request (0x600 + n) as the MN's ASnd to node n after a SoA without
+  service, an SDO answer (0x580 + n) as node n's ASnd to the MN after a SoA inviting it
+  (UnspecifiedInvite 0xFF). Both SDO ASnds carry the 8 bytes of the CANopen SDO frame under the
+  manufacturer-specific service id 0xA0: POWERLINK's own SDO (sequence and command layer)
+  transfers a whole object in one frame and so does not map frame by frame onto what the CAN
+  log holds; the CAN capture decodes them as CANopen SDO.
 
 Frames lost on the wire are not in the CAN log and so not in the capture; frames corrupted on the
 wire (error frames in the CAN log) are left out as well (a receiver discards a frame whose CRC is
@@ -51,8 +61,10 @@ BROADCAST = 255
 SOC, PREQ, PRES, SOA, ASND = 0x01, 0x03, 0x04, 0x05, 0x06
 NMT_CS_OPERATIONAL = 0xFD
 NMT_MS_OPERATIONAL = 0xFD
-SOA_NO_SERVICE, SOA_STATUS_REQUEST = 0x00, 0x02
-ASND_STATUS_RESPONSE = 0x02
+SOA_NO_SERVICE, SOA_STATUS_REQUEST, SOA_UNSPECIFIED_INVITE = 0x00, 0x02, 0xFF
+ASND_STATUS_RESPONSE, ASND_NMT_COMMAND, ASND_CANOPEN_SDO = 0x02, 0x04, 0xA0
+#: CANopen NMT command specifier -> POWERLINK NMT command id (EPSG DS 301 table 128)
+EPL_NMT_COMMANDS = {0x01: 0x21, 0x02: 0x22, 0x80: 0x23, 0x81: 0x28, 0x82: 0x29}
 EPL_VERSION = 0x20
 MIN_PAYLOAD = 46  # Ethernet minimum payload (after the EtherType), padded with zeros
 MULTICAST = {SOC: bytes.fromhex("01111e000001"), PRES: bytes.fromhex("01111e000002"),
@@ -148,6 +160,20 @@ def status_response_frame(node: int, t_s: float, emcy: bytes) -> bytes:
     return _ethernet(MULTICAST[ASND], node, body)
 
 
+def nmt_command_frame(data: bytes) -> bytes:
+    """The MN's ASnd NMTCommand of the CANopen NMT frame ``data`` (command specifier, node id)."""
+    command, node = (data + bytes(2))[:2]
+    body = struct.pack("<BBBBBB", ASND, node or BROADCAST, MN_NODE_ID, ASND_NMT_COMMAND,
+                       EPL_NMT_COMMANDS.get(command, 0x21), 0)
+    return _ethernet(MULTICAST[ASND], MN_NODE_ID, body)
+
+
+def sdo_frame(source: int, destination: int, data: bytes) -> bytes:
+    """An ASnd from ``source`` to ``destination`` carrying the CANopen SDO frame ``data``."""
+    body = struct.pack("<BBBB", ASND, destination, source, ASND_CANOPEN_SDO) + bytes(data).ljust(8, b"\0")
+    return _ethernet(MULTICAST[ASND], source, body)
+
+
 def _cycles(frames: np.ndarray, stamps: np.ndarray):
     """Frames of the log grouped by SYNC: yields (SoC time or None, [(time, id, error, data), ...])."""
     soc, current = None, []
@@ -195,6 +221,8 @@ def write_powerlink(log_path: str | Path, out: str | Path) -> CaptureCounts:
                 packets.append((soc, 0, soc_frame(soc, int(round(soc / cycle_time)) * round(cycle_time * 1e6)), "SoC"))
             tpdo1: dict[int, tuple[float, bytes]] = {}
             emcy: list[tuple[float, int, bytes]] = []
+            asynchronous: list[tuple[float, bytes, str]] = []  # SDO / NMT ASnds (fieldbus.asynchronous)
+            invite = 0  # the node whose SDO answer the SoA invites
             last_pres = None
             for t, arbitration_id, error, data in items:
                 base, node = arbitration_id & ~0x7F, arbitration_id & 0x7F
@@ -214,11 +242,25 @@ def write_powerlink(log_path: str | Path, out: str | Path) -> CaptureCounts:
                     last_pres = end if last_pres is None else max(last_pres, end)
                 elif base == 0x080:
                     emcy.append((t, node, data))
+                elif arbitration_id == 0x000:
+                    asynchronous.append((t, nmt_command_frame(data), "ASnd"))
+                elif base == 0x600:
+                    asynchronous.append((t, sdo_frame(MN_NODE_ID, node, data), "ASnd"))
+                elif base == 0x580:
+                    asynchronous.append((t, sdo_frame(node, MN_NODE_ID, data), "ASnd"))
+                    invite = node
             if soc is not None:
                 soa_time = (last_pres if last_pres is not None else soc + layout.nominal_end_of_isochronous) \
                     + layout.mn_turnaround
-                target = emcy[0][1] if emcy else 0
-                packets.append((soa_time, 2, soa_frame(SOA_STATUS_REQUEST if emcy else SOA_NO_SERVICE, target), "SoA"))
+                if emcy:
+                    service, target = SOA_STATUS_REQUEST, emcy[0][1]
+                elif invite:
+                    service, target = SOA_UNSPECIFIED_INVITE, invite
+                else:
+                    service, target = SOA_NO_SERVICE, 0
+                packets.append((soa_time, 2, soa_frame(service, target), "SoA"))
+            for t, frame, kind in asynchronous:
+                packets.append((max(t, soa_time if soc is not None else t), 3, frame, kind))
             for t, node, data in emcy:
                 packets.append((max(t, soa_time if soc is not None else t), 3,
                                 status_response_frame(node, t, data), "ASnd"))
@@ -241,7 +283,8 @@ def socketcan_frame(arbitration_id: int, error: bool, data: bytes) -> bytes:
     return struct.pack(">IBBBB", arbitration_id, len(data), 0, 0, 0) + data.ljust(8, b"\0")
 
 
-_CAN_KINDS = {0x200: "RPDO1", 0x180: "TPDO1", 0x280: "TPDO2", 0x080: "EMCY"}
+_CAN_KINDS = {0x200: "RPDO1", 0x180: "TPDO1", 0x280: "TPDO2", 0x080: "EMCY", 0x000: "NMT", 0x600: "SDO request",
+              0x580: "SDO answer"}
 
 
 def write_can(log_path: str | Path, out: str | Path) -> CaptureCounts:

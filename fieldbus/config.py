@@ -16,6 +16,7 @@ from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
+from fieldbus.asynchronous import AsyncRequest, parse_requests
 from fieldbus.errors import FieldbusConfigError
 from fieldbus.telegrams import (MAX_LOOKAHEAD, MAX_SETPOINT_BUFFER, RPDO1_LOOKAHEAD_ENTRY, RPDO1_MAX_BYTES,
                                 RPDO1_SIGNED)
@@ -256,6 +257,8 @@ class FieldbusConfig:
     source: str = "<dict>"
     setpoint_lookahead: int = 0
     setpoint_buffer: int = 0
+    #: the scripted SDO/NMT requests of the asynchronous phase (``[[fieldbus.asynchronous]]``)
+    asynchronous: tuple[AsyncRequest, ...] = ()
 
     @property
     def planned_ahead_cycles(self) -> int:
@@ -425,6 +428,7 @@ def _build(v: dict[str, Any], source: str) -> FieldbusConfig:
         seed=r.integer("seed", v["seed"], 0),
         setpoint_lookahead=_lookahead(r, v["setpoint_lookahead"]),
         setpoint_buffer=_buffer(r, v["setpoint_buffer"], v["setpoint_lookahead"], v["dead_time_cycles"]),
+        asynchronous=parse_requests(v["asynchronous"], nodes, r.fail),
         bus=bus, timing=timing, thresholds=thresholds, reaction=reaction,
         scaling=scaling, faults=faults, recording=recording, source=source,
     )

@@ -26,12 +26,14 @@ The returned arrays are reused every cycle: copy what you keep.
 """
 from __future__ import annotations
 
-from collections.abc import Mapping
+import math
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from fieldbus.asynchronous import AsyncClient, AsyncNodes, AsynchronousPhase, slot_offsets
 from fieldbus.config import FieldbusConfig
 from fieldbus.endpoints import (_NO_FAULTS, SYNCHRONOUS_INTERFACES, DriveEndpoint,
                                 ManagingNodeEndpoint, default_channel)
@@ -51,10 +53,15 @@ class PowerlinkNetwork(Closeable):
         scaling: joint scaling (gear ratios, encoder counts, rated torques) with one
             joint per node.
         log_path: CAN log to write (.blf or .asc); None records nothing.
+        canopen: the nodes' object dictionaries: the asynchronous phase answers SDO and NMT with
+            them (``fieldbus.asynchronous``; the requests of ``config.asynchronous`` and of
+            :meth:`submit`); None: no asynchronous phase besides the EMCYs.
+        on_write: ``on_write(node, entry, value)`` for every value an SDO download changes.
     """
 
     def __init__(self, config: FieldbusConfig | Mapping[str, Any] | None, scaling: JointScaling,
-                 log_path: str | Path | None = None) -> None:
+                 log_path: str | Path | None = None, canopen: Sequence[Any] | None = None,
+                 on_write: Callable[[int, Any, Any], None] | None = None) -> None:
         if not isinstance(config, FieldbusConfig):
             config = FieldbusConfig.from_dict(config)
         self.config = config
@@ -97,6 +104,16 @@ class PowerlinkNetwork(Closeable):
         quiet = not (self.mn_side.plan.enabled or self.drive_side.plan.enabled)
         self._quiet_plans = (self.mn_side.plan, self.drive_side.plan) if quiet else (None, None)
         self._checked_integers: tuple = ()  # (controlword, modes) arrays whose dtypes were checked
+        self.asynchronous: AsynchronousPhase | None = None
+        self._async_next: float = math.inf  # the next cycle whose asynchronous slot has work
+        if canopen is not None:
+            client = AsyncClient(config.asynchronous, config.node_ids, slot_offsets(self.layout), self._t0,
+                                 self._cycle_time, canopen)
+            nodes = AsyncNodes(canopen, self._t0, config.reaction.abort_connection_option, on_write, scaling,
+                               self.cn.invalidate_applied)
+            self.asynchronous = AsynchronousPhase(client, nodes, self._t0, self._cycle_time)
+            self.cn.on_emcy = self.asynchronous.note_emcy
+            self._async_next = self.asynchronous.next_cycle
 
     # ------------------------------------------------------------------ life cycle
     def _release(self) -> None:
@@ -119,6 +136,8 @@ class PowerlinkNetwork(Closeable):
         applied = self.drive_side.run_cycle(cycle, actuals)
         observed = self.mn_side.collect_actuals(cycle)
         self._last_cycle = cycle
+        if cycle >= self._async_next:
+            self._asynchronous(cycle, applied, actuals)
         t = self._t0 + cycle * self._cycle_time
         if self.recorder is not None:
             self.recorder.end_cycle(cycle, t)
@@ -188,10 +207,29 @@ class PowerlinkNetwork(Closeable):
         if mn_side._owns_recorder:
             mn_side._flush_own_recording(cycle)
         self._last_cycle = cycle
+        if cycle >= self._async_next:
+            self._asynchronous(cycle, applied, actuals)
         t = self._t0 + cycle * self._cycle_time
         if self.recorder is not None:
             self.recorder.end_cycle(cycle, t)
         return CycleResult(cycle, t, applied, observed)
+
+    def _asynchronous(self, cycle: int, applied: AppliedSetpoints, actuals: DriveActuals) -> None:
+        """The asynchronous slot of ``cycle`` with SDO/NMT work (fieldbus.asynchronous)."""
+        phase = self.asynchronous
+        assert phase is not None
+        frames = phase.run(cycle, applied, actuals, emcy_sent=self.cn.last_emcy_cycle == cycle)
+        if frames and self.recorder is not None:
+            self.recorder.add_many(frames)
+        self._async_next = phase.next_cycle
+
+    def submit(self, request: Any) -> None:
+        """Queue an SDO/NMT request (:class:`fieldbus.asynchronous.AsyncRequest`) for the
+        asynchronous slot of the next cycle that is free."""
+        if self.asynchronous is None:
+            raise RuntimeError("this network has no asynchronous phase (no object dictionaries given)")
+        self.asynchronous.submit(request)
+        self._async_next = self.asynchronous.next_cycle
 
     def bind_applied(self, applied: AppliedSetpoints) -> None:
         """Have the drives' applied set-points written into ``applied``'s arrays (e.g. views
@@ -222,8 +260,11 @@ class PowerlinkNetwork(Closeable):
 
     def summary(self) -> dict[str, Any]:
         """JSON-ready summary: configuration essentials, frame counts, counters, faults."""
-        return network_summary(self.config, self.events, self.mn_side, self.drive_side, self.recorder,
-                               (self._last_cycle + 1) if self._last_cycle is not None else 0)
+        out = network_summary(self.config, self.events, self.mn_side, self.drive_side, self.recorder,
+                              (self._last_cycle + 1) if self._last_cycle is not None else 0)
+        if self.asynchronous is not None:
+            out["asynchronous"] = self.asynchronous.summary()
+        return out
 
 
 def network_summary(config: FieldbusConfig, events: EventLog, mn_side: ManagingNodeEndpoint | None,

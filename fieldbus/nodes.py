@@ -92,7 +92,7 @@ _UNPACK_SKIP = RPDO1_BUFFER_SKIP.unpack_from
 def _lookahead_entry(raw: bytes) -> bytes:
     """The 10-byte look-ahead entry of a packed 20-byte RPDO1: the set-point of its mode
     (target position / velocity INT32, target torque INT16 widened), torque offset,
-    velocity offset (fieldbus/README.md, Frames)."""
+    velocity offset (docs/reference/fieldbus.md, Telegrams)."""
     mode = raw[8]
     if mode == 9:
         target = raw[12:16]
@@ -106,7 +106,7 @@ def _lookahead_entry(raw: bytes) -> bytes:
 def _entry_setpoint(due: tuple[int, ...], data: bytes, j: int) -> tuple[int, ...]:
     """The pipe tuple (cw, pos, tq, mode, 0, tt, tv, vo) of look-ahead entry ``j`` (1..k) of an
     RPDO1 whose own set-point is ``due``: controlword and mode are the PReq's, the entry's
-    value is the set-point of that mode (fieldbus/README.md, Frames)."""
+    value is the set-point of that mode (docs/reference/fieldbus.md, Telegrams)."""
     cw, pos, _, mode, _, tt, tv, _ = due
     target, offset, velocity = _UNPACK_ENTRY(data, 20 + _ENTRY_LEN * (j - 1))
     if mode == 9:
@@ -656,6 +656,9 @@ class ControlledNodes:
         self._any_fault = False
         self._fault_shown = False  # applied arrays still show a fault that was cleared
         self._emcy_due: list[ThresholdCounter | tuple[int, int]] = []  # tripped counters, (node, drive error)
+        self.last_emcy_cycle = -1  # the last cycle whose asynchronous slot carried EMCYs
+        #: called with the EMCY frames of a cycle (fieldbus.asynchronous: error register and history)
+        self.on_emcy: Callable[[list], None] | None = None
         self._errors_seen = [0] * n  # each drive's error code 0x603F at the last SoC
         self._errors_announced = [False] * n  # an EMCY announced the node's present drive error
         self._ids: dict[int, int] = {RPDO1_BASE + i + 1: i for i in range(n)}
@@ -1108,6 +1111,14 @@ class ControlledNodes:
         if self.counters.busy:
             self.counters.end_cycle(cycle, t)
 
+    def invalidate_applied(self) -> None:
+        """Someone else wrote into the applied arrays after this cycle's :meth:`start_cycle`
+        (fieldbus.asynchronous: a node that takes no PDO holds its set-points): the next
+        start_cycle writes every field again instead of only those that changed."""
+        self._last_app_cw = self._last_app_mode = self._last_app_tv = self._last_app_vo = self._last_app_tt = None
+        self._all_fresh = False
+        self._fault_shown = True
+
     def emergency_messages(self, timestamp: float) -> list[FastMessage]:
         """EMCY frames due in this cycle's asynchronous slot: one per tripped counter (0x8100),
         one per drive whose error code 0x603F changed at this cycle's SoC (:meth:`_drive_errors`)."""
@@ -1131,6 +1142,9 @@ class ControlledNodes:
                                        counter.value, counter.cumulative, counter.threshold,
                                        f"EMCY 0x{EMCY_COMMUNICATION:04X}"))
         self._emcy_due = []
+        self.last_emcy_cycle = self.cycle
+        if self.on_emcy is not None:
+            self.on_emcy(out)
         return out
 
     def _drive_errors(self, codes: list[int]) -> None:

@@ -74,11 +74,19 @@ class Variable:
     #: names of the knowns (inputs and parameters) an output depends on in Initialization
     #: Mode (ModelStructure/InitialUnknowns); () = none
     depends_on: tuple[str, ...] = ()
+    #: a parameter that may be set between communication steps too (variability "tunable";
+    #: the C code reads it at every step)
+    tunable: bool = False
+
+    @property
+    def kind_code(self) -> str:
+        """The C kind of the variable (KIND_TUNABLE: a tunable parameter)."""
+        return "KIND_TUNABLE" if self.tunable and self.causality == PARAMETER else _KIND_CODE[self.causality]
 
     @property
     def variability(self) -> str:
         if self.causality == PARAMETER:
-            return "fixed"
+            return "tunable" if self.tunable else "fixed"
         return "continuous" if self.type == "Real" else "discrete"
 
     @property
@@ -104,12 +112,13 @@ class FmuSpec:
     # -- building the list -------------------------------------------------
     def add(self, name: str, type_: str, causality: str, description: str, *,
             unit: str | None = None, start: float | int | None = None,
-            min: float | None = None, max: float | None = None, depends_on: tuple[str, ...] = ()) -> None:
+            min: float | None = None, max: float | None = None, depends_on: tuple[str, ...] = (),
+            tunable: bool = False) -> None:
         """Add one scalar variable named ``name`` (C name derived from it). ``depends_on``
         (outputs only): the inputs and parameters its value in Initialization Mode depends on."""
         c_name = re.sub(r"[^A-Za-z0-9]", "_", name).upper()
         self._append(Variable(name, c_name, type_, causality, description, unit, start, min, max,
-                              depends_on=tuple(depends_on)))
+                              depends_on=tuple(depends_on), tunable=tunable))
 
     def add_array(self, base: str, starts: list[float], causality: str, description: str, *,
                   unit: str | None = None, min: float | None = None, max: float | None = None,
@@ -269,7 +278,7 @@ class FmuSpec:
             "#include <math.h>",
             f'#define MODEL_IDENTIFIER_STRING "{self.model_identifier}"',
             f'#define MODEL_GUID "{self.guid}"',
-            "enum { KIND_INPUT, KIND_OUTPUT, KIND_PARAMETER, KIND_LOCAL };",
+            "enum { KIND_INPUT, KIND_OUTPUT, KIND_PARAMETER, KIND_LOCAL, KIND_TUNABLE };",
         ]
         for type_, tag in (("Real", "REAL"), ("Integer", "INTEGER")):
             vs = self.of_type(type_)
@@ -284,7 +293,7 @@ class FmuSpec:
             starts = [_c_value(v.start if v.causality != OUTPUT else 0, type_) for v in vs] or ["0"]
             mins = [_c_bound(v.min, -1, type_) for v in vs] or ["0"]
             maxs = [_c_bound(v.max, +1, type_) for v in vs] or ["0"]
-            kinds = [_KIND_CODE[v.causality] for v in vs] or ["KIND_LOCAL"]
+            kinds = [v.kind_code for v in vs] or ["KIND_LOCAL"]
             names = [f'"{v.name}"' for v in vs] or ['""']
             out.append(f"static const {ctype} {tag}_START[{n}] = {{{', '.join(starts)}}};")
             out.append(f"static const double {tag}_MIN[{n}] = {{{', '.join(mins)}}};")

@@ -1,6 +1,6 @@
 """Forward kinematics of the flange, Cardan angles and the geometric Jacobian.
 
-Frames and units (see docs/ARCHITECTURE.md): the flange pose is the ``tool0`` frame
+Frames and units (see docs/explanation/architecture.md): the flange pose is the ``tool0`` frame
 in the ``base_link`` frame, positions in m, angles in rad. The paper's orientation is
 given by Cardan angles (x-y-z intrinsic), ``R = Rx(alpha) @ Ry(beta) @ Rz(gamma)``; a
 *Cardan pose* is the 6-vector ``(x, y, z, alpha, beta, gamma)`` (the paper's z_E).

@@ -2,8 +2,9 @@
 tests/test_docs_pages.py; no pytest state here).
 
 A *user page* is a Markdown file a reader of the site reads as written by hand: everything under
-``docs/`` and ``fieldbus/README.md`` (shown as ``reference/fieldbus.md``). The pages the hook
-generates from the code (scenario keys, command line) are not files, and ``benchmarks/RESULTS.md``
+``docs/`` (of reference/fieldbus.md and reference/object_dictionary.md the hand-written part: the
+hook puts their generated tables in at build time). The pages the hook generates from the code
+(scenario keys, command line) are not files, and ``benchmarks/RESULTS.md``
 (written by ``cosim bench``) is the one measured-results page, not a user page.
 """
 from __future__ import annotations
@@ -16,7 +17,7 @@ ROOT = Path(__file__).resolve().parents[1]
 DOCS = ROOT / "docs"
 
 #: Hand-written pages outside docs/ that the site shows.
-EXTRA_PAGES = (ROOT / "fieldbus" / "README.md",)
+EXTRA_PAGES: tuple[Path, ...] = ()
 
 #: Fence languages and what the docs-code test does with them (docs/index.md, "Code blocks").
 LANGUAGES = ("bash", "python", "toml", "text")

@@ -18,7 +18,7 @@ def short_scenario_text(stop_time: str, dead_time: int = 1, name: str = "rt_shor
                         extra: str = "") -> str:
     """scenarios/iso9283.toml cut down: one mode, settle 10 ms, 400 us recording of the
     drives' applied targets, no figures; ``extra`` TOML appended."""
-    text = (ROOT / "scenarios" / "iso9283.toml").read_text()
+    text = (ROOT / "tests" / "long_forms" / "iso9283.toml").read_text()
     subs = [
         (r'stop_time = "[^"]*"', f'stop_time = "{stop_time}"'),
         (r'modes = \[[^\]]*\]', 'modes = ["model_based"]'),
@@ -62,7 +62,7 @@ def hil_scenario(tmp_path: Path, stop_time: str = "5 s", loss_threshold: int = 8
     """scenarios/hil.toml at a 2 ms bus cycle (drives sampling at it too), stopping at
     ``stop_time``, the drives' loss-of-SoC/PReq counters tripping at ``loss_threshold``
     (0: never), written to ``tmp_path``/hil.toml."""
-    text = (ROOT / "scenarios" / "hil.toml").read_text()
+    text = (ROOT / "tests" / "long_forms" / "hil.toml").read_text()
     text = text.replace('stop_time = "6 s"', f'stop_time = "{stop_time}"')
     text = text.replace('period = "400 us"', 'period = "2 ms"').replace("cycle_time_us = 400", "cycle_time_us = 2000")
     text = text.replace('builtin = "servo_drive"',

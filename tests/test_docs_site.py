@@ -17,6 +17,7 @@ import pytest
 
 from cosim.cli_reference import cli_markdown, undocumented_arguments
 from cosim.scenario.reference import job_names, scenario_keys, scenario_keys_markdown, undocumented_keys
+from fmus.servo_drive.tuning import elastic_axis_speed_kp
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -76,7 +77,8 @@ def test_site_builds_without_warnings(site):
     site_dir, log = site
     assert "WARNING" not in log, log
     for page in ("index.html", "tutorial.html", "reference/scenario_keys.html", "reference/cli.html",
-                 "reference/api.html", "reference/contracts.html", "reference/fieldbus.html"):
+                 "reference/api.html", "reference/contracts.html", "reference/fieldbus.html",
+                 "reference/benchmarks.html"):
         assert (site_dir / page).is_file(), page
 
 
@@ -147,6 +149,18 @@ def test_scenario_key_page_lists_every_key_with_its_unit_and_default():
     # a key with a unit and a default, as the schema says
     assert "| `simulation.stop_time` | number | s | required |" in page
     assert '| `simulation.coupling` | string |  | `"jacobi"` |' in page
+
+
+def test_scenario_key_page_lists_the_cells_defaults():
+    """Every value of scenarios/cell.toml and cell_elastic.toml is on the page, with its unit and
+    the reason its file gives (the numbers are the files', read when the page is built)."""
+    page = scenario_keys_markdown()
+    assert "## The robot cell's defaults {#cell-defaults}" in page
+    assert '| `true_robot.payload_mass` | `"8 kg"` | kg | the tool on the flange (rated load 10 kg) |' in page
+    assert '| `simulation.macro_step` | `"100 us"` | s |' in page
+    for i, kp in enumerate(elastic_axis_speed_kp(), start=1):
+        assert f"| `fmus[drive{i}].parameters.speed_kp` | `{float(kp)!r}` |" in page
+    assert '| `fmus[plant].builtin` | `"rx130l_plant"` |' in page
 
 
 def test_undocumented_key_is_found():

@@ -396,7 +396,9 @@ def evaluate_run(ctx: RunContext, mode: str, cell: CellRun, controller: Any, ref
         "stop_reason": getattr(controller, "stop_reason", None),
         "fieldbus": {k: cell.fieldbus[k] for k in ("cycles_run", "frames_sent", "frames_dropped", "frames_recorded",
                                                    "log_path", "dead_time_cycles", "node_fault", "comm_fault",
-                                                   "scaling_saturations", "event_tally")},
+                                                   "scaling_saturations", "event_tally")}
+        | ({"asynchronous": cell.fieldbus["asynchronous"]}  # SDO/NMT in the asynchronous slot (when any)
+           if (cell.fieldbus.get("asynchronous") or {}).get("requests") else {}),
         "files": {"timeseries": ctx.series_name(f"timeseries_{mode}"), "controller": controller_file if builtin else _record_name(cell),
                   "tcp": tcp_file, "can_log": Path(cell.fieldbus["log_path"]).name
                   if cell.fieldbus.get("log_path") else None},

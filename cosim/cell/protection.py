@@ -7,7 +7,7 @@ them in their ``limit_status`` / ``limit_history`` outputs; the plant reports en
 (``end_stop_contacts``, ``end_stop_impact_speed``, ``end_stop_impact_time``,
 ``end_stop_max_penetration``). The cell records these with every run
 (:data:`PROTECTION_SIGNALS`); :func:`protection_events` turns the recording into one event per
-onset (the record of docs/ARCHITECTURE.md / the verdict contract), which
+onset (the record of the verdict contract, cosim/cell/verdict.py), which
 :func:`cosim.execution.run_cell` stores in ``CellRun.protection_events`` in every execution mode.
 
 Resolution: the drives' bits hold what was active at any sample of the last co-simulation step, the

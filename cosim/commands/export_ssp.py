@@ -1,5 +1,5 @@
 """``python -m cosim export-ssp SCENARIO OUT.ssp``: the scenario's FMUs, connections and parameter
-values as an SSP 1.0 archive other SSP tools (libcosim, Ecos) load and run as it is (docs/cosim.md, "SSP")."""
+values as an SSP 1.0 archive other SSP tools (libcosim, Ecos) load and run as it is (docs/how-to/ssp.md)."""
 from __future__ import annotations
 
 import argparse

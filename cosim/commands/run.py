@@ -19,15 +19,15 @@ EXIT_INTERNAL = EXIT_FAILED  # an unexpected error is a failed run too
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """SCENARIO, --out, --quiet, --realtime, --split."""
-    parser.add_argument("scenario", type=Path, help="scenario TOML file (see docs/cosim.md)")
+    parser.add_argument("scenario", type=Path, help="scenario TOML file (see docs/reference/scenario_keys.md)")
     parser.add_argument("--out", type=Path, default=None,
                         help="results folder (default: [output] dir of the scenario, else results/<scenario name>/)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     parser.add_argument("--realtime", action="store_true",
-                        help="pace the run at the controller cycle (wall clock); see docs/timing.md")
+                        help="pace the run at the controller cycle (wall clock); see docs/how-to/served_cell.md")
     parser.add_argument("--split", action="store_true",
                         help="controller in this process, drives and plant in another: in lock-step over python-can "
-                             "udp_multicast; with --realtime both paced, the cell served over udpcycle (docs/hil.md)")
+                             "udp_multicast; with --realtime both paced, the cell served over udpcycle (docs/how-to/served_cell.md)")
     parser.add_argument("--max-output", default=None, metavar="SIZE",
                         help="refuse a run estimated to write more (e.g. '5 GB'; default: $COSIM_MAX_OUTPUT, else the "
                              "free disk space)")
@@ -37,7 +37,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--ignore-budget", action="store_true", help="run even above --max-output/--max-memory")
     parser.add_argument("--timeseries", choices=("parquet", "csv"), default=None,
                         help="format of the time-series files (default: parquet, or $COSIM_TIMESERIES); "
-                             "see docs/ARCHITECTURE.md")
+                             "see docs/reference/output_files.md")
 
 
 def run(args: argparse.Namespace) -> int:

@@ -1,5 +1,5 @@
 """``python -m cosim serve SCENARIO [--out DIR] [--channel HOST:PORT] [--peer HOST:PORT] ...``:
-the cell side of a hardware-in-the-loop run (docs/hil.md)."""
+the cell side of a hardware-in-the-loop run (docs/how-to/served_cell.md)."""
 from __future__ import annotations
 
 import argparse
@@ -9,7 +9,7 @@ from pathlib import Path
 NAME = "serve"
 HELP = ("Run the cell side of the scenario's robot-cell runs (plant, drives, controlled nodes, tracker, "
         "recorder) paced at the bus cycle for a controller in another program on the udpcycle bus; "
-        "writes hil_endpoint.json first, then the usual results (docs/hil.md).")
+        "writes hil_endpoint.json first, then the usual results (docs/how-to/served_cell.md).")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -21,7 +21,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     parser.add_argument("--interface", default=UDPCYCLE,
                         help=f"the bus: {UDPCYCLE} (default; one datagram per POWERLINK cycle for a controller of "
-                             "docs/hil.md) or any python-can interface (udp_multicast, virtual, socketcan, pcan, "
+                             "docs/how-to/served_cell.md) or any python-can interface (udp_multicast, virtual, socketcan, pcan, "
                              "kvaser, ...): then the six drives are CANopen devices and a CANopen master's SYNC "
                              "drives the cell (docs/how-to/can_master.md)")
     parser.add_argument("--channel", default=None,
@@ -167,7 +167,7 @@ def _check_address_free(channel: str) -> None:
 
 
 def _warn_cycle_time_mismatch(hil: dict) -> None:
-    """One line per served run whose controller ran at another cycle time (docs/hil.md)."""
+    """One line per served run whose controller ran at another cycle time (docs/how-to/served_cell.md)."""
     for label, report in hil.items():
         found = report.get("cycle_time_mismatch") if isinstance(report, dict) else None
         if found:
@@ -204,7 +204,7 @@ def _warn_transport_faults(hil: dict) -> None:
         if any(found.values()):
             counts = ", ".join(f"{v} {k}" for k, v in found.items() if v)
             print(f"warning: {label}: datagrams dropped by the cell: {counts} (summary.json "
-                  f"hil.{label}.transport; docs/hil.md)", file=sys.stderr)
+                  f"hil.{label}.transport; docs/how-to/served_cell.md)", file=sys.stderr)
 
 
 def _check_cpu_and_hosts(cpu: str | None, accept_from, peer: str | None = None) -> None:

@@ -15,6 +15,7 @@ from typing import Any
 from controller import CellController, ControllerInfo
 from controller.port import command_log_columns
 from cosim.cell.description import CellDescription
+from cosim.cell.drive_objects import DriveParameterWriter, cell_object_dictionaries
 from cosim.cell.link import FieldbusLink
 from cosim.cell.run import CellRun
 from cosim.cell.wiring import N_JOINTS, cell_variables, joint_scaling
@@ -110,7 +111,9 @@ def run_on_master(cell: CellDescription, controller: CellController, ctx: RunCon
     failure: SimulationError | None = None
     wall0 = time.perf_counter()
     cpu0 = time.process_time()
-    network = PowerlinkNetwork(fb_config, joint_scaling(), log_path=cell.can_log)
+    ods = cell_object_dictionaries(fb_config)
+    writer = DriveParameterWriter(ods, lambda instance, name, value: master.fmus[instance].set_value(name, value))
+    network = PowerlinkNetwork(fb_config, joint_scaling(), log_path=cell.can_log, canopen=ods, on_write=writer)
     link = None
     log = None if paced else controller_log_of(controller)  # paced: no file I/O in the loop
     command_log = None

@@ -155,7 +155,7 @@ def endpoint_description(cell: CellDescription, settings: ServeSettings, config:
         "dead_time_cycles": config.dead_time_cycles,
         "setpoint_lookahead": config.setpoint_lookahead,
         # the drives' set-point buffer (0x60C4 sub 1; 0: none): fill it through 64-byte RPDO1s whose
-        # entries start where the TPDO2's byte 7 says the buffer ends (fieldbus/README.md, Frames)
+        # entries start where the TPDO2's byte 7 says the buffer ends (docs/reference/fieldbus.md, Telegrams)
         "setpoint_buffer": config.setpoint_buffer,
         "nodes": config.nodes,
         "sync_counter_overflow": config.scaling.sync_counter_overflow,
@@ -168,10 +168,10 @@ def endpoint_description(cell: CellDescription, settings: ServeSettings, config:
         "frames": {"soc": f"0x{SYNC_ID:03X} UINT8 counter 1..overflow",
                    "preq": f"0x{RPDO1_BASE:03X}+node, 8 bytes (CSP) or 20 bytes CAN FD (all modes), or 32/48/64 "
                            f"bytes with a set-point look-ahead (byte 9 = entries, 10 bytes each; with a set-point "
-                           f"buffer 64 bytes, bytes 60-61 <H = entry skip): fieldbus/README.md, Frames",
+                           f"buffer 64 bytes, bytes 60-61 <H = entry skip): docs/reference/fieldbus.md, Telegrams",
                    "pres": f"0x{TPDO1_BASE:03X}+node <H statusword, <i position actual [counts], <h torque actual; "
                            f"0x{TPDO2_BASE:03X}+node (8 bytes with a set-point buffer: byte 7 = set-points held "
-                           f"ahead): fieldbus/README.md, Frames"},
+                           f"ahead): docs/reference/fieldbus.md, Telegrams"},
         "busy_poll_s": settings.busy_poll_s,
     }
 

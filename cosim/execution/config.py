@@ -8,7 +8,7 @@ receive_timeout = "2 s"      # split: WALL time a side waits for the other's fra
 
 [realtime]
 overrun_policy = "hold"      # what the drives get in a cycle whose telegrams missed their SoC:
-                             # "hold" | "skip" | "lost_frame" (docs/timing.md)
+                             # "hold" | "skip" | "lost_frame" (docs/explanation/timing.md)
 spin = "100 us"              # busy-wait this long before each wall deadline (sleep before it)
 scheduling = "fifo"          # "fifo": ask for SCHED_FIFO (falls back to the normal scheduler) | "normal"
 fifo_priority = 10           # SCHED_FIFO priority (1..99)

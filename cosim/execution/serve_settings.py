@@ -14,7 +14,7 @@ DEFAULT_CHANNEL = "127.0.0.1:47400"
 #: other half for the plant and drive steps, the tracker and the recorder.
 DEFAULT_WINDOW_FRACTION = 0.5
 #: Seconds the pacer busy-waits before each cycle's deadline (the kernel wakes a sleeper
-#: ~37 µs late median, 155 µs p99 on the 2-core development VM, docs/timing.md: sleep, then spin).
+#: ~37 µs late median, 155 µs p99 on the 2-core development VM, docs/explanation/timing.md: sleep, then spin).
 DEFAULT_SPIN_S = 150e-6
 #: Name of the endpoint description written into the results folder before the first cycle.
 ENDPOINT_FILE = "hil_endpoint.json"

@@ -6,8 +6,8 @@ scenario's job - plant and drive FMUs, the POWERLINK controlled nodes, the laser
 the recorder - paced by the wall clock at the bus cycle (:mod:`cosim.execution.cell_side`,
 settings in :mod:`cosim.execution.serve_settings`). It never waits for the controller: the
 controller is any program on the bus (``udpcycle`` interface, wire format in
-``fieldbus/README.md``) that answers the cell's PRes frames with SoC + PReqs in time. See
-``docs/hil.md``.
+``docs/reference/fieldbus.md``) that answers the cell's PRes frames with SoC + PReqs in time. See
+``docs/how-to/served_cell.md``.
 """
 from __future__ import annotations
 

@@ -1,7 +1,8 @@
 """Generic fixed-step, multi-rate co-simulation master on fmpy.
 
 Knows FMUs, connections, periodic tasks and recorders; nothing about robots.
-See docs/cosim.md for the coupling scheme (who sees which values when).
+The coupling scheme (who sees which values when): the docstring of cosim/master/master.py and
+docs/explanation/architecture.md, "The co-simulation master".
 """
 from cosim.master.errors import EndSimulation, MasterConfigError, SimulationError
 from cosim.master.master import Master, SignalReader, Task, ticks_of

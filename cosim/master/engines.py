@@ -3,7 +3,7 @@
 ``SlavePlan``/``Plan`` describe, once, what each FMU exchanges per step: value
 reference arrays, bus offsets of its inputs and published variables, and the
 connection copies (``bus[dst] = bus[src]``) done before it steps. Two engines execute a
-plan with identical semantics (see docs/cosim.md, "Coupling scheme"):
+plan with identical semantics (see the docstring of cosim/master/master.py):
 
 * ``NativeEngine`` runs whole stretches of ticks in the compiled kernel (kernel.c):
   one ctypes call per stretch, no Python per FMU step.

@@ -3,7 +3,7 @@
 One simulated clock ticks at the base step ``h0``; tick ``n`` is time
 ``t_n = start_time + n * h0``. Each FMU steps every ``m`` ticks (its step is ``m * h0``),
 each periodic task runs every ``p`` ticks at phase ``phi`` (ticks ``n = phi mod p``), each
-recorder samples every ``r`` ticks. At a tick ``n``, in this order (docs/cosim.md):
+recorder samples every ``r`` ticks. At a tick ``n``, in this order (docs/explanation/architecture.md, "The co-simulation master"):
 
 1. FMU outputs: every FMU whose communication point is ``t_n`` has published its
    outputs at ``t_n`` on the buses (an FMU between communication points shows the

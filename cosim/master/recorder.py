@@ -1,7 +1,7 @@
 """Observers that sample signals at a fixed period and stream rows to a sink.
 
 A ``Recorder`` samples its signals at every ``period`` (a multiple of the base step),
-after the periodic tasks of that tick ran (see docs/cosim.md), into a preallocated
+after the periodic tasks of that tick ran (see cosim/master/master.py), into a preallocated
 block; full blocks, and at least every ``flush_interval_s`` of wall time, are handed
 to its sink, so a failed run keeps everything recorded up to the failure.
 

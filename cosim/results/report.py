@@ -201,7 +201,18 @@ def _entry_events(entry: dict[str, Any], summary: dict[str, Any] | None, name: s
     if isinstance(stopped, (int, float)):
         events.append({"kind": "stopped", "time_s": float(stopped),
                        "detail": f"run {summary.get('status')} here: {_first_line(summary.get('reason') or '')}"})
+    elif isinstance(entry.get("stopped_at_s"), (int, float)) and _stopped_early(entry):
+        # the mode/entry's own stop (a drive's fault reaction, a controller's stop): where the motion ended
+        events.append({"kind": "stopped", "time_s": float(entry["stopped_at_s"]),
+                       "detail": f"{name} {entry.get('verdict') or entry.get('status')}: motion stopped here"
+                                 + (f": {_first_line(entry.get('stop_reason'))}" if entry.get("stop_reason") else "")})
     return events
+
+
+def _stopped_early(entry: dict[str, Any]) -> bool:
+    """Whether a mode/entry ended badly (a verdict or status other than ok: limit, fault, failed, ...);
+    a run cut short by its stop time is not one."""
+    return (entry.get("verdict") or entry.get("status")) not in (None, "ok")
 
 
 def _plain(value: Any) -> bool:
@@ -532,8 +543,21 @@ def status_notes(summary: dict[str, Any] | None) -> list[str]:
                    if summary.get("mode") or summary.get("failed_in") else "")
                 + (f": {_first_line(summary.get('reason'))}" if summary.get("reason") else "")
                 + (f"; first violation: {first.get('kind')} axis {first.get('joint')} at t = {first.get('time_s')} s"
-                   if first else "")]
+                   if first else "")] + _entry_stops(summary)
     return []
+
+
+def _entry_stops(summary: dict[str, Any]) -> list[str]:
+    """Where each mode/entry that ended early stopped, and why (its ``stopped_at_s``, ``stop_reason``)."""
+    out = []
+    for key in ("modes", "entries"):
+        table = summary.get(key)
+        for name, entry in (table.items() if isinstance(table, dict) else ()):
+            if isinstance(entry, dict) and isinstance(entry.get("stopped_at_s"), (int, float)) and _stopped_early(entry):
+                out.append(f"{name}: {entry.get('verdict') or entry.get('status')}, the motion stopped at "
+                           f"t = {entry['stopped_at_s']:.6g} s"
+                           + (f": {_first_line(entry['stop_reason'])}" if entry.get("stop_reason") else ""))
+    return out
 
 
 def _compare_table(folder: Path, summary: dict[str, Any] | None) -> dict[str, Any] | None:

@@ -33,7 +33,7 @@ def run(scenario: "str | Path | Mapping[str, Any] | Scenario", out: str | Path |
         overrides: ``{"key.path": value}`` applied before validation.
         quiet: no progress bar on stderr.
         realtime, split: pace the robot cell at the wall clock / run controller and drives in two
-            processes (as ``cosim run --realtime/--split``; docs/timing.md).
+            processes (as ``cosim run --realtime/--split``; docs/how-to/served_cell.md).
         check: raise :class:`RunFailed` when the run ends ``failed`` (False: return the result).
             A run that completed with verdict ``limit`` or ``fault`` is returned, not raised:
             ``result.status`` says so (and ``result.summary["verdicts"]`` per cell run).

@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any
 if TYPE_CHECKING:  # pragma: no cover
     from cosim.runs.scenario import Scenario
 
-#: File name patterns of what a run writes, by kind (cosim.results; docs/cosim.md).
+#: File name patterns of what a run writes, by kind (cosim.results; docs/reference/output_files.md).
 TIMESERIES_SUFFIXES = (".parquet", ".csv")
 FIGURE_SUFFIXES = (".png", ".svg", ".pdf")
 CAN_LOG_SUFFIXES = (".blf", ".asc", ".trc", ".mf4")

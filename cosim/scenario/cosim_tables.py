@@ -78,7 +78,7 @@ def _multiple_check(value: float, base: float) -> bool:
 
 
 #: Default upper bound on the base steps of one run (stop_time / macro_step). At the ~1-2 us per base
-#: step of the fastest loops (one small FMU, compiled kernel; docs/timing.md) 1e9 steps are already
+#: step of the fastest loops (one small FMU, compiled kernel; benchmarks/) 1e9 steps are already
 #: 20-30 min of wall time, and hours with the robot cell; a larger count is a typo (stop_time = 1e300,
 #: macro_step = 5e-324) more often than a plan. Raise it per scenario with [simulation] max_base_steps.
 MAX_BASE_STEPS = 1_000_000_000

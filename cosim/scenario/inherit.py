@@ -6,8 +6,12 @@ scenarios (``"iso9283"``, ``"scenarios/iso9283.toml"``). The base is read (and i
 ``extends`` followed, any depth, circles refused), then the file's keys are laid over it:
 
 * a table merges key by key, at any depth (``[controller] period`` replaces only that key);
-* any other value replaces the base's value whole, arrays included (``[[fmus]]`` in the
-  derived file replaces the base's list of FMUs; a table inside an array is not merged);
+* ``[[fmus]]`` merges FMU by FMU on ``name``: an ``[[fmus]]`` table whose name the base has
+  merges into that FMU (``[fmus.parameters]`` key by key), a new name is added after the
+  base's FMUs (so ``name = "plant"`` plus ``[fmus.parameters] integration_step = 1e-4`` changes
+  one parameter of the cell's plant and nothing else);
+* any other value replaces the base's value whole, arrays included (``signals = [...]``,
+  ``[[compare.controllers]]``; a table inside such an array is not merged);
 * the derived file's ``[scenario]`` table merges like any other: give a new ``name`` so the
   results go to their own folder.
 
@@ -48,22 +52,30 @@ class Origins:
     prefix (the empty path, the whole document, is the file that was run)."""
 
     files: dict[KeyPath, Path] = field(default_factory=dict)
+    aliases: dict[KeyPath, KeyPath] = field(default_factory=dict)
+    """A key of ``files`` whose path in its file differs from its path in the merged document
+    (an ``[[fmus]]`` table merged by name: FMU 3 of the merged list may be FMU 0 of the file)."""
     _lines: dict[Path, dict[KeyPath, int]] = field(default_factory=dict, repr=False)
 
     @classmethod
     def of_file(cls, path: Path) -> "Origins":
         return cls({(): path})
 
-    def file_of(self, keys: KeyPath) -> Path | None:
+    def _origin(self, keys: KeyPath) -> tuple[Path | None, KeyPath]:
+        """(file, the path of ``keys`` in that file)."""
         for n in range(len(keys), -1, -1):
-            found = self.files.get(tuple(keys[:n]))
+            prefix = tuple(keys[:n])
+            found = self.files.get(prefix)
             if found is not None:
-                return found
-        return None
+                return found, self.aliases.get(prefix, prefix) + tuple(keys[n:])
+        return None, tuple(keys)
+
+    def file_of(self, keys: KeyPath) -> Path | None:
+        return self._origin(keys)[0]
 
     def line_of(self, keys: KeyPath) -> int | None:
         """The line (1-based) of the key ``keys`` (or of its nearest written parent) in its file."""
-        path = self.file_of(keys)
+        path, keys = self._origin(keys)
         if path is None:
             return None
         lines = self._lines.get(path)
@@ -204,21 +216,48 @@ def find_base(name: Any, derived: Path | None, where_key: str = EXTENDS) -> Path
     raise ScenarioError(derived, where_key, expected, name, problem="no such scenario")
 
 
-def _mark(origins: Origins, value: Any, prefix: KeyPath, path: Path) -> None:
-    """Every key of ``value`` (below ``prefix``) came from ``path``."""
-    for key in [k for k in origins.files if k[:len(prefix)] == prefix and len(k) >= len(prefix)]:
-        del origins.files[key]
+MERGED_BY_NAME = ("fmus",)
+"""Top-level arrays of tables that merge entry by entry on their ``name`` key."""
+
+
+def _mark(origins: Origins, prefix: KeyPath, path: Path, in_file: KeyPath) -> None:
+    """Every key below ``prefix`` came from ``path``, where it is written at ``in_file``."""
+    for table in (origins.files, origins.aliases):
+        for key in [k for k in table if k[:len(prefix)] == prefix]:
+            del table[key]
     origins.files[prefix] = path
+    if in_file != prefix:
+        origins.aliases[prefix] = in_file
 
 
-def _merge(base: dict, overlay: dict, origins: Origins, path: Path, prefix: KeyPath) -> None:
+def _names(value: Any) -> list[str] | None:
+    """The names of an array of tables that all have a distinct string ``name``, else None."""
+    if not isinstance(value, list) or not all(isinstance(v, dict) and isinstance(v.get("name"), str) for v in value):
+        return None
+    names = [v["name"] for v in value]
+    return names if len(set(names)) == len(names) else None
+
+
+def _merge(base: dict, overlay: dict, origins: Origins, path: Path, prefix: KeyPath,
+           in_file: KeyPath | None = None) -> None:
+    in_file = prefix if in_file is None else in_file
     for key, value in overlay.items():
-        here = prefix + (key,)
+        here, there = prefix + (key,), in_file + (key,)
         if isinstance(value, dict) and isinstance(base.get(key), dict):
-            _merge(base[key], value, origins, path, here)
+            _merge(base[key], value, origins, path, here, there)
+        elif here in {(name,) for name in MERGED_BY_NAME} and _names(value) is not None \
+                and _names(base.get(key)) is not None:
+            index = {name: i for i, name in enumerate(_names(base[key]))}
+            for j, entry in enumerate(value):
+                i = index.get(entry["name"])
+                if i is None:
+                    base[key].append(copy.deepcopy(entry))
+                    _mark(origins, here + (len(base[key]) - 1,), path, there + (j,))
+                else:
+                    _merge(base[key][i], entry, origins, path, here + (i,), there + (j,))
         else:
             base[key] = copy.deepcopy(value)
-            _mark(origins, value, here, path)
+            _mark(origins, here, path, there)
 
 
 def resolve(document: dict[str, Any], path: Path | None,
@@ -258,4 +297,4 @@ def resolve(document: dict[str, Any], path: Path | None,
     return merged, origins
 
 
-__all__ = ["EXTENDS", "Origins", "find_base", "key_lines", "resolve"]
+__all__ = ["EXTENDS", "MERGED_BY_NAME", "Origins", "find_base", "key_lines", "resolve"]

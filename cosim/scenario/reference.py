@@ -172,6 +172,48 @@ def _is_table(field: Field) -> bool:
     return isinstance(spec, Table) or (isinstance(spec, List) and isinstance(spec.item, Table))
 
 
+#: How a scenario combines with the one it ``extends`` (cosim/scenario/inherit.py).
+_EXTENDS = [
+    "",
+    "## Starting from another scenario: `extends` {#extends}",
+    "",
+    "The top-level key `extends` names a base scenario: a path relative to the file, or the name of",
+    "one of the project's scenarios (`\"iso9283\"`, also after a non-editable install); the robot",
+    "cell's own bases are [`cell` and `cell_elastic`](#cell-defaults). Top-level keys come before the",
+    "first `[table]` header.",
+    "",
+    "- tables merge key by key at any depth: `[controller] compute_budget = \"150 us\"` changes that key",
+    "  and keeps the base's other `[controller]` keys;",
+    "- `[[fmus]]` merges FMU by FMU on `name`: a table named like one of the base's FMUs changes only",
+    "  the keys it gives, a new name adds an FMU after the base's;",
+    "- every other value replaces the base's whole, lists included (`[record] signals`);",
+    "- the base may extend another scenario; a circle is an error;",
+    "- file paths written in the base stay relative to the base's folder; a user class",
+    "  `\"file.py:Class\"` is looked up next to the scenario you run;",
+    "- give `[scenario] name`, so the results go to a folder of their own.",
+    "",
+    "An error in a key that came from the base names the base file and line and the file that",
+    "inherited it, e.g. `base.toml: controller.period: expected a number in s > 0, got '-400 us'",
+    "(line 7, inherited by derived.toml)`.",
+]
+
+
+def units_markdown() -> list[str]:
+    """The section on quantities with a unit, from :data:`cosim.scenario.units.UNITS`."""
+    from cosim.scenario.units import UNITS
+
+    lines = ["", "## Quantities with a unit {#units}", "",
+             "A number is in the SI unit the key's row names. A string `\"<number> <unit>\"` with a unit of",
+             "the same dimension is converted when the file loads (decimal factors exactly: `\"100 us\"` is",
+             "the same float as `1e-4`); a unit of another dimension is an error. FMU parameters are plain",
+             "numbers in the FMU's own units.", "",
+             "| SI unit | also accepted |", "|---|---|"]
+    for si, spellings in UNITS.items():
+        others = ", ".join(f"`{name}`" for name in spellings if name != si)
+        lines.append(f"| `{si}` | {others} |")
+    return lines
+
+
 def scenario_keys_markdown() -> str:
     """The page ``reference/scenario_keys.md``: every key of every registered job type.
 
@@ -206,6 +248,7 @@ def scenario_keys_markdown() -> str:
     ]
     for name in names:
         lines.append(f"| [`{name}`](#job-{name}) | {_text(get_job(name).description)} |")
+    lines += _EXTENDS + units_markdown()
     for name in names:
         job = get_job(name)
         lines += ["", f"## Job `{name}` {{#job-{name}}}", ""]
@@ -232,7 +275,67 @@ def scenario_keys_markdown() -> str:
         if rows[0].doc:
             lines += [_text(rows[0].doc[0].upper() + rows[0].doc[1:]) + ".", ""]
         lines += _HEADER + [_row(row) for row in rows[1:]]
+    lines += cell_defaults_markdown()
     return "\n".join(lines) + "\n"
 
 
-__all__ = ["KeyDoc", "job_names", "scenario_keys", "scenario_keys_markdown", "toml_text", "undocumented_keys"]
+CELL_BASES = ("cell", "cell_elastic")
+"""The project's base scenarios of the robot cell (``scenarios/<name>.toml``), documented on the page."""
+
+
+def _leaves(value: Any, path: tuple = ()) -> Iterator[tuple[tuple, Any]]:
+    """(key path, value) of every value of a TOML document that is not a table; an ``[[fmus]]``
+    item is keyed by its name."""
+    if isinstance(value, dict):
+        for key, item in value.items():
+            yield from _leaves(item, path + (key,))
+    elif isinstance(value, list) and value and all(isinstance(v, dict) for v in value):
+        for i, item in enumerate(value):
+            for sub, leaf in _leaves(item, ()):
+                yield path + (i,) + sub, leaf
+    else:
+        yield path, value
+
+
+def cell_defaults_markdown() -> list[str]:
+    """The section of ``reference/scenario_keys.md`` on the robot cell's defaults: every key of
+    :data:`CELL_BASES` with its value, unit and the reason the file gives for it."""
+    import tomllib
+
+    from cosim.scenario.inherit import find_base, key_lines
+
+    schema = {k.path: k for k in scenario_keys("iso9283")}
+    lines = ["", "## The robot cell's defaults {#cell-defaults}", "",
+             "A scenario of a job that runs the cell starts from `extends = \"cell\"` (rigid gears) or",
+             "`extends = \"cell_elastic\"` (the main job's elastic gears) and gives only what differs; an",
+             "`[[fmus]]` table with the name of one of these FMUs changes that FMU's keys. Keys these files",
+             "leave out have the defaults of the tables above. Generated from the files themselves."]
+    for name in CELL_BASES:
+        path = find_base(name, None)
+        text = path.read_text(encoding="utf-8")
+        written, doc = key_lines(text), tomllib.loads(text)
+        source = text.splitlines()
+        lines += ["", f"### `scenarios/{path.name}`", "", "| key | value | unit | meaning and source |",
+                  "|---|---|---|---|"]
+        for keys, value in _leaves(doc):
+            if len(keys) == 3 and isinstance(keys[1], int) and keys[2] == "name":
+                continue  # the FMU's name is in the key shown
+            shown, generic = [], []
+            for i, part in enumerate(keys):
+                if isinstance(part, int):
+                    item = doc[keys[0]][part]
+                    shown[-1] += f"[{item.get('name', part)}]"
+                    generic[-1] += "[]"
+                else:
+                    shown.append(str(part))
+                    generic.append(str(part) if not (i >= 2 and generic[-1] == "parameters") else "<key>")
+            key = schema.get(".".join(generic))
+            number = written.get(keys)
+            comment = source[number - 1].split("#", 1)[1].strip() if number and "#" in source[number - 1] else ""
+            meaning = comment or (key.doc if key is not None else "")
+            unit = key.unit if key is not None else ""
+            lines.append(f"| `{_cell('.'.join(shown))}` | `{_cell(toml_text(value))}` | {unit} | {_text(meaning)} |")
+    return lines
+
+
+__all__ = ["CELL_BASES", "KeyDoc", "cell_defaults_markdown", "job_names", "scenario_keys", "scenario_keys_markdown", "toml_text", "undocumented_keys"]

@@ -4,7 +4,7 @@ A numeric scenario value is a plain number in SI units (s, m, rad, N*m, ...), or
 string ``"<number> <unit>"`` with a unit of the same dimension, converted to SI when
 the file is loaded: ``macro_step = "400 us"`` is 4e-4 s, ``"5 deg"`` is 0.0873 rad.
 A unit of the wrong dimension (``"400 mm"`` for a time) is an error naming the units
-accepted. Supported dimensions and units are listed in ``UNITS`` (docs/cosim.md).
+accepted. Supported dimensions and units are listed in ``UNITS`` (docs/reference/scenario_keys.md, generated from it).
 
 Decimal factors (ms, us, mm, kN, min, ...) are applied exactly: the written number times
 the factor is computed in decimal and rounded once to the nearest float, so ``"100 us"``

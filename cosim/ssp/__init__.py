@@ -8,8 +8,8 @@ variables: the controller's CiA 402 telegrams over the emulated POWERLINK bus, t
 tracker) carry an annotation naming the master variable and who drives it; every SSD
 connection joins two components, so libcosim and Ecos load and run the archive as it is.
 ``load_ssp(path)`` reads such an archive back (validated against the SSP 1.0 XML schemas
-that ship with fmpy) into ``[[fmus]]`` tables and connections for the master. docs/cosim.md,
-"SSP", says what the export leaves out.
+that ship with fmpy) into ``[[fmus]]`` tables and connections for the master. docs/how-to/ssp.md
+says what the export leaves out.
 """
 from cosim.ssp.errors import SspError
 from cosim.ssp.read import SspSystem, load_ssp

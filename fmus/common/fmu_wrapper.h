@@ -183,6 +183,7 @@ static int settable(const Instance *inst, int kind)
     int mode = inst->d.mode;
     if (kind == KIND_INPUT) return mode == MODE_INSTANTIATED || mode == MODE_INITIALIZATION || mode == MODE_STEP;
     if (kind == KIND_PARAMETER) return mode == MODE_INSTANTIATED || mode == MODE_INITIALIZATION;
+    if (kind == KIND_TUNABLE) return mode == MODE_INSTANTIATED || mode == MODE_INITIALIZATION || mode == MODE_STEP;
     return 0;
 }
 
@@ -193,6 +194,7 @@ static const char *kind_name(int kind)
     case KIND_INPUT: return "input";
     case KIND_OUTPUT: return "output";
     case KIND_PARAMETER: return "fixed parameter";
+    case KIND_TUNABLE: return "tunable parameter";
     default: return "local";
     }
 }

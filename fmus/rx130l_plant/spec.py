@@ -14,7 +14,7 @@ from robot.parameters import MAX_BACKLASH, load_parameters
 
 MODEL_IDENTIFIER = "rx130l_plant"
 SOURCE_FILES = ("fmi2_wrapper.c", "rx130l_plant.c", "rx130l_plant_fd.c")
-DEFAULT_INTEGRATION_STEP = 50e-6  # s, see docs/fmus.md (accuracy against solve_ivp)
+DEFAULT_INTEGRATION_STEP = 50e-6  # s, see docs/explanation/fmus.md (accuracy against solve_ivp)
 _FMI_UNIT = {"kg": "kg", "kg m": "kg.m", "kg m^2": "kg.m2", "N m s/rad": "N.m.s/rad", "N m": "N.m"}
 
 

@@ -54,7 +54,7 @@ typedef struct {
     double brake_preload;    /* N m joint side: the motor's torque when the power stage switched off,
                                 taken over by the brake as it closes (0 at power-up) */
 
-    /* protection (docs/fmus.md "Protection") */
+    /* protection (docs/explanation/fmus.md "Protection") */
     int active_bits;         /* LIMIT_* bits active as last evaluated */
     int step_bits;           /* LIMIT_* bits active at any sample of the running step */
     int history_bits;        /* every bit limit_status has had since the start */

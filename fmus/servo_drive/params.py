@@ -171,7 +171,7 @@ def drive_start_values(axis: int, robot: RobotParameters | None = None,
                        drive: DriveParameters | None = None) -> dict[str, float | int]:
     """Start values of every servo_drive FMU parameter for ``axis`` (1..6).
 
-    Keys are the FMU variable names (see docs/fmus.md); values SI, joint side unless
+    Keys are the FMU variable names (see docs/explanation/fmus.md); values SI, joint side unless
     the name says otherwise.
     """
     if isinstance(axis, bool) or axis not in range(1, N_AXES + 1):

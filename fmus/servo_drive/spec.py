@@ -79,7 +79,8 @@ def servo_drive_spec() -> FmuSpec:
     spec.add("following_error", "Real", OUTPUT, "reference minus position actual at the last position sample",
              unit="rad")
     for name, unit, lo, hi, text in REAL_PARAMETERS:
-        spec.add(name, "Real", PARAMETER, text, unit=unit, start=defaults[name], min=lo, max=hi)
+        spec.add(name, "Real", PARAMETER, text, unit=unit, start=defaults[name], min=lo, max=hi,
+                 tunable=name in TUNABLE_PARAMETERS)
     spec.add("brake_torque", "Real", OUTPUT,
              "joint-side torque of the holding brake (part of tau_out; 0 while the power stage is on)", unit="N.m")
     spec.add("controlword", "Integer", INPUT, "CiA 402 0x6040 controlword", start=0, min=0, max=65535)
@@ -119,7 +120,11 @@ def servo_drive_spec() -> FmuSpec:
     return spec
 
 
-#: (name, unit, min, description) of the protection parameters (appended last), docs/fmus.md "Protection"
+#: the parameters a master may change between steps (variability "tunable": the C code reads them
+#: at every position sample; an SDO write of 0x6065 / 0x6066 sets them, fieldbus/asynchronous.py)
+TUNABLE_PARAMETERS = frozenset({"following_error_window", "following_error_time"})
+
+#: (name, unit, min, description) of the protection parameters (appended last), docs/explanation/fmus.md "Protection"
 PROTECTION_PARAMETERS: tuple[tuple[str, str, float | None, str], ...] = (
     ("rated_current", "A", 1e-9, "CiA 402 0x6075 motor rated current: the I2t monitoring derates the current "
                                  "limit to it"),
@@ -147,7 +152,7 @@ def _add_protection(spec: FmuSpec, defaults: dict) -> None:
     """The protection parameters and their status outputs (appended: earlier value references stay)."""
     for name, unit, lo, text in PROTECTION_PARAMETERS:
         spec.add(name, "Real", PARAMETER, text, unit=unit, start=defaults[name], min=lo,
-                 max=1.0 if name == "i2t_release" else None)
+                 max=1.0 if name == "i2t_release" else None, tunable=name in TUNABLE_PARAMETERS)
     bits = ", ".join(f"bit {b} {name}" for name, b in LIMIT_BITS.items())
     spec.add("limit_status", "Integer", OUTPUT,
              f"protections active at any sample of the last step: {bits} (the commanded torque - target torque and "

@@ -6,7 +6,7 @@ jump: the set-point shaper uses ``g / (G T)`` for a jump of G cycles
 (``controller.drive_compensation``, "After a jump"). Shaped as if the targets were one sample
 apart, the target after a jump of G cycles was off by about ``(G - 1) qd T`` (0.6 mrad on
 axis 1 per skipped cycle at path speed), which cost the paced split ISO run 20-30x the
-in-process TCP error (docs/hil.md, "Jumped cycles and the set-point shaper")."""
+in-process TCP error (the set-point shaper after a jumped cycle)."""
 from __future__ import annotations
 
 import numpy as np

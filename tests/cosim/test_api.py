@@ -211,7 +211,7 @@ def test_build_sweep_validates_every_variant_before_running(tmp_path):
 
 
 def test_cli_help_imports_nothing_heavy():
-    # how fast --help answers is a benchmark figure (docs/ARCHITECTURE.md), not a timed test
+    # how fast --help answers is a benchmark figure (benchmarks/), not a timed test
     out = subprocess.run([sys.executable, "-m", "cosim", "--help"], capture_output=True, text=True, cwd=ROOT)
     assert out.returncode == 0 and "run" in out.stdout
     code = ("import sys, cosim.cli; cosim.cli.build_parser(); "

@@ -31,7 +31,7 @@ QUANTITIES = {"position_actual": ("TPDO1", 0.5), "torque_actual": ("TPDO1", 0.5)
 @pytest.fixture(scope="module")
 def run(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("bus_tools")
-    text = (ROOT / "scenarios" / "iso9283.toml").read_text(encoding="utf-8")
+    text = (ROOT / "tests" / "long_forms" / "iso9283.toml").read_text(encoding="utf-8")
     path = write_variant(text, tmp / "short.toml", [
         ('stop_time = "12.6 s"', 'stop_time = "0.6 s"'),
         ('modes = ["standard", "model_based", "model_based_elastic"]', f'modes = ["{MODE}"]'),

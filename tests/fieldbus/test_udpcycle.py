@@ -22,7 +22,7 @@ def _port(k: int) -> int:
     return BASE_PORT + k
 
 
-# A client that knows only the wire format in fieldbus/README.md (socket + struct).
+# A client that knows only the wire format in docs/reference/fieldbus.md (socket + struct).
 def _plain_datagram(frames, sender=7, sequence=1):
     out = struct.pack(">4sBBHIIQ", b"RXCB", 1, 0, len(frames), sender, sequence, 0)
     for can_id, data, stamp in frames:

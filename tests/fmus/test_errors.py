@@ -99,6 +99,19 @@ def test_wrong_type_and_wrong_causality(drive):
         drive.set_value("controlword", 70000)
 
 
+def test_tunable_parameters_are_set_between_steps_and_checked(drive):
+    """0x6065/0x6066 (fieldbus/asynchronous.py: an SDO write between two steps) are tunable, the rest fixed."""
+    from fmus.servo_drive.spec import TUNABLE_PARAMETERS, servo_drive_spec
+
+    tunable = {v.name for v in servo_drive_spec().variables if v.variability == "tunable"}
+    assert tunable == TUNABLE_PARAMETERS == {"following_error_window", "following_error_time"}
+    drive.do_step(0.0, 1e-4)
+    drive.set_value("following_error_window", 1e-3)
+    assert drive.get_value("following_error_window") == 1e-3
+    with pytest.raises(SimulationError, match="following_error_window=-1 is outside its range"):
+        drive.set_value("following_error_window", -1.0)
+
+
 def test_parameter_range_and_consistency_checked_at_initialization(paths):
     with pytest.raises(SimulationError, match="gear_ratio=-1 is outside its range"):
         Fmu(paths["servo_drive"], "bad", {"gear_ratio": -1.0}).start()

@@ -42,7 +42,7 @@ def test_fmi3_builds_are_valid_and_expose_the_fmi2_variables(builds, name):
 
 
 def _scenario(tmp_path: Path, fmus: dict[str, Path], label: str) -> Path:
-    text = (REPO / "scenarios" / "iso9283.toml").read_text()
+    text = (REPO / "tests" / "long_forms" / "iso9283.toml").read_text()
     for old, new in (('stop_time = "12.6 s"', 'stop_time = "2 s"'),
                      ('modes = ["standard", "model_based", "model_based_elastic"]', 'modes = ["model_based"]'),
                      ('builtin = "rx130l_plant"', f'path = "{fmus["rx130l_plant"].as_posix()}"'),

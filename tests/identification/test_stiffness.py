@@ -19,7 +19,7 @@ ROOT = Path(__file__).resolve().parents[2]
 
 
 def test_stiffness_of_the_excited_axes_within_ten_percent(tmp_path):
-    text = (ROOT / "scenarios" / "iso9283.toml").read_text(encoding="utf-8")
+    text = (ROOT / "tests" / "long_forms" / "iso9283.toml").read_text(encoding="utf-8")
     path = write_variant(text, tmp_path / "iso.toml", [
         ('stop_time = "12.6 s"', 'stop_time = "6.0 s"'),
         ('signals = ["drive*.current_demand"]', 'signals = ["plant.q_motor*"]'),

@@ -23,7 +23,7 @@ from scenario_files import write_variant
 
 ROOT = Path(__file__).resolve().parents[2]
 PLANT_DROP = (ROOT / "scenarios" / "plant_drop.toml").read_text(encoding="utf-8")
-ISO = (ROOT / "scenarios" / "iso9283.toml").read_text(encoding="utf-8")
+ISO = (ROOT / "tests" / "long_forms" / "iso9283.toml").read_text(encoding="utf-8")
 ENV = {**os.environ, "PYTHONPATH": str(ROOT), "MPLBACKEND": "Agg"}
 
 

@@ -1,4 +1,4 @@
-"""Split-process execution of the robot cell (``cosim run --split``, docs/timing.md).
+"""Split-process execution of the robot cell (``cosim run --split``, docs/explanation/timing.md).
 
 The controller (and the POWERLINK managing node) runs in the process of ``cosim run``;
 the drives and the plant (the FMUs on the co-simulation master, the POWERLINK

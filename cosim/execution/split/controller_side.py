@@ -36,6 +36,8 @@ from cosim.execution.split.drive_side import DriveSideSpec, drive_side_main, rea
 from cosim.execution.split.protocol import (END, LOST, free_udp_port, pack_marker, pres_expected, side_configs,
                                   use_directional_bus)
 from fieldbus import ManagingNodeEndpoint
+from cosim.cell.drive_objects import cell_object_dictionaries
+from fieldbus.asynchronous import AsyncClient, merged_summary, slot_offsets
 from fieldbus.network import network_summary
 
 #: Wall seconds to wait for the drive process to start (imports, FMU instantiation).
@@ -57,6 +59,7 @@ class SplitSession:
     controller_stop_cycle: int | None = None
     drive_exit_code: int | None = None
     info: dict[str, Any] = field(default_factory=dict)
+    asynchronous: Any = None  # the managing node's half of the asynchronous slot (fieldbus.asynchronous.AsyncClient)
 
 
 def _merge_fieldbus(mn: dict[str, Any], cn: dict[str, Any] | None) -> dict[str, Any]:
@@ -168,6 +171,10 @@ def run_split_cell(cell: CellDescription, controller, ctx, *, options: Execution
                     pipe_open[0] = False
         t0 = fb_config.start_time_s
         setpoints = controller_port.setpoints
+        # the managing node's half of the asynchronous slot (SDO client, NMT; fieldbus.asynchronous)
+        client = AsyncClient(fb_config.asynchronous, fb_config.node_ids, slot_offsets(endpoint.layout), t0, period,
+                             cell_object_dictionaries(fb_config))
+        session.asynchronous = client
         missing_seen = 0
         # both sides ask for SCHED_FIFO ([realtime] scheduling) even unpaced: each cycle hands
         # over twice between the processes and on a loaded machine every wake-up otherwise
@@ -182,9 +189,15 @@ def run_split_cell(cell: CellDescription, controller, ctx, *, options: Execution
                 if late and lost_policy:
                     plan.mark_lost(k)
                     flags = LOST
-                send(pack_marker(k, flags))
+                offer = client.offer(k) if k >= client.next_cycle else None
+                owed = offer is not None or client.awaiting
+                send(pack_marker(k, flags, offer))
                 endpoint.send_setpoints(k, gate.send(setpoints, late))
                 observed = endpoint.collect_actuals(k)
+                if owed:
+                    frames = client.outcome(k, *_async_outcome(conn, k, options.receive_timeout_s))
+                    if frames and endpoint.recorder is not None:
+                        endpoint.recorder.add_many(frames)
                 if not pres_expected(plan.for_cycle(k), nodes) and not _acknowledged(conn, k, options.receive_timeout_s):
                     session.drive_exit_code = process.exitcode if not process.is_alive() else None
                 try:
@@ -267,6 +280,10 @@ def run_split_cell(cell: CellDescription, controller, ctx, *, options: Execution
     cycles = session.cycle + 1
     mn_summary = network_summary(endpoint.config, endpoint.events, endpoint, None, endpoint.recorder, cycles)
     fieldbus_summary = _merge_fieldbus(mn_summary, child["fieldbus"] if child else None)
+    if session.asynchronous is not None:
+        fieldbus_summary["asynchronous"] = merged_summary(session.asynchronous.summary(), (child or {}).get(
+            "fieldbus", {}).get("asynchronous_nodes"))
+    fieldbus_summary.pop("asynchronous_nodes", None)
     if failure is None and child and child.get("failure"):
         f = child["failure"]
         failure = SimulationError(f["component"], f["time"], f["reason"], f["messages"])
@@ -286,6 +303,21 @@ def run_split_cell(cell: CellDescription, controller, ctx, *, options: Execution
                    split=info, controller_timing=controller_port.timing(),
                    port_overhead=controller_port.overhead(), controller_close_error=controller_port.close_error,
                    controller_record=ctx.path(controller_file) if controller_file else None)
+
+
+def _async_outcome(conn, cycle: int, timeout_s: float) -> tuple[str | None, bytes | None]:
+    """The drive side's ``("async", cycle, kind, answer)`` of the asynchronous slot of ``cycle``
+    ((None, None) when it does not come within ``timeout_s``: the drive process is gone)."""
+    if not conn.poll(max(timeout_s, 5.0)):
+        return None, None
+    try:
+        message = conn.recv()
+    except (EOFError, OSError):
+        return None, None
+    if message[0] != "async" or message[1] != cycle:
+        raise RuntimeError(f"split run: expected the asynchronous slot of cycle {cycle} from the drive side, "
+                           f"got {message[:2]!r}")
+    return message[2], message[3]
 
 
 def _acknowledged(conn, cycle: int, timeout_s: float) -> bool:

@@ -30,8 +30,9 @@ from cosim.master import EndSimulation, Master, SimulationError
 from cosim.execution.timing.pacer import no_cyclic_gc, realtime_scheduling
 from cosim.execution.timing.policy import OverrunFaultPlan
 from cosim.results.timeseries import FileSink
-from cosim.execution.split.protocol import END, LOST, pres_expected, unpack_marker, use_directional_bus
+from cosim.execution.split.protocol import END, LOST, pres_expected, unpack_marker_offer, use_directional_bus
 from fieldbus import DriveActuals, DriveEndpoint, FieldbusConfig
+from fieldbus.asynchronous import AsyncNodes
 
 
 @dataclass
@@ -90,8 +91,11 @@ def read_raw_rows(path: str | Path, columns: int) -> np.ndarray:
 class DriveLink:
     """The drive side's controller-cycle task (see module docstring)."""
 
-    def __init__(self, endpoint: DriveEndpoint, plan: OverrunFaultPlan, conn, marker_timeout_s: float) -> None:
+    def __init__(self, endpoint: DriveEndpoint, plan: OverrunFaultPlan, conn, marker_timeout_s: float,
+                 nodes: AsyncNodes | None = None) -> None:
         self.endpoint = endpoint
+        self.nodes = nodes  # the nodes' half of the asynchronous slot (SDO, NMT)
+        self._offer: tuple[int, bytes] | None = None
         self.plan = plan
         self.conn = conn
         self.marker_timeout_s = marker_timeout_s
@@ -110,7 +114,7 @@ class DriveLink:
             raise SimulationError("split drive side", t, f"no cycle marker for cycle {self.cycle} from the "
                                                          f"controller process within {self.marker_timeout_s} s")
         try:
-            cycle, flags = unpack_marker(conn.recv_bytes())
+            cycle, flags, self._offer = unpack_marker_offer(conn.recv_bytes())
         except EOFError:
             raise SimulationError("split drive side", t, "the controller process closed the pipe") from None
         if cycle != self.cycle:
@@ -129,6 +133,14 @@ class DriveLink:
             self.plan.mark_lost(cycle)
             self.lost_cycles.append(cycle)
         applied = self.endpoint.run_cycle(cycle, self.actuals)
+        nodes, offer = self.nodes, self._offer
+        if nodes is not None and (offer is not None or nodes.busy):
+            owed = offer is not None or nodes.owes_answer
+            t0 = self.endpoint.config.start_time_s
+            outcome = nodes.slot(cycle, t0 + cycle * self.endpoint.config.cycle_time_s, applied, self.actuals, offer,
+                                 self.endpoint.nodes.last_emcy_cycle == cycle)
+            if owed:  # the controller side's SDO client waits for this
+                self.conn.send(("async", cycle, *(outcome or (None, None))))
         if not pres_expected(self.plan.for_cycle(cycle), n):
             self.conn.send(("ack", cycle))
         self.bus.write(applied)
@@ -154,7 +166,14 @@ def drive_side_main(spec: DriveSideSpec, conn) -> None:
         use_directional_bus(endpoint, "cn", spec.config.bus.channel, *spec.ports)
         plan = OverrunFaultPlan(endpoint.plan, spec.config.nodes)
         endpoint.plan = plan
-        link = DriveLink(endpoint, plan, conn, spec.marker_timeout_s)
+        from cosim.cell.drive_objects import DriveParameterWriter, cell_object_dictionaries
+
+        ods = cell_object_dictionaries(spec.config)
+        writer = DriveParameterWriter(ods, lambda instance, name, value: master.fmus[instance].set_value(name, value))
+        nodes = AsyncNodes(ods, spec.config.start_time_s, spec.config.reaction.abort_connection_option, writer,
+                           wiring.joint_scaling(), endpoint.nodes.invalidate_applied)
+        endpoint.nodes.on_emcy = nodes.note_emcy
+        link = DriveLink(endpoint, plan, conn, spec.marker_timeout_s, nodes)
         laser = LaserTracker(spec.true_model, spec.tracker)
         period = spec.config.cycle_time_s
         master.add_task(link, period, priority=0, name="split drive side", setup=link.setup)
@@ -177,6 +196,7 @@ def drive_side_main(spec: DriveSideSpec, conn) -> None:
             reached = master.time
         cycles = link.cycle
         summary = network_summary(endpoint.config, endpoint.events, None, endpoint, endpoint.recorder, cycles)
+        summary["asynchronous_nodes"] = nodes.summary()
         endpoint.close()
         conn.send(("done", {"reached_s": reached, "rows": recorder.rows_written, "fieldbus": summary,
                             "failure": failure, "wall_s": wall, "lost_cycles": link.lost_cycles,

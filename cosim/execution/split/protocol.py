@@ -11,6 +11,14 @@ it before it runs cycle k, so it knows
 * ``END`` - the run ends before cycle k (the controller stopped, or the controller
   side ends early): the drive side's master stops there.
 
+* ``ASYNC`` - the managing node offers a frame for the asynchronous slot of cycle k (an SDO
+  request or an NMT command, ``fieldbus.asynchronous``): the marker carries it after the flags
+  as ``<cob_id:uint16><data: 0..8 bytes>``. The drive side, which runs the nodes' half of the
+  slot (:class:`fieldbus.asynchronous.AsyncNodes`), sends ``("async", k, kind, answer)``
+  through the pipe after its cycle k whenever the marker carried a frame or a node owed an
+  answer in that slot; the controller side, whose SDO client knows the same, reads it after the
+  PRes of cycle k. Cycles without SDO/NMT traffic carry nothing extra.
+
 **Acknowledgement.** Lock-step normally needs no extra message: the controller side
 waits for the PRes frames of cycle k before it sends anything of cycle k+1. In a cycle
 in which it expects no PRes at all (every PReq lost, every node silent, ...; both
@@ -40,19 +48,34 @@ from fieldbus.faults import CycleFaults
 MARKER = struct.Struct("<IB")
 LOST = 0x01
 END = 0x02
+ASYNC = 0x04
+OFFER = struct.Struct("<H")
 MULTICAST_GROUP = "239.74.164.1"
 
 
-def pack_marker(cycle: int, flags: int = 0) -> bytes:
-    """The cycle marker of ``cycle`` with ``flags`` (LOST, END)."""
-    return MARKER.pack(cycle, flags)
+def pack_marker(cycle: int, flags: int = 0, offer: tuple[int, bytes] | None = None) -> bytes:
+    """The cycle marker of ``cycle`` with ``flags`` (LOST, END) and the MN's asynchronous
+    frame ``offer`` (COB-ID, data; sets ASYNC)."""
+    if offer is None:
+        return MARKER.pack(cycle, flags)
+    return MARKER.pack(cycle, flags | ASYNC) + OFFER.pack(offer[0]) + bytes(offer[1])
 
 
 def unpack_marker(data: bytes) -> tuple[int, int]:
     """(cycle, flags) of a cycle marker."""
-    if len(data) != MARKER.size:
-        raise ValueError(f"cycle marker of {len(data)} bytes: expected {MARKER.size}")
-    return MARKER.unpack(data)
+    return unpack_marker_offer(data)[:2]  # type: ignore[return-value]
+
+
+def unpack_marker_offer(data: bytes) -> tuple[int, int, tuple[int, bytes] | None]:
+    """(cycle, flags, offered asynchronous frame or None) of a cycle marker."""
+    if len(data) < MARKER.size or (len(data) != MARKER.size and not data[MARKER.size - 1] & ASYNC) \
+            or len(data) > MARKER.size + OFFER.size + 8 or MARKER.size < len(data) < MARKER.size + OFFER.size:
+        raise ValueError(f"cycle marker of {len(data)} bytes: expected {MARKER.size} (or up to "
+                         f"{MARKER.size + OFFER.size + 8} with an asynchronous frame)")
+    cycle, flags = MARKER.unpack_from(data)
+    if not flags & ASYNC:
+        return cycle, flags, None
+    return cycle, flags, (OFFER.unpack_from(data, MARKER.size)[0], bytes(data[MARKER.size + OFFER.size:]))
 
 
 def pres_expected(faults: CycleFaults | None, nodes: int) -> bool:

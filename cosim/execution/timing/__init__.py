@@ -1,5 +1,5 @@
 """Timing shared by the paced, split and served executions: pacing, overrun policies,
-lateness statistics (docs/timing.md).
+lateness statistics (docs/explanation/timing.md).
 
 Modules: :mod:`~cosim.execution.config` (the ``[execution]``/``[realtime]`` tables),
 :mod:`~cosim.execution.timing.pacer` (:class:`Pacer`, :class:`VirtualClock`, SCHED_FIFO),

@@ -52,7 +52,7 @@ def lateness_summary(log: LatenessLog, thresholds: dict[str, float] | None = Non
             "overrun_cycles": log.overrun_cycles[:LISTED_OVERRUNS]}
 
 
-#: Columns of the per-cycle timing series ``lateness_<label>`` (docs/output_format.md) and their units.
+#: Columns of the per-cycle timing series ``lateness_<label>`` (docs/reference/output_files.md) and their units.
 LATENESS_UNITS = {"t": "s", "cycle": "1", "lateness_us": "us", "work_us": "us", "overrun": "1", "tolerance_us": "us"}
 
 

@@ -22,7 +22,7 @@ from robot.parameters import load_parameters
 from scenario_files import run_scenario, write_variant
 
 ROOT = Path(__file__).resolve().parents[3]
-MAIN = (ROOT / "scenarios" / "iso9283.toml").read_text()
+MAIN = (ROOT / "tests" / "long_forms" / "iso9283.toml").read_text()
 MODES_LINE = 'modes = ["standard", "model_based", "model_based_elastic"]'
 ROBOT = load_parameters()
 

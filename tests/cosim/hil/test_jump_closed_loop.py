@@ -6,7 +6,7 @@ take the lost set-points from their buffer, the managing node interpolates the s
 controller never computed, and the set-point shaper shapes over the jump: the ISO 9283
 model-based TCP error is the run's without stalls to the last digit. Before the shaper knew
 the jump (it shaped the new target as one sample after the last), the same stalls on the whole
-path cost 0.34 mm against 0.0104 mm (docs/hil.md, "Jumped cycles and the set-point shaper").
+path cost 0.34 mm against 0.0104 mm (the set-point shaper after a jumped cycle).
 
 Deterministic: the stalls are injected in process (no wall clock); the served cell and the split
 controller use the same managing node, controlled nodes and controller code."""
@@ -28,7 +28,7 @@ SKIPPED = {start + i for start, n in STALLS.items() for i in range(n)}
 
 
 def scenario(tmp_path: Path, stalls: bool) -> Path:
-    text = (ROOT / "scenarios" / "iso9283_rigid.toml").read_text()
+    text = (ROOT / "tests" / "long_forms" / "iso9283_rigid.toml").read_text()
     for pattern, new in ((r"^modes = \[.*$", 'modes = ["model_based"]'), (r'^stop_time = ".*"', 'stop_time = "2.8 s"'),
                          (r"^figures = true", "figures = false"),
                          (r"^cycle_time_us = 400.*$",
@@ -91,7 +91,7 @@ BUFFER = ("cycle_time_us = 400\nsetpoint_lookahead = 4\nsetpoint_buffer = 64\n[f
 
 
 def buffered_scenario(tmp_path: Path, name: str, stalls: dict[int, int]) -> Path:
-    text = (ROOT / "scenarios" / "iso9283_rigid.toml").read_text()
+    text = (ROOT / "tests" / "long_forms" / "iso9283_rigid.toml").read_text()
     for pattern, new in ((r"^modes = \[.*$", 'modes = ["model_based"]'), (r'^stop_time = ".*"', 'stop_time = "2.8 s"'),
                          (r"^figures = true", "figures = false"), (r"^cycle_time_us = 400.*$", BUFFER)):
         text, count = re.subn(pattern, new, text, count=1, flags=re.MULTILINE)

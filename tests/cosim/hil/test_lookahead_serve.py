@@ -122,7 +122,7 @@ def test_split_realtime_sends_the_lookahead_and_both_can_logs_are_whole(tmp_path
     """``cosim run --split --realtime`` with ``setpoint_lookahead``: our controller's PReqs carry
     it; the controller's and the served cell's CAN logs are separate files, both readable to
     the end (they were one file written by both processes before)."""
-    text = (ROOT / "scenarios" / "iso9283_rigid.toml").read_text()
+    text = (ROOT / "tests" / "long_forms" / "iso9283_rigid.toml").read_text()
     text = text.replace('stop_time = "12.6 s"', 'stop_time = "0.6 s"')
     text = text.replace('modes = ["standard", "standard_speed_ff", "model_based"]', 'modes = ["model_based"]')
     text = text.replace('period = "400 us"            # paper section 2.3.2', 'period = "2 ms"')

@@ -207,7 +207,7 @@ def test_a_bad_channel_is_refused_before_anything_runs(tmp_path):
 def test_split_realtime_runs_our_controller_against_the_served_cell(tmp_path):
     """``cosim run --split --realtime``: our controller follows the served cell in another
     process; the run completes and tracks the ISO path like the in-process run."""
-    text = (ROOT / "scenarios" / "iso9283_rigid.toml").read_text()
+    text = (ROOT / "tests" / "long_forms" / "iso9283_rigid.toml").read_text()
     text = text.replace('stop_time = "12.6 s"', 'stop_time = "1 s"')
     text = text.replace('modes = ["standard", "standard_speed_ff", "model_based"]', 'modes = ["model_based"]')
     text = text.replace('period = "400 us"            # paper section 2.3.2', 'period = "2 ms"')
@@ -234,7 +234,7 @@ def test_split_realtime_runs_our_controller_against_the_served_cell(tmp_path):
     hil = runs["hil"]["hil_split"]["model_based"]
     assert hil["controller_side"]["cycles"] >= 490 and hil["cell_side"]["controller"]["first_cycle"] == 0
     assert hil["round_trip"]["p50_us"] is not None
-    # the timing report on both sides (docs/hil.md, Timing report)
+    # the timing report on both sides (docs/how-to/served_cell.md, "Read the timing report")
     sides = ((hil["controller_side"], tmp_path / "hil"), (hil["cell_side"], tmp_path / "hil" / hil["cell_results"]))
     for side, folder in sides:
         assert {"cycles", "overruns", "overrun_fraction", "longest_overrun_run"} <= set(side)
@@ -252,7 +252,7 @@ def test_split_realtime_runs_our_controller_against_the_served_cell(tmp_path):
     e_hil = runs["hil"]["modes"]["model_based"]["tcp_error_max_mm"]
     # it follows the path (the standard cascade is ~18 mm off); each lost cycle holds the set-point and the
     # feed-forward for a cycle, so on a shared test machine the split run is not the in-process figure
-    # (docs/hil.md, Measured: 0.70 mm vs 0.0102 mm at 400 us on the idle machine)
+    # (benchmarks/bench_hil.py --iso measures it at 400 us)
     assert e_in < 0.05 and e_hil < 5.0
 
 
@@ -286,7 +286,7 @@ def test_a_controller_at_another_cycle_time_is_a_counted_logged_mismatch(tmp_pat
 
 
 def _stranger_datagram(sequence: int) -> bytes:
-    """A valid udpcycle datagram (fieldbus/README.md) with a SoC and six PReqs that would
+    """A valid udpcycle datagram (docs/reference/fieldbus.md) with a SoC and six PReqs that would
     disable every drive (controlword 0), from a program that is not the cell's controller."""
     frames = [(0x080, bytes([sequence % 240 + 1]))] + [(0x200 + n, struct.pack("<Hih", 0, 0, 0)) for n in range(1, 7)]
     body = b"".join(struct.pack(">IBBHd", can_id, len(data), 0, 0, 0.0) + data for can_id, data in frames)
@@ -353,7 +353,7 @@ def test_a_controller_killed_mid_motion_stops_the_arm(tmp_path):
     assert np.abs(qd[(t > trip - 0.3) & (t < trip)]).max() > 1e-2  # it was moving
     # each drive ramps to standstill, holds the axis for the brake's closing time (0.1 s), then the
     # closed brake takes over the motor's torque: no load falls onto the brake spring, no creep
-    # (docs/hil.md, "A controller that dies"); all six joints below 1e-3 rad/s 0.5 s after the trip
+    # (a controller that dies); all six joints below 1e-3 rad/s 0.5 s after the trip
     cleared = [f for f in hil["fault_reactions"] if f["event"] == "fault_cleared" and f["time_s"] > trip]
     assert {f["node"] for f in cleared} == set(range(1, 7)), hil["fault_reactions"]
     back = min(f["time_s"] for f in cleared)

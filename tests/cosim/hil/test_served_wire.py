@@ -1,5 +1,5 @@
 """``cosim serve`` as the docs describe it, checked with a controller that imports nothing of
-the project (tests/cosim/hil/plain_socket_controller.py: ``socket`` and ``struct`` only):
+the project (examples/socket_controller.py: ``socket`` and ``struct`` only):
 
 * the PRes of cycle k carries the drives' position latched at t_k: floor(q_motor(t_k) ·
   counts_per_rad) of the plant, to the encoder count, for every node and cycle;
@@ -27,7 +27,7 @@ from fieldbus.canlog import read_frames
 from realtime_support import hil_scenario
 
 ROOT = Path(__file__).resolve().parents[3]
-CONTROLLER = Path(__file__).with_name("plain_socket_controller.py")
+CONTROLLER = ROOT / "examples" / "socket_controller.py"
 EXAMPLE = ROOT / "examples" / "hil_external_controller.py"
 PORT = 45000 + (os.getpid() % 400) * 10
 FIRST_COUNTER = 77  # not the counter of the cell cycle that takes the first group: the mapping is not 0

@@ -14,7 +14,7 @@ from fmus.servo_drive.params import drive_start_values
 from scenario_files import run_scenario, write_variant
 
 ROOT = Path(__file__).resolve().parents[3]
-SCENARIO = (ROOT / "scenarios" / "iso9283_rigid.toml").read_text(encoding="utf-8")  # the paper's modes, rigid plant
+SCENARIO = (ROOT / "tests" / "long_forms" / "iso9283_rigid.toml").read_text(encoding="utf-8")  # the paper's modes, rigid plant
 MODES = ("standard", "standard_speed_ff", "model_based")
 MODES_LINE = 'modes = ["standard", "standard_speed_ff", "model_based"]'
 MODE_KEYS = ("tcp_error_max_mm", "tcp_error_rms_mm", "path_accuracy_AT_mm", "joint_lag_max_rad", "cycle_wall_us",

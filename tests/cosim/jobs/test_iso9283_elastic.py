@@ -3,21 +3,22 @@ slice: the three controller modes in order of model depth, the drives tuned for 
 axes, the vibration fields."""
 from __future__ import annotations
 
-import tomllib
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from cosim.scenario import load_scenario
 from fmus.servo_drive.tuning import elastic_axis_speed_kp
 from scenario_files import run_scenario, write_variant
 
 ROOT = Path(__file__).resolve().parents[3]
 SCENARIO = ROOT / "scenarios" / "iso9283.toml"  # the main job: the elastic plant
+LONG = ROOT / "tests" / "long_forms" / "iso9283.toml"  # the same, written out (tests/long_forms/README.md)
 
 
 def test_scenario_drive_gains_are_the_elastic_tuning_rule():
-    doc = tomllib.loads(SCENARIO.read_text(encoding="utf-8"))
+    doc = load_scenario(SCENARIO).raw  # the cell of scenarios/cell_elastic.toml, merged
     fmus = {f["name"]: f for f in doc["fmus"]}
     kp = [fmus[f"drive{i}"]["parameters"]["speed_kp"] for i in range(1, 7)]
     np.testing.assert_allclose(kp, elastic_axis_speed_kp(), rtol=1e-15)
@@ -31,7 +32,7 @@ def test_scenario_drive_gains_are_the_elastic_tuning_rule():
 def short_run(tmp_path_factory):
     """0.1 s settling + 0.9 s of the path (most of the first rectangle edge, 1 m/s)."""
     tmp = tmp_path_factory.mktemp("iso_elastic")
-    path = write_variant(SCENARIO.read_text(encoding="utf-8"), tmp / "iso.toml",
+    path = write_variant(LONG.read_text(encoding="utf-8"), tmp / "iso.toml",
                          [('stop_time = "12.6 s"', 'stop_time = "1.0 s"'),
                           ('settle_time = "0.2 s"', 'settle_time = "0.1 s"'),
                           ("can_log = true", "can_log = false"), ("figures = true", "figures = false")])
@@ -54,7 +55,7 @@ def test_each_level_of_model_buys_accuracy(short_run):
 
 
 def test_a_gear_too_stiff_for_the_plant_step_fails_cleanly_naming_the_key(tmp_path):
-    path = write_variant(SCENARIO.read_text(encoding="utf-8"), tmp_path / "iso.toml", [
+    path = write_variant(LONG.read_text(encoding="utf-8"), tmp_path / "iso.toml", [
         ("elastic_joints = 1 ", '"stiffness[6]" = 1e8\nelastic_joints = 1 '),
         ('stop_time = "12.6 s"', 'stop_time = "0.5 s"'), ("can_log = true", "can_log = false"),
         ("figures = true", "figures = false")])
@@ -73,7 +74,7 @@ def test_bad_gear_settings_fail_cleanly_naming_the_key(tmp_path, setting, fragme
     """Zero or negative stiffness and a backlash wider than plausible (1e-3 rad) set on the
     main job's plant: no traceback, a documented exit code (2: refused while loading the
     scenario, 3: refused by the plant when it initialises) and a message naming the key."""
-    path = write_variant(SCENARIO.read_text(encoding="utf-8"), tmp_path / "iso.toml", [
+    path = write_variant(LONG.read_text(encoding="utf-8"), tmp_path / "iso.toml", [
         ("elastic_joints = 1 ", setting + "\nelastic_joints = 1 "),
         ('modes = ["standard", "model_based", "model_based_elastic"]', 'modes = ["standard"]'),
         ('stop_time = "12.6 s"', 'stop_time = "0.3 s"'), ("can_log = true", "can_log = false"),

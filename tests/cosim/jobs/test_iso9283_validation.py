@@ -15,7 +15,7 @@ from scenario_files import write_variant
 ROOT = Path(__file__).resolve().parents[3]
 # the validation cases edit the rigid-plant variant (its drive tables have no [fmus.parameters]);
 # the main job itself is validated by test_the_main_scenario_is_valid
-SCENARIO = (ROOT / "scenarios" / "iso9283_rigid.toml").read_text(encoding="utf-8")
+SCENARIO = (ROOT / "tests" / "long_forms" / "iso9283_rigid.toml").read_text(encoding="utf-8")
 
 
 def variant(tmp_path: Path, old: str, new: str) -> Path:

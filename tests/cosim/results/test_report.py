@@ -263,6 +263,11 @@ def test_paced_split_run_plots_compute_time_and_lateness_against_the_tolerance(b
         "return [d.data.map(function (tr) { return tr.name; }), d.layout.shapes.map(function (s) { return s.y0; }),"
         " document.getElementById('plot-compute').data.length];")
     assert lines[0] == ["model_based"] and lines[2] == 1
+    cells = summary_cells(browser)  # the timing report: summary.json's realtime section, every figure as written
+    timing = [(k, v) for k, v, _ in cells if k.startswith("realtime.")]
+    assert {"realtime.cycles", "realtime.tolerance_us"} <= {k for k, _ in timing}, [k for k, _, _ in cells]
+    for key, value in timing:
+        assert value == _dig(summary, key), key
     assert lines[1] == [summary["realtime"]["tolerance_us"]]  # the deadline the lateness is judged against
     k = int(np.argmax(late))
     _set_time(browser, float(t[k]))
@@ -272,3 +277,183 @@ def test_paced_split_run_plots_compute_time_and_lateness_against_the_tolerance(b
     assert float(shown[1]) == t[k] and float(shown[0]) == pytest.approx(late[k], rel=1e-6)  # float32 embedded
     browser.execute_script("document.getElementById('plot-lateness').scrollIntoView();")
     browser.save_screenshot(str(tmp_path / "report_lateness.png"))
+
+
+def _unpack(packed: dict) -> np.ndarray:
+    """An array the report embeds (base64 little-endian, zlib-deflated when ``z``), as the page decodes it."""
+    import base64
+    import zlib
+
+    raw = base64.b64decode(packed["b64"])
+    values = np.frombuffer(zlib.decompress(raw) if packed["z"] else raw, dtype="<" + packed["dtype"])
+    if "uniform" in packed:  # a time column: t0 + k dt plus the residual
+        t0, dt = packed["uniform"]
+        values = t0 + np.arange(values.size, dtype=np.float64) * dt + values
+    return values
+
+
+def test_decimation_keeps_every_peak_and_the_full_values_are_embedded(tmp_path, monkeypatch):
+    """The overview each plot opens with (2000 columns of min and max) holds the run's largest TCP
+    error and every curve's extremes, sample for sample; every sample is embedded beside it (the
+    readout and a zoom read them) while the budget lasts, and a curve beyond the budget is named."""
+    from cosim.results import report, write_columns
+
+    rng = np.random.default_rng(7)
+    n = 200_001  # 200 s at 1 ms: 100 samples per overview column
+    t = np.arange(n) * 1e-3
+    err = 0.05 + 0.01 * rng.random(n)
+    peak = int(rng.integers(n // 3, n - 1))
+    err[peak] = 3.25  # one sample: the run's maximum
+    tcp = {"t": t, "tcp_error_mm": err, **{f"lag{j}": 1e-4 * rng.standard_normal(n) for j in range(1, 7)}}
+    write_columns(tmp_path / "tcp_mine.parquet", tcp, {"t": "s", "tcp_error_mm": "mm"})
+    ts = {"time": t, **{f"drive{j}.current_actual": rng.standard_normal(n) for j in range(1, 7)}}
+    write_columns(tmp_path / "timeseries_mine.parquet", ts, {"time": "s"})
+    (tmp_path / "summary.json").write_text(json.dumps({"status": "ok", "modes": {"mine": {"status": "ok"}}}))
+    monkeypatch.setattr(report, "FULL_VALUES_BUDGET", 8 * n)  # the six lags and two currents whole, four not
+    data = report.collect([tmp_path])
+    run = data["runs"][0]
+    curve = run["series"]["tcp_error"][0]
+    ox, oy = _unpack(curve["ox"]), _unpack(curve["oy"])
+    assert 2 <= oy.size <= 2 * report.OVERVIEW_COLUMNS + 2 and oy.max() == err.max() == 3.25
+    assert ox[np.argmax(oy)] == t[peak]  # at its time, too
+    assert np.array_equal(_unpack(curve["full"]), err)  # every sample a click (or a zoom) away
+    assert np.array_equal(_unpack(run["times"]["tcp"]["full"]), t)
+    whole, decimated = [], []
+    for key, source in (("lag", tcp), ("current", ts)):
+        for c in run["series"][key]:
+            y = source[c["column"]] * (1e3 if key == "lag" else 1.0)
+            oy = _unpack(c["oy"])
+            assert oy.max() == np.float32(y.max()) and oy.min() == np.float32(y.min()), c["column"]
+            if c["full"] is not None:
+                assert np.array_equal(_unpack(c["full"]), y.astype(np.float32))
+                whole.append(c["column"])
+            else:
+                decimated.append(c["label"])
+    assert len(whole) == 8 and len(decimated) == 4
+    note = next(n for n in data["notes"] if "embedded decimated only" in n)
+    assert all(f"mine: {label}" in note for label in decimated)
+
+
+@pytest.fixture(scope="module")
+def limit_run(tmp_path_factory):
+    """A controller commanding 1e6 N m (tests/cosim/cell/runaway_torque.py) for 1 s of the main job: the
+    drives clamp the torque, joint 3 reaches its software position limit (fault 0x8612, an EMCY) and
+    its end stop; the run ends with verdict ``limit``."""
+    tmp = tmp_path_factory.mktemp("limit")
+    shutil.copy(ROOT / "tests" / "cosim" / "cell" / "runaway_torque.py", tmp / "runaway_torque.py")
+    path = write_variant(MAIN_JOB, tmp / "runaway.toml", [
+        ('stop_time = "12.6 s"', 'stop_time = "1.0 s"'),
+        ('modes = ["standard", "model_based", "model_based_elastic"]',
+         'modes = []\nclass = "runaway_torque.py:RunawayTorque"'), ("figures = true", "figures = false")])
+    out = tmp / "out"
+    code, summary = run_scenario(path, out)
+    assert code == 4 and summary["status"] == "limit", summary.get("reason")
+    return out, summary
+
+
+def test_limit_run_report_shows_what_stopped_it_where_and_when(limit_run, browser, tmp_path):
+    """The report of a run that ended ``limit``, in Chromium: the run is badged ``limit``, the note says
+    which limit came first and where the motion stopped, every violation is listed at its time with
+    its value and limit, the drive's EMCY (from the CAN log) and the stop are among the events, all
+    are marked on the events timeline and in the 3D view, and the timeline at the stop reads back
+    the TCP error recorded there."""
+    from browser_support import report_state
+    from fieldbus.canlog import read_frames
+
+    out, summary = limit_run
+    entry = summary["modes"]["RunawayTorque"]
+    stop = entry["stopped_at_s"]
+    open_report(browser, out / "report.html")
+    assert console_errors(browser) == []
+    state = report_state(browser)
+    assert state["runs"] == ["RunawayTorque"]
+    badge = browser.execute_script("return document.querySelector('#toggles label').textContent;")
+    assert badge.strip().endswith("limit")
+    first = entry["first_violation"]
+    assert any("ended 'limit'" in n and f"first violation: {first['kind']} axis {first['joint']} at t = "
+               f"{first['time_s']} s" in n for n in state["notes"]), state["notes"]
+    assert f"RunawayTorque: limit, the motion stopped at t = {stop:.6g} s: {entry['stop_reason']}" in state["notes"]
+    rows = [tuple(r) for r in state["events"]]
+    for v in entry["violations"]:  # time [s], run, kind, axis, value, limit, unit, reaction, detail
+        assert any(r[0] == f"{v['time_s']:.4f}" and r[2] == v["kind"] and r[3] == str(v["joint"])
+                   and r[6] == v["unit"] and r[8] == v["detail"] for r in rows), v
+    kinds = {r[2] for r in rows}
+    assert {"torque_limit", "position_limit", "end_stop", "emcy", "stopped"} <= kinds
+    log = read_frames(out / "can_RunawayTorque.parquet")
+    emcy = np.flatnonzero((log.frames["id"] > 0x80) & (log.frames["id"] <= 0xFF))
+    assert emcy.size >= 1
+    t_emcy = float(log.timestamps[emcy[0]])
+    assert any(r[2] == "emcy" and r[0] == f"{t_emcy:.4f}" and r[3] == "3" and "0x8612" in r[8] for r in rows), rows
+    assert any(r[2] == "stopped" and r[0] == f"{stop:.4f}" and entry["stop_reason"] in r[8] for r in rows)
+    assert len(rows) == len(entry["violations"]) + emcy.size + 1
+    marks = browser.execute_script(
+        "var e = document.getElementById('plot-events').data[0];"
+        "var s = document.getElementById('scene').data.find(function (t) { return t.name === 'RunawayTorque events'; });"
+        "return [Array.from(e.x), s ? s.x.length : 0];")
+    assert sorted(marks[0]) == pytest.approx(sorted([v["time_s"] for v in entry["violations"]] + [t_emcy, stop]))
+    assert marks[1] == len(rows)  # every event a cross on the 3D path
+    names, data = read_series(out / "tcp_RunawayTorque.parquet")
+    t, err = data[:, names.index("t")], data[:, names.index("tcp_error_mm")]
+    _set_time(browser, stop)
+    shown = browser.execute_script(
+        "var td = document.querySelector('td.readout[data-run=\"RunawayTorque\"][data-panel=\"tcp_error\"]');"
+        "return [td.getAttribute('data-value'), td.getAttribute('data-time')];")
+    k = int(np.argmin(np.abs(t - float(shown[1]))))
+    assert abs(t[k] - stop) <= 1e-3 and float(shown[0]) == err[k]
+    browser.execute_script("document.getElementById('player').scrollIntoView();")
+    browser.save_screenshot(str(tmp_path / "report_limit_run.png"))
+    assert console_errors(browser) == []
+
+
+CRASHING = """
+
+class Crashing(RunawayTorque):
+    \"\"\"PD + gravity on every joint (no runaway torque) until t = 0.15 s, then a bug: an exception.\"\"\"
+
+    def __init__(self) -> None:
+        super().__init__(joint=3, torque=0.0)
+
+    def step(self, inputs):
+        if inputs.time_s >= 0.15:
+            raise IndexError("axis 7 of 6: a bug in the user's controller")
+        out = super().step(inputs)
+        return out
+"""
+
+
+def test_failed_run_and_report_off(tmp_path, browser, monkeypatch):
+    """A run whose controller raises ends ``failed`` and still gets its report (the note says where
+    and why it stopped; the stop is an event at its time); ``[results] report = false`` and
+    ``COSIM_REPORT=0`` write none (``cosim view`` writes it later)."""
+    text = (ROOT / "tests" / "cosim" / "cell" / "runaway_torque.py").read_text(encoding="utf-8")
+    text = text.replace("tau[self.joint - 1] = self.torque", "pass")  # no runaway: a plain PD + gravity
+    (tmp_path / "crashing.py").write_text(text + CRASHING, encoding="utf-8")
+    path = write_variant(MAIN_JOB, tmp_path / "crash.toml", [
+        ('stop_time = "12.6 s"', 'stop_time = "0.4 s"'),
+        ('modes = ["standard", "model_based", "model_based_elastic"]', 'modes = []\nclass = "crashing.py:Crashing"'),
+        ("figures = true", "figures = false")])
+    code, summary = run_scenario(path, tmp_path / "out")
+    assert code != 0 and summary["status"] == "failed", summary
+    where = summary["stopped_at_s"]
+    assert 0.15 <= where < 0.16 and "axis 7 of 6" in summary["reason"]
+    open_report(browser, tmp_path / "out" / "report.html")
+    assert console_errors(browser) == []
+    from browser_support import report_state
+
+    state = report_state(browser)
+    assert any(n.startswith(f"the run ended 'failed' at t = {where:.6g} s") and "axis 7 of 6" in n
+               for n in state["notes"]), state["notes"]
+    assert any(r[2] == "stopped" and r[0] == f"{where:.4f}" and "axis 7 of 6" in r[8] for r in state["events"])
+    names, data = read_series(tmp_path / "out" / "tcp_Crashing.parquet")
+    assert data[:, names.index("t")].max() <= where + 1e-3  # what the run recorded before it stopped is drawn
+    assert browser.execute_script("return document.getElementById('plot-tcp_error').data.length;") == 1
+    # no report when the scenario or the environment says so
+    off = write_variant(path.read_text(encoding="utf-8"), tmp_path / "off.toml",
+                        [("[results]", "[results]\nreport = false")])
+    run_scenario(off, tmp_path / "off")
+    assert (tmp_path / "off" / "summary.json").exists() and not (tmp_path / "off" / "report.html").exists()
+    monkeypatch.setenv("COSIM_REPORT", "0")
+    run_scenario(path, tmp_path / "env")
+    assert (tmp_path / "env" / "summary.json").exists() and not (tmp_path / "env" / "report.html").exists()
+    assert not list((tmp_path / "env").glob("report.html*"))
+    assert main(["view", str(tmp_path / "off")]) == 0 and (tmp_path / "off" / "report.html").exists()

@@ -14,6 +14,8 @@ from cosim.scenario.inherit import key_lines
 
 ROOT = Path(__file__).resolve().parents[3]
 MAIN_JOB = ROOT / "scenarios" / "iso9283.toml"
+LONG_FORMS = ROOT / "tests" / "long_forms"
+LONG_MAIN_JOB = LONG_FORMS / "iso9283.toml"  # the main job with the whole cell written out
 SHORT = ROOT / "examples" / "my_controller_iso9283.toml"
 
 
@@ -22,10 +24,13 @@ def _strip(data: dict) -> dict:
 
 
 def _long_form(tmp_path: Path, *, modes: str | None = None) -> Path:
-    """The main job copied out with the example's [controller] class added (and its built-in
-    ``modes`` replaced by ``modes``), next to a copy of the controller's file."""
+    """The main job in its long form (the whole cell written out, no extends) with the example's
+    [controller] class added (and its built-in ``modes`` replaced by ``modes``), next to a copy
+    of the controller's file."""
     shutil.copy(ROOT / "examples" / "pd_gravity_controller.py", tmp_path)
-    text = MAIN_JOB.read_text().replace('[controller]\n', '[controller]\nclass = "pd_gravity_controller.py:PDGravity"\n'
+    text = LONG_MAIN_JOB.read_text()
+    assert "extends" not in text
+    text = text.replace('[controller]\n', '[controller]\nclass = "pd_gravity_controller.py:PDGravity"\n'
                                         'parameters = { bandwidth_hz = 3.0, model_feedforward = true }\n', 1)
     assert text.count("pd_gravity_controller.py:PDGravity") == 1
     if modes is not None:
@@ -45,7 +50,7 @@ def test_short_form_validates_to_the_long_form(tmp_path):
     validate to the same document (every value, defaults and SI conversion included)."""
     short, long = load_scenario(SHORT), load_scenario(_long_form(tmp_path))
     assert short.name == "my_controller_iso9283" and short.job.name == long.job.name == "iso9283"
-    assert _strip(short.data) == _strip(long.data)
+    assert _same_but_bus(_strip(short.data), _strip(long.data))  # the long form writes the 400 us cycle out
     # the base's relative FMU/URDF paths were made absolute against the base's folder
     assert short.raw["scenario"]["job"] == "iso9283" and "extends" not in short.raw
 
@@ -117,8 +122,8 @@ def test_a_value_of_the_main_job_named_by_its_line():
     """Without extends too, an error names the line of the key (here: a key of the main job
     made invalid by an override of the file's text)."""
     lines = key_lines(MAIN_JOB.read_text())
-    number = lines[("controller", "period")]
-    assert MAIN_JOB.read_text().splitlines()[number - 1].lstrip().startswith("period")
+    number = lines[("controller", "settle_time")]
+    assert MAIN_JOB.read_text().splitlines()[number - 1].lstrip().startswith("settle_time")
 
 
 @pytest.mark.parametrize("text, problem", [
@@ -175,3 +180,138 @@ def test_key_lines_of_arrays_of_tables_and_multiline_values():
     assert lines[("fmus", 1, "name")] == 8 and lines[("fmus", 1, "parameters", "k")] == 10
     assert lines[("fmus", 1, "parameters", "m")] == 13 and ("fmus", 1, "parameters", "y") not in lines
     assert lines[("a", "b.c", "d")] == 15
+
+
+# --- the cell's defaults (scenarios/cell.toml, scenarios/cell_elastic.toml) ----------------------
+
+CELL = ROOT / "scenarios" / "cell.toml"
+CELL_ELASTIC = ROOT / "scenarios" / "cell_elastic.toml"
+
+
+@pytest.mark.parametrize("name", sorted(p.stem for p in LONG_FORMS.glob("*.toml")))
+def test_long_forms_validate_to_the_project_scenarios(name):
+    """tests/long_forms/ holds project scenarios with the whole cell written out (for the tests
+    that edit the cell's text): each validates to the same document as its short form."""
+    long, short = load_scenario(LONG_FORMS / f"{name}.toml"), load_scenario(ROOT / "scenarios" / f"{name}.toml")
+    assert "extends" not in (LONG_FORMS / f"{name}.toml").read_text()
+    assert long.name == short.name and long.job.name == short.job.name
+    assert _same_but_bus(long.data, short.data)
+
+
+def _same_but_bus(a: dict, b: dict) -> bool:
+    """Equal documents, the [fieldbus] tables compared as the bus configuration they give (a long
+    form writes the default cycle_time_us = 400 of fieldbus/powerlink_defaults.toml out)."""
+    from fieldbus import FieldbusConfig
+
+    rest = {k: v for k, v in a.items() if k != "fieldbus"} == {k: v for k, v in b.items() if k != "fieldbus"}
+    return rest and FieldbusConfig.from_dict(a["fieldbus"]) == FieldbusConfig.from_dict(b["fieldbus"])
+
+
+def test_the_cell_is_a_base_not_a_scenario():
+    """scenarios/cell.toml holds the cell and nothing of a job: run alone, one clear error."""
+    with pytest.raises(ScenarioError) as info:
+        load_scenario(CELL)
+    assert info.value.key == "scenario" and "missing required table" in str(info.value)
+
+
+def test_the_elastic_cells_gains_are_the_tuning_rule():
+    """The speed-loop gains of scenarios/cell_elastic.toml are fmus.servo_drive.tuning's, to the bit."""
+    from fmus.servo_drive.tuning import elastic_axis_speed_kp
+
+    doc = load_scenario(MAIN_JOB).raw
+    kp = [next(f for f in doc["fmus"] if f["name"] == f"drive{i}")["parameters"]["speed_kp"] for i in range(1, 7)]
+    assert kp == [float(x) for x in elastic_axis_speed_kp()]
+
+
+def test_fmus_merge_by_name(tmp_path):
+    """[[fmus]] of a derived file merges into the base's FMU of the same name (its parameters key
+    by key); a new name is added after the base's FMUs."""
+    derived = _write(tmp_path, "derived.toml", """
+        extends = "cell_elastic"
+        [scenario]
+        name = "derived"
+        job = "iso9283"
+        [simulation]
+        stop_time = "1 s"
+        [[fmus]]
+        name = "drive2"
+        [fmus.parameters]
+        speed_tn = 0.02
+        [[fmus]]
+        name = "plant"
+        [fmus.parameters]
+        integration_step = 5e-5
+        """)
+    raw = load_scenario(derived).raw
+    names = [f["name"] for f in raw["fmus"]]
+    assert names == ["plant"] + [f"drive{i}" for i in range(1, 7)]
+    by_name = {f["name"]: f for f in raw["fmus"]}
+    assert by_name["plant"]["parameters"] == {"integration_step": 5e-5, "elastic_joints": 1}
+    assert by_name["plant"]["builtin"] == "rx130l_plant"
+    assert by_name["drive2"]["parameters"] == {"speed_kp": 0.605820290362047, "speed_tn": 0.02}
+    assert by_name["drive3"]["parameters"] == {"speed_kp": 0.39502959500596646}
+
+
+def test_error_in_a_merged_fmu_names_the_derived_line(tmp_path):
+    """A wrong parameter given for the base's drive3 (FMU 3 of the merged list, FMU 0 of the
+    file) is reported at its own line of the derived file."""
+    derived = _write(tmp_path, "derived.toml", """
+        extends = "cell"
+        [scenario]
+        name = "derived"
+        job = "iso9283"
+        [simulation]
+        stop_time = "1 s"
+        [[fmus]]
+        name = "drive3"
+        [fmus.parameters]
+        speed_feedforward_gain = 1.0
+        """)
+    with pytest.raises(ScenarioError) as info:
+        load_scenario(derived)
+    err = info.value
+    assert err.key == "fmus[3].parameters.speed_feedforward_gain" and "set by the job" in str(err)
+    assert err.file == derived.resolve() and err.line == 10 and err.inherited_by is None
+
+
+def test_error_in_a_key_of_the_cell_names_the_cell_file_and_line(tmp_path):
+    """A key of scenarios/cell.toml that the derived scenario's job does not take is reported at
+    cell.toml and its line there, inherited by the file that was run."""
+    derived = _write(tmp_path, "derived.toml", """
+        extends = "cell"
+        [scenario]
+        name = "derived"
+        job = "fmus"
+        [simulation]
+        stop_time = "1 s"
+        """)
+    with pytest.raises(ScenarioError) as info:
+        load_scenario(derived)
+    err = info.value
+    line = key_lines(CELL.read_text())[("true_robot",)]
+    assert err.file == CELL and err.key == "true_robot" and err.line == line
+    assert err.inherited_by == derived.resolve() and "unknown key" in str(err)
+
+
+def test_error_in_the_elastic_cell_two_levels_up_names_its_line(tmp_path):
+    """drive4 made a plant FMU by the derived file: the speed_kp that scenarios/cell_elastic.toml
+    gives it is no parameter of that FMU; the error names cell_elastic.toml and the line of that
+    speed_kp, inherited by the file that was run (three files merged into one FMU entry)."""
+    derived = _write(tmp_path, "derived.toml", """
+        extends = "cell_elastic"
+        [scenario]
+        name = "derived"
+        job = "iso9283"
+        [simulation]
+        stop_time = "1 s"
+        [[fmus]]
+        name = "drive4"
+        builtin = "rx130l_plant"
+        """)
+    with pytest.raises(ScenarioError) as info:
+        load_scenario(derived)
+    err = info.value
+    line = 1 + next(i for i, text in enumerate(CELL_ELASTIC.read_text().splitlines())
+                    if text.startswith("speed_kp = 0.06539269976263902"))
+    assert err.file == CELL_ELASTIC and err.key == "fmus[4].parameters.speed_kp" and err.line == line
+    assert err.inherited_by == derived.resolve() and "unknown key" in str(err)

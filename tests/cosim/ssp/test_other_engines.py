@@ -120,10 +120,9 @@ def test_ecos_runs_the_archive_unchanged_like_our_master(archive, ours):
 
 
 def _doc_samples() -> dict[str, str]:
-    """The python code blocks of docs/cosim.md's section on loading the archive in other engines."""
-    text = (REPO / "docs" / "cosim.md").read_text()
-    section = text.split("### Running the archive in libcosim and Ecos", 1)[1].split("\n## ", 1)[0].split("\n### ", 1)[0]
-    blocks = re.findall(r"```python\n(.*?)```", section, flags=re.S)
+    """The python code blocks of the how-to page that runs the archive in other engines."""
+    text = (REPO / "docs" / "how-to" / "ssp.md").read_text()
+    blocks = re.findall(r"```python\n(.*?)```", text, flags=re.S)
     return {("libcosim" if "libcosimpy" in b else "ecos"): b for b in blocks}
 
 
@@ -133,6 +132,6 @@ def test_the_docs_samples_run(archive, ours, engine, monkeypatch, capsys):
     assert sorted(samples) == ["ecos", "libcosim"]
     monkeypatch.chdir(archive.parent)  # the samples open "iso9283.ssp" in the working folder
     namespace: dict = {"__name__": "__doc_sample__"}
-    exec(compile(samples[engine], f"docs/cosim.md ({engine})", "exec"), namespace)
+    exec(compile(samples[engine], f"docs/how-to/ssp.md ({engine})", "exec"), namespace)
     assert "q" in capsys.readouterr().out
     assert np.abs(np.array(namespace["q"]) - ours[-1]).max() <= TOLERANCE

@@ -1,8 +1,9 @@
-"""An external controller for ``cosim serve`` written from the docs alone: ``socket`` and
-``struct`` of the standard library, nothing of the project (docs/hil.md, the udpcycle wire
-format and the frames in fieldbus/README.md).
+"""An external controller for ``cosim serve`` in the standard library alone (``socket`` and
+``struct``), nothing of the project: the udpcycle wire format and the frames of the fieldbus
+reference, written out so that a controller in C, Rust or a PLC language can follow it line by
+line (docs/how-to/served_cell.md).
 
-    python plain_socket_controller.py CELL_HOST:PORT BIND_HOST:PORT NODES FIRST_COUNTER HOLD_CYCLES OUT
+    python examples/socket_controller.py CELL_HOST:PORT BIND_HOST:PORT NODES FIRST_COUNTER HOLD_CYCLES OUT
 
 It speaks first (a SoC with FIRST_COUNTER and one 8-byte PReq per node holding the drives
 disabled), then answers every PRes datagram with the next cycle's group (counter + 1, 1..240),
