@@ -3,19 +3,22 @@
 At each build, ``on_files`` adds to the site, without writing into docs/:
 
 * ``reference/scenario_keys.md``: every key of every job type, from the schemas
-  (:func:`cosim.scenario.reference.scenario_keys_markdown`);
+  (:func:`cosim.scenario.reference.scenario_keys_markdown`), and every key of a sweep file
+  (:func:`sweep_keys_markdown`, from ``cosim.sweep.loader.SWEEP_SCHEMA``);
 * ``reference/cli.md``: every command and argument, from argparse
   (:func:`cosim.cli_reference.cli_markdown`);
 * ``reference/benchmarks.md``: ``benchmarks/RESULTS.md``, the results page ``python -m cosim
   bench`` writes (every figure of its last full run, with the machine, its load and the date).
 
-and ``on_page_markdown`` puts generated tables into hand-written pages in place of their marker
-lines: the object table of ``fieldbus/object_dictionary.toml`` (axis 1,
-:func:`fieldbus.device_files.reference_markdown`) into ``reference/object_dictionary.md``
-(:data:`OBJECT_DICTIONARY_MARKER`), and the identifiers, telegram layouts and udpcycle datagram
-layout (:mod:`fieldbus.reference`) into ``reference/fieldbus.md`` (:data:`FIELDBUS_MARKERS`), and
-the tables of exit codes, violation kinds and drive protection limits into
-``reference/verdicts.md`` (:func:`cosim.verdict_reference.fill`).
+and ``on_page_markdown`` puts tables built from the code into hand-written pages in place of
+their marker lines (:data:`MARKERS`): the object table of ``fieldbus/object_dictionary.toml``
+(axis 1, :func:`fieldbus.device_files.reference_markdown`) into ``reference/object_dictionary.md``
+(:data:`OBJECT_DICTIONARY_MARKER`); the identifiers, telegram layouts and udpcycle datagram
+layout (:mod:`fieldbus.reference`) into ``reference/fieldbus.md`` (:data:`FIELDBUS_MARKERS`); the
+tables of exit codes, violation kinds and drive protection limits into ``reference/verdicts.md``
+(:func:`cosim.verdict_reference.fill`); and the drive FMU interface
+(:func:`fmus.servo_drive.interface.reference_markdown`) into ``how-to/own_drive.md``
+(:data:`DRIVE_INTERFACE_MARKER`).
 
 The checkout holding this file is put first on ``sys.path``, so the pages describe its code
 (not another installed copy).
@@ -29,9 +32,21 @@ ROOT = Path(__file__).resolve().parent
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
+def sweep_keys_markdown() -> str:
+    """The section of the scenario-key page listing every key of a sweep file."""
+    from cosim.scenario.reference import table_keys_markdown
+    from cosim.sweep.loader import SWEEP_SCHEMA
+
+    return ("\n## Sweep files {#sweep-file}\n\n"
+            "The keys of a sweep file (`cosim sweep`, [Run a sweep on a cluster](../how-to/sweep_cluster.md)),\n"
+            "generated from `cosim.sweep.loader.SWEEP_SCHEMA`. `[overrides]` keys and `[[axes]] key` are key\n"
+            "paths of the base scenario's keys above.\n\n" + table_keys_markdown(SWEEP_SCHEMA))
+
+
 #: site path -> (function building the page's Markdown)
 GENERATED = {
-    "reference/scenario_keys.md": lambda: __import__("cosim.scenario.reference", fromlist=["_"]).scenario_keys_markdown(),
+    "reference/scenario_keys.md": lambda: (__import__("cosim.scenario.reference", fromlist=["_"]).scenario_keys_markdown()
+                                           + sweep_keys_markdown()),
     "reference/cli.md": lambda: __import__("cosim.cli_reference", fromlist=["_"]).cli_markdown(),
     "reference/benchmarks.md": lambda: (ROOT / "benchmarks" / "RESULTS.md").read_text(encoding="utf-8"),
 }
@@ -85,13 +100,28 @@ def fieldbus_markdown(markdown: str) -> str:
     return markdown
 
 
-def on_page_markdown(markdown, page, config, files):
-    if page.file.src_uri == "reference/object_dictionary.md":
-        return object_dictionary_markdown(markdown)
-    if page.file.src_uri == "reference/fieldbus.md":
-        return fieldbus_markdown(markdown)
-    if page.file.src_uri == "reference/verdicts.md":
-        from cosim.verdict_reference import fill
+#: the line of docs/how-to/own_drive.md the generated drive interface table replaces
+DRIVE_INTERFACE_MARKER = "<!-- generated: the table of fmus.servo_drive.interface.DRIVE_INTERFACE (mkdocs_hooks.py) -->"
 
-        return fill(markdown)
-    return markdown
+
+def drive_interface_markdown(markdown: str) -> str:
+    """``markdown`` with the marker line replaced by the table of the drive FMU interface."""
+    from fmus.servo_drive.interface import reference_markdown
+
+    if DRIVE_INTERFACE_MARKER not in markdown:
+        raise ValueError(f"how-to/own_drive.md: the marker {DRIVE_INTERFACE_MARKER!r} is missing")
+    return markdown.replace(DRIVE_INTERFACE_MARKER, reference_markdown())
+
+
+#: page -> the function putting its generated table in place of its marker
+MARKERS = {
+    "reference/object_dictionary.md": object_dictionary_markdown,
+    "reference/fieldbus.md": fieldbus_markdown,
+    "how-to/own_drive.md": drive_interface_markdown,
+    "reference/verdicts.md": lambda markdown: __import__("cosim.verdict_reference", fromlist=["_"]).fill(markdown),
+}
+
+
+def on_page_markdown(markdown, page, config, files):
+    fill = MARKERS.get(page.file.src_uri)
+    return fill(markdown) if fill else markdown

@@ -290,8 +290,13 @@ def bus(sizes: Sizes, work: Path) -> dict[str, Any]:
     import bench_fieldbus
 
     runs = [bench_fieldbus.measure({}, None, sizes.bus_cycles) for _ in range(sizes.repeats)]
+    slot = bench_fieldbus.asynchronous_slot(sizes.bus_cycles, sizes.repeats)
     return {"cycles": sizes.bus_cycles, "cycle_median_us": _median([r["median"] for r in runs]),
-            "cycle_p90_us": _median([r["p90"] for r in runs]), "cycle_cpu_us": _median([r["cpu"] for r in runs])}
+            "cycle_p90_us": _median([r["p90"] for r in runs]), "cycle_cpu_us": _median([r["cpu"] for r in runs]),
+            # the asynchronous slot (fieldbus.asynchronous): idle vs an SDO in flight every cycle, same bus
+            "cycle_without_od_median_us": slot["without"], "cycle_async_idle_median_us": slot["idle"],
+            "cycle_sdo_in_flight_median_us": slot["in_flight"],
+            "async_load_average": [round(slot["load_before"], 2), round(slot["load_after"], 2)]}
 
 
 def fmu(sizes: Sizes, work: Path) -> dict[str, Any]:
@@ -656,6 +661,8 @@ ROWS: tuple[tuple[str, str, str, str], ...] = (
     ("paced", "overrun_fraction", "paced 400 us in-process: overrun fraction", ""),
     ("paced", "lateness_p99_us", "paced 400 us in-process: lateness p99", "us"),
     ("bus", "cycle_median_us", "POWERLINK cycle, 6 nodes (simbus)", "us"),
+    ("bus", "cycle_async_idle_median_us", "POWERLINK cycle, idle asynchronous slot (SDO/NMT)", "us"),
+    ("bus", "cycle_sdo_in_flight_median_us", "POWERLINK cycle, an SDO in flight every cycle", "us"),
     ("fmu", "plant_step_100us_us", "plant FMU doStep 100 us", "us"),
     ("fmu", "plant_step_400us_us", "plant FMU doStep 400 us", "us"),
     ("fmu", "plant_elastic_step_100us_us", "plant FMU doStep 100 us, elastic (main job)", "us"),

@@ -113,6 +113,11 @@ class ControllerInfo:
     parameters: the scenario's ``[controller.parameters]`` table (SI numbers as given).
     label: the run's name (e.g. ``"model_based"`` or the user controller's label).
     source: the scenario file, for messages.
+    asynchronous: SDO and NMT in the bus's asynchronous slot, optional (None where the bus has
+        none): a :class:`fieldbus.asynchronous.AsyncPort` with ``sdo_read(node, index,
+        subindex)``, ``sdo_write(node, index, subindex, value)`` and ``nmt(node, command)``,
+        each returning a result whose ``answered_cycle``, ``answer`` / ``abort`` are filled in
+        one cycle or more later (docs/how-to/sdo_nmt.md). Values in the objects' bus units.
     """
 
     period_s: float
@@ -132,6 +137,7 @@ class ControllerInfo:
     parameters: Mapping[str, Any] = field(default_factory=dict)
     label: str = ""
     source: str = ""
+    asynchronous: Any = None
 
     @property
     def lead_cycles(self) -> int:

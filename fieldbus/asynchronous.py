@@ -314,11 +314,14 @@ class AsyncClient:
         self._mn_offset, self._cn_offset = offsets
         self._t0, self._cycle_time = t0, cycle_time
         self._script = deque(requests)
-        self._queue: deque[AsyncRequest] = deque()
+        self._queue: deque[tuple[AsyncRequest, AsyncResult | None]] = deque()
         self._transfer: _Transfer | None = None
         self._result: AsyncResult | None = None
         self._frame: tuple[int, bytes] | None = None  # the frame offered and not yet sent
-        self._offered: AsyncRequest | None = None  # the request the offered frame starts (None: a segment)
+        # the request the offered frame starts (None: a segment) and its result if made at submit
+        self._offered: tuple[AsyncRequest, AsyncResult | None] | None = None
+        self.now_s = t0  # the time of the last slot
+        self.on_submit: Callable[[], None] | None = None  # told when a request is queued
         self.awaiting = False  # a request went out: the node answers in the next slot
         self.results: list[AsyncResult] = []
         self.counts = _Counts()
@@ -331,32 +334,40 @@ class AsyncClient:
             return max(0, math.ceil((self._script[0].time_s - self._t0) / self._cycle_time - 1e-9))
         return math.inf
 
-    def submit(self, request: AsyncRequest) -> None:
-        """Queue a request (a controller's): offered in the first slot from now on that is free."""
-        self._queue.append(request)
+    def submit(self, request: AsyncRequest) -> AsyncResult:
+        """Queue a request (a controller's): offered in the first slot from now on that is free.
+        Returns its result, filled in when it is sent (``sent_cycle``) and answered
+        (``answered_cycle``, ``answer``, ``abort``)."""
+        result = AsyncResult(request, -1)
+        self._queue.append((request, result))
         self.next_cycle = 0
+        if self.on_submit is not None:
+            self.on_submit()
+        return result
 
     def offer(self, cycle: int) -> tuple[int, bytes] | None:
         """The frame (COB-ID, data) the MN sends in the slot of ``cycle`` if the slot is free
         for it; None when it has none or a node's answer is due in it."""
         t = self._t0 + cycle * self._cycle_time
+        self.now_s = t
         while self._script and self._script[0].time_s <= t + 1e-12:
-            self._queue.append(self._script.popleft())
+            self._queue.append((self._script.popleft(), None))
         if self.awaiting:
             return None
         if self._frame is None and self._queue:
-            request = self._queue.popleft()
+            request, result = self._queue.popleft()
             if request.service == "nmt":
                 self._frame = (NMT_ID, bytes((NMT_BY_NAME[request.command], request.node)))
             else:
                 self._transfer = _Transfer(request, self.ods.get(request.node))
                 self._frame = (SDO_RX_BASE + request.node, self._transfer.first())
-            self._offered = request
+            self._offered = (request, result)
         return self._frame
 
     def outcome(self, cycle: int, kind: str | None, data: bytes | None = None) -> list[can.Message]:
         """Take what the slot of ``cycle`` carried; returns its frames (MN frame or answer)."""
         t = self._t0 + cycle * self._cycle_time
+        self.now_s = t
         out: list[can.Message] = []
         if kind == EMCY:
             self.counts.slots_taken_by_emcy += 1
@@ -365,10 +376,13 @@ class AsyncClient:
             out.append(can.Message(timestamp=t + self._mn_offset, arbitration_id=cob, data=payload,
                                    is_extended_id=False))
             self._frame = None
-            request, self._offered = self._offered, None
-            if request is not None:
+            offered, self._offered = self._offered, None
+            if offered is not None:
+                request, result = offered
                 self.counts.requests += 1
-                result = AsyncResult(request, cycle)
+                if result is None:
+                    result = AsyncResult(request, cycle)
+                result.sent_cycle = cycle
                 self.results.append(result)
                 if request.service == "nmt":
                     self.counts.nmt_commands += 1
@@ -546,6 +560,40 @@ class AsyncNodes:
                 "nmt_state": {str(k): n.nmt_state for k, n in self.nodes.items()}}
 
 
+class AsyncPort:
+    """What a controller gets as ``info.asynchronous`` (controller/contract.py): it queues SDO
+    and NMT requests for the asynchronous slot, and each call returns the request's
+    :class:`AsyncResult`, filled in when the request went out (``sent_cycle``) and when its
+    answer came back (``answered_cycle``; ``answer``, or ``abort`` the CiA 301 abort code): at
+    the earliest in the cycle after the request went out, which is the cycle after the call.
+    Values are in the object's bus unit (fieldbus/object_dictionary.toml)."""
+
+    def __init__(self, client: AsyncClient) -> None:
+        self._client = client
+
+    def _submit(self, node: int, service: str, **kwargs: Any) -> AsyncResult:
+        return self._client.submit(AsyncRequest(self._client.now_s, node, service, origin="controller", **kwargs))
+
+    def sdo_read(self, node: int, index: int, subindex: int = 0) -> AsyncResult:
+        """An SDO upload of ``index``/``subindex`` from ``node``."""
+        return self._submit(node, "read", index=index, subindex=subindex)
+
+    def sdo_write(self, node: int, index: int, subindex: int, value: int | str) -> AsyncResult:
+        """An SDO download of ``value`` (bus unit) to ``index``/``subindex`` of ``node``."""
+        return self._submit(node, "write", index=index, subindex=subindex, value=value)
+
+    def nmt(self, node: int, command: str) -> AsyncResult:
+        """The NMT ``command`` (one of :data:`NMT_BY_NAME`) to ``node`` (0: every node)."""
+        if command not in NMT_BY_NAME:
+            raise ValueError(f"nmt command = {command!r}: expected one of {', '.join(NMT_BY_NAME)}")
+        return self._submit(node, "nmt", command=command)
+
+    @property
+    def results(self) -> list[AsyncResult]:
+        """Every request sent so far (the scenario's too), oldest first."""
+        return self._client.results
+
+
 def merged_summary(client: dict[str, Any], nodes: dict[str, Any] | None) -> dict[str, Any]:
     """One summary of the two halves (summary.json ``fieldbus.asynchronous``)."""
     out = dict(client)
@@ -576,8 +624,8 @@ class AsynchronousPhase:
             return []
         return client.outcome(cycle, *outcome)
 
-    def submit(self, request: AsyncRequest) -> None:
-        self.client.submit(request)
+    def submit(self, request: AsyncRequest) -> AsyncResult:
+        return self.client.submit(request)
 
     @property
     def results(self) -> list[AsyncResult]:
@@ -599,5 +647,5 @@ def slot_offsets(layout: Any, node: int = 0) -> tuple[float, float]:
     return soa_end + layout.mn_turnaround, soa_end + layout.cn_response
 
 
-__all__ = ["ANSWER", "AsyncClient", "AsyncNodes", "AsyncRequest", "AsyncResult", "AsynchronousPhase", "EMCY",
+__all__ = ["ANSWER", "AsyncClient", "AsyncPort", "AsyncNodes", "AsyncRequest", "AsyncResult", "AsynchronousPhase", "EMCY",
            "NMT_BY_NAME", "SERVICES", "SILENT", "TAKEN", "merged_summary", "parse_requests", "slot_offsets"]

@@ -112,6 +112,7 @@ class PowerlinkNetwork(Closeable):
             nodes = AsyncNodes(canopen, self._t0, config.reaction.abort_connection_option, on_write, scaling,
                                self.cn.invalidate_applied)
             self.asynchronous = AsynchronousPhase(client, nodes, self._t0, self._cycle_time)
+            client.on_submit = self._wake
             self.cn.on_emcy = self.asynchronous.note_emcy
             self._async_next = self.asynchronous.next_cycle
 
@@ -223,13 +224,22 @@ class PowerlinkNetwork(Closeable):
             self.recorder.add_many(frames)
         self._async_next = phase.next_cycle
 
-    def submit(self, request: Any) -> None:
+    def _wake(self) -> None:
+        self._async_next = 0  # a request was queued: the next slot runs
+
+    def submit(self, request: Any) -> Any:
         """Queue an SDO/NMT request (:class:`fieldbus.asynchronous.AsyncRequest`) for the
-        asynchronous slot of the next cycle that is free."""
+        asynchronous slot of the next cycle that is free; returns its
+        :class:`~fieldbus.asynchronous.AsyncResult` (filled in when answered)."""
         if self.asynchronous is None:
             raise RuntimeError("this network has no asynchronous phase (no object dictionaries given)")
-        self.asynchronous.submit(request)
-        self._async_next = self.asynchronous.next_cycle
+        return self.asynchronous.submit(request)
+
+    def async_port(self) -> Any:
+        """The :class:`~fieldbus.asynchronous.AsyncPort` a controller gets (None without the slot)."""
+        from fieldbus.asynchronous import AsyncPort
+
+        return None if self.asynchronous is None else AsyncPort(self.asynchronous.client)
 
     def bind_applied(self, applied: AppliedSetpoints) -> None:
         """Have the drives' applied set-points written into ``applied``'s arrays (e.g. views

@@ -71,16 +71,14 @@ def test_no_user_page_above_15_kb():
     assert not big, f"user pages above {MAX_PAGE_BYTES} bytes (split or trim them):\n" + "\n".join(big)
 
 
-@pytest.mark.xfail(strict=True, reason="issue 28 not met yet: 178.5 KB of hand-written user docs on 2026-12-04 "
-                   "14:55 UTC, trimming under way (docstrim); strict: remove this mark when it passes")
 def test_user_docs_together_below_150_kb():
     total = sum(p.stat().st_size for p in _pages())
     assert total < MAX_TOTAL_BYTES, f"hand-written user docs: {total} bytes, expected below {MAX_TOTAL_BYTES}"
 
 
-def test_no_measurement_narrative_in_user_pages():
+def test_no_measurement_narrative_in_user_pages_and_readme():
     hits = [f"{page_id(p)}:{n}: {what}: {line[:120]}"
-            for p in _pages() for n, what, line in narrative_lines(p.read_text(encoding="utf-8"))]
+            for p in _pages() + [ROOT / "README.md"] for n, what, line in narrative_lines(p.read_text(encoding="utf-8"))]
     assert not hits, ("measurement narrative in user pages (measured figures belong in the benchmark "
                       "results page `cosim bench` writes):\n" + "\n".join(hits))
 

@@ -128,6 +128,9 @@ def test_generated_reference_pages_are_in_the_site(site):
     contracts = (site_dir / "reference" / "contracts.html").read_text(encoding="utf-8")
     assert 'id="controller.contract.CellController"' in contracts
     assert 'id="planners.base.Planner"' in contracts
+    drive = (site_dir / "how-to" / "own_drive.html").read_text(encoding="utf-8")
+    # the drive FMU interface table, generated from fmus.servo_drive.interface.DRIVE_INTERFACE
+    assert "<code>q_meas</code>" in drive and "<code>following_error</code>" in drive and "generated:" not in drive
     tutorial = (site_dir / "tutorial.html").read_text(encoding="utf-8")
     # the nine-line scenario is the repository's file itself, not a copy
     assert "my_controller_iso9283" in tutorial and "pd_gravity_controller.py:PDGravity" in tutorial
@@ -139,6 +142,19 @@ def test_every_scenario_key_is_documented():
     assert total > 300
     missing = undocumented_keys()
     assert not missing, "keys without a doc= text in their schema: " + ", ".join(f"{j}: {k}" for j, k in missing)
+
+
+def test_every_sweep_file_key_is_documented():
+    """The sweep file's keys are on the scenario-key page (mkdocs_hooks.sweep_keys_markdown), each with a text."""
+    from cosim.scenario.reference import table_keys
+    from cosim.sweep.loader import SWEEP_SCHEMA
+    from mkdocs_hooks import sweep_keys_markdown
+
+    keys = table_keys(SWEEP_SCHEMA)
+    assert {"sweep.base", "axes[].seeds", "axes[].distribution.kind", "report.kind"} <= {k.path for k in keys}
+    assert not [k.path for k in keys if not k.doc.strip()]
+    page = sweep_keys_markdown()
+    assert all(f"`{k.path}`" in page for k in keys) and "{#sweep-file}" in page
 
 
 def test_scenario_key_page_lists_every_key_with_its_unit_and_default():

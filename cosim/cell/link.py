@@ -7,6 +7,8 @@ and paced runs; the split run's controller side does the same steps in its own l
 """
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from controller import CellController, ControllerInfo
@@ -115,6 +117,11 @@ class FieldbusLink:
         view per bus type for the ``bus.*`` variables (end of master.initialize); then the
         controller's ``setup(info)`` (a failure there ends the run as a SimulationError)."""
         if self.info is not None:
+            network = getattr(self.network, "network", self.network)  # a PacedNetwork wraps the bus
+            make_port = getattr(network, "async_port", None)
+            port = make_port() if make_port is not None else None
+            if port is not None and getattr(self.info, "asynchronous", None) is None:
+                self.info = dataclasses.replace(self.info, asynchronous=port)
             try:
                 self.port.setup(self.info)
             except ControllerFailure as exc:

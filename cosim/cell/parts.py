@@ -195,7 +195,9 @@ CELL_FIELDS: dict[str, Field] = {
                         doc="the controller: built-in modes or a user class/FMU, cycle, compute budget"),
     "path": Field(PATH_TABLE, default={}, doc="the ISO 9283 test path's speed and acceleration"),
     "tracker": Field(TRACKER_TABLE, default={}, doc="the laser tracker measuring the TCP: sample period, noise"),
-    "fieldbus": Field(Table({}, extra=AnyValue(), doc="a [fieldbus] table (fieldbus/powerlink_defaults.toml keys)"),
+    "fieldbus": Field(Table({}, extra=AnyValue(), doc="a [fieldbus] table (fieldbus/powerlink_defaults.toml keys; "
+                                                      "[[fieldbus.asynchronous]]: SDO/NMT requests sent in the "
+                                                      "asynchronous slot, docs/how-to/sdo_nmt.md)"),
                       default={}),
     "results": Field(RESULTS_TABLE, default={}, doc="which result files the run writes"),
 }

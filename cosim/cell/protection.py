@@ -45,7 +45,28 @@ KINDS: dict[str, tuple[str | None, str, str]] = {
 }
 
 
-def protection_events(cell: Any, recording: Any) -> list[dict[str, Any]]:
+def sdo_parameter_changes(cell: Any, fieldbus: Mapping[str, Any] | None) -> dict[int, list[tuple[float, str, float]]]:
+    """The drive parameters SDO writes changed during the run (``fieldbus.asynchronous`` of the
+    run's fieldbus summary; cosim.cell.drive_objects): joint -> [(time from which it acts, s,
+    parameter, SI value)], in time order."""
+    slot = (fieldbus or {}).get("asynchronous") or {}
+    writes = [r for r in slot.get("results", ()) if r.get("service") == "write" and r.get("answer") == "ok"
+              and r.get("subindex") == 0 and r.get("index") in ("0x6065", "0x6066")]
+    if not writes:
+        return {}
+    from cosim.cell.drive_objects import TUNABLE_OBJECTS, cell_object_dictionaries
+
+    ods = {od.node: od for od in cell_object_dictionaries(cell.fieldbus)}
+    t0, period = cell.fieldbus.start_time_s, cell.fieldbus.cycle_time_s
+    out: dict[int, list[tuple[float, str, float]]] = {}
+    for r in writes:
+        name, scale = TUNABLE_OBJECTS[int(r["index"], 16)]
+        factor = ods[r["node"]].rad_per_count if scale == "position" else scale
+        out.setdefault(r["node"], []).append((t0 + r["answered_cycle"] * period, name, float(r["value"]) * factor))
+    return out
+
+
+def protection_events(cell: Any, recording: Any, fieldbus: Mapping[str, Any] | None = None) -> list[dict[str, Any]]:
     """The protection events of one run of ``cell`` (a :class:`cosim.cell.description.CellDescription`)
     from its ``recording`` (MemorySink-like: ``columns``, ``data``), earliest first.
 
@@ -55,6 +76,8 @@ def protection_events(cell: Any, recording: Any) -> list[dict[str, Any]]:
     when the drive ran its fault reaction because of it: stop on the fault-reaction ramp, then the
     brake), ``detail``; ``duration_s`` once it has ended (``active_at_end`` True otherwise).
     End stops add ``impact_speed_rad_s``, ``stop_rad``, ``max_penetration_rad`` and ``contacts``.
+    ``fieldbus``: the run's fieldbus summary; a following-error window an SDO write changed
+    (:func:`sdo_parameter_changes`) is the limit from the cycle it acted.
     """
     columns, data = _read(recording)
     if not columns or data is None or len(data) == 0 or "time" not in columns:
@@ -70,6 +93,12 @@ def protection_events(cell: Any, recording: Any) -> list[dict[str, Any]]:
         events += _drive_events(joint, drive, data, index, time, data[:, status].astype(np.int64),
                                 data[:, history].astype(np.int64), params.get(drive, {}))
     events += _end_stop_events(data, index, time, params.get(PLANT, {}))
+    changes = sdo_parameter_changes(cell, fieldbus) if fieldbus else {}
+    for event in events:
+        if event["kind"] == "following_error" and event["joint"] in changes:
+            for t, name, value in changes[event["joint"]]:
+                if name == "following_error_window" and t <= event["time_s"] + 1e-12:
+                    event["limit"] = value
     events.sort(key=lambda e: (e["time_s"], e["joint"] or 0))
     return events
 

@@ -107,7 +107,7 @@ def run_cell(cell: CellDescription, controller: Any, ctx: Any, *, mode: str | No
     if execution is not None:
         execution.started(cell)
     result = run(cell, controller, ctx, options, pacer=pacer, on_cycle=on_cycle)
-    result.protection_events = protection_events(cell, result.recording)
+    result.protection_events = protection_events(cell, result.recording, result.fieldbus)
     if execution is not None:
         execution.finished(cell, result, ctx)
     return result

@@ -279,6 +279,16 @@ def scenario_keys_markdown() -> str:
     return "\n".join(lines) + "\n"
 
 
+def table_keys(table: Table) -> list[KeyDoc]:
+    """Every key of a schema outside the job registry (e.g. the sweep file's), in declaration order."""
+    return list(_walk(table, ""))
+
+
+def table_keys_markdown(table: Table) -> str:
+    """The keys of ``table`` as the key table of the scenario-key page (key, type, unit, default, meaning)."""
+    return "\n".join(_HEADER + [_row(key) for key in table_keys(table)]) + "\n"
+
+
 CELL_BASES = ("cell", "cell_elastic")
 """The project's base scenarios of the robot cell (``scenarios/<name>.toml``), documented on the page."""
 
@@ -338,4 +348,5 @@ def cell_defaults_markdown() -> list[str]:
     return lines
 
 
-__all__ = ["CELL_BASES", "KeyDoc", "cell_defaults_markdown", "job_names", "scenario_keys", "scenario_keys_markdown", "toml_text", "undocumented_keys"]
+__all__ = ["CELL_BASES", "KeyDoc", "cell_defaults_markdown", "job_names", "scenario_keys", "scenario_keys_markdown",
+           "table_keys", "table_keys_markdown", "toml_text", "undocumented_keys"]

@@ -50,18 +50,24 @@ from cosim.scenario.keypath import (FIXED_KEYS, KeyPath, KeyPathSyntaxError, abs
 #: Figure kinds of [report]: every variant as a dot plus the mean per x value, or a box per x value.
 REPORT_KINDS = ("points", "box")
 
+#: Default largest number of variants of a sweep ([sweep] max_variants raises it): every variant is
+#: validated (tens of ms each) before anything runs, and 10,000 variants of the main job are ~2 days
+#: on one 2-core machine; a bigger count is usually a typo in seeds/samples or a too fine grid.
+MAX_VARIANTS = 10_000
+
 SWEEP_TABLE = Table({
     "name": Field(String(pattern=NAME_PATTERN, pattern_doc="of letters, digits, '_', '.', '-' (used as folder name)"),
-                  required=True),
+                  required=True, doc="the sweep's name: its results folder is results/<name>/ unless --out says otherwise"),
     "base": Field(FilePath(must_exist=True, suffix=".toml"), required=True,
                   doc="the base scenario: a path to a .toml file relative to the sweep file"),
-    "description": Field(String(nonempty=False), default=""),
+    "description": Field(String(nonempty=False), default="", doc="free text, kept in sweep.json"),
     "metrics": Field(List(String(), min_len=1),
-                     doc="summary.json leaves to tabulate, as key paths with * globs (default: every numeric leaf)"),
+                     doc="summary.json leaves to tabulate, as key paths with globs (* within one key, ** across keys: "
+                         "'modes.*.tcp_error_max_mm'; default: every numeric leaf)"),
     "retries": Field(Integer(min=0, max=20), default=2,
                      doc="re-runs of a variant whose worker died or whose task raised"),
     "max_variants": Field(Integer(min=1), default=None,
-                          doc="the most variants the sweep may have (default MAX_VARIANTS)"),
+                          doc=f"the most variants the sweep may have (default {MAX_VARIANTS:,})"),
     "collect": Field(List(String()), default=[],
                      doc="what a variant run elsewhere brings back besides its summary row: 'timeseries', "
                          "'figures', 'can_log', 'all', or globs relative to the variant's folder"),
@@ -73,13 +79,11 @@ SWEEP_TABLE = Table({
 SWEEP_TABLE_GIVEN_BASE = Table({k: f for k, f in SWEEP_TABLE.fields.items() if k != "base"},
                                doc="the [sweep] table")
 
-#: Default largest number of variants of a sweep ([sweep] max_variants raises it): every variant is
-#: validated (tens of ms each) before anything runs, and 10,000 variants of the main job are ~2 days
-#: on one 2-core machine; a bigger count is usually a typo in seeds/samples or a too fine grid.
-MAX_VARIANTS = 10_000
 
 DISTRIBUTION_TABLE = Table({
-    "kind": Field(String(choices=tuple(DISTRIBUTIONS)), required=True),
+    "kind": Field(String(choices=tuple(DISTRIBUTIONS)), required=True,
+                  doc="normal (mean, std), uniform (low, high) or lognormal (median, sigma); numpy PCG64 draws "
+                      "seeded with the axis' seed and key"),
     **{name: Field(AnyValue(), doc="a number or a unit string")
        for name in sorted({p for params in DISTRIBUTIONS.values() for p in params})},
 }, doc="a distribution table {kind = 'normal', mean = ..., std = ...}")
@@ -104,7 +108,7 @@ AXIS_TABLE = Table({
     "values": Field(List(AnyValue()), doc="grid values"),
     "seeds": Field(Integer(min=0), doc="the number of integer seeds (Monte Carlo)"),
     "first_seed": Field(Integer(min=0), doc="the first seed (with seeds; default 0)"),
-    "distribution": Field(DISTRIBUTION_TABLE),
+    "distribution": Field(DISTRIBUTION_TABLE, doc="a Monte Carlo axis of random draws (with samples)"),
     "samples": Field(Integer(min=0), doc="the number of draws (with distribution)"),
     "seed": Field(Integer(min=0), doc="the random seed of the draws (with distribution; default 0)"),
 }, one_of=[("values", "seeds", "distribution")], doc="an [[axes]] table")
@@ -130,19 +134,20 @@ REPORT_TABLE = Table({
                     doc="the table column to plot (a summary.json leaf such as 'calibrated.e_x.max'; * globs)"),
     "parameter": Field(String(), required=True, doc="the axis key on the x axis"),
     "group": Field(String(), doc="an axis key: one series per value"),
-    "kind": Field(String(choices=REPORT_KINDS), default="points"),
+    "kind": Field(String(choices=REPORT_KINDS), default="points",
+                  doc="every variant as a dot plus the mean per x value, or a box per x value"),
     "file": Field(String(pattern=r"[A-Za-z0-9_.-]+\.png", pattern_doc="naming a .png file in the sweep folder"),
-                  default="sweep.png"),
-    "title": Field(String(nonempty=False), default=""),
-    "x_scale": Field(String(choices=("linear", "log")), default="linear"),
-    "y_scale": Field(String(choices=("linear", "log")), default="linear"),
-}, doc="the [report] table")
+                  default="sweep.png", doc="the figure's file in the sweep's results folder"),
+    "title": Field(String(nonempty=False), default="", doc="the figure's title"),
+    "x_scale": Field(String(choices=("linear", "log")), default="linear", doc="the x axis' scale"),
+    "y_scale": Field(String(choices=("linear", "log")), default="linear", doc="the y axis' scale"),
+}, doc="the sweep's figure: a table column against an axis key")
 
 SWEEP_SCHEMA = Table({
     "sweep": Field(SWEEP_TABLE, required=True, doc="a [sweep] table with name and base"),
     "overrides": Field(Table({}, extra=AnyValue(), doc="a table of <key path> = <value>"), default={}),
     "axes": Field(List(AXIS_TABLE, min_len=1), required=True, doc="at least one [[axes]] table"),
-    "report": Field(REPORT_TABLE),
+    "report": Field(REPORT_TABLE, doc="the sweep's figure: a table column against an axis key"),
 }, doc="a sweep document")
 SWEEP_SCHEMA_GIVEN_BASE = Table({**SWEEP_SCHEMA.fields, "sweep": Field(SWEEP_TABLE_GIVEN_BASE, required=True,
                                                                        doc="a [sweep] table with name")},

@@ -10,8 +10,8 @@ connects every optional variable the FMU has and leaves out the others.
     report = check_drive_fmu("my_drive.fmu", modes=(8, 10))   # DriveInterfaceError if unusable
     report.present                                            # the optional variables it has
 
-:data:`DRIVE_INTERFACE` is the machine-readable list (documented in docs/explanation/fmus.md,
-"Your own drive FMU"); :func:`check_drive_fmu` checks a ``modelDescription.xml`` (in an
+:data:`DRIVE_INTERFACE` is the machine-readable list (shown in docs/how-to/own_drive.md by
+:func:`reference_markdown`); :func:`check_drive_fmu` checks a ``modelDescription.xml`` (in an
 ``.fmu``, a folder or the XML file itself) against it and raises
 :class:`DriveInterfaceError` naming the file, the variable and what was expected.
 """
@@ -91,7 +91,7 @@ DRIVE_INTERFACE: tuple[DriveVariable, ...] = (
     DriveVariable("following_error", REAL, OUTPUT, "rad", False, "the drive's own following error",
                   (), "not recorded"),
 )
-"""The drive interface, in the order of docs/explanation/fmus.md."""
+"""The drive interface, in the order of its table in docs/how-to/own_drive.md."""
 
 BY_NAME: dict[str, DriveVariable] = {v.name: v for v in DRIVE_INTERFACE}
 REQUIRED: frozenset[str] = frozenset(v.name for v in DRIVE_INTERFACE if v.required)
@@ -149,6 +149,18 @@ def needed_variables(modes: Iterable[int] = (8,), *, torque_feedforward: bool = 
         wanted.add("velocity feed-forward")
     extra = {v.name for v in DRIVE_INTERFACE if not v.required and wanted.intersection(v.needed_for)}
     return REQUIRED | frozenset(extra)
+
+
+def reference_markdown() -> str:
+    """:data:`DRIVE_INTERFACE` as a Markdown table (the docs site puts it into
+    docs/how-to/own_drive.md, mkdocs_hooks.py): name, type and causality, unit, whether it is
+    required or what needs it, meaning, and what the cell does without it."""
+    rows = ["| variable | type, causality | unit | | meaning | without it |", "|---|---|---|---|---|---|"]
+    for v in DRIVE_INTERFACE:
+        need = "**required**" if v.required else "optional" + (
+            f"; needed for {', '.join(v.needed_for)}" if v.needed_for else "")
+        rows.append(f"| `{v.name}` | {v.type} {v.causality} | {v.unit or ''} | {need} | {v.meaning} | {v.absent} |")
+    return "\n".join(rows) + "\n"
 
 
 def _describe(v: DriveVariable) -> str:

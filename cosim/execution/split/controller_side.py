@@ -13,6 +13,7 @@ stops commanding motion).
 """
 from __future__ import annotations
 
+import dataclasses
 import multiprocessing
 import tempfile
 import time
@@ -37,7 +38,7 @@ from cosim.execution.split.protocol import (END, LOST, free_udp_port, pack_marke
                                   use_directional_bus)
 from fieldbus import ManagingNodeEndpoint
 from cosim.cell.drive_objects import cell_object_dictionaries
-from fieldbus.asynchronous import AsyncClient, merged_summary, slot_offsets
+from fieldbus.asynchronous import AsyncClient, AsyncPort, merged_summary, slot_offsets
 from fieldbus.network import network_summary
 
 #: Wall seconds to wait for the drive process to start (imports, FMU instantiation).
@@ -131,6 +132,10 @@ def run_split_cell(cell: CellDescription, controller, ctx, *, options: Execution
                             "ports": {"down": port, "up": up_port},
                             "receive_timeout_s": options.receive_timeout_s}
     session = SplitSession(process, endpoint, info=info)
+    # the managing node's half of the asynchronous slot (SDO client, NMT; fieldbus.asynchronous)
+    client = AsyncClient(fb_config.asynchronous, fb_config.node_ids, slot_offsets(endpoint.layout),
+                         fb_config.start_time_s, period, cell_object_dictionaries(fb_config))
+    session.asynchronous = client
     failure: SimulationError | None = None
     granted = "normal"
     memory = MemorySink()
@@ -139,7 +144,7 @@ def run_split_cell(cell: CellDescription, controller, ctx, *, options: Execution
     interrupted: BaseException | None = None
     try:
         try:
-            controller_port.setup(cinfo)
+            controller_port.setup(dataclasses.replace(cinfo, asynchronous=AsyncPort(client)))
         except ControllerFailure as exc:
             raise SimulationError("controller", 0.0, exc.reason) from exc
         process.start()
@@ -171,10 +176,6 @@ def run_split_cell(cell: CellDescription, controller, ctx, *, options: Execution
                     pipe_open[0] = False
         t0 = fb_config.start_time_s
         setpoints = controller_port.setpoints
-        # the managing node's half of the asynchronous slot (SDO client, NMT; fieldbus.asynchronous)
-        client = AsyncClient(fb_config.asynchronous, fb_config.node_ids, slot_offsets(endpoint.layout), t0, period,
-                             cell_object_dictionaries(fb_config))
-        session.asynchronous = client
         missing_seen = 0
         # both sides ask for SCHED_FIFO ([realtime] scheduling) even unpaced: each cycle hands
         # over twice between the processes and on a loaded machine every wake-up otherwise
