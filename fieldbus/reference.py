@@ -53,7 +53,8 @@ def identifiers_markdown() -> str:
     """The COB-IDs of every frame on the bus, from the constants the nodes send with."""
     t = telegrams
     rows = [
-        ("NMT command", canopen_node.NMT_ID, False, "master → nodes", "2", "CANopen devices only (`cosim serve` CANopen side)"),
+        ("NMT command", canopen_node.NMT_ID, False, "master → nodes", "2",
+         "asynchronous slot after the SoA (docs/how-to/sdo_nmt.md); `cosim serve` CANopen side"),
         ("SYNC", t.SYNC_ID, False, "managing node → all", "0 or 1 (counter)", "the POWERLINK SoC: starts cycle k at t_k"),
         ("EMCY", t.EMCY_BASE, True, "node → managing node", str(t.EMCY.size), "asynchronous slot after the SoA"),
         ("TPDO1", t.TPDO1_BASE, True, "node → managing node", str(t.TPDO1.size), "PRes payload, part 1"),
@@ -62,8 +63,8 @@ def identifiers_markdown() -> str:
          f"{', '.join(map(str, t.RPDO1_LOOKAHEAD_LENGTHS))} with look-ahead)", "PReq payload"),
         ("TPDO2", t.TPDO2_BASE, True, "node → managing node",
          f"{t.TPDO2.size} ({t.TPDO2_BUFFERED.size} with a set-point buffer)", "PRes payload, part 2"),
-        ("SDO response", sdo.SDO_TX_BASE, True, "node → client", "8", "CANopen devices only"),
-        ("SDO request", sdo.SDO_RX_BASE, True, "client → node", "8", "CANopen devices only"),
+        ("SDO response", sdo.SDO_TX_BASE, True, "node → client", "8", "asynchronous slot; `cosim serve` CANopen side"),
+        ("SDO request", sdo.SDO_RX_BASE, True, "client → node", "8", "asynchronous slot; `cosim serve` CANopen side"),
         ("heartbeat", canopen_node.HEARTBEAT_BASE, True, "node → all", "1 (NMT state)", "CANopen devices only"),
     ]
     out = ["| frame | COB-ID | direction | data bytes | role |", "|---|---|---|---|---|"]

@@ -97,6 +97,12 @@ def _run(args: argparse.Namespace) -> int:
         scenario = load_scenario(args.scenario)
     except ScenarioError as exc:
         raise InvalidInput(str(exc)) from None
+    requests = (scenario.data.get("fieldbus") or {}).get("asynchronous")
+    if requests and getattr(args, "realtime", False) and getattr(args, "split", False):
+        raise InvalidInput(str(ScenarioError(
+            args.scenario, "fieldbus.asynchronous", "no scripted SDO/NMT requests with --realtime --split (the "
+            "paced split run's served cell carries the cyclic telegrams only); run them in process, with "
+            "--realtime or with --split", given=f"{len(requests)} request(s)")))
     if args.out is not None:
         out_dir, origin = args.out, "--out"
     elif scenario.data.get("output", {}).get("dir"):

@@ -318,6 +318,13 @@ def run_hil_split(cell: CellDescription, controller: Any, ctx: Any, *, options: 
     from cosim.execution.timing.schedule import precompute_schedules
     from fieldbus import ManagingNodeEndpoint
 
+    if cell.fieldbus.asynchronous:
+        from cosim.scenario.errors import ScenarioError
+
+        raise ScenarioError(cell.fieldbus.source, "fieldbus.asynchronous",
+                            "no scripted SDO/NMT requests in a paced split run (--realtime --split: its served "
+                            "cell carries the cyclic telegrams only); run them in process, with --realtime or "
+                            "with --split", given=f"{len(cell.fieldbus.asynchronous)} request(s)")
     label, period, stop_time = cell.label, cell.period_s, cell.stop_time_s
     cell_port, ctrl_port = free_udp_port(), free_udp_port()
     while ctrl_port == cell_port:

@@ -1,6 +1,7 @@
 """SDO and NMT in the asynchronous slot of the cell's bus (fieldbus/asynchronous.py), scripted by
 ``[[fieldbus.asynchronous]]``: the same run in one process and split over two processes gives the
-same answers and the same figures; a lowered following-error window (0x6065) trips drive 1 with
+same answers and the same figures, paced in one process the same answers (a paced split run refuses
+the requests: exit code 2); a lowered following-error window (0x6065) trips drive 1 with
 0x8611 exactly 0x6066 = 10 ms after the cycle the SDO answer went out; every SDO/NMT/EMCY frame
 sits alone in its cycle's slot after the SoA; tshark dissects both captures of the run with zero
 malformed frames and zero expert errors (but the SDO request the scenario sends malformed on purpose)
@@ -94,7 +95,8 @@ def _run(scenario, out, *flags):
 def runs(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("async_slot")
     scenario = write_scenario(tmp, "80 ms", extra=REQUESTS)
-    return tmp, _run(scenario, tmp / "one"), _run(scenario, tmp / "split", "--split")
+    return tmp, _run(scenario, tmp / "one"), _run(scenario, tmp / "split", "--split"), _run(scenario, tmp / "paced",
+                                                                                               "--realtime")
 
 
 def _results(mode):
@@ -103,7 +105,7 @@ def _results(mode):
 
 
 def test_answers_aborts_and_counts(runs):
-    _, one, _ = runs
+    one = runs[1]
     a = one["fieldbus"]["asynchronous"]
     r = _results(one)
     name = r[(1, "read", "0x1008", None, None)]
@@ -121,7 +123,7 @@ def test_answers_aborts_and_counts(runs):
 
 
 def test_a_lowered_following_error_window_trips_the_drive_when_it_should(runs):
-    tmp, one, _ = runs
+    tmp, one = runs[:2]
     answered = _results(one)[(1, "write", "0x6065", 1, None)]
     assert answered["answer"] == "ok"
     log = read_frames(tmp / "one" / "can_model_based.parquet")
@@ -138,9 +140,9 @@ def test_a_lowered_following_error_window_trips_the_drive_when_it_should(runs):
     assert history["answer"] == 0x8611  # the error history (0x1003 sub 1) an SDO upload reads
 
 
-def test_in_process_and_split_give_the_same_answers_and_figures(runs):
-    _, one, split = runs
-    assert one["fieldbus"]["asynchronous"] == split["fieldbus"]["asynchronous"]
+def test_in_process_split_and_paced_give_the_same_answers(runs):
+    _, one, split, paced = runs
+    assert one["fieldbus"]["asynchronous"] == split["fieldbus"]["asynchronous"] == paced["fieldbus"]["asynchronous"]
     assert one["tcp_error_max_mm"] == split["tcp_error_max_mm"]
     assert one["fieldbus"]["event_tally"] == split["fieldbus"]["event_tally"]
     assert one["fieldbus"]["frames_sent"] == split["fieldbus"]["frames_sent"]
@@ -172,7 +174,7 @@ def _tshark(*args):
 
 
 def test_tshark_decodes_the_sdo_and_nmt_traffic_with_nothing_malformed(runs, tmp_path):
-    tmp, one, _ = runs
+    tmp, one = runs[:2]
     assert main(["export-pcap", str(tmp / "one"), "-o", str(tmp_path)]) == 0
     epl, can_capture = tmp_path / "powerlink_model_based.pcapng", tmp_path / "can_model_based.pcapng"
     canopen = ("-d", "can.subdissector,canopen")
@@ -193,3 +195,10 @@ def test_tshark_decodes_the_sdo_and_nmt_traffic_with_nothing_malformed(runs, tmp
     assert len(asnd) == len(sdo)
     invites = _tshark("-r", str(epl), "-Y", "epl.soa.svid == 255")
     assert len(invites) == a["answers"]
+
+
+def test_a_paced_split_run_refuses_scripted_requests(runs, capsys):
+    scenario = runs[0] / "rt_short.toml"
+    assert main(["run", str(scenario), "--realtime", "--split", "--quiet", "--out", str(runs[0] / "no")]) == 2
+    error = capsys.readouterr().err
+    assert f"{scenario}: fieldbus.asynchronous: expected no scripted SDO/NMT requests with --realtime --split" in error
