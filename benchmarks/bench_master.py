@@ -211,7 +211,7 @@ Q_NAMES = [f"q[{i}]" for i in range(1, 7)]
 
 def export_main_job(folder: Path) -> Path:
     """The main job's archive, as ``python -m cosim export-ssp scenarios/iso9283.toml`` writes it."""
-    from cosim.ssp import export_ssp
+    from cosim.cell.ssp_export import export_ssp
 
     return export_ssp(Path(__file__).resolve().parents[1] / "scenarios" / "iso9283.toml", folder / "iso9283.ssp")
 

@@ -4,11 +4,11 @@ Each command lives in its own module under ``cosim/commands/`` exposing
 ``NAME``, ``HELP``, ``add_arguments(parser)`` and ``run(args) -> int``.
 Register a new command by adding its module name to ``COMMAND_MODULES``.
 
-Errors and exit codes (cosim/commands/exits.py, docs/reference/verdicts.md): whatever a command
+Errors and exit codes (cosim/results/exits.py, docs/reference/verdicts.md): whatever a command
 raises becomes one ``error: ...`` line on stderr and a documented exit code (2 bad input
 or unusable output folder, 3 failed run, 130 interrupted); the traceback is printed only
 with ``--debug``. SIGTERM and SIGHUP are handled like Ctrl-C (SIGINT): the command stops,
-flushes what it has, writes its final status and exits with 130.
+flushes what it has, writes its final status and exits with 130 (cosim/results/interrupts.py).
 
 From the command line (``main()`` without ``argv``), ``run``, ``serve`` and ``sweep`` run in a
 child process watched by a supervisor that writes the final status if that process dies
@@ -17,16 +17,14 @@ without writing it (killed, out of memory, ``_exit()`` in an FMU): cosim/command
 from __future__ import annotations
 
 import argparse
-import contextlib
 import importlib
-import os
-import signal
 import sys
 import traceback
-from collections.abc import Iterator, Sequence
+from collections.abc import Sequence
 
-from cosim.commands.exits import (EXIT_FAILED, EXIT_INTERRUPTED, EXIT_INVALID, CommandError, Interrupted,
-                                  describe_decode_error, describe_os_error, exit_codes_line, signal_name_of)
+from cosim.results.exits import (EXIT_FAILED, EXIT_INTERRUPTED, EXIT_INVALID, CommandError, describe_decode_error,
+                                  describe_os_error, exit_codes_line, signal_name_of)
+from cosim.results.interrupts import install_signal_handlers, restore_signal_handlers
 
 COMMAND_MODULES: tuple[str, ...] = (
     "cosim.commands.robot_info",
@@ -65,75 +63,6 @@ def build_parser() -> argparse.ArgumentParser:
                          help="print the Python traceback of an error")
         cmd.set_defaults(_run=module.run)
     return parser
-
-
-INTERRUPTS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
-"""Signals that end a command cleanly (final status ``interrupted``, exit 130)."""
-
-
-class _SignalState:
-    """How SIGINT/SIGTERM are handled: ``armed`` raises Interrupted once; while a command
-    writes its final status (``defer_signals``) they are only counted."""
-
-    armed = True
-    deferred: list[int] = []
-    raised: int | None = None  # the signal the handler raised Interrupted for (once per command)
-
-
-def _on_signal(signum: int, frame) -> None:
-    if _SignalState.armed:
-        _SignalState.armed = False
-        _SignalState.raised = signum
-        raise Interrupted(signum)
-    _SignalState.deferred.append(signum)
-    if len(_SignalState.deferred) >= 3:  # the user insists: give up the clean shutdown
-        signal.signal(signum, signal.SIG_DFL)
-        os.kill(os.getpid(), signum)
-
-
-@contextlib.contextmanager
-def defer_signals() -> Iterator[None]:
-    """Within the block, SIGINT/SIGTERM do not raise (the final status is being written)."""
-    armed = _SignalState.armed
-    _SignalState.armed = False
-    try:
-        yield
-    finally:
-        _SignalState.armed = armed
-
-
-def interrupt_raised() -> Interrupted | None:
-    """The :class:`~cosim.commands.exits.Interrupted` the signal handler raised during this command
-    (None: no signal came). Code that is not ours may have swallowed it: a Python-implemented
-    FMU (pythonfmu) runs its model in this interpreter, so Ctrl-C can raise inside the FMU's
-    ``do_step``, which reports that as fmi2Error/fmi2Fatal; the run then fails naming an
-    innocent FMU unless the caller asks here and reports the interrupt instead."""
-    return Interrupted(_SignalState.raised) if _SignalState.raised is not None else None
-
-
-def install_signal_handlers() -> dict[int, object]:
-    """SIGINT, SIGTERM and SIGHUP raise :class:`~cosim.commands.exits.Interrupted` (a KeyboardInterrupt) once;
-    returns the previous handlers (for :func:`restore_signal_handlers`)."""
-    _SignalState.armed = True
-    _SignalState.deferred = []
-    _SignalState.raised = None
-    previous: dict[int, object] = {}
-    for signum in INTERRUPTS:
-        try:
-            previous[signum] = signal.signal(signum, _on_signal)
-        except (ValueError, OSError):  # not the main thread: leave the defaults
-            pass
-    return previous
-
-
-def restore_signal_handlers(previous: dict[int, object]) -> None:
-    """Put back the handlers :func:`install_signal_handlers` replaced."""
-    _SignalState.raised = None
-    for signum, handler in previous.items():
-        try:
-            signal.signal(signum, handler if handler is not None else signal.SIG_DFL)
-        except (ValueError, OSError, TypeError):
-            pass
 
 
 def _error(text: str, code: int) -> int:

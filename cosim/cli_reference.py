@@ -10,7 +10,7 @@ from __future__ import annotations
 import argparse
 
 from cosim.cli import build_parser
-from cosim.commands.exits import exit_codes_line
+from cosim.results.exits import exit_codes_line
 
 
 def _commands(parser: argparse.ArgumentParser) -> dict[str, argparse.ArgumentParser]:

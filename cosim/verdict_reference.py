@@ -1,7 +1,7 @@
 """The generated tables of the docs page ``reference/verdicts.md`` (put in by mkdocs_hooks.py).
 
 Each table is built from the code that decides: the exit codes from
-:data:`cosim.commands.exits.EXIT_CODES`, the violation kinds and the verdict each gives from
+:data:`cosim.results.exits.EXIT_CODES`, the violation kinds and the verdict each gives from
 :data:`cosim.cell.verdict.VIOLATION_KINDS` (CiA 402 codes and units from
 :data:`cosim.cell.protection.KINDS`), the drives' protection limits and stop reactions from the
 start values every servo-drive FMU gets (:func:`fmus.servo_drive.params.drive_start_values`,
@@ -20,7 +20,7 @@ def _cell(text: str) -> str:
 
 def exit_codes_markdown() -> str:
     """The table of every exit code of ``python -m cosim``."""
-    from cosim.commands.exits import EXIT_CODES
+    from cosim.results.exits import EXIT_CODES
 
     lines = ["| exit code | name | when | `summary.json` |", "|---|---|---|---|"]
     lines += [f"| {code} | {name} | {_cell(when)} | {_cell(summary)} |" for code, name, when, summary in EXIT_CODES]
@@ -81,7 +81,7 @@ def drive_protection_markdown() -> str:
 
 #: marker line of docs/reference/verdicts.md -> the function building the table in its place
 MARKERS: dict[str, Callable[[], str]] = {
-    "<!-- generated: exit codes (cosim/commands/exits.py) -->": exit_codes_markdown,
+    "<!-- generated: exit codes (cosim/results/exits.py) -->": exit_codes_markdown,
     "<!-- generated: violation kinds (cosim/cell/verdict.py) -->": violation_kinds_markdown,
     "<!-- generated: drive protection (fmus/servo_drive/drive_params.toml) -->": drive_protection_markdown,
 }

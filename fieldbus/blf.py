@@ -15,7 +15,8 @@ byte for byte the one ``BLFWriter`` makes (``tests/fieldbus/test_blf.py`` compar
 The frames come as the :class:`fieldbus.recorder.FrameRecorder`'s 32-byte records
 (timestamp, id, error flag, length, 20 data bytes), the way the recorder hands them over; the
 frames python-can writes for them are those :class:`fieldbus.telegrams.FastMessage` makes:
-standard 11-bit id, received (no ``DIR`` flag), channel 1, no bit-rate switch.
+standard 11-bit id, received (no ``DIR`` flag), channel 1, no bit-rate switch. :func:`to_blf`
+writes a columnar CAN log (:mod:`fieldbus.canlog`, which this module builds on) as that BLF file.
 """
 from __future__ import annotations
 
@@ -32,7 +33,7 @@ from can.io.blf import (CAN_ERROR_EXT, CAN_FD_MESSAGE, CAN_MESSAGE, EDL, FILE_HE
 from can.util import len2dlc
 
 from fieldbus.canlog import (MAX_DATA, RECORD_DTYPE, blf_nanoseconds, blf_start,  # noqa: E402,F401
-                             record_dtype)  # (the recorder's records; python-can's BLF times)
+                             read_frames, record_dtype)  # (the recorder's records; python-can's BLF times)
 #: python-can's defaults: uncompressed bytes per container, zlib level, application id, channel.
 CONTAINER_SIZE = BLFWriter.max_container_size
 DEFAULT_COMPRESSION = -1
@@ -207,3 +208,21 @@ class BlfRecordWriter:
             self._write_header(size)
         finally:
             self._file.close()
+
+
+def to_blf(path: str | Path, out: str | Path, chunk: int = 1 << 16) -> Path:
+    """Write the CAN log ``path`` (columnar, or its partial stream) as the BLF file ``out``: the
+    bytes python-can's ``BLFWriter`` writes for the same frames. Returns ``out``."""
+    log = read_frames(path)
+    out = Path(out)
+    writer = BlfRecordWriter(out)
+    try:
+        if log.frames.size:
+            writer.start_timestamp = log.start_s
+            writer.stop_timestamp = log.stop_s
+            for begin in range(0, log.frames.size, chunk):
+                f = log.frames[begin:begin + chunk]
+                writer.write_frames(f["t_ns"].astype(np.uint64), f["id"], f["error"], f["length"], f["data"])
+    finally:
+        writer.close()
+    return out

@@ -1,5 +1,5 @@
 """The CAN log as a columnar Parquet table: every frame on the bus, smaller than BLF and
-cheaper to write, and nothing lost - :func:`to_blf` turns it into the very BLF file
+cheaper to write, and nothing lost - :func:`fieldbus.blf.to_blf` turns it into the very BLF file
 (byte for byte) python-can's ``BLFWriter`` writes for the same frames.
 
 File format (``can_<mode>.parquet``; readable with any Parquet reader, this module not needed)
@@ -616,7 +616,7 @@ def _read_parquet(path: Path) -> tuple[np.ndarray, float, float, np.ndarray | No
 
 def iter_messages(path: str | Path) -> Iterator["can.Message"]:
     """The frames as ``can.Message`` objects, equal to those ``can.BLFReader`` reads from the
-    BLF file :func:`to_blf` writes (timestamp, id, flags, dlc, data, channel 0). As there, a
+    BLF file :func:`fieldbus.blf.to_blf` writes (timestamp, id, flags, dlc, data, channel 0). As there, a
     start time before 1990 (a simulated clock) counts as 0: the timestamps are ``t_ns / 1e9``
     (:attr:`CanLog.timestamps` keeps ``start_s``)."""
     import can
@@ -678,27 +678,7 @@ def open_log(path: str | Path):
     return can.LogReader(str(path))
 
 
-def to_blf(path: str | Path, out: str | Path, chunk: int = 1 << 16) -> Path:
-    """Write the CAN log ``path`` (columnar, or its partial stream) as the BLF file ``out``: the
-    bytes python-can's ``BLFWriter`` writes for the same frames (``fieldbus.blf``). Returns ``out``."""
-    from fieldbus.blf import BlfRecordWriter
-
-    log = read_frames(path)
-    out = Path(out)
-    writer = BlfRecordWriter(out)
-    try:
-        if log.frames.size:
-            writer.start_timestamp = log.start_s
-            writer.stop_timestamp = log.stop_s
-            for begin in range(0, log.frames.size, chunk):
-                f = log.frames[begin:begin + chunk]
-                writer.write_frames(f["t_ns"].astype(np.uint64), f["id"], f["error"], f["length"], f["data"])
-    finally:
-        writer.close()
-    return out
-
-
 __all__ = ["CYCLE_DESCRIPTION", "CanLog", "CanLogReader", "CanLogWriter", "FIELDS", "FORMAT", "FRAME_DTYPE", "LAYOUTS", "RECORD_DTYPE",
            "frame_dtype", "record_dtype",
            "PARTIAL_FORMAT", "ROW_GROUP_ROWS", "blf_nanoseconds", "blf_start", "is_columnar", "iter_messages", "open_log",
-           "partial_to_parquet", "read_frames", "resolve", "to_blf"]
+           "partial_to_parquet", "read_frames", "resolve"]

@@ -375,20 +375,17 @@ def _pdo_objects(ctx: _Context, pdo: Pdo, cob_offset: int | None) -> list[DictOb
 
 
 def build(node: int, values: Mapping[str, float], *, counts_per_rad: float, rated_torque: float,
-          config: Any = None, torque_units_per_rated: int | None = None,
+          config: Any, torque_units_per_rated: int | None = None,
           path: str | Path | None = None) -> ObjectDictionary:
     """The object dictionary of node ``node`` (1..127).
 
     ``values``: the drive parameters the data file's ``param`` keys name, SI (the servo-drive
     FMU's start values of this axis plus ``rated_torque``, ``position_limit_min``/``_max``);
     ``counts_per_rad``: encoder counts per joint radian of this axis; ``rated_torque``: joint-side
-    rated torque in N·m (the base of the 0.1 % unit); ``config``: a ``FieldbusConfig`` (default:
-    ``powerlink_defaults.toml``). Raises :class:`ObjectDictionaryError` naming the file and key.
+    rated torque in N·m (the base of the 0.1 % unit); ``config``: the bus's ``FieldbusConfig``
+    (``FieldbusConfig.from_dict({})`` for ``powerlink_defaults.toml``; the configuration builds on
+    the telegrams, which build on this module, so it is given, never made here). Raises :class:`ObjectDictionaryError` naming the file and key.
     """
-    if config is None:
-        from fieldbus.config import FieldbusConfig
-
-        config = FieldbusConfig.from_dict({})
     if isinstance(node, bool) or not isinstance(node, int) or not 1 <= node <= 127:
         raise ObjectDictionaryError(f"node = {node!r}: expected a node id 1..127")
     where_file = str(Path(path or DATA_PATH))

@@ -1,6 +1,42 @@
-"""Imports point down only: ground floor (native, robot, fieldbus) imports no package of
-ours (fieldbus and robot may use the native build layer, which imports nothing of ours),
-the middle floor imports only the ground floor, cosim may import everything."""
+"""Imports point down only, and no import goes round in a circle.
+
+Between our packages: the ground floor (native, robot, fieldbus) imports no package of ours
+(fieldbus and robot may use the native build layer, which imports nothing of ours), the middle
+floor (fmus, controller, planners, calibration, identification) imports only the ground floor,
+cosim may import everything.
+
+Inside cosim/, its subpackages stand on floors (``COSIM_FLOORS``), bottom first; a module imports
+its own subpackage and the floors below, never a floor above nor a neighbour on its own floor:
+
+=====  ======================================================  ======================================
+0      ``master``, ``results``, ``tracking``                   the FMU master; result files, exit
+                                                               codes and interrupts; the laser
+                                                               tracker and its metrics
+1      ``ssp``                                                 SSP archives of FMUs and connections
+2      ``scenario``                                            scenario files, schema, validation,
+                                                               the job registry
+3      ``cell``                                                what the robot cell is (parts, wiring,
+                                                               checks, evaluation, its SSP export)
+4      ``execution``                                           how a cell runs (simulated, paced,
+                                                               split, served)
+5      ``jobs``, ``coupling_study``                            the jobs of ``cosim run``; the
+                                                               coupling study
+6      ``runs``                                                one run of a scenario: load it, run it
+                                                               into a folder, read what it wrote
+7      ``sweep``                                               many runs of a scenario
+8      ``api``                                                 the public module for scripts
+9      ``commands``                                            one module per CLI command
+10     ``cli``                                                 the command line (``cosim.cli.main``)
+11     ``__main__``, ``cli_reference``, ``verdict_reference``  ``python -m cosim``; the generated
+                                                               reference pages
+12     ``cosim`` (the package's ``__init__``)                  re-exports ``cosim.api`` on first use
+=====  ======================================================  ======================================
+
+The job registry (scenario floor) imports the job modules it lists by name and reads their
+``JOB``; that is how a lower floor finds the jobs without importing them. Imports inside
+functions count; only those under ``if TYPE_CHECKING:`` (annotations) do not. ``from pkg import
+name`` counts as an import of the module ``pkg.name`` when that is a module, of ``pkg`` otherwise.
+"""
 import ast
 from pathlib import Path
 
@@ -77,14 +113,106 @@ def test_cosim_lower_layers_import_no_job_or_execution_code(layer):
     assert not offenders, f"cosim/{layer} imports job/execution code: {offenders}"
 
 
-def _module_graph(packages: tuple[str, ...]) -> dict[str, set[str]]:
-    graph: dict[str, set[str]] = {}
+def _modules(packages) -> dict[str, Path]:
+    """Module name -> file of every module of ``packages``."""
+    found = {}
     for package in packages:
         for path in (ROOT / package).rglob("*.py"):
             parts = path.relative_to(ROOT).with_suffix("").parts
-            module = ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
-            graph[module] = {m for m in _all_imports(path) if m.split(".")[0] in OURS}
-    return graph
+            found[".".join(parts[:-1] if parts[-1] == "__init__" else parts)] = path
+    return found
+
+
+ALL_MODULES = _modules(sorted(OURS))
+
+
+def _imported_modules(path: Path) -> set[str]:
+    """Like :func:`_all_imports`, with ``from pkg import name`` as the module ``pkg.name`` when
+    ``pkg.name`` is one of ours (a submodule imported by name), else as ``pkg``."""
+    tree = ast.parse(path.read_text(encoding="utf-8"))
+    skip = {id(n) for node in ast.walk(tree) if isinstance(node, ast.If)
+            and getattr(node.test, "id", getattr(node.test, "attr", "")) == "TYPE_CHECKING"
+            for n in ast.walk(node)}
+    names: set[str] = set()
+    for node in ast.walk(tree):
+        if id(node) in skip:
+            continue
+        if isinstance(node, ast.Import):
+            names.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            submodules = {f"{node.module}.{alias.name}" for alias in node.names} & ALL_MODULES.keys()
+            names.update(submodules)
+            if len(submodules) < len(node.names):
+                names.add(node.module)
+    return names
+
+
+def _module_graph(packages: tuple[str, ...]) -> dict[str, set[str]]:
+    return {module: {m for m in _imported_modules(path) if m.split(".")[0] in OURS}
+            for module, path in _modules(packages).items()}
+
+
+def _circles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """One circle of each strongly connected part of ``graph`` that has one (a self-import
+    included): the shortest way from its first node back to itself, e.g. ``[a, b, a]``."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    parts: list[list[str]] = []
+
+    def connect(node: str) -> None:  # Tarjan's algorithm
+        index[node] = low[node] = len(index)
+        stack.append(node)
+        on_stack.add(node)
+        for nxt in sorted(graph.get(node, ())):
+            if nxt not in graph:
+                continue
+            if nxt not in index:
+                connect(nxt)
+                low[node] = min(low[node], low[nxt])
+            elif nxt in on_stack:
+                low[node] = min(low[node], index[nxt])
+        if low[node] == index[node]:
+            part = []
+            while True:
+                member = stack.pop()
+                on_stack.discard(member)
+                part.append(member)
+                if member == node:
+                    break
+            if len(part) > 1 or node in graph.get(node, ()):
+                parts.append(sorted(part))
+
+    for node in sorted(graph):
+        if node not in index:
+            connect(node)
+    circles = []
+    for part in parts:
+        start, members = part[0], set(part)
+        previous, frontier = {start: None}, [start]
+        while previous[start] is None:  # breadth first, until an edge leads back to start
+            following = []
+            for node in frontier:
+                for nxt in sorted(graph[node] & members):
+                    if nxt == start and previous[start] is None:
+                        previous[start] = node
+                    elif nxt not in previous:
+                        previous[nxt] = node
+                        following.append(nxt)
+            if previous[start] is not None or not following:
+                break
+            frontier = following
+        circle, node = [start], previous[start]
+        while node != start:
+            circle.append(node)
+            node = previous[node]
+        circles.append([start] + circle[:0:-1] + [start] if len(circle) > 1 else [start, start])
+    return circles
+
+
+def _show(circles: list[list[str]]) -> str:
+    return "\n".join(" -> ".join(c) for c in circles)
 
 
 def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
@@ -178,3 +306,59 @@ def test_one_execution_modes_share_floors_and_never_import_each_other():
     assert not offenders, f"execution floors calling up or sideways: {offenders}"
     cycles = [c for c in _cycles(graph) if any(m.startswith("cosim.execution") for m in c)]
     assert not cycles, f"import circles through cosim/execution: {cycles[:3]}"
+
+
+@pytest.mark.parametrize("package", sorted(OURS))
+def test_no_circle_of_imports_in_a_package(package):
+    """No module of ``package`` imports, directly or through others of the package, itself."""
+    circles = _circles(_module_graph((package,)))
+    assert not circles, f"import circles in {package}/:\n{_show(circles)}"
+
+
+COSIM_FLOORS: tuple[tuple[str, ...], ...] = (
+    ("master", "results", "tracking"), ("ssp",), ("scenario",), ("cell",), ("execution",),
+    ("jobs", "coupling_study"), ("runs",), ("sweep",), ("api",), ("commands",), ("cli",),
+    ("__main__", "cli_reference", "verdict_reference"), ("cosim",))
+"""cosim's subpackages (and top-level modules) by floor, bottom first (the module docstring)."""
+
+
+def _subpackage(module: str) -> str:
+    """``cosim.cell.parts`` -> ``cell``; ``cosim.api`` -> ``api``; the package itself -> ``cosim``."""
+    return module.split(".")[1] if "." in module else module
+
+
+def _subpackage_graph() -> dict[str, set[str]]:
+    graph: dict[str, set[str]] = {}
+    for module, imported in _module_graph(("cosim",)).items():
+        own = _subpackage(module)
+        graph.setdefault(own, set()).update(_subpackage(m) for m in imported
+                                             if m.split(".")[0] == "cosim" and _subpackage(m) != own)
+    return graph
+
+
+def test_no_circle_between_cosim_subpackages():
+    """With each subpackage of cosim/ taken as one node, no import goes round in a circle."""
+    circles = _circles(_subpackage_graph())
+    assert not circles, f"import circles between cosim's subpackages:\n{_show(circles)}"
+
+
+def test_cosim_subpackages_import_only_their_floor_and_below():
+    floor = {name: level for level, names in enumerate(COSIM_FLOORS) for name in names}
+    graph = _subpackage_graph()
+    assert set(graph) <= set(floor), f"subpackages of cosim/ without a floor in COSIM_FLOORS: {sorted(set(graph) - set(floor))}"
+    offenders = {}
+    for module, imported in _module_graph(("cosim",)).items():
+        own = _subpackage(module)
+        bad = sorted(m for m in imported if m.split(".")[0] == "cosim" and _subpackage(m) != own
+                     and floor[_subpackage(m)] >= floor[own])
+        if bad:
+            offenders[module] = bad
+    assert not offenders, f"imports up or sideways between cosim's floors (COSIM_FLOORS): {offenders}"
+
+
+def test_the_circle_finder_finds_circles():
+    """The checks above would see a circle: a self-import, a pair, a longer ring beside a tree."""
+    graph = {"a": {"b"}, "b": {"c"}, "c": {"a", "d"}, "d": set(), "e": {"e"}, "f": {"g"}, "g": {"f"}}
+    assert _circles(graph) == [["a", "b", "c", "a"], ["e", "e"], ["f", "g", "f"]]
+    assert _circles({"a": {"b"}, "b": set()}) == []
+

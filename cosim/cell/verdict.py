@@ -160,8 +160,8 @@ def most_severe(verdicts: Any) -> str:
 
 
 def exit_code(status: str) -> int:
-    """The exit code of a command whose most severe run ended ``status`` (cosim/commands/exits.py)."""
-    from cosim.commands.exits import EXIT_FAILED, EXIT_FAULT, EXIT_INTERRUPTED, EXIT_LIMIT, EXIT_OK
+    """The exit code of a command whose most severe run ended ``status`` (cosim/results/exits.py)."""
+    from cosim.results.exits import EXIT_FAILED, EXIT_FAULT, EXIT_INTERRUPTED, EXIT_LIMIT, EXIT_OK
 
     return {"ok": EXIT_OK, "limit": EXIT_LIMIT, "fault": EXIT_FAULT, "interrupted": EXIT_INTERRUPTED}.get(
         status, EXIT_FAILED)

@@ -241,7 +241,7 @@ def build_part(what: str, make: Callable[[], Any], has_python_path: bool) -> boo
 
 def run(args: argparse.Namespace) -> int:
     """Build :data:`PARTS`, each scenario's controller code and the bytecode; see the module docstring."""
-    from cosim.commands.exits import InvalidInput
+    from cosim.results.exits import InvalidInput
 
     from cosim.scenario.loader import resolve_path
 

@@ -11,7 +11,7 @@ HELP = ("Identify the 39-parameter geometric error model (its identifiable subse
         "measurements (CSV: q1..q6 rad, x,y,z m, optional alpha,beta,gamma rad) and write "
         "DIR/calibrated.urdf, DIR/parameters.json and DIR/summary.json.")
 
-#: Exit codes (cosim/commands/exits.py): 0 ok, 2 invalid input (file, columns, units, too few or
+#: Exit codes (cosim/results/exits.py): 0 ok, 2 invalid input (file, columns, units, too few or
 #: rank-deficient poses, option values), 3 the fit failed or is implausible (nothing written).
 EXIT_OK, EXIT_INVALID, EXIT_FAILED = 0, 2, 3
 
@@ -44,7 +44,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """Read, calibrate, check plausibility, write; invalid input -> exit 2, implausible fit -> exit 3
     (no URDF written)."""
-    from cosim.commands.exits import InvalidInput, RunFailed, describe_decode_error, describe_os_error
+    from cosim.results.exits import InvalidInput, RunFailed, describe_decode_error, describe_os_error
     from calibration.measurements import read_measurements_csv
     from calibration.outputs import write_calibration_outputs
     from calibration.plausibility import assess_calibration

@@ -23,7 +23,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _scenario_inputs(path: Path):
-    from cosim.commands.exits import CommandError
+    from cosim.results.exits import CommandError
     from fieldbus.config import FieldbusConfig
 
     try:
@@ -47,7 +47,7 @@ def _scenario_inputs(path: Path):
 
 
 def run(args: argparse.Namespace) -> int:
-    from cosim.commands.exits import CommandError
+    from cosim.results.exits import CommandError
     from fieldbus.device_files import reference_markdown, to_dbc, to_eds, to_xdd
     from fieldbus.object_dictionary import ObjectDictionaryError
     from fmus.servo_drive.object_dictionary import drive_object_dictionary
@@ -85,7 +85,7 @@ BEGIN, END = "<!-- BEGIN generated: python -m cosim device-files OUT --reference
 
 
 def _rewrite_reference(page: Path, table: str) -> None:
-    from cosim.commands.exits import CommandError
+    from cosim.results.exits import CommandError
 
     try:
         text = page.read_text(encoding="utf-8")

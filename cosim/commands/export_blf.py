@@ -16,8 +16,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from cosim.commands.exits import CommandError
-    from fieldbus.canlog import resolve, to_blf
+    from cosim.results.exits import CommandError
+    from fieldbus.blf import to_blf
+    from fieldbus.canlog import resolve
 
     source = Path(args.log)
     if source.is_dir():

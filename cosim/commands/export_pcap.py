@@ -19,7 +19,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from cosim.commands.exits import CommandError
+    from cosim.results.exits import CommandError
     from fieldbus.canlog import resolve
     from fieldbus.capture import write_can, write_powerlink
 

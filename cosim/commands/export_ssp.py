@@ -24,12 +24,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """Validate the scenario, build its FMUs if needed, write the archive; print what it holds."""
     from cosim.scenario import ScenarioError
-    from cosim.ssp import SspError, export_ssp, load_ssp
+    from cosim.cell.ssp_export import export_ssp
+    from cosim.ssp import SspError, load_ssp
 
     if args.out.suffix != ".ssp":
         print(f"error: OUT: expected a file name ending in .ssp, got {str(args.out)!r}", file=sys.stderr)
         return EXIT_INVALID
-    from cosim.commands.exits import InvalidInput
+    from cosim.results.exits import InvalidInput
 
     try:
         out = export_ssp(args.scenario, args.out)

@@ -12,7 +12,7 @@ HELP = ("Identify the base dynamic parameters from a measured record (CSV: t s, 
         "joint side, optional qd1..qd6, qdd1..qdd6) and write DIR/parameters.json; with --validate, predict the "
         "torques of a second record and write DIR/prediction.csv and DIR/summary.json.")
 
-#: Exit codes (cosim/commands/exits.py): 0 ok, 2 invalid input (file, columns, NaN, sampling, too short,
+#: Exit codes (cosim/results/exits.py): 0 ok, 2 invalid input (file, columns, NaN, sampling, too short,
 #: not exciting, angles/torques in the wrong unit, option values), 3 the fit is implausible (nothing written).
 EXIT_OK, EXIT_INVALID, EXIT_FAILED = 0, 2, 3
 
@@ -102,7 +102,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """Read, check units, identify, check the fit, validate, write; invalid input -> exit 2,
     implausible fit -> exit 3 (no parameter file written)."""
-    from cosim.commands.exits import InvalidInput, RunFailed, describe_os_error
+    from cosim.results.exits import InvalidInput, RunFailed, describe_os_error
     from identification.data import read_motion_csv
     from identification.identify import identify, validate, write_identification_outputs
     from identification.plausibility import check_fit, check_record_units

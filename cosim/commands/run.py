@@ -10,7 +10,7 @@ NAME = "run"
 HELP = ("Validate a scenario TOML file, then run its job ([scenario] job, e.g. 'fmus') and write "
         "summary.json and time series to results/<scenario name>/ (or --out DIR).")
 
-#: Exit codes (cosim/commands/exits.py, docs/reference/verdicts.md): 0 ok, 2 invalid scenario or unusable results
+#: Exit codes (cosim/results/exits.py, docs/reference/verdicts.md): 0 ok, 2 invalid scenario or unusable results
 #: folder, 3 the run failed (summary.json "failed"), 4 a run hit a limit ("limit"), 5 a run faulted
 #: ("fault"), 130 interrupted (summary.json "interrupted").
 EXIT_OK, EXIT_INVALID, EXIT_FAILED, EXIT_INTERRUPTED = 0, 2, 3, 130
@@ -90,7 +90,7 @@ def _run(args: argparse.Namespace) -> int:
     (:func:`cosim.api.execute`: results-folder lock, final status ``ok``, ``failed`` or
     ``interrupted``) and turn the outcome into messages and the exit code."""
     from cosim.api import OutputFolderError, ScenarioError, execute, load_scenario
-    from cosim.commands.exits import InvalidInput
+    from cosim.results.exits import InvalidInput
     from cosim.master import SimulationError
 
     try:
@@ -121,7 +121,7 @@ def _run(args: argparse.Namespace) -> int:
         raise InvalidInput(f"{args.scenario}: {exc}") from None
     except KeyboardInterrupt as exc:  # SIGINT, or SIGTERM through the CLI's handler
         from cosim.api import RunResult
-        from cosim.commands.exits import signal_name_of
+        from cosim.results.exits import signal_name_of
 
         summary = RunResult(out_dir).summary
         print(f"{scenario.name}: interrupted by {signal_name_of(exc)}{_where(summary)}; results so far in "

@@ -57,7 +57,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from cosim.api import OutputFolderError, RunResult, ScenarioError, execute, load_scenario
-    from cosim.commands.exits import InvalidInput, signal_name_of
+    from cosim.results.exits import InvalidInput, signal_name_of
     from cosim.execution.serve_settings import ServeSettings, ServeSettingsError
 
     from cosim.execution.serve_settings import DEFAULT_CHANNEL, UDPCYCLE
@@ -120,7 +120,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _bus_options(items: list[str]) -> dict:
     """``--bus-option KEY=VALUE`` items as can.Bus keywords (int, float, true/false converted)."""
-    from cosim.commands.exits import InvalidInput
+    from cosim.results.exits import InvalidInput
 
     options: dict = {}
     for item in items:
@@ -145,7 +145,7 @@ def _bus_options(items: list[str]) -> dict:
 def _check_can_bus(settings) -> None:
     """--interface/--channel (and the bus options) must open now: python-can opens and closes the
     bus once (exit 2 with python-can's reason otherwise, before anything runs)."""
-    from cosim.commands.exits import InvalidInput
+    from cosim.results.exits import InvalidInput
     from cosim.execution.can_side import BusOpenError, open_can_bus
 
     try:
@@ -157,7 +157,7 @@ def _check_can_bus(settings) -> None:
 def _check_address_free(channel: str) -> None:
     """--channel must be usable now: the udpcycle interface opens and closes it once (exit 2
     with its message otherwise, before anything runs)."""
-    from cosim.commands.exits import InvalidInput
+    from cosim.results.exits import InvalidInput
     from fieldbus.udpcycle import UdpCycleBus, UdpCycleError
 
     try:
@@ -214,7 +214,7 @@ def _check_cpu_and_hosts(cpu: str | None, accept_from, peer: str | None = None) 
     import os
     import socket
 
-    from cosim.commands.exits import InvalidInput
+    from cosim.results.exits import InvalidInput
 
     if cpu not in (None, "auto", "none") and hasattr(os, "sched_getaffinity"):
         usable = sorted(os.sched_getaffinity(0))

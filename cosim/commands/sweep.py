@@ -10,7 +10,7 @@ HELP = ("Validate a sweep file (a base scenario and the axes to vary: grid value
         "every variant as a Dask task (embedded local cluster of worker processes, or --scheduler) and write "
         "sweep.csv, the [report] figure and one results folder per variant to results/<sweep name>/ (or --out).")
 
-#: Exit codes (cosim/commands/exits.py): 0 every variant ok, 1 some variants failed, 2 invalid sweep file,
+#: Exit codes (cosim/results/exits.py): 0 every variant ok, 1 some variants failed, 2 invalid sweep file,
 #: unusable --out or an unreachable --scheduler, 130 interrupted.
 EXIT_OK, EXIT_SOME_FAILED, EXIT_INVALID, EXIT_INTERRUPTED = 0, 1, 2, 130
 
@@ -61,7 +61,7 @@ def run(args: argparse.Namespace) -> int:
     """Validate (nothing runs on an invalid file), run the variants, print where the results are."""
     import os
 
-    from cosim.commands.exits import InvalidInput
+    from cosim.results.exits import InvalidInput
     from cosim.api import ScenarioError, load_sweep, run_sweep   # the public API; this command only talks
     from cosim.sweep.execute import SchedulerUnreachable
 

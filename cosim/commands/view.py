@@ -21,7 +21,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from cosim.commands.exits import CommandError
+    from cosim.results.exits import CommandError
     from cosim.results.report import ReportError, write_report
 
     try:
@@ -29,7 +29,7 @@ def run(args: argparse.Namespace) -> int:
     except ReportError as exc:
         raise CommandError(str(exc)) from None
     except OSError as exc:
-        from cosim.commands.exits import describe_os_error
+        from cosim.results.exits import describe_os_error
 
         raise CommandError(describe_os_error(exc, f"writing the report {args.out or ''}".strip())) from None
     print(f"{out}", file=sys.stdout)

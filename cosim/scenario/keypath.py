@@ -11,9 +11,12 @@ from __future__ import annotations
 import copy
 import re
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from cosim.scenario.schema import MISSING, FilePath, List, Spec, String, Table, Where
+
+if TYPE_CHECKING:  # pragma: no cover
+    from cosim.scenario.loader import Scenario
 
 KeyPath = tuple[str | int, ...]
 
@@ -194,5 +197,45 @@ def overlapping(a: KeyPath, b: KeyPath) -> bool:
     return tuple(a[:n]) == tuple(b[:n])
 
 
-__all__ = ["KeyPath", "KeyPathSyntaxError", "absolute_paths", "format_key_path", "get_path", "overlapping",
+#: Key paths a sweep axis or an override may not vary (they name the run, not the experiment).
+FIXED_KEYS: tuple[KeyPath, ...] = (("scenario", "name"), ("scenario", "job"), ("output",))
+
+
+def scenario_key_path(text: str, where: Where, base: Scenario, what: str = "axis") -> KeyPath:
+    """Parse and check a key path against the base job's schema; ScenarioError at ``where`` otherwise.
+
+    ``what`` names the key path in the error (``"axis"``, ``"override"``).
+    """
+    try:
+        path = parse_key_path(text)
+        spec_at(base.job.schema, path, base.raw)
+    except KeyPathSyntaxError as exc:
+        raise where.error(f"a key path of the {base.job.name!r} job's scenario (e.g. 'section.key', "
+                          f"'list[0].key', quoted keys '\"q0[2]\"')", text, problem=f"unknown {what}: {exc}") from None
+    for fixed in FIXED_KEYS:
+        if overlapping(path, fixed):
+            raise where.error(f"a key other than {format_key_path(fixed)} (a sweep names its variants itself; a run "
+                              f"is named by its scenario and placed by its out folder)", text,
+                              problem="not a sweep axis" if what == "axis" else f"not a valid {what}")
+    return path
+
+
+def flatten_overrides(table: dict[str, Any], where: Where, prefix: KeyPath = ()) -> list[tuple[KeyPath, Any, Where]]:
+    """``{"a.b": 1, "c": {"d": 2}}`` -> [(("a","b"), 1, ...), (("c","d"), 2, ...)]."""
+    out = []
+    for key, value in table.items():
+        w = where / key
+        try:
+            path = prefix + parse_key_path(key)
+        except KeyPathSyntaxError as exc:
+            raise w.error("a key path such as 'section.key'", key, problem=str(exc)) from None
+        if isinstance(value, dict):
+            out.extend(flatten_overrides(value, w, path))
+        else:
+            out.append((path, value, w))
+    return out
+
+
+__all__ = ["FIXED_KEYS", "KeyPath", "KeyPathSyntaxError", "absolute_paths", "flatten_overrides", "format_key_path",
+           "get_path", "overlapping", "scenario_key_path",
            "parse_key_path", "referenced_files", "relocate_file", "spec_at", "with_value"]

@@ -1,6 +1,6 @@
 """SSP (System Structure and Parameterization 1.0) export and import of a co-simulation.
 
-``export_ssp(scenario, out)`` writes the scenario's FMUs, connections and parameter values
+``export_document(fmus, connections, out, ...)`` writes FMUs, connections and parameter values
 as one ``.ssp`` archive: ``SystemStructure.ssd`` (components, connectors, connections, the
 default experiment), one ``.ssv`` parameter set per instance, all named ``PARAMETER_SET``,
 and the FMUs themselves in ``resources/``. FMU inputs driven by the Python side (master
@@ -13,6 +13,6 @@ says what the export leaves out.
 """
 from cosim.ssp.errors import SspError
 from cosim.ssp.read import SspSystem, load_ssp
-from cosim.ssp.write import PARAMETER_SET, export_document, export_ssp
+from cosim.ssp.write import PARAMETER_SET, export_document
 
-__all__ = ["PARAMETER_SET", "SspError", "SspSystem", "export_document", "export_ssp", "load_ssp"]
+__all__ = ["PARAMETER_SET", "SspError", "SspSystem", "export_document", "load_ssp"]

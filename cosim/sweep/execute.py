@@ -103,7 +103,7 @@ class SweepResult:
 
     def variant(self, index: int):
         """A :class:`cosim.api.RunResult` of variant ``index``'s folder (summary, time series, figures)."""
-        from cosim.api import RunResult
+        from cosim.runs.result import RunResult
 
         return RunResult(self.rows[index]["folder"])
 

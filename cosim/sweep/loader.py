@@ -43,11 +43,10 @@ from cosim.scenario import ScenarioError, load_document, load_scenario
 from cosim.scenario.loader import NAME_PATTERN, Scenario, read_toml_file, resolve_path
 from cosim.scenario.schema import AnyValue, Field, FilePath, Integer, List, String, Table, Where, validate
 from cosim.sweep.axes import DISTRIBUTION, DISTRIBUTIONS, GRID, SEEDS, Axis, distribution_draws, seed_values
-from cosim.scenario.keypath import (KeyPath, KeyPathSyntaxError, absolute_paths, format_key_path, get_path,
-                                 overlapping, parse_key_path, spec_at, with_value)
+from cosim.scenario.keypath import (FIXED_KEYS, KeyPath, KeyPathSyntaxError, absolute_paths, flatten_overrides,
+                                    format_key_path, get_path, overlapping, parse_key_path, scenario_key_path, spec_at,
+                                    with_value)
 
-#: Key paths a sweep may not vary (they name the run, not the experiment).
-FIXED_KEYS: tuple[KeyPath, ...] = (("scenario", "name"), ("scenario", "job"), ("output",))
 #: Figure kinds of [report]: every variant as a dot plus the mean per x value, or a box per x value.
 REPORT_KINDS = ("points", "box")
 
@@ -262,44 +261,9 @@ def variant_hash(job: str, document: dict[str, Any]) -> str:
     return hashlib.sha256(text.encode("utf-8")).hexdigest()[:16]
 
 
-def scenario_key_path(text: str, where: Where, base: Scenario, what: str = "axis") -> KeyPath:
-    """Parse and check a key path against the base job's schema; ScenarioError at ``where`` otherwise.
-
-    ``what`` names the key path in the error (``"axis"``, ``"override"``).
-    """
-    try:
-        path = parse_key_path(text)
-        spec_at(base.job.schema, path, base.raw)
-    except KeyPathSyntaxError as exc:
-        raise where.error(f"a key path of the {base.job.name!r} job's scenario (e.g. 'section.key', "
-                          f"'list[0].key', quoted keys '\"q0[2]\"')", text, problem=f"unknown {what}: {exc}") from None
-    for fixed in FIXED_KEYS:
-        if overlapping(path, fixed):
-            raise where.error(f"a key other than {format_key_path(fixed)} (a sweep names its variants itself; a run "
-                              f"is named by its scenario and placed by its out folder)", text,
-                              problem="not a sweep axis" if what == "axis" else f"not a valid {what}")
-    return path
-
-
 def _file_value(base: Scenario, path: KeyPath, value: Any, sweep_dir: Path) -> Any:
     """A value given in the sweep file, with relative file paths resolved against the sweep file's folder."""
     return absolute_paths(spec_at(base.job.schema, path, base.raw), value, sweep_dir)
-
-
-def flatten_overrides(table: dict[str, Any], where: Where, prefix: KeyPath = ()) -> list[tuple[KeyPath, Any, Where]]:
-    """``{"a.b": 1, "c": {"d": 2}}`` -> [(("a","b"), 1, ...), (("c","d"), 2, ...)]."""
-    out = []
-    for key, value in table.items():
-        w = where / key
-        try:
-            path = prefix + parse_key_path(key)
-        except KeyPathSyntaxError as exc:
-            raise w.error("a key path such as 'section.key'", key, problem=str(exc)) from None
-        if isinstance(value, dict):
-            out.extend(flatten_overrides(value, w, path))
-        else:
-            out.append((path, value, w))
-    return out
 
 
 def _axis(table: dict, where: Where, base: Scenario, sweep_dir: Path) -> Axis:

@@ -162,8 +162,11 @@ def run_document(document: dict[str, Any], folder: Path, anchor: str | None) -> 
     import sys
     import traceback
 
-    from cosim.api import OutputFolderError, ScenarioError, execute, load_scenario
     from cosim.master import SimulationError
+    from cosim.results.outdir import OutputFolderError
+    from cosim.runs.execute import execute
+    from cosim.runs.scenario import load_scenario
+    from cosim.scenario.errors import ScenarioError
 
     try:
         result = execute(load_scenario(document, base_dir=anchor), folder, report=False)  # the sweep's table is its view

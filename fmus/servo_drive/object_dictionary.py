@@ -12,6 +12,7 @@ import math
 from collections.abc import Mapping
 from typing import Any
 
+from fieldbus.config import FieldbusConfig
 from fieldbus.object_dictionary import ObjectDictionary, build
 from fmus.servo_drive.params import N_AXES, DriveParameters, drive_start_values, load_drive_parameters
 from robot.parameters import RobotParameters, load_parameters
@@ -33,7 +34,10 @@ def drive_values(axis: int, robot: RobotParameters | None = None, drive: DrivePa
 def drive_object_dictionary(axis: int, config: Any = None, robot: RobotParameters | None = None,
                             drive: DriveParameters | None = None,
                             overrides: Mapping[str, float] | None = None) -> ObjectDictionary:
-    """The object dictionary of the drive of ``axis`` (1..6), node id = axis."""
+    """The object dictionary of the drive of ``axis`` (1..6), node id = axis; ``config``: the bus's
+    ``FieldbusConfig`` (default: ``powerlink_defaults.toml``)."""
+    if config is None:
+        config = FieldbusConfig.from_dict({})
     robot = robot or load_parameters()
     values = drive_values(axis, robot, drive, overrides)
     j = axis - 1

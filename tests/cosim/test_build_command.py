@@ -14,7 +14,7 @@ import pytest
 
 import native
 from cosim.commands import build as build_command
-from cosim.commands.exits import InvalidInput
+from cosim.results.exits import InvalidInput
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -18,7 +18,8 @@ import pytest
 
 from cosim.cli import main
 from cosim.results.timeseries import read_series
-from fieldbus.canlog import open_log, to_blf
+from fieldbus.blf import to_blf
+from fieldbus.canlog import open_log
 from fmus.servo_drive.object_dictionary import drive_object_dictionaries
 from scenario_files import run_scenario, write_variant
 

@@ -8,7 +8,8 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
-from fieldbus.canlog import (FORMAT, CanLogReader, CanLogWriter, read_frames, to_blf)
+from fieldbus.blf import to_blf
+from fieldbus.canlog import FORMAT, CanLogReader, CanLogWriter, read_frames
 from fieldbus.recorder import RECORD, _BlfSink
 from tests.fieldbus.test_blf import random_records
 

@@ -16,8 +16,8 @@ from lxml import etree
 
 from fieldbus import telegrams
 from fieldbus.canlog import LAYOUTS
-from fieldbus.config import FieldbusConfig
 from fieldbus.device_files import reference_markdown, to_eds, to_xdd, xdd_objects
+from fieldbus.config import FieldbusConfig
 from fieldbus.object_dictionary import DATA_TYPES, ObjectDictionaryError, build
 from fmus.servo_drive.object_dictionary import drive_object_dictionaries, drive_object_dictionary, drive_values
 from fmus.servo_drive.params import drive_start_values
@@ -25,6 +25,7 @@ from fmus.servo_drive.params import drive_start_values
 ROOT = Path(__file__).resolve().parents[2]
 NS = {"x": "http://www.ethernet-powerlink.org"}
 XSI_TYPE = "{http://www.w3.org/2001/XMLSchema-instance}type"
+DEFAULTS = FieldbusConfig.from_dict({})  # powerlink_defaults.toml
 
 
 @pytest.fixture(scope="module")
@@ -115,13 +116,13 @@ def test_a_missing_or_out_of_range_parameter_is_a_clear_error():
     values = drive_values(1)
     del values["speed_kp"]
     with pytest.raises(ObjectDictionaryError, match="speed_kp"):
-        build(1, values, counts_per_rad=1e6, rated_torque=350.0)
+        build(1, values, counts_per_rad=1e6, rated_torque=350.0, config=DEFAULTS)
     values = drive_values(1)
     values["standstill_velocity"] = 1.0  # 1 rad/s is 1e6 counts/s: beyond 0x606F's UNSIGNED16
     with pytest.raises(ObjectDictionaryError, match="0x606F.*does not fit UNSIGNED16"):
-        build(1, values, counts_per_rad=1e6, rated_torque=350.0)
+        build(1, values, counts_per_rad=1e6, rated_torque=350.0, config=DEFAULTS)
     with pytest.raises(ObjectDictionaryError, match="node = 0"):
-        build(0, drive_values(1), counts_per_rad=1e6, rated_torque=350.0)
+        build(0, drive_values(1), counts_per_rad=1e6, rated_torque=350.0, config=DEFAULTS)
 
 
 def test_the_canopen_library_loads_the_eds_with_every_object_equal(ods, tmp_path):

@@ -1,6 +1,6 @@
 """Bad input gets one clear line naming file/option/key and the documented exit code, never a traceback.
 
-Exit codes (cosim/commands/exits.py, docs/reference/verdicts.md): 2 bad input or unusable output
+Exit codes (cosim/results/exits.py, docs/reference/verdicts.md): 2 bad input or unusable output
 folder, 3 failed run. Most cases run ``cosim.cli.main`` in this process (a traceback would
 fail the test as an exception); a few run ``python -m cosim`` to check stderr as a user sees it.
 """

@@ -8,7 +8,7 @@ entry down, is mapped to the source file of each frame; frames outside ``cosim/`
 numpy, the controller, the fieldbus, the standard library) are dropped and consecutive
 frames of the same file merged. What remains is the *file path* of that moment: the chain
 of ``cosim/`` files the call went down through to get there, e.g. ``cli.py >
-commands/run.py > api.py > jobs/iso9283.py > execution/... > master/... > cell/link.py``.
+commands/run.py > runs/execute.py > jobs/iso9283.py > execution/... > master/... > cell/link.py``.
 
 *Entered once per direction* means: no file path ever holds the same file twice. Going
 down, a call never comes back into a file it has already left downwards (no callback into
@@ -115,9 +115,10 @@ def test_a_simulated_cell_enters_each_file_once_per_direction(tmp_path, monkeypa
     monkeypatch.setenv("MPLBACKEND", "Agg")
     code, tracer = trace_cli(["run", str(scenario), "--out", str(tmp_path / "out"), "--quiet"])
     assert code == 0
-    # the cell was followed all the way: the CLI, the scenario loading (extends), the job, the execution, the master, the bus-cycle task
-    for name in ("cli.py", "api.py", "scenario/loader.py", "scenario/inherit.py", "scenario/files.py",
-                 "scenario/registry.py", "jobs/iso9283.py", "execution/__init__.py", "master/master.py", "cell/link.py"):
+    # followed all the way: the CLI, the scenario loading (extends), the job, the execution, the master, the bus-cycle task
+    for name in ("cli.py", "runs/scenario.py", "runs/execute.py", "scenario/loader.py", "scenario/inherit.py",
+                 "scenario/files.py", "scenario/registry.py", "jobs/iso9283.py", "execution/__init__.py",
+                 "master/master.py", "cell/link.py"):
         assert name in tracer.files, sorted(tracer.files)
     for name in ("execution/simulated.py", "execution/cell_master.py", "master/master.py", "master/access.py",
                  "cell/link.py", "tracking/laser_tracker.py"):

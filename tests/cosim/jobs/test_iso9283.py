@@ -125,7 +125,7 @@ def test_failing_fmu_stops_cleanly_with_partial_results(tmp_path):
     ])
     out = tmp_path / "out"
     code, summary = run_scenario(path, out)
-    assert code == 3  # failed run (cosim/commands/exits.py)
+    assert code == 3  # failed run (cosim/results/exits.py)
     assert summary["status"] == "failed"
     assert "fmi2Error" in summary["reason"] or "nan" in summary["reason"] or "inf" in summary["reason"]
     assert summary["failed_component"] in ("plant", "drive2")
@@ -148,7 +148,7 @@ def test_drive_fault_stops_the_controller_and_is_a_limit(tmp_path):
     ])
     out = tmp_path / "out"
     code, summary = run_scenario(path, out)
-    assert code == 4  # completed with verdict limit: the following-error supervision (cosim/commands/exits.py)
+    assert code == 4  # completed with verdict limit: the following-error supervision (cosim/results/exits.py)
     assert summary["status"] == "limit"
     assert "following_error joint 1" in summary["reason"] and "0x8611" in summary["reason"]  # CiA 402
     entry = summary["modes"]["standard"]

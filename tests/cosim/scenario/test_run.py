@@ -49,7 +49,7 @@ def test_failed_run_writes_failed_summary_and_keeps_time_series(fmu_workdir, mod
     path.write_text(FAILING.format(mode=mode))
     out = fmu_workdir / "out"
     code, summary = run_scenario(path, out)
-    assert code == 3  # failed run (cosim/commands/exits.py)
+    assert code == 3  # failed run (cosim/results/exits.py)
     assert summary["status"] == "failed" and summary["scenario"] == "failing"
     assert text in summary["reason"] and "bad at t = " in summary["reason"]
     assert summary["stopped_at_s"] == pytest.approx(stopped_at)
