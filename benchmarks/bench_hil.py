@@ -555,9 +555,15 @@ def iso_scenario(work: Path, stop_time_s: float | None = None, missing_setpoint:
     if stop_time_s is not None:
         text = replace(text, r'^stop_time = ".*"', f'stop_time = "{stop_time_s} s"')
     text = replace(text, r"^figures = true", "figures = false")
-    text = replace(text, r"^cycle_time_us = 400.*$",
-                   f"cycle_time_us = 400\nsetpoint_lookahead = {lookahead}\nsetpoint_buffer = {buffer}\n[fieldbus.thresholds]\ncn_loss_of_soc = {ISO_THRESHOLD}\n"
-                   f'cn_loss_of_preq = {ISO_THRESHOLD}\n[fieldbus.reaction]\nmissing_setpoint = "{missing_setpoint}"')
+    fieldbus = (f"cycle_time_us = 400\nsetpoint_lookahead = {lookahead}\nsetpoint_buffer = {buffer}\n[fieldbus.thresholds]\n"
+                f"cn_loss_of_soc = {ISO_THRESHOLD}\ncn_loss_of_preq = {ISO_THRESHOLD}\n[fieldbus.reaction]\n"
+                f'missing_setpoint = "{missing_setpoint}"')
+    import re
+
+    if re.search(r"^cycle_time_us = 400.*$", text, flags=re.MULTILINE):
+        text = replace(text, r"^cycle_time_us = 400.*$", fieldbus)
+    else:  # the scenario extends the cell (scenarios/cell.toml: a 400 us cycle) and has no [fieldbus] keys of its own
+        text = text.rstrip("\n") + "\n\n[fieldbus]\n" + fieldbus + "\n"
     work.mkdir(parents=True, exist_ok=True)
     path = work / f"{name}.toml"
     path.write_text(text)

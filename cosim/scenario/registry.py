@@ -45,8 +45,9 @@ def _load() -> None:
     if not _loaded:
         _loaded = True
         for module in JOB_MODULES:
-            job = importlib.import_module(module).JOB
-            _JOBS[job.name] = job
+            job = getattr(importlib.import_module(module), "JOB", None)
+            if job is not None:  # a module without JOB registered itself (register_job) while imported
+                _JOBS[job.name] = job
 
 
 def get_job(name: str) -> JobType | None:

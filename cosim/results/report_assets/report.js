@@ -38,7 +38,14 @@
     var u = bytes(p.b64);
     if (!p.z) return Promise.resolve(uniform(p, typed(u, p.dtype)));
     var stream = new Blob([u]).stream().pipeThrough(new DecompressionStream('deflate'));
-    return new Response(stream).arrayBuffer().then(function (buf) { return uniform(p, typed(new Uint8Array(buf), p.dtype)); });
+    return new Response(stream).arrayBuffer().then(function (buf) {
+      return uniform(p, typed(p.shuffle ? unshuffle(new Uint8Array(buf), p.dtype === 'f8' ? 8 : 4) : new Uint8Array(buf), p.dtype));
+    });
+  }
+  function unshuffle(src, w) {             // byte k of every value, then byte k + 1 (report.py _pack) -> values
+    var n = src.length / w, out = new Uint8Array(src.length);
+    for (var b = 0; b < w; b++) { var o = b * n; for (var i = 0; i < n; i++) out[i * w + b] = src[o + i]; }
+    return out;
   }
   var fullCache = new Map();
   function full(p) {                       // decoded once, on demand

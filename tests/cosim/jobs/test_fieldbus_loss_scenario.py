@@ -169,3 +169,29 @@ def test_two_modes_are_rejected(tmp_path):
     with pytest.raises(ScenarioError) as info:
         load_scenario(path)
     assert "controller.modes" in str(info.value) and "exactly one mode" in str(info.value)
+
+
+def test_the_report_marks_lost_frames_counters_and_the_trip_in_chromium(loss_run, browser):
+    """report.html of the loss run in headless Chromium: every injected lost frame, every step of the
+    error counters (with its value against the threshold), the thresholds reached, the fault
+    reaction, the EMCY and the stop are events at their times, each a marker on the events plot."""
+    from browser_support import console_errors, open_report, report_state
+
+    _code, out, summary = loss_run
+    open_report(browser, out / "report.html")
+    assert console_errors(browser) == []
+    rows = report_state(browser)["events"]  # time [s], run, kind, axis, value, limit, unit, reaction, detail
+    names = {"injected": "lost frame", "error": "bus counter", "threshold_reached": "bus threshold"}
+    expected = [e for e in summary["fieldbus"]["faults"] if e["event"] in names]
+    assert len(expected) > 4 and {e["event"] for e in expected} == set(names)
+    for e in expected:
+        hit = [r for r in rows if r[2] == names[e["event"]] and r[0] == f"{e['time_s']:.4f}" and r[3] == str(e["node"])
+               and f"{e['side']} {e['kind']} in cycle {e['cycle']}" in r[8]]
+        assert hit, e
+        if e["event"] != "injected":
+            assert hit[0][4] == str(e["counter"]) and hit[0][5] == str(e["threshold"]) and hit[0][6] == "counts"
+    kinds = [r[2] for r in rows]
+    assert kinds.count("lost frame") == sum(e["event"] == "injected" for e in expected)
+    assert {"fault_reaction", "emcy", "stopped"} <= set(kinds)
+    marks = browser.execute_script("return Array.from(document.getElementById('plot-events').data[0].x);")
+    assert len(marks) == len(rows) and sorted(marks) == pytest.approx(sorted(float(r[0]) for r in rows), abs=5e-5)

@@ -285,7 +285,11 @@ def _unpack(packed: dict) -> np.ndarray:
     import zlib
 
     raw = base64.b64decode(packed["b64"])
-    values = np.frombuffer(zlib.decompress(raw) if packed["z"] else raw, dtype="<" + packed["dtype"])
+    raw = zlib.decompress(raw) if packed["z"] else raw
+    width = np.dtype("<" + packed["dtype"]).itemsize
+    if packed.get("shuffle"):  # byte k of every value, then byte k + 1
+        raw = np.frombuffer(raw, dtype=np.uint8).reshape(width, -1).T.tobytes()
+    values = np.frombuffer(raw, dtype="<" + packed["dtype"])
     if "uniform" in packed:  # a time column: t0 + k dt plus the residual
         t0, dt = packed["uniform"]
         values = t0 + np.arange(values.size, dtype=np.float64) * dt + values
