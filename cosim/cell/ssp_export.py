@@ -1,4 +1,4 @@
-"""A scenario as an SSP 1.0 archive (``python -m cosim export-ssp``, docs/cosim.md "SSP").
+"""A scenario as an SSP 1.0 archive (``python -m cosim export-ssp``, docs/how-to/ssp.md).
 
 The archive itself (SSD, SSV, the FMUs) is written by :mod:`cosim.ssp`, which knows FMUs,
 connections and master variables only; this module loads the scenario and, for a robot
