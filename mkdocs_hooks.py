@@ -86,6 +86,8 @@ FIELDBUS_MARKERS = {
         lambda: __import__("fieldbus.reference", fromlist=["_"]).identifiers_markdown(),
     "<!-- generated: fieldbus.reference.telegrams_markdown (mkdocs_hooks.py) -->":
         lambda: __import__("fieldbus.reference", fromlist=["_"]).telegrams_markdown(_axis1_dictionary()),
+    "<!-- generated: fieldbus.reference.udpcycle_options_markdown (mkdocs_hooks.py) -->":
+        lambda: __import__("fieldbus.reference", fromlist=["_"]).udpcycle_options_markdown(),
     "<!-- generated: fieldbus.reference.udpcycle_markdown (mkdocs_hooks.py) -->":
         lambda: __import__("fieldbus.reference", fromlist=["_"]).udpcycle_markdown(),
 }

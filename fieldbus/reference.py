@@ -173,6 +173,35 @@ FRAME_WORDS = (
 )
 
 
+def udpcycle_options_markdown() -> str:
+    """The options of :class:`fieldbus.udpcycle.UdpCycleBus` (a scenario's ``[fieldbus.bus.options]``),
+    from its signature (defaults) and the ``Args:`` of its docstring (meanings)."""
+    import inspect
+
+    defaults = {name: p.default for name, p in inspect.signature(udpcycle.UdpCycleBus.__init__).parameters.items()
+                if p.kind is p.KEYWORD_ONLY or name == "channel"}
+    doc = inspect.getdoc(udpcycle.UdpCycleBus) or ""
+    args = doc.split("Args:", 1)[1] if "Args:" in doc else ""
+    entries: list[list[str]] = []
+    for line in args.splitlines():
+        m = re.match(r"^    (\w[\w, ]*):\s*(.*)$", line)
+        if line.startswith("        ") and entries:
+            entries[-1][1] = (entries[-1][1] + " " + line.strip()).strip()
+        elif m:
+            entries.append([m.group(1), m.group(2)])
+    out = ["| option | default | meaning |", "|---|---|---|"]
+    for names, meaning in entries:
+        keys = [n.strip() for n in names.split(",")]
+        missing = [k for k in keys if k not in defaults]
+        if missing:
+            raise ValueError(f"UdpCycleBus docstring names {missing}, not parameters of its constructor")
+        shown = ", ".join("required" if defaults[k] is inspect.Parameter.empty or defaults[k] is None and k == "channel"
+                          else f"`{defaults[k]!r}`" for k in keys)
+        text = re.sub(r":\w+:`([^`]+)`", r"`\1`", meaning.replace("``", "`")).replace("|", "/")
+        out.append(f"| {', '.join(f'`{k}`' for k in keys)} | {shown} | {text} |")
+    return "\n".join(out) + "\n"
+
+
 def udpcycle_markdown() -> str:
     """The datagram layout of the ``udpcycle`` interface."""
     header, frame = udpcycle.HEADER, udpcycle.FRAME
@@ -186,4 +215,4 @@ def udpcycle_markdown() -> str:
     return "\n".join(out) + "\n"
 
 
-__all__ = ["identifiers_markdown", "layout", "telegrams_markdown", "udpcycle_markdown"]
+__all__ = ["identifiers_markdown", "layout", "telegrams_markdown", "udpcycle_markdown", "udpcycle_options_markdown"]
