@@ -79,6 +79,8 @@ def protection_events(cell: Any, recording: Any, fieldbus: Mapping[str, Any] | N
     ``fieldbus``: the run's fieldbus summary; a following-error window an SDO write changed
     (:func:`sdo_parameter_changes`) is the limit from the cycle it acted.
     """
+    if _streamed(recording) and not _may_have_events(recording):
+        return []  # nothing to load: the whole recording is read only when a limit or a contact shows
     columns, data = _read(recording)
     if not columns or data is None or len(data) == 0 or "time" not in columns:
         return []
@@ -103,6 +105,35 @@ def protection_events(cell: Any, recording: Any, fieldbus: Mapping[str, Any] | N
     return events
 
 
+def _streamed(recording: Any) -> bool:
+    """True for a recording streamed to a file and not loaded (read back in chunks)."""
+    return callable(getattr(recording, "chunks", None)) and getattr(recording, "_loaded", None) is None
+
+
+def _may_have_events(recording: Any) -> bool:
+    """Whether a streamed recording can hold a protection event, from one pass over chunks of the
+    trigger columns only (bounded memory, whatever the run's length): a drive's ``limit_status``
+    non-zero in some sample or its last ``limit_history`` non-zero, or a plant's
+    ``end_stop_contacts`` non-zero in some sample (NaN counts as non-zero). False means
+    :func:`protection_events` finds none; True, it reads the columns it needs for the events."""
+    columns = list(getattr(recording, "columns", None) or [])
+    status = [f"{d}.limit_status" for d in DRIVES]
+    history = [f"{d}.limit_history" for d in DRIVES]
+    contacts = [f"{PLANT}.end_stop_contacts[{k}]" for k in range(1, len(DRIVES) + 1)]
+    always = [name for name in status + contacts if name in columns]
+    last = [name for name in history if name in columns]
+    if not always and not last:
+        return False
+    tail = None
+    for _, block in recording.chunks(always + last):
+        if len(block) == 0:
+            continue
+        if (block[:, :len(always)] != 0).any():
+            return True
+        tail = block[-1, len(always):]
+    return tail is not None and bool((tail != 0).any())
+
+
 def _read(recording: Any) -> tuple[list[str], np.ndarray | None]:
     """The columns the events need (time, the protection signals, joint angles and speeds, drive
     torques, currents and following errors) of a recording; a streamed file is read in chunks of
@@ -113,10 +144,8 @@ def _read(recording: Any) -> tuple[list[str], np.ndarray | None]:
     wanted = [name for name in columns if name == "time" or name in PROTECTION_SIGNALS
               or name.startswith((f"{PLANT}.q[", f"{PLANT}.qd["))
               or name.endswith((".tau_out", ".current_actual", ".following_error"))]
-    chunks = getattr(recording, "chunks", None)
-    loaded = getattr(recording, "_loaded", None) is not None
-    if callable(chunks) and not loaded:
-        parts = [block for _, block in chunks(wanted)]
+    if _streamed(recording):
+        parts = [block for _, block in recording.chunks(wanted)]
         return wanted, (np.concatenate(parts) if parts else np.zeros((0, len(wanted))))
     data = getattr(recording, "data", None)
     if data is None:
