@@ -131,7 +131,10 @@ def test_readme_starts_with_the_two_commands():
         "README: the commands come right after the title and one short paragraph"
     assert first.group(1) == "bash"
     commands = [line for line in first.group(2).splitlines() if line.strip()]
-    assert commands == ['python -m pip install -e ".[test]"', "python -m cosim run scenarios/iso9283.toml"], commands
+    # the first installs everything and runs the main job, the second runs the tests (.ci/run runs it)
+    assert commands == ['python -m pip install -e ".[test]" && python -m cosim build && '
+                        "python -m cosim run scenarios/iso9283.toml", "python -m pytest -n 2"], commands
+    assert "python -m pytest -n 2" in (ROOT / ".ci" / "run").read_text(encoding="utf-8")
     assert (ROOT / "scenarios" / "iso9283.toml").is_file()
 
 

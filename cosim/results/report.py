@@ -276,11 +276,26 @@ def _pack_time(t: np.ndarray) -> dict[str, Any]:
     return _pack(t, "f8", deflate=True)
 
 
-def _urdf_chain() -> dict[str, Any]:
-    """The arm's joint chain from the robot's URDF (origins, rpy, axes) for the 3D view."""
+#: Sides of each link's cylinder in the 3D view (2 * sides + 2 vertices per link: few, so a
+#: scrub moves a few hundred vertices).
+SOLID_SIDES = 16
+#: Radius of each link's cylinder in the 3D view, m, where the URDF gives the link no collision or
+#: visual geometry (rx130l.urdf gives none). Source: a display assumption sized by eye to the
+#: RX130L's proportions (heavy base and shoulder, slimmer arm, wrist and flange): not a datasheet
+#: figure and not a collision model. A link not named here gets :data:`DEFAULT_LINK_RADIUS_M`.
+LINK_RADIUS_M = {"base_link": 0.16, "link_1": 0.13, "link_2": 0.09, "link_3": 0.08, "link_4": 0.065,
+                 "link_5": 0.05, "link_6": 0.04}
+#: Radius, m, of the cylinder of a link neither the URDF nor :data:`LINK_RADIUS_M` sizes (display assumption).
+DEFAULT_LINK_RADIUS_M = 0.05
+
+
+def _urdf_chain(urdf: Path | None = None) -> dict[str, Any]:
+    """The arm's joint chain from the robot's URDF (origins, rpy, axes) and its links' solids
+    (:func:`link_solids`) for the 3D view."""
     import xml.etree.ElementTree as ET
 
-    root = ET.parse(ROBOT_DIR / URDF_FILE).getroot()
+    urdf = ROBOT_DIR / URDF_FILE if urdf is None else Path(urdf)
+    root = ET.parse(urdf).getroot()
     joints = {j.get("name"): j for j in root.findall("joint")}
     by_parent = {j.find("parent").get("link"): j for j in joints.values()}
     chain, link = [], "base_link"
@@ -288,12 +303,64 @@ def _urdf_chain() -> dict[str, Any]:
         joint = by_parent[link]
         origin = joint.find("origin")
         axis = joint.find("axis")
-        chain.append({"name": joint.get("name"), "type": joint.get("type"),
+        chain.append({"name": joint.get("name"), "type": joint.get("type"), "parent": link,
                       "xyz": [float(v) for v in (origin.get("xyz", "0 0 0") if origin is not None else "0 0 0").split()],
                       "rpy": [float(v) for v in (origin.get("rpy", "0 0 0") if origin is not None else "0 0 0").split()],
                       "axis": [float(v) for v in (axis.get("xyz", "0 0 1") if axis is not None else "0 0 1").split()]})
         link = joint.find("child").get("link")
-    return {"robot": root.get("name"), "file": URDF_FILE, "chain": chain}
+    links = {lk.get("name"): lk for lk in root.findall("link")}
+    return {"robot": root.get("name"), "file": urdf.name, "chain": chain, "solids": link_solids(chain, links)}
+
+
+def _link_radius(link: Any) -> tuple[float, str]:
+    """A link's cylinder radius (m) and where it comes from: the URDF's collision, else visual,
+    geometry (a cylinder's or sphere's radius; a box's half larger cross-section side, x or y), else
+    :data:`LINK_RADIUS_M` (a mesh is not loaded: its link gets the table's radius too)."""
+    name = link.get("name") if link is not None else None
+    for kind in ("collision", "visual"):
+        for element in (link.findall(kind) if link is not None else ()):
+            for shape in element.findall("geometry/*"):
+                if shape.tag in ("cylinder", "sphere") and shape.get("radius"):
+                    return float(shape.get("radius")), f"URDF {kind} {shape.tag}"
+                if shape.tag == "box" and shape.get("size"):
+                    x, y, _ = (float(v) for v in shape.get("size").split())
+                    return max(x, y) / 2, f"URDF {kind} box"
+    if name in LINK_RADIUS_M:
+        return LINK_RADIUS_M[name], "report.py LINK_RADIUS_M"
+    return DEFAULT_LINK_RADIUS_M, "report.py DEFAULT_LINK_RADIUS_M"
+
+
+def link_solids(chain: list[dict[str, Any]], links: dict[str, Any]) -> dict[str, Any]:
+    """Each link as a cylinder in its own frame, from its origin to the next joint's origin, with
+    :data:`SOLID_SIDES` sides: vertex 0 is the link frame's origin, vertex 1 the next joint's, then
+    the ring around vertex 0 and the ring around vertex 1 (the ring starts on the link frame's x
+    axis, so it turns with the link). The page moves each link's vertices by its frame's pose at
+    the cursor; ``i``/``j``/``k`` are the triangles of one link (the same for every link)."""
+    n = SOLID_SIDES
+    out = []
+    for index, joint in enumerate(chain):
+        end = np.array(joint["xyz"], dtype=float)
+        length = float(np.linalg.norm(end))
+        if length < 1e-9:
+            continue  # two frames at one point: no solid between them
+        u = end / length
+        ref = np.array([1.0, 0.0, 0.0]) if abs(u[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+        v1 = ref - ref.dot(u) * u
+        v1 /= np.linalg.norm(v1)
+        v2 = np.cross(u, v1)
+        radius, source = _link_radius(links.get(joint["parent"]))
+        angle = 2 * np.pi * np.arange(n) / n
+        ring = radius * (np.cos(angle)[:, None] * v1 + np.sin(angle)[:, None] * v2)
+        vertices = np.vstack([np.zeros(3), end, ring, end + ring])
+        out.append({"link": joint["parent"], "joint": joint["name"], "chain_index": index, "radius_m": radius, "radius_from": source,
+                    "vertices": [float(v) for v in vertices.ravel()]})
+    a = 2 + np.arange(n)
+    b = 2 + (np.arange(n) + 1) % n
+    c, d = a + n, b + n
+    faces = np.vstack([np.column_stack([a, b, d]), np.column_stack([a, d, c]),
+                       np.column_stack([np.zeros(n, int), b, a]), np.column_stack([np.ones(n, int), c, d])])
+    return {"sides": n, "per_link": 2 * n + 2, "links": out,
+            "i": faces[:, 0].tolist(), "j": faces[:, 1].tolist(), "k": faces[:, 2].tolist()}
 
 
 def _current_limits() -> dict[str, Any] | None:
@@ -380,7 +447,7 @@ def _run_data(run: Run, label: str, colour: str, summary: dict[str, Any] | None,
         pick = np.unique(np.linspace(0, t.size - 1, min(t.size, ARM_FRAMES)).astype(np.int64))
         q = np.column_stack([ts[f"plant.q[{j}]"][pick] for j in range(1, 7)])
         ok = np.isfinite(q).all(axis=1)
-        out["arm"] = {"t": _pack(t[pick][ok], "f8"), "q": _pack(q[ok].ravel(), "f4")}
+        out["arm"] = {"t": _pack(t[pick][ok], "f8"), "q": _pack(q[ok].ravel(), "f8")}  # exact: the solids are the FK of q
     tcp = columns.get("tcp", {})
     if "tcp" in times and all(f"{a}_measured" in tcp for a in "xyz"):
         t = times["tcp"]

@@ -399,14 +399,43 @@
             t * x * z - s * y, t * y * z + s * x, t * z * z + c, 0, 0, 0, 0, 1];
   }
   var chainStatic = D.urdf.chain.map(function (j) { return transform(j.xyz, j.rpy); });
-  function armPoints(q) {                   // base, every joint origin, tool0
-    var T = [1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1], pts = [[0, 0, 0]], qi = 0;
+  function linkFrames(q) {                  // the pose of each joint's parent link (base_link first)
+    var T = [1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1], frames = [], qi = 0;
     D.urdf.chain.forEach(function (j, i) {
+      frames.push(T);
       T = matMul(T, chainStatic[i]);
-      pts.push([T[3], T[7], T[11]]);
       if (j.type === 'revolute' || j.type === 'continuous') T = matMul(T, axisRotation(j.axis, q[qi++] || 0));
     });
-    return pts;
+    return frames;
+  }
+  var solids = D.urdf.solids;
+  function armSolids(q) {                   // every link's cylinder (report.py link_solids) moved by its frame at q
+    var frames = linkFrames(q), x = [], y = [], z = [];
+    solids.links.forEach(function (s) {
+      var T = frames[s.chain_index], v = s.vertices;
+      for (var n = 0; n < v.length; n += 3) {
+        x.push(T[0] * v[n] + T[1] * v[n + 1] + T[2] * v[n + 2] + T[3]);
+        y.push(T[4] * v[n] + T[5] * v[n + 1] + T[6] * v[n + 2] + T[7]);
+        z.push(T[8] * v[n] + T[9] * v[n + 1] + T[10] * v[n + 2] + T[11]);
+      }
+    });
+    return [x, y, z];
+  }
+  function armFaces() {                     // one link's triangles, repeated for each link; shaded link by link
+    var f = { i: [], j: [], k: [], facecolor: [] }, m = solids.per_link;
+    solids.links.forEach(function (s, l) {
+      for (var n = 0; n < solids.i.length; n++) {
+        f.i.push(solids.i[n] + l * m); f.j.push(solids.j[n] + l * m); f.k.push(solids.k[n] + l * m);
+      }
+    });
+    return f;
+  }
+  function shade(hex, amount) {             // a run's colour lighter (amount > 0) or darker, for alternate links
+    if (!/^#[0-9a-f]{6}$/i.test(hex)) return hex;
+    var c = parseInt(hex.slice(1), 16), out = [16, 8, 0].map(function (b) {
+      var v = (c >> b) & 255; return Math.round(amount > 0 ? v + (255 - v) * amount : v * (1 + amount));
+    });
+    return 'rgb(' + out.join(',') + ')';
   }
   var scene = document.getElementById('scene'), sceneTraces = { arm: [], cursor: [] };
   var armData = runs.map(function (r) {
@@ -459,10 +488,11 @@
     runs.forEach(function (r, k) {
       if (!armData[k]) return;
       sceneTraces.arm.push(data.length);
-      var pts = armPoints(Array.from(armData[k].q.subarray(0, 6)));
-      data.push({ type: 'scatter3d', mode: 'lines+markers', x: pts.map(function (v) { return v[0]; }), y: pts.map(function (v) { return v[1]; }),
-                  z: pts.map(function (v) { return v[2]; }), meta: k, name: r.label + ' arm', opacity: 0.9,
-                  line: { color: r.colour, width: 12 }, marker: { size: 4, color: '#333' }, hoverinfo: 'name' });
+      var xyz = armSolids(Array.from(armData[k].q.subarray(0, 6))), f = armFaces(), per = solids.i.length;
+      var colours = solids.links.map(function (s, l) { return shade(r.colour, l % 2 ? 0.35 : -0.15); });
+      data.push({ type: 'mesh3d', x: xyz[0], y: xyz[1], z: xyz[2], i: f.i, j: f.j, k: f.k, meta: k, name: r.label + ' arm',
+                  facecolor: f.i.map(function (_, n) { return colours[Math.floor(n / per)]; }), flatshading: true,
+                  lighting: { ambient: 0.6, diffuse: 0.6, specular: 0.1 }, opacity: 1, hoverinfo: 'name' });
     });
     runs.forEach(function (r, k) {
       if (!pathData[k]) return;
@@ -481,18 +511,17 @@
     return made;
   }
   var scenePending = false;
-  function updateScene() {
+  function updateScene() {                 // R.sceneDone: settles once the scene shows R.time
     if (scenePending || !scene.data || R.time === null) return;
     scenePending = true;
-    requestAnimationFrame(function () {
+    R.sceneDone = new Promise(function (done) { requestAnimationFrame(function () {
       scenePending = false;
       var xs = [], ys = [], zs = [], idx = [];
       var t = R.time, a = 0, c = 0;
       runs.forEach(function (r, k) {
         if (armData[k]) {
-          var i = nearest(t, armData[k].t), q = Array.from(armData[k].q.subarray(6 * i, 6 * i + 6)), pts = armPoints(q);
-          idx.push(sceneTraces.arm[a++]);
-          xs.push(pts.map(function (v) { return v[0]; })); ys.push(pts.map(function (v) { return v[1]; })); zs.push(pts.map(function (v) { return v[2]; }));
+          var i = nearest(t, armData[k].t), xyz = armSolids(Array.from(armData[k].q.subarray(6 * i, 6 * i + 6)));
+          idx.push(sceneTraces.arm[a++]); xs.push(xyz[0]); ys.push(xyz[1]); zs.push(xyz[2]);
         }
       });
       runs.forEach(function (r, k) {
@@ -501,8 +530,8 @@
           idx.push(sceneTraces.cursor[c++]); xs.push([m[3 * i]]); ys.push([m[3 * i + 1]]); zs.push([m[3 * i + 2]]);
         }
       });
-      if (idx.length) Plotly.restyle(scene, { x: xs, y: ys, z: zs }, idx);
-    });
+      done(idx.length ? Plotly.restyle(scene, { x: xs, y: ys, z: zs }, idx) : null);
+    }); });
   }
 
   // ---------------------------------------------------------------- readout

@@ -117,6 +117,71 @@ def test_main_job_report_in_chromium(main_run, browser, tmp_path):
     assert console_errors(browser) == []
 
 
+def check_arm_solids(browser, out: Path, mode: str, shot: Path) -> None:
+    """The 3D scene's arm of ``mode`` is one mesh3d of the URDF's links as cylinders; at a time t on
+    the timeline each link's cylinder runs from its frame's origin to the next joint's origin as
+    the robot's forward kinematics (robot.kinematics, pinocchio's model) puts them at the recorded
+    q at t (within 1e-6 m), with the radius the report states; a screenshot."""
+    from robot.kinematics import FlangeKinematics
+
+    names, data = read_series(out / f"timeseries_{mode}.parquet")
+    t = data[:, names.index("time") if "time" in names else names.index("t")]
+    q = np.column_stack([data[:, names.index(f"plant.q[{j}]")] for j in range(1, 7)])
+    k = int(np.argmax(np.abs(q).sum(axis=1)))  # a pose far from the zero one
+    browser.execute_script("return window.cosimReport.setTime(arguments[0]);", float(t[k]))
+    mesh = browser.execute_script(
+        "var R = window.cosimReport, name = arguments[0] + ' arm'; return R.sceneDone.then(function () {"
+        "  var tr = document.getElementById('scene').data.find(function (d) { return d.name === name; });"
+        "  return [tr.type, Array.from(tr.x), Array.from(tr.y), Array.from(tr.z), tr.i.length, R.data.urdf.solids, R.time]; });", mode)
+    kind, x, y, z, faces, solids, shown_t = mesh
+    assert kind == "mesh3d" and shown_t == t[k]
+    links = solids["links"]
+    per = solids["per_link"]
+    assert [s["link"] for s in links] == ["base_link", *(f"link_{j}" for j in range(1, 7))]
+    assert len(x) == len(links) * per == len(links) * (2 * solids["sides"] + 2) and faces == len(links) * 4 * solids["sides"]
+    vertices = np.column_stack([x, y, z]).reshape(len(links), per, 3)
+    frames = FlangeKinematics().chain_frames(q[k])
+    points = np.vstack([np.zeros(3), frames.joint_origins[0], frames.flange_position[0]])  # base, joints 1-6, tool0
+    np.testing.assert_allclose(vertices[:, 0], points[:-1], rtol=0, atol=1e-6)
+    np.testing.assert_allclose(vertices[:, 1], points[1:], rtol=0, atol=1e-6)
+    for solid, v in zip(links, vertices):  # each ring at the link's radius around its axis
+        axis = (v[1] - v[0]) / np.linalg.norm(v[1] - v[0])
+        for centre, ring in ((v[0], v[2:2 + solids["sides"]]), (v[1], v[2 + solids["sides"]:])):
+            off = ring - centre
+            assert np.abs(off @ axis).max() < 1e-9
+            np.testing.assert_allclose(np.linalg.norm(off, axis=1), solid["radius_m"], rtol=0, atol=1e-9)
+    browser.execute_script("document.getElementById('scene').scrollIntoView();")
+    browser.save_screenshot(str(shot))
+    assert shot.read_bytes()[:4] == b"\x89PNG"
+
+
+def test_arm_solids_are_the_forward_kinematics_of_the_recorded_joints(main_run, browser, tmp_path):
+    out, _ = main_run
+    open_report(browser, out / "report.html")
+    for mode in MODES:
+        check_arm_solids(browser, out, mode, tmp_path / f"arm_solids_{mode}.png")
+    assert console_errors(browser) == []
+
+
+def test_link_radius_from_the_urdf_geometry(tmp_path):
+    """A link's cylinder radius is its URDF collision (else visual) cylinder's or box's, else the
+    report's table's (rx130l.urdf has no geometry: every link from LINK_RADIUS_M)."""
+    from cosim.results import report
+
+    text = (report.ROBOT_DIR / report.URDF_FILE).read_text(encoding="utf-8")
+    text = text.replace('<link name="link_2">', '<link name="link_2"><collision><geometry><cylinder radius="0.111" '
+                        'length="0.6"/></geometry></collision>', 1)
+    text = text.replace('<link name="link_3">', '<link name="link_3"><visual><geometry><box size="0.2 0.3 0.5"/>'
+                        '</geometry></visual>', 1)
+    (tmp_path / "arm.urdf").write_text(text, encoding="utf-8")
+    solids = {s["link"]: s for s in report._urdf_chain(tmp_path / "arm.urdf")["solids"]["links"]}
+    assert (solids["link_2"]["radius_m"], solids["link_2"]["radius_from"]) == (0.111, "URDF collision cylinder")
+    assert (solids["link_3"]["radius_m"], solids["link_3"]["radius_from"]) == (0.15, "URDF visual box")
+    assert solids["link_4"]["radius_m"] == report.LINK_RADIUS_M["link_4"]
+    nominal = report._urdf_chain()["solids"]["links"]
+    assert [s["radius_m"] for s in nominal] == [report.LINK_RADIUS_M[s["link"]] for s in nominal]
+
+
 @pytest.fixture(scope="module")
 def firefox():
     """One Firefox (Marionette, on a private Xvfb display) for this module; FAILS when Firefox, Xvfb or
