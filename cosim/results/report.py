@@ -801,6 +801,40 @@ def cancel(folder: Path) -> None:
     (Path(folder) / (REPORT_NAME + PART_SUFFIX)).unlink(missing_ok=True)
 
 
+FILL_IN_CHUNK = 1 << 20
+"""Characters of the prepared report read at a time by :func:`_fill_in`."""
+
+
+def _fill_in(source: Path, target: Path, tokens: dict[str, tuple[str, int]]) -> None:
+    """Copy the text file ``source`` to ``target`` replacing the first ``count`` occurrences of each
+    token by its text (``tokens``: token -> (text, count); replaced text is not searched again),
+    :data:`FILL_IN_CHUNK` characters at a time: the memory it takes does not grow with the report,
+    whose time series grow with the run (a whole copy of it and two replaced copies were held)."""
+    left = {token: count for token, (_, count) in tokens.items() if count > 0}
+    keep = max(map(len, tokens), default=1) - 1  # a token cut by a chunk's end starts in the last keep characters
+    with open(source, encoding="utf-8") as reader, open(target, "w", encoding="utf-8") as writer:
+        held, done = "", False
+        while not done:
+            chunk = reader.read(FILL_IN_CHUNK)
+            done = not chunk
+            held += chunk
+            while left:
+                hits = [(held.find(token), token) for token in left]
+                hits = [(at, token) for at, token in hits if at >= 0]
+                if not hits:
+                    break
+                at, token = min(hits)
+                writer.write(held[:at])
+                writer.write(tokens[token][0])
+                held = held[at + len(token):]
+                left[token] -= 1
+                if not left[token]:
+                    del left[token]
+            cut = len(held) if done or not left else max(len(held) - keep, 0)
+            writer.write(held[:cut])
+            held = held[cut:]
+
+
 def finish(folder: Path) -> Path:
     """Write ``folder/report.html``: the prepared part (waiting for the process of :func:`start`)
     with the summary part filled in, or the whole report when nothing was prepared."""
@@ -819,11 +853,9 @@ def finish(folder: Path) -> Path:
     out = folder / REPORT_NAME
     if ok and part.exists():
         light = collect_light([folder])
-        text = part.read_text(encoding="utf-8")
         payload = json.dumps(light, separators=(",", ":"), allow_nan=False).replace("</", "<\\/")
-        text = text.replace(TITLE_TOKEN, _escape(report_title(light)), 2).replace(LIGHT_TOKEN, payload, 1)
         tmp = out.with_name(out.name + ".tmp")
-        tmp.write_text(text, encoding="utf-8")
+        _fill_in(part, tmp, {TITLE_TOKEN: (_escape(report_title(light)), 2), LIGHT_TOKEN: (payload, 1)})
         tmp.replace(out)
         part.unlink(missing_ok=True)
         return out
