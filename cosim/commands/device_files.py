@@ -24,6 +24,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def _scenario_inputs(path: Path):
     from cosim.results.exits import CommandError
+    from cosim.scenario.errors import ScenarioError
+    from cosim.scenario.inherit import resolve
     from fieldbus.config import FieldbusConfig
 
     try:
@@ -33,6 +35,10 @@ def _scenario_inputs(path: Path):
         raise CommandError(f"--scenario {str(path)!r}: cannot read it ({exc.strerror or exc}); expected a scenario TOML file") from None
     except tomllib.TOMLDecodeError as exc:
         raise CommandError(f"--scenario {str(path)!r}: not valid TOML ({exc})") from None
+    try:  # a scenario that extends another (scenarios/cell_elastic.toml sets the drives' speed gains)
+        doc, _ = resolve(doc, path)
+    except ScenarioError as exc:
+        raise CommandError(str(exc)) from None
     try:
         config = FieldbusConfig.from_dict(doc.get("fieldbus") or {}, source=str(path))
     except ValueError as exc:

@@ -210,9 +210,13 @@ def find_base(name: Any, derived: Path | None, where_key: str = EXTENDS) -> Path
             for folder in (packaged_scenarios_dir(), _SOURCE_SCENARIOS):
                 if folder is not None:
                     candidates.append(folder / stem)
-    for candidate in candidates:
-        if candidate.is_file():
-            return candidate.resolve()
+    found = [c.resolve() for c in candidates if c.is_file()]
+    # a copy of a project scenario named like its base (cell.toml with extends = "cell") means the
+    # project's base, not itself; only a file that names nothing else is a circle (reported by resolve)
+    itself = derived.resolve() if derived is not None else None
+    others = [c for c in found if c != itself]
+    if others or found:
+        return (others or found)[0]
     raise ScenarioError(derived, where_key, expected, name, problem="no such scenario")
 
 

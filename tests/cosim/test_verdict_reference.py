@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from cosim.cell import protection, verdict
-from cosim.commands import exits
+from cosim.results import exits
 from cosim.verdict_reference import MARKERS, drive_protection_markdown, exit_codes_markdown, fill, \
     violation_kinds_markdown
 from fmus.servo_drive.params import drive_start_values

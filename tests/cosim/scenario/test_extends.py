@@ -139,6 +139,13 @@ def test_bad_extends_is_one_clear_error(tmp_path, text, problem, capsys):
     assert err.count("\n") == 1 and "loop.toml: extends: " in err and problem in err
 
 
+def test_a_copy_named_like_its_base_extends_the_projects_base(tmp_path):
+    """scenarios/iso9283_rigid.toml copied to cell.toml still extends the project's cell, not itself."""
+    copy = tmp_path / "cell.toml"
+    copy.write_text((ROOT / "scenarios" / "iso9283_rigid.toml").read_text(encoding="utf-8"), encoding="utf-8")
+    assert load_scenario(copy).data == load_scenario(ROOT / "scenarios" / "iso9283_rigid.toml").data
+
+
 def test_arrays_replace_and_tables_merge(tmp_path):
     derived = _write(tmp_path, "derived.toml", """
         extends = "iso9283"
