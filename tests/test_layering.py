@@ -85,20 +85,24 @@ COSIM_LOWER = ("master", "results", "scenario")
 COSIM_UPPER = {"jobs", "cell", "tracking", "execution", "commands", "sweep", "api", "cli"}
 
 
-def _all_imports(path: Path) -> set[str]:
-    """Every absolute module imported anywhere in ``path`` (also inside functions), except
+def _import_nodes(path: Path):
+    """The absolute import statements anywhere in ``path`` (also inside functions), except
     under ``if TYPE_CHECKING:``."""
     tree = ast.parse(path.read_text(encoding="utf-8"))
     skip = {id(n) for node in ast.walk(tree) if isinstance(node, ast.If)
             and getattr(node.test, "id", getattr(node.test, "attr", "")) == "TYPE_CHECKING"
             for n in ast.walk(node)}
+    return [node for node in ast.walk(tree) if id(node) not in skip and (
+        isinstance(node, ast.Import) or (isinstance(node, ast.ImportFrom) and node.level == 0 and node.module))]
+
+
+def _all_imports(path: Path) -> set[str]:
+    """Every absolute module imported anywhere in ``path`` (``from pkg import name`` as ``pkg``)."""
     names: set[str] = set()
-    for node in ast.walk(tree):
-        if id(node) in skip:
-            continue
+    for node in _import_nodes(path):
         if isinstance(node, ast.Import):
             names.update(alias.name for alias in node.names)
-        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+        else:
             names.add(node.module)
     return names
 
@@ -129,17 +133,11 @@ ALL_MODULES = _modules(sorted(OURS))
 def _imported_modules(path: Path) -> set[str]:
     """Like :func:`_all_imports`, with ``from pkg import name`` as the module ``pkg.name`` when
     ``pkg.name`` is one of ours (a submodule imported by name), else as ``pkg``."""
-    tree = ast.parse(path.read_text(encoding="utf-8"))
-    skip = {id(n) for node in ast.walk(tree) if isinstance(node, ast.If)
-            and getattr(node.test, "id", getattr(node.test, "attr", "")) == "TYPE_CHECKING"
-            for n in ast.walk(node)}
     names: set[str] = set()
-    for node in ast.walk(tree):
-        if id(node) in skip:
-            continue
+    for node in _import_nodes(path):
         if isinstance(node, ast.Import):
             names.update(alias.name for alias in node.names)
-        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+        else:
             submodules = {f"{node.module}.{alias.name}" for alias in node.names} & ALL_MODULES.keys()
             names.update(submodules)
             if len(submodules) < len(node.names):
