@@ -47,9 +47,9 @@ from typing import Any
 
 import can
 
-from fieldbus.canopen_node import NMT_COMMANDS, NMT_ID, CanopenNode
+from fieldbus.canopen_node import NMT_ID, CanopenNode
 from fieldbus.object_dictionary import DATA_TYPES, Entry, ObjectDictionary
-from fieldbus.sdo import NO_OBJECT, NO_SUBINDEX, SDO_RX_BASE, SDO_TX_BASE, encode_value
+from fieldbus.sdo import SDO_RX_BASE, SDO_TX_BASE, UNKNOWN_OBJECT_ABORTS, encode_value
 from fieldbus.telegrams import FastMessage
 
 #: NMT commands by the name a scenario gives (CiA 301 command specifiers, fieldbus.canopen_node)
@@ -59,7 +59,6 @@ SERVICES = ("read", "write", "raw", "nmt")
 #: CiA 402 abort connection: fault code 0x8100 / quick-stop controlword (as fieldbus.nodes)
 ABORT_CONNECTION_FAULT = 0x8100
 QUICK_STOP_CONTROLWORD = 0x0002
-UNKNOWN_OBJECT_ABORTS = (NO_OBJECT, NO_SUBINDEX)
 #: the held set-point fields of a node that takes no PDO
 _HELD = ("controlword", "position", "torque_offset", "modes_of_operation", "target_velocity", "velocity_offset",
          "target_torque")

@@ -40,14 +40,14 @@ from cosim.execution.cell_side import percentiles_us
 from cosim.execution.serve_settings import ENDPOINT_FILE, ServeSettings
 from cosim.master import EndSimulation, Master, MemorySink, SimulationError
 from fieldbus.canopen_drives import SYNC_ID, CanopenDrives, FreeMappingNode
+from fieldbus.sdo import UNKNOWN_OBJECT_ABORTS
 
 #: a SYNC more than this fraction of the cycle after its due time (previous SYNC + cycle) is late
 SYNC_LATE_FRACTION = 0.5
 #: the longest the cell blocks in one receive while it waits for a SYNC, s (heartbeats and
 #: time-outs are checked at least this often)
 POLL_S = 0.002
-#: CiA 301 abort codes counted as bad input in the served summary
-UNKNOWN_OBJECT_ABORTS = (0x06020000, 0x06090011)
+#: CiA 301 abort codes counted as bad input in the served summary (with fieldbus.sdo.UNKNOWN_OBJECT_ABORTS)
 MALFORMED_ABORTS = (0x05040001, 0x06070010, 0x05030000)
 
 
