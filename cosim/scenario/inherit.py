@@ -215,7 +215,7 @@ def find_base(name: Any, derived: Path | None, where_key: str = EXTENDS) -> Path
     # project's base, not itself; only a file that names nothing else is a circle (reported by resolve)
     itself = derived.resolve() if derived is not None else None
     others = [c for c in found if c != itself]
-    if others or found:
+    if found:
         return (others or found)[0]
     raise ScenarioError(derived, where_key, expected, name, problem="no such scenario")
 
